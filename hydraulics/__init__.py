@@ -1,0 +1,1 @@
+"""hydroplant hydraulic network (no MuJoCo import)."""

@@ -1,0 +1,738 @@
+"""Network assembly: nodes (volumes with pressure states) and branches (flow laws).
+
+A :class:`NetworkModel` is built once from a :class:`~hydraulics.circuit.Circuit`
+and is immutable; :class:`NetworkState` and :class:`NetworkControl` are made by
+the model so their sizes always match it (Newton's Model / State / Control
+split).
+
+Nodes
+    Every net of the circuit is a node.  Tank nets are *fixed* nodes (known
+    pressure); every other node holds an oil content m [m³ at the reference
+    density] and a volume V(x, p) = V_fixed + Σ chamber volumes(x) + wall
+    expansion(p) + accumulator liquid(p).  Its absolute pressure solves
+    m = V(x, p)·φ(p) (see :mod:`hydraulics.fluid`), floored at the cavitation
+    pressure (a node with too little oil holds a vapour void at that pressure).
+    At ``compressible`` fidelity the two ends of a hose are one node holding
+    the hose volume.
+
+Branches
+    Two-terminal flow laws Q(p_from, p_to) [m³/s at reference density], each
+    with analytic derivatives: orifices (fixed, valve edges, check valves),
+    laminar leaks, relief valves, pumps (sources) and motors (flow set by the
+    shaft speed).
+
+Actuators
+    Cylinders (coordinate: rod extension x [m], effort: force [N]) and motors
+    (coordinate: shaft angle [rad], effort: torque [N·m]), in circuit order.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import laws
+from .circuit import Circuit
+from .components import CircuitError
+
+# Width of the C¹ blend at a relief valve's cracking point, relative to the cracking pressure.
+RELIEF_REGULARISATION = 1e-3  # [-]
+# Pressure inversion of compliant nodes (elastic walls, accumulators).
+PRESSURE_INVERSION_MAX_ITERATIONS = 30  # converges in < 8 from the rigid guess
+PRESSURE_INVERSION_TOLERANCE = 1e-13  # on ln(V·φ/m)
+
+ACTUATOR_CYLINDER = 0
+ACTUATOR_MOTOR = 1
+
+FIDELITIES = ("compressible",)
+
+
+class _UnionFind:
+    def __init__(self):
+        self.parent = {}
+
+    def find(self, a):
+        self.parent.setdefault(a, a)
+        while self.parent[a] != a:
+            self.parent[a] = self.parent[self.parent[a]]
+            a = self.parent[a]
+        return a
+
+    def union(self, a, b):
+        ra, rb = self.find(a), self.find(b)
+        if ra != rb:
+            self.parent[max(ra, rb)] = min(ra, rb)
+
+
+@dataclass
+class NetworkState:
+    """Time-varying state of a network (made by :meth:`NetworkModel.state`).
+
+    Attributes
+    ----------
+    node_oil : ndarray, shape (node_count,)
+        Oil content of each node [m³ at reference density]; NaN for fixed nodes.
+    node_pressure : ndarray, shape (node_count,)
+        Absolute pressure of each node [Pa], consistent with ``node_oil`` and
+        ``actuator_position``.
+    valve_spool : ndarray, shape (valve_count,)
+        Spool position of each 4/3 valve [-], in [−1, 1].
+    actuator_position : ndarray, shape (actuator_count,)
+        Cylinder extension [m] or motor shaft angle [rad] the pressures refer to.
+    actuator_velocity : ndarray, shape (actuator_count,)
+        Cylinder rod speed [m/s] or motor shaft speed [rad/s].
+    time : float
+        Simulation time [s].
+    """
+
+    node_oil: np.ndarray
+    node_pressure: np.ndarray
+    valve_spool: np.ndarray
+    actuator_position: np.ndarray
+    actuator_velocity: np.ndarray
+    time: float = 0.0
+
+    def copy(self) -> "NetworkState":
+        """Deep copy."""
+        return NetworkState(
+            self.node_oil.copy(),
+            self.node_pressure.copy(),
+            self.valve_spool.copy(),
+            self.actuator_position.copy(),
+            self.actuator_velocity.copy(),
+            self.time,
+        )
+
+
+@dataclass
+class NetworkControl:
+    """Operator inputs: spool commands [-] in [−1, 1] and pump speeds [rev/s]."""
+
+    valve_command: np.ndarray
+    pump_speed: np.ndarray
+
+
+@dataclass(frozen=True)
+class BranchFlows:
+    """Flows of every branch and their derivatives, for one pressure vector.
+
+    flow : shape (branch_count,) [m³/s], positive from ``branch_from`` to ``branch_to``.
+    dflow_dfrom, dflow_dto : shape (branch_count,) [m³/(s·Pa)], derivatives with
+    respect to the pressures of the two terminal nodes.
+    """
+
+    flow: np.ndarray
+    dflow_dfrom: np.ndarray
+    dflow_dto: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class NetworkModel:
+    """Static definition of a hydraulic network (built by :meth:`from_circuit`)."""
+
+    circuit: Circuit
+    node_names: tuple
+    node_fixed: np.ndarray  # bool (node_count,)
+    node_fixed_pressure: np.ndarray  # Pa, NaN for free nodes
+    node_volume: np.ndarray  # m³, rigid volume at reference pressure
+    node_wall_compliance: np.ndarray  # m³/Pa
+    net_node: dict  # circuit net name -> node index
+    # accumulators
+    accumulator_node: np.ndarray
+    accumulator_gas_volume: np.ndarray
+    accumulator_precharge: np.ndarray
+    accumulator_index: np.ndarray
+    # actuators
+    actuator_names: tuple
+    actuator_kind: np.ndarray
+    cylinder_actuator: np.ndarray  # actuator index of each cylinder
+    cylinder_cap_node: np.ndarray
+    cylinder_rod_node: np.ndarray
+    cylinder_cap_area: np.ndarray
+    cylinder_rod_area: np.ndarray
+    cylinder_stroke: np.ndarray
+    cylinder_dead_cap: np.ndarray
+    cylinder_dead_rod: np.ndarray
+    cylinder_coulomb: np.ndarray
+    cylinder_static: np.ndarray
+    cylinder_stribeck: np.ndarray
+    cylinder_viscous: np.ndarray
+    motor_actuator: np.ndarray
+    motor_a_node: np.ndarray
+    motor_b_node: np.ndarray
+    motor_displacement: np.ndarray
+    # valves and pumps (controls)
+    valve_names: tuple
+    valve_time_constant: np.ndarray
+    valve_overlap: np.ndarray
+    pump_names: tuple
+    pump_nominal_speed: np.ndarray
+    # branches, concatenated by kind; `branch_slices[kind]` gives each kind's range
+    branch_names: tuple
+    branch_from: np.ndarray
+    branch_to: np.ndarray
+    branch_slices: dict
+    orifice_cd: np.ndarray
+    orifice_base_area: np.ndarray
+    orifice_max_area: np.ndarray
+    orifice_centre_area: np.ndarray
+    orifice_valve: np.ndarray  # valve index or -1
+    orifice_sign: np.ndarray  # +1 opens with s > 0, -1 with s < 0, 0 no metering
+    laminar_conductance: np.ndarray
+    relief_cracking: np.ndarray
+    relief_gradient: np.ndarray
+    check_cracking: np.ndarray
+    check_full_open: np.ndarray
+    check_area: np.ndarray
+    check_leakage: np.ndarray
+    check_cd: np.ndarray
+    pump_index: np.ndarray  # per pump branch: index into pump_names
+    pump_displacement: np.ndarray
+    pump_efficiency: np.ndarray
+    pump_compensator: np.ndarray  # Pa, inf for fixed pumps
+    pump_band: np.ndarray
+    motor_branch_actuator: np.ndarray
+    fidelity: str = "compressible"
+    incidence: np.ndarray = field(default=None, repr=False)  # (node_count, branch_count)
+
+    # ------------------------------------------------------------------ build
+    @classmethod
+    def from_circuit(cls, circuit: Circuit, *, fidelity: str = "compressible") -> "NetworkModel":
+        """Assemble the network of ``circuit`` at the given fidelity."""
+        if fidelity not in FIDELITIES:
+            raise CircuitError(f"{circuit.source}: fidelity {fidelity!r} is not one of {FIDELITIES}")
+        uf = _UnionFind()
+        for c in circuit.components:
+            for net in c.ports.values():
+                uf.find(net)
+        for c in circuit.by_kind("hose"):
+            uf.union(c.ports["a"], c.ports["b"])
+        roots = []
+        for c in circuit.components:
+            for net in c.ports.values():
+                r = uf.find(net)
+                if r not in roots:
+                    roots.append(r)
+        node_of = {r: i for i, r in enumerate(roots)}
+        net_node = {net: node_of[uf.find(net)] for net in uf.parent}
+        n = len(roots)
+        names = [r for r in roots]
+        fixed = np.zeros(n, bool)
+        fixed_p = np.full(n, np.nan)
+        volume = np.zeros(n)
+        wall = np.zeros(n)
+        has_chamber = np.zeros(n, bool)
+        ref = circuit.fluid.reference_pressure
+
+        def node(c, port):
+            return net_node[c.ports[port]]
+
+        for c in circuit.by_kind("tank"):
+            k = node(c, "port")
+            if fixed[k] and fixed_p[k] != c.params.pressure:
+                raise CircuitError(f"{circuit.source}: component '{c.name}': net '{c.ports['port']}' joins two tanks at different pressures")
+            fixed[k], fixed_p[k] = True, c.params.pressure
+        for c in circuit.by_kind("volume", "hose"):
+            k = node(c, "port" if c.kind == "volume" else "a")
+            volume[k] += c.params.volume
+            if math.isfinite(c.params.wall_bulk_modulus):
+                wall[k] += c.params.volume / c.params.wall_bulk_modulus
+
+        acc = circuit.by_kind("accumulator")
+        acc_node = np.array([node(c, "port") for c in acc], int)
+
+        actuators = circuit.by_kind("cylinder", "motor")
+        act_names = tuple(c.name for c in actuators)
+        act_kind = np.array([ACTUATOR_CYLINDER if c.kind == "cylinder" else ACTUATOR_MOTOR for c in actuators], int)
+        cyl = [c for c in actuators if c.kind == "cylinder"]
+        mot = [c for c in actuators if c.kind == "motor"]
+        for c in cyl:
+            has_chamber[node(c, "cap")] = True
+            has_chamber[node(c, "rod")] = True
+
+        branch_names, b_from, b_to = [], [], []
+        slices = {}
+
+        def add_branch(name, a, b):
+            branch_names.append(name)
+            b_from.append(a)
+            b_to.append(b)
+
+        # orifice-law branches: fixed orifices and valve edges
+        start = len(branch_names)
+        o_cd, o_base, o_max, o_centre, o_valve, o_sign = [], [], [], [], [], []
+
+        def add_orifice(name, a, b, cd, base, maxa=0.0, centre=0.0, valve=-1, sign=0):
+            add_branch(name, a, b)
+            o_cd.append(cd)
+            o_base.append(base)
+            o_max.append(maxa)
+            o_centre.append(centre)
+            o_valve.append(valve)
+            o_sign.append(sign)
+
+        for c in circuit.by_kind("orifice"):
+            add_orifice(c.name, node(c, "a"), node(c, "b"), c.params.discharge_coefficient, c.params.area)
+        valves = circuit.by_kind("valve_4_3")
+        for vi, c in enumerate(valves):
+            p = c.params
+            P, T, A, B = (node(c, q) for q in ("P", "T", "A", "B"))
+            for edge, a, b, sign in (("P-A", P, A, 1), ("B-T", B, T, 1), ("P-B", P, B, -1), ("A-T", A, T, -1)):
+                add_orifice(f"{c.name}.{edge}", a, b, p.discharge_coefficient, p.leakage_area, p.max_area, 0.0, vi, sign)
+            if p.centre in ("open", "tandem"):
+                add_orifice(f"{c.name}.P-T", P, T, p.discharge_coefficient, 0.0, 0.0, p.centre_area, vi, 0)
+            if p.centre == "open":
+                add_orifice(f"{c.name}.A-T(centre)", A, T, p.discharge_coefficient, 0.0, 0.0, p.centre_area, vi, 0)
+                add_orifice(f"{c.name}.B-T(centre)", B, T, p.discharge_coefficient, 0.0, 0.0, p.centre_area, vi, 0)
+        slices["orifice"] = slice(start, len(branch_names))
+
+        start = len(branch_names)
+        lam = []
+        for c in cyl:
+            if c.params.leakage_conductance > 0:
+                add_branch(f"{c.name}.leakage", node(c, "cap"), node(c, "rod"))
+                lam.append(c.params.leakage_conductance)
+        for c in mot:
+            if c.params.leakage_conductance > 0:
+                add_branch(f"{c.name}.leakage", node(c, "a"), node(c, "b"))
+                lam.append(c.params.leakage_conductance)
+        slices["laminar"] = slice(start, len(branch_names))
+
+        start = len(branch_names)
+        relief = circuit.by_kind("relief_valve")
+        for c in relief:
+            add_branch(c.name, node(c, "inlet"), node(c, "outlet"))
+        slices["relief"] = slice(start, len(branch_names))
+
+        start = len(branch_names)
+        checks = circuit.by_kind("check_valve")
+        for c in checks:
+            add_branch(c.name, node(c, "inlet"), node(c, "outlet"))
+        slices["check"] = slice(start, len(branch_names))
+
+        start = len(branch_names)
+        pumps = circuit.by_kind("pump_fixed", "pump_compensated")
+        for c in pumps:
+            add_branch(c.name, node(c, "inlet"), node(c, "outlet"))
+        slices["pump"] = slice(start, len(branch_names))
+
+        start = len(branch_names)
+        for c in mot:
+            add_branch(c.name, node(c, "a"), node(c, "b"))
+        slices["motor"] = slice(start, len(branch_names))
+
+        nb = len(branch_names)
+        b_from = np.array(b_from, int)
+        b_to = np.array(b_to, int)
+        incidence = np.zeros((n, nb))
+        incidence[b_to, np.arange(nb)] += 1.0
+        incidence[b_from, np.arange(nb)] -= 1.0
+
+        # every free node needs a volume to hold a pressure state
+        acc_nodes = set(acc_node.tolist())
+        for k in range(n):
+            if not fixed[k] and volume[k] <= 0 and not has_chamber[k] and k not in acc_nodes:
+                raise CircuitError(
+                    f"{circuit.source}: net '{names[k]}' has no volume (no hose, volume, accumulator or cylinder chamber "
+                    f"on it) and no tank: add a 'volume' or 'hose' component, or connect it"
+                )
+
+        f = np.array
+        model = cls(
+            circuit=circuit,
+            node_names=tuple(names),
+            node_fixed=fixed,
+            node_fixed_pressure=fixed_p,
+            node_volume=volume,
+            node_wall_compliance=wall,
+            net_node=net_node,
+            accumulator_node=acc_node,
+            accumulator_gas_volume=f([c.params.gas_volume for c in acc], float),
+            accumulator_precharge=f([c.params.precharge_pressure for c in acc], float),
+            accumulator_index=f([c.params.polytropic_index for c in acc], float),
+            actuator_names=act_names,
+            actuator_kind=act_kind,
+            cylinder_actuator=f([act_names.index(c.name) for c in cyl], int),
+            cylinder_cap_node=f([node(c, "cap") for c in cyl], int),
+            cylinder_rod_node=f([node(c, "rod") for c in cyl], int),
+            cylinder_cap_area=f([c.params.cap_area for c in cyl], float),
+            cylinder_rod_area=f([c.params.rod_area for c in cyl], float),
+            cylinder_stroke=f([c.params.stroke for c in cyl], float),
+            cylinder_dead_cap=f([c.params.dead_volume_cap for c in cyl], float),
+            cylinder_dead_rod=f([c.params.dead_volume_rod for c in cyl], float),
+            cylinder_coulomb=f([c.params.coulomb_friction for c in cyl], float),
+            cylinder_static=f([c.params.static_friction for c in cyl], float),
+            cylinder_stribeck=f([c.params.stribeck_velocity for c in cyl], float),
+            cylinder_viscous=f([c.params.viscous_friction for c in cyl], float),
+            motor_actuator=f([act_names.index(c.name) for c in mot], int),
+            motor_a_node=f([node(c, "a") for c in mot], int),
+            motor_b_node=f([node(c, "b") for c in mot], int),
+            motor_displacement=f([c.params.displacement for c in mot], float),
+            valve_names=tuple(c.name for c in valves),
+            valve_time_constant=f([c.params.time_constant for c in valves], float),
+            valve_overlap=f([c.params.overlap for c in valves], float),
+            pump_names=tuple(c.name for c in pumps),
+            pump_nominal_speed=f([c.params.speed for c in pumps], float),
+            branch_names=tuple(branch_names),
+            branch_from=b_from,
+            branch_to=b_to,
+            branch_slices=slices,
+            orifice_cd=f(o_cd, float),
+            orifice_base_area=f(o_base, float),
+            orifice_max_area=f(o_max, float),
+            orifice_centre_area=f(o_centre, float),
+            orifice_valve=f(o_valve, int),
+            orifice_sign=f(o_sign, float),
+            laminar_conductance=f(lam, float),
+            relief_cracking=f([c.params.cracking_pressure for c in relief], float),
+            relief_gradient=f([c.params.gradient for c in relief], float),
+            check_cracking=f([c.params.cracking_pressure for c in checks], float),
+            check_full_open=f([c.params.full_open_pressure for c in checks], float),
+            check_area=f([c.params.area for c in checks], float),
+            check_leakage=f([c.params.leakage_area for c in checks], float),
+            check_cd=f([c.params.discharge_coefficient for c in checks], float),
+            pump_index=np.arange(len(pumps)),
+            pump_displacement=f([c.params.displacement for c in pumps], float),
+            pump_efficiency=f([getattr(c.params, "volumetric_efficiency", 1.0) for c in pumps], float),
+            pump_compensator=f([getattr(c.params, "compensator_pressure", math.inf) for c in pumps], float),
+            pump_band=f([getattr(c.params, "compensator_band", 1.0) for c in pumps], float),
+            motor_branch_actuator=f([act_names.index(c.name) for c in mot], int),
+            fidelity=fidelity,
+            incidence=incidence,
+        )
+        return model
+
+    # ------------------------------------------------------------- sizes
+    @property
+    def fluid(self):
+        """The circuit's :class:`~hydraulics.fluid.Fluid`."""
+        return self.circuit.fluid
+
+    @property
+    def node_count(self) -> int:
+        return len(self.node_names)
+
+    @property
+    def actuator_count(self) -> int:
+        return len(self.actuator_names)
+
+    @property
+    def free_nodes(self) -> np.ndarray:
+        """Indices of the nodes that carry a pressure state."""
+        return np.flatnonzero(~self.node_fixed)
+
+    @property
+    def state_count(self) -> int:
+        """Number of continuous hydraulic states (node pressures and spools)."""
+        return int((~self.node_fixed).sum()) + len(self.valve_names)
+
+    def node(self, net: str) -> int:
+        """Node index of a circuit net (or of a node name)."""
+        if net in self.net_node:
+            return self.net_node[net]
+        raise KeyError(f"no net called {net!r}; nets: {sorted(self.net_node)}")
+
+    def actuator(self, name: str) -> int:
+        """Index of the cylinder or motor called ``name``."""
+        try:
+            return self.actuator_names.index(name)
+        except ValueError:
+            raise KeyError(f"no cylinder or motor called {name!r}; actuators: {list(self.actuator_names)}") from None
+
+    # ------------------------------------------------------- factories
+    def control(self, **values) -> NetworkControl:
+        """Controls with spools closed and pumps at nominal speed; keywords set valves [-] or pumps [rev/s] by name."""
+        control = NetworkControl(np.zeros(len(self.valve_names)), self.pump_nominal_speed.copy())
+        for name, value in values.items():
+            self.set_control(control, name, value)
+        return control
+
+    def set_control(self, control: NetworkControl, name: str, value: float) -> None:
+        """Set one named input: a valve's spool command [-] or a pump's speed [rev/s]."""
+        if name in self.valve_names:
+            control.valve_command[self.valve_names.index(name)] = value
+        elif name in self.pump_names:
+            control.pump_speed[self.pump_names.index(name)] = value
+        else:
+            raise KeyError(f"no valve or pump called {name!r}; inputs: {list(self.valve_names + self.pump_names)}")
+
+    def state(self, *, actuator_position=None, node_pressure=None, actuator_velocity=None) -> NetworkState:
+        """A state at the given actuator positions with the given absolute node pressures [Pa].
+
+        ``node_pressure`` defaults to the reference pressure; ``actuator_position``
+        defaults to mid-stroke for cylinders and 0 for motors.  Node oil content
+        is computed from the pressures so that the state is consistent.
+        """
+        na = self.actuator_count
+        x = np.zeros(na)
+        x[self.cylinder_actuator] = 0.5 * self.cylinder_stroke
+        if actuator_position is not None:
+            x = np.array(actuator_position, float).reshape(na)
+        v = np.zeros(na) if actuator_velocity is None else np.array(actuator_velocity, float).reshape(na)
+        p = np.full(self.node_count, self.fluid.reference_pressure)
+        if node_pressure is not None:
+            p = np.array(node_pressure, float).reshape(self.node_count)
+        p = np.where(self.node_fixed, self.node_fixed_pressure, p)
+        oil = self.oil_from_pressure(p, x)
+        state = NetworkState(oil, p, np.zeros(len(self.valve_names)), x, v, 0.0)
+        state.node_pressure = self.pressure(oil, x)[0]
+        return state
+
+    # ---------------------------------------------------- node relations
+    def node_volume_at(self, position, pressure):
+        """Node volumes V(x, p) [m³] and ∂V/∂p [m³/Pa] (chambers, walls, accumulators)."""
+        volume = self.node_volume.copy()
+        dvdp = self.node_wall_compliance.copy()
+        volume += self.node_wall_compliance * (pressure - self.fluid.reference_pressure)
+        if len(self.cylinder_cap_node):
+            vc, vr, _, _ = self.chamber_volumes(position)
+            np.add.at(volume, self.cylinder_cap_node, vc)
+            np.add.at(volume, self.cylinder_rod_node, vr)
+        if len(self.accumulator_node):
+            liquid, dliquid = laws.accumulator_liquid_volume_with_derivative(
+                pressure[self.accumulator_node], self.accumulator_gas_volume, self.accumulator_precharge, self.accumulator_index
+            )
+            np.add.at(volume, self.accumulator_node, liquid)
+            np.add.at(dvdp, self.accumulator_node, dliquid)
+        return volume, dvdp
+
+    def chamber_volumes(self, position):
+        """Cap and rod chamber volumes [m³] and dV/dx [m²] of every cylinder at actuator ``position``."""
+        return laws.chamber_volumes(
+            position[self.cylinder_actuator],
+            self.cylinder_stroke,
+            self.cylinder_cap_area,
+            self.cylinder_rod_area,
+            self.cylinder_dead_cap,
+            self.cylinder_dead_rod,
+        )
+
+    def volume_position_gradient(self, position) -> np.ndarray:
+        """∂V_node/∂x_actuator [m²], shape (node_count, actuator_count)."""
+        grad = np.zeros((self.node_count, self.actuator_count))
+        if len(self.cylinder_cap_node):
+            _, _, dvc, dvr = self.chamber_volumes(position)
+            np.add.at(grad, (self.cylinder_cap_node, self.cylinder_actuator), dvc)
+            np.add.at(grad, (self.cylinder_rod_node, self.cylinder_actuator), dvr)
+        return grad
+
+    def oil_from_pressure(self, pressure, position):
+        """Oil content m = V(x, p)·φ(p) [m³] of every node (NaN for fixed nodes)."""
+        volume, _ = self.node_volume_at(position, pressure)
+        phi, _ = self.fluid.fill_ratio(pressure)
+        return np.where(self.node_fixed, np.nan, volume * phi)
+
+    def pressure(self, oil, position):
+        """Absolute node pressures [Pa] from oil content and actuator positions.
+
+        Returns
+        -------
+        pressure : ndarray, shape (node_count,)
+            Solves m = V(x, p)·φ(p), floored at the cavitation pressure; fixed
+            nodes at their set pressure.
+        dp_doil : ndarray, shape (node_count,)
+            ∂p/∂m [Pa/m³] = 1/(∂V/∂p·φ + V·φ'); 0 for fixed and cavitating nodes.
+        """
+        fluid = self.fluid
+        fixed = self.node_fixed
+        p_rigid = np.full(self.node_count, fluid.reference_pressure)
+        volume, dvdp = self.node_volume_at(position, p_rigid)
+        volume = np.where(fixed, 1.0, volume)  # fixed nodes hold no oil state
+        p = fluid.pressure_from_fill_ratio(np.where(fixed, 1.0, oil / volume))
+        compliant = (dvdp > 0) & ~fixed
+        if compliant.any():
+            p = np.where(compliant, self._invert_compliant(oil, position, p, compliant), p)
+        floor = fluid.pressure_floor
+        cavitating = (p < floor) & ~fixed
+        p = np.where(cavitating, floor, p)
+        p = np.where(fixed, self.node_fixed_pressure, p)
+        volume, dvdp = self.node_volume_at(position, p)
+        phi, dphi = fluid.fill_ratio(p)
+        dp_doil = np.where(fixed | cavitating, 0.0, 1.0 / np.where(fixed, 1.0, dvdp * phi + volume * dphi))
+        return p, dp_doil
+
+    def _invert_compliant(self, oil, position, upper, compliant):
+        """Solve ln(V(x, p)·φ(p)) = ln m for nodes whose volume grows with pressure.
+
+        Safeguarded Newton: the rigid-volume pressure is an upper bracket (the
+        compliant volume is larger), the lower bracket is found by stepping down.
+        """
+        fluid = self.fluid
+        log_oil = np.log(np.where(compliant, oil, 1.0))
+
+        def f(p):
+            volume, dvdp = self.node_volume_at(position, p)
+            phi, dphi = fluid.fill_ratio(p)
+            volume = np.where(compliant, volume, 1.0)
+            return np.where(compliant, np.log(volume * phi) - log_oil, 0.0), dvdp / volume + dphi / phi
+
+        hi = np.where(compliant, np.maximum(upper, fluid.reference_pressure), 0.0)
+        lo = np.where(compliant, np.minimum(upper, fluid.reference_pressure), 0.0)
+        for _ in range(PRESSURE_INVERSION_MAX_ITERATIONS):
+            f_lo, _ = f(lo)
+            if np.all(f_lo <= 0):
+                break
+            lo = np.where(f_lo > 0, lo - 2.0 * (hi - lo) - fluid.reference_pressure, lo)
+        p = hi.copy()
+        for _ in range(4 * PRESSURE_INVERSION_MAX_ITERATIONS):
+            value, slope = f(p)
+            hi = np.where(value > 0, p, hi)
+            lo = np.where(value <= 0, p, lo)
+            newton = p - value / slope
+            p = np.where((newton > lo) & (newton < hi), newton, 0.5 * (lo + hi))
+            if np.all(np.abs(value) < PRESSURE_INVERSION_TOLERANCE):
+                break
+        return p
+
+    def effective_bulk_modulus(self, pressure, position):
+        """Effective bulk modulus of each node [Pa]: V·φ/(∂V/∂p·φ + V·φ'), including walls and accumulators."""
+        volume, dvdp = self.node_volume_at(position, pressure)
+        volume = np.where(self.node_fixed, 1.0, volume)  # tanks: report the oil's own modulus
+        phi, dphi = self.fluid.fill_ratio(pressure)
+        return volume * phi / (dvdp * phi + volume * dphi)
+
+    # ------------------------------------------------------------ flows
+    def valve_areas(self, spool):
+        """Open area [m²] of every orifice-law branch for the given spool positions."""
+        area = self.orifice_base_area.copy()
+        if len(self.valve_names):
+            has_valve = self.orifice_valve >= 0
+            s = np.where(has_valve, spool[np.maximum(self.orifice_valve, 0)], 0.0)
+            overlap = np.where(has_valve, self.valve_overlap[np.maximum(self.orifice_valve, 0)], 0.0)
+            area = area + self.orifice_max_area * laws.metering_opening(self.orifice_sign * s, overlap)
+            area = area + self.orifice_centre_area * laws.centre_opening(s, overlap)
+        return area
+
+    def branch_flows(self, pressure, orifice_area, pump_speed, actuator_velocity) -> BranchFlows:
+        """Flow [m³/s] of every branch and its pressure derivatives.
+
+        Parameters
+        ----------
+        pressure : ndarray, shape (node_count,)
+            Absolute node pressures [Pa].
+        orifice_area : ndarray, shape (orifice branches,)
+            From :meth:`valve_areas`.
+        pump_speed : ndarray, shape (pump_count,)
+            [rev/s].
+        actuator_velocity : ndarray, shape (actuator_count,)
+            Motor shaft speeds [rad/s] are read from it.
+        """
+        fluid = self.fluid
+        dp = pressure[self.branch_from] - pressure[self.branch_to]
+        nb = len(self.branch_names)
+        flow = np.zeros(nb)
+        dfrom = np.zeros(nb)
+        dto = np.zeros(nb)
+        sl = self.branch_slices
+
+        s = sl["orifice"]
+        q, g = laws.orifice_flow_with_derivative(orifice_area, self.orifice_cd, dp[s], fluid.density, fluid.kinematic_viscosity)
+        flow[s], dfrom[s], dto[s] = q, g, -g
+
+        s = sl["laminar"]
+        flow[s] = self.laminar_conductance * dp[s]
+        dfrom[s], dto[s] = self.laminar_conductance, -self.laminar_conductance
+
+        s = sl["relief"]
+        q, g = laws.relief_flow_with_derivative(
+            dp[s], self.relief_cracking, self.relief_gradient, RELIEF_REGULARISATION * self.relief_cracking
+        )
+        flow[s], dfrom[s], dto[s] = q, g, -g
+
+        s = sl["check"]
+        area, darea = laws.check_valve_area_with_derivative(dp[s], self.check_cracking, self.check_full_open, self.check_area, self.check_leakage)
+        q, g = laws.orifice_flow_with_derivative(area, self.check_cd, dp[s], fluid.density, fluid.kinematic_viscosity)
+        g = g + laws.orifice_flow_area_derivative(area, self.check_cd, dp[s], fluid.density, fluid.kinematic_viscosity) * darea
+        flow[s], dfrom[s], dto[s] = q, g, -g
+
+        s = sl["pump"]
+        outlet = pressure[self.branch_to[s]]
+        displacement, ddisp = laws.compensated_displacement_with_derivative(
+            self.pump_displacement, outlet, self.pump_compensator, self.pump_band
+        )
+        flow[s] = laws.pump_flow(displacement, pump_speed, self.pump_efficiency)
+        dto[s] = laws.pump_flow(ddisp, pump_speed, self.pump_efficiency)
+
+        s = sl["motor"]
+        flow[s] = laws.motor_flow(self.motor_displacement, actuator_velocity[self.motor_branch_actuator])
+        return BranchFlows(flow, dfrom, dto)
+
+    def flow_jacobian(self, flows: BranchFlows) -> np.ndarray:
+        """∂(net inflow)/∂p, shape (node_count, node_count) [m³/(s·Pa)]."""
+        n = self.node_count
+        d = np.zeros((len(self.branch_names), n))
+        idx = np.arange(len(self.branch_names))
+        np.add.at(d, (idx, self.branch_from), flows.dflow_dfrom)
+        np.add.at(d, (idx, self.branch_to), flows.dflow_dto)
+        return self.incidence @ d
+
+    def motor_flow_velocity_gradient(self) -> np.ndarray:
+        """∂(net inflow)/∂v_actuator [m³/rad], shape (node_count, actuator_count) (motors only)."""
+        grad = np.zeros((self.node_count, self.actuator_count))
+        s = self.branch_slices["motor"]
+        rate = self.motor_displacement / (2.0 * np.pi)
+        np.add.at(grad, (self.branch_from[s], self.motor_branch_actuator), -rate)
+        np.add.at(grad, (self.branch_to[s], self.motor_branch_actuator), rate)
+        return grad
+
+    # ----------------------------------------------------------- efforts
+    def actuator_effort(self, pressure, velocity):
+        """Effort of every actuator and its derivative with respect to its own velocity.
+
+        Cylinders: F = p_cap·A_cap − p_rod·A_rod − p_amb·(A_cap − A_rod) − F_friction(v) [N].
+        Motors: τ = D·(p_a − p_b)/(2π) [N·m].  The ambient pressure is the
+        fluid's reference pressure.
+
+        Returns
+        -------
+        effort : ndarray, shape (actuator_count,)
+        deffort_dvelocity : ndarray, shape (actuator_count,)
+            Friction slope only (the pressure part depends on v through the network).
+        """
+        effort = np.zeros(self.actuator_count)
+        slope = np.zeros(self.actuator_count)
+        if len(self.cylinder_actuator):
+            v = velocity[self.cylinder_actuator]
+            friction, dfriction = laws.friction_force_with_derivative(
+                v, self.cylinder_coulomb, self.cylinder_static, self.cylinder_stribeck, self.cylinder_viscous
+            )
+            effort[self.cylinder_actuator] = (
+                laws.cylinder_pressure_force(
+                    pressure[self.cylinder_cap_node],
+                    pressure[self.cylinder_rod_node],
+                    self.cylinder_cap_area,
+                    self.cylinder_rod_area,
+                    self.fluid.reference_pressure,
+                )
+                - friction
+            )
+            slope[self.cylinder_actuator] = -dfriction
+        if len(self.motor_actuator):
+            effort[self.motor_actuator] = laws.pump_torque(
+                self.motor_displacement, pressure[self.motor_a_node] - pressure[self.motor_b_node]
+            )
+        return effort, slope
+
+    def effort_pressure_gradient(self) -> np.ndarray:
+        """∂effort/∂p_node, shape (actuator_count, node_count) [m² or m³/rad]."""
+        grad = np.zeros((self.actuator_count, self.node_count))
+        np.add.at(grad, (self.cylinder_actuator, self.cylinder_cap_node), self.cylinder_cap_area)
+        np.add.at(grad, (self.cylinder_actuator, self.cylinder_rod_node), -self.cylinder_rod_area)
+        rate = self.motor_displacement / (2.0 * np.pi)
+        np.add.at(grad, (self.motor_actuator, self.motor_a_node), rate)
+        np.add.at(grad, (self.motor_actuator, self.motor_b_node), -rate)
+        return grad
+
+    def chamber_stiffness(self, pressure, position):
+        """Hydraulic stiffness β_eff·A²/V [N/m] of every cylinder's cap and rod chamber, shape (2, cylinder_count)."""
+        beta = self.effective_bulk_modulus(pressure, position)
+        volume, _ = self.node_volume_at(position, pressure)
+        cap, rod = self.cylinder_cap_node, self.cylinder_rod_node
+        return np.array(
+            [
+                laws.hydraulic_stiffness(beta[cap], self.cylinder_cap_area, volume[cap]),
+                laws.hydraulic_stiffness(beta[rod], self.cylinder_rod_area, volume[rod]),
+            ]
+        )

@@ -1,0 +1,417 @@
+"""Time steppers of a hydraulic network behind one interface.
+
+Every stepper advances a :class:`~hydraulics.network.NetworkState` over ``dt``
+given the controls and the motion of the actuators during the step
+(:class:`ActuatorMotion`), which the mechanics (a 1-DOF load, MuJoCo, the XPBD
+solver) supplies.  Subclasses implement ``_substep`` only; the base class owns
+sub-stepping, the spool update, time, counters and the failure status (as in
+scipy's ``OdeSolver`` family).
+
+* :class:`StepperExplicitEuler` — forward Euler, order 1, conditionally stable:
+  a node of volume V behind an orifice of slope G is stable only for
+  h < 2V/(β·G).  Kept as the baseline the seed report used.
+* :class:`StepperImplicitEuler` — backward Euler with Newton's method on the
+  node oil contents and the analytic Jacobian, order 1, L-stable.  Also
+  provides :meth:`StepperImplicitEuler.linearize`, the sensitivity of the
+  actuator efforts to the actuator velocities used by implicit coupling.
+* :class:`StepperReference` — ``scipy.integrate.solve_ivp`` (Radau) at tight
+  tolerance inside each step, for references.
+
+Oil moves only through branch flows, so every stepper conserves the total oil
+content of a closed network to round-off.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+from scipy.integrate import solve_ivp
+
+from . import laws
+from .network import NetworkControl, NetworkModel, NetworkState
+
+NEWTON_MAX_ITERATIONS = 30  # per (sub)step; the excavator needs 2–4
+NEWTON_PRESSURE_TOLERANCE = 1e-2  # Pa: largest pressure change of the last Newton update
+NEWTON_RELATIVE_TOLERANCE = 1e-11  # relative to the node pressure
+LINE_SEARCH_HALVINGS = 8  # backtracking steps when the residual grows
+REFERENCE_RTOL = 1e-10  # solve_ivp relative tolerance of StepperReference
+REFERENCE_PRESSURE_ATOL = 1e-3  # Pa, absolute tolerance expressed in pressure
+
+
+class StepStatus(enum.Enum):
+    """Outcome of a step."""
+
+    SUCCESS = "success"
+    NEWTON_FAILED = "Newton's method did not converge; reduce dt or add hydraulic substeps"
+    NONFINITE = "a pressure became NaN or infinite; the step size is beyond the stepper's stability limit"
+
+
+@dataclass
+class ActuatorMotion:
+    """Motion of the actuators over one step (all shape (actuator_count,)).
+
+    Cylinder positions are rod extensions [m] and velocities [m/s]; motor
+    positions are shaft angles [rad] and velocities [rad/s].  Explicit steppers
+    use the start values, implicit ones the end values.
+    """
+
+    position_start: np.ndarray
+    position_end: np.ndarray
+    velocity_start: np.ndarray
+    velocity_end: np.ndarray
+
+    @classmethod
+    def held(cls, position, velocity=None) -> "ActuatorMotion":
+        """Actuators held at ``position`` (or moving at a constant ``velocity`` whose displacement the caller ignores)."""
+        position = np.asarray(position, float)
+        velocity = np.zeros_like(position) if velocity is None else np.asarray(velocity, float)
+        return cls(position, position, velocity, velocity)
+
+    @classmethod
+    def linear(cls, position_start, velocity, dt) -> "ActuatorMotion":
+        """Constant velocity [m/s or rad/s] over ``dt`` [s] from ``position_start``."""
+        position_start = np.asarray(position_start, float)
+        velocity = np.asarray(velocity, float)
+        return cls(position_start, position_start + dt * velocity, velocity, velocity)
+
+    def at(self, fraction: float) -> tuple:
+        """Linearly interpolated (position, velocity) at ``fraction`` ∈ [0, 1] of the step."""
+        return (
+            self.position_start + fraction * (self.position_end - self.position_start),
+            self.velocity_start + fraction * (self.velocity_end - self.velocity_start),
+        )
+
+    def part(self, k: int, count: int) -> "ActuatorMotion":
+        """Motion over substep ``k`` of ``count``."""
+        x0, v0 = self.at(k / count)
+        x1, v1 = self.at((k + 1) / count)
+        return ActuatorMotion(x0, x1, v0, v1)
+
+
+@dataclass
+class StepReport:
+    """What a step did: status, message, work counters and end-of-step branch flows [m³/s]."""
+
+    status: StepStatus = StepStatus.SUCCESS
+    message: str = ""
+    newton_iterations: int = 0
+    rhs_evaluations: int = 0
+    jacobian_evaluations: int = 0
+    residual: float = 0.0
+    branch_flow: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def success(self) -> bool:
+        return self.status is StepStatus.SUCCESS
+
+    def absorb(self, other: "StepReport") -> None:
+        """Accumulate the counters of a substep and keep its status and flows."""
+        self.newton_iterations += other.newton_iterations
+        self.rhs_evaluations += other.rhs_evaluations
+        self.jacobian_evaluations += other.jacobian_evaluations
+        self.residual = max(self.residual, other.residual)
+        self.branch_flow = other.branch_flow
+        if not other.success:
+            self.status, self.message = other.status, other.message
+
+
+@dataclass(frozen=True)
+class Linearization:
+    """Actuator effort as an affine function of the end-of-step actuator velocities.
+
+    effort(v) ≈ ``effort`` + ``effort_velocity_gradient`` @ (v − ``velocity``).
+    """
+
+    velocity: np.ndarray  # (actuator_count,) where the step was linearised
+    effort: np.ndarray  # (actuator_count,) [N or N·m]
+    effort_velocity_gradient: np.ndarray  # (actuator_count, actuator_count) [N·s/m ...]
+    state: NetworkState  # the predicted end-of-step state at ``velocity``
+    report: StepReport
+
+
+class Stepper:
+    """Base class: advance a network by ``dt`` in ``substeps`` equal substeps.
+
+    Parameters
+    ----------
+    model : NetworkModel
+        The network.
+    substeps : int, keyword-only
+        Number of equal substeps per call of :meth:`step` (≥ 1); the actuator
+        motion is interpolated linearly across them.
+    """
+
+    name = "base"
+    order = None
+    implicit = False
+
+    def __init__(self, model: NetworkModel, *, substeps: int = 1):
+        if int(substeps) != substeps or substeps < 1:
+            raise ValueError(f"`substeps` must be an integer >= 1, got {substeps!r}")
+        self.model = model
+        self.substeps = int(substeps)
+        self.free = model.free_nodes
+        self.rhs_count = 0
+        self.jacobian_count = 0
+
+    def step(self, state: NetworkState, control: NetworkControl, motion: ActuatorMotion, dt: float):
+        """Advance ``state`` by ``dt`` [s]; ``state`` is not modified.
+
+        Returns
+        -------
+        state : NetworkState
+            The state at the end of the step.
+        report : StepReport
+            Status and counters; on failure the returned state is the last good
+            substep's and ``report.message`` says what to change.
+        """
+        if not dt > 0:
+            raise ValueError(f"`dt` must be positive, got {dt!r}")
+        with np.errstate(all="ignore"):  # non-finite results are detected and reported below
+            return self._step(state, control, motion, dt)
+
+    def _step(self, state, control, motion, dt):
+        h = dt / self.substeps
+        current = state
+        report = StepReport()
+        for k in range(self.substeps):
+            sub = motion if self.substeps == 1 else motion.part(k, self.substeps)
+            new, sub_report = self._substep(current, control, sub, h)
+            report.absorb(sub_report)
+            if not sub_report.success:
+                return current, report
+            if not np.all(np.isfinite(new.node_pressure)):
+                bad = self.model.node_names[int(np.flatnonzero(~np.isfinite(new.node_pressure))[0])]
+                report.status = StepStatus.NONFINITE
+                report.message = f"pressure of node '{bad}' is not finite: {StepStatus.NONFINITE.value}"
+                return current, report
+            current = new
+        return current, report
+
+    def _spool_end(self, state, control, h):
+        m = self.model
+        return laws.spool_step(state.valve_spool, np.clip(control.valve_command, -1.0, 1.0), m.valve_time_constant, h)
+
+    def _net_inflow(self, flows):
+        return self.model.incidence @ flows.flow
+
+    def _finish(self, state, oil, spool, motion, h, flows) -> NetworkState:
+        """End-of-substep state: oil moved by the flows, pressures from the new geometry."""
+        pressure, _ = self.model.pressure(oil, motion.position_end)
+        return NetworkState(oil, pressure, spool, motion.position_end.copy(), motion.velocity_end.copy(), state.time + h)
+
+    def _substep(self, state, control, motion, h):
+        raise NotImplementedError
+
+
+class StepperExplicitEuler(Stepper):
+    """Forward Euler on the oil contents: m⁺ = m + h·ΣQ(p(m, x_start), v_start).
+
+    Order 1.  Inputs held over the step (zero-order hold), which is what a
+    weak co-simulation does.  **Limitations**: unstable for stiff nodes
+    (small volumes, large bulk modulus, large orifice slopes).
+    """
+
+    name = "explicit_euler"
+    order = 1
+
+    def _substep(self, state, control, motion, h):
+        m = self.model
+        spool_end = self._spool_end(state, control, h)
+        pressure, _ = m.pressure(state.node_oil, motion.position_start)
+        flows = m.branch_flows(pressure, m.valve_areas(state.valve_spool), control.pump_speed, motion.velocity_start)
+        oil = state.node_oil.copy()
+        oil[self.free] += h * self._net_inflow(flows)[self.free]
+        self.rhs_count += 1
+        end = ActuatorMotion(motion.position_start, motion.position_end, motion.velocity_start, motion.velocity_start)
+        return self._finish(state, oil, spool_end, end, h, flows), StepReport(rhs_evaluations=1, branch_flow=flows.flow)
+
+
+class StepperImplicitEuler(Stepper):
+    """Backward Euler: m⁺ = m + h·ΣQ(p(m⁺, x_end), v_end), solved by Newton's method.
+
+    Order 1, L-stable: bounded for any step, bulk modulus and dead volume.  The
+    Jacobian I − h·(∂Q/∂p)·diag(∂p/∂m) is analytic; a backtracking line search
+    guards the first iterations after a valve slam.  Cavitating nodes have
+    ∂p/∂m = 0 (their pressure is pinned at the floor).
+    """
+
+    name = "implicit_euler"
+    order = 1
+    implicit = True
+
+    def _solve(self, state, control, position, velocity, spool, h):
+        """Newton solve of the backward-Euler oil balance; returns (oil, flows, report, jacobian pieces)."""
+        m = self.model
+        free = self.free
+        areas = m.valve_areas(spool)
+        oil0 = state.node_oil
+        oil = oil0.copy()
+        report = StepReport()
+
+        def evaluate(oil):
+            pressure, dpdm = m.pressure(oil, position)
+            flows = m.branch_flows(pressure, areas, control.pump_speed, velocity)
+            residual = oil[free] - oil0[free] - h * self._net_inflow(flows)[free]
+            report.rhs_evaluations += 1
+            return pressure, dpdm, flows, residual
+
+        pressure, dpdm, flows, residual = evaluate(oil)
+        scale = self._pressure_scale(position, pressure)
+        norm = np.max(np.abs(residual * scale), initial=0.0)
+
+        def tolerance(pressure):
+            return NEWTON_PRESSURE_TOLERANCE + NEWTON_RELATIVE_TOLERANCE * np.max(np.abs(pressure[free]), initial=0.0)
+
+        converged = not len(free) or norm < tolerance(pressure)
+        for iteration in range(NEWTON_MAX_ITERATIONS):
+            if converged:
+                break
+            jq = m.flow_jacobian(flows)[np.ix_(free, free)]
+            jacobian = np.eye(len(free)) - h * jq * dpdm[free][None, :]
+            report.jacobian_evaluations += 1
+            try:
+                delta = scipy.linalg.solve(jacobian, -residual, check_finite=False)
+            except (scipy.linalg.LinAlgError, ValueError):
+                break
+            report.newton_iterations += 1
+            step = 1.0
+            for _ in range(LINE_SEARCH_HALVINGS):
+                trial = oil.copy()
+                trial[free] += step * delta
+                t_pressure, t_dpdm, t_flows, t_residual = evaluate(trial)
+                t_norm = np.max(np.abs(t_residual * scale))
+                if np.isfinite(t_norm) and (t_norm <= norm or step < 2 ** -(LINE_SEARCH_HALVINGS - 2)):
+                    break
+                step *= 0.5
+            change = np.max(np.abs(t_pressure[free] - pressure[free]), initial=0.0)
+            oil, pressure, dpdm, flows, residual, norm = trial, t_pressure, t_dpdm, t_flows, t_residual, t_norm
+            converged = norm < tolerance(pressure) or (change < tolerance(pressure) and step == 1.0)
+        report.residual = float(norm)
+        if not converged:
+            worst = self.model.node_names[int(free[np.argmax(np.abs(residual * scale))])] if len(free) else "?"
+            report.status = StepStatus.NEWTON_FAILED
+            report.message = f"{StepStatus.NEWTON_FAILED.value} (worst node '{worst}', residual {norm:.3g} Pa)"
+        # Oil moves only by the converged flows: exact conservation whatever the tolerance.
+        oil = oil0.copy()
+        oil[free] += h * self._net_inflow(flows)[free]
+        report.branch_flow = flows.flow
+        self.rhs_count += report.rhs_evaluations
+        self.jacobian_count += report.jacobian_evaluations
+        return oil, flows, report
+
+    def _pressure_scale(self, position, pressure):
+        """β_eff/V of each free node [Pa/m³]: converts an oil residual to a pressure."""
+        m = self.model
+        volume, _ = m.node_volume_at(position, pressure)
+        beta = m.effective_bulk_modulus(pressure, position)
+        return (beta / np.maximum(volume, 1e-300))[self.free]
+
+    def _substep(self, state, control, motion, h):
+        spool_end = self._spool_end(state, control, h)
+        oil, flows, report = self._solve(state, control, motion.position_end, motion.velocity_end, spool_end, h)
+        return self._finish(state, oil, spool_end, motion, h, flows), report
+
+    def linearize(self, state: NetworkState, control: NetworkControl, velocity, dt: float) -> Linearization:
+        """Predict one backward-Euler step with end velocities ``velocity`` and differentiate the efforts.
+
+        The actuators are assumed to end at x = x_state + dt·v.  Returns the
+        efforts at ``velocity`` and ∂effort/∂v (pressure part through the
+        network, including the oil-column stiffness h·β·A²/V and valve terms,
+        plus the friction slope).
+        """
+        m = self.model
+        free = self.free
+        velocity = np.asarray(velocity, float)
+        position = state.actuator_position + dt * velocity
+        spool = self._spool_end(state, control, dt)
+        oil, flows, report = self._solve(state, control, position, velocity, spool, dt)
+        pressure, dpdm = m.pressure(oil, position)
+        phi, _ = m.fluid.fill_ratio(pressure)
+        # ∂p/∂x at fixed oil: −φ·∂V/∂x·∂p/∂m
+        dpdx = -(dpdm * phi)[:, None] * m.volume_position_gradient(position)
+        jq = m.flow_jacobian(m.branch_flows(pressure, m.valve_areas(spool), control.pump_speed, velocity))
+        drdv = -dt * (jq @ (dt * dpdx) + m.motor_flow_velocity_gradient())[free]
+        jacobian = np.eye(len(free)) - dt * jq[np.ix_(free, free)] * dpdm[free][None, :]
+        dpdv = dt * dpdx
+        if len(free):
+            doil = -scipy.linalg.solve(jacobian, drdv, check_finite=False)
+            dpdv[free] += dpdm[free][:, None] * doil
+        effort, friction_slope = m.actuator_effort(pressure, velocity)
+        gradient = m.effort_pressure_gradient() @ dpdv + np.diag(friction_slope)
+        predicted = NetworkState(oil, pressure, spool, position, velocity.copy(), state.time + dt)
+        return Linearization(velocity.copy(), effort, gradient, predicted, report)
+
+
+class StepperReference(Stepper):
+    """``solve_ivp`` (Radau, rtol 1e-10) on ṁ = ΣQ within each step, with the analytic Jacobian.
+
+    The actuator motion is interpolated linearly over the step and the spool
+    follows its exact first-order response.  Order: set by the tolerance (not
+    by dt).  Use for references and tests, not for real time.
+    """
+
+    name = "reference"
+    order = None
+    implicit = True
+
+    def _substep(self, state, control, motion, h):
+        m = self.model
+        free = self.free
+        command = np.clip(control.valve_command, -1.0, 1.0)
+        tau = m.valve_time_constant
+        oil = state.node_oil.copy()
+        report = StepReport()
+
+        def spool_at(t):
+            return laws.spool_step(state.valve_spool, command, tau, t) if t > 0 else state.valve_spool
+
+        def evaluate(t, y):
+            x, v = motion.at(t / h)
+            oil[free] = y
+            pressure, dpdm = m.pressure(oil, x)
+            flows = m.branch_flows(pressure, m.valve_areas(spool_at(t)), control.pump_speed, v)
+            return flows, dpdm
+
+        def rhs(t, y):
+            report.rhs_evaluations += 1
+            return self._net_inflow(evaluate(t, y)[0])[free]
+
+        def jac(t, y):
+            report.jacobian_evaluations += 1
+            flows, dpdm = evaluate(t, y)
+            return m.flow_jacobian(flows)[np.ix_(free, free)] * dpdm[free][None, :]
+
+        if len(free):
+            x0, _ = motion.at(0.0)
+            volume, _ = m.node_volume_at(x0, state.node_pressure)
+            beta = m.effective_bulk_modulus(state.node_pressure, x0)
+            atol = (REFERENCE_PRESSURE_ATOL * volume / beta)[free]
+            sol = solve_ivp(rhs, (0.0, h), state.node_oil[free], method="Radau", jac=jac, rtol=REFERENCE_RTOL, atol=atol)
+            if not sol.success:
+                report.status = StepStatus.NEWTON_FAILED
+                report.message = f"solve_ivp failed: {sol.message}"
+                return state, report
+            oil[free] = sol.y[:, -1]
+        flows, _ = evaluate(h, oil[free]) if len(free) else (None, None)
+        spool_end = spool_at(h)
+        if flows is None:
+            flows = m.branch_flows(state.node_pressure, m.valve_areas(spool_end), control.pump_speed, motion.velocity_end)
+        report.branch_flow = flows.flow
+        return self._finish(state, oil, spool_end, motion, h, flows), report
+
+
+STEPPERS = {cls.name: cls for cls in (StepperExplicitEuler, StepperImplicitEuler, StepperReference)}
+"""Stable names → stepper classes; any :class:`Stepper` subclass is accepted too."""
+
+
+def make_stepper(name_or_class, model: NetworkModel, **options) -> Stepper:
+    """Instantiate a stepper from its registry name or class."""
+    if isinstance(name_or_class, str):
+        if name_or_class not in STEPPERS:
+            raise ValueError(f"unknown stepper {name_or_class!r}; choose from {sorted(STEPPERS)}")
+        name_or_class = STEPPERS[name_or_class]
+    return name_or_class(model, **options)
