@@ -84,9 +84,10 @@ class Coupling:
 
         ``effective_mass`` (shape (actuator_count,), [kg or kg·m²]) lets the
         implicit scheme choose its θ per actuator; None means θ = 1.
-        ``velocity_guess`` is the plant's prediction of the end-of-step
-        velocities (e.g. v + h·a with the start-of-step forces), where the
-        implicit scheme linearises; it defaults to ``velocity``.
+        ``velocity_guess`` is where the implicit scheme linearises the
+        end-of-step velocities; it defaults to zero, i.e. the actuators held at
+        their start positions, which is always a valid state (a linearly
+        implicit Euler step with the Jacobian at the start of the step).
         """
         raise NotImplementedError
 
@@ -123,7 +124,7 @@ class CouplingImplicit(Coupling):
     def begin(self, state, control, position, velocity, dt, *, effective_mass=None, velocity_guess=None):
         model = self.model
         position = np.asarray(position, float).copy()
-        velocity = np.asarray(velocity if velocity_guess is None else velocity_guess, float).copy()
+        velocity = np.zeros_like(position) if velocity_guess is None else np.array(velocity_guess, float)
         # keep the predicted cylinder positions inside the stroke (the end stops will)
         c = model.cylinder_actuator
         velocity[c] = np.clip(velocity[c], -position[c] / dt, (model.cylinder_stroke - position[c]) / dt)

@@ -21,6 +21,8 @@ from scipy.integrate import solve_ivp
 from .coupling import make_coupling
 from .network import ACTUATOR_CYLINDER, NetworkModel, NetworkState
 
+COUPLING_VELOCITY_TOLERANCE = 1e-6  # relative change of the end velocity that ends coupling iterations
+
 
 @dataclass(frozen=True, kw_only=True)
 class MassLoad:
@@ -82,13 +84,17 @@ def simulate(
     inputs: dict | None = None,
     position=None,
     velocity: float = 0.0,
+    coupling_iterations: int = 1,
 ) -> Trajectory:
     """Step the load and the network together at a fixed ``dt`` [s] for ``duration`` [s].
 
     ``inputs`` maps valve/pump names to values or functions of time.  The
     mechanics is backward Euler in the effort law the coupling returns, with
-    inelastic end stops at 0 and the stroke.  A failed or non-finite step ends
-    the run early with ``status = "diverged"``.
+    inelastic end stops at 0 and the stroke.  With ``coupling_iterations`` > 1
+    the implicit coupling is re-linearised at the velocity just found until it
+    stops changing: Newton's method on the coupled backward-Euler step, for
+    steps far beyond the oil column's time scale.  A failed or non-finite step
+    ends the run early with ``status = "diverged"``.
     """
     inputs = inputs or {}
     a = model.actuator(load.actuator)
@@ -120,16 +126,21 @@ def simulate(
         t = n * dt
         apply_inputs(model, control, inputs, t)
         effective_mass = np.full(model.actuator_count, load.mass)
-        guess = v.copy()
-        guess[a] += dt * (model.actuator_effort(model.pressure(state.node_oil, x)[0], v)[0][a] + load.force) / load.mass
-        law = coupler.begin(state, control, x, v, dt, effective_mass=effective_mass, velocity_guess=guess)
         x_start, v_start = x.copy(), v.copy()
-        # backward Euler of m·v̇ = constant + slope·v⁺ + F_ext
-        v_new = (load.mass * v[a] + dt * (law.constant[a] + load.force)) / (load.mass - dt * law.slope[a])
-        x_new = x[a] + dt * v_new
-        if x_new > stroke or x_new < 0.0:
-            x_new = min(max(x_new, 0.0), stroke)
-            v_new = 0.0
+        guess = None
+        for _ in range(coupling_iterations):
+            law = coupler.begin(state, control, x_start, v_start, dt, effective_mass=effective_mass, velocity_guess=guess)
+            # backward Euler of m·v̇ = constant + slope·v⁺ + F_ext, with inelastic end stops
+            v_new = (load.mass * v_start[a] + dt * (law.constant[a] + load.force)) / (load.mass - dt * law.slope[a])
+            x_new = x_start[a] + dt * v_new
+            if x_new > stroke or x_new < 0.0:
+                x_new = min(max(x_new, 0.0), stroke)
+                v_new = 0.0
+            previous = 0.0 if guess is None else guess[a]
+            guess = np.zeros(model.actuator_count)
+            guess[a] = (x_new - x_start[a]) / dt
+            if abs(guess[a] - previous) <= COUPLING_VELOCITY_TOLERANCE * (1.0 + abs(guess[a])):
+                break
         x[a], v[a] = x_new, v_new
         state, report = coupler.finish(state, control, x_start, x, v_start, v, dt)
         effort = law(v)[a]

@@ -37,6 +37,11 @@ NEWTON_MAX_ITERATIONS = 30  # per (sub)step; the excavator needs 2–4
 NEWTON_PRESSURE_TOLERANCE = 1e-2  # Pa: largest pressure change of the last Newton update
 NEWTON_RELATIVE_TOLERANCE = 1e-11  # relative to the node pressure
 LINE_SEARCH_HALVINGS = 8  # backtracking steps when the residual grows
+# Trust region of one Newton update, in pressure: a node may fill its vapour void and
+# then change by at most max(TRUST_PRESSURE, TRUST_FRACTION·|p|).  Keeps the iteration
+# from jumping out of cavitation to absurd pressures after a valve slam.
+TRUST_PRESSURE = 2e6  # Pa
+TRUST_FRACTION = 0.5  # [-]
 REFERENCE_RTOL = 1e-10  # solve_ivp relative tolerance of StepperReference
 REFERENCE_PRESSURE_ATOL = 1e-3  # Pa, absolute tolerance expressed in pressure
 
@@ -83,6 +88,14 @@ class ActuatorMotion:
             self.position_start + fraction * (self.position_end - self.position_start),
             self.velocity_start + fraction * (self.velocity_end - self.velocity_start),
         )
+
+    def hermite(self, fraction: float, dt: float) -> tuple:
+        """Cubic Hermite (position, velocity) at ``fraction`` of a step of ``dt`` [s]: exact for cubic motions."""
+        s = fraction
+        x0, x1, v0, v1 = self.position_start, self.position_end, self.velocity_start * dt, self.velocity_end * dt
+        h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+        d00, d10, d01, d11 = 6 * s**2 - 6 * s, 3 * s**2 - 4 * s + 1, -6 * s**2 + 6 * s, 3 * s**2 - 2 * s
+        return h00 * x0 + h10 * v0 + h01 * x1 + h11 * v1, (d00 * x0 + d10 * v0 + d01 * x1 + d11 * v1) / dt
 
     def part(self, k: int, count: int) -> "ActuatorMotion":
         """Motion over substep ``k`` of ``count``."""
@@ -278,18 +291,19 @@ class StepperImplicitEuler(Stepper):
             except (scipy.linalg.LinAlgError, ValueError):
                 break
             report.newton_iterations += 1
-            step = 1.0
-            for _ in range(LINE_SEARCH_HALVINGS):
+            step = self._trust_step(oil, delta, position, pressure)
+            for halving in range(LINE_SEARCH_HALVINGS):
                 trial = oil.copy()
                 trial[free] += step * delta
                 t_pressure, t_dpdm, t_flows, t_residual = evaluate(trial)
                 t_norm = np.max(np.abs(t_residual * scale))
-                if np.isfinite(t_norm) and (t_norm <= norm or step < 2 ** -(LINE_SEARCH_HALVINGS - 2)):
+                if np.isfinite(t_norm) and (t_norm <= norm or halving == LINE_SEARCH_HALVINGS - 1):
                     break
                 step *= 0.5
+            full = step == 1.0
             change = np.max(np.abs(t_pressure[free] - pressure[free]), initial=0.0)
             oil, pressure, dpdm, flows, residual, norm = trial, t_pressure, t_dpdm, t_flows, t_residual, t_norm
-            converged = norm < tolerance(pressure) or (change < tolerance(pressure) and step == 1.0)
+            converged = norm < tolerance(pressure) or (change < tolerance(pressure) and full)
         report.residual = float(norm)
         if not converged:
             worst = self.model.node_names[int(free[np.argmax(np.abs(residual * scale))])] if len(free) else "?"
@@ -302,6 +316,21 @@ class StepperImplicitEuler(Stepper):
         self.rhs_count += report.rhs_evaluations
         self.jacobian_count += report.jacobian_evaluations
         return oil, flows, report
+
+    def _trust_step(self, oil, delta, position, pressure):
+        """Largest fraction ≤ 1 of the Newton update that keeps every node inside the trust region."""
+        m = self.model
+        free = self.free
+        fluid = m.fluid
+        volume, _ = m.node_volume_at(position, pressure)
+        phi_floor = fluid.fill_ratio(max(fluid.pressure_floor, -fluid.bulk_modulus))[0]
+        void = np.maximum(volume[free] * phi_floor - oil[free], 0.0)
+        allowed = void + volume[free] * np.maximum(TRUST_PRESSURE, TRUST_FRACTION * np.abs(pressure[free])) / (
+            m.effective_bulk_modulus(pressure, position)[free]
+        )
+        with np.errstate(divide="ignore"):
+            ratio = np.where(np.abs(delta) > 0, allowed / np.abs(delta), np.inf)
+        return float(min(1.0, np.min(ratio, initial=np.inf)))
 
     def _pressure_scale(self, position, pressure):
         """β_eff/V of each free node [Pa/m³]: converts an oil residual to a pressure."""
@@ -349,7 +378,8 @@ class StepperImplicitEuler(Stepper):
 class StepperReference(Stepper):
     """``solve_ivp`` (Radau, rtol 1e-10) on ṁ = ΣQ within each step, with the analytic Jacobian.
 
-    The actuator motion is interpolated linearly over the step and the spool
+    The actuator motion is a cubic Hermite interpolant of the end positions and
+    velocities (exact for motions up to cubic in time), and the spool
     follows its exact first-order response.  Order: set by the tolerance (not
     by dt).  Use for references and tests, not for real time.
     """
@@ -370,7 +400,7 @@ class StepperReference(Stepper):
             return laws.spool_step(state.valve_spool, command, tau, t) if t > 0 else state.valve_spool
 
         def evaluate(t, y):
-            x, v = motion.at(t / h)
+            x, v = motion.hermite(t / h, h)
             oil[free] = y
             pressure, dpdm = m.pressure(oil, x)
             flows = m.branch_flows(pressure, m.valve_areas(spool_at(t)), control.pump_speed, v)
