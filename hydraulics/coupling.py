@@ -124,6 +124,7 @@ class CouplingImplicit(Coupling):
     def begin(self, state, control, position, velocity, dt, *, effective_mass=None, velocity_guess=None):
         model = self.model
         position = np.asarray(position, float).copy()
+        start_velocity = np.asarray(velocity, float)
         velocity = np.zeros_like(position) if velocity_guess is None else np.array(velocity_guess, float)
         # keep the predicted cylinder positions inside the stroke (the end stops will)
         c = model.cylinder_actuator
@@ -131,22 +132,19 @@ class CouplingImplicit(Coupling):
         start = NetworkState(state.node_oil, state.node_pressure, state.valve_spool, position, velocity, state.time)
         lin = self.predictor.linearize(start, control, velocity, dt)
         self.last_linearization = lin
-        slope = np.diag(lin.effort_velocity_gradient).copy()
-        zero = np.zeros_like(velocity)
-        friction_effort, friction_slope = model.actuator_effort(lin.state.node_pressure, velocity)
-        pressure_effort_end, _ = model.actuator_effort(lin.state.node_pressure, zero)
-        friction_effort = friction_effort - pressure_effort_end
-        pressure_slope = slope - friction_slope
-        if effective_mass is None:
-            theta = np.ones_like(slope)
-        else:
-            theta = blend_factor(pressure_slope, effective_mass, dt)
+        # pressure part: backward-Euler law around the guess, blended with the start force by θ
+        _, friction_slope_at_guess = model.friction_effort(velocity)
+        pressure_slope = np.diag(lin.effort_velocity_gradient) - friction_slope_at_guess
+        pressure_end = model.pressure_effort(lin.state.node_pressure)
+        pressure_start = model.pressure_effort(model.pressure(state.node_oil, position)[0])
+        theta = np.ones_like(pressure_slope) if effective_mass is None else blend_factor(pressure_slope, effective_mass, dt)
         self.last_theta = theta
-        pressure_start, _ = model.actuator_effort(model.pressure(state.node_oil, position)[0], zero)
+        # friction depends on velocity only: linearise it at the start velocity, the best guess of v⁺
+        friction, friction_slope = model.friction_effort(start_velocity)
         constant = (
             (1.0 - theta) * pressure_start
-            + theta * (pressure_effort_end - pressure_slope * velocity)
-            + friction_effort - friction_slope * velocity
+            + theta * (pressure_end - pressure_slope * velocity)
+            + friction - friction_slope * start_velocity
         )
         return EffortLaw(constant, theta * pressure_slope + friction_slope)
 

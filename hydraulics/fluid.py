@@ -28,6 +28,7 @@ import numpy as np
 # Newton iterations when inverting φ(p) for a fluid with entrained air.
 FILL_INVERSION_MAX_ITERATIONS = 50  # converges in < 10 from the oil-only guess
 FILL_INVERSION_TOLERANCE = 1e-12  # on ln φ, i.e. ≈ β·1e-12 Pa
+POTENTIAL_QUADRATURE_POINTS = 24  # Gauss–Legendre points for μ(p) with entrained air
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -104,3 +105,19 @@ class Fluid:
             if np.all(np.abs(residual) < FILL_INVERSION_TOLERANCE):
                 break
         return p
+
+    def pressure_potential(self, pressure):
+        """μ(p) = ∫_{p_ref}^{p} dp'/φ(p') [Pa]: flow work per unit oil content (enthalpy × ρ_ref).
+
+        A flow Q of oil content between pressures p₁ and p₂ exchanges the power
+        Q·(μ(p₁) − μ(p₂)) [W]; for pure oil μ = β·(1 − exp(−(p − p_ref)/β)),
+        which is p − p_ref to first order.
+        """
+        p = np.asarray(pressure, dtype=float)
+        if self.air_fraction == 0.0:
+            return self.bulk_modulus * -np.expm1(-(p - self.reference_pressure) / self.bulk_modulus)
+        nodes, weights = np.polynomial.legendre.leggauss(POTENTIAL_QUADRATURE_POINTS)
+        half = 0.5 * (p - self.reference_pressure)
+        mid = 0.5 * (p + self.reference_pressure)
+        samples = mid[..., None] + half[..., None] * nodes
+        return half * np.sum(weights / self.fill_ratio(samples)[0], axis=-1)

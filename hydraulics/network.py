@@ -578,12 +578,14 @@ class NetworkModel:
         p = hi.copy()
         for _ in range(4 * PRESSURE_INVERSION_MAX_ITERATIONS):
             value, slope = f(p)
+            done = np.abs(value) < PRESSURE_INVERSION_TOLERANCE
+            if np.all(done):
+                break
             hi = np.where(value > 0, p, hi)
             lo = np.where(value <= 0, p, lo)
             newton = p - value / slope
-            p = np.where((newton > lo) & (newton < hi), newton, 0.5 * (lo + hi))
-            if np.all(np.abs(value) < PRESSURE_INVERSION_TOLERANCE):
-                break
+            step = np.where((newton >= lo) & (newton <= hi), newton, 0.5 * (lo + hi))
+            p = np.where(done, p, step)
         return p
 
     def effective_bulk_modulus(self, pressure, position):
@@ -678,42 +680,46 @@ class NetworkModel:
         return grad
 
     # ----------------------------------------------------------- efforts
-    def actuator_effort(self, pressure, velocity):
-        """Effort of every actuator and its derivative with respect to its own velocity.
+    def pressure_effort(self, pressure):
+        """Effort of the pressures on every actuator, shape (actuator_count,).
 
-        Cylinders: F = p_cap·A_cap − p_rod·A_rod − p_amb·(A_cap − A_rod) − F_friction(v) [N].
-        Motors: τ = D·(p_a − p_b)/(2π) [N·m].  The ambient pressure is the
-        fluid's reference pressure.
-
-        Returns
-        -------
-        effort : ndarray, shape (actuator_count,)
-        deffort_dvelocity : ndarray, shape (actuator_count,)
-            Friction slope only (the pressure part depends on v through the network).
+        Cylinders: p_cap·A_cap − p_rod·A_rod − p_amb·(A_cap − A_rod) [N], with
+        the ambient pressure = the fluid's reference pressure.  Motors:
+        τ = D·(p_a − p_b)/(2π) [N·m].
         """
         effort = np.zeros(self.actuator_count)
-        slope = np.zeros(self.actuator_count)
         if len(self.cylinder_actuator):
-            v = velocity[self.cylinder_actuator]
-            friction, dfriction = laws.friction_force_with_derivative(
-                v, self.cylinder_coulomb, self.cylinder_static, self.cylinder_stribeck, self.cylinder_viscous
+            effort[self.cylinder_actuator] = laws.cylinder_pressure_force(
+                pressure[self.cylinder_cap_node], pressure[self.cylinder_rod_node],
+                self.cylinder_cap_area, self.cylinder_rod_area, self.fluid.reference_pressure,
             )
-            effort[self.cylinder_actuator] = (
-                laws.cylinder_pressure_force(
-                    pressure[self.cylinder_cap_node],
-                    pressure[self.cylinder_rod_node],
-                    self.cylinder_cap_area,
-                    self.cylinder_rod_area,
-                    self.fluid.reference_pressure,
-                )
-                - friction
-            )
-            slope[self.cylinder_actuator] = -dfriction
         if len(self.motor_actuator):
             effort[self.motor_actuator] = laws.pump_torque(
                 self.motor_displacement, pressure[self.motor_a_node] - pressure[self.motor_b_node]
             )
+        return effort
+
+    def friction_effort(self, velocity):
+        """Seal friction acting on every actuator (−F_f(v), opposing motion) and its velocity derivative."""
+        effort = np.zeros(self.actuator_count)
+        slope = np.zeros(self.actuator_count)
+        if len(self.cylinder_actuator):
+            friction, dfriction = laws.friction_force_with_derivative(
+                velocity[self.cylinder_actuator], self.cylinder_coulomb, self.cylinder_static,
+                self.cylinder_stribeck, self.cylinder_viscous,
+            )
+            effort[self.cylinder_actuator] = -friction
+            slope[self.cylinder_actuator] = -dfriction
         return effort, slope
+
+    def actuator_effort(self, pressure, velocity):
+        """Total effort (pressure + friction) on every actuator and its derivative with respect to its own velocity.
+
+        The derivative is the friction slope only (the pressure part depends on
+        v through the network; see :meth:`StepperImplicitEuler.linearize`).
+        """
+        friction, slope = self.friction_effort(velocity)
+        return self.pressure_effort(pressure) + friction, slope
 
     def effort_pressure_gradient(self) -> np.ndarray:
         """∂effort/∂p_node, shape (actuator_count, node_count) [m² or m³/rad]."""

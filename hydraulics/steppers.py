@@ -337,7 +337,7 @@ class StepperImplicitEuler(Stepper):
         m = self.model
         volume, _ = m.node_volume_at(position, pressure)
         beta = m.effective_bulk_modulus(pressure, position)
-        return (beta / np.maximum(volume, 1e-300))[self.free]
+        return beta[self.free] / volume[self.free]
 
     def _substep(self, state, control, motion, h):
         spool_end = self._spool_end(state, control, h)

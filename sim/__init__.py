@@ -1,0 +1,1 @@
+"""hydroplant simulation layer."""

@@ -1,0 +1,215 @@
+"""MuJoCo plant: MuJoCo steps the bodies, the hydraulic network applies the actuator efforts.
+
+Each step (``mj_step1`` → coupling → ``mj_step2`` → network):
+
+1. ``mj_step1`` computes positions, velocities and the actuator moments at
+   the start of the step; cylinder extension x = tendon length − closed
+   length, motor angle = actuator length.
+2. The coupling returns each actuator's effort law f = c + b₂·v⁺ for the
+   step; the plant writes ``ctrl = c`` and ``actuator_biasprm[:, 2] = b₂``.
+   With the ``implicitfast`` integrator MuJoCo folds −h·b₂ into its implicit
+   mass matrix, so the oil-column stiffness is integrated implicitly.
+3. ``mj_step2`` integrates the bodies.
+4. The realised actuator velocities v⁺ = J(q)·q̇⁺ (with the moments MuJoCo used)
+   and positions x + h·v⁺ finish the hydraulic step.
+
+The effective mass the coupling needs to choose its θ per actuator is
+1/(J·M⁻¹·Jᵀ) from MuJoCo's factorised mass matrix.  This plant never changes
+the MJCF's bodies or joints; it only rewrites the bound actuators' gains.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from hydraulics.coupling import make_coupling
+from hydraulics.energy import branch_powers, stored_energy
+from hydraulics.equilibrium import equilibrium_state
+from hydraulics.laws import friction_force_with_derivative
+from hydraulics.load import apply_inputs
+
+from .scene import Scene, initial_qpos_qvel
+
+# MuJoCo joint types whose coordinate is one scalar (logged as joint states).
+SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+
+
+@dataclass
+class EnergyLedger:
+    """Running energy terms of a run [J]; see :mod:`hydraulics.energy`."""
+
+    pump_work: float = 0.0
+    motor_work: float = 0.0
+    dissipated_hydraulic: float = 0.0
+    dissipated_friction: float = 0.0
+    dissipated_mechanical: float = 0.0
+    initial_total: float = 0.0
+
+    def residual(self, kinetic, potential, oil) -> float:
+        """pump work − Δ(kinetic + potential + oil) − physical dissipation: the scheme's numerical loss."""
+        dissipated = self.dissipated_hydraulic + self.dissipated_friction + self.dissipated_mechanical
+        return self.pump_work - (kinetic + potential + oil - self.initial_total) - dissipated
+
+
+class MujocoPlant:
+    """Coupled MuJoCo + hydraulic network plant for one scene (see module docstring)."""
+
+    mode = "mujoco"
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        scenario = scene.scenario
+        self.model = scene.mjmodel
+        self.data = mujoco.MjData(self.model)
+        self.model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_ENERGY
+        self.network = scene.network
+        self.binding = scene.binding
+        self.dt = scenario.dt
+        self.coupling = make_coupling(
+            scenario.coupling, self.network, stepper=scenario.stepper, substeps=scenario.hydraulic_substeps
+        )
+        m = self.model
+        self.scalar_joints = np.array([j for j in range(m.njnt) if int(m.jnt_type[j]) in SCALAR_JOINTS], int)
+        self.joint_names = tuple(scene.joint_names[j] for j in self.scalar_joints)
+        self._moment = np.zeros((len(self.binding.actuator_id), m.nv))
+        self.reset()
+
+    # ------------------------------------------------------------------ setup
+    def reset(self) -> None:
+        """Initial state from the scenario; chamber pressures balance the load if it asks for equilibrium."""
+        m, d, scenario = self.model, self.data, self.scene.scenario
+        mujoco.mj_resetData(m, d)
+        d.qpos[:], d.qvel[:] = initial_qpos_qvel(self.scene)
+        mujoco.mj_forward(m, d)
+        self.step_index = 0
+        self.control = self.network.control()
+        apply_inputs(self.network, self.control, scenario.inputs, 0.0)
+        x, v = self.actuator_motion()
+        if scenario.equilibrium:
+            effort = self.holding_efforts()
+            self.net_state = equilibrium_state(
+                self.network, self.control, x, effort, base_pressure=scenario.base_pressure, pressures=scenario.pressures
+            )
+        else:
+            p = np.full(self.network.node_count, self.network.fluid.reference_pressure)
+            for net, value in scenario.pressures.items():
+                p[self.network.node(net)] = value
+            self.net_state = self.network.state(actuator_position=x, node_pressure=p, actuator_velocity=v)
+        self.net_state.actuator_velocity = v.copy()
+        self.effort = self.network.actuator_effort(self.net_state.node_pressure, v)[0]
+        self.last_report = None
+        self.theta = np.ones(self.network.actuator_count)
+        self.energy = EnergyLedger()
+        kinetic, potential = self.mechanical_energy()
+        self.energy.initial_total = kinetic + potential + stored_energy(self.network, self.net_state)
+
+    def holding_efforts(self) -> np.ndarray:
+        """Actuator efforts [N or N·m] that hold the current pose at rest (least squares over the DOFs)."""
+        m, d = self.model, self.data
+        saved = d.qvel.copy()
+        d.qvel[:] = 0.0
+        d.qacc[:] = 0.0
+        mujoco.mj_inverse(m, d)
+        moment = self.moments()
+        effort, *_ = np.linalg.lstsq(moment.T, d.qfrc_inverse.copy(), rcond=None)
+        d.qvel[:] = saved
+        mujoco.mj_forward(m, d)
+        return effort
+
+    # -------------------------------------------------------------- kinematics
+    def moments(self) -> np.ndarray:
+        """Dense actuator moments J (actuator_count × nv) of the bound actuators: v_actuator = J·q̇."""
+        d = self.data
+        J = self._moment
+        J[:] = 0.0
+        for i, aid in enumerate(self.binding.actuator_id):
+            adr, nnz = d.moment_rowadr[aid], d.moment_rownnz[aid]
+            J[i, d.moment_colind[adr : adr + nnz]] = d.actuator_moment[adr : adr + nnz]
+        return J
+
+    def actuator_motion(self):
+        """Cylinder extensions [m] / motor angles [rad] and their rates, from MuJoCo's actuator lengths."""
+        ids = self.binding.actuator_id
+        return self.data.actuator_length[ids] - self.binding.closed_length, self.data.actuator_velocity[ids].copy()
+
+    def effective_mass(self, moment: np.ndarray) -> np.ndarray:
+        """Inertia seen by each actuator, 1/(J·M⁻¹·Jᵀ)ᵢᵢ [kg or kg·m²]."""
+        solved = np.zeros_like(moment)
+        mujoco.mj_solveM(self.model, self.data, solved, moment)
+        inverse = np.einsum("ij,ij->i", moment, solved)
+        with np.errstate(divide="ignore"):
+            return np.where(inverse > 0, 1.0 / inverse, np.inf)
+
+    def mechanical_energy(self):
+        """Kinetic and potential energy of the bodies [J] at the current state.
+
+        Refreshes the position-dependent quantities first (``mj_fwdPosition``),
+        which the next ``mj_step1`` recomputes anyway, so observing never
+        changes the trajectory.
+        """
+        mujoco.mj_fwdPosition(self.model, self.data)
+        mujoco.mj_energyPos(self.model, self.data)
+        mujoco.mj_energyVel(self.model, self.data)
+        return float(self.data.energy[1]), float(self.data.energy[0])
+
+    # -------------------------------------------------------------------- step
+    @property
+    def time(self) -> float:
+        return self.step_index * self.dt
+
+    def step(self):
+        """Advance one step of ``dt``; returns the hydraulic step report."""
+        m, d, net = self.model, self.data, self.network
+        dt = self.dt
+        apply_inputs(net, self.control, self.scene.scenario.inputs, self.time)
+        mujoco.mj_step1(m, d)
+        x, v = self.actuator_motion()
+        moment = self.moments().copy()
+        law = self.coupling.begin(self.net_state, self.control, x, v, dt, effective_mass=self.effective_mass(moment))
+        ids = self.binding.actuator_id
+        d.ctrl[ids] = law.constant
+        m.actuator_biasprm[ids, 2] = law.slope
+        mujoco.mj_step2(m, d)
+        v_end = moment @ d.qvel
+        x_end = x + dt * v_end
+        self.net_state, report = self.coupling.finish(self.net_state, self.control, x, x_end, v, v_end, dt)
+        self.effort = law(v_end)
+        self.theta = getattr(self.coupling, "last_theta", self.theta)
+        self.last_report = report
+        self._account(report, v_end, dt)
+        self.step_index += 1
+        return report
+
+    def _account(self, report, velocity, dt) -> None:
+        net, d = self.network, self.data
+        powers = branch_powers(net, self.net_state, report.branch_flow)
+        e = self.energy
+        e.pump_work += dt * powers["pump"]
+        e.motor_work += dt * powers["motor"]
+        e.dissipated_hydraulic += dt * powers["dissipated"]
+        if len(net.cylinder_actuator):
+            friction, _ = friction_force_with_derivative(
+                velocity[net.cylinder_actuator], net.cylinder_coulomb, net.cylinder_static, net.cylinder_stribeck, net.cylinder_viscous
+            )
+            e.dissipated_friction += dt * float(friction @ velocity[net.cylinder_actuator])
+        e.dissipated_mechanical -= dt * float((d.qfrc_passive + d.qfrc_constraint) @ d.qvel)
+
+    # ------------------------------------------------------------- observation
+    def joint_state(self):
+        """(positions, velocities) of the scalar joints [rad or m, rad/s or m/s]."""
+        m, d = self.model, self.data
+        return d.qpos[m.jnt_qposadr[self.scalar_joints]].copy(), d.qvel[m.jnt_dofadr[self.scalar_joints]].copy()
+
+    def body_poses(self):
+        """World positions [m] (nbody, 3) and quaternions (w, x, y, z) (nbody, 4) of all bodies.
+
+        Valid after :meth:`mechanical_energy` (which refreshes the kinematics).
+        """
+        return self.data.xpos, self.data.xquat
+
+    def finite(self) -> bool:
+        d = self.data
+        return bool(np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel)) and np.all(np.isfinite(self.net_state.node_pressure)))

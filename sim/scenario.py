@@ -1,0 +1,290 @@
+"""Scenario files: which scene, which run settings, which operator inputs.
+
+A scenario (TOML) names the MJCF and the circuit (paths relative to the
+scenario file), the mode and coupling, the step size and duration, the
+initial state, the operator inputs as piecewise-linear schedules (or a CSV
+file), and the log settings.  :func:`load_scenario` validates everything and
+raises :class:`ScenarioError` naming the file, the field and the allowed range.
+
+Example::
+
+    [scene]
+    mjcf = "boom.xml"
+    circuit = "boom.circuit.toml"
+    [run]
+    mode = "mujoco"            # mujoco | pbd
+    coupling = "implicit"      # implicit | explicit
+    dt = 0.001                 # s
+    duration = 6.0             # s
+    [initial]
+    qpos = { boom_hinge = 0.2 }
+    equilibrium = true
+    [inputs]
+    boom_valve = { t = [0.0, 1.0, 1.3], value = [0.0, 0.0, 1.0] }
+    [log]
+    rate_hz = 100
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from hydraulics.components import CircuitError
+
+MODES = ("mujoco", "pbd", "pbd-naive")
+COUPLINGS = ("implicit", "explicit")
+STEPPER_NAMES = ("implicit_euler", "explicit_euler", "reference")
+DEFAULT_BASE_PRESSURE = 1.0e6  # Pa absolute: the low side of a loaded cylinder at t = 0
+
+
+class ScenarioError(CircuitError):
+    """A scenario file is wrong; the message names the file and the field."""
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Piecewise-linear input u(t), held constant outside its knots."""
+
+    t: np.ndarray  # s, strictly increasing
+    value: np.ndarray
+
+    def __call__(self, time: float) -> float:
+        return float(np.interp(time, self.t, self.value))
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario (all paths absolute, all quantities SI)."""
+
+    path: Path
+    mjcf: Path
+    circuit: Path
+    mode: str = "mujoco"
+    coupling: str = "implicit"
+    stepper: str | None = None
+    dt: float = 1e-3
+    duration: float = 1.0
+    hydraulic_substeps: int = 1
+    pbd_substeps: int = 20
+    pbd_iterations: int = 1
+    fidelity: str = "compressible"
+    qpos: dict = field(default_factory=dict)
+    qvel: dict = field(default_factory=dict)
+    equilibrium: bool = True
+    base_pressure: float = DEFAULT_BASE_PRESSURE
+    pressures: dict = field(default_factory=dict)
+    inputs: dict = field(default_factory=dict)
+    log_rate_hz: float = 100.0
+    log_dir: Path | None = None
+
+    @property
+    def name(self) -> str:
+        """Scenario name: the file name without ``.scenario.toml``."""
+        return self.path.name.removesuffix(".toml").removesuffix(".scenario")
+
+    @property
+    def scene_name(self) -> str:
+        return self.path.parent.name
+
+    @property
+    def step_count(self) -> int:
+        return int(round(self.duration / self.dt))
+
+    @property
+    def log_every(self) -> int:
+        """Physics steps between logged samples (≥ 1)."""
+        return max(1, int(round(1.0 / (self.log_rate_hz * self.dt))))
+
+    def with_overrides(self, **changes) -> "Scenario":
+        """A copy with some run settings replaced (None values are ignored) and re-validated."""
+        changes = {k: v for k, v in changes.items() if v is not None}
+        new = replace(self, **changes)
+        _validate_run(new, f"{self.path} (command-line override)")
+        return new
+
+
+def _error(where, message):
+    raise ScenarioError(f"{where}: {message}")
+
+
+def _number(table, key, where, *, low=None, high=None, low_open=True, default=None, integer=False):
+    if key not in table:
+        if default is None:
+            _error(where, f"missing field '{key}'")
+        return default
+    value = table[key]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        _error(where, f"field '{key}': expected a number, got {value!r}")
+    value = float(value)
+    ok = math.isfinite(value)
+    if ok and low is not None:
+        ok = value > low if low_open else value >= low
+    if ok and high is not None:
+        ok = value <= high
+    if integer and ok:
+        ok = value == int(value)
+    if not ok:
+        left = "(" if low_open else "["
+        kind = "an integer" if integer else "a number"
+        _error(where, f"field '{key}': {value!r} is not {kind} in {left}{low if low is not None else '-inf'}, {high if high is not None else 'inf'}]")
+    return int(value) if integer else value
+
+
+def _choice(table, key, where, choices, default):
+    value = table.get(key, default)
+    if value not in choices and value is not None:
+        _error(where, f"field '{key}': {value!r} is not one of {list(choices)}")
+    return value
+
+
+def _schedule(name, spec, where) -> Schedule:
+    where = f"{where}, field 'inputs.{name}'"
+    if isinstance(spec, bool) or isinstance(spec, str):
+        _error(where, f"expected a number or a table {{ t = [...], value = [...] }}, got {spec!r}")
+    if isinstance(spec, (int, float)):
+        spec = {"t": [0.0], "value": [spec]}
+    if not isinstance(spec, dict) or set(spec) != {"t", "value"}:
+        _error(where, "expected a table with exactly the keys 't' (s) and 'value'")
+    try:
+        t = np.array(spec["t"], dtype=float)
+        value = np.array(spec["value"], dtype=float)
+    except (TypeError, ValueError):
+        _error(where, "'t' and 'value' must be arrays of numbers")
+    if t.ndim != 1 or t.shape != value.shape or len(t) == 0:
+        _error(where, f"'t' and 'value' must be non-empty arrays of equal length (got {t.shape} and {value.shape})")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(value))):
+        _error(where, "NaN or inf in the schedule; every knot must be finite")
+    if np.any(np.diff(t) <= 0):
+        _error(where, "'t' must be strictly increasing")
+    return Schedule(t, value)
+
+
+def _csv_inputs(path: Path, where) -> dict:
+    """Schedules from a CSV file whose first column is time [s] and whose header names the inputs."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.reader(f))
+    except FileNotFoundError:
+        _error(where, f"field 'inputs_csv': file {path} not found")
+    if len(rows) < 2 or rows[0][0].strip() != "t":
+        _error(f"{path}", "a header row starting with 't' and at least one data row are required")
+    header = [h.strip() for h in rows[0]]
+    try:
+        data = np.array([[float(x) for x in row] for row in rows[1:] if row], dtype=float)
+    except ValueError as exc:
+        _error(f"{path}", f"not a number: {exc}")
+    if data.shape[1] != len(header):
+        _error(f"{path}", "every row needs as many columns as the header")
+    return {name: _schedule(name, {"t": data[:, 0].tolist(), "value": data[:, i].tolist()}, str(path)) for i, name in enumerate(header) if i}
+
+
+def _validate_run(s: Scenario, where):
+    if s.mode not in MODES:
+        _error(where, f"field 'run.mode': {s.mode!r} is not one of {list(MODES)}")
+    if s.coupling not in COUPLINGS:
+        _error(where, f"field 'run.coupling': {s.coupling!r} is not one of {list(COUPLINGS)}")
+    if s.stepper is not None and s.stepper not in STEPPER_NAMES:
+        _error(where, f"field 'run.stepper': {s.stepper!r} is not one of {list(STEPPER_NAMES)}")
+    for key, low, high in (("dt", 0.0, 1.0), ("duration", 0.0, 1e6)):
+        value = getattr(s, key)
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and low < value <= high):
+            _error(where, f"field 'run.{key}': {value!r} is not in ({low}, {high}] s")
+    for key in ("hydraulic_substeps", "pbd_substeps", "pbd_iterations"):
+        value = getattr(s, key)
+        if not (isinstance(value, int) and 1 <= value <= 100000):
+            _error(where, f"field 'run.{key}': {value!r} is not an integer in [1, 100000]")
+    if not (math.isfinite(s.log_rate_hz) and s.log_rate_hz > 0):
+        _error(where, f"field 'log.rate_hz': {s.log_rate_hz!r} is not in (0, inf) Hz")
+
+
+def load_scenario(path) -> Scenario:
+    """Read and validate a scenario file."""
+    path = Path(path).resolve()
+    where = str(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: scenario file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+    allowed = {"scene", "run", "initial", "inputs", "inputs_csv", "log"}
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        _error(where, f"unknown top-level key(s) {unknown}; allowed: {sorted(allowed)}")
+    scene = data.get("scene")
+    if not isinstance(scene, dict):
+        _error(where, "missing table [scene] with 'mjcf' and 'circuit'")
+    files = {}
+    for key in ("mjcf", "circuit"):
+        if not isinstance(scene.get(key), str):
+            _error(where, f"field 'scene.{key}': a path relative to the scenario file is required")
+        files[key] = (path.parent / scene[key]).resolve()
+        if not files[key].is_file():
+            _error(where, f"field 'scene.{key}': file {files[key]} not found")
+    run = data.get("run", {})
+    initial = data.get("initial", {})
+    log = data.get("log", {})
+    for name, table in (("run", run), ("initial", initial), ("log", log)):
+        if not isinstance(table, dict):
+            _error(where, f"[{name}] must be a table")
+    run_keys = {"mode", "coupling", "stepper", "dt", "duration", "hydraulic_substeps", "pbd_substeps", "pbd_iterations", "fidelity"}
+    unknown = sorted(set(run) - run_keys)
+    if unknown:
+        _error(where, f"unknown field(s) in [run]: {unknown}; allowed: {sorted(run_keys)}")
+    w = f"{where}, [run]"
+    dt = _number(run, "dt", w, low=0.0, high=1.0, default=1e-3)
+    duration = _number(run, "duration", w, low=0.0, high=1e6, default=1.0)
+
+    def joint_table(key):
+        table = initial.get(key, {})
+        if not isinstance(table, dict):
+            _error(where, f"field 'initial.{key}': expected a table of joint name = value")
+        for name, value in table.items():
+            _number(table, name, f"{where}, [initial.{key}]")
+        return {k: float(v) for k, v in table.items()}
+
+    pressures = initial.get("pressures", {})
+    if not isinstance(pressures, dict):
+        _error(where, "field 'initial.pressures': expected a table of net name = absolute pressure [Pa]")
+    for name in pressures:
+        _number(pressures, name, f"{where}, [initial.pressures]", low=-1e10, high=1e10)
+    equilibrium = initial.get("equilibrium", True)
+    if not isinstance(equilibrium, bool):
+        _error(where, f"field 'initial.equilibrium': expected true or false, got {equilibrium!r}")
+    inputs_table = data.get("inputs", {})
+    if not isinstance(inputs_table, dict):
+        _error(where, "[inputs] must be a table of input name = schedule")
+    inputs = {name: _schedule(name, spec, where) for name, spec in inputs_table.items()}
+    if "inputs_csv" in data:
+        if not isinstance(data["inputs_csv"], str):
+            _error(where, "field 'inputs_csv': a path relative to the scenario file is required")
+        inputs.update(_csv_inputs(path.parent / data["inputs_csv"], where))
+    scenario = Scenario(
+        path=path,
+        mjcf=files["mjcf"],
+        circuit=files["circuit"],
+        mode=run.get("mode", "mujoco"),
+        coupling=run.get("coupling", "implicit"),
+        stepper=run.get("stepper"),
+        dt=dt,
+        duration=duration,
+        hydraulic_substeps=_number(run, "hydraulic_substeps", w, low=1, high=1e5, low_open=False, default=1, integer=True),
+        pbd_substeps=_number(run, "pbd_substeps", w, low=1, high=1e5, low_open=False, default=20, integer=True),
+        pbd_iterations=_number(run, "pbd_iterations", w, low=1, high=1e5, low_open=False, default=1, integer=True),
+        fidelity=_choice(run, "fidelity", w, ("compressible",), "compressible"),
+        qpos=joint_table("qpos"),
+        qvel=joint_table("qvel"),
+        equilibrium=equilibrium,
+        base_pressure=_number(initial, "base_pressure", f"{where}, [initial]", low=0.0, high=1e8, default=DEFAULT_BASE_PRESSURE),
+        pressures={k: float(v) for k, v in pressures.items()},
+        inputs=inputs,
+        log_rate_hz=_number(log, "rate_hz", f"{where}, [log]", low=0.0, high=1e7, default=100.0),
+    )
+    _validate_run(scenario, where)
+    return scenario
