@@ -40,7 +40,7 @@ from .components import CircuitError
 # Width of the C¹ blend at a relief valve's cracking point, relative to the cracking pressure.
 RELIEF_REGULARISATION = 1e-3  # [-]
 # Pressure inversion of compliant nodes (elastic walls, accumulators).
-PRESSURE_INVERSION_MAX_ITERATIONS = 30  # converges in < 8 from the rigid guess
+PRESSURE_INVERSION_MAX_ITERATIONS = 60  # converges in < 8 from the rigid guess
 PRESSURE_INVERSION_TOLERANCE = 1e-13  # on ln(V·φ/m)
 
 ACTUATOR_CYLINDER = 0
@@ -481,22 +481,38 @@ class NetworkModel:
         return state
 
     # ---------------------------------------------------- node relations
-    def node_volume_at(self, position, pressure):
-        """Node volumes V(x, p) [m³] and ∂V/∂p [m³/Pa] (chambers, walls, accumulators)."""
+    def geometric_volume(self, position):
+        """Node volumes at the reference pressure [m³]: fixed volumes plus cylinder chambers at ``position``."""
         volume = self.node_volume.copy()
-        dvdp = self.node_wall_compliance.copy()
-        volume += self.node_wall_compliance * (pressure - self.fluid.reference_pressure)
         if len(self.cylinder_cap_node):
             vc, vr, _, _ = self.chamber_volumes(position)
             np.add.at(volume, self.cylinder_cap_node, vc)
             np.add.at(volume, self.cylinder_rod_node, vr)
+        return volume
+
+    def extra_volume(self, pressure):
+        """Pressure-dependent node volume [m³] (hose walls, accumulator liquid) and its derivative [m³/Pa]."""
+        extra = self.node_wall_compliance * (pressure - self.fluid.reference_pressure)
+        dextra = self.node_wall_compliance.copy()
         if len(self.accumulator_node):
             liquid, dliquid = laws.accumulator_liquid_volume_with_derivative(
                 pressure[self.accumulator_node], self.accumulator_gas_volume, self.accumulator_precharge, self.accumulator_index
             )
-            np.add.at(volume, self.accumulator_node, liquid)
-            np.add.at(dvdp, self.accumulator_node, dliquid)
-        return volume, dvdp
+            np.add.at(extra, self.accumulator_node, liquid)
+            np.add.at(dextra, self.accumulator_node, dliquid)
+        return extra, dextra
+
+    @property
+    def compliant_nodes(self) -> np.ndarray:
+        """Free nodes whose volume depends on pressure (elastic walls or accumulators)."""
+        mask = self.node_wall_compliance > 0
+        mask[self.accumulator_node] = True
+        return np.flatnonzero(mask & ~self.node_fixed)
+
+    def node_volume_at(self, position, pressure):
+        """Node volumes V(x, p) [m³] and ∂V/∂p [m³/Pa] (chambers, walls, accumulators)."""
+        extra, dextra = self.extra_volume(pressure)
+        return self.geometric_volume(position) + extra, dextra
 
     def chamber_volumes(self, position):
         """Cap and rod chamber volumes [m³] and dV/dx [m²] of every cylinder at actuator ``position``."""
@@ -537,56 +553,58 @@ class NetworkModel:
         """
         fluid = self.fluid
         fixed = self.node_fixed
-        p_rigid = np.full(self.node_count, fluid.reference_pressure)
-        volume, dvdp = self.node_volume_at(position, p_rigid)
-        volume = np.where(fixed, 1.0, volume)  # fixed nodes hold no oil state
-        p = fluid.pressure_from_fill_ratio(np.where(fixed, 1.0, oil / volume))
-        compliant = (dvdp > 0) & ~fixed
-        if compliant.any():
-            p = np.where(compliant, self._invert_compliant(oil, position, p, compliant), p)
+        geometric = self.geometric_volume(position)
+        safe = np.where(fixed, 1.0, geometric)  # fixed nodes hold no oil state
+        p = fluid.pressure_from_fill_ratio(np.where(fixed, 1.0, oil / safe))
+        compliant = self.compliant_nodes
+        if len(compliant):
+            p = self._invert_compliant(oil, geometric, p, compliant)
         floor = fluid.pressure_floor
         cavitating = (p < floor) & ~fixed
         p = np.where(cavitating, floor, p)
         p = np.where(fixed, self.node_fixed_pressure, p)
-        volume, dvdp = self.node_volume_at(position, p)
+        extra, dvdp = self.extra_volume(p)
         phi, dphi = fluid.fill_ratio(p)
-        dp_doil = np.where(fixed | cavitating, 0.0, 1.0 / np.where(fixed, 1.0, dvdp * phi + volume * dphi))
+        dp_doil = np.where(fixed | cavitating, 0.0, 1.0 / np.where(fixed, 1.0, dvdp * phi + (geometric + extra) * dphi))
         return p, dp_doil
 
-    def _invert_compliant(self, oil, position, upper, compliant):
-        """Solve ln(V(x, p)·φ(p)) = ln m for nodes whose volume grows with pressure.
+    def _invert_compliant(self, oil, geometric, rigid, nodes):
+        """Solve ln((V_g + V_e(p))·φ(p)) = ln m on the compliant ``nodes``; other entries of ``rigid`` are kept.
 
-        Safeguarded Newton: the rigid-volume pressure is an upper bracket (the
-        compliant volume is larger), the lower bracket is found by stepping down.
+        Safeguarded Newton from the rigid-volume pressure, bracketing the root
+        (the function is increasing in p) and bisecting when a Newton step
+        leaves the bracket; converged entries are frozen.
         """
         fluid = self.fluid
-        log_oil = np.log(np.where(compliant, oil, 1.0))
+        log_oil = np.log(oil[nodes])
+        p_full = rigid.copy()
 
         def f(p):
-            volume, dvdp = self.node_volume_at(position, p)
+            p_full[nodes] = p
+            extra, dextra = self.extra_volume(p_full)
+            volume = geometric[nodes] + extra[nodes]
             phi, dphi = fluid.fill_ratio(p)
-            volume = np.where(compliant, volume, 1.0)
-            return np.where(compliant, np.log(volume * phi) - log_oil, 0.0), dvdp / volume + dphi / phi
+            return np.log(volume * phi) - log_oil, dextra[nodes] / volume + dphi / phi
 
-        hi = np.where(compliant, np.maximum(upper, fluid.reference_pressure), 0.0)
-        lo = np.where(compliant, np.minimum(upper, fluid.reference_pressure), 0.0)
+        p = rigid[nodes].copy()
+        value, slope = f(p)
+        lo = np.where(value <= 0, p, -np.inf)
+        hi = np.where(value > 0, p, np.inf)
         for _ in range(PRESSURE_INVERSION_MAX_ITERATIONS):
-            f_lo, _ = f(lo)
-            if np.all(f_lo <= 0):
-                break
-            lo = np.where(f_lo > 0, lo - 2.0 * (hi - lo) - fluid.reference_pressure, lo)
-        p = hi.copy()
-        for _ in range(4 * PRESSURE_INVERSION_MAX_ITERATIONS):
-            value, slope = f(p)
             done = np.abs(value) < PRESSURE_INVERSION_TOLERANCE
             if np.all(done):
                 break
-            hi = np.where(value > 0, p, hi)
-            lo = np.where(value <= 0, p, lo)
             newton = p - value / slope
-            step = np.where((newton >= lo) & (newton <= hi), newton, 0.5 * (lo + hi))
-            p = np.where(done, p, step)
-        return p
+            # without a lower bracket, at most halve the pressure (stays in the law's domain)
+            newton = np.where(np.isfinite(lo), newton, np.maximum(newton, np.where(p > 0, 0.5 * p, p - 1e6)))
+            bracketed = np.isfinite(lo) & np.isfinite(hi)
+            outside = (newton <= lo) | (newton >= hi)
+            p = np.where(done, p, np.where(bracketed & outside, 0.5 * (lo + hi), newton))
+            value, slope = f(p)
+            lo = np.where(value <= 0, np.maximum(lo, p), lo)
+            hi = np.where(value > 0, np.minimum(hi, p), hi)
+        p_full[nodes] = p
+        return p_full
 
     def effective_bulk_modulus(self, pressure, position):
         """Effective bulk modulus of each node [Pa]: V·φ/(∂V/∂p·φ + V·φ'), including walls and accumulators."""

@@ -1,2 +1,135 @@
-def main(argv=None):
-    raise SystemExit("not yet")
+"""The ``hydroplant`` command line.
+
+Subcommands::
+
+    hydroplant run SCENARIO [--mode M] [--coupling C] [--dt S] [--duration S] [--substeps N] [--out PATH]
+    hydroplant demo                      the hydraulics-only 1-DOF lift (no MuJoCo)
+    hydroplant log info LOG              summary of a log
+    hydroplant log recover PARTIAL [OUT] rebuild a valid MCAP from a killed run's partial file
+
+Bad input (scenario, circuit, MJCF binding, arguments) prints one line naming
+the file, the field and the allowed range, and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from hydraulics.components import CircuitError
+
+EXIT_BAD_INPUT = 2
+EXIT_DIVERGED = 3
+EXIT_INTERRUPTED = 130
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse's own errors also exit 2, with our one-line style
+        self.print_usage(sys.stderr)
+        print(f"hydroplant: error: {message}", file=sys.stderr)
+        raise SystemExit(EXIT_BAD_INPUT)
+
+
+def _positive_float(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a positive finite number")
+    return value
+
+
+def _positive_int(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="hydroplant", description="Hydraulic heavy-equipment simulator (SI units throughout).")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    run = sub.add_parser("run", help="run a scenario and write an MCAP log")
+    run.add_argument("scenario", type=Path, help="scenario TOML file")
+    run.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"))
+    run.add_argument("--coupling", choices=("implicit", "explicit"))
+    run.add_argument("--dt", type=_positive_float, help="physics step [s]")
+    run.add_argument("--duration", type=_positive_float, help="simulated time [s]")
+    run.add_argument("--substeps", type=_positive_int, help="hydraulic substeps per physics step")
+    run.add_argument("--pbd-substeps", type=_positive_int, help="XPBD substeps per step (PBD mode)")
+    run.add_argument("--iterations", type=_positive_int, help="XPBD iterations per substep (PBD mode)")
+    run.add_argument("--out", type=Path, help="log file (default: logs/<scene>-<scenario>-<mode>-<coupling>-<time>.mcap)")
+    run.add_argument("--no-progress", action="store_true", help="no progress line")
+
+    sub.add_parser("demo", help="hydraulics-only demo: pump, valve and cylinder lifting a 1-DOF mass")
+
+    log = sub.add_parser("log", help="inspect or repair logs")
+    log_sub = log.add_subparsers(dest="log_command", required=True, parser_class=_Parser)
+    info = log_sub.add_parser("info", help="summary of a log")
+    info.add_argument("log", type=Path)
+    recover = log_sub.add_parser("recover", help="rebuild a valid MCAP from a partial file")
+    recover.add_argument("partial", type=Path)
+    recover.add_argument("out", type=Path, nargs="?")
+    return parser
+
+
+def _run(args) -> int:
+    from .runner import run
+
+    overrides = {
+        "mode": args.mode,
+        "coupling": args.coupling,
+        "dt": args.dt,
+        "duration": args.duration,
+        "hydraulic_substeps": args.substeps,
+        "pbd_substeps": args.pbd_substeps,
+        "pbd_iterations": args.iterations,
+    }
+    result = run(args.scenario, out=args.out, overrides=overrides, progress=not args.no_progress)
+    print(result.summary_text())
+    return 0 if result.status == "complete" else EXIT_DIVERGED
+
+
+def _log(args) -> int:
+    from .mcap_log import log_info, recover
+
+    if args.log_command == "info":
+        if not args.log.is_file():
+            raise CircuitError(f"{args.log}: log file not found")
+        print(log_info(args.log))
+        return 0
+    if not args.partial.is_file():
+        raise CircuitError(f"{args.partial}: partial log not found")
+    out = args.out or args.partial.with_name(args.partial.name.removesuffix(".partial").removesuffix(".mcap") + ".recovered.mcap")
+    report = recover(args.partial, out, overwrite=True)
+    print(report)
+    print(f"recovered log: {out}")
+    return 0
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "run":
+            return _run(args)
+        if args.command == "demo":
+            from hydraulics.demo import main as demo
+
+            return demo()
+        return _log(args)
+    except CircuitError as exc:  # ScenarioError is a CircuitError
+        print(f"hydroplant: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("\nhydroplant: interrupted; the log written so far is finished and marked incomplete", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
