@@ -36,7 +36,12 @@ from .network import NetworkControl, NetworkModel, NetworkState
 NEWTON_MAX_ITERATIONS = 30  # per (sub)step; the excavator needs 2–4
 NEWTON_PRESSURE_TOLERANCE = 1e-2  # Pa: largest pressure change of the last Newton update
 NEWTON_RELATIVE_TOLERANCE = 1e-11  # relative to the node pressure
-LINE_SEARCH_HALVINGS = 8  # backtracking steps when the residual grows
+LINE_SEARCH_HALVINGS = 8  # backtracking steps when the residual does not decrease enough
+# Armijo-type sufficient decrease of the max-norm residual per unit step.  Strong (0.3
+# rather than the textbook 1e-4) because an orifice's square-root law makes full Newton
+# steps flip the sign of Δp and ping-pong (for Q ∝ sign(Δp)·√|Δp| Newton maps Δp to −Δp):
+# the half step the rule then takes lands on the root.
+SUFFICIENT_DECREASE = 0.3
 # Trust region of one Newton update, in pressure: a node may fill its vapour void and
 # then change by at most max(TRUST_PRESSURE, TRUST_FRACTION·|p|).  Keeps the iteration
 # from jumping out of cavitation to absurd pressures after a valve slam.
@@ -297,7 +302,7 @@ class StepperImplicitEuler(Stepper):
                 trial[free] += step * delta
                 t_pressure, t_dpdm, t_flows, t_residual = evaluate(trial)
                 t_norm = np.max(np.abs(t_residual * scale))
-                if np.isfinite(t_norm) and (t_norm <= norm or halving == LINE_SEARCH_HALVINGS - 1):
+                if np.isfinite(t_norm) and (t_norm <= (1.0 - SUFFICIENT_DECREASE * step) * norm or halving == LINE_SEARCH_HALVINGS - 1):
                     break
                 step *= 0.5
             full = step == 1.0
