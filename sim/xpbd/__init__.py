@@ -1,0 +1,18 @@
+"""Extended Position-Based Dynamics (XPBD) for articulated rigid bodies.
+
+Scenes are read from a compiled ``mujoco.MjModel`` (``XpbdModel.from_mjmodel``); MuJoCo is
+never used for dynamics.  See ``solver.py`` for sign conventions of the length rows.
+"""
+
+from .model import XpbdModel, XpbdState
+from .solver import LengthConstraint, SolverXPBD, SubstepForces, SubstepHooks, SubstepInputs
+
+__all__ = [
+    "XpbdModel",
+    "XpbdState",
+    "SolverXPBD",
+    "LengthConstraint",
+    "SubstepInputs",
+    "SubstepForces",
+    "SubstepHooks",
+]
