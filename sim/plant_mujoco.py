@@ -20,41 +20,19 @@ the MJCF's bodies or joints; it only rewrites the bound actuators' gains.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import mujoco
 import numpy as np
 
 from hydraulics.coupling import make_coupling
-from hydraulics.energy import branch_powers, stored_energy
-from hydraulics.equilibrium import equilibrium_state
-from hydraulics.laws import friction_force_with_derivative
-from hydraulics.load import apply_inputs
 
+from .plant_base import PlantBase
 from .scene import Scene, initial_qpos_qvel
 
 # MuJoCo joint types whose coordinate is one scalar (logged as joint states).
 SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
 
 
-@dataclass
-class EnergyLedger:
-    """Running energy terms of a run [J]; see :mod:`hydraulics.energy`."""
-
-    pump_work: float = 0.0
-    motor_work: float = 0.0
-    dissipated_hydraulic: float = 0.0
-    dissipated_friction: float = 0.0
-    dissipated_mechanical: float = 0.0
-    initial_total: float = 0.0
-
-    def residual(self, kinetic, potential, oil) -> float:
-        """pump work − Δ(kinetic + potential + oil) − physical dissipation: the scheme's numerical loss."""
-        dissipated = self.dissipated_hydraulic + self.dissipated_friction + self.dissipated_mechanical
-        return self.pump_work - (kinetic + potential + oil - self.initial_total) - dissipated
-
-
-class MujocoPlant:
+class MujocoPlant(PlantBase):
     """Coupled MuJoCo + hydraulic network plant for one scene (see module docstring)."""
 
     mode = "mujoco"
@@ -84,27 +62,7 @@ class MujocoPlant:
         mujoco.mj_resetData(m, d)
         d.qpos[:], d.qvel[:] = initial_qpos_qvel(self.scene)
         mujoco.mj_forward(m, d)
-        self.step_index = 0
-        self.control = self.network.control()
-        apply_inputs(self.network, self.control, scenario.inputs, 0.0)
-        x, v = self.actuator_motion()
-        if scenario.equilibrium:
-            effort = self.holding_efforts()
-            self.net_state = equilibrium_state(
-                self.network, self.control, x, effort, base_pressure=scenario.base_pressure, pressures=scenario.pressures
-            )
-        else:
-            p = np.full(self.network.node_count, self.network.fluid.reference_pressure)
-            for net, value in scenario.pressures.items():
-                p[self.network.node(net)] = value
-            self.net_state = self.network.state(actuator_position=x, node_pressure=p, actuator_velocity=v)
-        self.net_state.actuator_velocity = v.copy()
-        self.effort = self.network.actuator_effort(self.net_state.node_pressure, v)[0]
-        self.last_report = None
-        self.theta = np.ones(self.network.actuator_count)
-        self.energy = EnergyLedger()
-        kinetic, potential = self.mechanical_energy()
-        self.energy.initial_total = kinetic + potential + stored_energy(self.network, self.net_state)
+        self.start_network(*self.actuator_motion())
 
     def holding_efforts(self) -> np.ndarray:
         """Actuator efforts [N or N·m] that hold the current pose at rest (least squares over the DOFs)."""
@@ -156,15 +114,11 @@ class MujocoPlant:
         return float(self.data.energy[1]), float(self.data.energy[0])
 
     # -------------------------------------------------------------------- step
-    @property
-    def time(self) -> float:
-        return self.step_index * self.dt
-
     def step(self):
         """Advance one step of ``dt``; returns the hydraulic step report."""
         m, d, net = self.model, self.data, self.network
         dt = self.dt
-        apply_inputs(net, self.control, self.scene.scenario.inputs, self.time)
+        self.apply_inputs()
         mujoco.mj_step1(m, d)
         x, v = self.actuator_motion()
         moment = self.moments().copy()
@@ -184,18 +138,9 @@ class MujocoPlant:
         return report
 
     def _account(self, report, velocity, dt) -> None:
-        net, d = self.network, self.data
-        powers = branch_powers(net, self.net_state, report.branch_flow)
-        e = self.energy
-        e.pump_work += dt * powers["pump"]
-        e.motor_work += dt * powers["motor"]
-        e.dissipated_hydraulic += dt * powers["dissipated"]
-        if len(net.cylinder_actuator):
-            friction, _ = friction_force_with_derivative(
-                velocity[net.cylinder_actuator], net.cylinder_coulomb, net.cylinder_static, net.cylinder_stribeck, net.cylinder_viscous
-            )
-            e.dissipated_friction += dt * float(friction @ velocity[net.cylinder_actuator])
-        e.dissipated_mechanical -= dt * float((d.qfrc_passive + d.qfrc_constraint) @ d.qvel)
+        super()._account(report, velocity, dt)
+        d = self.data
+        self.energy.dissipated_mechanical -= dt * float((d.qfrc_passive + d.qfrc_constraint) @ d.qvel)
 
     # ------------------------------------------------------------- observation
     def joint_state(self):

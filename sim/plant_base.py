@@ -1,0 +1,85 @@
+"""What every plant shares: the network's start state, the energy ledger, the control schedule.
+
+A plant (MuJoCo or XPBD) owns its bodies; this base owns the hydraulic side
+that is the same for all: the initial network state (in static equilibrium
+with the load when the scenario asks), the operator inputs, and the energy
+terms of the run.  Subclasses provide ``holding_efforts()``,
+``mechanical_energy()``, ``joint_state()``, ``body_poses()``, ``finite()`` and
+``step()``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hydraulics.energy import branch_powers, stored_energy
+from hydraulics.equilibrium import equilibrium_state
+from hydraulics.load import apply_inputs
+
+
+@dataclass
+class EnergyLedger:
+    """Running energy terms of a run [J]; see :mod:`hydraulics.energy`."""
+
+    pump_work: float = 0.0
+    motor_work: float = 0.0
+    dissipated_hydraulic: float = 0.0
+    dissipated_friction: float = 0.0
+    dissipated_mechanical: float = 0.0
+    initial_total: float = 0.0
+
+    def residual(self, kinetic, potential, oil) -> float:
+        """pump work − Δ(kinetic + potential + oil) − physical dissipation: the scheme's numerical loss."""
+        dissipated = self.dissipated_hydraulic + self.dissipated_friction + self.dissipated_mechanical
+        return self.pump_work - (kinetic + potential + oil - self.initial_total) - dissipated
+
+
+
+class PlantBase:
+    """Hydraulic bookkeeping shared by the plants (see module docstring)."""
+
+    def start_network(self, position, velocity) -> None:
+        """Network state, controls and energy ledger at t = 0 for actuators at ``position`` moving at ``velocity``."""
+        scenario = self.scene.scenario
+        self.step_index = 0
+        self.control = self.network.control()
+        apply_inputs(self.network, self.control, scenario.inputs, 0.0)
+        if scenario.equilibrium:
+            self.net_state = equilibrium_state(
+                self.network, self.control, position, self.holding_efforts(),
+                base_pressure=scenario.base_pressure, pressures=scenario.pressures,
+            )
+        else:
+            p = np.full(self.network.node_count, self.network.fluid.reference_pressure)
+            for net, value in scenario.pressures.items():
+                p[self.network.node(net)] = value
+            self.net_state = self.network.state(actuator_position=position, node_pressure=p)
+        self.net_state.actuator_velocity = np.array(velocity, float)
+        self.effort = self.network.actuator_effort(self.net_state.node_pressure, self.net_state.actuator_velocity)[0]
+        self.last_report = None
+        self.theta = np.ones(self.network.actuator_count)
+        self.energy = EnergyLedger()
+        kinetic, potential = self.mechanical_energy()
+        self.energy.initial_total = kinetic + potential + stored_energy(self.network, self.net_state)
+
+    @property
+    def time(self) -> float:
+        """Simulation time [s] (step index × dt, so runs line up exactly)."""
+        return self.step_index * self.dt
+
+    def apply_inputs(self) -> None:
+        """Set the controls from the scenario's schedules at the current time."""
+        apply_inputs(self.network, self.control, self.scene.scenario.inputs, self.time)
+
+    def _account(self, report, velocity, dt) -> None:
+        """Add one step's pump work, hydraulic and friction losses to the ledger."""
+        net = self.network
+        powers = branch_powers(net, self.net_state, report.branch_flow)
+        e = self.energy
+        e.pump_work += dt * powers["pump"]
+        e.motor_work += dt * powers["motor"]
+        e.dissipated_hydraulic += dt * powers["dissipated"]
+        friction, _ = net.friction_effort(velocity)
+        e.dissipated_friction -= dt * float(friction @ velocity)
