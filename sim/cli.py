@@ -76,7 +76,20 @@ def build_parser() -> argparse.ArgumentParser:
     recover = log_sub.add_parser("recover", help="rebuild a valid MCAP from a partial file")
     recover.add_argument("partial", type=Path)
     recover.add_argument("out", type=Path, nargs="?")
+    for module in _tool_modules():
+        module.add_parser(sub)
     return parser
+
+
+# Tool subcommands living in their own modules: each module has ``add_parser(subparsers)``,
+# which registers one subcommand whose ``func`` default is ``module.main(args) -> int``.
+TOOL_MODULES = ()
+
+
+def _tool_modules():
+    import importlib
+
+    return [importlib.import_module(name) for name in TOOL_MODULES]
 
 
 def _run(args) -> int:
@@ -122,7 +135,9 @@ def main(argv=None) -> int:
             from hydraulics.demo import main as demo
 
             return demo()
-        return _log(args)
+        if args.command == "log":
+            return _log(args)
+        return args.func(args)
     except CircuitError as exc:  # ScenarioError is a CircuitError
         print(f"hydroplant: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
