@@ -285,6 +285,11 @@ def accumulator_liquid_volume_with_derivative(pressure, gas_volume, precharge_pr
     return volume, slope
 
 
+def line_conductance(inner_diameter, length, dynamic_viscosity):
+    """Laminar (Hagen–Poiseuille) conductance of a pipe, G = π·d⁴/(128·μ·L) [m³/(s·Pa)]."""
+    return np.pi * inner_diameter**4 / (128.0 * dynamic_viscosity * length)
+
+
 def wall_expansion_with_derivative(pressure, volume, wall_bulk_modulus, reference_pressure):
     """Extra volume [m³] of an elastic hose wall: ΔV = V·(p − p_ref)/β_wall, and dΔV/dp."""
     slope = np.asarray(volume, dtype=float) / wall_bulk_modulus

@@ -46,7 +46,10 @@ PRESSURE_INVERSION_TOLERANCE = 1e-13  # on ln(V·φ/m)
 ACTUATOR_CYLINDER = 0
 ACTUATOR_MOTOR = 1
 
-FIDELITIES = ("compressible",)
+FIDELITIES = ("compressible", "lines")
+"""``compressible``: chamber pressure states, each hose lumped into the net its ends join.
+``lines``: each hose is a π-line — half its volume at each end net, a laminar
+(Hagen–Poiseuille) resistance between them — for pressure-wave and valve-slam studies."""
 
 
 class _UnionFind:
@@ -64,6 +67,35 @@ class _UnionFind:
         ra, rb = self.find(a), self.find(b)
         if ra != rb:
             self.parent[max(ra, rb)] = min(ra, rb)
+
+
+def prune(circuit: Circuit):
+    """Drop components that no cylinder or motor reaches through shared nets (tank nets do not connect).
+
+    Returns the reduced circuit and the names of the dropped components.
+    """
+    tank_nets = {c.ports["port"] for c in circuit.by_kind("tank")}
+    by_net = {}
+    for c in circuit.components:
+        for net in c.ports.values():
+            by_net.setdefault(net, []).append(c)
+    reached = {c.name for c in circuit.by_kind("cylinder", "motor")}
+    frontier = [c for c in circuit.components if c.name in reached]
+    while frontier:
+        c = frontier.pop()
+        for net in c.ports.values():
+            if net in tank_nets:
+                continue
+            for other in by_net[net]:
+                if other.name not in reached:
+                    reached.add(other.name)
+                    frontier.append(other)
+    keep_tanks = {net for c in circuit.components if c.name in reached for net in c.ports.values()}
+    kept = tuple(c for c in circuit.components if c.name in reached or (c.kind == "tank" and c.ports["port"] in keep_tanks))
+    pruned = tuple(c.name for c in circuit.components if c not in kept)
+    if not pruned:
+        return circuit, ()
+    return Circuit(circuit.fluid, kept, circuit.source), pruned
 
 
 @dataclass
@@ -195,20 +227,28 @@ class NetworkModel:
     pump_band: np.ndarray
     motor_branch_actuator: np.ndarray
     fidelity: str = "compressible"
+    pruned: tuple = ()  # names of the circuit components that were not built
     incidence: np.ndarray = field(default=None, repr=False)  # (node_count, branch_count)
 
     # ------------------------------------------------------------------ build
     @classmethod
     def from_circuit(cls, circuit: Circuit, *, fidelity: str = "compressible") -> "NetworkModel":
-        """Assemble the network of ``circuit`` at the given fidelity."""
+        """Assemble the network of ``circuit`` at the given fidelity.
+
+        Components that no cylinder or motor can reach (tanks do not connect)
+        are pruned: not built and not stepped; ``pruned`` names them.
+        """
         if fidelity not in FIDELITIES:
             raise CircuitError(f"{circuit.source}: fidelity {fidelity!r} is not one of {FIDELITIES}")
+        circuit, pruned = prune(circuit)
+        lines = fidelity == "lines"
         uf = _UnionFind()
         for c in circuit.components:
             for net in c.ports.values():
                 uf.find(net)
-        for c in circuit.by_kind("hose"):
-            uf.union(c.ports["a"], c.ports["b"])
+        if not lines:
+            for c in circuit.by_kind("hose"):
+                uf.union(c.ports["a"], c.ports["b"])
         roots = []
         for c in circuit.components:
             for net in c.ports.values():
@@ -235,10 +275,13 @@ class NetworkModel:
                 raise CircuitError(f"{circuit.source}: component '{c.name}': net '{c.ports['port']}' joins two tanks at different pressures")
             fixed[k], fixed_p[k] = True, c.params.pressure
         for c in circuit.by_kind("volume", "hose"):
-            k = node(c, "port" if c.kind == "volume" else "a")
-            volume[k] += c.params.volume
-            if math.isfinite(c.params.wall_bulk_modulus):
-                wall[k] += c.params.volume / c.params.wall_bulk_modulus
+            # a lumped hose puts its volume on its (merged) net; a line puts half at each end
+            ends = ("port",) if c.kind == "volume" else (("a", "b") if lines else ("a",))
+            for end in ends:
+                k = node(c, end)
+                volume[k] += c.params.volume / len(ends)
+                if math.isfinite(c.params.wall_bulk_modulus):
+                    wall[k] += c.params.volume / len(ends) / c.params.wall_bulk_modulus
 
         acc = circuit.by_kind("accumulator")
         acc_node = np.array([node(c, "port") for c in acc], int)
@@ -298,6 +341,11 @@ class NetworkModel:
             if c.params.leakage_conductance > 0:
                 add_branch(f"{c.name}.leakage", node(c, "a"), node(c, "b"))
                 lam.append(c.params.leakage_conductance)
+        if lines:
+            viscosity = circuit.fluid.density * circuit.fluid.kinematic_viscosity
+            for c in circuit.by_kind("hose"):
+                add_branch(f"{c.name}.line", node(c, "a"), node(c, "b"))
+                lam.append(laws.line_conductance(c.params.inner_diameter, c.params.length, viscosity))
         slices["laminar"] = slice(start, len(branch_names))
 
         start = len(branch_names)
@@ -400,6 +448,7 @@ class NetworkModel:
             pump_band=f([getattr(c.params, "compensator_band", 1.0) for c in pumps], float),
             motor_branch_actuator=f([act_names.index(c.name) for c in mot], int),
             fidelity=fidelity,
+            pruned=pruned,
             incidence=incidence,
         )
         return model

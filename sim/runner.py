@@ -134,6 +134,8 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     if overrides:
         scenario = scenario.with_overrides(**overrides)
     scene = load_scene(scenario)
+    if scene.network.pruned and progress:
+        print(f"hydroplant: not built (connected to no cylinder or motor): {', '.join(scene.network.pruned)}", file=sys.stderr)
     plant = make_plant(scene)
     log_path = Path(out) if out is not None else default_log_path(scenario)
     log_path.parent.mkdir(parents=True, exist_ok=True)

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from hydraulics.components import CircuitError
+from hydraulics.network import FIDELITIES
 
 MODES = ("mujoco", "pbd", "pbd-naive")
 COUPLINGS = ("implicit", "explicit")
@@ -277,7 +278,7 @@ def load_scenario(path) -> Scenario:
         hydraulic_substeps=_number(run, "hydraulic_substeps", w, low=1, high=1e5, low_open=False, default=1, integer=True),
         pbd_substeps=_number(run, "pbd_substeps", w, low=1, high=1e5, low_open=False, default=20, integer=True),
         pbd_iterations=_number(run, "pbd_iterations", w, low=1, high=1e5, low_open=False, default=1, integer=True),
-        fidelity=_choice(run, "fidelity", w, ("compressible",), "compressible"),
+        fidelity=_choice(run, "fidelity", w, FIDELITIES, "compressible"),
         qpos=joint_table("qpos"),
         qvel=joint_table("qvel"),
         equilibrium=equilibrium,

@@ -105,6 +105,15 @@ def configure_actuators(mjmodel: mujoco.MjModel, binding: Binding) -> None:
         mjmodel.actuator_forcelimited[aid] = 0
 
 
+def has_contact_pairs(mjmodel: mujoco.MjModel) -> bool:
+    """True when two geoms of different bodies can collide (contype/conaffinity) or explicit pairs exist."""
+    if mjmodel.npair:
+        return True
+    contype, conaffinity, body = mjmodel.geom_contype, mjmodel.geom_conaffinity, mjmodel.geom_bodyid
+    can = ((contype[:, None] & conaffinity[None, :]) | (conaffinity[:, None] & contype[None, :])) != 0
+    return bool(np.any(can & (body[:, None] != body[None, :])))
+
+
 def load_scene(scenario: Scenario) -> Scene:
     """Compile the MJCF, build the network and bind them; MJCF timestep set to the scenario's dt."""
     mjmodel = load_mjmodel(scenario.mjcf)
@@ -112,6 +121,8 @@ def load_scene(scenario: Scenario) -> Scene:
     binding = bind(network, mjmodel, scenario.circuit, scenario.mjcf)
     configure_actuators(mjmodel, binding)
     mjmodel.opt.timestep = scenario.dt
+    if not has_contact_pairs(mjmodel):
+        mjmodel.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # nothing can touch: skip collision detection
     joints = tuple(mujoco.mj_id2name(mjmodel, mujoco.mjtObj.mjOBJ_JOINT, j) or f"joint{j}" for j in range(mjmodel.njnt))
     for name in list(scenario.qpos) + list(scenario.qvel):
         if name not in joints:
