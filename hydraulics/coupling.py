@@ -41,16 +41,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import laws
 from .network import NetworkControl, NetworkModel, NetworkState
 from .steppers import ActuatorMotion, StepperImplicitEuler, StepReport, make_stepper
 
 
 @dataclass(frozen=True)
 class EffortLaw:
-    """Actuator effort during a step: effort = constant + slope·v⁺ (shape (actuator_count,))."""
+    """Actuator effort during a step: effort = constant + slope·v⁺ (shape (actuator_count,)).
+
+    ``lower``/``upper`` (optional) bound the effort: a plant that can bound a
+    constraint force (XPBD) applies them; the law itself already respects them
+    at the start of the step.
+    """
 
     constant: np.ndarray  # N or N·m
     slope: np.ndarray  # N·s/m or N·m·s/rad (≤ 0 for a stable law)
+    lower: np.ndarray | None = None  # N or N·m
+    upper: np.ndarray | None = None
 
     def __call__(self, velocity):
         return self.constant + self.slope * velocity
@@ -156,10 +164,111 @@ class CouplingImplicit(Coupling):
         return self.stepper.step(state, control, motion, dt)
 
 
-COUPLINGS = {"explicit": CouplingExplicit, "implicit": CouplingImplicit}
+# Incompressible fidelity: the rod follows its metered flow with this stiffness relative to
+# m_eff/h (the velocity error left after one step is about 1/(1 + gain) of the demand change).
+INCOMPRESSIBLE_TRACKING_GAIN = 100.0  # [-]
+# Pressure drop at which a valve's rated (metered) flow is taken.
+NOMINAL_VALVE_DROP = 1.0e6  # Pa
+
+
+class CouplingIncompressible(Coupling):
+    """``incompressible`` fidelity: no pressure states.
+
+    Each actuator's speed follows the flow its valve meters, Q = y(s)·C_d·A_max·
+    sqrt(2·Δp_nom/ρ) (y the edge opening, Δp_nom = ``NOMINAL_VALVE_DROP``), all
+    demands scaled down together when they exceed the pumps' delivery; v = Q/A_cap
+    extending, −Q/A_rod retracting, ω = 2π·Q/D for motors.  The law is a stiff
+    velocity tracker, f = K·(v_target − v⁺) with K = gain·m_eff/h, bounded by
+    the force the highest relief setting allows (``EffortLaw.lower/upper``; the
+    plant clamps within its step, so the actuator stalls there).  The
+    logged pressures are derived from the force: the loaded chamber carries it,
+    the other sits at the reference pressure.  **Limitations**: no oil-column
+    compliance, no valve pressure–flow dependence, no pump flow limit other than
+    the proportional sharing; energy terms of the network are not computed.
+    """
+
+    name = "incompressible"
+
+    def __init__(self, model, stepper=None):
+        super().__init__(model, stepper)
+        fluid = model.fluid
+        n = model.actuator_count
+        self.valve_of = np.full(n, -1)
+        self.valve_sign = np.zeros(n)
+        for a in range(n):
+            if model.actuator_kind[a] == 0:
+                i = list(model.cylinder_actuator).index(a)
+                extend_node = model.cylinder_cap_node[i]
+            else:
+                i = list(model.motor_actuator).index(a)
+                extend_node = model.motor_a_node[i]
+            for b, name in enumerate(model.branch_names[model.branch_slices["orifice"]]):
+                if model.orifice_valve[b] >= 0 and name.endswith(".P-A") and model.branch_to[b] == extend_node:
+                    self.valve_of[a], self.valve_sign[a] = model.orifice_valve[b], 1.0
+                elif model.orifice_valve[b] >= 0 and name.endswith(".P-B") and model.branch_to[b] == extend_node:
+                    self.valve_of[a], self.valve_sign[a] = model.orifice_valve[b], -1.0
+        edge = {v: b for b, v in enumerate(model.orifice_valve) if v >= 0 and model.orifice_sign[b] > 0}
+        self.rated_flow = np.zeros(len(model.valve_names))
+        for v, b in edge.items():
+            self.rated_flow[v] = model.orifice_cd[b] * model.orifice_max_area[b] * np.sqrt(2.0 * NOMINAL_VALVE_DROP / fluid.density)
+        relief = np.max(model.relief_cracking, initial=0.0)
+        self.extend_area = np.zeros(n)
+        self.retract_area = np.zeros(n)
+        self.extend_area[model.cylinder_actuator] = model.cylinder_cap_area
+        self.retract_area[model.cylinder_actuator] = model.cylinder_rod_area
+        rate = model.motor_displacement / (2.0 * np.pi)
+        self.extend_area[model.motor_actuator] = rate
+        self.retract_area[model.motor_actuator] = rate
+        self.force_upper = relief * self.extend_area
+        self.force_lower = -relief * self.retract_area
+
+    def targets(self, spool, pump_speed):
+        """Target actuator velocities [m/s or rad/s] for the given spool positions and pump speeds."""
+        m = self.model
+        has = self.valve_of >= 0
+        s = np.where(has, spool[np.maximum(self.valve_of, 0)], 0.0) * self.valve_sign
+        opening = laws.metering_opening(np.abs(s), m.valve_overlap[np.maximum(self.valve_of, 0)]) * has
+        demand = opening * self.rated_flow[np.maximum(self.valve_of, 0)]
+        supply = float(np.sum(laws.pump_flow(m.pump_displacement, pump_speed, m.pump_efficiency)))
+        total = demand.sum()
+        if total > supply > 0:
+            demand *= supply / total
+        return np.where(s >= 0, demand / self.extend_area, -demand / self.retract_area)
+
+    def begin(self, state, control, position, velocity, dt, *, effective_mass=None, velocity_guess=None):
+        spool = laws.spool_step(state.valve_spool, np.clip(control.valve_command, -1.0, 1.0), self.model.valve_time_constant, dt)
+        target = self.targets(spool, control.pump_speed)
+        mass = np.ones_like(target) if effective_mass is None else np.where(np.isfinite(effective_mass), effective_mass, 1.0)
+        gain = INCOMPRESSIBLE_TRACKING_GAIN * mass / dt
+        self._spool = spool
+        self._law = EffortLaw(gain * target, -gain, self.force_lower, self.force_upper)
+        return self._law
+
+    def finish(self, state, control, position_start, position_end, velocity_start, velocity_end, dt):
+        m = self.model
+        effort = np.clip(self._law(np.asarray(velocity_end, float)), self.force_lower, self.force_upper)
+        ref = m.fluid.reference_pressure
+        pressure = np.full(m.node_count, ref)
+        pressure[m.node_fixed] = m.node_fixed_pressure[m.node_fixed]
+        for i, a in enumerate(m.cylinder_actuator):
+            if effort[a] >= 0:
+                pressure[m.cylinder_cap_node[i]] = ref + effort[a] / m.cylinder_cap_area[i]
+            else:
+                pressure[m.cylinder_rod_node[i]] = ref - effort[a] / m.cylinder_rod_area[i]
+        for i, a in enumerate(m.motor_actuator):
+            node = m.motor_a_node[i] if effort[a] >= 0 else m.motor_b_node[i]
+            pressure[node] = ref + abs(effort[a]) * 2.0 * np.pi / m.motor_displacement[i]
+        new = NetworkState(
+            m.oil_from_pressure(pressure, np.asarray(position_end, float)), pressure, self._spool,
+            np.asarray(position_end, float).copy(), np.asarray(velocity_end, float).copy(), state.time + dt,
+        )
+        return new, StepReport(branch_flow=np.zeros(len(m.branch_names)))
+
+
+COUPLINGS = {"explicit": CouplingExplicit, "implicit": CouplingImplicit, "incompressible": CouplingIncompressible}
 """Coupling names → classes."""
 
-DEFAULT_STEPPER = {"explicit": "explicit_euler", "implicit": "implicit_euler"}
+DEFAULT_STEPPER = {"explicit": "explicit_euler", "implicit": "implicit_euler", "incompressible": "implicit_euler"}
 """The hydraulic stepper each coupling uses unless told otherwise."""
 
 

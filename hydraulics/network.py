@@ -46,8 +46,10 @@ PRESSURE_INVERSION_TOLERANCE = 1e-13  # on ln(V·φ/m)
 ACTUATOR_CYLINDER = 0
 ACTUATOR_MOTOR = 1
 
-FIDELITIES = ("compressible", "lines")
-"""``compressible``: chamber pressure states, each hose lumped into the net its ends join.
+FIDELITIES = ("incompressible", "compressible", "lines")
+"""``incompressible``: no pressure states; actuators follow their metered flow up to the relief force
+(see :class:`hydraulics.coupling.CouplingIncompressible`).
+``compressible``: chamber pressure states, each hose lumped into the net its ends join.
 ``lines``: each hose is a π-line — half its volume at each end net, a laminar
 (Hagen–Poiseuille) resistance between them — for pressure-wave and valve-slam studies."""
 

@@ -47,7 +47,8 @@ class MujocoPlant(PlantBase):
         self.binding = scene.binding
         self.dt = scenario.dt
         self.coupling = make_coupling(
-            scenario.coupling, self.network, stepper=scenario.stepper, substeps=scenario.hydraulic_substeps
+            "incompressible" if scenario.fidelity == "incompressible" else scenario.coupling,
+            self.network, stepper=scenario.stepper, substeps=scenario.hydraulic_substeps,
         )
         m = self.model
         self.scalar_joints = np.array([j for j in range(m.njnt) if int(m.jnt_type[j]) in SCALAR_JOINTS], int)
@@ -126,11 +127,17 @@ class MujocoPlant(PlantBase):
         ids = self.binding.actuator_id
         d.ctrl[ids] = law.constant
         m.actuator_biasprm[ids, 2] = law.slope
+        if law.lower is not None:
+            # MuJoCo clamps within the step and keeps the implicit term only while unclamped:
+            # exactly a velocity tracker that stalls at its force limit
+            m.actuator_forcelimited[ids] = 1
+            m.actuator_forcerange[ids, 0] = law.lower
+            m.actuator_forcerange[ids, 1] = law.upper
         mujoco.mj_step2(m, d)
         v_end = moment @ d.qvel
         x_end = x + dt * v_end
         self.net_state, report = self.coupling.finish(self.net_state, self.control, x, x_end, v, v_end, dt)
-        self.effort = law(v_end)
+        self.effort = law(v_end) if law.lower is None else np.clip(law(v_end), law.lower, law.upper)
         self.theta = getattr(self.coupling, "last_theta", self.theta)
         self.last_report = report
         self._account(report, v_end, dt)
