@@ -167,51 +167,59 @@ class CouplingImplicit(Coupling):
 # Incompressible fidelity: the rod follows its metered flow with this stiffness relative to
 # m_eff/h (the velocity error left after one step is about 1/(1 + gain) of the demand change).
 INCOMPRESSIBLE_TRACKING_GAIN = 100.0  # [-]
-# Pressure drop at which a valve's rated (metered) flow is taken.
-NOMINAL_VALVE_DROP = 1.0e6  # Pa
 
 
 class CouplingIncompressible(Coupling):
     """``incompressible`` fidelity: no pressure states.
 
-    Each actuator's speed follows the flow its valve meters, Q = y(s)·C_d·A_max·
-    sqrt(2·Δp_nom/ρ) (y the edge opening, Δp_nom = ``NOMINAL_VALVE_DROP``), all
-    demands scaled down together when they exceed the pumps' delivery; v = Q/A_cap
-    extending, −Q/A_rod retracting, ω = 2π·Q/D for motors.  The law is a stiff
-    velocity tracker, f = K·(v_target − v⁺) with K = gain·m_eff/h, bounded by
-    the force the highest relief setting allows (``EffortLaw.lower/upper``; the
-    plant clamps within its step, so the actuator stalls there).  The
-    logged pressures are derived from the force: the loaded chamber carries it,
-    the other sits at the reference pressure.  **Limitations**: no oil-column
-    compliance, no valve pressure–flow dependence, no pump flow limit other than
-    the proportional sharing; energy terms of the network are not computed.
+    A valve-controlled actuator with rigid oil (Merritt §5.2, quasi-static):
+    with supply pressure p_s (the pump's compensator setting, or the highest
+    relief setting for fixed pumps), tank pressure p_t and the metering edges
+    a_in (P→inlet chamber) and a_out (outlet chamber→T) of the commanded
+    direction, the actuator force is a quadratic damper
+
+        F(v) = F_d − R·v·|v|,   F_d = ±(p_s·A_in − p_t·A_out),
+        R = (ρ/2)·(A_in³/(C_d·a_in)² + A_out³/(C_d·a_out)²),
+
+    (A_in = A_cap, A_out = A_rod extending, swapped retracting, D/2π for
+    motors), linearised at the start velocity so the plant integrates its slope
+    −2R|v| implicitly.  A closed valve locks the actuator with a stiff velocity
+    tracker (K = gain·m_eff/h towards v = 0), and an actuator faster than its
+    share of the pumps' delivery is tracked at that share.  The effort is bounded
+    by the highest relief setting (``EffortLaw.lower/upper``; the plant clamps
+    within its step, so the actuator stalls there).  Logged pressures are derived
+    from the force.  **Limitations**: no oil-column compliance (no pressure peaks
+    or oscillation), no leakage, energy terms of the network are not computed.
     """
 
     name = "incompressible"
 
     def __init__(self, model, stepper=None):
         super().__init__(model, stepper)
-        fluid = model.fluid
         n = model.actuator_count
-        self.valve_of = np.full(n, -1)
-        self.valve_sign = np.zeros(n)
+        self.edges = np.full((n, 4), -1)  # per actuator: orifice branches P→in, out→T (extend), P→out, in→T (retract)
         for a in range(n):
             if model.actuator_kind[a] == 0:
                 i = list(model.cylinder_actuator).index(a)
-                extend_node = model.cylinder_cap_node[i]
+                inlet, outlet = model.cylinder_cap_node[i], model.cylinder_rod_node[i]
             else:
                 i = list(model.motor_actuator).index(a)
-                extend_node = model.motor_a_node[i]
-            for b, name in enumerate(model.branch_names[model.branch_slices["orifice"]]):
-                if model.orifice_valve[b] >= 0 and name.endswith(".P-A") and model.branch_to[b] == extend_node:
-                    self.valve_of[a], self.valve_sign[a] = model.orifice_valve[b], 1.0
-                elif model.orifice_valve[b] >= 0 and name.endswith(".P-B") and model.branch_to[b] == extend_node:
-                    self.valve_of[a], self.valve_sign[a] = model.orifice_valve[b], -1.0
-        edge = {v: b for b, v in enumerate(model.orifice_valve) if v >= 0 and model.orifice_sign[b] > 0}
-        self.rated_flow = np.zeros(len(model.valve_names))
-        for v, b in edge.items():
-            self.rated_flow[v] = model.orifice_cd[b] * model.orifice_max_area[b] * np.sqrt(2.0 * NOMINAL_VALVE_DROP / fluid.density)
+                inlet, outlet = model.motor_a_node[i], model.motor_b_node[i]
+            for b in range(model.branch_slices["orifice"].stop):
+                if model.orifice_valve[b] < 0 or model.orifice_sign[b] == 0:
+                    continue
+                frm, to = model.branch_from[b], model.branch_to[b]
+                if to == inlet:
+                    self.edges[a, 0 if model.orifice_sign[b] > 0 else 2] = b
+                elif frm == outlet:
+                    self.edges[a, 1 if model.orifice_sign[b] > 0 else 3] = b
+                elif to == outlet:
+                    self.edges[a, 2 if model.orifice_sign[b] < 0 else 0] = b
+                elif frm == inlet:
+                    self.edges[a, 3 if model.orifice_sign[b] < 0 else 1] = b
         relief = np.max(model.relief_cracking, initial=0.0)
+        compensators = model.pump_compensator[np.isfinite(model.pump_compensator)]
+        self.supply_pressure = model.fluid.reference_pressure + (np.max(compensators) if len(compensators) else relief)
         self.extend_area = np.zeros(n)
         self.retract_area = np.zeros(n)
         self.extend_area[model.cylinder_actuator] = model.cylinder_cap_area
@@ -222,26 +230,43 @@ class CouplingIncompressible(Coupling):
         self.force_upper = relief * self.extend_area
         self.force_lower = -relief * self.retract_area
 
-    def targets(self, spool, pump_speed):
-        """Target actuator velocities [m/s or rad/s] for the given spool positions and pump speeds."""
+    def law(self, spool, pump_speed, velocity, effective_mass, dt) -> EffortLaw:
+        """Effort law for the step (see class docstring)."""
         m = self.model
-        has = self.valve_of >= 0
-        s = np.where(has, spool[np.maximum(self.valve_of, 0)], 0.0) * self.valve_sign
-        opening = laws.metering_opening(np.abs(s), m.valve_overlap[np.maximum(self.valve_of, 0)]) * has
-        demand = opening * self.rated_flow[np.maximum(self.valve_of, 0)]
+        rho = m.fluid.density
+        p_s, p_t = self.supply_pressure, m.fluid.reference_pressure
+        areas = m.valve_areas(spool)
+        edge = np.maximum(self.edges, 0)
+        coefficient = np.where(self.edges >= 0, m.orifice_cd[edge] * areas[edge], 0.0)
+        valve = m.orifice_valve[edge[:, 0]]
+        opening = np.where(self.edges[:, 0] >= 0, spool[np.maximum(valve, 0)] if len(spool) else 0.0, 0.0)
+        direction = np.sign(opening) * (laws.metering_opening(np.abs(opening), m.valve_overlap[np.maximum(valve, 0)]) > 0)
+        a_in = np.where(direction >= 0, self.extend_area, self.retract_area)
+        a_out = np.where(direction >= 0, self.retract_area, self.extend_area)
+        c_in = np.where(direction >= 0, coefficient[:, 0], coefficient[:, 2])
+        c_out = np.where(direction >= 0, coefficient[:, 1], coefficient[:, 3])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            resist = 0.5 * rho * (a_in**3 / c_in**2 + a_out**3 / c_out**2)
+        drive = direction * (p_s * a_in - p_t * a_out)
+        constant = drive + resist * velocity * np.abs(velocity)
+        slope = -2.0 * resist * np.abs(velocity)
+        # flow share of the pumps: demands beyond the delivery are scaled down together
+        free_speed = np.sqrt(np.maximum(np.abs(drive), 0.0) / resist)
+        demand = np.where(direction != 0, free_speed * a_in, 0.0)
         supply = float(np.sum(laws.pump_flow(m.pump_displacement, pump_speed, m.pump_efficiency)))
-        total = demand.sum()
-        if total > supply > 0:
-            demand *= supply / total
-        return np.where(s >= 0, demand / self.extend_area, -demand / self.retract_area)
+        share = demand * min(1.0, supply / demand.sum()) if demand.sum() > 0 else demand
+        cap = np.where(a_in > 0, share / a_in, 0.0)
+        mass = np.ones_like(velocity) if effective_mass is None else np.where(np.isfinite(effective_mass), effective_mass, 1.0)
+        gain = INCOMPRESSIBLE_TRACKING_GAIN * mass / dt
+        track = (direction == 0) | ~np.isfinite(resist) | (np.abs(velocity) >= cap)
+        target = direction * np.where(direction == 0, 0.0, cap)
+        constant = np.where(track, gain * target, constant)
+        slope = np.where(track, -gain, slope)
+        return EffortLaw(constant, slope, self.force_lower, self.force_upper)
 
     def begin(self, state, control, position, velocity, dt, *, effective_mass=None, velocity_guess=None):
-        spool = laws.spool_step(state.valve_spool, np.clip(control.valve_command, -1.0, 1.0), self.model.valve_time_constant, dt)
-        target = self.targets(spool, control.pump_speed)
-        mass = np.ones_like(target) if effective_mass is None else np.where(np.isfinite(effective_mass), effective_mass, 1.0)
-        gain = INCOMPRESSIBLE_TRACKING_GAIN * mass / dt
-        self._spool = spool
-        self._law = EffortLaw(gain * target, -gain, self.force_lower, self.force_upper)
+        self._spool = laws.spool_step(state.valve_spool, np.clip(control.valve_command, -1.0, 1.0), self.model.valve_time_constant, dt)
+        self._law = self.law(self._spool, control.pump_speed, np.asarray(velocity, float), effective_mass, dt)
         return self._law
 
     def finish(self, state, control, position_start, position_end, velocity_start, velocity_end, dt):
