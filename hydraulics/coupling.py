@@ -297,11 +297,14 @@ DEFAULT_STEPPER = {"explicit": "explicit_euler", "implicit": "implicit_euler", "
 """The hydraulic stepper each coupling uses unless told otherwise."""
 
 
-def make_coupling(name: str, model: NetworkModel, *, stepper=None, substeps: int = 1) -> Coupling:
-    """Build a coupling scheme with its finishing stepper (default per :data:`DEFAULT_STEPPER`)."""
+def make_coupling(name: str, model: NetworkModel, *, stepper=None, substeps: int = 1, compiled: bool = False) -> Coupling:
+    """Build a coupling scheme with its finishing stepper (default per :data:`DEFAULT_STEPPER`).
+
+    ``compiled`` selects the numba-compiled backward Euler where it applies.
+    """
     if name not in COUPLINGS:
         raise ValueError(f"unknown coupling {name!r}; choose from {sorted(COUPLINGS)}")
-    stepper = make_stepper(stepper or DEFAULT_STEPPER[name], model, substeps=substeps)
+    stepper = make_stepper(stepper or DEFAULT_STEPPER[name], model, substeps=substeps, compiled=compiled)
     return COUPLINGS[name](model, stepper)
 
 

@@ -443,10 +443,20 @@ STEPPERS = {cls.name: cls for cls in (StepperExplicitEuler, StepperImplicitEuler
 """Stable names → stepper classes; any :class:`Stepper` subclass is accepted too."""
 
 
-def make_stepper(name_or_class, model: NetworkModel, **options) -> Stepper:
-    """Instantiate a stepper from its registry name or class."""
+def make_stepper(name_or_class, model: NetworkModel, *, compiled: bool = False, **options) -> Stepper:
+    """Instantiate a stepper from its registry name or class.
+
+    ``compiled=True`` picks the numba-compiled backward Euler
+    (:class:`hydraulics._compiled.StepperImplicitEulerCompiled`, same results to
+    round-off) for ``"implicit_euler"`` when numba is available.
+    """
     if isinstance(name_or_class, str):
         if name_or_class not in STEPPERS:
             raise ValueError(f"unknown stepper {name_or_class!r}; choose from {sorted(STEPPERS)}")
         name_or_class = STEPPERS[name_or_class]
+    if compiled and name_or_class is StepperImplicitEuler:
+        from ._compiled import StepperImplicitEulerCompiled, compiled_available  # imports this module
+
+        if compiled_available():
+            name_or_class = StepperImplicitEulerCompiled
     return name_or_class(model, **options)

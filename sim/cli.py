@@ -66,6 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--iterations", type=_positive_int, help="XPBD iterations per substep (PBD mode)")
     run.add_argument("--out", type=Path, help="log file (default: logs/<scene>-<scenario>-<mode>-<coupling>-<time>.mcap)")
     run.add_argument("--no-progress", action="store_true", help="no progress line")
+    run.add_argument("--pure", action="store_true", help="pure numpy hydraulics instead of the compiled kernels (same results to round-off)")
 
     sub.add_parser("demo", help="hydraulics-only demo: pump, valve and cylinder lifting a 1-DOF mass")
 
@@ -83,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Tool subcommands living in their own modules: each module has ``add_parser(subparsers)``,
 # which registers one subcommand whose ``func`` default is ``module.main(args) -> int``.
-TOOL_MODULES = ()
+TOOL_MODULES = ("sim.inspect_scene",)
 
 
 def _tool_modules():
@@ -103,6 +104,7 @@ def _run(args) -> int:
         "hydraulic_substeps": args.substeps,
         "pbd_substeps": args.pbd_substeps,
         "pbd_iterations": args.iterations,
+        "compiled": False if args.pure else None,
     }
     result = run(args.scenario, out=args.out, overrides=overrides, progress=not args.no_progress)
     print(result.summary_text())

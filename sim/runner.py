@@ -119,6 +119,7 @@ def run_metadata(scenario: Scenario) -> dict:
         "pbd_substeps": str(scenario.pbd_substeps),
         "pbd_iterations": str(scenario.pbd_iterations),
         "fidelity": scenario.fidelity,
+        "compiled": str(scenario.compiled),
         "log_rate_hz": repr(scenario.log_rate_hz),
         "hydroplant_version": version("hydroplant"),
         "mujoco_version": mujoco.__version__,

@@ -75,6 +75,7 @@ class Scenario:
     pbd_substeps: int = 20
     pbd_iterations: int = 1
     fidelity: str = "compressible"
+    compiled: bool = True
     qpos: dict = field(default_factory=dict)
     qvel: dict = field(default_factory=dict)
     equilibrium: bool = True
@@ -141,6 +142,13 @@ def _choice(table, key, where, choices, default):
     value = table.get(key, default)
     if value not in choices and value is not None:
         _error(where, f"field '{key}': {value!r} is not one of {list(choices)}")
+    return value
+
+
+def _flag(table, key, where, default):
+    value = table.get(key, default)
+    if not isinstance(value, bool):
+        _error(where, f"field '{key}': expected true or false, got {value!r}")
     return value
 
 
@@ -234,7 +242,7 @@ def load_scenario(path) -> Scenario:
     for name, table in (("run", run), ("initial", initial), ("log", log)):
         if not isinstance(table, dict):
             _error(where, f"[{name}] must be a table")
-    run_keys = {"mode", "coupling", "stepper", "dt", "duration", "hydraulic_substeps", "pbd_substeps", "pbd_iterations", "fidelity"}
+    run_keys = {"mode", "coupling", "stepper", "dt", "duration", "hydraulic_substeps", "pbd_substeps", "pbd_iterations", "fidelity", "compiled"}
     unknown = sorted(set(run) - run_keys)
     if unknown:
         _error(where, f"unknown field(s) in [run]: {unknown}; allowed: {sorted(run_keys)}")
@@ -279,6 +287,7 @@ def load_scenario(path) -> Scenario:
         pbd_substeps=_number(run, "pbd_substeps", w, low=1, high=1e5, low_open=False, default=20, integer=True),
         pbd_iterations=_number(run, "pbd_iterations", w, low=1, high=1e5, low_open=False, default=1, integer=True),
         fidelity=_choice(run, "fidelity", w, FIDELITIES, "compressible"),
+        compiled=_flag(run, "compiled", w, True),
         qpos=joint_table("qpos"),
         qvel=joint_table("qvel"),
         equilibrium=equilibrium,

@@ -1,0 +1,208 @@
+"""The compiled backward-Euler stepper agrees with the pure numpy one to round-off, step by step."""
+
+import time
+
+import numpy as np
+import pytest
+
+from conftest import MODELS, network_from_toml
+from hydraulics._compiled import StepperImplicitEulerCompiled, compiled_available
+from hydraulics.circuit import load_circuit
+from hydraulics.network import NetworkModel
+from hydraulics import steppers
+from hydraulics.steppers import ActuatorMotion, StepperImplicitEuler
+from test_network import ALL_KINDS
+
+pytestmark = pytest.mark.skipif(not compiled_available(), reason="numba is not installed")
+
+DT = 1e-3  # s
+CIRCUITS = {
+    "boom": MODELS / "boom" / "boom.circuit.toml",
+    "excavator": MODELS / "excavator" / "excavator.circuit.toml",
+    "seed_cylinder": MODELS / "seed_cylinder" / "seed_cylinder.circuit.toml",
+    "lift": MODELS / "lift_1dof" / "lift.circuit.toml",
+    "all_kinds": None,
+}
+PRESSURE_RTOL, PRESSURE_ATOL = 1e-9, 1e-3  # -, Pa
+OIL_RTOL = 1e-9
+LINEARIZATION_RTOL = 1e-8
+
+_models = {}
+
+
+def model(name) -> NetworkModel:
+    if name not in _models:
+        path = CIRCUITS[name]
+        _models[name] = network_from_toml(ALL_KINDS) if path is None else NetworkModel.from_circuit(load_circuit(path))
+    return _models[name]
+
+
+def start_state(m: NetworkModel):
+    x0 = np.where(m.actuator_kind == 0, 0.5 * _strokes(m), 0.0)
+    p0 = np.full(m.node_count, 3e6)
+    if len(m.accumulator_node):  # the pump cannot charge the accumulator to the relief in time: start above it
+        p0[m.accumulator_node] = 1.02 * np.min(m.relief_cracking)
+    return m.state(actuator_position=x0, node_pressure=p0)
+
+
+def _strokes(m):
+    stroke = np.ones(m.actuator_count)
+    stroke[m.cylinder_actuator] = m.cylinder_stroke
+    return stroke
+
+
+def motion_at(m, t, amplitude):
+    """Smooth prescribed actuator motion: x = x_mid + a·sin(2πft + k); motors turn at a sine speed."""
+    k = np.arange(m.actuator_count)
+    omega = 2 * np.pi * 1.5
+    scale = np.where(m.actuator_kind == 0, amplitude * _strokes(m), 3.0)
+    mid = np.where(m.actuator_kind == 0, 0.5 * _strokes(m), 0.0)
+    return mid + scale * np.sin(omega * t + k), scale * omega * np.cos(omega * t + k)
+
+
+def command_at(m, n):
+    """Valves closed for 100 steps (pump on: supply climbs to the relief, moving actuators cavitate a chamber),
+    then slammed open, shut, reversed and shut every 50 steps."""
+    if n < 100:
+        return np.zeros(len(m.valve_names))
+    phase = (n - 100) // 50 + np.arange(len(m.valve_names))
+    return np.array([1.0, 0.0, -1.0, 0.0])[phase % 4]
+
+
+def assert_states_close(a, b, where):
+    np.testing.assert_allclose(b.node_pressure, a.node_pressure, rtol=PRESSURE_RTOL, atol=PRESSURE_ATOL, err_msg=where)
+    np.testing.assert_allclose(b.node_oil, a.node_oil, rtol=OIL_RTOL, atol=0.0, err_msg=where)  # NaN == NaN on tanks
+    np.testing.assert_array_equal(b.valve_spool, a.valve_spool, err_msg=where)
+
+
+def run_both(name, steps=300, amplitude=0.05, substeps=1):
+    m = model(name)
+    pure = StepperImplicitEuler(m, substeps=substeps)
+    fast = StepperImplicitEulerCompiled(m, substeps=substeps)
+    sa = sb = start_state(m)
+    control = m.control()
+    floor_hit = relief_flow = 0.0
+    history = []
+    relief = m.branch_slices["relief"]
+    for n in range(steps):
+        control.valve_command[:] = command_at(m, n)
+        x0, v0 = motion_at(m, n * DT, amplitude)
+        x1, v1 = motion_at(m, (n + 1) * DT, amplitude)
+        motion = ActuatorMotion(x0, x1, v0, v1)
+        history.append((sa, control.valve_command.copy(), v1))
+        sa, ra = pure.step(sa, control, motion, DT)
+        sb, rb = fast.step(sb, control, motion, DT)
+        where = f"{name} step {n}"
+        assert (rb.status, rb.newton_iterations, rb.rhs_evaluations, rb.jacobian_evaluations) == (
+            ra.status, ra.newton_iterations, ra.rhs_evaluations, ra.jacobian_evaluations), where
+        assert rb.residual == pytest.approx(ra.residual, rel=1e-6, abs=1e-3), where  # Newton tolerance is 1e-2 Pa
+        np.testing.assert_allclose(rb.branch_flow, ra.branch_flow, rtol=1e-7, atol=1e-12, err_msg=where)
+        assert_states_close(sa, sb, where)
+        floor_hit = max(floor_hit, np.sum(sa.node_pressure[m.free_nodes] <= m.fluid.pressure_floor))
+        relief_flow = max(relief_flow, np.max(ra.branch_flow[relief], initial=0.0))
+    assert (pure.rhs_count, pure.jacobian_count) == (fast.rhs_count, fast.jacobian_count)
+    return m, history, floor_hit, relief_flow
+
+
+_histories = {}
+
+
+@pytest.mark.parametrize("name", list(CIRCUITS))
+def test_steps_match_pure_stepper(name):
+    m, _histories[name], floor_hit, relief_flow = run_both(name)
+    if name != "seed_cylinder":  # the seed has no cavitation floor and no relief valve
+        assert floor_hit, "the scenario should make a chamber cavitate"
+        assert relief_flow > 0, "the scenario should open a relief valve"
+
+
+def test_hard_motion_and_substeps_match():
+    """Large, fast strokes (deep cavitation, pressure spikes) with two substeps per step."""
+    run_both("lift", steps=200, amplitude=0.3, substeps=2)
+    run_both("all_kinds", steps=150, amplitude=0.3, substeps=2)
+
+
+@pytest.mark.parametrize("name", list(CIRCUITS))
+def test_linearize_matches_pure_stepper(name):
+    m = model(name)
+    history = _histories.get(name) or run_both(name)[1]
+    pure, fast = StepperImplicitEuler(m), StepperImplicitEulerCompiled(m)
+    control = m.control()
+    for state, command, velocity in history[::25]:
+        control.valve_command[:] = command
+        a = pure.linearize(state, control, velocity, DT)
+        b = fast.linearize(state, control, velocity, DT)
+        rel = LINEARIZATION_RTOL
+        scale = np.max(np.abs(a.effort_velocity_gradient))
+        np.testing.assert_allclose(b.effort, a.effort, rtol=rel, atol=rel * np.max(np.abs(a.effort)))
+        np.testing.assert_allclose(b.effort_velocity_gradient, a.effort_velocity_gradient, rtol=rel, atol=rel * scale)
+        np.testing.assert_array_equal(b.velocity, a.velocity)
+        assert_states_close(a.state, b.state, f"{name} linearize")
+        np.testing.assert_allclose(b.state.actuator_position, a.state.actuator_position, rtol=1e-15)
+        assert b.state.time == a.state.time
+        assert b.report.newton_iterations == a.report.newton_iterations
+
+
+def test_newton_failure_reported_alike(monkeypatch):
+    """With the iteration limit cut to 1 (read from hydraulics.steppers by both) a valve slam fails alike."""
+    monkeypatch.setattr(steppers, "NEWTON_MAX_ITERATIONS", 1)
+    m = model("excavator")
+    pure, fast = StepperImplicitEuler(m), StepperImplicitEulerCompiled(m)
+    state = start_state(m)
+    control = m.control(boom_valve=1.0, stick_valve=-1.0)
+    motion = ActuatorMotion.held(state.actuator_position)
+    (sa, ra), (sb, rb) = pure.step(state, control, motion, 0.05), fast.step(state, control, motion, 0.05)
+    assert not ra.success
+    assert (rb.status, rb.message, rb.newton_iterations, rb.rhs_evaluations) == (ra.status, ra.message, ra.newton_iterations, ra.rhs_evaluations)
+    assert sb is state and sa is state  # a failed step returns the last good state
+
+
+def test_timing_excavator():
+    """Print (not assert) the cost of one step of each stepper on the excavator circuit."""
+    m = model("excavator")
+    steps = 200
+    motions = []
+    for n in range(steps):
+        x0, v0 = motion_at(m, n * DT, 0.05)
+        x1, v1 = motion_at(m, (n + 1) * DT, 0.05)
+        motions.append(ActuatorMotion(x0, x1, v0, v1))
+    commands = [0.8 * np.sin(2 * np.pi * 0.5 * n * DT + np.arange(len(m.valve_names))) for n in range(steps)]
+    results = {}
+    for cls, repeats in ((StepperImplicitEuler, 1), (StepperImplicitEulerCompiled, 5)):
+        stepper = cls(m)
+        control = m.control()
+        stepper.step(start_state(m), control, ActuatorMotion.held(motions[0].position_start), DT)  # compile / warm up
+        best = np.inf
+        for _ in range(repeats):
+            state = start_state(m)
+            newton = 0
+            start = time.perf_counter()
+            for n in range(steps):
+                control.valve_command[:] = commands[n]
+                state, report = stepper.step(state, control, motions[n], DT)
+                newton += report.newton_iterations
+            best = min(best, (time.perf_counter() - start) / steps * 1e6)
+        results[cls.name] = (best, newton / steps)
+    pure, fast = results["implicit_euler"], results["implicit_euler_compiled"]
+    print(f"\nexcavator, dt = {DT} s: implicit_euler {pure[0]:.1f} us/step ({pure[1]:.2f} Newton it/step), "
+          f"implicit_euler_compiled {fast[0]:.1f} us/step ({fast[1]:.2f} Newton it/step), speed-up {pure[0] / fast[0]:.1f}x")
+
+
+@pytest.mark.parametrize(
+    "scenario, duration",
+    [("seed_cylinder/closed.scenario.toml", 0.02), ("boom/lift.scenario.toml", 1.5), ("excavator/dig.scenario.toml", 1.5)],
+)
+def test_compiled_and_pure_paths_agree_on_scenes(scenario, duration, tmp_path):
+    """MuJoCo mode with the compiled kernels and with the pure numpy path: same trajectories to round-off."""
+    from sim.mcap_log import read_log
+    from sim.runner import run
+
+    path = MODELS / scenario
+    pure = read_log(run(path, out=tmp_path / "pure.mcap", overrides={"duration": duration, "compiled": False}).log_path)
+    fast = read_log(run(path, out=tmp_path / "fast.mcap", overrides={"duration": duration, "compiled": True}).log_path)
+    assert pure.metadata["hydroplant.run"]["compiled"] == "False" and fast.metadata["hydroplant.run"]["compiled"] == "True"
+    for topic in pure.topics:
+        if not topic.startswith("/hydroplant/cylinders/"):
+            continue
+        a, b = pure.topic(topic), fast.topic(topic)
+        for field in ("position_m", "p_cap_pa", "p_rod_pa", "force_n"):
+            np.testing.assert_allclose(b[field], a[field], rtol=1e-7, atol=1e-6 * np.max(np.abs(a[field])))
