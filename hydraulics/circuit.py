@@ -117,7 +117,7 @@ def parse_circuit(data: dict, source: str = "<memory>") -> Circuit:
             raise CircuitError(f"{where}: duplicate component name '{name}'")
         names.add(name)
         kind = table.get("type")
-        if kind not in COMPONENT_TYPES:
+        if not isinstance(kind, str) or kind not in COMPONENT_TYPES:
             raise CircuitError(f"{where}, field 'type': unknown component type {kind!r}; allowed: {sorted(COMPONENT_TYPES)}")
         cls = COMPONENT_TYPES[kind]
         ports = table.get("ports")
@@ -148,9 +148,11 @@ def load_circuit(path) -> Circuit:
     """Read and validate a circuit TOML file."""
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise CircuitError(f"{path}: circuit file not found") from None
+    except UnicodeDecodeError:
+        raise CircuitError(f"{path}: not a UTF-8 text file (a circuit is TOML)") from None
     except OSError as exc:
         raise CircuitError(f"{path}: cannot read circuit file ({exc.strerror})") from None
     try:

@@ -252,7 +252,10 @@ def check_number(value, meta, where: str) -> float:
     """Validate one numeric value against a field's range; raise CircuitError naming ``where``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise CircuitError(f"{where}: expected a number in {describe_range(meta)}, got {value!r}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:
+        raise CircuitError(f"{where}: {value!r} is outside the allowed range {describe_range(meta)}") from None
     low, high = meta["low"], meta["high"]
     ok = math.isfinite(value) or (value == math.inf and high is not None and high >= 1e12)
     if ok and low is not None:

@@ -112,17 +112,21 @@ def _run(args) -> int:
 
 
 def _log(args) -> int:
+    from mcap.exceptions import McapError
+
     from .mcap_log import log_info, recover
 
-    if args.log_command == "info":
-        if not args.log.is_file():
-            raise CircuitError(f"{args.log}: log file not found")
-        print(log_info(args.log))
-        return 0
-    if not args.partial.is_file():
-        raise CircuitError(f"{args.partial}: partial log not found")
-    out = args.out or args.partial.with_name(args.partial.name.removesuffix(".partial").removesuffix(".mcap") + ".recovered.mcap")
-    report = recover(args.partial, out, overwrite=True)
+    path = args.log if args.log_command == "info" else args.partial
+    if not path.is_file():
+        raise CircuitError(f"{path}: log file not found")
+    try:
+        if args.log_command == "info":
+            print(log_info(path))
+            return 0
+        out = args.out or path.with_name(path.name.removesuffix(".partial").removesuffix(".mcap") + ".recovered.mcap")
+        report = recover(path, out, overwrite=True)
+    except (OSError, ValueError, EOFError, LookupError, McapError) as exc:
+        raise CircuitError(f"{path}: not a readable MCAP log ({type(exc).__name__}: {exc})") from None
     print(report)
     print(f"recovered log: {out}")
     return 0

@@ -123,7 +123,10 @@ def _number(table, key, where, *, low=None, high=None, low_open=True, default=No
     value = table[key]
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         _error(where, f"field '{key}': expected a number, got {value!r}")
-    value = float(value)
+    try:
+        value = float(value)
+    except OverflowError:
+        value = math.inf  # rejected as out of range below
     ok = math.isfinite(value)
     if ok and low is not None:
         ok = value > low if low_open else value >= low
@@ -177,19 +180,19 @@ def _schedule(name, spec, where) -> Schedule:
 def _csv_inputs(path: Path, where) -> dict:
     """Schedules from a CSV file whose first column is time [s] and whose header names the inputs."""
     try:
-        with open(path, newline="") as f:
-            rows = list(csv.reader(f))
-    except FileNotFoundError:
-        _error(where, f"field 'inputs_csv': file {path} not found")
+        with open(path, newline="", encoding="utf-8") as f:
+            rows = [row for row in csv.reader(f) if row]
+    except (OSError, UnicodeDecodeError) as exc:
+        _error(where, f"field 'inputs_csv': cannot read {path} ({getattr(exc, 'strerror', None) or exc})")
     if len(rows) < 2 or rows[0][0].strip() != "t":
         _error(f"{path}", "a header row starting with 't' and at least one data row are required")
     header = [h.strip() for h in rows[0]]
+    if any(len(row) != len(header) for row in rows[1:]):
+        _error(f"{path}", f"every row needs {len(header)} columns, like the header")
     try:
-        data = np.array([[float(x) for x in row] for row in rows[1:] if row], dtype=float)
+        data = np.array([[float(x) for x in row] for row in rows[1:]], dtype=float)
     except ValueError as exc:
         _error(f"{path}", f"not a number: {exc}")
-    if data.shape[1] != len(header):
-        _error(f"{path}", "every row needs as many columns as the header")
     return {name: _schedule(name, {"t": data[:, 0].tolist(), "value": data[:, i].tolist()}, str(path)) for i, name in enumerate(header) if i}
 
 
@@ -217,9 +220,13 @@ def load_scenario(path) -> Scenario:
     path = Path(path).resolve()
     where = str(path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ScenarioError(f"{path}: scenario file not found") from None
+    except UnicodeDecodeError:
+        raise ScenarioError(f"{path}: not a UTF-8 text file (a scenario is TOML)") from None
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read scenario file ({exc.strerror})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
     allowed = {"scene", "run", "initial", "inputs", "inputs_csv", "log"}
@@ -242,10 +249,16 @@ def load_scenario(path) -> Scenario:
     for name, table in (("run", run), ("initial", initial), ("log", log)):
         if not isinstance(table, dict):
             _error(where, f"[{name}] must be a table")
-    run_keys = {"mode", "coupling", "stepper", "dt", "duration", "hydraulic_substeps", "pbd_substeps", "pbd_iterations", "fidelity", "compiled"}
-    unknown = sorted(set(run) - run_keys)
-    if unknown:
-        _error(where, f"unknown field(s) in [run]: {unknown}; allowed: {sorted(run_keys)}")
+    allowed_keys = {
+        "scene": {"mjcf", "circuit"},
+        "run": {"mode", "coupling", "stepper", "dt", "duration", "hydraulic_substeps", "pbd_substeps", "pbd_iterations", "fidelity", "compiled"},
+        "initial": {"qpos", "qvel", "equilibrium", "base_pressure", "pressures"},
+        "log": {"rate_hz"},
+    }
+    for name, table in (("scene", scene), ("run", run), ("initial", initial), ("log", log)):
+        unknown = sorted(set(table) - allowed_keys[name])
+        if unknown:
+            _error(where, f"unknown field(s) in [{name}]: {unknown}; allowed: {sorted(allowed_keys[name])}")
     w = f"{where}, [run]"
     dt = _number(run, "dt", w, low=0.0, high=1.0, default=1e-3)
     duration = _number(run, "duration", w, low=0.0, high=1e6, default=1.0)

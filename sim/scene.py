@@ -48,8 +48,31 @@ class Scene:
         return Path(self.scenario.mjcf).read_bytes()
 
 
+def check_masses(path: Path) -> None:
+    """Reject negative masses and inertias in the MJCF text (MuJoCo's compiler silently zeroes some)."""
+    import xml.etree.ElementTree as ElementTree
+
+    try:
+        root = ElementTree.parse(path).getroot()
+    except (ElementTree.ParseError, OSError):
+        return  # MuJoCo's compiler reports it with its own message
+    for body in root.iter("body"):
+        for element in [body, *body.findall("inertial"), *body.findall("geom")]:
+            for attribute in ("mass", "diaginertia"):
+                text = element.get(attribute)
+                try:
+                    values = [float(v) for v in text.split()] if text else []
+                except ValueError:
+                    continue
+                if any(v < 0 for v in values):
+                    raise ScenarioError(
+                        f"{path}: body '{body.get('name', '?')}', <{element.tag}> {attribute}=\"{text}\": must be >= 0 (kg, kg*m^2)"
+                    )
+
+
 def load_mjmodel(path: Path) -> mujoco.MjModel:
     """Compile an MJCF, turning MuJoCo's errors into a ScenarioError naming the file."""
+    check_masses(path)
     try:
         return mujoco.MjModel.from_xml_path(str(path))
     except Exception as exc:  # mujoco raises ValueError with the parser's message
