@@ -84,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Tool subcommands living in their own modules: each module has ``add_parser(subparsers)``,
 # which registers one subcommand whose ``func`` default is ``module.main(args) -> int``.
-TOOL_MODULES = ("sim.inspect_scene",)
+TOOL_MODULES = ("sim.inspect_scene", "sim.stability", "sim.compare", "sim.tradeoff")
 
 
 def _tool_modules():

@@ -25,6 +25,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from .guards import check_plant
 from .mcap_log import LogLevel, LogWriter
 from .recorder import RunRecorder
 from .scenario import Scenario, load_scenario
@@ -138,6 +139,10 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     if scene.network.pruned and progress:
         print(f"hydroplant: not built (connected to no cylinder or motor): {', '.join(scene.network.pruned)}", file=sys.stderr)
     plant = make_plant(scene)
+    guard = check_plant(plant)  # load-time stability guards: warn, never fail
+    if progress:
+        for text in guard.warnings:
+            print(f"hydroplant: warning: {text}", file=sys.stderr)
     log_path = Path(out) if out is not None else default_log_path(scenario)
     log_path.parent.mkdir(parents=True, exist_ok=True)
     attachments = [
@@ -155,6 +160,8 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     last_progress = start
     with LogWriter(log_path, dt=scenario.dt, run_metadata=run_metadata(scenario), attachments=attachments, overwrite=overwrite) as log:
         recorder = RunRecorder(log, plant)
+        for text in guard.warnings:
+            recorder.event(0, LogLevel.WARNING, "stability guard: " + text)
         sample = recorder.sample(0)
         for n in range(steps):
             report = plant.step()

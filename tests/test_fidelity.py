@@ -126,3 +126,20 @@ def test_incompressible_lift_speed_is_pump_flow_over_area(tmp_path):
     q = pump.displacement * 40.0 * pump.volumetric_efficiency  # scenario: 40 rev/s
     moving = cyl.t > 1.5
     assert np.mean(cyl["velocity_mps"][moving]) == pytest.approx(q / circuit.component("boom_cyl").params.cap_area, rel=0.01)
+
+
+def test_inspect_reports_what_is_built_and_the_stability_verdict(tmp_path, capsys):
+    """`hydroplant inspect` names the pruned parts, counts the states and gives ω_h at mid and 5 % stroke."""
+    from sim.cli import main
+
+    scene = scene_copy(tmp_path, "boom")
+    circuit = scene / "boom.circuit.toml"
+    circuit.write_text(circuit.read_text() + EXTRA)
+    assert main(["inspect", str(scene / "hold.scenario.toml"), "--coupling", "explicit"]) == 0
+    text = capsys.readouterr().out
+    assert "pruned    spare_valve, spare_hose, spare_supply" in text
+    assert "4 hydraulic states" in text and "contact   off" in text
+    row = next(line for line in text.splitlines() if line.startswith("boom_cyl"))
+    f_mid, f_end = (float(v.removesuffix("Hz")) for v in row.split()[4:6])
+    assert f_end > f_mid > 1.0  # the oil column stiffens towards the end of the stroke
+    assert "largest stable dt for explicit" in text

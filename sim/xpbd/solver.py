@@ -71,6 +71,27 @@ class SubstepInputs:
     row_force      (nrows,) explicit force along the row [N], + pushes the sites apart.
     joint_force    (njnt,) generalized force per MuJoCo joint (hinge torque / slide force).
     body_wrench    (nbody, 6) world force at COM and torque per MuJoCo body.
+    row_mobility   (nrows, ngroup, 6) articulated response of the mechanism to each row:
+                   displacement of every rigid group's centre of mass [m] and its rotation
+                   vector [rad] (world frame) per unit multiplier of the row [1/(N·s²)], i.e.
+                   the body motion of Δq = M⁻¹ Jᵀ (J: row length rates per joint velocity, M:
+                   joint-space mass matrix); rows 0 for static groups.  When given, the active
+                   rows are solved together (``_solve_rows_block``): W = ∂C/∂λ is formed from
+                   these displacements at the current geometry, Δλ = −(W + α̃)⁻¹ (C + α̃ λ)
+                   ([XPBD] eq. 16 restricted to the rows), and the groups are moved by
+                   Σ mobility·Δλ, which keeps the joints satisfied to first order (the joint
+                   projections clean up the rest).  A stiff row inside an articulated chain
+                   then gets the response of the whole mechanism in one iteration, whereas its
+                   free-body inverse mass makes Gauss-Seidel converge slowly and leaves the row
+                   force far below its compliant law.  Bounds are applied per row after the
+                   block solve.
+    group_gravity  (ngroup, 6) acceleration [m/s²] and angular acceleration [rad/s²] (world
+                   frame) of each rigid group that replaces the uniform gravity in the
+                   prediction, e.g. the articulated response of gravity (the body motion of
+                   q̈ = M⁻¹ Q_gravity).  The prediction is then consistent with the joints to
+                   first order, so one projection pass does not leave the load-dependent joint
+                   error (and velocity noise) that the free fall of every body under uniform
+                   gravity does.
     """
 
     target_length: Optional[np.ndarray] = None
@@ -80,6 +101,8 @@ class SubstepInputs:
     row_force: Optional[np.ndarray] = None
     joint_force: Optional[np.ndarray] = None
     body_wrench: Optional[np.ndarray] = None
+    row_mobility: Optional[np.ndarray] = None
+    group_gravity: Optional[np.ndarray] = None
 
 
 @dataclass
@@ -322,7 +345,7 @@ class SolverXPBD:
 
     # ------------------------------------------------------------------ position solve
     def _solve_positions(self, X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo, Xp, Qp,
-                         reverse=False):
+                         reverse=False, block=None):
         """One Gauss-Seidel pass over joints, equalities, length rows and contacts.
 
         With ``reverse`` the whole sequence (and the rows inside each joint) is traversed
@@ -334,12 +357,18 @@ class SolverXPBD:
         negative or complex eigenvalues a one-sided sweep can have.  This shows up when
         a light body sits between two joints (a slender arm carrying a slider, a cylinder
         rod), and more substeps do not cure it.
+
+        ``block`` (the active rows' group mobilities, see ``SubstepInputs.row_mobility``)
+        solves the rows together with their articulated response.
         """
         if not reverse:
             self._solve_joints(X, Q, self._joints)
             self._solve_eqs(X, Q, self._eqs)
             if rowdata:
-                self._solve_rows(X, Q, rowdata, lam_rows)
+                if block is None:
+                    self._solve_rows(X, Q, rowdata, lam_rows)
+                else:
+                    self._solve_rows_block(X, Q, rowdata, lam_rows, block)
             if cands:
                 self._solve_contacts(X, Q, range(len(cands)), cands, lam_n, lam_t, cinfo, Xp, Qp)
         else:
@@ -347,7 +376,10 @@ class SolverXPBD:
                 self._solve_contacts(X, Q, range(len(cands) - 1, -1, -1), cands, lam_n, lam_t,
                                      cinfo, Xp, Qp)
             if rowdata:
-                self._solve_rows(X, Q, rowdata[::-1], lam_rows)
+                if block is None:
+                    self._solve_rows(X, Q, rowdata[::-1], lam_rows)
+                else:
+                    self._solve_rows_block(X, Q, rowdata, lam_rows, block)
             self._solve_eqs(X, Q, self._eqs[::-1])
             self._solve_joints(X, Q, self._joints[::-1], reverse=True)
 
@@ -450,6 +482,62 @@ class SolverXPBD:
             lam_rows[i] += solve_positional(X, Q, IM, II, ga, gb, raw, rbw,
                                             (d[0] / ell, d[1] / ell, d[2] / ell), ell - tgt,
                                             at, lam_rows[i], lo, hi)
+
+    def _solve_rows_block(self, X, Q, rowdata, lam_rows, mobility):
+        """Active rows solved together with their articulated response ``mobility`` (nested
+        lists [row][group] of 6 floats, see ``SubstepInputs.row_mobility``): W[i, j] = ∂C_i/∂λ_j
+        from the group displacements at the current geometry, (W + α̃) Δλ = −C − α̃λ, λ clamped
+        to its bounds, then every group moved by Σ_j mobility[j]·Δλ_j."""
+        k = len(rowdata)
+        A = [[0.0] * k for _ in range(k)]
+        rhs = [0.0] * k
+        live = [False] * k
+        for m, (i, tgt, at, lo, hi) in enumerate(rowdata):
+            ga, gb, ra, rb = self._rows[i][:4]
+            raw = quat_rotate(Q[ga], ra)
+            rbw = quat_rotate(Q[gb], rb)
+            xa, xb = X[ga], X[gb]
+            d = (xb[0] + rbw[0] - xa[0] - raw[0], xb[1] + rbw[1] - xa[1] - raw[1],
+                 xb[2] + rbw[2] - xa[2] - raw[2])
+            ell = math.sqrt(dot(d, d))
+            if ell < _EPS:
+                A[m][m] = 1.0
+                continue
+            n = (d[0] / ell, d[1] / ell, d[2] / ell)
+            row = A[m]
+            for j in range(k):  # n·(δp_b − δp_a) per unit multiplier of row j
+                mb, ma = mobility[j][gb], mobility[j][ga]
+                cb = cross((mb[3], mb[4], mb[5]), rbw)
+                ca = cross((ma[3], ma[4], ma[5]), raw)
+                row[j] = (n[0] * (mb[0] + cb[0] - ma[0] - ca[0]) + n[1] * (mb[1] + cb[1] - ma[1] - ca[1])
+                          + n[2] * (mb[2] + cb[2] - ma[2] - ca[2]))
+            row[m] += at
+            rhs[m] = -(ell - tgt) - at * lam_rows[i]
+            live[m] = True
+        if not any(live):
+            return
+        dlam = _solve_dense(A, rhs)
+        if dlam is None:
+            self._solve_rows(X, Q, rowdata, lam_rows)
+            return
+        for m, (i, tgt, at, lo, hi) in enumerate(rowdata):
+            new = min(max(lam_rows[i] + dlam[m], lo), hi) if live[m] else lam_rows[i]
+            dlam[m] = new - lam_rows[i]
+            lam_rows[i] = new
+        for g in range(1, len(X)):
+            if self._IM[g] == 0.0:
+                continue
+            mv = [0.0] * 6
+            for j in range(k):
+                dl = dlam[j]
+                if dl != 0.0:
+                    mj = mobility[j][g]
+                    for c in range(6):
+                        mv[c] += dl * mj[c]
+            x = X[g]
+            X[g] = [x[0] + mv[0], x[1] + mv[1], x[2] + mv[2]]
+            if mv[3] != 0.0 or mv[4] != 0.0 or mv[5] != 0.0:
+                Q[g] = K._quat_add_rotation(Q[g], (mv[3], mv[4], mv[5]), 1.0)
 
     def _solve_contacts(self, X, Q, order, cands, lam_n, lam_t, cinfo, Xp, Qp):
         """Normal pass over all contact candidates, then the static-friction pass."""
@@ -696,14 +784,24 @@ class SolverXPBD:
                 if r is not None:
                     inp = r
             rowdata = self._row_setup(inp, h)
+            block = None
+            if rowdata and inp.row_mobility is not None:
+                block = np.asarray(inp.row_mobility, dtype=float)[[r[0] for r in rowdata]].tolist()
             F, T = self._external(inp, X, Q)
             if inp is not None and inp.joint_force is not None:
                 self._apply_hinge_torques(inp, V, W, Q, h)
             Xp, Qp = X[:], Q[:]
+            gg = None if inp is None or inp.group_gravity is None else np.asarray(inp.group_gravity, float).tolist()
             for g in dyn:  # predict
+                acc, tq = grav, None if T is None else T[g]
+                if gg is not None:  # given group accelerations instead of uniform gravity
+                    acc = gg[g][:3]
+                    al = quat_rotate_inv(Q[g], gg[g][3:])
+                    ta = quat_rotate(Q[g], (GI[g][0] * al[0], GI[g][1] * al[1], GI[g][2] * al[2]))
+                    tq = ta if tq is None else (tq[0] + ta[0], tq[1] + ta[1], tq[2] + ta[2])
                 X[g], Q[g], V[g], W[g] = predict_body(
-                    X[g], Q[g], V[g], W[g], GI[g], II[g], IM[g], grav,
-                    None if F is None else F[g], None if T is None else T[g], h)
+                    X[g], Q[g], V[g], W[g], GI[g], II[g], IM[g], acc,
+                    None if F is None else F[g], tq, h)
             lam_rows = [0.0] * nr
             lam_n = [0.0] * len(cands)
             lam_t = [0.0] * len(cands)
@@ -711,12 +809,12 @@ class SolverXPBD:
             for _ in range(self.iterations):
                 if self.symmetric:
                     self._solve_positions(X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo,
-                                          Xp, Qp, reverse=False)
+                                          Xp, Qp, reverse=False, block=block)
                     self._solve_positions(X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo,
-                                          Xp, Qp, reverse=True)
+                                          Xp, Qp, reverse=True, block=block)
                 else:
                     self._solve_positions(X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo,
-                                          Xp, Qp, reverse=False)
+                                          Xp, Qp, reverse=False, block=block)
             for g in dyn:  # velocity update
                 V[g], W[g] = update_velocity_body(X[g], Q[g], Xp[g], Qp[g], h)
             if need_vel:
@@ -759,3 +857,30 @@ class SolverXPBD:
         n = d / np.where(ell > 0, ell, 1.0)[:, None]
         dv = (v[gb] + np_cross(w[gb], rb)) - (v[ga] + np_cross(w[ga], ra))
         return ell, np.einsum("ij,ij->i", dv, n)
+
+
+def _solve_dense(A, b):
+    """Solve the small dense system A x = b (lists; Gaussian elimination with partial
+    pivoting); None if singular.  For the handful of rows of ``_solve_rows_block``."""
+    n = len(b)
+    M = [list(A[i]) + [b[i]] for i in range(n)]
+    for c in range(n):
+        p = max(range(c, n), key=lambda r: abs(M[r][c]))
+        if abs(M[p][c]) < 1e-300:
+            return None
+        if p != c:
+            M[c], M[p] = M[p], M[c]
+        piv = M[c][c]
+        for r in range(c + 1, n):
+            f = M[r][c] / piv
+            if f != 0.0:
+                Mr, Mc = M[r], M[c]
+                for cc in range(c, n + 1):
+                    Mr[cc] -= f * Mc[cc]
+    x = [0.0] * n
+    for r in range(n - 1, -1, -1):
+        acc = M[r][n]
+        for cc in range(r + 1, n):
+            acc -= M[r][cc] * x[cc]
+        x[r] = acc / M[r][r]
+    return x

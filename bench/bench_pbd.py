@@ -1,0 +1,132 @@
+"""PBD mode speed and accuracy across substeps, beside MuJoCo mode, on the same machine in the same run.
+
+For each scene: the real-time factor (simulated s per wall s, logging included, as
+``hydroplant run`` reports it) and the largest cylinder stroke error against a
+reference, for PBD mode at a 60 Hz frame (1200 Hz for the seed) with 5–40 XPBD
+substeps and for MuJoCo mode at several steps, so PBD's speed can be read at
+matched accuracy.  References: the seed's own equations solved by scipy (seed
+cylinder); MuJoCo mode at dt = 0.25 ms (boom, excavator).  The excavator runs its
+full 20 s dig cycle.  The second error column stops before the first contact:
+the boom cylinder reaching its end stop (2.45 s) and the excavator's teeth
+reaching the ground (1.6 s).  From there on the contact models (XPBD's rigid
+joint limits and Coulomb contacts, MuJoCo's soft limits and contacts: 0.7 mm of
+transient overtravel at the boom's end stop) differ and set the error.  Every
+mode is run once briefly before timing, so numba's cache loading is not timed.
+
+    python bench/bench_pbd.py [--quick] [--scenes seed_cylinder boom excavator] [--substeps 5 10 20 40]
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+from sim.mcap_log import read_log  # noqa: E402
+from sim.runner import run  # noqa: E402
+from sim.scenario import load_scenario  # noqa: E402
+from sim.scene import load_scene  # noqa: E402
+
+SCENES = {
+    "seed_cylinder": dict(path=ROOT / "models/seed_cylinder/closed.scenario.toml", duration=0.1, pbd_dt=1 / 1200,
+                          pbd_substeps=(10, 20, 40, 80, 160), mujoco_dt=(1 / 1200, 1e-4, 1e-5), reference="scipy"),
+    "boom": dict(path=ROOT / "models/boom/lift.scenario.toml", duration=6.0, pbd_dt=1 / 60,
+                 mujoco_dt=(2e-3, 1e-3, 5e-4), reference=2.5e-4, early=2.4),
+    "excavator": dict(path=ROOT / "models/excavator/dig.scenario.toml", duration=20.0, pbd_dt=1 / 60,
+                      mujoco_dt=(1e-3, 5e-4), reference=2.5e-4, early=1.5),
+}
+QUICK_DURATION = {"boom": 3.0, "excavator": 4.0}
+
+
+def strokes(result):
+    """{cylinder: (t, x)} from a run's log."""
+    log = read_log(result.log_path)
+    net = load_scene(result.scenario).network
+    out = {}
+    for a in net.cylinder_actuator:
+        name = net.actuator_names[a]
+        cyl = log.topic(f"/hydroplant/cylinders/{name}")
+        out[name] = (cyl.t, cyl["position_m"])
+    return out
+
+
+def stroke_error(result, reference, scale, early=None):
+    """Largest |x − x_ref| / scale over the cylinders [-], over the whole run and over t < ``early``."""
+    if result.status != "complete":
+        return np.nan, np.nan
+    errors, early_errors = [], []
+    for name, (t, x) in strokes(result).items():
+        x_ref = reference(name, t)
+        e = np.abs(x - x_ref) / scale[name]
+        errors.append(np.max(e))
+        if early is not None:
+            early_errors.append(np.max(e[t < early]))
+    return max(errors), (max(early_errors) if early_errors else np.nan)
+
+
+def bench_scene(name, spec, substeps, quick, out):
+    path = spec["path"]
+    duration = QUICK_DURATION.get(name, spec["duration"]) if quick else spec["duration"]
+    net = load_scene(load_scenario(path)).network
+    scale = {net.actuator_names[a]: net.cylinder_stroke[i] for i, a in enumerate(net.cylinder_actuator)}
+    if spec["reference"] == "scipy":
+        from test_mujoco_plant import seed_reference
+
+        def reference(cylinder, t):
+            return seed_reference(t)[0]
+
+        swing = np.ptp(seed_reference(np.linspace(0.0, duration, 2001))[0])
+        scale = {k: swing for k in scale}  # error relative to the swing (1 → 4.9 m), not the 10 m bookkeeping stroke
+        ref_label = "scipy (seed equations)"
+    else:
+        ref_run = run(path, out=out / f"{name}-ref.mcap", overrides={"mode": "mujoco", "dt": spec["reference"], "duration": duration})
+        ref_strokes = strokes(ref_run)
+
+        def reference(cylinder, t):
+            t_ref, x_ref = ref_strokes[cylinder]
+            return np.interp(t, t_ref, x_ref)
+
+        ref_label = f"MuJoCo mode dt {spec['reference'] * 1e3:g} ms ({ref_run.status})"
+    early = spec.get("early")
+    scale_label = "swing" if spec["reference"] == "scipy" else "stroke"
+    print(f"\n{name}: {duration:g} s, reference {ref_label}; stroke error = max over cylinders of |x − x_ref| / {scale_label}")
+    head = f"  {'mode':<10} {'dt [ms]':>8} {'substeps':>8} {'h [ms]':>8} {'status':>9} {'RTF':>7} {'stroke err':>11}"
+    print(head + (f" {'err t<' + format(early, 'g') + ' s':>11}" if early else ""))
+    rows = [("mujoco", dt, 1) for dt in spec["mujoco_dt"]]
+    rows += [("pbd", spec["pbd_dt"], n) for n in (spec.get("pbd_substeps") or substeps)]
+    for mode, dt in {(mode, dt) for mode, dt, _ in rows}:  # warm-up (numba cache, first calls)
+        run(path, out=out / "warmup.mcap", overrides={"mode": mode, "dt": dt, "duration": 5 * dt})
+    for mode, dt, n in rows:
+        overrides = {"mode": mode, "dt": dt, "duration": duration, "pbd_substeps": n if mode == "pbd" else None}
+        result = run(path, out=out / f"{name}-{mode}-{n}-{dt:.6g}.mcap", overrides=overrides)
+        err, err_early = stroke_error(result, reference, scale, early)
+        line = (f"  {mode:<10} {dt * 1e3:8.4g} {n if mode == 'pbd' else '-':>8} {dt / n * 1e3:8.4g} {result.status:>9} "
+                f"{result.real_time_factor:7.3f} {err:11.3%}")
+        print(line + (f" {err_early:11.3%}" if early else ""), flush=True)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="boom 3 s and excavator 4 s instead of the full scenarios")
+    parser.add_argument("--scenes", nargs="+", choices=list(SCENES), default=list(SCENES))
+    parser.add_argument("--substeps", nargs="+", type=int, default=[5, 10, 20, 40], help="XPBD substeps per 60 Hz frame")
+    args = parser.parse_args(argv)
+    warnings.filterwarnings("ignore", message="XpbdModel:")
+    print(f"machine: {platform.processor() or platform.machine()}, {platform.python_implementation()} {platform.python_version()}, "
+          f"mujoco {mujoco.__version__}, numpy {np.__version__}")
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in args.scenes:
+            bench_scene(name, SCENES[name], args.substeps, args.quick, Path(tmp))
+
+
+if __name__ == "__main__":
+    main()

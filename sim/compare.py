@@ -1,0 +1,736 @@
+"""``hydroplant compare``: runs of a scenario against its converged reference.
+
+::
+
+    hydroplant compare SCENARIO [--modes mujoco,mujoco:explicit,pbd,pbd-naive] [--out DIR]
+    hydroplant compare REFERENCE.mcap RUN.mcap [RUN2.mcap ...] [--out DIR]
+
+The first form computes (or takes from the cache) the converged MuJoCo-mode reference of
+the scenario (:mod:`sim.reference`), runs each mode (``mode`` or ``mode:coupling``), and
+writes into ``--out``: one MCAP log per run, ``reference.mcap``, ``merged.mcap`` (topics
+prefixed ``/reference/...``, ``/mujoco/...``, ``/pbd/...``; open it in Foxglove), and
+``report.md`` with a table per run and PNG figures.  The second form does the same for
+existing logs, the first one taken as the reference.
+
+Compared signals (:func:`log_signals`): every scalar joint position [rad or m], every
+cylinder stroke [m], every cylinder chamber and motor port pressure [Pa].  The error
+metrics are pure functions of (time, value) arrays: :func:`align` puts two signals on
+common times (the sparser of the two grids, over the span both cover, the other signal
+interpolated linearly), :func:`error_stats` gives the maximum and RMS absolute error and
+both relative to the reference's range.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hydraulics.components import CircuitError
+
+from .mcap_log import RESULT_METADATA, RUN_METADATA, merge_logs, read_log
+
+__all__ = [
+    "ErrorStats",
+    "KINDS",
+    "RunComparison",
+    "Signal",
+    "align",
+    "compare_logs",
+    "compare_runs",
+    "energy_drift",
+    "error_series",
+    "error_stats",
+    "log_signals",
+    "log_status",
+    "parse_runs",
+]
+
+KINDS = ("joint", "stroke", "pressure")  # signal groups, in table order
+KIND_UNITS = {"joint": "rad or m", "stroke": "m", "pressure": "Pa"}
+KIND_DISPLAY = {"joint": (1e3, "mrad or mm"), "stroke": (1e3, "mm"), "pressure": (1e-5, "bar")}  # factor, unit
+JOINT_TOPIC = "/hydroplant/joint_states"
+CYLINDER_PREFIX = "/hydroplant/cylinders/"
+MOTOR_PREFIX = "/hydroplant/motors/"
+ENERGY_TOPIC = "/hydroplant/energy"
+TIME_MATCH_NS = 1000  # sample times closer than this [ns] count as the same instant
+
+
+# ---------------------------------------------------------------------------------------
+# Signals and error metrics (pure functions)
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Signal:
+    """One compared signal of a log.
+
+    Attributes
+    ----------
+    name : str
+        ``"joint <j>"``, ``"stroke <cyl>"``, ``"p_cap <cyl>"``, ``"p_rod <cyl>"``,
+        ``"p_a <motor>"``, ``"p_b <motor>"``.
+    kind : {"joint", "stroke", "pressure"}
+    t : ndarray, shape (n,)
+        Simulation time [s].
+    y : ndarray, shape (n,)
+        Value [rad or m, m, Pa].
+    """
+
+    name: str
+    kind: str
+    t: np.ndarray
+    y: np.ndarray
+
+
+def log_signals(log) -> dict[str, Signal]:
+    """The compared signals of a run log (a path or a :class:`sim.mcap_log.RunLog`)."""
+    if not hasattr(log, "topic"):
+        log = read_log(log)
+    out: dict[str, Signal] = {}
+    if JOINT_TOPIC in log:
+        joints = log.topic(JOINT_TOPIC)
+        for name in joints.fields:
+            if name.startswith("position/"):
+                joint = name.removeprefix("position/")
+                out[f"joint {joint}"] = Signal(f"joint {joint}", "joint", joints.t, joints[name])
+    for topic in log.topics:
+        if topic.startswith(CYLINDER_PREFIX):
+            cyl = topic.removeprefix(CYLINDER_PREFIX)
+            data = log.topic(topic)
+            for label, column, kind in (("stroke", "position_m", "stroke"), ("p_cap", "p_cap_pa", "pressure"),
+                                        ("p_rod", "p_rod_pa", "pressure")):
+                if column in data:
+                    out[f"{label} {cyl}"] = Signal(f"{label} {cyl}", kind, data.t, data[column])
+        elif topic.startswith(MOTOR_PREFIX):
+            motor = topic.removeprefix(MOTOR_PREFIX)
+            data = log.topic(topic)
+            for label, column in (("p_a", "p_a_pa"), ("p_b", "p_b_pa")):
+                if column in data:
+                    out[f"{label} {motor}"] = Signal(f"{label} {motor}", "pressure", data.t, data[column])
+    return out
+
+
+def align(t_ref, y_ref, t, y):
+    """Two signals on common times.
+
+    Parameters
+    ----------
+    t_ref, y_ref : array_like, shape (n,)
+        Reference times [s] (increasing) and values.
+    t, y : array_like, shape (m,)
+        The other signal.
+
+    Returns
+    -------
+    times, ref, other : ndarray, shape (k,)
+        Over the span both signals cover, at the times of the sparser grid there (the
+        reference's when equally dense); the other signal is interpolated linearly.
+        Where both grids hold the same instants (within 1 µs) no value is interpolated.
+        Samples where either value is not finite are dropped. ``k`` may be 0.
+    """
+    t_ref, y_ref, t, y = (np.asarray(a, dtype=float) for a in (t_ref, y_ref, t, y))
+    ok_ref, ok = np.isfinite(y_ref) & np.isfinite(t_ref), np.isfinite(y) & np.isfinite(t)
+    t_ref, y_ref, t, y = t_ref[ok_ref], y_ref[ok_ref], t[ok], y[ok]
+    if len(t_ref) == 0 or len(t) == 0:
+        empty = np.zeros(0)
+        return empty, empty, empty
+    slack = TIME_MATCH_NS * 1e-9
+    lo, hi = max(t_ref[0], t[0]) - slack, min(t_ref[-1], t[-1]) + slack
+    in_ref = (t_ref >= lo) & (t_ref <= hi)
+    in_other = (t >= lo) & (t <= hi)
+    if in_other.sum() < in_ref.sum():  # the other grid is sparser: evaluate there
+        times = t[in_other]
+        return times, _resample(t_ref, y_ref, times), y[in_other]
+    times = t_ref[in_ref]
+    return times, y_ref[in_ref], _resample(t, y, times)
+
+
+def _resample(t, y, times):
+    """y(times) by linear interpolation, exact at samples within 1 µs of ``times``."""
+    out = np.interp(times, t, y)
+    i = np.clip(np.searchsorted(t, times), 0, len(t) - 1)
+    for j in (i, np.maximum(i - 1, 0)):
+        hit = np.abs(t[j] - times) <= TIME_MATCH_NS * 1e-9
+        out[hit] = y[j][hit]
+    return out
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """Error of a signal against the reference over the compared span.
+
+    Attributes
+    ----------
+    max_abs, rms : float
+        Largest and root-mean-square absolute error (signal units); NaN if nothing overlaps.
+    ref_range : float
+        Peak-to-peak of the reference over its whole log (signal units).
+    max_rel, rms_rel : float
+        ``max_abs`` and ``rms`` divided by ``ref_range`` (NaN when the range is 0).
+    t_max : float
+        Time of the largest error [s].
+    t_end : float
+        Last compared time [s] (earlier than the reference's end when the run stopped).
+    samples : int
+        Number of compared samples.
+    """
+
+    max_abs: float
+    rms: float
+    ref_range: float
+    max_rel: float
+    rms_rel: float
+    t_max: float
+    t_end: float
+    samples: int
+
+
+def error_series(t_ref, y_ref, t, y):
+    """``(times, y − y_ref)`` on the common times of :func:`align`."""
+    times, ref, other = align(t_ref, y_ref, t, y)
+    return times, other - ref
+
+
+def error_stats(t_ref, y_ref, t, y) -> ErrorStats:
+    """Max and RMS error of ``(t, y)`` against ``(t_ref, y_ref)``; see :class:`ErrorStats`."""
+    y_ref_all = np.asarray(y_ref, dtype=float)
+    finite = y_ref_all[np.isfinite(y_ref_all)]
+    ref_range = float(np.ptp(finite)) if len(finite) else math.nan
+    times, e = error_series(t_ref, y_ref, t, y)
+    if len(e) == 0:
+        return ErrorStats(math.nan, math.nan, ref_range, math.nan, math.nan, math.nan, math.nan, 0)
+    a = np.abs(e)
+    i = int(np.argmax(a))
+    max_abs, rms = float(a[i]), float(np.sqrt(np.mean(e * e)))
+    rel = (lambda v: v / ref_range) if ref_range > 0 else (lambda v: math.nan)
+    return ErrorStats(max_abs, rms, ref_range, rel(max_abs), rel(rms), float(times[i]), float(times[-1]), len(e))
+
+
+def energy_drift(log) -> dict:
+    """Energy-balance residual of a run log (pump work − Δ(kinetic+potential+oil) − dissipation).
+
+    Returns
+    -------
+    dict
+        ``final_j`` (residual at the last sample), ``max_abs_j`` and ``relative`` =
+        ``max_abs_j`` / energy scale, the scale being the larger of the final pump work and the
+        largest kinetic + oil energy of the run [J] (1 J at least). NaN without an energy topic.
+    """
+    if not hasattr(log, "topic"):
+        log = read_log(log)
+    if ENERGY_TOPIC not in log:
+        return {"final_j": math.nan, "max_abs_j": math.nan, "relative": math.nan}
+    e = log.topic(ENERGY_TOPIC)
+    residual = e["residual_j"]
+    finite = residual[np.isfinite(residual)]
+    if len(finite) == 0:
+        return {"final_j": math.nan, "max_abs_j": math.nan, "relative": math.nan}
+    moving = e["kinetic_j"] + e["oil_j"]
+    scale = max(1.0, float(np.nanmax(np.abs(e["pump_work_j"]), initial=0.0)), float(np.nanmax(np.abs(moving), initial=0.0)))
+    max_abs = float(np.max(np.abs(finite)))
+    return {"final_j": float(finite[-1]), "max_abs_j": max_abs, "relative": max_abs / scale}
+
+
+def log_status(log) -> tuple[str, float]:
+    """``(status, time)`` of a run log: ``"complete"``, ``"diverged"`` (time of divergence [s]), …"""
+    result = log.metadata.get(RESULT_METADATA, {})
+    status = result.get("status", "unknown")
+    try:
+        when = float(result.get("time_s", "nan"))
+    except ValueError:
+        when = math.nan
+    if status == "diverged" and not math.isfinite(when):
+        when = log.end_time_ns / 1e9
+    return status, when
+
+
+# ---------------------------------------------------------------------------------------
+# One run against the reference
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass
+class RunComparison:
+    """A run log against the reference log.
+
+    Attributes
+    ----------
+    label : str
+        Run label (``mujoco``, ``pbd``, ``mujoco-explicit``, file stem ...).
+    log_path : Path
+    status : str
+        ``complete``, ``diverged``, ``incomplete`` ...
+    diverged_at : float
+        Time of divergence [s] (NaN unless diverged).
+    signals : dict of str to ErrorStats
+        Per compared signal.
+    wall_time, real_time_factor : float
+        From the run (NaN for existing logs without them).
+    energy : dict
+        :func:`energy_drift` of the run.
+    """
+
+    label: str
+    log_path: Path
+    status: str
+    diverged_at: float
+    signals: dict = field(default_factory=dict)
+    wall_time: float = math.nan
+    real_time_factor: float = math.nan
+    energy: dict = field(default_factory=dict)
+    settings: str = ""
+
+    def kind_stats(self, kind: str) -> dict:
+        """Worst signal of a kind: ``max_abs``, ``rms``, ``max_rel`` (maxima over its signals) and ``worst``."""
+        rows = {n: s for n, s in self.signals.items() if _kind_of(n) == kind and s.samples}
+        if not rows:
+            return {"max_abs": math.nan, "rms": math.nan, "max_rel": math.nan, "worst": ""}
+        worst = max(rows, key=lambda n: rows[n].max_abs)
+        return {
+            "max_abs": rows[worst].max_abs,
+            "rms": max(s.rms for s in rows.values()),
+            "max_rel": max((s.max_rel for s in rows.values() if math.isfinite(s.max_rel)), default=math.nan),
+            "worst": worst,
+        }
+
+    @property
+    def stable(self) -> bool:
+        return self.status == "complete"
+
+
+def _kind_of(signal_name: str) -> str:
+    head = signal_name.split(" ", 1)[0]
+    return {"joint": "joint", "stroke": "stroke"}.get(head, "pressure")
+
+
+def scene_identity(log) -> dict:
+    """What identifies the scene of a log: name and the MJCF and circuit attachments' contents."""
+    run = log.metadata.get(RUN_METADATA, {})
+    ident = {"scene": run.get("scene")}
+    for name, data in log.attachments.items():
+        if name.endswith(".xml"):
+            ident["mjcf"] = data
+        elif name == "circuit.toml":
+            ident["circuit"] = data
+    return ident
+
+
+def check_same_scene(ref_log, log) -> None:
+    """Raise :class:`CircuitError` when two logs are of different scenes or share no signal."""
+    a, b = scene_identity(ref_log), scene_identity(log)
+    for key, what in (("scene", "scene name"), ("mjcf", "MJCF"), ("circuit", "circuit")):
+        if a.get(key) is not None and b.get(key) is not None and a[key] != b[key]:
+            detail = f" ({a[key]!r} vs {b[key]!r})" if key == "scene" else " (attachments differ)"
+            raise CircuitError(f"{ref_log.path} and {log.path} are logs of different scenes: their {what} differ{detail}")
+    if not set(log_signals(ref_log)) & set(log_signals(log)):
+        raise CircuitError(f"{ref_log.path} and {log.path} have no joint, stroke or pressure signal in common; "
+                           "they are not logs of the same scene")
+
+
+def compare_logs(ref_log, log, *, label: str | None = None, wall_time: float = math.nan,
+                 real_time_factor: float = math.nan) -> RunComparison:
+    """Compare a run log with the reference log (paths or :class:`RunLog`)."""
+    ref_log = ref_log if hasattr(ref_log, "topic") else read_log(ref_log)
+    log = log if hasattr(log, "topic") else read_log(log)
+    check_same_scene(ref_log, log)
+    ref, run = log_signals(ref_log), log_signals(log)
+    stats = {name: error_stats(ref[name].t, ref[name].y, run[name].t, run[name].y) for name in ref if name in run}
+    status, when = log_status(log)
+    meta = log.metadata.get(RUN_METADATA, {})
+    settings = run_settings_text(meta)
+    return RunComparison(label or log.path.stem, log.path, status, when if status == "diverged" else math.nan, stats,
+                         wall_time, real_time_factor, energy_drift(log), settings)
+
+
+def run_settings_text(meta: dict) -> str:
+    """Short description of a run's settings from its ``hydroplant.run`` metadata."""
+    if not meta:
+        return ""
+    mode = meta.get("mode", "?")
+    coupling = "" if mode == "pbd-naive" else f", {meta.get('coupling', '?')}"  # the naive scheme is always explicit
+    text = f"{mode}{coupling}, dt {float(meta.get('dt_s', 'nan')):.4g} s"
+    if mode == "mujoco" and meta.get("hydraulic_substeps", "1") != "1":
+        text += f", {meta['hydraulic_substeps']} hydraulic substeps"
+    if mode.startswith("pbd"):
+        text += f", {meta.get('pbd_substeps', '?')} substeps × {meta.get('pbd_iterations', '?')} iterations"
+    return text
+
+
+# ---------------------------------------------------------------------------------------
+# Runs of a scenario
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of ``compare``: a mode and a coupling, and its label (merge prefix, file name)."""
+
+    mode: str
+    coupling: str
+    label: str
+
+
+def pbd_available() -> tuple[bool, str]:
+    """Whether the PBD modes can run here, and why not."""
+    try:
+        from .plant_pbd import make_pbd_plant  # noqa: F401
+    except ImportError as exc:
+        return False, f"the PBD plant is not available ({exc})"
+    return True, ""
+
+
+def default_modes() -> str:
+    """``mujoco:implicit,mujoco:explicit`` plus ``pbd,pbd-naive`` when the PBD plant imports."""
+    return "mujoco:implicit,mujoco:explicit" + (",pbd,pbd-naive" if pbd_available()[0] else "")
+
+
+def parse_runs(text: str, default_coupling: str = "implicit") -> list[RunSpec]:
+    """Parse ``"mujoco,mujoco:explicit,pbd"`` into run specs.
+
+    Each item is ``mode`` or ``mode:coupling`` (a bare mode uses ``default_coupling``). The
+    label is the mode when that mode appears once, else ``mode-coupling``.
+    """
+    from .scenario import COUPLINGS, MODES
+
+    items = [item.strip() for item in text.split(",") if item.strip()]
+    if not items:
+        raise CircuitError("--modes: no mode given; expected e.g. 'mujoco,mujoco:explicit,pbd'")
+    pairs = []
+    for item in items:
+        mode, _, coupling = item.partition(":")
+        coupling = coupling or default_coupling
+        if mode not in MODES:
+            raise CircuitError(f"--modes: {mode!r} is not one of {list(MODES)}")
+        if coupling not in COUPLINGS:
+            raise CircuitError(f"--modes: coupling {coupling!r} of {item!r} is not one of {list(COUPLINGS)}")
+        if (mode, coupling) in pairs:
+            raise CircuitError(f"--modes: {item!r} is listed twice")
+        pairs.append((mode, coupling))
+    counts = {m: sum(1 for mm, _ in pairs if mm == m) for m, _ in pairs}
+    return [RunSpec(m, c, m if counts[m] == 1 else f"{m}-{c}") for m, c in pairs]
+
+
+@dataclass
+class CompareResult:
+    """What ``compare`` wrote."""
+
+    reference_label: str
+    reference_log: Path
+    reference_text: str
+    comparisons: list
+    report_path: Path
+    merged_path: Path | None
+    figures: list
+
+
+def compare_runs(scenario, specs: list[RunSpec], out_dir, *, dt: float | None = None, duration: float | None = None,
+                 tolerance=None, cache_dir=None, fresh_reference: bool = False, progress: bool = False) -> CompareResult:
+    """Reference + one run per spec of a scenario; logs, merged log, report and figures in ``out_dir``."""
+    from .reference import DEFAULT_CACHE_DIR, compute_reference
+    from .runner import run
+    from .scenario import Scenario, load_scenario
+
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario)
+    if duration is not None:
+        scenario = scenario.with_overrides(duration=duration)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if any(s.mode.startswith("pbd") for s in specs):
+        ok, why = pbd_available()
+        if not ok:
+            raise CircuitError(f"--modes: {why}; leave the pbd modes out")
+    reference = compute_reference(scenario, tolerance=tolerance, cache_dir=cache_dir or DEFAULT_CACHE_DIR,
+                                  fresh=fresh_reference, progress=progress)
+    ref_copy = out_dir / "reference.mcap"
+    shutil.copyfile(reference.log_path, ref_copy)
+    ref_log = read_log(ref_copy)
+    comparisons = []
+    for spec in specs:
+        path = out_dir / f"{spec.label}.mcap"
+        result = run(scenario, out=path, overrides={"mode": spec.mode, "coupling": spec.coupling, "dt": dt})
+        if progress:
+            import sys
+
+            print(f"compare: {spec.label}: {result.status}, {result.wall_time:.2f} s wall", file=sys.stderr)
+        comparisons.append(compare_logs(ref_log, path, label=spec.label, wall_time=result.wall_time,
+                                        real_time_factor=result.real_time_factor))
+    merged = out_dir / "merged.mcap"
+    merge_logs({"reference": ref_copy, **{c.label: c.log_path for c in comparisons}}, merged, overwrite=True)
+    title = f"{scenario.scene_name}/{scenario.name}, {scenario.duration:g} s"
+    ref_text = f"{reference.settings_text()} ({'cached' if reference.cached else f'computed in {reference.wall_time:.0f} s'})"
+    return _write_report(out_dir, title, "reference", ref_log, ref_text, reference.report.text(), comparisons, merged)
+
+
+def compare_existing(logs: list, out_dir) -> CompareResult:
+    """``compare A.mcap B.mcap …``: A is the reference."""
+    for path in logs:
+        if not Path(path).is_file():
+            raise CircuitError(f"{path}: log file not found")
+    try:
+        ref_log = read_log(logs[0])
+        others = [read_log(p) for p in logs[1:]]
+    except ValueError as exc:
+        raise CircuitError(str(exc)) from None
+    comparisons = []
+    labels = set()
+    for log in others:
+        label = log.path.stem
+        while label in labels or label == "reference":
+            label += "_"
+        labels.add(label)
+        comparisons.append(compare_logs(ref_log, log, label=label))
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    meta = ref_log.metadata.get(RUN_METADATA, {})
+    title = f"{meta.get('scene', '?')} logs: {', '.join(Path(p).name for p in logs)}"
+    ref_text = f"{ref_log.path.name} ({run_settings_text(meta) or 'no run metadata'})"
+    merged = out_dir / "merged.mcap"
+    try:
+        merge_logs({"reference": ref_log.path, **{c.label: c.log_path for c in comparisons}}, merged, overwrite=True)
+    except ValueError:
+        merged = None  # a prefix Foxglove would not like (file stem with odd characters): skip the merged log
+    return _write_report(out_dir, title, "reference", ref_log, ref_text, "", comparisons, merged)
+
+
+# ---------------------------------------------------------------------------------------
+# Report and figures
+# ---------------------------------------------------------------------------------------
+
+
+def _num(value: float, digits: int = 3) -> str:
+    return f"{value:.{digits}g}" if math.isfinite(value) else "–"
+
+
+def _status_text(c: RunComparison) -> str:
+    if c.status == "diverged":
+        return f"diverged at {c.diverged_at:.4g} s"
+    return "stable" if c.status == "complete" else c.status
+
+
+def summary_table(comparisons: list) -> str:
+    """Markdown table: one row per run."""
+    head = ["run", "settings", "status", "wall [s]", "RTF"]
+    for kind in KINDS:
+        unit = KIND_DISPLAY[kind][1]
+        head += [f"{kind} max [{unit}]", f"{kind} RMS [{unit}]"]
+    head += ["energy drift [J]", "drift / scale"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for c in comparisons:
+        row = [c.label, c.settings or "–", _status_text(c), _num(c.wall_time), _num(c.real_time_factor)]
+        for kind in KINDS:
+            s = c.kind_stats(kind)
+            factor = KIND_DISPLAY[kind][0]
+            row += [_num(s["max_abs"] * factor), _num(s["rms"] * factor)]
+        row += [_num(c.energy.get("max_abs_j", math.nan)), _num(c.energy.get("relative", math.nan))]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def signal_table(c: RunComparison) -> str:
+    """Markdown table of one run: every signal's max and RMS error."""
+    lines = ["| signal | max error | RMS error | max / range | at t [s] | compared until [s] |", "|---|---|---|---|---|---|"]
+    for name, s in c.signals.items():
+        factor, unit = KIND_DISPLAY[_kind_of(name)]
+        lines.append(f"| {name} | {_num(s.max_abs * factor)} {unit} | {_num(s.rms * factor)} {unit} | "
+                     f"{_num(100 * s.max_rel)} % | {_num(s.t_max, 4)} | {_num(s.t_end, 4)} |")
+    return "\n".join(lines)
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+COLORS = ("tab:blue", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink", "tab:gray", "tab:olive")
+
+
+def overlay_figure(ref_log, comparisons: list, path, *, title: str = "", max_cylinders: int = 3) -> Path:
+    """Reference vs every run: stroke and cap pressure of each cylinder over time (the seed's Figure 4)."""
+    plt = _pyplot()
+    ref = log_signals(ref_log)
+    runs = [(c.label, log_signals(read_log(c.log_path)), c) for c in comparisons]
+    cylinders = [n.removeprefix("stroke ") for n in ref if n.startswith("stroke ")][:max_cylinders]
+    panels = [(f"stroke {c}", f"p_cap {c}") for c in cylinders]
+    if not panels:  # no cylinder: joints
+        joints = [n for n in ref if n.startswith("joint ")][:2 * max_cylinders]
+        panels = [tuple(joints[i:i + 2]) for i in range(0, len(joints), 2)]
+    rows = len(panels)
+    fig, axes = plt.subplots(rows, 2, figsize=(10, 2.4 * rows + 1.0), squeeze=False, sharex=True, layout="constrained")
+    for r, names in enumerate(panels):
+        for k, name in enumerate(names):
+            ax = axes[r][k]
+            if name not in ref:
+                ax.set_visible(False)
+                continue
+            sig = ref[name]
+            factor, unit = KIND_DISPLAY[sig.kind]
+            if sig.kind == "joint":
+                factor, unit = 1.0, "rad or m"
+            ax.plot(sig.t, sig.y * factor, color="tab:orange", lw=2.2, label="reference", zorder=1)
+            lo, hi = np.nanmin(sig.y * factor), np.nanmax(sig.y * factor)
+            pad = 0.25 * (hi - lo) + 1e-12
+            for i, (label, sigs, c) in enumerate(runs):
+                if name not in sigs:
+                    continue
+                s = sigs[name]
+                y = np.where(np.isfinite(s.y), s.y * factor, np.nan)
+                ax.plot(s.t, y, color=COLORS[i % len(COLORS)], lw=1.0, label=f"{label} ({_status_text(c)})", zorder=2)
+                if c.status == "diverged":
+                    ax.axvline(c.diverged_at, color=COLORS[i % len(COLORS)], ls=":", lw=0.8)
+            ax.set_ylim(lo - pad, hi + pad)
+            ax.set_ylabel(f"{name} [{unit}]", fontsize=8)
+            ax.tick_params(labelsize=7)
+            ax.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]", fontsize=8)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 3), fontsize=7, frameon=False)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def error_figure(ref_log, comparisons: list, path, *, title: str = "") -> Path:
+    """Error over time of every run: per kind, the largest |error| over its signals (log scale)."""
+    plt = _pyplot()
+    ref = log_signals(ref_log)
+    run_signals = [log_signals(read_log(c.log_path)) for c in comparisons]
+    fig, axes = plt.subplots(1, 3, figsize=(10, 3.0), squeeze=False)
+    for k, kind in enumerate(KINDS):
+        ax = axes[0][k]
+        factor, unit = KIND_DISPLAY[kind]
+        top = 0.0
+        for i, (c, sigs) in enumerate(zip(comparisons, run_signals)):
+            worst_t, worst_e = None, None
+            for name, sig in ref.items():
+                if sig.kind != kind or name not in sigs:
+                    continue
+                t, e = error_series(sig.t, sig.y, sigs[name].t, sigs[name].y)
+                if worst_t is None:
+                    worst_t, worst_e = t, np.abs(e)
+                elif len(t) == len(worst_t):
+                    worst_e = np.maximum(worst_e, np.abs(e))
+            if worst_t is not None and len(worst_t):
+                y = worst_e * factor
+                top = max(top, float(np.max(y)))
+                ax.semilogy(worst_t, np.maximum(y, 1e-30), color=COLORS[i % len(COLORS)], lw=1.0, label=c.label)
+        if top > 0:
+            ax.set_ylim(top * 1e-5, top * 2)  # five decades below the largest error
+        ax.set_title(f"{kind} error [{unit}]", fontsize=8)
+        ax.set_xlabel("t [s]", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3, which="both")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    if handles:
+        axes[0][0].legend(fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def _write_report(out_dir: Path, title: str, ref_label: str, ref_log, ref_text: str, convergence_text: str,
+                  comparisons: list, merged) -> CompareResult:
+    overlay = overlay_figure(ref_log, comparisons, out_dir / "overlay.png", title=title)
+    errors = error_figure(ref_log, comparisons, out_dir / "error.png", title=title)
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    lines = [
+        f"# Comparison: {title}",
+        "",
+        f"Written {stamp}. Reference: {ref_text}.",
+        "",
+    ]
+    if convergence_text:
+        lines += [convergence_text, ""]
+    lines += [
+        "## Runs against the reference",
+        "",
+        "Errors are over the span each run covers (up to its divergence), on common sample times; "
+        "joint errors in mrad (mm for slide joints), strokes in mm, pressures in bar. Energy drift: largest "
+        "|pump work − Δ(kinetic + potential + oil) − dissipation| of the run; scale: the larger of the pump work "
+        "and the largest kinetic + oil energy.",
+        "",
+        summary_table(comparisons),
+        "",
+        f"![reference vs runs]({overlay.name})",
+        "",
+        f"![error over time]({errors.name})",
+        "",
+    ]
+    for c in comparisons:
+        lines += [f"### {c.label}: {c.settings or c.log_path.name}, {_status_text(c)}", "", signal_table(c), ""]
+    files = ["reference.mcap"] + [c.log_path.name for c in comparisons] + ([merged.name] if merged else [])
+    lines += ["Logs: " + ", ".join(f"`{f}`" for f in files) + ("" if not merged else
+              f" (`{merged.name}`: every log with topics prefixed `/<run>/`, for Foxglove)"), ""]
+    report = out_dir / "report.md"
+    report.write_text("\n".join(lines))
+    return CompareResult(ref_label, ref_log.path, ref_text, comparisons, report, merged, [overlay, errors])
+
+
+# ---------------------------------------------------------------------------------------
+# Command line
+# ---------------------------------------------------------------------------------------
+
+
+def add_parser(subparsers):
+    """Register ``hydroplant compare``."""
+    parser = subparsers.add_parser(
+        "compare", help="runs of a scenario (or existing logs) against a converged reference: table, figures, merged log",
+        description="compare SCENARIO [--modes ...]: reference + each mode; compare REF.mcap RUN.mcap ...: existing logs "
+                    "(the first is the reference).")
+    parser.add_argument("inputs", nargs="+", type=Path, help="a scenario TOML file, or two or more MCAP logs")
+    parser.add_argument("--modes", help="runs, comma-separated, each 'mode' or 'mode:coupling' "
+                                        f"(default: {default_modes()})")
+    parser.add_argument("--dt", type=float, help="physics step of the runs [s] (default: the scenario's)")
+    parser.add_argument("--duration", type=float, help="simulated time [s] (default: the scenario's)")
+    parser.add_argument("--out", type=Path, help="output directory (default: logs/compare-<scene>-<scenario>)")
+    parser.add_argument("--tolerance", type=float, help="relative convergence tolerance of the reference (default 1e-3)")
+    parser.add_argument("--cache", type=Path, help="reference cache directory (default .cache/references)")
+    parser.add_argument("--fresh-reference", action="store_true", help="recompute the reference even if it is cached "
+                        "(the cache key covers the scene and scenario files, not the code)")
+    parser.set_defaults(func=main)
+
+
+def main(args) -> int:
+    """``hydroplant compare``; returns the exit code."""
+    inputs = list(args.inputs)
+    if all(p.suffix == ".mcap" for p in inputs):
+        if len(inputs) < 2:
+            raise CircuitError(f"{inputs[0]}: compare needs a reference log and at least one more log")
+        out = args.out or Path("logs") / f"compare-{inputs[0].stem}"
+        result = compare_existing(inputs, out)
+    elif len(inputs) == 1:
+        from .reference import Tolerance
+        from .scenario import load_scenario
+
+        scenario = load_scenario(inputs[0])
+        for name in ("dt", "duration", "tolerance"):
+            value = getattr(args, name)
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise CircuitError(f"--{name}: {value!r} must be a positive finite number")
+        specs = parse_runs(args.modes or default_modes(), scenario.coupling)
+        tolerance = Tolerance(relative=args.tolerance) if args.tolerance else None
+        out = args.out or Path("logs") / f"compare-{scenario.scene_name}-{scenario.name}"
+        result = compare_runs(scenario, specs, out, dt=args.dt, duration=args.duration, tolerance=tolerance,
+                              cache_dir=args.cache, fresh_reference=args.fresh_reference, progress=True)
+    else:
+        raise CircuitError(f"compare takes one scenario file or two or more .mcap logs, got {[str(p) for p in inputs]}")
+    print(summary_table(result.comparisons))
+    print(f"report: {result.report_path}")
+    if result.merged_path:
+        print(f"merged log: {result.merged_path}")
+    return 0

@@ -1,0 +1,338 @@
+"""Load-time stability guards: the oil-column frequency of every actuator against the chosen step.
+
+Each cylinder (and motor) sees its chambers as springs, k = Σ β_eff·A²/V over
+its non-tank chambers (motors: A → D/2π), acting on the inertia the actuator
+sees, m_eff = 1/(J·M⁻¹·Jᵀ) from MuJoCo's mass matrix at the initial pose (the
+same number the implicit coupling uses for its θ).  Merritt's hydraulic
+frequency is then ω_h = √(k/m_eff), see
+:func:`hydraulics.laws.hydraulic_natural_frequency`, and the two numbers that
+decide whether a step size is stable are ω_h·dt and k·dt²/m_eff = (ω_h·dt)².
+
+What is known about the schemes (``docs/stability/`` has the measured maps):
+
+``implicit`` (MuJoCo, linearly implicit coupling) and ``pbd`` (compliant constraint)
+    Stable for any ω_h·dt; an unresolved column (ω_h·dt > √2) is damped
+    numerically (θ > 0), which costs accuracy, not stability.
+``explicit`` and ``pbd-naive``
+    Forward-Euler co-simulation: per step the oil-column mode is multiplied by
+    |1 + h·λ|, and |1 + h·λ|² = 1 − 2ζ·ω_h·h + (ω_h·h)², so the scheme is
+    unstable for any dt without physical damping (ζ = 0) and otherwise needs
+    ω_h·dt < 2ζ.  Seal friction, valve flow gains and joint damping make the
+    practical limit ω_h·dt ≈ 0.1–0.2 on real machines (``EXPLICIT_OMEGA_DT_LIMIT``).
+
+With coupling ``explicit`` the network itself is stepped by forward Euler
+(``explicit_euler``), whose own limit is h < 2·V/(β_eff·G) for a node of volume V
+behind a branch of slope G; the guards check it for every relief valve (a fixed
+G = its gradient, the branch a dead-headed pump ends on) and report it in
+``node_limits``.
+
+:func:`check_plant` (or :func:`check_scenario`) returns a :class:`GuardReport`
+whose ``rows`` hold these numbers per actuator and whose ``warnings`` say which
+setting would be stable.  Guards never fail a run.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from hydraulics import laws
+from hydraulics.network import ACTUATOR_CYLINDER
+
+# Practical explicit limit on ω_h·dt with typical physical damping (seal friction, valve
+# flow gain); measured on the boom and excavator maps (docs/stability/), 0.1–0.2 in the literature.
+EXPLICIT_OMEGA_DT_LIMIT = 0.1  # [-]
+# Below this damping ratio an oil column counts as undamped: explicit diverges at any dt.
+UNDAMPED_RATIO = 1e-3  # [-]
+# ω_h·dt beyond which the implicit coupling damps the oil column numerically (θ > 0, see
+# hydraulics.coupling.blend_factor): stable, but the ω_h oscillation is not resolved.
+IMPLICIT_RESOLVED_OMEGA_DT = math.sqrt(2.0)  # [-]
+# Methods (mode or coupling names) that step the oil column with forward Euler.
+EXPLICIT_METHODS = ("explicit", "pbd-naive")
+
+
+@dataclass(frozen=True)
+class GuardRow:
+    """Stability numbers of one actuator at the initial state."""
+
+    actuator: str
+    """Circuit name of the cylinder or motor."""
+    kind: str
+    """``"cylinder"`` or ``"motor"``."""
+    effective_mass: float
+    """Inertia the actuator sees, 1/(J·M⁻¹·Jᵀ) [kg or kg·m²]."""
+    stiffness: float
+    """Oil-column stiffness Σ β_eff·A²/V over its non-tank chambers [N/m or N·m/rad]."""
+    damping: float
+    """Physical linear damping the actuator sees: viscous seal friction + joint damping [N·s/m or N·m·s/rad]."""
+    omega_h: float
+    """Hydraulic natural frequency √(k/m_eff) [rad/s]."""
+    omega_h_dt: float
+    """ω_h·dt [-]."""
+    k_dt2_over_m: float
+    """k·dt²/m_eff = (ω_h·dt)² [-]."""
+    damping_ratio: float
+    """ζ = c/(2·√(k·m_eff)) [-] from ``damping``."""
+    explicit_max_dt: float
+    """Largest dt [s] at which forward-Euler co-simulation is expected stable: max(2ζ, practical limit)/ω_h
+    (× ``pbd_substeps`` in the PBD modes), 0 if undamped."""
+    stable: bool
+    """Whether the chosen method is expected to be stable for this actuator at the chosen dt."""
+
+    @property
+    def frequency_hz(self) -> float:
+        """ω_h/2π [Hz]."""
+        return self.omega_h / (2.0 * math.pi)
+
+
+@dataclass(frozen=True)
+class GuardReport:
+    """Guard verdict for one plant: per-actuator rows, warnings (may be empty) and notes."""
+
+    mode: str
+    coupling: str
+    dt: float
+    rows: tuple = ()
+    warnings: tuple = ()
+    notes: tuple = field(default=())
+    node_limits: tuple = ()
+    """(relief name, node name, V [m³], β_eff [Pa], G [m³/(s·Pa)], explicit-Euler dt limit 2V/(β_eff·G) [s]) per relief valve."""
+
+    @property
+    def method(self) -> str:
+        """``"explicit"``, ``"implicit"``, ``"pbd"`` or ``"pbd-naive"``: the scheme that steps the oil column."""
+        return method_name(self.mode, self.coupling)
+
+    @property
+    def max_omega_h_dt(self) -> float:
+        return max((r.omega_h_dt for r in self.rows), default=0.0)
+
+    def table(self) -> str:
+        """Human-readable table of the rows."""
+        head = f"{'actuator':<16s} {'m_eff':>10s} {'k':>10s} {'f_h [Hz]':>9s} {'w_h*dt':>8s} {'k*dt^2/m':>9s} {'zeta':>7s} {'explicit dt_max [s]':>20s}"
+        lines = [f"guards: mode {self.mode}, coupling {self.coupling}, dt {self.dt:g} s", head]
+        for r in self.rows:
+            lines.append(
+                f"{r.actuator:<16s} {r.effective_mass:10.4g} {r.stiffness:10.4g} {r.frequency_hz:9.4g} {r.omega_h_dt:8.3g} "
+                f"{r.k_dt2_over_m:9.3g} {r.damping_ratio:7.2g} {r.explicit_max_dt:20.3g}"
+            )
+        for relief, node, volume, beta, gradient, limit in self.node_limits:
+            lines.append(f"relief {relief} on node {node}: V {volume:.4g} m^3, beta_eff {beta:.4g} Pa, G {gradient:.4g} m^3/(s*Pa): "
+                         f"explicit stepper needs dt < {limit:.3g} s")
+        lines += [f"warning: {w}" for w in self.warnings] + [f"note: {n}" for n in self.notes]
+        return "\n".join(lines)
+
+
+def method_name(mode: str, coupling: str) -> str:
+    """The scheme that steps the oil column: the coupling in MuJoCo mode, the PBD variant otherwise."""
+    return coupling if mode == "mujoco" else mode
+
+
+def expected_stable(method: str, row_omega_h_dt: float, damping_ratio: float) -> bool:
+    """Whether ``method`` is expected stable at this ω_h·dt and damping ratio (see module docstring)."""
+    if method not in EXPLICIT_METHODS:
+        return True
+    if damping_ratio < UNDAMPED_RATIO:
+        return row_omega_h_dt == 0.0
+    return row_omega_h_dt <= max(2.0 * damping_ratio, EXPLICIT_OMEGA_DT_LIMIT)
+
+
+# ----------------------------------------------------------------------------- numbers
+def actuator_moments(mjmodel, data, actuator_id) -> np.ndarray:
+    """Dense moments J (actuator_count × nv) of the given MuJoCo actuators (after ``mj_forward``)."""
+    J = np.zeros((len(actuator_id), mjmodel.nv))
+    for i, aid in enumerate(actuator_id):
+        adr, nnz = data.moment_rowadr[aid], data.moment_rownnz[aid]
+        J[i, data.moment_colind[adr : adr + nnz]] = data.actuator_moment[adr : adr + nnz]
+    return J
+
+
+def inertia_seen(mjmodel, qpos, actuator_id):
+    """Effective inertia 1/(J·M⁻¹·Jᵀ)ᵢᵢ and joint damping seen by each actuator at ``qpos``.
+
+    Returns ``(effective_mass, joint_damping)``, each shape (actuator_count,).
+    The joint damping is m_eff²·Σ_j d_j·(M⁻¹Jᵢᵀ)_j², the dissipation of the
+    velocity field a unit actuator speed induces.
+    """
+    data = mujoco.MjData(mjmodel)
+    data.qpos[:] = qpos
+    mujoco.mj_forward(mjmodel, data)
+    J = actuator_moments(mjmodel, data, actuator_id)
+    solved = np.zeros_like(J)
+    if J.size:
+        mujoco.mj_solveM(mjmodel, data, solved, J)
+    inverse = np.einsum("ij,ij->i", J, solved)
+    with np.errstate(divide="ignore"):
+        mass = np.where(inverse > 0, 1.0 / np.where(inverse > 0, inverse, 1.0), np.inf)
+    damping = np.where(np.isfinite(mass), mass**2 * (solved**2 @ mjmodel.dof_damping), 0.0)
+    return mass, damping
+
+
+def oil_column_stiffness(network, pressure, position) -> np.ndarray:
+    """Σ β_eff·A²/V over each actuator's non-tank chambers [N/m or N·m/rad], shape (actuator_count,)."""
+    beta = network.effective_bulk_modulus(pressure, position)
+    volume, _ = network.node_volume_at(position, pressure)
+    free = ~network.node_fixed
+    k = np.zeros(network.actuator_count)
+    for i, a in enumerate(network.cylinder_actuator):
+        for node, area in ((network.cylinder_cap_node[i], network.cylinder_cap_area[i]), (network.cylinder_rod_node[i], network.cylinder_rod_area[i])):
+            if free[node]:
+                k[a] += laws.hydraulic_stiffness(beta[node], area, volume[node])
+    for i, a in enumerate(network.motor_actuator):
+        rate = network.motor_displacement[i] / (2.0 * math.pi)
+        for node in (network.motor_a_node[i], network.motor_b_node[i]):
+            if free[node]:
+                k[a] += laws.hydraulic_stiffness(beta[node], rate, volume[node])
+    return k
+
+
+# ------------------------------------------------------------------------------ checks
+def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fidelity=None) -> GuardReport:
+    """Guard report for ``scene`` with the network at ``net_state`` (see module docstring).
+
+    Parameters
+    ----------
+    scene : sim.scene.Scene
+        The loaded scene (its MjModel gives the inertia).
+    net_state : hydraulics.network.NetworkState
+        Network state whose pressures and positions set the chamber stiffness.
+    qpos : ndarray, shape (nq,), optional
+        Pose for the inertia; default: the scenario's initial pose.
+    mode, coupling, dt, fidelity : optional
+        Override the scenario's run settings.
+    """
+    from .scene import initial_qpos_qvel
+
+    scenario = scene.scenario
+    mode = mode or scenario.mode
+    coupling = coupling or scenario.coupling
+    dt = float(dt or scenario.dt)
+    fidelity = fidelity or scenario.fidelity
+    network = scene.network
+    if fidelity == "incompressible":
+        return GuardReport(mode, coupling, dt, notes=("incompressible fidelity: no oil-column states; the velocity-tracking coupling is stable at any dt",))
+    if qpos is None:
+        qpos, _ = initial_qpos_qvel(scene)
+    mass, joint_damping = inertia_seen(scene.mjmodel, qpos, scene.binding.actuator_id)
+    k = oil_column_stiffness(network, net_state.node_pressure, net_state.actuator_position)
+    viscous = np.zeros(network.actuator_count)
+    viscous[network.cylinder_actuator] = network.cylinder_viscous
+    damping = viscous + joint_damping
+    method = method_name(mode, coupling)
+    # the PBD plant steps the oil column once per XPBD substep
+    substeps = scenario.pbd_substeps if mode in ("pbd", "pbd-naive") else 1
+    step = dt / substeps
+    rows, warnings, notes = [], [], []
+    for a, name in enumerate(network.actuator_names):
+        m, ka, c = float(mass[a]), float(k[a]), float(damping[a])
+        omega = math.sqrt(ka / m) if (ka > 0 and math.isfinite(m) and m > 0) else 0.0
+        zeta = c / (2.0 * math.sqrt(ka * m)) if omega > 0 else math.inf
+        limit = max(2.0 * zeta, EXPLICIT_OMEGA_DT_LIMIT) if zeta >= UNDAMPED_RATIO else 0.0
+        row = GuardRow(
+            actuator=name,
+            kind="cylinder" if network.actuator_kind[a] == ACTUATOR_CYLINDER else "motor",
+            effective_mass=m,
+            stiffness=ka,
+            damping=c,
+            omega_h=omega,
+            omega_h_dt=omega * dt,
+            k_dt2_over_m=(omega * dt) ** 2,
+            damping_ratio=zeta,
+            explicit_max_dt=substeps * limit / omega if omega > 0 else math.inf,
+            stable=expected_stable(method, omega * step, zeta),
+        )
+        rows.append(row)
+        where = (
+            f"{name}: omega_h = {omega:.4g} rad/s ({row.frequency_hz:.3g} Hz; m_eff {m:.4g}, k {ka:.4g}, zeta {zeta:.2g}), "
+            f"omega_h*dt = {row.omega_h_dt:.3g}, k*dt^2/m = {row.k_dt2_over_m:.3g} at dt = {dt:g} s"
+            + (f" (oil column stepped per XPBD substep: omega_h*h = {omega * step:.3g}, h = dt/{substeps})" if substeps > 1 else "")
+        )
+        if not row.stable:
+            what = "explicit coupling" if method == "explicit" else "mode pbd-naive"
+            if zeta < UNDAMPED_RATIO:
+                growth = 0.5 * omega**2 * step
+                warnings.append(
+                    f"{where}: {what} steps this undamped oil column with forward Euler, which is unstable at any dt "
+                    f"(amplitude grows about e-fold every {1.0 / growth:.3g} s); "
+                    + ("use mode pbd (or mode mujoco with coupling implicit)" if method == "pbd-naive" else "use coupling implicit")
+                )
+            else:
+                warnings.append(
+                    f"{where}: {what} is expected to diverge for omega_h*dt > {limit:.3g} (forward Euler, 2*zeta = {2 * zeta:.2g}, "
+                    f"practical limit {EXPLICIT_OMEGA_DT_LIMIT:g}); "
+                    + ("use mode pbd" if method == "pbd-naive" else "use coupling implicit")
+                    + f", or dt <= {row.explicit_max_dt:.3g} s"
+                )
+        elif method not in EXPLICIT_METHODS and row.omega_h_dt > IMPLICIT_RESOLVED_OMEGA_DT:
+            notes.append(
+                f"{where}: stable, but the oil-column oscillation is not resolved (numerically damped); "
+                f"dt <= {0.2 / omega:.3g} s resolves it"
+            )
+    limits = relief_limits(network, net_state)
+    explicit_stepper = (mode == "pbd-naive") or (coupling == "explicit" and (scenario.stepper or "explicit_euler") == "explicit_euler")
+    if explicit_stepper:
+        for relief, node, volume, beta, gradient, limit in limits:
+            if step >= limit:
+                warnings.append(
+                    f"relief '{relief}' on node '{node}' (V {volume:.3g} m^3, beta_eff {beta:.3g} Pa, gradient {gradient:.3g} m^3/(s*Pa)): "
+                    f"the explicit Euler network stepper is unstable once it opens for a step >= 2/(G*sum(beta/V)) = {limit:.3g} s "
+                    f"(step {step:g} s); " + ("use mode pbd" if mode == "pbd-naive" else "use coupling implicit")
+                    + f", or dt < {limit * substeps:.3g} s"
+                )
+    return GuardReport(mode, coupling, dt, tuple(rows), tuple(warnings), tuple(notes), tuple(limits))
+
+
+def relief_limits(network, net_state) -> list:
+    """Forward-Euler limit 2/(G·Σ β_eff/V) [s] of every relief valve over its free end nodes (see module docstring).
+
+    Returns a list of (relief name, node names joined by '/', V [m³] of the
+    smaller end, β_eff [Pa] there, G [m³/(s·Pa)], limit [s]).
+    """
+    s = network.branch_slices["relief"]
+    beta = network.effective_bulk_modulus(net_state.node_pressure, net_state.actuator_position)
+    volume, _ = network.node_volume_at(net_state.actuator_position, net_state.node_pressure)
+    out = []
+    for b in range(s.start, s.stop):
+        gradient = float(network.relief_gradient[b - s.start])
+        ends = [n for n in (network.branch_from[b], network.branch_to[b]) if not network.node_fixed[n]]
+        if not ends or gradient <= 0:
+            continue
+        rate = gradient * sum(float(beta[n]) / float(volume[n]) for n in ends)
+        small = min(ends, key=lambda n: float(volume[n]))
+        out.append((network.branch_names[b], "/".join(network.node_names[n] for n in ends), float(volume[small]),
+                    float(beta[small]), gradient, 2.0 / rate))
+    return out
+
+
+def check_plant(plant) -> GuardReport:
+    """Guard report of a freshly built plant (MuJoCo or PBD) at its initial state."""
+    return check(plant.scene, plant.net_state)
+
+
+def check_scenario(scenario, *, overrides: dict | None = None) -> GuardReport:
+    """Load a scenario (path or Scenario), build its initial state and return its guard report.
+
+    The initial network state comes from a MuJoCo plant of the same scene
+    (the pose, inertia and equilibrium pressures do not depend on the mode).
+    """
+    from .plant_mujoco import MujocoPlant
+    from .scenario import Scenario, load_scenario
+    from .scene import load_scene
+
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario)
+    if overrides:
+        scenario = scenario.with_overrides(**overrides)
+    probe = scenario.with_overrides(mode="mujoco") if scenario.mode != "mujoco" else scenario
+    scene = load_scene(probe)
+    plant = MujocoPlant(scene)
+    return check(scene, plant.net_state, mode=scenario.mode, coupling=scenario.coupling, dt=scenario.dt)
+
+
+__all__ = [
+    "EXPLICIT_OMEGA_DT_LIMIT", "GuardReport", "GuardRow", "check", "check_plant", "check_scenario",
+    "expected_stable", "inertia_seen", "method_name", "oil_column_stiffness", "relief_limits",
+]

@@ -1,0 +1,113 @@
+"""``hydroplant inspect SCENARIO``: what a scenario will build, and whether its step is stable.
+
+Prints the bodies and joints, the circuit at its fidelity (hydraulic state
+count, what was pruned), each cylinder's bore, rod and stroke with its
+hydraulic frequency ω_h at mid-stroke and at 5 % stroke (the stiffest
+position of a typical working range), ω_h·dt and the stability verdict of the
+chosen mode and coupling (:mod:`sim.guards`), and the largest dt that method
+keeps stable.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from hydraulics.network import ACTUATOR_CYLINDER
+
+from . import guards
+from .plant_mujoco import MujocoPlant
+from .scenario import load_scenario
+from .scene import load_scene
+
+NEAR_END = 0.05  # fraction of stroke of the "near the end" position
+
+
+def at_positions(plant, fractions):
+    """Network states with every cylinder at ``fraction`` of its stroke, pressures as at t = 0."""
+    net = plant.network
+    states = []
+    for fraction in fractions:
+        x = plant.net_state.actuator_position.copy()
+        x[net.cylinder_actuator] = fraction * net.cylinder_stroke
+        states.append(net.state(actuator_position=x, node_pressure=plant.net_state.node_pressure))
+    return states
+
+
+def largest_stable_dt(report: guards.GuardReport) -> float:
+    """Largest dt [s] the report's method keeps every actuator stable (inf for implicit schemes)."""
+    if report.method not in guards.EXPLICIT_METHODS:
+        return math.inf
+    return min((r.explicit_max_dt for r in report.rows), default=math.inf)
+
+
+def describe(scenario_path, overrides=None) -> str:
+    """The inspect text for a scenario."""
+    scenario = load_scenario(scenario_path)
+    if overrides:
+        scenario = scenario.with_overrides(**overrides)
+    scene = load_scene(scenario)
+    plant = MujocoPlant(scene)
+    m, net = scene.mjmodel, scene.network
+    lines = [f"scenario  {scenario.path}", f"run       mode {scenario.mode}, coupling {scenario.coupling}, dt {scenario.dt:g} s, fidelity {scenario.fidelity}"]
+    lines.append(f"bodies    {m.nbody - 1} (+ world), total mass {float(np.sum(m.body_mass)):.1f} kg")
+    for b in range(1, m.nbody):
+        lines.append(f"  {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or f'body{b}':<20s} {m.body_mass[b]:10.2f} kg")
+    lines.append(f"joints    {m.njnt}")
+    for j in range(m.njnt):
+        kind = mujoco.mjtJoint(int(m.jnt_type[j])).name.removeprefix("mjJNT_").lower()
+        limits = f"[{m.jnt_range[j][0]:.4g}, {m.jnt_range[j][1]:.4g}]" if m.jnt_limited[j] else "unlimited"
+        lines.append(f"  {scene.joint_names[j]:<20s} {kind:<6s} {limits}")
+    contact = not (m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    lines.append(f"contact   {'on' if contact else 'off (no two geoms can touch)'}")
+    lines.append(
+        f"circuit   {Path(scenario.circuit).name}: fidelity {net.fidelity}, {net.node_count} nodes, "
+        f"{net.state_count} hydraulic states, {len(net.branch_names)} flow branches"
+    )
+    lines.append(f"pruned    {', '.join(net.pruned) if net.pruned else 'nothing'}")
+    mid, end = at_positions(plant, (0.5, NEAR_END))
+    report_mid = guards.check(scene, mid)
+    report_end = guards.check(scene, end)
+    if report_mid.rows:
+        lines.append(
+            f"{'actuator':<14s} {'bore/D':>9s} {'rod':>7s} {'stroke':>7s} {'f_h mid':>9s} {'f_h 5%':>9s} "
+            f"{'w_h*dt mid':>11s} {'w_h*dt 5%':>10s} {'stable':>7s}"
+        )
+        for a, (rm, re) in enumerate(zip(report_mid.rows, report_end.rows)):
+            if net.actuator_kind[a] == ACTUATOR_CYLINDER:
+                c = scene.network.circuit.component(rm.actuator).params
+                size = f"{c.bore * 1e3:7.1f}mm {c.rod_diameter * 1e3:5.1f}mm {c.stroke:6.3f}m"
+            else:
+                c = scene.network.circuit.component(rm.actuator).params
+                size = f"{c.displacement * 1e6:6.1f}cc/rev {'':>13s}"
+            lines.append(
+                f"{rm.actuator:<14s} {size} {rm.frequency_hz:7.3g}Hz {re.frequency_hz:7.3g}Hz "
+                f"{rm.omega_h_dt:11.3g} {re.omega_h_dt:10.3g} {'yes' if rm.stable and re.stable else 'NO':>7s}"
+            )
+    dt_max = min(largest_stable_dt(report_mid), largest_stable_dt(report_end))
+    lines.append(
+        f"largest stable dt for {report_mid.method}: "
+        + ("unbounded by the oil columns (implicit)" if math.isinf(dt_max) else f"{dt_max:.3g} s")
+    )
+    for w in dict.fromkeys(report_mid.warnings + report_end.warnings):
+        lines.append(f"warning: {w}")
+    for n in dict.fromkeys(report_mid.notes + report_end.notes):
+        lines.append(f"note: {n}")
+    return "\n".join(lines)
+
+
+def add_parser(subparsers):
+    parser = subparsers.add_parser("inspect", help="print what a scenario builds and its stability verdict")
+    parser.add_argument("scenario", type=Path)
+    parser.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"))
+    parser.add_argument("--coupling", choices=("implicit", "explicit"))
+    parser.add_argument("--dt", type=float, help="physics step [s]")
+    parser.set_defaults(func=main)
+
+
+def main(args) -> int:
+    print(describe(args.scenario, {"mode": args.mode, "coupling": args.coupling, "dt": args.dt}))
+    return 0

@@ -1,0 +1,421 @@
+"""PBD plant: our XPBD solver steps the bodies, the hydraulic network sets the cylinder rows.
+
+MuJoCo only compiles the MJCF here (geometry, inertia, names for the log); the
+bodies are stepped by :class:`sim.xpbd.SolverXPBD` (``pbd_substeps`` substeps
+of h = dt/substeps per step, ``pbd_iterations`` Gauss-Seidel passes each) and
+no MuJoCo dynamics function is ever called.
+
+Cylinders as compliant rows
+---------------------------
+Each cylinder is a length row between its two pins (the sites of its spatial
+tendon), ℓ = |p_rod − p_barrel|, x = ℓ − closed length.  Every substep:
+
+1. ``coupling.begin(net_state, control, x, v, h)`` returns the effort law
+   f(v⁺) = c + s·v⁺ of each actuator for the substep (f > 0 extends).
+2. With v⁺ = (ℓ − ℓ₀)/h (ℓ₀ the length at the start of the substep) this law
+   is the compliant XPBD row f = −(ℓ − ℓ*)/α with
+
+       α = −h/s [m/N],   ℓ* = ℓ₀ − h·c/s,
+
+   (the row's force, λ/h², is positive when it pushes the pins apart, like
+   the effort).  The chamber pressure is thus carried by the row's Lagrange
+   multiplier, and because the law is the backward-Euler linearisation of the
+   network (oil-column stiffness −h·β·A²/V, valve and friction slopes),
+   XPBD's update is backward Euler for the coupled bodies + oil column:
+   stable for any h, with its numerical damping ln(1 + ω²h²)/(2h).
+   A law with s ≥ 0 (the explicit coupling) is applied as an explicit row
+   force c + s·v₀.  Effort bounds of the law (``lower``/``upper``, the
+   incompressible fidelity's relief limits) bound the multiplier.
+   Cavitation and the other physical bounds are the network's.
+3. After the position solve the realised ℓ and v⁺ finish the hydraulic step
+   (``coupling.finish``), so the oil moves with the motion the bodies made.
+
+Articulated response (``articulated``, once per step, trees of hinges and
+slides): the rows are solved together with the response of the whole
+mechanism, Δq = M⁻¹·Jᵀ·Δλ (``SubstepInputs.row_mobility``), and gravity
+enters the prediction as q̈ = M⁻¹·Q_gravity (``SubstepInputs.group_gravity``),
+both from the XPBD model's own kinematics.  With the free-body inverse masses
+of plain XPBD, one Gauss-Seidel iteration leaves a stiff row (oil column, the
+seal-stiction slope of ~10⁶ N·s/m) far below its law, and the free fall of
+every body under uniform gravity leaves load-dependent joint errors that the
+stiff rows turn into pressure noise: a loaded boom sinks and bounces.
+Other joint types fall back to plain XPBD rows and gravity.
+
+The operator inputs (the scenario's schedules) are evaluated at every
+substep's start time, so a 60 Hz frame does not hold the valve commands for
+16 ms; the logged commands are those of the last substep.
+
+Motors (joint actuators, gear = motor angle per joint angle) apply the torque
+gear·(c + s·ω⁺) on their joint (``joint_force``), with ω⁺ from backward Euler
+on the joint alone (its articulated inverse inertia (M⁻¹)ⱼⱼ): an implicit
+joint damping −gear²·s, exact for the swing drive, which no other joint moves.
+
+End stops are the joint limits (the scenes' joint ranges are the stroke
+ends); tendon limits are not rows.  At the ``incompressible`` fidelity the
+rows are stiff velocity trackers bounded at the relief force; a mechanism
+jammed against rigid contacts (``push.scenario.toml``) then needs
+``pbd_iterations`` ≥ 4 to hold still.
+
+``pbd-naive`` (the seed report's scheme)
+----------------------------------------
+Explicit coupling with the explicit-Euler hydraulic stepper: the pressures
+are integrated separately with the velocities at the start of each substep
+and applied as explicit row forces (the position solve only keeps the joints
+together, where classic PBD and XPBD coincide: every remaining row is rigid).
+Unconditionally unstable for an undamped oil column.
+
+Energy
+------
+``PlantBase._account`` per substep (pump work, hydraulic and friction
+losses).  ``dissipated_mechanical`` is the balance of the bodies: the work of
+the actuator efforts on them, h·f·(v₀ + v⁺)/2 per substep (exact for a free
+mass under a force held over the substep), minus Δ(kinetic + potential) over
+each step.  XPBD cannot separate joint damping, contact losses and the
+(small, O(h)) energy error of its joint projections, so all three are in this
+term; the oil column's backward-Euler loss stays in the residual.  Not
+modelled by the XPBD solver (see ``sim/xpbd/solver.py``): joint armature (the
+excavator swing's 320 kg·m², 0.1–0.3 % of its inertia: a warning says so),
+frictionloss, joint stiffness, contacts other than sphere/capsule/box against
+planes; its contacts are rigid (MuJoCo's are soft).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hydraulics.coupling import make_coupling
+from hydraulics.load import apply_inputs
+from hydraulics.network import ACTUATOR_CYLINDER
+from hydraulics.steppers import StepReport
+
+from .plant_base import PlantBase
+from .scenario import ScenarioError
+from .scene import Scene, initial_qpos_qvel
+from .xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel
+from .xpbd.kernels import np_cross, np_quat_rotate, np_quat_rotate_inv, quat_rotate
+from .xpbd.model import JNT_HINGE, JNT_SLIDE
+
+# MuJoCo joint types whose coordinate is one scalar (logged as joint states).
+SCALAR_JOINTS = (JNT_HINGE, JNT_SLIDE)
+# A law slope above this (N·s/m) is applied as an explicit force rather than as a compliant row.
+IMPLICIT_SLOPE_LIMIT = -1e-9
+GRAVITY_ARTICULATED = True
+
+
+class PbdPlant(PlantBase):
+    """Coupled XPBD + hydraulic network plant for one scene (see module docstring).
+
+    ``naive`` selects the seed report's scheme (``pbd-naive``).
+    """
+
+    mode = "pbd"
+
+    def __init__(self, scene: Scene, *, naive: bool = False):
+        self.scene = scene
+        scenario = scene.scenario
+        self.incompressible = scenario.fidelity == "incompressible"
+        if naive and self.incompressible:
+            raise ScenarioError(
+                f"{scenario.path}, field 'run.fidelity': 'incompressible' has no pressure states for the seed's "
+                "explicit scheme (mode 'pbd-naive'); use mode = \"pbd\" or fidelity = \"compressible\""
+            )
+        self.naive = bool(naive)
+        self.mode = "pbd-naive" if naive else "pbd"
+        self.model = scene.mjmodel  # geometry and names only (log, scene); never stepped
+        self.network = net = scene.network
+        self.binding = binding = scene.binding
+        self.dt = scenario.dt
+        self.coupling = make_coupling(
+            "explicit" if naive else "incompressible" if self.incompressible else scenario.coupling, net,
+            stepper="explicit_euler" if naive else scenario.stepper, substeps=1, compiled=scenario.compiled,
+        )
+        m = self.model
+        self.xmodel = xm = XpbdModel.from_mjmodel(m)
+        # cylinders: one length row each, in network cylinder order
+        self.cylinders = np.array([a for a in range(net.actuator_count) if net.actuator_kind[a] == ACTUATOR_CYLINDER], int)
+        rows = [LengthConstraint(*xm.tendon_site_pair(int(binding.tendon_id[a])), name=net.actuator_names[a]) for a in self.cylinders]
+        self.solver = SolverXPBD(xm, substeps=scenario.pbd_substeps, iterations=scenario.pbd_iterations, length_constraints=rows)
+        self.closed_length = binding.closed_length[self.cylinders]
+        # motors: joint actuators, effort = motor torque, joint torque = gear × effort
+        self.motors = np.array([a for a in range(net.actuator_count) if net.actuator_kind[a] != ACTUATOR_CYLINDER], int)
+        self.motor_joint = np.array([int(m.actuator_trnid[binding.actuator_id[a], 0]) for a in self.motors], int)
+        self.motor_gear = np.array([float(m.actuator_gear[binding.actuator_id[a], 0]) for a in self.motors])
+        for j in self.motor_joint:
+            if int(xm.jnt_type[j]) not in SCALAR_JOINTS:
+                raise ScenarioError(f"{scenario.mjcf}: motor joint '{xm.jnt_names[j]}' must be a hinge or slide joint in PBD mode")
+        self.scalar_joints = np.array([j for j in range(xm.njnt) if int(xm.jnt_type[j]) in SCALAR_JOINTS], int)
+        self.joint_names = tuple(scene.joint_names[j] for j in self.scalar_joints)
+        self._joint_force = np.zeros(xm.njnt)
+        # joint-space kinematics (hinge/slide trees): subtree membership of every body per joint
+        nb = xm.nbody
+        below = np.zeros((nb, nb), bool)  # below[a, b]: body b is a or hangs below a
+        for b in range(1, nb):
+            a = b
+            while a > 0:
+                below[a, b] = True
+                a = int(xm.body_parent[a])
+        self._subtree = below[xm.jnt_body]  # (njnt, nbody)
+        self._hinge = np.asarray(xm.jnt_type) == JNT_HINGE
+        self._tree = bool(np.all(np.isin(xm.jnt_type, SCALAR_JOINTS))) and xm.nv == xm.njnt
+        self._body_mass = np.where(xm.body_group > 0, xm.body_mass, 0.0)
+        self._body_inertia = np.array(m.body_inertia)
+        self._row_sites = np.array([xm.tendon_site_pair(int(binding.tendon_id[a])) for a in self.cylinders], int).reshape(-1, 2)
+        self._mobility = self._group_gravity = self._effective_mass = None
+        self._motor_inverse_inertia = np.zeros(len(self.motors))
+        # joint axes in the child's inertial frame, body-frame origins in the inertial frames
+        iquat_conj = np.asarray(xm.body_iquat) * np.array([1.0, -1.0, -1.0, -1.0])
+        self._axis_inertial = np_quat_rotate(iquat_conj[xm.jnt_body], np.asarray(xm.jnt_axis))
+        self._origin_inertial = np_quat_rotate(iquat_conj, -np.asarray(xm.body_ipos))
+        self.reset()
+
+    # ------------------------------------------------------------------ setup
+    def reset(self) -> None:
+        """Initial state from the scenario; chamber pressures balance the load if it asks for equilibrium."""
+        qpos, qvel = initial_qpos_qvel(self.scene)
+        self.state = self.xmodel.state_from_qpos(qpos, qvel)
+        self._ell, ell_rate = self.solver.row_lengths(self.state)
+        x, v = self._actuator_motion(qpos, qvel, ell_rate)
+        self._x, self._v = x, v
+        self.start_network(x, v)
+        self._mechanical = sum(self.mechanical_energy())
+
+    def _actuator_motion(self, qpos, qvel, ell_rate):
+        """Cylinder extensions [m] / motor angles [rad] and their rates at the current state."""
+        n = self.network.actuator_count
+        x, v = np.zeros(n), np.zeros(n)
+        x[self.cylinders] = self._ell - self.closed_length
+        v[self.cylinders] = ell_rate
+        xm = self.xmodel
+        x[self.motors] = self.motor_gear * qpos[xm.jnt_qposadr[self.motor_joint]]
+        v[self.motors] = self.motor_gear * qvel[xm.jnt_dofadr[self.motor_joint]]
+        return x, v
+
+    def joint_space(self, *, bodies=False):
+        """Joint-space quantities at the current XPBD state, from the XPBD kinematics only.
+
+        Returns (mass matrix M (nv, nv) [kg, kg·m, kg·m²], gravity generalized
+        force (nv,) [N or N·m], actuator moments J (actuator_count, nv):
+        v_actuator = J·q̇), and with ``bodies`` also the centre-of-mass and
+        angular Jacobians of every body, (nv, nbody, 3) each.  For trees of
+        hinge and slide joints the Jacobians are analytic (joint axis × lever
+        from the joint anchor) and M = Σ_b m_b·Jvᵀ·Jv + Jwᵀ·I_b·Jw; otherwise
+        (mass None) the body and site velocities for a unit velocity of each
+        DOF are used (``XpbdModel.state_from_qpos``).  A motor's moment is its gear.
+        """
+        xm, st = self.xmodel, self.state
+        nv = xm.nv
+        moment = np.zeros((self.network.actuator_count, nv))
+        moment[self.motors, xm.jnt_dofadr[self.motor_joint]] = self.motor_gear
+        if not self._tree:
+            qpos, _ = xm.qpos_qvel(st)
+            gravity = np.zeros(nv)
+            for i in range(nv):
+                unit = np.zeros(nv)
+                unit[i] = 1.0
+                s = xm.state_from_qpos(qpos, unit)
+                gravity[i] = float(self._body_mass @ (s.v @ xm.gravity))
+                moment[self.cylinders, i] = self.solver.row_lengths(s)[1]
+            return (None, gravity, moment, None, None) if bodies else (None, gravity, moment)
+        xb, qb = xm.body_frames(st)
+        jb = xm.jnt_body
+        axis = np_quat_rotate(qb[jb], xm.jnt_axis)  # (njnt, 3) world joint axes
+        anchor = xb[jb] + np_quat_rotate(qb[jb], xm.jnt_pos)
+        hinge = self._hinge[:, None, None]
+
+        def point_jacobian(points, point_body):
+            """∂(world point)/∂q, shape (njnt, npoints, 3), for points fixed to ``point_body``."""
+            lever = points[None, :, :] - anchor[:, None, :]
+            jac = np.where(hinge, np_cross(np.broadcast_to(axis[:, None, :], lever.shape), lever), axis[:, None, :])
+            return jac * self._subtree[:, point_body, None]
+
+        # joints are ordered by DOF (one each on a tree of hinges and slides)
+        jv = point_jacobian(st.x, np.arange(xm.nbody))  # COM Jacobians (nv, nbody, 3)
+        jw = np.where(hinge, axis[:, None, :], 0.0) * self._subtree[:, :, None]
+        jw_local = np_quat_rotate_inv(st.q[None, :, :], jw)  # in each body's principal frame
+        inertia = self._body_inertia * (self._body_mass > 0)[:, None]
+        mass = np.einsum("b,ibk,jbk->ij", self._body_mass, jv, jv) + np.einsum("bk,ibk,jbk->ij", inertia, jw_local, jw_local)
+        gravity = np.einsum("b,ibk,k->i", self._body_mass, jv, xm.gravity)
+        if len(self.cylinders):
+            sites = xm.site_positions(st)
+            a, b = self._row_sites[:, 0], self._row_sites[:, 1]
+            d = sites[b] - sites[a]
+            n = d / np.linalg.norm(d, axis=1)[:, None]
+            rel = point_jacobian(sites[b], xm.site_body[b]) - point_jacobian(sites[a], xm.site_body[a])
+            moment[self.cylinders] = np.einsum("rk,jrk->rj", n, rel)
+        return (mass, gravity, moment, jv, jw) if bodies else (mass, gravity, moment)
+
+    def holding_efforts(self) -> np.ndarray:
+        """Actuator efforts [N or N·m] that hold the current pose at rest (least squares over the DOFs)."""
+        _, gravity, moment = self.joint_space()
+        effort, *_ = np.linalg.lstsq(moment.T, -gravity, rcond=None)
+        return effort
+
+    # -------------------------------------------------------------------- step
+    def step(self):
+        """Advance one step of ``dt`` (``pbd_substeps`` XPBD substeps, one hydraulic step each); returns the report."""
+        self.apply_inputs()
+        self._report = StepReport()
+        self._work = 0.0
+        self.articulated()
+        self.solver.step(self.state, self.dt, hooks=self)
+        self.theta = getattr(self.coupling, "last_theta", self.theta)
+        self.last_report = self._report
+        mechanical = sum(self.mechanical_energy())
+        self.energy.dissipated_mechanical += self._work - (mechanical - self._mechanical)
+        self._mechanical = mechanical
+        self.step_index += 1
+        return self._report
+
+    def articulated(self):
+        """Per-step joint-space data for the solver and the coupling (trees of hinges and slides; else None).
+
+        Sets ``self._mobility`` (rows, ngroup, 6): the displacement of each
+        rigid group's centre of mass [m] and its rotation vector [rad] per unit
+        row multiplier, the body motion of Δq = M⁻¹·Jᵀ (``SubstepInputs.row_mobility``):
+        each iteration then solves the rows with the response of the whole
+        mechanism rather than of the free bodies, whereas with free-body masses
+        one Gauss-Seidel iteration leaves a stiff row (oil column, seal-stiction
+        slope) far below its law and a loaded boom sinks.
+        ``self._group_gravity`` (ngroup, 6): the group accelerations of
+        q̈ = M⁻¹·Q_gravity (``SubstepInputs.group_gravity``), so the prediction
+        does not let every body fall freely and leave the load to the joint
+        projection (which, in one pass, leaves load-dependent joint errors
+        that the stiff rows turn into pressure noise).
+        ``self._effective_mass``: 1/(J·M⁻¹·Jᵀ)ᵢᵢ per actuator [kg or kg·m²]
+        (the coupling's θ choice / the incompressible law), and
+        ``self._motor_inverse_inertia``: (M⁻¹)ⱼⱼ of each motor joint.
+        Computed once per step (the pose changes little within it); joint
+        damping, armature and contacts are not in M.
+        """
+        self._mobility = self._group_gravity = self._effective_mass = None
+        self._motor_inverse_inertia = np.zeros(len(self.motors))
+        if not self._tree:
+            return
+        mass, gravity, moment, jv, jw = self.joint_space(bodies=True)
+        try:
+            dq = np.linalg.solve(mass, np.column_stack([moment.T, gravity]))  # (nv, actuators + 1)
+        except np.linalg.LinAlgError:
+            return
+        with np.errstate(divide="ignore"):
+            self._effective_mass = 1.0 / np.einsum("ai,ia->a", moment, dq[:, :-1])
+        dofs = self.xmodel.jnt_dofadr[self.motor_joint]
+        self._motor_inverse_inertia = dq[dofs, self.motors] / self.motor_gear
+        xm = self.xmodel
+        # group centre-of-mass velocity = mass-weighted body COM velocities; groups share ω
+        group_jv = np.zeros((xm.nv, xm.ngroup, 3))
+        np.add.at(group_jv, (slice(None), xm.body_group), jv * self._body_mass[None, :, None])
+        group_jv /= np.where(xm.group_mass > 0, xm.group_mass, 1.0)[None, :, None]
+        group_jw = jw[:, xm.group_root]
+        cols = np.r_[self.cylinders, dq.shape[1] - 1]
+        response = np.concatenate([np.einsum("ir,igk->rgk", dq[:, cols], group_jv), np.einsum("ir,igk->rgk", dq[:, cols], group_jw)], axis=2)
+        response[:, ~np.asarray(xm.group_dynamic)] = 0.0
+        self._group_gravity = response[-1] if GRAVITY_ARTICULATED else None
+        self._mobility = response[:-1] if len(self.cylinders) else None
+
+    def before_substep(self, k, h, state):
+        """XPBD hook: the coupling's effort law for this substep as compliant rows (or explicit row forces) and joint torques."""
+        if k:  # the scenario's schedules at the substep's time (step() set them at the frame's start)
+            apply_inputs(self.network, self.control, self.scene.scenario.inputs, self.time + k * h)
+        x, v = self._x, self._v
+        law = self.coupling.begin(self.net_state, self.control, x, v, h, effective_mass=self._effective_mass if self.incompressible else None)
+        self._law = law
+        cyl = self.cylinders
+        c, s = law.constant[cyl], law.slope[cyl]
+        implicit = (s < IMPLICIT_SLOPE_LIMIT) & (not self.naive)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            target = np.where(implicit, self._ell - h * c / s, np.nan)  # ℓ* = ℓ₀ − h·c/s
+            compliance = np.where(implicit, -h / s, 0.0)  # α = −h/s
+        force = np.where(implicit, 0.0, c + s * v[cyl])
+        lower = upper = None
+        if law.lower is not None:
+            lower, upper = law.lower[cyl], law.upper[cyl]
+            force = np.clip(force, lower, upper)
+        self._implicit, self._row_explicit = implicit, force
+        # motors: backward Euler on the joint alone, ω⁺ = ω + h·w·τ with w = (M⁻¹)ⱼⱼ, τ = gear·(c + s·gear·ω⁺)
+        mot = self.motors
+        damping = np.maximum(-law.slope[mot], 0.0) * self.motor_gear**2 * h * self._motor_inverse_inertia
+        self._motor_effort = (law.constant[mot] + law.slope[mot] * v[mot]) / (1.0 + damping)
+        if law.lower is not None:
+            self._motor_effort = np.clip(self._motor_effort, law.lower[mot], law.upper[mot])
+        jf = self._joint_force
+        jf[self.motor_joint] = self.motor_gear * self._motor_effort
+        return SubstepInputs(
+            target_length=target if len(cyl) else None, compliance=compliance, force_min=lower, force_max=upper,
+            row_force=force if np.any(force) else None, joint_force=jf if len(mot) else None,
+            row_mobility=self._mobility, group_gravity=self._group_gravity,
+        )
+
+    def after_substep(self, k, h, state, forces):
+        """XPBD hook: finish the hydraulic step with the realised cylinder lengths and motor speeds."""
+        x, v = self._x, self._v
+        cyl, mot = self.cylinders, self.motors
+        ell = forces.row_length
+        x_end, v_end = x.copy(), v.copy()
+        x_end[cyl] = ell - self.closed_length
+        v_end[cyl] = (ell - self._ell) / h
+        v_end[mot] = self.motor_gear * self._joint_rates(state, self.motor_joint)
+        x_end[mot] = x[mot] + h * v_end[mot]
+        self.net_state, report = self.coupling.finish(self.net_state, self.control, x, x_end, v, v_end, h)
+        self._report.absorb(report)
+        effort = np.zeros(self.network.actuator_count)
+        effort[cyl] = np.where(self._implicit, forces.row_force, self._row_explicit)
+        effort[mot] = self._motor_effort
+        self.effort = effort
+        # next substep starts here; cylinder speeds as the bodies now move (after the velocity pass)
+        v_next = v_end.copy()
+        v_next[cyl] = forces.row_rate
+        # work of the efforts on the bodies, trapezoidal in the actuator speeds (exact for a free mass)
+        self._work += 0.5 * h * float(effort @ (v + v_next))
+        self._account(report, v_end, h)
+        self._ell = ell
+        self._x, self._v = x_end, v_next
+
+    def _joint_rates(self, state, joints):
+        """Rates of hinge [rad/s] / slide [m/s] joints from the XPBD state (child relative to parent)."""
+        xm = self.xmodel
+        out = np.zeros(len(joints))
+        for i, j in enumerate(joints):
+            b = int(xm.jnt_body[j])
+            p = int(xm.body_parent[b])
+            axis = np.asarray(quat_rotate(state.q[b], self._axis_inertial[j]))  # world axis
+            if self._hinge[j]:
+                out[i] = float((state.w[b] - state.w[p]) @ axis)
+            else:  # relative velocity of the child's body-frame origin along the axis
+                origin = state.x[b] + np.asarray(quat_rotate(state.q[b], self._origin_inertial[b]))
+                vb = state.v[b] + np.cross(state.w[b], origin - state.x[b])
+                vp = state.v[p] + np.cross(state.w[p], origin - state.x[p])
+                out[i] = float((vb - vp) @ axis)
+        return out
+
+    # ------------------------------------------------------------- observation
+    def mechanical_energy(self):
+        """Kinetic and potential (gravity) energy of the bodies [J] at the current state (XPBD model)."""
+        return self.xmodel.kinetic_energy(self.state), self.xmodel.potential_energy(self.state)
+
+    def joint_state(self):
+        """(positions, velocities) of the scalar joints [rad or m, rad/s or m/s]."""
+        xm = self.xmodel
+        qpos, qvel = xm.qpos_qvel(self.state)
+        return qpos[xm.jnt_qposadr[self.scalar_joints]], qvel[xm.jnt_dofadr[self.scalar_joints]]
+
+    def body_poses(self):
+        """World positions [m] (nbody, 3) and quaternions (w, x, y, z) (nbody, 4) of the MuJoCo body frames."""
+        return self.xmodel.body_frames(self.state)
+
+    def finite(self) -> bool:
+        s = self.state
+        return bool(
+            np.all(np.isfinite(s.x)) and np.all(np.isfinite(s.q)) and np.all(np.isfinite(s.v))
+            and np.all(np.isfinite(s.w)) and np.all(np.isfinite(self.net_state.node_pressure))
+        )
+
+
+def make_pbd_plant(scene: Scene) -> PbdPlant:
+    """The plant for modes "pbd" (the scenario's coupling, default implicit) and "pbd-naive" (explicit, the seed's scheme)."""
+    mode = scene.scenario.mode
+    if mode not in ("pbd", "pbd-naive"):
+        raise ValueError(f"make_pbd_plant: mode {mode!r} is not a PBD mode")
+    return PbdPlant(scene, naive=mode == "pbd-naive")
+
+
+__all__ = ["PbdPlant", "make_pbd_plant"]

@@ -1,0 +1,473 @@
+"""Converged reference runs: MuJoCo mode, implicit coupling, the step halved until it no longer matters.
+
+A reference of a scenario is a MuJoCo-mode run with the implicit coupling at a step ``h``
+small enough that halving it changes every compared signal -- joint positions, cylinder
+strokes, chamber and motor port pressures (:func:`sim.compare.log_signals`) -- by less than
+a stated tolerance (:class:`Tolerance`).  :func:`compute_reference` runs ``h0, h0/2, h0/4, …``
+and stops at the first pair ``(h, h/2)`` that passes :func:`check_convergence`; the run at
+``h/2`` is the reference and the pair's changes are its convergence proof (for the
+first-order schemes used here the error of the ``h/2`` run is about the change itself).
+The step ladder starts at the scenario's ``dt`` (or ``start_dt``) rounded down to a divisor
+of the log period, so that every run logs at the same instants and no comparison
+interpolates.
+
+References are cached in ``cache_dir/<key>/`` (default ``.cache/references/``), ``key`` the
+SHA-256 of the MJCF, circuit and scenario file contents, the effective run settings
+(duration, log rate, fidelity, initial state, inputs) and the reference settings; a cached
+reference is re-checked when it is loaded.
+
+:func:`require_converged` rejects a candidate pair of logs at ``h`` and ``h/2`` that is not
+converged, with a message naming every signal that moved too much.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import math
+import shutil
+import sys
+import tempfile
+import time as _time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from .mcap_log import RUN_METADATA, read_log
+from .scenario import Scenario, ScenarioError, load_scenario
+from .sweep import content_hash
+
+__all__ = [
+    "ConvergenceReport",
+    "DEFAULT_CACHE_DIR",
+    "NotConvergedError",
+    "Reference",
+    "SignalCheck",
+    "Tolerance",
+    "check_convergence",
+    "compute_reference",
+    "reference_key",
+    "require_converged",
+]
+
+DEFAULT_CACHE_DIR = Path(".cache/references")
+REFERENCE_VERSION = 1  # bump when what a reference is changes (invalidates caches)
+MAX_HALVINGS = 10  # default: at most h0 / 2**10
+MAX_STEPS = 2_000_000  # default: no reference run longer than this many steps
+DT_RATIO_SLACK = 1e-6  # relative slack on "the fine log is at exactly half the coarse step"
+
+
+class NotConvergedError(ScenarioError):
+    """A reference candidate is not converged; the message names the signals and the tolerance."""
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """How much halving the step may change a signal: ``max(absolute, relative · range)``.
+
+    Attributes
+    ----------
+    relative : float
+        Fraction of the signal's peak-to-peak range in the finer run [-].
+    joint : float
+        Absolute floor for joint positions [rad, or m for slide joints].
+    stroke : float
+        Absolute floor for cylinder strokes [m].
+    pressure : float
+        Absolute floor for pressures [Pa].
+    """
+
+    relative: float = 1e-3
+    joint: float = 1e-4
+    stroke: float = 1e-4
+    pressure: float = 1e4
+
+    def __post_init__(self):
+        for name, value in asdict(self).items():
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ScenarioError(f"reference tolerance: field '{name}': {value!r} is not a finite number >= 0")
+
+    def allowed(self, kind: str, ref_range: float) -> float:
+        """Allowed change of a signal of ``kind`` whose range is ``ref_range`` (signal units)."""
+        floor = {"joint": self.joint, "stroke": self.stroke, "pressure": self.pressure}[kind]
+        scaled = self.relative * ref_range if math.isfinite(ref_range) else 0.0
+        return max(floor, scaled)
+
+    def text(self) -> str:
+        return (f"max({self.relative:.3g} × range, {self.joint:.3g} rad or m) for joints, "
+                f"max({self.relative:.3g} × range, {self.stroke * 1e3:.3g} mm) for strokes, "
+                f"max({self.relative:.3g} × range, {self.pressure / 1e5:.3g} bar) for pressures")
+
+
+@dataclass(frozen=True)
+class SignalCheck:
+    """Change of one signal between the runs at ``h`` and ``h/2``."""
+
+    name: str
+    kind: str
+    change: float  # largest |y_h - y_h/2| (signal units)
+    allowed: float
+    ref_range: float
+    t_max: float  # time of the largest change [s]
+
+    @property
+    def ok(self) -> bool:
+        return math.isfinite(self.change) and self.change <= self.allowed
+
+
+@dataclass
+class ConvergenceReport:
+    """Outcome of :func:`check_convergence`.
+
+    Attributes
+    ----------
+    converged : bool
+        Every signal within tolerance and no problem found.
+    dt_coarse, dt_fine : float
+        Steps of the two logs [s] (NaN when a log does not say).
+    tolerance : Tolerance
+    checks : list of SignalCheck
+    problems : list of str
+        Reasons other than a signal's change (a run diverged, logs of different length …).
+    coarse, fine : str
+        The two log paths.
+    """
+
+    converged: bool
+    dt_coarse: float
+    dt_fine: float
+    tolerance: Tolerance
+    checks: list = field(default_factory=list)
+    problems: list = field(default_factory=list)
+    coarse: str = ""
+    fine: str = ""
+
+    def failures(self) -> list:
+        return [c for c in self.checks if not c.ok]
+
+    def worst(self) -> SignalCheck | None:
+        """The check with the largest change relative to what it is allowed."""
+        return max(self.checks, key=lambda c: c.change / c.allowed if c.allowed > 0 else math.inf, default=None)
+
+    def text(self) -> str:
+        """Markdown: the verdict, the tolerance and one row per signal."""
+        verdict = "converged" if self.converged else "NOT converged"
+        lines = [
+            f"Convergence: {verdict}: halving the step from {self.dt_coarse:.4g} s to {self.dt_fine:.4g} s changes every "
+            f"compared signal by at most the tolerance {self.tolerance.text()}." if self.converged else
+            f"Convergence: {verdict} (step {self.dt_coarse:.4g} s → {self.dt_fine:.4g} s; tolerance {self.tolerance.text()}).",
+        ]
+        for problem in self.problems:
+            lines.append(f"- problem: {problem}")
+        lines += ["", "| signal | change h → h/2 | allowed | range | at t [s] | ok |", "|---|---|---|---|---|---|"]
+        for c in self.checks:
+            lines.append(f"| {c.name} | {_fmt(c.change, c.kind)} | {_fmt(c.allowed, c.kind)} | {_fmt(c.ref_range, c.kind)} | "
+                         f"{c.t_max:.4g} | {'yes' if c.ok else 'NO'} |")
+        return "\n".join(lines)
+
+    def rejection(self) -> str:
+        """One paragraph saying why the candidate is rejected."""
+        parts = list(self.problems)
+        bad = sorted(self.failures(), key=lambda c: -(c.change / c.allowed if c.allowed > 0 else math.inf))
+        for c in bad[:4]:
+            parts.append(f"{c.name} changed by {_fmt(c.change, c.kind)} at t = {c.t_max:.4g} s "
+                         f"(allowed {_fmt(c.allowed, c.kind)})")
+        if len(bad) > 4:
+            parts.append(f"and {len(bad) - 4} more signals")
+        return (f"reference rejected: not converged: halving the step from {self.dt_coarse:.4g} s to {self.dt_fine:.4g} s "
+                f"({self.coarse} → {self.fine}): " + "; ".join(parts) + f". Tolerance: {self.tolerance.text()}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["checks"] = [asdict(c) for c in self.checks]
+        return json.loads(json.dumps(d))  # NaN stays NaN (Python's json)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ConvergenceReport":
+        d = dict(d)
+        d["tolerance"] = Tolerance(**d["tolerance"])
+        d["checks"] = [SignalCheck(**c) for c in d["checks"]]
+        return cls(**d)
+
+
+def _fmt(value: float, kind: str) -> str:
+    if not math.isfinite(value):
+        return str(value)
+    if kind == "pressure":
+        return f"{value / 1e5:.3g} bar"
+    if kind == "stroke":
+        return f"{value * 1e3:.3g} mm"
+    return f"{value:.3g} rad or m"
+
+
+def _log_dt(log) -> float:
+    try:
+        return float(log.metadata.get(RUN_METADATA, {}).get("dt_s", "nan"))
+    except ValueError:
+        return math.nan
+
+
+def check_convergence(coarse, fine, tolerance: Tolerance | None = None) -> ConvergenceReport:
+    """Does halving the step change every compared signal by less than the tolerance?
+
+    Parameters
+    ----------
+    coarse, fine : str, Path or RunLog
+        Logs of the same scenario at steps ``h`` and ``h/2``.
+    tolerance : Tolerance, optional
+        Allowed change per signal kind (default :class:`Tolerance`).
+
+    Returns
+    -------
+    ConvergenceReport
+        ``converged`` is False when a signal changed by more than allowed, when either run
+        did not complete, when the fine log does not cover the coarse one's span, when a
+        signal is missing from one log, or when the logs state steps that are not ``h`` and
+        ``h/2``.
+    """
+    from .compare import check_same_scene, error_stats, log_signals, log_status
+
+    tolerance = tolerance or Tolerance()
+    coarse = coarse if hasattr(coarse, "topic") else read_log(coarse)
+    fine = fine if hasattr(fine, "topic") else read_log(fine)
+    check_same_scene(fine, coarse)
+    dt_coarse, dt_fine = _log_dt(coarse), _log_dt(fine)
+    problems = []
+    for log, name in ((coarse, "coarse"), (fine, "fine")):
+        status, when = log_status(log)
+        if status != "complete":
+            problems.append(f"the {name} run (step {_log_dt(log):.4g} s) is {status}"
+                            + (f" at t = {when:.4g} s" if status == "diverged" else ""))
+    if math.isfinite(dt_coarse) and math.isfinite(dt_fine) and abs(dt_fine * 2 / dt_coarse - 1) > DT_RATIO_SLACK:
+        problems.append(f"the logs are not at h and h/2 (steps {dt_coarse:.6g} s and {dt_fine:.6g} s)")
+    ref, other = log_signals(fine), log_signals(coarse)
+    missing = sorted(set(ref) ^ set(other))
+    if missing:
+        problems.append(f"signals in only one of the logs: {', '.join(missing)}")
+    checks = []
+    for name, sig in ref.items():
+        if name not in other:
+            continue
+        stats = error_stats(sig.t, sig.y, other[name].t, other[name].y)
+        checks.append(SignalCheck(name, sig.kind, stats.max_abs, tolerance.allowed(sig.kind, stats.ref_range),
+                                  stats.ref_range, stats.t_max))
+        if stats.samples and abs(stats.t_end - sig.t[-1]) > 1e-6 and not problems:
+            problems.append(f"the logs cover different spans ({other[name].t[-1]:.6g} s and {sig.t[-1]:.6g} s)")
+    if not checks:
+        problems.append("no signal to compare")
+    converged = not problems and all(c.ok for c in checks)
+    return ConvergenceReport(converged, dt_coarse, dt_fine, tolerance, checks, problems, str(coarse.path), str(fine.path))
+
+
+def require_converged(coarse, fine, tolerance: Tolerance | None = None) -> ConvergenceReport:
+    """:func:`check_convergence`, raising :class:`NotConvergedError` (with the reasons) when it fails."""
+    report = check_convergence(coarse, fine, tolerance)
+    if not report.converged:
+        raise NotConvergedError(report.rejection())
+    return report
+
+
+# ---------------------------------------------------------------------------------------
+# Computing and caching references
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ReferenceSettings:
+    """How a reference is computed (part of its cache key)."""
+
+    coupling: str = "implicit"
+    hydraulic_substeps: int = 1
+    start_dt: float | None = None  # s; default the scenario's dt
+    tolerance: Tolerance = Tolerance()
+
+
+@dataclass
+class Reference:
+    """A converged reference run.
+
+    Attributes
+    ----------
+    log_path : Path
+        The reference log (the run at ``h/2``).
+    coarse_log_path : Path
+        The run at ``h`` of the convergence proof.
+    dt : float
+        Step of the reference run [s].
+    report : ConvergenceReport
+    key : str
+        Cache key.
+    cached : bool
+        Taken from the cache (no run now).
+    wall_time : float
+        Wall time spent computing it now [s] (0 when cached).
+    runs : list of dict
+        The ladder: ``{"dt", "wall_time", "status"}`` per run made.
+    """
+
+    log_path: Path
+    coarse_log_path: Path
+    dt: float
+    report: ConvergenceReport
+    key: str
+    cached: bool
+    wall_time: float
+    scenario_path: Path
+    settings: ReferenceSettings
+    runs: list = field(default_factory=list)
+
+    def settings_text(self) -> str:
+        s = self.settings
+        sub = f", {s.hydraulic_substeps} hydraulic substeps" if s.hydraulic_substeps != 1 else ""
+        return f"MuJoCo mode, {s.coupling} coupling, dt {self.dt:.4g} s{sub}"
+
+
+def _scenario_state(s: Scenario) -> dict:
+    """Effective settings of a scenario that change its reference, as JSON."""
+    return {
+        "duration": s.duration,
+        "log_rate_hz": s.log_rate_hz,
+        "fidelity": s.fidelity,
+        "stepper": s.stepper,
+        "qpos": s.qpos,
+        "qvel": s.qvel,
+        "equilibrium": s.equilibrium,
+        "base_pressure": s.base_pressure,
+        "pressures": s.pressures,
+        "inputs": {k: [v.t.tolist(), v.value.tolist()] for k, v in sorted(s.inputs.items())},
+    }
+
+
+def reference_key(scenario: Scenario, settings: ReferenceSettings) -> str:
+    """Cache key: SHA-256 of the MJCF, circuit and scenario contents, effective settings and ``settings``."""
+    try:
+        version = importlib.metadata.version("hydroplant")
+    except importlib.metadata.PackageNotFoundError:
+        version = "unknown"
+    payload = {
+        "version": REFERENCE_VERSION,
+        "hydroplant": version,
+        "files": content_hash(scenario.mjcf, scenario.circuit, scenario.path),
+        "scenario": _scenario_state(scenario),
+        "settings": asdict(settings),
+    }
+    return content_hash(json.dumps(payload, sort_keys=True).encode())
+
+
+def start_step(scenario: Scenario, start_dt: float | None = None) -> float:
+    """First step of the ladder: ``start_dt`` (default the scenario's dt) rounded down to log period / n."""
+    period = 1.0 / scenario.log_rate_hz
+    h = start_dt if start_dt is not None else scenario.dt
+    n = max(1, math.ceil(period / h - 1e-9))
+    return period / n
+
+
+def _load_cached(directory: Path, scenario: Scenario, settings: ReferenceSettings, key: str):
+    info_path = directory / "reference.json"
+    if not info_path.is_file():
+        return None
+    try:
+        info = json.loads(info_path.read_text())
+        fine, coarse = directory / "reference.mcap", directory / "coarse.mcap"
+        report = check_convergence(coarse, fine, settings.tolerance)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not report.converged:
+        return None
+    return Reference(fine, coarse, float(info["dt"]), report, key, True, 0.0, scenario.path, settings, info.get("runs", []))
+
+
+def compute_reference(scenario, *, tolerance: Tolerance | None = None, cache_dir=DEFAULT_CACHE_DIR,
+                      start_dt: float | None = None, coupling: str = "implicit", hydraulic_substeps: int = 1,
+                      max_halvings: int = MAX_HALVINGS, max_steps: int = MAX_STEPS, fresh: bool = False,
+                      progress: bool = False) -> Reference:
+    """The converged reference of a scenario, from the cache or computed now.
+
+    Parameters
+    ----------
+    scenario : str, Path or Scenario
+        The scenario, with any overrides already applied (e.g. a shortened duration).
+        Its mode, coupling, dt and substeps are replaced; everything else is kept.
+    tolerance : Tolerance, optional
+        Allowed change when the step is halved (default :class:`Tolerance`).
+    cache_dir : str or Path
+        Cache directory (default ``.cache/references``).
+    start_dt : float, optional
+        First step of the ladder [s] (default the scenario's dt); rounded down to divide
+        the log period.
+    coupling : {"implicit", "explicit"}
+    hydraulic_substeps : int
+    max_halvings : int
+        Give up after ``start_dt / 2**max_halvings``.
+    max_steps : int
+        Give up rather than make a run of more steps than this.
+    fresh : bool
+        Ignore (and replace) a cached reference.
+    progress : bool
+        Print one line per run to stderr.
+
+    Raises
+    ------
+    NotConvergedError
+        No pair of the ladder converged within the limits; the message has the finest
+        pair's rejection.
+    """
+    from .runner import run
+
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario)
+    settings = ReferenceSettings(coupling, hydraulic_substeps, start_dt, tolerance or Tolerance())
+    key = reference_key(scenario, settings)
+    cache_dir = Path(cache_dir)
+    directory = cache_dir / key[:24]
+    if not fresh:
+        cached = _load_cached(directory, scenario, settings, key)
+        if cached is not None:
+            if progress:
+                print(f"reference: cached {directory} (dt {cached.dt:.4g} s)", file=sys.stderr)
+            return cached
+    h = start_step(scenario, start_dt)
+    base = scenario.with_overrides(mode="mujoco", coupling=coupling, hydraulic_substeps=hydraulic_substeps)
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix=f".{key[:12]}-", dir=cache_dir))
+    runs, previous, report = [], None, None
+    started = _time.perf_counter()
+    try:
+        for level in range(max_halvings + 1):
+            dt = h / 2**level
+            steps = round(scenario.duration / dt)
+            if steps > max_steps:
+                break
+            path = work / f"level{level}.mcap"
+            result = run(base.with_overrides(dt=dt), out=path)
+            runs.append({"dt": dt, "wall_time": result.wall_time, "status": result.status})
+            if previous is not None:
+                report = check_convergence(previous, path, settings.tolerance)
+                if progress:
+                    worst = report.worst()
+                    share = f"worst {worst.name} {worst.change / worst.allowed:.3g}× allowed" if worst else ""
+                    print(f"reference: dt {dt:.4g} s, {result.wall_time:.1f} s wall, {share}"
+                          f"{' -> converged' if report.converged else ''}", file=sys.stderr)
+                if report.converged:
+                    break
+            elif progress:
+                print(f"reference: dt {dt:.4g} s, {result.wall_time:.1f} s wall", file=sys.stderr)
+            previous = path
+        if report is None or not report.converged:
+            why = report.rejection() if report is not None else "no pair of runs fits in the limits"
+            raise NotConvergedError(
+                f"{scenario.path}: no converged reference within {max_halvings} halvings of {h:.4g} s and {max_steps} steps "
+                f"per run: {why}. Loosen the tolerance, shorten the duration, or allow more steps.")
+        final = directory.with_name(directory.name + ".new")
+        shutil.rmtree(final, ignore_errors=True)
+        final.mkdir()
+        shutil.move(str(previous), final / "coarse.mcap")
+        shutil.move(str(path), final / "reference.mcap")
+        info = {"key": key, "dt": dt, "scenario": str(scenario.path), "settings": asdict(settings), "runs": runs}
+        (final / "reference.json").write_text(json.dumps(info, indent=1, sort_keys=True))
+        shutil.rmtree(directory, ignore_errors=True)
+        final.rename(directory)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    report = check_convergence(directory / "coarse.mcap", directory / "reference.mcap", settings.tolerance)
+    return Reference(directory / "reference.mcap", directory / "coarse.mcap", dt, report, key, False,
+                     _time.perf_counter() - started, scenario.path, settings, runs)

@@ -1,0 +1,551 @@
+"""``hydroplant tradeoff``: accuracy against cost over modes, couplings and step settings.
+
+::
+
+    hydroplant tradeoff SCENARIO [--scheduler tcp://host:port] [--out DIR] [--quick] [--duration S]
+
+Sweeps the step ``dt``, the hydraulic substeps (MuJoCo mode), the XPBD substeps and
+iterations (PBD modes, when the PBD plant is importable) and both couplings
+(:func:`sweep_settings`), runs every setting through :func:`sim.sweep.run_sweep` (a local
+process pool, or a Dask cluster with ``--scheduler``), and measures per setting
+
+* the cost: wall-clock seconds per simulated second, the median of ``repeats`` runs
+  (timings depend on the machine and on what else runs; the errors do not), and
+* the errors against the converged reference (:mod:`sim.reference`): the largest and RMS
+  error of joint positions, strokes and pressures (:mod:`sim.compare`), plus the energy
+  drift and whether the run diverged.
+
+Writes ``tradeoff.csv`` (one row per setting), ``pareto.png`` (error against cost,
+log-log, Pareto fronts drawn) and ``tradeoff.md`` naming the Pareto-optimal settings, e.g.
+"for ≤ 1 mm stroke error the fastest setting is …".  The dt ladder keeps every step a
+divisor (or a multiple) of the log period, so runs and reference log at common instants.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import statistics
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hydraulics.components import CircuitError
+
+from .sweep import content_hash, run_sweep
+
+__all__ = [
+    "ERROR_COLUMNS",
+    "TradeoffResult",
+    "code_hash",
+    "dt_ladder",
+    "error_rows",
+    "pareto_front",
+    "pareto_statements",
+    "reference_floors",
+    "run_point",
+    "sweep_points",
+    "stability_statements",
+    "sweep_settings",
+    "tradeoff",
+]
+
+DEFAULT_REPEATS = 3
+QUICK_REPEATS = 1
+WARM_UP_STEPS = 20  # steps of the untimed warm-up run per worker process, mode and coupling
+REPEAT_BELOW_S = 10.0  # s of wall time: a run longer than this is timed once, not `repeats` times
+KIND_SCALE = {"joint": (1e3, "mrad"), "stroke": (1e3, "mm"), "pressure": (1e-5, "bar")}  # display factor, unit
+ERROR_COLUMNS = ("status", "diverged_at_s", "joint_max", "joint_rms", "stroke_max_m", "stroke_rms_m",
+                 "pressure_max_pa", "pressure_rms_pa", "energy_drift_rel")
+SETTING_COLUMNS = ("label", "mode", "coupling", "dt_s", "hydraulic_substeps", "pbd_substeps", "pbd_iterations")
+COST_COLUMNS = ("wall_per_sim_s", "wall_per_sim_s_runs")
+# Files whose contents do not change a run's result (analysis and command-line code):
+NOT_SIMULATION = {"compare.py", "tradeoff.py", "sweep.py", "reference.py", "cli.py", "inspect_scene.py", "demo.py"}
+
+
+def code_hash() -> str:
+    """Content hash of the simulation code (``hydraulics/`` and ``sim/`` minus the analysis tools)."""
+    root = Path(__file__).resolve().parents[1]
+    files = sorted(p for d in ("hydraulics", "sim") for p in (root / d).rglob("*.py") if p.name not in NOT_SIMULATION)
+    return content_hash(*(str(p.relative_to(root)).encode() for p in files), *files)
+
+
+def dt_ladder(scenario, exponents) -> list[float]:
+    """Steps ``≈ dt0 · 2**k`` for ``k`` in ``exponents``, each a divisor or a multiple of the log period.
+
+    ``dt0`` is the scenario's dt rounded down to ``period / n``. Coarser steps are rounded to
+    ``period / round(n / 2**k)`` (or ``period · round(2**k / n)`` beyond the period).
+    """
+    from .reference import start_step
+
+    period = 1.0 / scenario.log_rate_hz
+    n0 = round(period / start_step(scenario))
+    out = []
+    for k in exponents:
+        ratio = n0 / 2.0**k
+        dt = period / round(ratio) if ratio >= 1 else period * max(1, round(1 / ratio))
+        if not any(math.isclose(dt, d, rel_tol=1e-9) for d in out):
+            out.append(dt)
+    return out
+
+
+def sweep_settings(scenario, *, quick: bool = False, modes=None) -> list[dict]:
+    """The settings to sweep: dicts of mode, coupling, dt, hydraulic_substeps, pbd_substeps, pbd_iterations.
+
+    ``dt0`` is the scenario's step (see :func:`dt_ladder`). Full sweep:
+
+    - MuJoCo implicit at dt0·{4, 2, 1, 1/2, …, 1/16} and explicit at dt0·{2, 1, 1/2, …, 1/32}, each with
+      1 and 4 hydraulic substeps;
+    - PBD implicit at dt0·{2, 1, 1/2} × {5, 10, 20} substeps with at most 20 substeps per dt0 (its cost
+      grows with the substep rate), 1 iteration, plus 4 iterations at dt0 × 10 substeps; PBD explicit at
+      dt0·{1, 1/2} × 20 substeps;
+    - naive PBD at dt0·{1, 1/2} × {10, 20} substeps.
+
+    Quick: MuJoCo implicit at dt0·{2, 1, 1/2, 1/4}, explicit at dt0·{1, 1/2, 1/4, 1/8}, PBD implicit at
+    dt0 × {10, 20} substeps, naive PBD at dt0·{1, 1/2} × 20 substeps.
+    """
+    from .compare import pbd_available
+
+    if modes is None:
+        modes = ["mujoco", "pbd", "pbd-naive"] if pbd_available()[0] else ["mujoco"]
+    s = scenario
+    out = []
+
+    def add(mode, coupling, exps, hyd=(1,), sub=(None,), it=(None,), max_rate=math.inf):
+        for k, dt in zip(exps, dt_ladder(scenario, exps)):
+            for h in hyd:
+                for n in sub:
+                    if n is not None and n * 2.0 ** (-k) > max_rate:
+                        continue
+                    for i in it:
+                        setting = {"mode": mode, "coupling": coupling, "dt": dt, "hydraulic_substeps": h,
+                                   "pbd_substeps": n if n is not None else s.pbd_substeps,
+                                   "pbd_iterations": i if i is not None else s.pbd_iterations}
+                        if setting not in out:
+                            out.append(setting)
+
+    if "mujoco" in modes:
+        if quick:
+            add("mujoco", "implicit", (1, 0, -1, -2))
+            add("mujoco", "explicit", (0, -1, -2, -3))
+        else:
+            add("mujoco", "implicit", (2, 1, 0, -1, -2, -3, -4), hyd=(1, 4))
+            add("mujoco", "explicit", (1, 0, -1, -2, -3, -4, -5), hyd=(1, 4))
+    if "pbd" in modes:
+        if quick:
+            add("pbd", "implicit", (0,), sub=(10, 20), it=(1,))
+        else:
+            add("pbd", "implicit", (1, 0, -1), sub=(5, 10, 20), it=(1,), max_rate=20)
+            add("pbd", "implicit", (0,), sub=(10,), it=(4,))
+            add("pbd", "explicit", (0, -1), sub=(20,), it=(1,))
+    if "pbd-naive" in modes:
+        if quick:
+            add("pbd-naive", "explicit", (0, -1), sub=(20,), it=(1,))
+        else:
+            add("pbd-naive", "explicit", (0, -1), sub=(10, 20), it=(1,))
+    return out
+
+
+def setting_label(p: dict) -> str:
+    """``mujoco implicit dt 1 ms``, ``… ×4 hydraulic substeps``, ``pbd dt 1 ms 20 substeps × 1 iterations``."""
+    text = f"{p['mode']} {p['coupling']} dt {p['dt'] * 1e3:.4g} ms"
+    if p["mode"] == "mujoco":
+        if p["hydraulic_substeps"] != 1:
+            text += f" ×{p['hydraulic_substeps']} hydraulic substeps"
+    else:
+        coupling = "" if p["mode"] == "pbd-naive" else f" {p['coupling']}"  # the naive scheme is always explicit
+        text = f"{p['mode']}{coupling} dt {p['dt'] * 1e3:.4g} ms, {p['pbd_substeps']} substeps × {p['pbd_iterations']} iterations"
+    return text
+
+
+def sweep_points(scenario, settings: list[dict], *, repeats: int) -> list[dict]:
+    """Sweep points: the settings plus what their results depend on (file and code hashes, duration, repeats)."""
+    files = content_hash(scenario.mjcf, scenario.circuit, scenario.path)
+    code = code_hash()
+    return [{**setting, "scenario": str(scenario.path), "files": files, "code": code, "duration": scenario.duration,
+             "repeats": repeats, "repeat_below_s": REPEAT_BELOW_S} for setting in settings]
+
+
+def run_point(point: dict) -> dict:
+    """Sweep worker: run one setting ``repeats`` times (once if a run takes over ``repeat_below_s``);
+    cost, status and the compared signals of the run.
+
+    Returns
+    -------
+    dict
+        ``status``, ``diverged_at_s``, ``message``, ``wall_per_sim_s`` (median), ``wall_per_sim_s_runs``,
+        ``energy`` (:func:`sim.compare.energy_drift`) and ``signals`` ``{name: {"kind", "t", "y"}}``
+        (NaN where not finite). A run that raises gives ``status = "error"`` and the message.
+    """
+    from .compare import energy_drift, log_signals, log_status
+    from .mcap_log import read_log
+    from .runner import run
+
+    overrides = {k: point[k] for k in ("mode", "coupling", "dt", "hydraulic_substeps", "pbd_substeps", "pbd_iterations",
+                                       "duration")}
+    costs = []
+    with tempfile.TemporaryDirectory(prefix="hydroplant-tradeoff-") as tmp:
+        try:
+            _warm_up(point, overrides, Path(tmp))
+            for r in range(point["repeats"]):
+                result = run(point["scenario"], out=Path(tmp) / f"run{r}.mcap", overrides=overrides)
+                costs.append(result.wall_time / result.simulated_time if result.simulated_time > 0 else math.inf)
+                if result.wall_time > point["repeat_below_s"]:
+                    break  # long runs are timed once
+            log = read_log(result.log_path)
+        except Exception as exc:  # a setting the plant refuses is a result, not a crash of the sweep
+            return {"status": "error", "message": f"{type(exc).__name__}: {exc}", "diverged_at_s": math.nan,
+                    "wall_per_sim_s": math.nan, "wall_per_sim_s_runs": costs, "energy": {}, "signals": {}}
+        status, when = log_status(log)
+        signals = {name: {"kind": s.kind, "t": s.t.tolist(), "y": s.y.tolist()} for name, s in log_signals(log).items()}
+        return {"status": status, "message": result.message, "diverged_at_s": when if status == "diverged" else math.nan,
+                "wall_per_sim_s": statistics.median(costs), "wall_per_sim_s_runs": costs, "energy": energy_drift(log),
+                "signals": signals}
+
+
+_WARM: set = set()  # (scenario, mode, coupling) already run in this worker process
+
+
+def _warm_up(point: dict, overrides: dict, tmp: Path) -> None:
+    """One short untimed run per scenario, mode and coupling in each worker process, so that one-time costs
+    (imports, compilation, caches) are not charged to the first timed setting."""
+    from .runner import run
+
+    key = (point["scenario"], point["mode"], point["coupling"])
+    if key in _WARM:
+        return
+    short = {**overrides, "duration": min(point["duration"], WARM_UP_STEPS * point["dt"])}
+    run(point["scenario"], out=tmp / "warm-up.mcap", overrides=short)
+    _WARM.add(key)
+
+
+def error_rows(points: list[dict], results: list[dict], ref_signals: dict) -> list[dict]:
+    """One row per point: settings, cost and errors against the reference signals (SI units)."""
+    from .compare import error_stats
+
+    rows = []
+    for p, r in zip(points, results):
+        row = {"label": setting_label(p), "mode": p["mode"], "coupling": p["coupling"], "dt_s": p["dt"],
+               "hydraulic_substeps": p["hydraulic_substeps"], "pbd_substeps": p["pbd_substeps"],
+               "pbd_iterations": p["pbd_iterations"], "status": r["status"], "diverged_at_s": r["diverged_at_s"],
+               "wall_per_sim_s": r["wall_per_sim_s"], "wall_per_sim_s_runs": " ".join(f"{c:.4g}" for c in r["wall_per_sim_s_runs"])}
+        worst = {kind: (math.nan, math.nan) for kind in KIND_SCALE}
+        for name, ref in ref_signals.items():
+            sig = r["signals"].get(name)
+            if sig is None:
+                continue
+            s = error_stats(ref.t, ref.y, np.array(sig["t"]), np.array(sig["y"], dtype=float))
+            if s.samples:
+                m, q = worst[ref.kind]
+                worst[ref.kind] = (np.fmax(m, s.max_abs), np.fmax(q, s.rms))
+        row["joint_max"], row["joint_rms"] = map(float, worst["joint"])
+        row["stroke_max_m"], row["stroke_rms_m"] = map(float, worst["stroke"])
+        row["pressure_max_pa"], row["pressure_rms_pa"] = map(float, worst["pressure"])
+        row["energy_drift_rel"] = float(r["energy"].get("relative", math.nan)) if r["energy"] else math.nan
+        rows.append(row)
+    return rows
+
+
+def error_table(rows: list[dict]) -> list[tuple]:
+    """The engine-independent part of the rows: settings and errors, no timings."""
+    def plain(v):
+        return None if isinstance(v, float) and math.isnan(v) else v  # NaN != NaN; None == None
+
+    return [tuple(plain(row[c]) for c in SETTING_COLUMNS + ERROR_COLUMNS) for row in rows]
+
+
+KIND_COLUMN = {"joint": "joint_max", "stroke": "stroke_max_m", "pressure": "pressure_max_pa"}
+
+
+def _feasible(row) -> bool:
+    return row["status"] == "complete" and math.isfinite(row["wall_per_sim_s"])
+
+
+def pareto_front(rows: list[dict], kind: str = "stroke") -> list[int]:
+    """Indices of the Pareto-optimal stable rows for (cost, max error of ``kind``), cheapest first."""
+    column = KIND_COLUMN[kind]
+    candidates = sorted((i for i, r in enumerate(rows) if _feasible(r) and math.isfinite(r[column])),
+                        key=lambda i: (rows[i]["wall_per_sim_s"], rows[i][column]))
+    front, best = [], math.inf
+    for i in candidates:
+        if rows[i][column] < best:
+            front.append(i)
+            best = rows[i][column]
+    return front
+
+
+def pareto_statements(rows: list[dict], kind: str = "stroke", floor: float = 0.0) -> list[str]:
+    """"for ≤ 1 mm stroke error, the fastest setting is …" for decade thresholds spanning the front.
+
+    Thresholds below ``floor`` (the reference's own accuracy, SI units) are not stated.
+    """
+    column = KIND_COLUMN[kind]
+    factor, unit = KIND_SCALE[kind]
+    front = pareto_front(rows, kind)
+    if not front:
+        return [f"no stable setting to rank by {kind} error"]
+    errors = [rows[i][column] * factor for i in front]
+    lo = math.floor(math.log10(max(min(errors), 1e-12)))
+    hi = math.ceil(math.log10(max(max(errors), 1e-12)))
+    out = []
+    for e in range(lo, hi + 1):
+        threshold = 10.0**e
+        if threshold < floor * factor:
+            continue  # not resolved by the reference
+        ok = [i for i in front if rows[i][column] * factor <= threshold]
+        if not ok:
+            continue
+        i = ok[0]  # front is cheapest first
+        text = (f"for ≤ {threshold:g} {unit} {kind} error, the fastest setting is {rows[i]['label']} "
+                f"({rows[i]['wall_per_sim_s']:.3g} s wall per simulated s, max {kind} error {rows[i][column] * factor:.3g} {unit})")
+        if not out or not out[-1].endswith(text.split(", the fastest setting is ")[1]):
+            out.append(text)
+    return out
+
+
+def stability_statements(rows: list[dict]) -> list[str]:
+    """Per mode and coupling: the largest stable step and the smallest that was not."""
+    groups: dict[str, list] = {}
+    for r in rows:
+        key = r["mode"] if r["mode"] == "pbd-naive" else f"{r['mode']} {r['coupling']}"
+        groups.setdefault(key, []).append(r)
+    out = []
+    for key, group in groups.items():
+        stable = [r["dt_s"] for r in group if r["status"] == "complete"]
+        unstable = [r["dt_s"] for r in group if r["status"] != "complete"]
+        if not unstable:
+            out.append(f"{key}: stable at every step tried (up to {max(stable) * 1e3:.4g} ms)")
+        elif not stable:
+            out.append(f"{key}: not stable at any step tried (down to {min(unstable) * 1e3:.4g} ms)")
+        else:
+            mixed = [d for d in unstable if d <= max(stable)]
+            text = f"{key}: stable up to dt = {max(stable) * 1e3:.4g} ms, not stable from {min(d for d in unstable if d > max(stable)) * 1e3:.4g} ms" \
+                if any(d > max(stable) for d in unstable) else f"{key}: largest stable dt {max(stable) * 1e3:.4g} ms"
+            if mixed:
+                text += f" (and not at {', '.join(f'{d * 1e3:.4g}' for d in sorted(set(mixed)))} ms with some substep settings)"
+            out.append(text)
+    return out
+
+
+def reference_floors(report) -> dict:
+    """Largest h → h/2 change of the reference per kind (SI units): errors below it are not resolved."""
+    floors = {kind: 0.0 for kind in KIND_SCALE}
+    for c in report.checks:
+        if math.isfinite(c.change):
+            floors[c.kind] = max(floors[c.kind], c.change)
+    return floors
+
+
+def write_csv(rows: list[dict], path) -> Path:
+    columns = SETTING_COLUMNS + ERROR_COLUMNS + COST_COLUMNS + ("pareto_stroke", "pareto_pressure")
+    fronts = {kind: set(pareto_front(rows, kind)) for kind in ("stroke", "pressure")}
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(columns)
+        for i, row in enumerate(rows):
+            values = [row[c] for c in columns[:-2]] + [i in fronts["stroke"], i in fronts["pressure"]]
+            w.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in values])
+    return Path(path)
+
+
+MARKERS = {(True, "implicit"): "o", (True, "explicit"): "s", (False, "implicit"): "^", (False, "explicit"): "v"}  # (MuJoCo?, coupling)
+MODE_COLORS = {"mujoco": "tab:blue", "pbd": "tab:green", "pbd-naive": "tab:red"}
+
+
+def pareto_figure(rows: list[dict], path, *, title: str = "", kinds=("stroke", "pressure")) -> Path:
+    """Log-log error against cost per kind; diverged settings on the top edge; the Pareto front as a step line."""
+    from .compare import _pyplot
+
+    plt = _pyplot()
+    from matplotlib import ticker
+
+    fig, axes = plt.subplots(1, len(kinds), figsize=(5 * len(kinds), 4.2), squeeze=False, layout="constrained")
+    for ax, kind in zip(axes[0], kinds):
+        column = KIND_COLUMN[kind]
+        factor, unit = KIND_SCALE[kind]
+        stable = [r for r in rows if _feasible(r) and math.isfinite(r[column]) and r[column] > 0]
+        top = max((r[column] * factor for r in stable), default=1.0) * 3
+        seen = set()
+        any_diverged = False
+        for r in rows:
+            if not math.isfinite(r["wall_per_sim_s"]):
+                continue
+            key = (r["mode"], "" if r["mode"] == "pbd-naive" else r["coupling"])
+            label = " ".join(k for k in key if k) if key not in seen else None
+            seen.add(key)
+            color = MODE_COLORS.get(r["mode"], "tab:gray")
+            marker = MARKERS.get((r["mode"] == "mujoco", r["coupling"]), "o")
+            filled = r["hydraulic_substeps"] == 1 if r["mode"] == "mujoco" else r["pbd_iterations"] == 1
+            if _feasible(r) and r in stable:
+                ax.scatter(r["wall_per_sim_s"], r[column] * factor, c=color if filled else "none", edgecolors=color,
+                           marker=marker, s=28, label=label, zorder=3)
+            else:
+                ax.scatter(r["wall_per_sim_s"], top, c=color, marker="x", s=28, zorder=3, label=label)
+                any_diverged = True
+        if any_diverged:
+            ax.scatter([], [], c="tab:gray", marker="x", s=28, label="not stable (drawn at the top edge)")
+        front = pareto_front(rows, kind)
+        if front:
+            xs = [rows[i]["wall_per_sim_s"] for i in front]
+            ys = [rows[i][column] * factor for i in front]
+            ax.step(xs, ys, where="post", color="k", lw=0.8, alpha=0.6, label="Pareto front", zorder=2)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_locator(ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+            axis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+            axis.set_minor_formatter(ticker.NullFormatter())
+        ax.set_xlabel("cost [s wall per s simulated]", fontsize=8)
+        ax.set_ylabel(f"max {kind} error [{unit}]", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3, which="both")
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 4), fontsize=7, frameon=False)
+    if title:
+        fig.suptitle(title + "  (open markers: hydraulic substeps or PBD iterations > 1)", fontsize=9)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+@dataclass
+class TradeoffResult:
+    rows: list
+    csv_path: Path
+    figure_path: Path
+    report_path: Path
+    statements: dict
+    reference_text: str
+
+
+def evaluate(scenario, settings: list[dict], reference_log, *, repeats: int = DEFAULT_REPEATS, scheduler=None,
+             workers=None, cache_dir=None, progress=None) -> list[dict]:
+    """Run the settings through :func:`sim.sweep.run_sweep` and return the error rows against ``reference_log``."""
+    from .compare import log_signals
+    from .mcap_log import read_log
+
+    points = sweep_points(scenario, settings, repeats=repeats)
+    # The reference is not in the points: the workers return signals, the errors are computed here.
+    results = run_sweep(run_point, points, scheduler=scheduler, workers=workers, cache_dir=cache_dir, progress=progress)
+    return error_rows(points, results, log_signals(read_log(reference_log)))
+
+
+def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = False, duration=None, modes=None,
+             repeats=None, tolerance=None, cache_dir=None, sweep_cache=None, fresh_reference: bool = False,
+             progress: bool = False) -> TradeoffResult:
+    """The full sweep of a scenario; writes ``tradeoff.csv``, ``pareto.png`` and ``tradeoff.md`` into ``out_dir``."""
+    from .reference import DEFAULT_CACHE_DIR, compute_reference
+    from .scenario import Scenario, load_scenario
+
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario)
+    if duration is not None:
+        scenario = scenario.with_overrides(duration=duration)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    reference = compute_reference(scenario, tolerance=tolerance, cache_dir=cache_dir or DEFAULT_CACHE_DIR,
+                                  fresh=fresh_reference, progress=progress)
+    settings = sweep_settings(scenario, quick=quick, modes=modes)
+    repeats = repeats or (QUICK_REPEATS if quick else DEFAULT_REPEATS)
+
+    def report(done, total):
+        if progress:
+            if sys.stderr.isatty():
+                print(f"\rtradeoff: {done}/{total} settings", end="" if done < total else "\n", file=sys.stderr, flush=True)
+            else:
+                print(f"tradeoff: {done}/{total} settings", file=sys.stderr, flush=True)
+
+    cache = Path(sweep_cache) if sweep_cache else Path(".cache/sweeps") / f"{scenario.scene_name}-{scenario.name}"
+    rows = evaluate(scenario, settings, reference.log_path, repeats=repeats, scheduler=scheduler, workers=workers,
+                    cache_dir=cache, progress=report)
+    title = f"{scenario.scene_name}/{scenario.name}, {scenario.duration:g} s"
+    csv_path = write_csv(rows, out_dir / "tradeoff.csv")
+    fig = pareto_figure(rows, out_dir / "pareto.png", title=title)
+    floors = reference_floors(reference.report)
+    statements = {kind: pareto_statements(rows, kind, floors[kind]) for kind in ("stroke", "pressure", "joint")}
+    ref_text = f"{reference.settings_text()}; {reference.report.text().splitlines()[0]}"
+    lines = [f"# Accuracy against cost: {title}", "", f"Reference: {ref_text}", "",
+             f"{len(rows)} settings, cost = median of {repeats} run(s) of wall-clock time per simulated second"
+             f"{' on a Dask cluster' if scheduler else ''}. Errors: largest over the run against the reference.", ""]
+    for kind in ("stroke", "pressure", "joint"):
+        lines += [f"- {s}" for s in statements[kind]]
+    floor_text = ", ".join(f"{floors[k] * KIND_SCALE[k][0]:.2g} {KIND_SCALE[k][1]} ({k})" for k in ("stroke", "pressure", "joint"))
+    lines += ["", f"The reference is accurate to about its own h → h/2 change: {floor_text}; smaller thresholds are not "
+              "stated, and errors near these values are the reference's as much as the setting's."]
+    lines += ["", "Stability:", ""] + [f"- {s}" for s in stability_statements(rows)]
+    lines += ["", f"![Pareto]({fig.name})", "", pareto_table(rows), ""]
+    report_path = out_dir / "tradeoff.md"
+    report_path.write_text("\n".join(lines))
+    return TradeoffResult(rows, csv_path, fig, report_path, statements, ref_text)
+
+
+def pareto_table(rows: list[dict], kinds=("stroke", "pressure")) -> str:
+    """Markdown table of the settings on any Pareto front (cheapest first)."""
+    chosen = sorted(set().union(*(pareto_front(rows, k) for k in kinds)), key=lambda i: rows[i]["wall_per_sim_s"])
+    lines = ["| setting | cost [s/s] | joint max [mrad or mm] | stroke max [mm] | pressure max [bar] | energy drift |",
+             "|---|---|---|---|---|---|"]
+    for i in chosen:
+        r = rows[i]
+        lines.append(f"| {r['label']} | {r['wall_per_sim_s']:.3g} | {r['joint_max'] * 1e3:.3g} | {r['stroke_max_m'] * 1e3:.3g} | "
+                     f"{r['pressure_max_pa'] * 1e-5:.3g} | {r['energy_drift_rel']:.2g} |")
+    diverged = [r["label"] for r in rows if r["status"] != "complete"]
+    if diverged:
+        lines += ["", f"Not stable ({len(diverged)}): " + "; ".join(
+            f"{r['label']} ({r['status']}{' at %.3g s' % r['diverged_at_s'] if r['status'] == 'diverged' else ''})"
+            for r in rows if r["status"] != "complete")]
+    return "\n".join(lines)
+
+
+def add_parser(subparsers):
+    """Register ``hydroplant tradeoff``."""
+    parser = subparsers.add_parser("tradeoff", help="sweep modes, couplings and steps: error against cost, Pareto settings")
+    parser.add_argument("scenario", type=Path, help="scenario TOML file")
+    parser.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local process pool)")
+    parser.add_argument("--workers", type=int, help="local worker processes (default: CPU count)")
+    parser.add_argument("--out", type=Path, help="output directory (default: logs/tradeoff-<scene>-<scenario>)")
+    parser.add_argument("--quick", action="store_true", help="a few settings, one run each")
+    parser.add_argument("--duration", type=float, help="simulated time [s] (default: the scenario's)")
+    parser.add_argument("--repeats", type=int, help=f"timed runs per setting (default {DEFAULT_REPEATS}, quick {QUICK_REPEATS})")
+    parser.add_argument("--modes", help="comma-separated subset of mujoco,pbd,pbd-naive (default: those available)")
+    parser.add_argument("--tolerance", type=float, help="relative convergence tolerance of the reference (default 1e-3)")
+    parser.add_argument("--fresh-reference", action="store_true", help="recompute the reference even if it is cached")
+    parser.set_defaults(func=main)
+
+
+def main(args) -> int:
+    """``hydroplant tradeoff``; returns the exit code."""
+    from .reference import Tolerance
+    from .scenario import MODES
+
+    for name in ("duration", "tolerance"):
+        value = getattr(args, name)
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise CircuitError(f"--{name}: {value!r} must be a positive finite number")
+    for name in ("workers", "repeats"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise CircuitError(f"--{name}: {value!r} must be >= 1")
+    if args.scheduler is not None and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
+        raise CircuitError(f"--scheduler: {args.scheduler!r} is not a scheduler address like tcp://host:8786")
+    modes = None
+    if args.modes:
+        modes = [m.strip() for m in args.modes.split(",") if m.strip()]
+        bad = [m for m in modes if m not in MODES]
+        if bad:
+            raise CircuitError(f"--modes: {bad} not in {list(MODES)}")
+    from .scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    out = args.out or Path("logs") / f"tradeoff-{scenario.scene_name}-{scenario.name}"
+    result = tradeoff(scenario, out, scheduler=args.scheduler, workers=args.workers, quick=args.quick,
+                      duration=args.duration, modes=modes, repeats=args.repeats,
+                      tolerance=Tolerance(relative=args.tolerance) if args.tolerance else None,
+                      fresh_reference=args.fresh_reference, progress=True)
+    for kind in ("stroke", "pressure"):
+        for s in result.statements[kind]:
+            print(s)
+    print(f"table: {result.csv_path}\nfigure: {result.figure_path}\nreport: {result.report_path}")
+    return 0

@@ -1,0 +1,81 @@
+"""Sweeps: content hashes, resuming an interrupted sweep, and the same error table from a process pool and Dask."""
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+from conftest import MODELS
+from sim.sweep import SweepError, content_hash, point_key, run_sweep
+
+SEED = MODELS / "seed_cylinder" / "closed.scenario.toml"
+
+
+def square(point):
+    """Sweep function for the tests: leaves a marker file per call; fails while ``point['fail']`` exists."""
+    marker_dir = Path(point["markers"])
+    (marker_dir / f"{point['x']}-{os.getpid()}-{len(list(marker_dir.iterdir()))}").touch()
+    if point["x"] == point.get("fail_at") and Path(point["fail"]).exists():
+        raise RuntimeError("interrupted")
+    return {"y": point["x"] ** 2, "half": point["x"] / 2}
+
+
+def calls(marker_dir, x):
+    return sum(1 for p in Path(marker_dir).iterdir() if p.name.split("-")[0] == str(x))
+
+
+def test_content_hash_and_point_key(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.write_bytes(b"ab")
+    b.write_bytes(b"ab")
+    assert content_hash(a) == content_hash(b) == content_hash(b"ab")  # contents, not names
+    assert content_hash(b"ab", b"c") != content_hash(b"a", b"bc")
+    with pytest.raises(FileNotFoundError):
+        content_hash(tmp_path / "missing")
+    assert point_key({"x": 1, "y": 2}, square) == point_key({"y": 2, "x": 1}, square)  # sorted JSON
+    assert point_key({"x": 1}, square) != point_key({"x": 1.5}, square)
+    with pytest.raises(TypeError, match="JSON-serialisable"):
+        run_sweep(square, [{"x": float("nan")}])
+
+
+def test_interrupted_sweep_resumes_without_recomputing_finished_points(tmp_path):
+    markers, cache = tmp_path / "markers", tmp_path / "cache"
+    markers.mkdir()
+    flag = tmp_path / "fail"
+    flag.touch()
+    points = [{"x": x, "markers": str(markers), "fail": str(flag), "fail_at": 2} for x in range(5)]
+    with pytest.raises(SweepError, match="interrupted"):
+        run_sweep(square, points, workers=1, cache_dir=cache)  # one at a time: 0 and 1 finish, 2 fails
+    assert len(list(cache.glob("*.json"))) == 2
+    flag.unlink()
+    results = run_sweep(square, points, workers=2, cache_dir=cache)
+    assert [r["y"] for r in results] == [0, 1, 4, 9, 16]
+    assert [calls(markers, x) for x in range(5)] == [1, 1, 2, 1, 1]  # 0 and 1 came from the cache
+    again = run_sweep(square, points, workers=2, cache_dir=cache)
+    assert again == results and [calls(markers, x) for x in range(5)] == [1, 1, 2, 1, 1]
+    cached = json.loads(next(cache.glob("*.json")).read_text())
+    assert set(cached) == {"point", "result"}
+
+
+def test_seed_sweep_gives_the_same_error_table_on_a_process_pool_and_on_dask(tmp_path):
+    """4 settings of the seed cylinder (20 ms): a real LocalCluster(2 processes) and the process pool agree on every
+    error (not on timings)."""
+    from dask.distributed import LocalCluster
+
+    from sim.runner import run
+    from sim.scenario import load_scenario
+    from sim.tradeoff import error_table, evaluate
+
+    scenario = load_scenario(SEED).with_overrides(duration=0.02)
+    fine = run(scenario, out=tmp_path / "fine.mcap", overrides={"dt": 1 / 9600}).log_path
+    settings = [{"mode": "mujoco", "coupling": c, "dt": dt, "hydraulic_substeps": 1, "pbd_substeps": 20, "pbd_iterations": 1}
+                for c in ("implicit", "explicit") for dt in (1 / 1200, 1 / 2400)]
+    pool = evaluate(scenario, settings, fine, repeats=1, workers=2, cache_dir=tmp_path / "pool")
+    with LocalCluster(n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None) as cluster:
+        dask = evaluate(scenario, settings, fine, repeats=1, scheduler=cluster.scheduler_address, cache_dir=tmp_path / "dask")
+    assert error_table(pool) == error_table(dask)
+    assert [r["status"] for r in pool][:2] == ["complete", "complete"]
+    implicit = pool[:2]
+    assert implicit[1]["stroke_max_m"] < implicit[0]["stroke_max_m"]  # the finer step is closer to the fine run
+    assert all(r["wall_per_sim_s"] > 0 for r in pool + dask)
