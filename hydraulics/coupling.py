@@ -147,8 +147,12 @@ class CouplingImplicit(Coupling):
         pressure_start = model.pressure_effort(model.pressure(state.node_oil, position)[0])
         theta = np.ones_like(pressure_slope) if effective_mass is None else blend_factor(pressure_slope, effective_mass, dt)
         self.last_theta = theta
-        # friction depends on velocity only: linearise it at the start velocity, the best guess of v⁺
+        # friction depends on velocity only: linearise it at the start velocity, the best guess of v⁺.
+        # Its Stribeck region has a positive slope (negative damping); folded into the plant's
+        # implicit mass matrix it can make it indefinite for light loads, so only the
+        # dissipative part of the slope is taken implicitly.
         friction, friction_slope = model.friction_effort(start_velocity)
+        friction_slope = np.minimum(friction_slope, 0.0)
         constant = (
             (1.0 - theta) * pressure_start
             + theta * (pressure_end - pressure_slope * velocity)

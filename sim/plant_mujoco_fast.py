@@ -397,8 +397,9 @@ def _begin(ctx):
         w = C._maximum(-pslope, 0.0) * dt / meff[i]
         th = C._clip(1.0 - 2.0 / w, 0.0, 1.0)
         theta[i] = th
-        const[i] = (1.0 - th) * pressure_start[i] + th * (pressure_end[i] - pslope * guess[i]) + friction[i] - fslope[i] * vs[i]
-        slope[i] = th * pslope + fslope[i]
+        fs = min(fslope[i], 0.0)  # see CouplingImplicit.begin: no negative damping in the implicit matrix
+        const[i] = (1.0 - th) * pressure_start[i] + th * (pressure_end[i] - pslope * guess[i]) + friction[i] - fs * vs[i]
+        slope[i] = th * pslope + fs
         ctrl[act[i]] = const[i]
         bias[act[i] * ctx[C_NBIAS] + 2] = slope[i]
     _vf(ctx, P_PASSIVE_SAVED, nv)[:] = _vf(ctx, P_PASSIVE, nv)

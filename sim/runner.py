@@ -112,7 +112,7 @@ def run_metadata(scenario: Scenario) -> dict:
         "scenario": str(scenario.path),
         "scene": scenario.scene_name,
         "mode": scenario.mode,
-        "coupling": scenario.coupling,
+        "coupling": "explicit" if scenario.mode == "pbd-naive" else scenario.coupling,
         "stepper": str(scenario.stepper or "default"),
         "dt_s": repr(scenario.dt),
         "duration_s": repr(scenario.duration),
