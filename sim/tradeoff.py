@@ -368,25 +368,26 @@ def pareto_figure(rows: list[dict], path, *, title: str = "", kinds=("stroke", "
         factor, unit = KIND_SCALE[kind]
         stable = [r for r in rows if _feasible(r) and math.isfinite(r[column]) and r[column] > 0]
         top = max((r[column] * factor for r in stable), default=1.0) * 3
-        seen = set()
+        groups = {}  # legend: one proxy per mode and coupling, in order of appearance
         any_diverged = False
         for r in rows:
             if not math.isfinite(r["wall_per_sim_s"]):
                 continue
-            key = (r["mode"], "" if r["mode"] == "pbd-naive" else r["coupling"])
-            label = " ".join(k for k in key if k) if key not in seen else None
-            seen.add(key)
             color = MODE_COLORS.get(r["mode"], "tab:gray")
             marker = MARKERS.get((r["mode"] == "mujoco", r["coupling"]), "o")
+            key = (r["mode"], "" if r["mode"] == "pbd-naive" else r["coupling"])
+            groups.setdefault(" ".join(k for k in key if k), (color, marker))
             filled = r["hydraulic_substeps"] == 1 if r["mode"] == "mujoco" else r["pbd_iterations"] == 1
             if _feasible(r) and r in stable:
                 ax.scatter(r["wall_per_sim_s"], r[column] * factor, c=color if filled else "none", edgecolors=color,
-                           marker=marker, s=28, label=label, zorder=3)
+                           marker=marker, s=28, zorder=3)
             else:
-                ax.scatter(r["wall_per_sim_s"], top, c=color, marker="x", s=28, zorder=3, label=label)
+                ax.scatter(r["wall_per_sim_s"], top, c=color, marker="x", s=28, zorder=3)
                 any_diverged = True
+        for label, (color, marker) in groups.items():
+            ax.scatter([], [], c=color, marker=marker, s=28, label=label)
         if any_diverged:
-            ax.scatter([], [], c="tab:gray", marker="x", s=28, label="not stable (drawn at the top edge)")
+            ax.scatter([], [], c="tab:gray", marker="x", s=28, label="not stable (drawn at the top edge, in its colour)")
         front = pareto_front(rows, kind)
         if front:
             xs = [rows[i]["wall_per_sim_s"] for i in front]
@@ -468,8 +469,9 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
     statements = {kind: pareto_statements(rows, kind, floors[kind]) for kind in ("stroke", "pressure", "joint")}
     ref_text = f"{reference.settings_text()}; {reference.report.text().splitlines()[0]}"
     lines = [f"# Accuracy against cost: {title}", "", f"Reference: {ref_text}", "",
-             f"{len(rows)} settings, cost = median of {repeats} run(s) of wall-clock time per simulated second"
-             f"{' on a Dask cluster' if scheduler else ''}. Errors: largest over the run against the reference.", ""]
+             f"{len(rows)} settings. Cost: wall-clock time per simulated second, the median of {repeats} run(s) "
+             f"(one for runs over {REPEAT_BELOW_S:g} s), {'on the workers of ' + str(scheduler) if scheduler else 'in a local process pool'}; "
+             "timings vary with the machine and its load, errors do not. Errors: largest over the run against the reference.", ""]
     for kind in ("stroke", "pressure", "joint"):
         lines += [f"- {s}" for s in statements[kind]]
     floor_text = ", ".join(f"{floors[k] * KIND_SCALE[k][0]:.2g} {KIND_SCALE[k][1]} ({k})" for k in ("stroke", "pressure", "joint"))
