@@ -3,15 +3,20 @@
 For each scene: the real-time factor (simulated s per wall s, logging included, as
 ``hydroplant run`` reports it) and the largest cylinder stroke error against a
 reference, for PBD mode at a 60 Hz frame (1200 Hz for the seed) with 5–40 XPBD
-substeps and for MuJoCo mode at several steps, so PBD's speed can be read at
-matched accuracy.  References: the seed's own equations solved by scipy (seed
-cylinder); MuJoCo mode at dt = 0.25 ms (boom, excavator).  The excavator runs its
-full 20 s dig cycle.  The second error column stops before the first contact:
-the boom cylinder reaching its end stop (2.45 s) and the excavator's teeth
-reaching the ground (1.6 s).  From there on the contact models (XPBD's rigid
-joint limits and Coulomb contacts, MuJoCo's soft limits and contacts: 0.7 mm of
-transient overtravel at the boom's end stop) differ and set the error.  Every
-mode is run once briefly before timing, so numba's cache loading is not timed.
+substeps and for MuJoCo mode at several steps, both with the Python-orchestrated
+plant (``mujoco``: :class:`sim.plant_mujoco.MujocoPlant`) and with the coupled step
+inside MuJoCo's control callback (``mujoco-fast``:
+:class:`sim.plant_mujoco_fast.MujocoPlantFast`), so PBD's speed can be read at
+matched accuracy: the last lines name, for each MuJoCo-mode row, the fastest PBD
+setting at least as accurate and the speed ratio.  References: the seed's own
+equations solved by scipy (seed cylinder); MuJoCo mode at dt = 0.25 ms (boom,
+excavator).  The excavator runs its full 20 s dig cycle.  The second error column
+stops before the first contact: the boom cylinder reaching its end stop (2.45 s)
+and the excavator's teeth reaching the ground (1.6 s).  From there on the models
+differ in the joint limits (XPBD's are rigid, MuJoCo's soft: 0.7 mm of transient
+overtravel at the boom's end stop); the excavator's contacts are MuJoCo's soft
+pyramidal law in both modes.  Every mode is run once briefly before timing, so
+numba's cache loading is not timed.
 
     python bench/bench_pbd.py [--quick] [--scenes seed_cylinder boom excavator] [--substeps 5 10 20 40]
 """
@@ -99,19 +104,34 @@ def bench_scene(name, spec, substeps, quick, out):
     early = spec.get("early")
     scale_label = "swing" if spec["reference"] == "scipy" else "stroke"
     print(f"\n{name}: {duration:g} s, reference {ref_label}; stroke error = max over cylinders of |x − x_ref| / {scale_label}")
-    head = f"  {'mode':<10} {'dt [ms]':>8} {'substeps':>8} {'h [ms]':>8} {'status':>9} {'RTF':>7} {'stroke err':>11}"
+    head = f"  {'mode':<11} {'dt [ms]':>8} {'substeps':>8} {'h [ms]':>8} {'status':>9} {'RTF':>7} {'stroke err':>11}"
     print(head + (f" {'err t<' + format(early, 'g') + ' s':>11}" if early else ""))
-    rows = [("mujoco", dt, 1) for dt in spec["mujoco_dt"]]
+    rows = [(label, dt, 1) for label in ("mujoco", "mujoco-fast") for dt in spec["mujoco_dt"]]
     rows += [("pbd", spec["pbd_dt"], n) for n in (spec.get("pbd_substeps") or substeps)]
-    for mode, dt in {(mode, dt) for mode, dt, _ in rows}:  # warm-up (numba cache, first calls)
-        run(path, out=out / "warmup.mcap", overrides={"mode": mode, "dt": dt, "duration": 5 * dt})
-    for mode, dt, n in rows:
+    for label, dt in {(label, dt) for label, dt, _ in rows}:  # warm-up (numba cache, first calls)
+        mode = "pbd" if label == "pbd" else "mujoco"
+        run(path, out=out / "warmup.mcap", overrides={"mode": mode, "dt": dt, "duration": 5 * dt}, fast=label == "mujoco-fast")
+    results = []
+    for label, dt, n in rows:
+        mode = "pbd" if label == "pbd" else "mujoco"
         overrides = {"mode": mode, "dt": dt, "duration": duration, "pbd_substeps": n if mode == "pbd" else None}
-        result = run(path, out=out / f"{name}-{mode}-{n}-{dt:.6g}.mcap", overrides=overrides)
+        result = run(path, out=out / f"{name}-{label}-{n}-{dt:.6g}.mcap", overrides=overrides, fast=label == "mujoco-fast")
         err, err_early = stroke_error(result, reference, scale, early)
-        line = (f"  {mode:<10} {dt * 1e3:8.4g} {n if mode == 'pbd' else '-':>8} {dt / n * 1e3:8.4g} {result.status:>9} "
+        results.append((label, dt, n, result.real_time_factor if result.status == "complete" else np.nan, err))
+        line = (f"  {label:<11} {dt * 1e3:8.4g} {n if mode == 'pbd' else '-':>8} {dt / n * 1e3:8.4g} {result.status:>9} "
                 f"{result.real_time_factor:7.3f} {err:11.3%}")
         print(line + (f" {err_early:11.3%}" if early else ""), flush=True)
+    pbd_rows = [r for r in results if r[0] == "pbd" and np.isfinite(r[3])]
+    for label, dt, _, rtf, err in results:
+        if label == "pbd" or not np.isfinite(rtf):
+            continue
+        matched = [r for r in pbd_rows if r[4] <= err]
+        if matched:
+            best = max(matched, key=lambda r: r[3])
+            print(f"  matched accuracy vs {label} dt {dt * 1e3:g} ms (err {err:.3%}, RTF {rtf:.3f}): fastest PBD {best[2]} substeps "
+                  f"(err {best[4]:.3%}, RTF {best[3]:.3f}) = {best[3] / rtf:.2f}× its speed")
+        else:
+            print(f"  matched accuracy vs {label} dt {dt * 1e3:g} ms (err {err:.3%}, RTF {rtf:.3f}): no PBD setting tried is as accurate")
 
 
 def main(argv=None):

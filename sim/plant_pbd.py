@@ -53,8 +53,10 @@ joint damping −gear²·s, exact for the swing drive, which no other joint move
 End stops are the joint limits (the scenes' joint ranges are the stroke
 ends); tendon limits are not rows.  At the ``incompressible`` fidelity the
 rows are stiff velocity trackers bounded at the relief force; a mechanism
-jammed against rigid contacts (``push.scenario.toml``) then needs
-``pbd_iterations`` ≥ 4 to hold still.
+jammed against its ground contacts (``push.scenario.toml``) then needs
+``pbd_iterations`` ≥ 4 to hold still (with 1–2 the stall force is right but the
+locked stick and bucket cylinders creep at 1–4 cm/s: the Gauss-Seidel coupling of
+the stiff rows with the contacts is not converged; ``tests/test_pbd_fidelity.py``).
 
 ``pbd-naive`` (the seed report's scheme)
 ----------------------------------------
@@ -76,7 +78,9 @@ term; the oil column's backward-Euler loss stays in the residual.  Not
 modelled by the XPBD solver (see ``sim/xpbd/solver.py``): joint armature (the
 excavator swing's 320 kg·m², 0.1–0.3 % of its inertia: a warning says so),
 frictionloss, joint stiffness, contacts other than sphere/capsule/box against
-planes; its contacts are rigid (MuJoCo's are soft).
+planes; its joint limits are rigid (MuJoCo's are soft); its contacts are soft in the normal
+direction with MuJoCo's law for the scene's solref/solimp (``sim.xpbd.solver.mujoco_contact_law``),
+their friction is Coulomb's.
 """
 
 from __future__ import annotations
@@ -160,7 +164,7 @@ class PbdPlant(PlantBase):
         self._body_mass = np.where(xm.body_group > 0, xm.body_mass, 0.0)
         self._body_inertia = np.array(m.body_inertia)
         self._row_sites = np.array([xm.tendon_site_pair(int(binding.tendon_id[a])) for a in self.cylinders], int).reshape(-1, 2)
-        self._mobility = self._group_gravity = self._effective_mass = None
+        self._mobility = self._group_gravity = self._effective_mass = self._motor_response = None
         self._motor_inverse_inertia = np.zeros(len(self.motors))
         # joint axes in the child's inertial frame, body-frame origins in the inertial frames
         iquat_conj = np.asarray(xm.body_iquat) * np.array([1.0, -1.0, -1.0, -1.0])
@@ -287,7 +291,7 @@ class PbdPlant(PlantBase):
         Computed once per step (the pose changes little within it); joint
         damping, armature and contacts are not in M.
         """
-        self._mobility = self._group_gravity = self._effective_mass = None
+        self._mobility = self._group_gravity = self._effective_mass = self._motor_response = None
         self._motor_inverse_inertia = np.zeros(len(self.motors))
         if not self._tree:
             return
@@ -306,11 +310,13 @@ class PbdPlant(PlantBase):
         np.add.at(group_jv, (slice(None), xm.body_group), jv * self._body_mass[None, :, None])
         group_jv /= np.where(xm.group_mass > 0, xm.group_mass, 1.0)[None, :, None]
         group_jw = jw[:, xm.group_root]
-        cols = np.r_[self.cylinders, dq.shape[1] - 1]
+        cols = np.r_[self.cylinders, self.motors, dq.shape[1] - 1]
         response = np.concatenate([np.einsum("ir,igk->rgk", dq[:, cols], group_jv), np.einsum("ir,igk->rgk", dq[:, cols], group_jw)], axis=2)
         response[:, ~np.asarray(xm.group_dynamic)] = 0.0
         self._group_gravity = response[-1] if GRAVITY_ARTICULATED else None
-        self._mobility = response[:-1] if len(self.cylinders) else None
+        ncyl = len(self.cylinders)
+        self._mobility = response[:ncyl] if ncyl else None
+        self._motor_response = response[ncyl:ncyl + len(self.motors)] if len(self.motors) and GRAVITY_ARTICULATED else None
 
     def before_substep(self, k, h, state):
         """XPBD hook: the coupling's effort law for this substep as compliant rows (or explicit row forces) and joint torques."""
@@ -338,11 +344,19 @@ class PbdPlant(PlantBase):
         if law.lower is not None:
             self._motor_effort = np.clip(self._motor_effort, law.lower[mot], law.upper[mot])
         jf = self._joint_force
-        jf[self.motor_joint] = self.motor_gear * self._motor_effort
+        group_acceleration = self._group_gravity
+        if self._motor_response is not None:
+            # motor torques act on the whole mechanism (q̈ = M⁻¹·Jᵀ·effort, like gravity): the implicit
+            # joint damping above uses the articulated (M⁻¹)ⱼⱼ, so the response must be the articulated one
+            group_acceleration = group_acceleration + np.einsum("m,mgk->gk", self._motor_effort, self._motor_response)
+            joint_force = None
+        else:
+            jf[self.motor_joint] = self.motor_gear * self._motor_effort
+            joint_force = jf if len(mot) else None
         return SubstepInputs(
             target_length=target if len(cyl) else None, compliance=compliance, force_min=lower, force_max=upper,
-            row_force=force if np.any(force) else None, joint_force=jf if len(mot) else None,
-            row_mobility=self._mobility, group_gravity=self._group_gravity,
+            row_force=force if np.any(force) else None, joint_force=joint_force,
+            row_mobility=self._mobility, group_gravity=group_acceleration,
         )
 
     def after_substep(self, k, h, state, forces):

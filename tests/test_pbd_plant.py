@@ -188,21 +188,22 @@ def test_excavator_matches_mujoco_before_ground_contact(tmp_path):
         assert dx < 0.02 * stroke and dp < 0.05 * RELIEF
 
 
-def test_excavator_incompressible_push_stalls_at_the_supply_limit(tmp_path):
-    """Incompressible fidelity (rows = stiff velocity trackers bounded at the relief force): pushing the bucket into the
-    ground, the boom cylinder stalls at the same force as in MuJoCo mode and the machine comes to rest (4 iterations: the
-    mechanism is jammed against rigid contacts)."""
-    push = MODELS / "excavator" / "push.scenario.toml"
-    pbd = run(push, out=tmp_path / "pbd.mcap", overrides={"mode": "pbd", "pbd_iterations": 4, "duration": 2.0})
-    mj = run(push, out=tmp_path / "mj.mcap", overrides={"duration": 2.0})
+def test_excavator_strokes_match_mujoco_through_ground_contact(tmp_path):
+    """60 Hz × 20 substeps vs MuJoCo mode (1 kHz) over the first 3 s: the teeth hit the ground at 1.6 s and drag from 2.5 s.
+    With the MuJoCo-equivalent soft pyramidal contacts (same solref/solimp, effective mass and pyramid edges) the strokes
+    stay within 2 % of stroke (rigid Coulomb contacts: 4.3 % over the dig).  Pressures are not compared pointwise here:
+    in the contact phase MuJoCo mode's own pressures change by up to 48 % of the relief setting between dt = 1 ms and
+    0.25 ms (teeth stick-slip), see the PBD helper's report."""
+    pbd = run(DIG, out=tmp_path / "pbd.mcap", overrides={"mode": "pbd", "dt": 1 / 60, "pbd_substeps": 20, "duration": 3.0})
+    mj = run(DIG, out=tmp_path / "mj.mcap", overrides={"duration": 3.0})
     assert pbd.status == mj.status == "complete"
-    boom = read_log(pbd.log_path).topic("/hydroplant/cylinders/boom_cyl")
-    ref = read_log(mj.log_path).topic("/hydroplant/cylinders/boom_cyl")
-    late = boom.t > 1.5
-    assert np.all(boom["force_n"][late] == pytest.approx(ref["force_n"][-1], rel=0.01))
-    assert ref["force_n"][-1] < -3e5  # pushing down at the supply-limited force
-    for name in ("boom_cyl", "stick_cyl", "bucket_cyl"):
-        assert np.all(np.abs(read_log(pbd.log_path).topic(f"/hydroplant/cylinders/{name}")["velocity_mps"][late]) < 5e-3), name
+    mj_log, pbd_log = read_log(mj.log_path), read_log(pbd.log_path)
+    net = load_scene(load_scenario(DIG)).network
+    for i, name in enumerate(net.actuator_names[k] for k in net.cylinder_actuator):
+        ref, cyl = mj_log.topic(f"/hydroplant/cylinders/{name}"), pbd_log.topic(f"/hydroplant/cylinders/{name}")
+        dx = np.max(np.abs(cyl["position_m"] - np.interp(cyl.t, ref.t, ref["position_m"])))
+        print(f"\n{name}: stroke error {dx * 1e3:.2f} mm ({dx / net.cylinder_stroke[i]:.3%} of stroke) over 0-3 s")
+        assert dx < 0.02 * net.cylinder_stroke[i]
 
 
 def test_cli_runs_pbd_mode_with_the_mujoco_topics(tmp_path, capsys):
@@ -251,3 +252,47 @@ def test_blocked_oil_column_decays_like_backward_euler(tmp_path, dt, substeps):
     print(f"\nω·h = {omega * h:.3f}: decay {rate:.2f} 1/s, backward Euler {predicted:.2f} 1/s; frequency {frequency:.1f} vs atan(ωh)/h = {math.atan(omega * h) / h:.1f} rad/s")
     assert rate == pytest.approx(predicted, rel=0.05)
     assert frequency == pytest.approx(math.atan(omega * h) / h, rel=0.01)
+
+
+# ---------------------------------------------------------------------------- start state
+
+
+@pytest.mark.parametrize("scenario", [MODELS / "boom" / "hold.scenario.toml", DIG])
+def test_start_pressures_equal_mujoco_mode(scenario):
+    """Equilibrium start: the same holding efforts and chamber pressures as MuJoCo mode at t = 0, and after the first
+    steps (t = 0+, 10 ms at 1 kHz) every chamber within 1 % of MuJoCo mode's (no sag into the oil columns)."""
+    sc = load_scenario(scenario)
+    from sim.plant_mujoco import MujocoPlant
+
+    mj = MujocoPlant(load_scene(sc))
+    pbd = PbdPlant(load_scene(sc.with_overrides(mode="pbd", dt=1e-3, pbd_substeps=4)))
+    net = mj.network
+    chambers = np.r_[net.cylinder_cap_node, net.cylinder_rod_node]
+    assert pbd.holding_efforts() == pytest.approx(mj.holding_efforts(), rel=1e-6, abs=1e-6)
+    assert pbd.net_state.node_pressure == pytest.approx(mj.net_state.node_pressure, rel=1e-9)
+    for _ in range(10):
+        mj.step()
+        pbd.step()
+    p_mj, p_pbd = mj.net_state.node_pressure[chambers], pbd.net_state.node_pressure[chambers]
+    assert np.all(np.abs(p_pbd - p_mj) < 0.01 * p_mj)
+    x_mj, x_pbd = mj.net_state.actuator_position, pbd.net_state.actuator_position
+    assert np.max(np.abs(x_pbd - x_mj)) < 1e-6  # m: no sag
+
+
+def test_motor_torque_acts_on_the_articulated_mechanism():
+    """A swing-motor effort accelerates the swing joint by gear·effort·(M⁻¹)ⱼⱼ (the articulated response that the
+    motor's implicit damping assumes), not by the house's free-body inertia: one 1 ms step from rest within 0.5 %."""
+    plant = PbdPlant(load_scene(load_scenario(DIG).with_overrides(mode="pbd")))
+    plant.articulated()
+    mass, _, _ = plant.joint_space()
+    j = int(plant.motor_joint[0])
+    dof = int(plant.xmodel.jnt_dofadr[j])
+    effort = 400.0  # N·m at the motor
+    inputs = SubstepInputs(group_gravity=plant._group_gravity + effort * plant._motor_response[0])
+    state = plant.state
+    h = 1e-3
+    plant.solver.substeps = 1
+    plant.solver.step(state, h, inputs=inputs)
+    rate = plant.xmodel.qpos_qvel(state)[1][dof]
+    expected = h * plant.motor_gear[0] * effort * np.linalg.inv(mass)[dof, dof]
+    assert rate == pytest.approx(expected, rel=5e-3)

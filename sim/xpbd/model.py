@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass, field
+from typing import Optional
 
 import mujoco
 import numpy as np
@@ -211,6 +212,15 @@ class XpbdModel:
     # physics options
     gravity: np.ndarray
     unsupported: tuple = field(default=())
+    # MuJoCo soft-contact parameters per contact point (see ``contact_soft_params``);
+    # None = rigid contacts (a model built without them)
+    contact_solref: Optional[np.ndarray] = None   # (nc, 2) timeconst [s], dampratio [-] (or −stiffness, −damping)
+    contact_solimp: Optional[np.ndarray] = None   # (nc, 5) dmin, dmax, width [m], midpoint, power
+    contact_condim: Optional[np.ndarray] = None   # (nc,) 1, 3, 4 or 6
+    contact_tran: Optional[np.ndarray] = None     # (nc,) MuJoCo's diagApprox translation part Σ body_invweight0 [1/kg]
+    contact_cone: int = 0                         # mjCONE_PYRAMIDAL (0) or mjCONE_ELLIPTIC (1)
+    contact_impratio: float = 1.0
+    contact_timestep: float = 0.0                 # MJCF timestep [s] (MuJoCo's timeconst ≥ 2·timestep safety)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -427,13 +437,14 @@ class XpbdModel:
                 tsites.append(())
 
         # ---- contacts (sphere / capsule / box against planes)
-        C = {k: [] for k in ("group", "local", "radius", "plane", "mu", "geom")}
+        C = {k: [] for k in ("group", "local", "radius", "plane", "mu", "geom", "solref", "solimp", "condim", "tran")}
         P = {k: [] for k in ("group", "origin", "normal", "geom")}
         if not disabled("mjDSBL_CONTACT"):
             pairs = _contact_pairs(m, body_group, weld, parent, disabled("mjDSBL_FILTERPARENT"), notes)
             plane_index = {}
-            for gp, gd, mu in pairs:
+            for gp, gd, mu, solref, solimp, condim in pairs:
                 bp, bd = m.geom_bodyid[gp], m.geom_bodyid[gd]
+                tran = float(m.body_invweight0[bp, 0] + m.body_invweight0[bd, 0])
                 if body_group[bp] == body_group[bd] or (body_group[bp] == 0 and body_group[bd] == 0):
                     continue
                 if gp not in plane_index:
@@ -456,7 +467,7 @@ class XpbdModel:
                 for pl in pts:
                     pb = m.geom_pos[gd] + _rot(gq, pl)
                     for key, val in zip(C, (body_group[bd], point_in_group(bd, pb), rad,
-                                            plane_index[gp], mu, gd)):
+                                            plane_index[gp], mu, gd, solref, solimp, condim, tran)):
                         C[key].append(val)
 
         gravity = np.zeros(3) if disabled("mjDSBL_GRAVITY") else np.array(m.opt.gravity)
@@ -510,6 +521,10 @@ class XpbdModel:
             plane_group=arr(P["group"], (npl,), int), plane_origin=arr(P["origin"], (npl, 3)),
             plane_normal=arr(P["normal"], (npl, 3)), plane_geom=arr(P["geom"], (npl,), int),
             gravity=_frozen(gravity), unsupported=tuple(notes),
+            contact_solref=arr(C["solref"], (nc, 2)), contact_solimp=arr(C["solimp"], (nc, 5)),
+            contact_condim=arr(C["condim"], (nc,), int), contact_tran=arr(C["tran"], (nc,)),
+            contact_cone=int(m.opt.cone), contact_impratio=float(m.opt.impratio),
+            contact_timestep=float(m.opt.timestep),
         )
         if warn and notes:
             warnings.warn("XpbdModel: " + "; ".join(notes), stacklevel=2)
@@ -725,18 +740,44 @@ def _fk_positions(m, qpos):
 
 
 def _contact_pairs(m, body_group, weld, parent, no_filterparent, notes):
-    """(plane geom, contact geom, μ) pairs honouring contype/conaffinity, the parent filter,
-    <exclude> and explicit <pair> elements."""
+    """(plane geom, contact geom, μ, solref, solimp, condim) pairs honouring contype/conaffinity,
+    the parent filter, <exclude> and explicit <pair> elements.
+
+    The contact parameters of a geom pair follow MuJoCo's ``mj_contactParam``: the geom of
+    higher ``priority`` wins; at equal priority friction and condim are the maxima and
+    solref/solimp are mixed with weight solmix₁/(solmix₁ + solmix₂) (solref by element-wise
+    minimum when either is in the direct, negative format).  With the ``override`` enable
+    flag, ``opt.o_solref``/``o_solimp``/``o_friction`` replace them.
+    """
     excl = set(int(s) for s in np.asarray(m.exclude_signature).ravel())
     out = {}
+    override = bool(int(m.opt.enableflags) & int(mujoco.mjtEnableBit.mjENBL_OVERRIDE))
 
-    def friction(g1, g2):
+    def params(g1, g2):
         p1, p2 = m.geom_priority[g1], m.geom_priority[g2]
-        if p1 > p2:
-            return float(m.geom_friction[g1, 0])
-        if p2 > p1:
-            return float(m.geom_friction[g2, 0])
-        return float(max(m.geom_friction[g1, 0], m.geom_friction[g2, 0]))
+        if p1 != p2:
+            g = g1 if p1 > p2 else g2
+            mu, solref, solimp, condim = (float(m.geom_friction[g, 0]), np.array(m.geom_solref[g], float),
+                                          np.array(m.geom_solimp[g], float), int(m.geom_condim[g]))
+        else:
+            mu = float(max(m.geom_friction[g1, 0], m.geom_friction[g2, 0]))
+            condim = int(max(m.geom_condim[g1], m.geom_condim[g2]))
+            s1, s2 = float(m.geom_solmix[g1]), float(m.geom_solmix[g2])
+            if s1 < 1e-15 and s2 < 1e-15:
+                mix = 0.5
+            elif s1 < 1e-15:
+                mix = 0.0
+            elif s2 < 1e-15:
+                mix = 1.0
+            else:
+                mix = s1 / (s1 + s2)
+            r1, r2 = np.array(m.geom_solref[g1], float), np.array(m.geom_solref[g2], float)
+            solref = mix * r1 + (1 - mix) * r2 if (r1[0] > 0 and r2[0] > 0) else np.minimum(r1, r2)
+            solimp = mix * np.array(m.geom_solimp[g1], float) + (1 - mix) * np.array(m.geom_solimp[g2], float)
+        if override:
+            mu = float(m.opt.o_friction[0])
+            solref, solimp = np.array(m.opt.o_solref, float), np.array(m.opt.o_solimp, float)
+        return mu, solref, solimp, condim
 
     skipped = 0
     for g1 in range(m.ngeom):
@@ -758,21 +799,22 @@ def _contact_pairs(m, body_group, weld, parent, no_filterparent, notes):
                 continue
             t1, t2 = m.geom_type[g1], m.geom_type[g2]
             if t1 == _GEOM_PLANE and t2 in _CONTACT_GEOMS:
-                out[(g1, g2)] = friction(g1, g2)
+                out[(g1, g2)] = params(g1, g2)
             elif t2 == _GEOM_PLANE and t1 in _CONTACT_GEOMS:
-                out[(g2, g1)] = friction(g1, g2)
+                out[(g2, g1)] = params(g1, g2)
             else:
                 skipped += 1
     for i in range(m.npair):
         g1, g2 = int(m.pair_geom1[i]), int(m.pair_geom2[i])
         t1, t2 = m.geom_type[g1], m.geom_type[g2]
-        mu = float(m.pair_friction[i, 0])
+        pair = (float(m.pair_friction[i, 0]), np.array(m.pair_solref[i], float), np.array(m.pair_solimp[i], float),
+                int(m.pair_dim[i]))
         if t1 == _GEOM_PLANE and t2 in _CONTACT_GEOMS:
-            out[(g1, g2)] = mu
+            out[(g1, g2)] = pair
         elif t2 == _GEOM_PLANE and t1 in _CONTACT_GEOMS:
-            out[(g2, g1)] = mu
+            out[(g2, g1)] = pair
         else:
             skipped += 1
     if skipped:
         notes.append(f"{skipped} colliding geom pair(s) other than plane vs sphere/capsule/box ignored")
-    return [(gp, gd, mu) for (gp, gd), mu in out.items()]
+    return [(gp, gd) + tuple(p) for (gp, gd), p in out.items()]

@@ -47,9 +47,11 @@ from .kernels import (
 )
 from .model import EQ_WELD, JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE, XpbdModel, XpbdState
 
-__all__ = ["LengthConstraint", "SubstepInputs", "SubstepForces", "SubstepHooks", "SolverXPBD"]
+__all__ = ["LengthConstraint", "SubstepInputs", "SubstepForces", "SubstepHooks", "SolverXPBD",
+           "mujoco_contact_law", "mujoco_impedance"]
 
 _EPS = 1e-14
+_PYRAMID = "pyramid"  # marker of a soft pyramidal contact in SolverXPBD._csoft
 
 
 @dataclass(frozen=True)
@@ -155,15 +157,23 @@ class SolverXPBD:
 
     Joint damping (MJCF ``damping``) is applied implicitly at the velocity level:
     rate ← rate/(1 + b h w), w the generalized inverse mass of the joint pair.
+    Contacts (``soft_contacts``, default True) are compliant in the normal direction with
+    MuJoCo's soft-contact law of the geom pair (solref/solimp/condim/cone from the compiled
+    MjModel, effective mass from its ``body_invweight0``; ``mujoco_contact_law``,
+    ``_soft_contact_targets``): a resting body sinks by the same static penetration as in
+    MuJoCo and an impact has the same time constant.  Friction stays Coulomb (static and
+    dynamic, [RB] Sec. 3.5–3.6), not MuJoCo's soft pyramid.  ``soft_contacts=False`` gives
+    the rigid contacts of [RB].
     Not modelled: armature, frictionloss, joint stiffness, gravcomp, actuators, contacts
-    other than sphere/capsule/box vs plane, soft (solref) constraints (all rigid).
+    other than sphere/capsule/box vs plane, soft joint limits and equalities (rigid).
     """
 
     def __init__(self, model: XpbdModel, *, substeps: int = 20, iterations: int = 1,
                  linear_damping: float = 0.0, angular_damping: float = 0.0,
                  length_constraints: Sequence[LengthConstraint] = (),
                  contact_margin: float = 1e-3, block_attach: bool = True,
-                 velocity_sweeps: int = 4, symmetric: bool = True):
+                 velocity_sweeps: int = 4, symmetric: bool = True, soft_contacts: bool = True,
+                 pyramid_friction: bool = True):
         if substeps < 1 or iterations < 1:
             raise ValueError("substeps and iterations must be >= 1")
         self.model = model
@@ -175,6 +185,17 @@ class SolverXPBD:
         self.block_attach = bool(block_attach)
         self.velocity_sweeps = int(velocity_sweeps)
         self.symmetric = bool(symmetric)
+        self.soft_contacts = bool(soft_contacts) and model.contact_solref is not None
+        self.pyramid_friction = bool(pyramid_friction) and self.soft_contacts
+        self._lam_edges: list = []
+        # contact tangent t₁ of each plane (its geom x axis in the plane's group frame), t₂ = n × t₁
+        self._plane_tangent = []
+        for nrm in np.asarray(model.plane_normal, float).reshape(-1, 3):
+            axis = np.array([1.0, 0.0, 0.0]) if abs(nrm[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+            t = axis - (axis @ nrm) * nrm
+            self._plane_tangent.append(tuple(float(c) for c in t / np.linalg.norm(t)))
+        self._csoft = None  # per substep: (target gap r* [m], α̃) of each contact candidate, or None (rigid)
+        self._cidx: list[int] = []  # model contact index of each candidate of the step
         self._rows: list[tuple] = []
         self.rows: list[LengthConstraint] = []
         for lc in length_constraints:
@@ -252,6 +273,7 @@ class SolverXPBD:
     def _collect_contacts(self, x, q, v, w, dt):
         """Contact candidates for the whole step ([RB] Algorithm 2, CollectCollisionPairs)."""
         m = self.model
+        self._cidx = []
         if len(m.contact_group) == 0:
             return []
         g = m.contact_group
@@ -264,6 +286,7 @@ class SolverXPBD:
         vrel = (v[g] + np_cross(w[g], P - x[g])) - (v[pg] + np_cross(w[pg], P - x[pg]))
         margin = self.contact_margin + 2.0 * dt * np.linalg.norm(vrel, axis=1)
         idx = np.nonzero(d < margin)[0]
+        self._cidx = [int(i) for i in idx]
         return [(int(g[i]), tuple(map(float, m.contact_local[i])), float(m.contact_radius[i]),
                  int(pg[i]), tuple(map(float, m.plane_origin[pl[i]])),
                  tuple(map(float, m.plane_normal[pl[i]])), float(m.contact_mu[i]))
@@ -540,12 +563,93 @@ class SolverXPBD:
                 Q[g] = K._quat_add_rotation(Q[g], (mv[3], mv[4], mv[5]), 1.0)
 
     def _solve_contacts(self, X, Q, order, cands, lam_n, lam_t, cinfo, Xp, Qp):
-        """Normal pass over all contact candidates, then the static-friction pass."""
+        """Normal pass over all contact candidates, then the static-friction pass (soft pyramidal
+        contacts: their edge rows, ``_contact_pyramid``, carry normal force and friction together)."""
+        soft = self._csoft
+        pyramids: dict = {}
         for ci in order:
-            self._contact_normal(X, Q, ci, cands[ci], lam_n, cinfo)
+            if soft is not None and soft[ci] is not None and soft[ci][0] == _PYRAMID:
+                pyramids.setdefault((cands[ci][3], cands[ci][0]), []).append(ci)
+            else:
+                self._contact_normal(X, Q, ci, cands[ci], lam_n, cinfo)
+        for (g1, g2), cis in pyramids.items():
+            self._contact_pyramids(X, Q, g1, g2, cis, lam_n, Xp, Qp)
         for ci in order:
             if ci in cinfo:
                 self._contact_static_friction(X, Q, ci, cands[ci], lam_n, lam_t, cinfo, Xp, Qp)
+
+    def _contact_pyramids(self, X, Q, g1, g2, cis, lam_n, Xp, Qp):
+        """Soft pyramidal contacts between groups g1 (plane) and g2: the edge rows e = n ± μ·t_k of
+        every contact (``_soft_contact_targets``) as XPBD rows on the displacement of the contact
+        points along ê over the substep, C = ê·Δp − Δ*, compliance α̃, λ ≥ 0 (MuJoCo's pyramid
+        edges are unilateral), all solved together: (W + α̃) Δλ = −C − α̃λ with
+        W_ij = Σ_bodies [w·ê_i·ê_j + (r_i × ê_i)ᵀ I⁻¹ (r_j × ê_j)], by an active set over λ ≥ 0
+        (as MuJoCo solves its contact problem exactly).  A Gauss-Seidel sweep over these nearly
+        parallel, stiff rows converges slowly: one iteration leaves a resting box sinking too
+        deep and creeping."""
+        IM, II = self._IM, self._II
+        pts, E, tgt, alpha, lam, inv_le, owner = [], [], [], [], [], [], []
+        disp_rows = []
+        for ci in cis:
+            _, r1l, r2l, edges = self._csoft[ci]
+            r1w = quat_rotate(Q[g1], r1l)
+            r2w = quat_rotate(Q[g2], r2l)
+            r1p = quat_rotate(Qp[g1], r1l)
+            r2p = quat_rotate(Qp[g2], r2l)
+            x1, x2, x1p, x2p = X[g1], X[g2], Xp[g1], Xp[g2]
+            disp = [(x2[k] + r2w[k] - x2p[k] - r2p[k]) - (x1[k] + r1w[k] - x1p[k] - r1p[k]) for k in range(3)]
+            pts.append((r1w, r2w))
+            lam_e = self._lam_edges[ci]
+            for j, (e, target, at, il) in enumerate(edges):
+                E.append(e)
+                tgt.append(target)
+                alpha.append(at)
+                lam.append(lam_e[j])
+                inv_le.append(il)
+                owner.append((len(pts) - 1, ci, j))
+                disp_rows.append(dot(disp, e))
+        Ea = np.array(E)
+        W = np.zeros((len(E), len(E)))
+        for side, b in ((0, g1), (1, g2)):
+            if IM[b] == 0.0:
+                continue
+            r = np.array([pts[o[0]][side] for o in owner])
+            ang = np.cross(r, Ea)
+            Rm = np.array(K._mat_from_quat(Q[b]))
+            Iinv = (Rm * np.asarray(II[b])) @ Rm.T
+            W += IM[b] * (Ea @ Ea.T) + ang @ Iinv @ ang.T
+        alpha = np.array(alpha)
+        lam = np.array(lam)
+        rhs = -(np.array(disp_rows) - np.array(tgt)) - alpha * lam
+        A = W + np.diag(alpha)
+        n = len(E)
+        free = (rhs > 0.0) | (lam > 0.0)
+        dlam = np.zeros(n)
+        for _ in range(n + 1):
+            dlam[~free] = -lam[~free]
+            if np.any(free):
+                b = rhs[free] - A[np.ix_(free, ~free)] @ dlam[~free]
+                try:
+                    dlam[free] = np.linalg.solve(A[np.ix_(free, free)], b)
+                except np.linalg.LinAlgError:
+                    return
+            negative = free & (lam + dlam < 0.0)
+            if not np.any(negative):
+                break
+            free &= ~negative
+        new = np.maximum(lam + dlam, 0.0)
+        dlam = new - lam
+        impulse = [[0.0, 0.0, 0.0] for _ in pts]
+        for row, (pi, ci, j) in enumerate(owner):
+            self._lam_edges[ci][j] = float(new[row])
+            for k in range(3):
+                impulse[pi][k] += float(dlam[row]) * E[row][k]
+        for pi, (r1w, r2w) in enumerate(pts):
+            K.apply_positional_impulse(X, Q, IM, II, g2, r2w, impulse[pi], 1.0)
+            K.apply_positional_impulse(X, Q, IM, II, g1, r1w, impulse[pi], -1.0)
+        for ci in cis:
+            edges = self._csoft[ci][3]
+            lam_n[ci] = sum(self._lam_edges[ci][j] * edges[j][3] for j in range(len(edges)))
 
     def _attach(self, X, Q, g1, g2, r1, r2):
         """Attach two body points ([RB] Sec. 3.4.2): C = |p2 − p1|, α = 0."""
@@ -594,6 +698,76 @@ class SolverXPBD:
             th = 2.0 * math.atan2(s, qe[0])
             solve_angular(Q, self._IM, self._II, g1, g2, (qe[1] / s, qe[2] / s, qe[3] / s), th)
 
+    def _soft_contact_targets(self, X, Q, V, W, cands, h):
+        """Per contact candidate, the compliant normal row of the substep: (r* [m], α̃ [m/(N·s²)·s²]).
+
+        MuJoCo's soft contact law R·f = −(a + b·v + k·d·r) (``mujoco_contact_law``, from the
+        geom pair's solref/solimp/condim and MuJoCo's effective-mass approximation) taken
+        backward-Euler over the substep from the gap r⁻ and its rate v⁻ at the substep's
+        start, a = (v⁺ − v⁻)/h, v⁺ = (r⁺ − r⁻)/h:
+
+            c₁ = 1/h² + b/h + k·d,  r* = ((1/h² + b/h)·r⁻ + v⁻/h)/c₁,  f = −(r⁺ − r*)·c₁/R,
+
+        an XPBD row C = r − r* with compliance α = R/c₁ [m/N] (α̃ = α/h²) and λ ≥ 0.  The
+        regulariser's term R·f ∝ a is MuJoCo's own (the "virtual mass" of a soft constraint);
+        as h → 0 this is MuJoCo's semi-implicit step of the same law.  A contact that does not
+        penetrate at the substep's start exerts no force in it (r* = −∞), as MuJoCo creates
+        contacts only for dist < margin (0) at the start of its step.  MuJoCo's safety clamp
+        timeconst ≥ 2·timestep is applied with the substep h (the step that integrates the law
+        here), so a scene's solref keeps its meaning at any frame rate.  None for a rigid row (R = 0).
+        """
+        m = self.model
+        out = []
+        self._lam_edges = [None] * len(cands)
+        for ci, (g2, r2l, rad, g1, ol, nl, mu) in enumerate(cands):
+            i = self._cidx[ci]
+            n = quat_rotate(Q[g1], nl)
+            o = quat_rotate(Q[g1], ol)
+            r2 = quat_rotate(Q[g2], r2l)
+            p = (X[g2][0] + r2[0], X[g2][1] + r2[1], X[g2][2] + r2[2])
+            gap = (p[0] - X[g1][0] - o[0]) * n[0] + (p[1] - X[g1][1] - o[1]) * n[1] + (p[2] - X[g1][2] - o[2]) * n[2] - rad
+            r1 = (p[0] - X[g1][0], p[1] - X[g1][1], p[2] - X[g1][2])
+            va = point_velocity(V, W, g2, r2)
+            vb = point_velocity(V, W, g1, r1)
+            rate = (va[0] - vb[0]) * n[0] + (va[1] - vb[1]) * n[1] + (va[2] - vb[2]) * n[2]
+            kd, b, R = mujoco_contact_law(m.contact_solref[i], m.contact_solimp[i], int(m.contact_condim[i]),
+                                          float(m.contact_tran[i]), float(m.contact_mu[i]), min(gap, 0.0),
+                                          cone=m.contact_cone, impratio=m.contact_impratio, timestep=h)
+            if R <= 0.0:
+                out.append(None)
+                continue
+            if gap >= 0.0:  # MuJoCo instantiates a contact only once it penetrates (margin 0)
+                out.append((-math.inf, 0.0))
+                continue
+            condim = int(m.contact_condim[i])
+            if self.pyramid_friction and condim >= 3 and m.contact_cone == 0:
+                # edge rows e = n ± μ·t_k: R_e·f_e = −(e·a + b·e·v + k·d·r), semi-implicit as MuJoCo
+                # (aref from the state at the substep's start), on the displacement along e
+                ne = 2 * (condim - 1)
+                r_edge = R * ne
+                rel = (p[0] - rad * n[0], p[1] - rad * n[1], p[2] - rad * n[2])  # surface point
+                r1c = (rel[0] - X[g1][0], rel[1] - X[g1][1], rel[2] - X[g1][2])
+                r2c = (rel[0] - X[g2][0], rel[1] - X[g2][1], rel[2] - X[g2][2])
+                va = point_velocity(V, W, g2, r2c)
+                vb = point_velocity(V, W, g1, r1c)
+                vr = (va[0] - vb[0], va[1] - vb[1], va[2] - vb[2])
+                t1 = quat_rotate(Q[g1], self._plane_tangent[cands[ci][3]])
+                t2 = cross(n, t1)
+                edges = []
+                for t in (t1, t2):
+                    for sgn in (1.0, -1.0):
+                        e = (n[0] + sgn * mu * t[0], n[1] + sgn * mu * t[1], n[2] + sgn * mu * t[2])
+                        le = math.sqrt(dot(e, e))
+                        ve = dot(vr, e)
+                        target = h * ve - h * h * (b * ve + kd * gap)
+                        edges.append(((e[0] / le, e[1] / le, e[2] / le), target / le, r_edge / (le * le), 1.0 / le))
+                self._lam_edges[ci] = [0.0] * len(edges)
+                out.append((_PYRAMID, quat_rotate_inv(Q[g1], r1c), quat_rotate_inv(Q[g2], r2c), edges))
+                continue
+            c1 = 1.0 / (h * h) + b / h + kd
+            out.append((((1.0 / (h * h) + b / h) * gap + rate / h) / c1, R / (c1 * h * h)))
+        return out
+
     def _contact_normal(self, X, Q, ci, cand, lam_n, cinfo):
         """Plane contact, normal part ([RB] Sec. 3.5): C = d ≥ 0 at the deepest point."""
         g2, r2l, rad, g1, ol, nl, mu = cand
@@ -605,7 +779,12 @@ class SolverXPBD:
         p = (x2[0] + r2c[0], x2[1] + r2c[1], x2[2] + r2c[2])
         d = (p[0] - x1[0] - o[0]) * n[0] + (p[1] - x1[1] - o[1]) * n[1] + \
             (p[2] - x1[2] - o[2]) * n[2] - rad
-        if d >= 0.0:
+        soft = None if self._csoft is None else self._csoft[ci]
+        if soft is not None:  # MuJoCo-equivalent compliant normal: f = −(d − r*)/α ≥ 0
+            c = d - soft[0]
+            if c >= 0.0 and lam_n[ci] <= 0.0:
+                return
+        elif d >= 0.0:
             return
         s2 = (p[0] - rad * n[0], p[1] - rad * n[1], p[2] - rad * n[2])  # surface point
         s1 = (s2[0] - d * n[0], s2[1] - d * n[1], s2[2] - d * n[2])     # on the plane
@@ -613,6 +792,9 @@ class SolverXPBD:
         r2 = (s2[0] - x2[0], s2[1] - x2[1], s2[2] - x2[2])
         if ci not in cinfo:  # body-fixed contact points, kept for friction and velocities
             cinfo[ci] = (quat_rotate_inv(q1, r1), quat_rotate_inv(q2, r2), nl)
+        if soft is not None:
+            lam_n[ci] += solve_positional(X, Q, self._IM, self._II, g1, g2, r1, r2, n, c, soft[1], lam_n[ci], 0.0)
+            return
         lam_n[ci] += solve_positional(X, Q, self._IM, self._II, g1, g2, r1, r2, n, d)
 
     def _contact_static_friction(self, X, Q, ci, cand, lam_n, lam_t, cinfo, Xp, Qp):
@@ -668,6 +850,8 @@ class SolverXPBD:
             for _ in range(self.velocity_sweeps):
                 for ci, (r1l, r2l, nl) in items:
                     g2, _, _, g1, _, _, mu = cands[ci]
+                    if self._csoft is not None and self._csoft[ci] is not None and self._csoft[ci][0] == _PYRAMID:
+                        continue
                     ln = lam_n[ci]
                     q1, q2 = Q[g1], Q[g2]
                     n = quat_rotate(q1, nl)
@@ -697,6 +881,8 @@ class SolverXPBD:
                                 acc_t[ci] = new
                                 apply_velocity_impulse(V, W, Q, IM, II, g2, r2, p, 1.0)
                                 apply_velocity_impulse(V, W, Q, IM, II, g1, r1, p, -1.0)
+                    if self._csoft is not None and self._csoft[ci] is not None:
+                        continue  # compliant normal: its damping is in the position law
                     va = point_velocity(V, W, g2, r2)
                     vb = point_velocity(V, W, g1, r1)
                     vn = (va[0] - vb[0]) * n[0] + (va[1] - vb[1]) * n[1] + (va[2] - vb[2]) * n[2]
@@ -790,6 +976,7 @@ class SolverXPBD:
             F, T = self._external(inp, X, Q)
             if inp is not None and inp.joint_force is not None:
                 self._apply_hinge_torques(inp, V, W, Q, h)
+            self._csoft = self._soft_contact_targets(X, Q, V, W, cands, h) if (cands and self.soft_contacts) else None
             Xp, Qp = X[:], Q[:]
             gg = None if inp is None or inp.group_gravity is None else np.asarray(inp.group_gravity, float).tolist()
             for g in dyn:  # predict
@@ -839,6 +1026,7 @@ class SolverXPBD:
                 self.last_forces.append(forces)
                 if after is not None:
                     after(k, h, state, forces)
+        self._csoft = None
         self._scatter(np.array(X), np.array(Q), np.array(V), np.array(W), state)
         state.time = t0 + dt
         state.qpos_hint = m.qpos_qvel(state)[0]
@@ -857,6 +1045,74 @@ class SolverXPBD:
         n = d / np.where(ell > 0, ell, 1.0)[:, None]
         dv = (v[gb] + np_cross(w[gb], rb)) - (v[ga] + np_cross(w[ga], ra))
         return ell, np.einsum("ij,ij->i", dv, n)
+
+
+def mujoco_impedance(solimp, pos):
+    """MuJoCo's constraint impedance d(r) ∈ (0, 1) at violation ``pos`` [m] (``getimpedance`` in
+    engine_core_constraint.c, margin 0): dmin at r = 0 rising to dmax at |r| ≥ width along the
+    sigmoid of (midpoint, power)."""
+    dmin, dmax, width, mid, power = (float(v) for v in solimp)
+    dmin, dmax = min(max(dmin, 1e-4), 0.9999), min(max(dmax, 1e-4), 0.9999)
+    mid, power = min(max(mid, 1e-4), 0.9999), max(power, 1.0)
+    if dmin == dmax or width <= 1e-15:
+        return 0.5 * (dmin + dmax)
+    x = abs(pos) / width
+    if x >= 1.0 or x <= 0.0:
+        return dmax if x >= 1.0 else dmin
+    if power == 1.0:
+        y = x
+    elif x <= mid:
+        y = x**power / mid ** (power - 1.0)
+    else:
+        y = 1.0 - (1.0 - x) ** power / (1.0 - mid) ** (power - 1.0)
+    return dmin + y * (dmax - dmin)
+
+
+def mujoco_contact_law(solref, solimp, condim, tran, mu, pos, *, cone=0, impratio=1.0, timestep=0.0):
+    """Normal law of one MuJoCo soft contact, (k·d [1/s²], b [1/s], R [1/kg]), such that
+
+        R·f = −(a + b·v + k·d·r),
+
+    f [N] the normal force (+ pushes apart), r [m] the gap (< 0 penetrating), v, a its rate
+    and acceleration.  From MuJoCo's soft-constraint model (Computation chapter, "Soft
+    contact model"; ``mj_makeImpedance``/``mj_diagApprox`` in engine_core_constraint.c):
+
+    * solref = (timeconst, dampratio) > 0, with timeconst ≥ 2·timestep:
+      k = 1/(dmax²·timeconst²·dampratio²), b = 2/(dmax·timeconst);
+      direct format (−stiffness, −damping): k = stiffness/dmax², b = damping/dmax;
+    * impedance d = d(r) from solimp (``mujoco_impedance``); aref = −b·v − k·d·r;
+    * regulariser R = (1 − d)/d·Â with Â MuJoCo's diagonal approximation of J·M⁻¹·Jᵀ from
+      the bodies' ``body_invweight0`` (``tran`` = Σ of the translational parts) — the
+      effective mass of the contact is 1/Â;
+    * each constraint row obeys f_row = (aref_row − a_row)/R_row (the unconstrained
+      minimiser of MuJoCo's convex problem for an active row).  Frictionless (condim 1) and
+      elliptic cones: the normal row has Â = tran.  Pyramidal cones (MuJoCo's default):
+      2(condim − 1) edge rows n ± μ·t share Rpy = 2·μ_r²·R₀, R₀ = (1 − d)/d·tran·(1 + μ²),
+      μ_r = μ/√impratio, and carry the normal force together; with every edge active their
+      sum is the normal law above with R = Rpy/(2(condim − 1)).
+
+    Static load F on a contact: penetration r = −F·R/(k·d), i.e. a stiffness k·d/R
+    (per unit Â: d²/((1 − d)·dmax²·timeconst²·dampratio²) for the frictionless case);
+    free vibration of the effective mass: a + b·v + k·d·r = −R·f with R·f the (1−d)/d share.
+    Returns R = 0 (rigid) for μ = 0 on a pyramidal cone (MuJoCo's Rpy vanishes there).
+    """
+    tc, zeta = float(solref[0]), float(solref[1])
+    d = mujoco_impedance(solimp, pos)
+    dmax = min(max(float(solimp[1]), 1e-4), 0.9999)
+    if tc > 0.0:
+        tc = max(tc, 2.0 * timestep)
+        k = 1.0 / max(1e-15, dmax * dmax * tc * tc * zeta * zeta)
+        b = 2.0 / max(1e-15, dmax * tc)
+    else:
+        k = -tc / max(1e-15, dmax * dmax)
+        b = -zeta / max(1e-15, dmax)
+    r0 = (1.0 - d) / d * tran
+    if condim == 1 or cone == 1:
+        R = r0
+    else:
+        r0 *= 1.0 + mu * mu
+        R = 2.0 * mu * mu / max(impratio, 1e-15) * r0 / (2.0 * (condim - 1))
+    return k * d, b, R
 
 
 def _solve_dense(A, b):
