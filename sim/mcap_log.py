@@ -2,10 +2,14 @@
 
 The writer is built for a stepping loop. Samples are appended into per-channel numpy
 buffers (:meth:`Channel.append`, a few hundred ns) and encoded in batches, outside the
-loop body, with a precompiled ``str.format`` template per channel. Irregular messages
-(events, scene updates) go through :meth:`Channel.write`. Buffered messages of all
-channels are merged in log-time order before they reach the :class:`mcap.writer.Writer`,
-so every file is globally ordered by ``log_time``.
+loop body: each channel's JSON template (built once from its fields or layout, next to
+its pre-built JSON schema) is filled for all buffered samples by a compiled encoder
+(numba; floats exact to the last bit, see ``_encode_rows``), or by ``str.format`` without
+numba. Irregular messages (events, scene updates) go through :meth:`Channel.write`.
+Buffered messages of all channels are merged in log-time order and their MCAP records
+built in one compiled pass (:meth:`_BulkWriter.add_messages`) before they reach the
+chunks of :class:`mcap.writer.Writer`, so every file is globally ordered by ``log_time``
+and every batch is written whole, within a chunk or across a chunk boundary.
 
 Conventions (see ``/work/shared/notes/mcap-logging.md``):
 
@@ -34,9 +38,9 @@ import re
 import signal
 import struct
 import threading
+import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from itertools import repeat
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -48,8 +52,10 @@ from mcap.reader import make_reader
 from mcap.records import Attachment as _McapAttachment
 from mcap.records import Channel as _McapChannel
 from mcap.records import Chunk as _McapChunk
+from mcap.records import ChunkIndex as _McapChunkIndex
 from mcap.records import Header as _McapHeader
 from mcap.records import Message as _McapMessage
+from mcap.records import MessageIndex as _McapMessageIndex
 from mcap.records import Metadata as _McapMetadata
 from mcap.records import Schema as _McapSchema
 from mcap.stream_reader import StreamReader, breakup_chunk
@@ -60,6 +66,7 @@ __all__ = [
     "Channel",
     "Column",
     "FOXGLOVE_SCHEMAS",
+    "Frame",
     "JointStatesChannel",
     "LogLevel",
     "LogWriter",
@@ -648,6 +655,454 @@ def _fields_layout(fields: Sequence[str]) -> dict:
 
 
 # ---------------------------------------------------------------------------------------
+# Compiled batch encoder: a channel's template filled with many samples at once
+# ---------------------------------------------------------------------------------------
+#
+# Python's ``repr(float)`` costs ~0.4 µs, and a sample of the excavator holds ~140 floats,
+# so the JSON of one sample cost more than the coupled steps between two samples. The
+# batch encoder below writes the same JSON from numpy arrays in compiled code: floats with
+# Grisu2 (Loitsch 2010, "Printing floating-point numbers quickly and accurately with
+# integers"), which always yields digits that read back to the identical float (exact round
+# trip) and, for all but ~0.25 % of values, exactly Python's shortest ``repr`` digits
+# (otherwise a longer digit string of the same float, e.g. 9.999999999999999e+22 for
+# 1e+23); the layout (fixed or exponent notation, ``.0``, ``e+16``, ``e-05``) follows
+# ``repr``; NaN and ±inf are written as ``null``.
+
+try:  # pragma: no branch
+    import numba as _numba
+
+    _NUMBA = True
+except ImportError:  # pragma: no cover
+    _NUMBA = False
+
+
+def _njit(function):
+    if not _NUMBA:  # pragma: no cover
+        return function
+    return _numba.njit(cache=True, nogil=True)(function)
+
+
+def _cached_powers() -> tuple[np.ndarray, np.ndarray]:
+    """10^k for k = -348, -340, ..., 340 as (64-bit normalised significand f, binary exponent e): 10^k ≈ f·2^e.
+
+    f is 10^k·2^-e rounded to the nearest integer, with 2^63 ≤ f < 2^64 (exact integer arithmetic).
+    """
+    fs, es = [], []
+    for i in range(87):
+        k = -348 + 8 * i
+        num, den = (10**k, 1) if k >= 0 else (1, 10**-k)
+        e = num.bit_length() - den.bit_length() - 64
+        while True:
+            n, d = (num, den << e) if e >= 0 else (num << -e, den)
+            q, r = divmod(n, d)
+            if q >= 2**64:
+                e += 1
+            elif q < 2**63:
+                e -= 1
+            else:
+                break
+        f = q + (2 * r >= d)
+        if f == 2**64:
+            f, e = f // 2, e + 1
+        fs.append(f)
+        es.append(e)
+    return np.array(fs, dtype=np.uint64), np.array(es, dtype=np.int64)
+
+
+_POW_F, _POW_E = _cached_powers()
+_POW10 = np.array([10**i for i in range(20)], dtype=np.uint64)
+_U = np.uint64
+_M32 = np.uint64(0xFFFFFFFF)
+_FLOAT_CHARS = 24  # longest repr of a float64: "-2.2250738585072014e-308"
+_INT_CHARS = 20  # longest non-negative int64
+
+
+@_njit
+def _mul_hi(a_f, b_f):
+    """Upper 64 bits of the 128-bit product, rounded (Grisu's DiyFp multiply)."""
+    a, b, c, d = a_f >> _U(32), a_f & _M32, b_f >> _U(32), b_f & _M32
+    ac, bc, ad, bd = a * c, b * c, a * d, b * d
+    tmp = (bd >> _U(32)) + (ad & _M32) + (bc & _M32) + (_U(1) << _U(31))
+    return ac + (ad >> _U(32)) + (bc >> _U(32)) + (tmp >> _U(32))
+
+
+@_njit
+def _grisu2(x, digits, scratch, scratch_bits):
+    """Decimal digits of a finite x > 0 into ``digits``; returns (count, K) with x = digits·10^K on reading."""
+    scratch[0] = x
+    bits = scratch_bits[0]
+    hidden = _U(1) << _U(52)
+    fraction = bits & (hidden - _U(1))
+    biased = np.int64((bits >> _U(52)) & _U(0x7FF))
+    if biased != 0:
+        f, e = fraction + hidden, biased - 1075
+    else:
+        f, e = fraction, np.int64(-1074)
+    # the rounding interval's upper (p) and lower (m) boundaries, on a common exponent
+    p_f, p_e = (f << _U(1)) + _U(1), e - 1
+    while (p_f & (hidden << _U(1))) == _U(0):
+        p_f = p_f << _U(1)
+        p_e -= 1
+    p_f = p_f << _U(10)
+    p_e -= 10
+    if f == hidden:
+        m_f, m_e = (f << _U(2)) - _U(1), e - 2
+    else:
+        m_f, m_e = (f << _U(1)) - _U(1), e - 1
+    m_f = m_f << _U(m_e - p_e)
+    v_f, v_e = f, e
+    while (v_f & (_U(1) << _U(63))) == _U(0):
+        v_f = v_f << _U(1)
+        v_e -= 1
+    dk = (-61 - p_e) * 0.30102999566398114 + 347.0
+    k = np.int64(dk)
+    if dk - k > 0.0:
+        k += 1
+    index = (k >> 3) + 1
+    K = 348 - index * 8
+    c_f = _POW_F[index]
+    w_f = _mul_hi(v_f, c_f)
+    wp_f = _mul_hi(p_f, c_f) - _U(1)
+    wp_e = p_e + _POW_E[index] + 64
+    wm_f = _mul_hi(m_f, c_f) + _U(1)
+    delta = wp_f - wm_f
+    shift = _U(-wp_e)
+    one_f = _U(1) << shift
+    wp_w = wp_f - w_f
+    p1 = np.int64(wp_f >> shift)
+    p2 = wp_f & (one_f - _U(1))
+    kappa = 1
+    while kappa < 10 and p1 >= np.int64(_POW10[kappa]):
+        kappa += 1
+    n = 0
+    while kappa > 0:
+        div = np.int64(_POW10[kappa - 1])
+        d = p1 // div
+        p1 = p1 % div
+        if d != 0 or n != 0:
+            digits[n] = 48 + d
+            n += 1
+        kappa -= 1
+        rest = (_U(p1) << shift) + p2
+        if rest <= delta:
+            K += kappa
+            ten_kappa = _POW10[kappa] << shift
+            while rest < wp_w and delta - rest >= ten_kappa and (
+                    rest + ten_kappa < wp_w or wp_w - rest > rest + ten_kappa - wp_w):
+                digits[n - 1] -= 1
+                rest += ten_kappa
+            return n, K
+    while True:
+        p2 = p2 * _U(10)
+        delta = delta * _U(10)
+        d = np.int64(p2 >> shift)
+        if d != 0 or n != 0:
+            digits[n] = 48 + d
+            n += 1
+        p2 = p2 & (one_f - _U(1))
+        kappa -= 1
+        if p2 < delta:
+            K += kappa
+            w = wp_w * _POW10[-kappa] if -kappa < 20 else _U(0)
+            rest = p2
+            while rest < w and delta - rest >= one_f and (rest + one_f < w or w - rest > rest + one_f - w):
+                digits[n - 1] -= 1
+                rest += one_f
+            return n, K
+
+
+@_njit
+def _put_float(x, out, pos, digits, scratch, scratch_bits):
+    """Write x at out[pos:] as JSON in ``repr`` layout (``null`` if not finite); returns the new position."""
+    if not math.isfinite(x):
+        out[pos], out[pos + 1], out[pos + 2], out[pos + 3] = 110, 117, 108, 108
+        return pos + 4
+    if x < 0 or (x == 0 and math.copysign(1.0, x) < 0):
+        out[pos] = 45
+        pos += 1
+        x = -x
+    if x == 0:
+        out[pos], out[pos + 1], out[pos + 2] = 48, 46, 48
+        return pos + 3
+    n, K = _grisu2(x, digits, scratch, scratch_bits)
+    point = n + K  # x = 0.d1d2...·10^point
+    if point <= -4 or point > 16:  # exponent notation, as repr
+        out[pos] = digits[0]
+        pos += 1
+        if n > 1:
+            out[pos] = 46
+            pos += 1
+            for i in range(1, n):
+                out[pos] = digits[i]
+                pos += 1
+        exponent = point - 1
+        out[pos] = 101
+        out[pos + 1] = 45 if exponent < 0 else 43
+        pos += 2
+        exponent = abs(exponent)
+        if exponent >= 100:
+            out[pos] = 48 + exponent // 100
+            pos += 1
+        out[pos], out[pos + 1] = 48 + (exponent // 10) % 10, 48 + exponent % 10
+        return pos + 2
+    if point <= 0:
+        out[pos], out[pos + 1] = 48, 46
+        pos += 2
+        for _ in range(-point):
+            out[pos] = 48
+            pos += 1
+        for i in range(n):
+            out[pos] = digits[i]
+            pos += 1
+        return pos
+    if point < n:
+        for i in range(point):
+            out[pos] = digits[i]
+            pos += 1
+        out[pos] = 46
+        pos += 1
+        for i in range(point, n):
+            out[pos] = digits[i]
+            pos += 1
+        return pos
+    for i in range(n):
+        out[pos] = digits[i]
+        pos += 1
+    for _ in range(point - n):
+        out[pos] = 48
+        pos += 1
+    out[pos], out[pos + 1] = 46, 48
+    return pos + 2
+
+
+@_njit
+def _put_int(value, out, pos, digits):
+    """Write a non-negative integer at out[pos:]; returns the new position."""
+    n = 0
+    while True:
+        digits[n] = 48 + value % 10
+        value //= 10
+        n += 1
+        if value == 0:
+            break
+    for i in range(n):
+        out[pos + i] = digits[n - 1 - i]
+    return pos + n
+
+
+@_njit
+def _encode_rows(values, sec, nsec, text, text_start, slots, out, ends):
+    """Fill a template for every row: text piece j, slot j, ..., last piece; ``ends[r]`` = end of message r in ``out``.
+
+    ``slots[j]`` is -2 for the timestamp's sec, -1 for its nsec, else a column of ``values``.
+    """
+    digits = np.empty(32, np.uint8)
+    scratch = np.empty(1, np.float64)
+    scratch_bits = scratch.view(np.uint64)
+    pos = 0
+    for r in range(values.shape[0]):
+        for j in range(slots.size + 1):
+            for i in range(text_start[j], text_start[j + 1]):
+                out[pos] = text[i]
+                pos += 1
+            if j == slots.size:
+                break
+            slot = slots[j]
+            if slot == -2:
+                pos = _put_int(sec[r], out, pos, digits)
+            elif slot == -1:
+                pos = _put_int(nsec[r], out, pos, digits)
+            else:
+                pos = _put_float(values[r, slot], out, pos, digits, scratch, scratch_bits)
+        ends[r] = pos
+    return pos
+
+
+class _BatchTemplate:
+    """A channel's ``str.format`` template split for :func:`_encode_rows` (constant text and slots)."""
+
+    def __init__(self, template: str):
+        import string
+
+        pieces, slots, text = [], [], ""
+        for literal, field, _, _ in string.Formatter().parse(template):
+            text += literal  # (an escaped brace ends a literal without a field)
+            if field is not None:
+                pieces.append(text.encode())
+                slots.append(int(field) - 2)  # format slot 0 = sec, 1 = nsec, i + 2 = column i
+                text = ""
+        pieces.append(text.encode())
+        self.text = np.frombuffer(b"".join(pieces), dtype=np.uint8).copy()
+        self.text_start = np.cumsum([0] + [len(p) for p in pieces]).astype(np.int64)
+        self.slots = np.array(slots, dtype=np.int64)
+        self.max_length = len(self.text) + sum(_INT_CHARS if s < 0 else _FLOAT_CHARS for s in slots)
+
+    def encode(self, values: np.ndarray, sec: np.ndarray, nsec: np.ndarray) -> tuple[bytes, np.ndarray]:
+        """JSON of every row, concatenated, and the end offset of each message."""
+        n = len(values)
+        out = np.empty(n * self.max_length, dtype=np.uint8)
+        ends = np.empty(n, dtype=np.int64)
+        end = _encode_rows(values, sec, nsec, self.text, self.text_start, self.slots, out, ends)
+        return out[:end].tobytes(), ends
+
+
+@_njit
+def _put_le(out, pos, value, size):
+    for i in range(size):
+        out[pos + i] = (value >> (8 * i)) & 0xFF
+
+
+@_njit
+def _assemble_messages(buffer, starts, ends, channel_ids, sequences, log_times, out, offsets, base):
+    """MCAP Message records (opcode 5) of messages k = 0..n-1 into ``out``; ``offsets[k]`` = base + record start."""
+    pos = 0
+    for k in range(starts.size):
+        length = ends[k] - starts[k]
+        out[pos] = 0x05
+        _put_le(out, pos + 1, 22 + length, 8)
+        _put_le(out, pos + 9, channel_ids[k], 2)
+        _put_le(out, pos + 11, sequences[k], 4)
+        _put_le(out, pos + 15, log_times[k], 8)
+        _put_le(out, pos + 23, log_times[k], 8)  # publish_time = log_time
+        out[pos + 31:pos + 31 + length] = buffer[starts[k]:ends[k]]
+        offsets[k] = base + pos
+        pos += 31 + length
+    return pos
+
+
+_MESSAGE_RECORD_OVERHEAD = 31  # opcode 1 + length 8 + channel 2 + sequence 4 + log time 8 + publish time 8 [B]
+
+
+class _MessageIndexArrays(_McapMessageIndex):
+    """A chunk's message index of one channel, kept as numpy (log_time, offset) blocks and written in one piece."""
+
+    def write(self, stream) -> None:
+        blocks = [np.asarray(r, dtype=np.uint64).reshape(-1, 2) for r in self.records]
+        pairs = np.concatenate(blocks) if blocks else np.empty((0, 2), np.uint64)
+        stream.start_record(Opcode.MESSAGE_INDEX)
+        stream.write(struct.pack("<HI", self.channel_id, pairs.size * 8))
+        stream.write(pairs.astype("<u8").tobytes())
+        stream.finish_record()
+
+
+class _BulkWriter(Writer):
+    """:class:`mcap.writer.Writer` that also takes many messages at once (:meth:`add_messages`).
+
+    The records, chunks, indexes and statistics are those the base class writes
+    message by message; the bulk path builds the Message records of a batch in
+    compiled code and hands them to the base class's chunk builder, finishing a
+    chunk wherever the base class would (after the message that takes it past
+    ``chunk_size``).  If this version of ``mcap`` lays its writer out differently,
+    the bulk path falls back to ``add_message`` per message.
+    """
+
+    ZSTD_LEVEL = 1  # measured on run logs: faster than zstd's default level 3 and compresses this JSON as well
+
+    def _Writer__finalize_chunk(self) -> None:  # noqa: N802 - overrides the base class's private method
+        """The base class's chunk finalisation, with a reused zstd compressor at :attr:`ZSTD_LEVEL`."""
+        try:
+            chunks = self._Writer__chunk_builder  # type: ignore[attr-defined]
+            zstd = self._Writer__compression == CompressionType.ZSTD  # type: ignore[attr-defined]
+        except AttributeError:  # pragma: no cover - other mcap versions
+            chunks, zstd = None, False
+        if not zstd or chunks is None or chunks.num_messages == 0 or not hasattr(self, "_Writer__chunk_indices"):
+            return Writer._Writer__finalize_chunk(self)  # type: ignore[attr-defined]
+        if not hasattr(self, "_zstd"):
+            import zstandard
+
+            self._zstd = zstandard.ZstdCompressor(level=self.ZSTD_LEVEL)
+        stats, builder = self._Writer__statistics, self._Writer__record_builder  # type: ignore[attr-defined]
+        stats.chunk_count += 1
+        chunk_data = chunks.end()
+        compressed = self._zstd.compress(chunk_data)
+        chunk = _McapChunk(compression="zstd", data=compressed, message_start_time=chunks.message_start_time,
+                           message_end_time=chunks.message_end_time,
+                           uncompressed_crc=zlib.crc32(chunk_data) if self._Writer__enable_crcs else 0,  # type: ignore[attr-defined]
+                           uncompressed_size=len(chunk_data))
+        self._Writer__flush()  # type: ignore[attr-defined]
+        stream = self._Writer__stream  # type: ignore[attr-defined]
+        chunk_start = stream.tell()
+        chunk.write(builder)
+        chunk_index = _McapChunkIndex(message_start_time=chunk.message_start_time, message_end_time=chunk.message_end_time,
+                                      chunk_start_offset=chunk_start, chunk_length=builder.count, message_index_offsets={},
+                                      message_index_length=0, compression=chunk.compression, compressed_size=len(compressed),
+                                      uncompressed_size=chunk.uncompressed_size)
+        self._Writer__flush()  # type: ignore[attr-defined]
+        index_start = stream.tell()
+        if self._Writer__index_types & IndexType.MESSAGE:  # type: ignore[attr-defined]
+            for channel_id, index in chunks.message_indices.items():
+                chunk_index.message_index_offsets[channel_id] = index_start + builder.count
+                index.write(builder)
+        chunk_index.message_index_length = builder.count
+        self._Writer__flush()  # type: ignore[attr-defined]
+        self._Writer__chunk_indices.append(chunk_index)  # type: ignore[attr-defined]
+        chunks.reset()
+
+    def _bulk_parts(self):
+        try:
+            return (self._Writer__chunk_builder, self._Writer__statistics, self._Writer__chunk_size,  # type: ignore[attr-defined]
+                    self._Writer__maybe_finalize_chunk)  # type: ignore[attr-defined]
+        except AttributeError:  # pragma: no cover - other mcap versions
+            return None
+
+    def add_messages(self, buffer: bytes, starts: np.ndarray, ends: np.ndarray, channel_ids: np.ndarray,
+                     sequences: np.ndarray, log_times: np.ndarray) -> None:
+        """Add messages k = 0..n-1 (data ``buffer[starts[k]:ends[k]]``) in this order; ``publish_time = log_time``."""
+        n = len(starts)
+        if n == 0:
+            return
+        parts = self._bulk_parts()
+        if parts is None or parts[0] is None or not _NUMBA:  # pragma: no cover
+            view = memoryview(buffer)
+            for k in range(n):
+                t = int(log_times[k])
+                self.add_message(int(channel_ids[k]), t, bytes(view[starts[k]:ends[k]]), t, int(sequences[k]))
+            return
+        chunks, stats, chunk_size, maybe_finalize = parts
+        source = np.frombuffer(buffer, dtype=np.uint8)
+        sizes = (ends - starts) + _MESSAGE_RECORD_OVERHEAD
+        if stats.message_count == 0:
+            stats.message_start_time = int(log_times.min())
+        else:
+            stats.message_start_time = min(stats.message_start_time, int(log_times.min()))
+        stats.message_end_time = max(stats.message_end_time, int(log_times.max()))
+        ids, counts = np.unique(channel_ids, return_counts=True)
+        for channel_id, count in zip(ids.tolist(), counts.tolist()):
+            stats.channel_message_counts[channel_id] += count
+        stats.message_count += n
+        done = 0
+        while done < n:
+            # messages up to and including the one that takes the chunk past chunk_size
+            filled = chunks.count + np.cumsum(sizes[done:])
+            over = int(np.searchsorted(filled, chunk_size, side="right"))
+            stop = min(n, done + over + 1)
+            piece = slice(done, stop)
+            out = np.empty(int(sizes[piece].sum()), dtype=np.uint8)
+            offsets = np.empty(stop - done, dtype=np.int64)
+            _assemble_messages(source, starts[piece], ends[piece], channel_ids[piece], sequences[piece], log_times[piece],
+                               out, offsets, chunks.count)
+            times = log_times[piece]
+            if chunks.num_messages == 0:
+                chunks.message_start_time = int(times.min())
+            else:
+                chunks.message_start_time = min(chunks.message_start_time, int(times.min()))
+            chunks.message_end_time = max(chunks.message_end_time, int(times.max()))
+            piece_ids = channel_ids[piece]
+            pairs = np.stack([times.astype(np.uint64), offsets.astype(np.uint64)], axis=1)
+            for channel_id in np.unique(piece_ids).tolist():
+                index = chunks.message_indices.get(channel_id)
+                if index is None:
+                    index = chunks.message_indices[channel_id] = _MessageIndexArrays(channel_id=channel_id, records=[])
+                elif not isinstance(index, _MessageIndexArrays):  # pragma: no cover - filled by add_message before
+                    index = chunks.message_indices[channel_id] = _MessageIndexArrays(channel_id, [list(index.records)])
+                index.records.append(pairs[piece_ids == channel_id])
+            chunks.num_messages += stop - done
+            chunks.record_writer.write(out.data)
+            maybe_finalize()
+            done = stop
+
+
+# ---------------------------------------------------------------------------------------
 # Writer
 # ---------------------------------------------------------------------------------------
 
@@ -750,13 +1205,15 @@ class Channel:
         self._channel_id = channel_id
         self._order = order
         self._format = template.format if template is not None else None
+        self._batch = _BatchTemplate(template) if template is not None and _NUMBA else None
         self._capacity = capacity if template is not None else 0
         self._values = np.empty((self._capacity, column_count), dtype=np.float64)
         self._steps = np.empty(self._capacity, dtype=np.int64)
         self._count = 0
         self._last_step = -1
         self._sequence = 0
-        self._encoded: list[tuple[int, int, int, int, bytes]] = []
+        self._encoded: list[tuple[np.ndarray, np.ndarray, bytes, np.ndarray]] = []
+        self._frame: Frame | None = None  # set for the channels of a Frame (their samples live there)
 
     def append(self, step_index: int, values: Sequence[float] | np.ndarray) -> None:
         """Buffer one sample of a columnar channel.
@@ -824,6 +1281,8 @@ class Channel:
         """
         writer = self._writer
         writer._check_open()
+        if self._frame is not None:
+            raise TypeError(f"{self.topic}: a channel of a Frame takes its samples from Frame.append(); use another channel")
         if step_index < self._last_step:
             raise ValueError(f"{self.topic}: step_index {step_index} is before the previous one {self._last_step}")
         if step_index >= writer._next_flush_step:
@@ -835,7 +1294,8 @@ class Channel:
         data = to_json_bytes(body)
         self._encode_buffer()  # keep buffered samples ahead of this message
         self._sequence += 1
-        self._encoded.append((log_time, self._order, self._sequence, self._channel_id, data))
+        self._encoded.append((np.array([log_time], np.int64), np.array([self._sequence], np.int64), data,
+                              np.array([len(data)], np.int64)))
         self._last_step = step_index
 
     # -- internals -------------------------------------------------------------------
@@ -846,6 +1306,8 @@ class Channel:
         writer._check_open()
         if self._format is None:
             raise TypeError(f"{self.topic}: channel was created without `fields` or `layout`; use write()")
+        if self._frame is not None:
+            raise TypeError(f"{self.topic}: a channel of a Frame takes its samples from Frame.append()")
         if step_index >= writer._next_flush_step:
             writer._periodic_flush(step_index)
         if self._count == self._capacity:
@@ -853,27 +1315,35 @@ class Channel:
         return self._count
 
     def _encode_buffer(self) -> None:
-        """Encode buffered samples into JSON (moved to the channel's encoded list)."""
+        """Encode buffered samples into JSON (one block of the channel's encoded list)."""
         n = self._count
         if n == 0:
             return
-        values = self._values[:n]
         log_times = _step_log_times(self._steps[:n], self._writer.dt)
-        sec, nsec = np.divmod(log_times, NS_PER_S)
-        rows = values.tolist()
-        finite = np.isfinite(values).all(axis=1)
-        if not finite.all():
-            for i in np.flatnonzero(~finite).tolist():
-                rows[i] = [v if math.isfinite(v) else _NULL for v in rows[i]]
-        fmt = self._format
-        datas = [fmt(s, ns, *row).encode() for s, ns, row in zip(sec.tolist(), nsec.tolist(), rows)]
-        first = self._sequence + 1
-        self._sequence += n
-        self._encoded.extend(zip(log_times.tolist(), repeat(self._order), range(first, first + n),
-                                 repeat(self._channel_id), datas))
+        self._encode_block(self._values[:n], log_times, *np.divmod(log_times, NS_PER_S))
         self._count = 0
 
-    def _take_encoded(self) -> list[tuple[int, int, int, int, bytes]]:
+    def _encode_block(self, values: np.ndarray, log_times: np.ndarray, sec: np.ndarray, nsec: np.ndarray) -> None:
+        """JSON of the rows ``values`` at ``log_times`` [ns] (= ``sec``·1e9 + ``nsec``), added as one encoded block."""
+        n = len(values)
+        if self._batch is not None:
+            buffer, ends = self._batch.encode(values, sec, nsec)
+        else:  # pragma: no cover - without numba
+            rows = values.tolist()
+            finite = np.isfinite(values).all(axis=1)
+            if not finite.all():
+                for i in np.flatnonzero(~finite).tolist():
+                    rows[i] = [v if math.isfinite(v) else _NULL for v in rows[i]]
+            fmt = self._format
+            datas = [fmt(s, ns, *row).encode() for s, ns, row in zip(sec.tolist(), nsec.tolist(), rows)]
+            buffer = b"".join(datas)
+            ends = np.cumsum([len(d) for d in datas]).astype(np.int64)
+        first = self._sequence + 1
+        self._sequence += n
+        self._encoded.append((log_times, np.arange(first, first + n, dtype=np.int64), buffer, ends))
+
+    def _take_encoded(self) -> list[tuple[np.ndarray, np.ndarray, bytes, np.ndarray]]:
+        """Encoded blocks (log times, sequences, concatenated JSON, end offsets), buffered samples included."""
         self._encode_buffer()
         encoded, self._encoded = self._encoded, []
         return encoded
@@ -914,6 +1384,114 @@ class JointStatesChannel(Channel):
         row[joint_count:2 * joint_count] = np.nan if velocity is None else velocity
         row[2 * joint_count:] = np.nan if effort is None else effort
         self.commit()
+
+
+class Frame:
+    """One row of floats per sample that feeds several columnar channels; create it with :meth:`LogWriter.frame`.
+
+    A loop that logs many topics per step pays one :meth:`append` (or :meth:`claim` +
+    :meth:`commit`) per sample instead of one per topic.  Each channel of the frame names
+    the frame columns its fields come from (:meth:`channel`, :meth:`joint_states_channel`);
+    in the log they are ordinary channels, encoded from the frame's rows in the same
+    batches.  Columns no channel reads, and columns never written, cost nothing; the rows
+    start as NaN, so a column that is never written is logged as ``null``.
+
+    Attributes
+    ----------
+    column_count : int
+        Floats per row.
+    """
+
+    def __init__(self, writer: LogWriter, column_count: int, capacity: int):
+        self.column_count = int(column_count)
+        if self.column_count < 1:
+            raise ValueError(f"`column_count` must be >= 1, got {column_count!r}")
+        self._writer = writer
+        self._capacity = capacity
+        self._values = np.full((capacity, self.column_count), np.nan)
+        self._steps = np.empty(capacity, dtype=np.int64)
+        self._count = 0
+        self._last_step = -1
+        self._members: list[tuple[Channel, np.ndarray]] = []
+
+    def _columns(self, columns: Sequence[int] | np.ndarray, count: int, topic: str) -> np.ndarray:
+        columns = np.asarray(columns, dtype=np.intp).ravel()
+        if len(columns) != count:
+            raise ValueError(f"{topic}: {len(columns)} frame columns given for {count} fields")
+        if len(columns) and (columns.min() < 0 or columns.max() >= self.column_count):
+            raise ValueError(f"{topic}: frame columns must be in [0, {self.column_count}), got {columns.tolist()}")
+        return columns
+
+    def channel(self, topic: str, schema_name: str, schema: Mapping[str, Any], *, columns: Sequence[int] | np.ndarray,
+                fields: Sequence[str] | None = None, layout: Mapping[str, Any] | None = None,
+                metadata: Mapping[str, str] | None = None) -> Channel:
+        """Register a columnar channel (as :meth:`LogWriter.channel`) whose field i is frame column ``columns[i]``."""
+        if fields is None and layout is None:
+            raise ValueError(f"{topic}: a frame channel needs `fields` or `layout`")
+        channel = self._writer.channel(topic, schema_name, schema, fields=fields, layout=layout, metadata=metadata)
+        self._adopt(channel, columns)
+        return channel
+
+    def joint_states_channel(self, topic: str, joint_names: Sequence[str], *, columns: Sequence[int] | np.ndarray,
+                             metadata: Mapping[str, str] | None = None) -> JointStatesChannel:
+        """A ``foxglove.JointStates`` channel (as :meth:`LogWriter.joint_states_channel`) from frame ``columns``:
+        positions, then velocities, then efforts (3 × joint count)."""
+        channel = self._writer.joint_states_channel(topic, joint_names, metadata=metadata)
+        self._adopt(channel, columns)
+        return channel
+
+    def adopt(self, channel: Channel, columns: Sequence[int] | np.ndarray) -> None:
+        """Make an existing columnar channel of this writer (with no samples yet) take its samples from ``columns``."""
+        if channel._writer is not self._writer or channel._format is None or channel._count or channel._encoded:
+            raise ValueError(f"{channel.topic}: only an empty columnar channel of the same log can join a frame")
+        self._adopt(channel, columns)
+
+    def _adopt(self, channel: Channel, columns: Sequence[int] | np.ndarray) -> None:
+        channel._frame = self
+        channel._capacity = 0  # its own append() now always reaches _prepare(), which refuses
+        self._members.append((channel, self._columns(columns, channel.column_count, channel.topic)))
+
+    def append(self, step_index: int, values: Sequence[float] | np.ndarray) -> None:
+        """Buffer one row (``column_count`` floats, SI units) for step ``step_index`` (non-decreasing)."""
+        self.claim(step_index)[:] = values
+        self.commit()
+
+    def claim(self, step_index: int) -> np.ndarray:
+        """The buffer row for a sample at ``step_index``, to be filled in place, then :meth:`commit`.
+
+        The row holds what an earlier sample left in it (NaN at first): write every column a channel reads.
+        """
+        writer = self._writer
+        if self._count == self._capacity or step_index >= writer._next_flush_step:
+            writer._check_open()
+            if step_index >= writer._next_flush_step:
+                writer._periodic_flush(step_index)
+            if self._count == self._capacity:
+                writer._drain(end_chunk=False)
+        if step_index < self._last_step:
+            raise ValueError(f"frame: step_index {step_index} is before the previous one {self._last_step}")
+        self._steps[self._count] = step_index
+        return self._values[self._count]
+
+    def commit(self) -> None:
+        """Accept the row returned by the last :meth:`claim`."""
+        self._last_step = int(self._steps[self._count])
+        self._count += 1
+
+    def _encode(self) -> None:
+        """Encode the buffered rows into every member channel's encoded blocks."""
+        n = self._count
+        if n == 0:
+            return
+        steps = self._steps[:n]
+        log_times = _step_log_times(steps, self._writer.dt)
+        sec, nsec = np.divmod(log_times, NS_PER_S)
+        rows = self._values[:n]
+        last = int(steps[-1])
+        for channel, columns in self._members:
+            channel._encode_block(rows[:, columns], log_times, sec, nsec)
+            channel._last_step = last
+        self._count = 0
 
 
 class LogWriter:
@@ -992,6 +1570,7 @@ class LogWriter:
             self._flush_steps = max(1, round(flush_interval / dt))
         self._next_flush_step: float = self._flush_steps if self._flush_steps is not None else math.inf
         self._channels: list[Channel] = []
+        self._frames: list[Frame] = []
         self._topics: set[str] = set()
         self._schema_ids: dict[tuple[str, bytes], int] = {}
         self._status = RunStatus.COMPLETE.value
@@ -1005,7 +1584,7 @@ class LogWriter:
                     raise FileExistsError(f"{existing} exists; pass overwrite=True, or recover() a .partial first")
         self._file: BinaryIO = open(self.partial_path, "wb")
         try:
-            self._writer = Writer(self._file, chunk_size=int(chunk_size), compression=compressions[compression],
+            self._writer = _BulkWriter(self._file, chunk_size=int(chunk_size), compression=compressions[compression],
                                   index_types=IndexType.ALL)
             self._writer.start(profile="", library=library_string())
             self._writer.add_metadata(RUN_METADATA, metadata)
@@ -1074,6 +1653,13 @@ class LogWriter:
         }
         return self._add_channel(JointStatesChannel, topic, "foxglove.JointStates", joint_states_schema(),
                                  layout=layout, metadata=metadata, extra={"joint_names": names})
+
+    def frame(self, column_count: int) -> Frame:
+        """A :class:`Frame`: one row of ``column_count`` floats per sample feeding several channels."""
+        self._check_open()
+        frame = Frame(self, column_count, self._batch_size)
+        self._frames.append(frame)
+        return frame
 
     def _add_channel(self, cls: type[Channel], topic: str, schema_name: str, schema: Mapping[str, Any], *,
                      fields: Sequence[str] | None = None, layout: Mapping[str, Any] | None = None,
@@ -1162,14 +1748,28 @@ class LogWriter:
             self._drain_now(end_chunk=end_chunk)
 
     def _drain_now(self, *, end_chunk: bool) -> None:
-        entries: list[tuple[int, int, int, int, bytes]] = []
+        for frame in self._frames:
+            frame._encode()
+        times, orders, sequences, channel_ids, buffers, starts, ends = [], [], [], [], [], [], []
+        offset = 0
         for channel in self._channels:
-            entries.extend(channel._take_encoded())
-        entries.sort()  # (log_time, channel order, sequence) is unique: payloads never compared
-        add = self._writer.add_message
-        for log_time, _, sequence, channel_id, data in entries:
-            add(channel_id, log_time, data, log_time, sequence)
-        if entries:
+            for log_times, seqs, buffer, block_ends in channel._take_encoded():
+                n = len(log_times)
+                times.append(log_times)
+                sequences.append(seqs)
+                orders.append(np.full(n, channel._order, np.int64))
+                channel_ids.append(np.full(n, channel._channel_id, np.int64))
+                buffers.append(buffer)
+                ends.append(block_ends + offset)
+                starts.append(np.concatenate(([0], block_ends[:-1])) + offset)
+                offset += len(buffer)
+        if times:
+            log_times = np.concatenate(times)
+            sequence = np.concatenate(sequences)
+            # (log_time, channel order, sequence) is unique: a total order, the same as sorting tuples
+            order = np.lexsort((sequence, np.concatenate(orders), log_times))
+            self._writer.add_messages(b"".join(buffers), np.concatenate(starts)[order], np.concatenate(ends)[order],
+                                      np.concatenate(channel_ids)[order], sequence[order], log_times[order])
             self._last_step = max(self._last_step, max(c._last_step for c in self._channels))
         if end_chunk:
             self._writer.flush()

@@ -6,9 +6,20 @@ Library use::
     result = run("models/boom/lift.scenario.toml", out="logs/lift.mcap")
     print(result.summary_text())
 
+MuJoCo mode with the implicit coupling and the compiled kernels (the
+defaults) advances :class:`~sim.plant_mujoco_fast.MujocoPlantFast` in blocks
+of ``scenario.log_every`` steps, one ``mj_step(m, d, nstep=n)`` from one log
+sample to the next; every other configuration, ``compiled = false``
+(``hydroplant run --pure``) and ``run(..., fast=False)`` step one step at a
+time.  Both paths log the same values to round-off (``tests/test_runner_fast.py``).
+
 A run that diverges (non-finite state, or a hydraulic step that fails) stops
 at that step with the time and the component named, and its log keeps every
-logged step up to it, marked ``diverged``.  An exception or Ctrl-C leaves a
+logged step up to it, marked ``diverged`` (a failed block is rewound and
+replayed step by step to find that step).  Peak and minimum pressures are
+over every step on the per-step path; on the block path they are over every
+step when the plant keeps per-step extremes, else over the block ends (the
+log rate).  An exception or Ctrl-C leaves a
 finished, indexed log marked ``incomplete``.
 """
 
@@ -38,16 +49,73 @@ ENERGY_GROWTH_LIMIT = 3.0  # relative to |initial energy| + pump work (symplecti
 ENERGY_GROWTH_FLOOR = 1.0  # J, so that machines starting at zero energy are not flagged by round-off
 
 
-def make_plant(scene):
-    """The plant for the scenario's mode."""
+def make_plant(scene, *, fast: bool = True):
+    """The plant for the scenario's mode.
+
+    MuJoCo mode uses :class:`~sim.plant_mujoco_fast.MujocoPlantFast` when ``fast``
+    (the default): with the implicit coupling and the compiled kernels it steps
+    whole blocks inside ``mj_step``, otherwise it falls back to the per-step
+    :class:`~sim.plant_mujoco.MujocoPlant` path (its ``fast`` attribute is then
+    False).  ``fast=False`` forces :class:`MujocoPlant`.
+    """
     mode = scene.scenario.mode
     if mode == "mujoco":
+        if fast:
+            from .plant_mujoco_fast import MujocoPlantFast
+
+            return MujocoPlantFast(scene)
         from .plant_mujoco import MujocoPlant
 
         return MujocoPlant(scene)
     from .plant_pbd import make_pbd_plant  # noqa: PLC0415 - optional until the PBD mode exists
 
     return make_pbd_plant(scene)
+
+
+class _Snapshot:
+    """Everything a :class:`MujocoPlantFast` block changes, so a failed block can be replayed step by step.
+
+    The MjData's integration state (``mj_getState``), the network state, efforts,
+    θ, controls and energy ledger are copied (``advance`` may update any of them
+    in place); ``last_report`` is replaced by ``advance`` and kept by reference.
+    """
+
+    SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
+    LEDGER = ("pump_work", "motor_work", "dissipated_hydraulic", "dissipated_friction", "dissipated_mechanical")
+
+    def __init__(self, plant):
+        self.buffer = np.empty(mujoco.mj_stateSize(plant.model, self.SPEC))
+        self.extreme_names = tuple(name for name in _PLANT_EXTREMES if hasattr(plant, name))
+        self.take(plant)
+
+    def take(self, plant) -> None:
+        mujoco.mj_getState(plant.model, plant.data, self.buffer, self.SPEC)
+        self.step_index = plant.step_index
+        n = plant.net_state
+        self.net_state = type(n)(n.node_oil.copy(), n.node_pressure.copy(), n.valve_spool.copy(), n.actuator_position.copy(),
+                                 n.actuator_velocity.copy(), n.time)
+        self.effort, self.theta, self.last_report = plant.effort.copy(), plant.theta.copy(), plant.last_report
+        e = plant.energy
+        self.ledger = (e.pump_work, e.motor_work, e.dissipated_hydraulic, e.dissipated_friction, e.dissipated_mechanical)
+        self.valve_command = plant.control.valve_command.copy()
+        self.pump_speed = plant.control.pump_speed.copy()
+        self.extremes = [getattr(plant, name).copy() for name in self.extreme_names]
+
+    def restore(self, plant) -> None:
+        mujoco.mj_setState(plant.model, plant.data, self.buffer, self.SPEC)
+        plant.step_index = self.step_index
+        plant.net_state, plant.effort, plant.theta, plant.last_report = self.net_state, self.effort, self.theta, self.last_report
+        for name, value in zip(self.LEDGER, self.ledger):
+            setattr(plant.energy, name, value)
+        plant.control.valve_command[:] = self.valve_command
+        plant.control.pump_speed[:] = self.pump_speed
+        for name, value in zip(self.extreme_names, self.extremes):
+            setattr(plant, name, value.copy())
+
+
+# Per-step node pressure extremes [Pa] a plant may keep over its blocks (running max / min of the
+# end-of-step pressures of every successful step, initial state included); used when present.
+_PLANT_EXTREMES = ("node_pressure_max", "node_pressure_min")
 
 
 @dataclass
@@ -66,6 +134,8 @@ class RunResult:
     final_joints: dict = field(default_factory=dict)  # joint -> rad or m
     final_strokes: dict = field(default_factory=dict)  # cylinder -> m
     energy: dict = field(default_factory=dict)
+    extremes_every_step: bool = True
+    """Whether ``peak_pressure``/``min_pressure`` cover every step (False: only the logged samples, see :class:`_Loop`)."""
 
     @property
     def real_time_factor(self) -> float:
@@ -80,7 +150,8 @@ class RunResult:
             f"status        {self.status}{': ' + self.message if self.message else ''}",
             f"simulated     {self.simulated_time:.4f} s in {self.steps} steps",
             f"wall time     {self.wall_time:.3f} s  (real-time factor {self.real_time_factor:.2f})",
-            "pressures     node: min .. peak [bar]",
+            "pressures     node: min .. peak [bar]" + ("" if self.extremes_every_step else
+                                                           f" (at the logged samples, {s.log_rate_hz:g} Hz)"),
         ]
         for node, peak in self.peak_pressure.items():
             lines.append(f"  {node:<28s} {self.min_pressure[node] / 1e5:9.2f} .. {peak / 1e5:9.2f}")
@@ -104,10 +175,16 @@ def default_log_path(scenario: Scenario) -> Path:
     return (scenario.log_dir or DEFAULT_LOG_DIR) / f"{scenario.scene_name}-{scenario.name}-{scenario.mode}-{scenario.coupling}-{stamp}.mcap"
 
 
-def run_metadata(scenario: Scenario) -> dict:
-    """The hydroplant.run metadata record (all strings)."""
+def run_metadata(scenario: Scenario, plant=None) -> dict:
+    """The hydroplant.run metadata record (all strings).
+
+    With ``plant``, ``stepping`` says how it is advanced: ``"blocks"`` (whole
+    blocks inside ``mj_step``, :class:`~sim.plant_mujoco_fast.MujocoPlantFast`)
+    or ``"per-step"``.
+    """
     from importlib.metadata import version
 
+    extra = {} if plant is None else {"stepping": "blocks" if getattr(plant, "fast", False) else "per-step"}
     return {
         "scenario": str(scenario.path),
         "scene": scenario.scene_name,
@@ -126,11 +203,18 @@ def run_metadata(scenario: Scenario) -> dict:
         "mujoco_version": mujoco.__version__,
         "numpy_version": np.__version__,
         "python_version": platform.python_version(),
+        **extra,
     }
 
 
-def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = False, overwrite: bool = True) -> RunResult:
-    """Run a scenario (path or :class:`Scenario`) and write its MCAP log; see the module docstring."""
+def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = False, overwrite: bool = True,
+        fast: bool = True) -> RunResult:
+    """Run a scenario (path or :class:`Scenario`) and write its MCAP log; see the module docstring.
+
+    ``fast=False`` forces the per-step path (:class:`~sim.plant_mujoco.MujocoPlant`
+    in MuJoCo mode); the scenario's ``compiled = false`` (``hydroplant run --pure``)
+    also selects it, with the numpy hydraulics.
+    """
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     if overrides:
@@ -138,7 +222,7 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     scene = load_scene(scenario)
     if scene.network.pruned and progress:
         print(f"hydroplant: not built (connected to no cylinder or motor): {', '.join(scene.network.pruned)}", file=sys.stderr)
-    plant = make_plant(scene)
+    plant = make_plant(scene, fast=fast)
     guard = check_plant(plant)  # load-time stability guards: warn, never fail
     if progress:
         for text in guard.warnings:
@@ -150,72 +234,41 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
         ("circuit.toml", "application/toml", scenario.circuit.read_bytes()),
         (scenario.mjcf.name, "application/xml", scenario.mjcf.read_bytes()),
     ]
-    steps = scenario.step_count
-    every = scenario.log_every
-    status, message = "complete", ""
     net = plant.network
-    peak = np.array(plant.net_state.node_pressure)
-    low = peak.copy()
-    start = _time.perf_counter()
-    last_progress = start
-    with LogWriter(log_path, dt=scenario.dt, run_metadata=run_metadata(scenario), attachments=attachments, overwrite=overwrite) as log:
+    with LogWriter(log_path, dt=scenario.dt, run_metadata=run_metadata(scenario, plant), attachments=attachments, overwrite=overwrite) as log:
         recorder = RunRecorder(log, plant)
         for text in guard.warnings:
             recorder.event(0, LogLevel.WARNING, "stability guard: " + text)
-        sample = recorder.sample(0)
-        for n in range(steps):
-            report = plant.step()
-            p = plant.net_state.node_pressure
-            if not report.success or not plant.finite():
-                component = _failed_component(plant, report)
-                status = "diverged"
-                message = f"t = {plant.time:.6g} s, {component}: {report.message or 'non-finite state'}"
-                recorder.sample(plant.step_index)
-                recorder.event(plant.step_index, LogLevel.ERROR, "diverged: " + message)
-                log.mark("diverged", time_s=repr(plant.time), component=component, message=message)
-                break
-            np.maximum(peak, p, out=peak)
-            np.minimum(low, p, out=low)
-            if plant.step_index % every == 0 or n == steps - 1:
-                sample = recorder.sample(plant.step_index)
-                gained = sample["kinetic"] + sample["potential"] + sample["oil"] - plant.energy.initial_total
-                allowed = ENERGY_GROWTH_LIMIT * (abs(plant.energy.initial_total) + plant.energy.pump_work) + ENERGY_GROWTH_FLOOR
-                if plant.coupling.name != "incompressible" and gained > allowed:  # (no energy terms without oil)
-                    status = "diverged"
-                    message = (
-                        f"t = {plant.time:.6g} s, energy growth: the machine gained {gained:.4g} J, more than the "
-                        f"{plant.energy.pump_work:.4g} J of pump work allows; the coupling is unstable at this step size"
-                    )
-                    recorder.event(plant.step_index, LogLevel.ERROR, "diverged: " + message)
-                    log.mark("diverged", time_s=repr(plant.time), component="coupling (energy growth)", message=message)
-                    break
-            if progress:
-                now = _time.perf_counter()
-                if now - start > PROGRESS_AFTER and now - last_progress > 0.5:
-                    last_progress = now
-                    print(f"\r  {plant.time:8.3f} / {scenario.duration:g} s simulated", end="", file=sys.stderr, flush=True)
-        if status == "complete":
+        loop = _Loop(plant, recorder, log, scenario, progress)
+        if getattr(plant, "fast", False):
+            loop.blocks()
+        else:
+            loop.per_step()
+        if loop.status == "complete":
             log.mark("complete")
-        wall = _time.perf_counter() - start
+        wall = _time.perf_counter() - loop.start
     if progress and wall > PROGRESS_AFTER:
         print(file=sys.stderr)
     e = plant.energy
+    sample = loop.sample
     dissipated = e.dissipated_hydraulic + e.dissipated_friction + e.dissipated_mechanical
     total = sample["kinetic"] + sample["potential"] + sample["oil"]
     q, _ = plant.joint_state()
     strokes = {net.actuator_names[a]: float(plant.net_state.actuator_position[a]) for a in net.cylinder_actuator}
+    free = [i for i in range(len(net.node_names)) if not net.node_fixed[i]]
     return RunResult(
         scenario=scenario,
         log_path=log_path,
-        status=status,
-        message=message,
+        status=loop.status,
+        message=loop.message,
         simulated_time=plant.time,
         wall_time=wall,
         steps=plant.step_index,
-        peak_pressure={n: float(v) for n, v in zip(net.node_names, peak) if not net.node_fixed[net.node_names.index(n)]},
-        min_pressure={n: float(v) for n, v in zip(net.node_names, low) if not net.node_fixed[net.node_names.index(n)]},
+        peak_pressure={net.node_names[i]: float(loop.peak[i]) for i in free},
+        min_pressure={net.node_names[i]: float(loop.low[i]) for i in free},
         final_joints=dict(zip(plant.joint_names, map(float, q))),
         final_strokes=strokes,
+        extremes_every_step=loop.extremes_every_step,
         energy={
             "pump_work": e.pump_work,
             "delta": total - e.initial_total,
@@ -224,6 +277,130 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
             "relative": sample["residual"] / e.pump_work if e.pump_work else 0.0,
         },
     )
+
+
+class _Loop:
+    """The stepping loop of :func:`run`: checks, pressure extremes, log samples, progress line.
+
+    Two drivers share the checks:
+
+    :meth:`per_step`
+        one ``plant.step()`` at a time (MuJoCo per-step path, PBD modes);
+        divergence, peak and minimum pressures are checked after every step.
+    :meth:`blocks`
+        ``plant.advance(n)`` of a :class:`~sim.plant_mujoco_fast.MujocoPlantFast`
+        from one log sample to the next (``scenario.log_every`` steps).  The
+        plant's state at the start of each block is kept (:class:`_Snapshot`);
+        a block that fails (hydraulic step failed, or a non-finite state at its
+        end) is rewound and replayed one ``advance(1)`` at a time through the
+        per-step checks, so a divergence is reported at the failing step with
+        the same time, component and log as on the per-step path (the replay
+        repeats the block's arithmetic exactly).  Pressure extremes are taken
+        over every step when the plant keeps them (``node_pressure_max`` /
+        ``node_pressure_min``), else from the state at each block end, i.e. at
+        the log rate.
+    """
+
+    def __init__(self, plant, recorder: RunRecorder, log: LogWriter, scenario: Scenario, progress: bool):
+        self.plant, self.recorder, self.log, self.scenario, self.progress = plant, recorder, log, scenario, progress
+        self.steps = scenario.step_count
+        self.every = scenario.log_every
+        self.status, self.message = "complete", ""
+        self.peak = np.array(plant.net_state.node_pressure)
+        self.low = self.peak.copy()
+        self.per_step_extremes = all(hasattr(plant, name) for name in _PLANT_EXTREMES)
+        self.extremes_every_step = not getattr(plant, "fast", False) or self.per_step_extremes or self.every == 1
+        self.start = _time.perf_counter()
+        self.last_progress = self.start
+        self.sample = recorder.sample(0)
+
+    # ----------------------------------------------------------------- drivers
+    def per_step(self) -> None:
+        plant = self.plant
+        for _ in range(self.steps):
+            if not self.after_step(plant.step()):
+                return
+            self.show_progress()
+
+    def blocks(self) -> None:
+        plant, steps, every = self.plant, self.steps, self.every
+        snapshot = _Snapshot(plant)
+        while plant.step_index < steps:
+            k = plant.step_index
+            n = min(every - k % every, steps - k)  # every block ends on a log sample (or the last step)
+            if n > 1:
+                snapshot.take(plant)
+            report = plant.advance(n)
+            if report.success and plant.finite():
+                self.track_block()
+                if not self.log_sample():
+                    return
+            elif n == 1:  # a one-step block is its own replay
+                if not self.after_step(report):
+                    return
+            else:  # rewind, then find the failing step one step at a time
+                snapshot.restore(plant)
+                for _ in range(n):
+                    if not self.after_step(plant.advance(1)):
+                        return
+            self.show_progress()
+
+    # ------------------------------------------------------------------ checks
+    def after_step(self, report) -> bool:
+        """Checks after one step; False when the run must stop."""
+        plant = self.plant
+        if not report.success or not plant.finite():
+            self.diverged(report)
+            return False
+        p = plant.net_state.node_pressure
+        np.maximum(self.peak, p, out=self.peak)
+        np.minimum(self.low, p, out=self.low)
+        if plant.step_index % self.every == 0 or plant.step_index == self.steps:
+            return self.log_sample()
+        return True
+
+    def track_block(self) -> None:
+        plant = self.plant
+        p = plant.net_state.node_pressure
+        np.maximum(self.peak, p, out=self.peak)
+        np.minimum(self.low, p, out=self.low)
+        if self.per_step_extremes:
+            np.maximum(self.peak, plant.node_pressure_max, out=self.peak)
+            np.minimum(self.low, plant.node_pressure_min, out=self.low)
+
+    def diverged(self, report) -> None:
+        plant = self.plant
+        component = _failed_component(plant, report)
+        self.status = "diverged"
+        self.message = f"t = {plant.time:.6g} s, {component}: {report.message or 'non-finite state'}"
+        self.recorder.sample(plant.step_index)
+        self.recorder.event(plant.step_index, LogLevel.ERROR, "diverged: " + self.message)
+        self.log.mark("diverged", time_s=repr(plant.time), component=component, message=self.message)
+
+    def log_sample(self) -> bool:
+        """Log a sample and check the energy growth; False when the run diverged."""
+        plant = self.plant
+        sample = self.sample = self.recorder.sample(plant.step_index)
+        e = plant.energy
+        gained = sample["kinetic"] + sample["potential"] + sample["oil"] - e.initial_total
+        allowed = ENERGY_GROWTH_LIMIT * (abs(e.initial_total) + e.pump_work) + ENERGY_GROWTH_FLOOR
+        if plant.coupling.name != "incompressible" and gained > allowed:  # (no energy terms without oil)
+            self.status = "diverged"
+            self.message = (
+                f"t = {plant.time:.6g} s, energy growth: the machine gained {gained:.4g} J, more than the "
+                f"{e.pump_work:.4g} J of pump work allows; the coupling is unstable at this step size"
+            )
+            self.recorder.event(plant.step_index, LogLevel.ERROR, "diverged: " + self.message)
+            self.log.mark("diverged", time_s=repr(plant.time), component="coupling (energy growth)", message=self.message)
+            return False
+        return True
+
+    def show_progress(self) -> None:
+        if self.progress:
+            now = _time.perf_counter()
+            if now - self.start > PROGRESS_AFTER and now - self.last_progress > 0.5:
+                self.last_progress = now
+                print(f"\r  {self.plant.time:8.3f} / {self.scenario.duration:g} s simulated", end="", file=sys.stderr, flush=True)
 
 
 def _failed_component(plant, report) -> str:

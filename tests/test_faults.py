@@ -202,16 +202,24 @@ def test_log_info_of_an_incomplete_log(tmp_path, capsys):
 
     original = runner.make_plant
 
-    def failing_plant(scene):
-        plant = original(scene)
+    def failing_plant(scene, **options):
+        plant = original(scene, **options)
         step = plant.step
+        advance = getattr(plant, "advance", None)
 
         def step_then_fail():
             if plant.step_index >= 20:
                 raise Boom("injected fault")
             return step()
 
+        def advance_then_fail(n):  # the runner's block path (MujocoPlantFast)
+            if plant.step_index >= 20:
+                raise Boom("injected fault")
+            return advance(n)
+
         plant.step = step_then_fail
+        if advance is not None:
+            plant.advance = advance_then_fail
         return plant
 
     runner.make_plant = failing_plant

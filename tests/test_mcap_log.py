@@ -243,19 +243,19 @@ def test_keyboard_interrupt_is_recorded(tmp_path):
 
 def test_ctrl_c_during_batch_write_loses_nothing(tmp_path, monkeypatch):
     """A SIGINT landing inside the MCAP writer is held until the batch is written."""
-    import mcap.writer
+    import sim.mcap_log
 
     path = tmp_path / "sigint.mcap"
-    original = mcap.writer.Writer.add_message
+    original = sim.mcap_log._BulkWriter.add_messages
     calls = {"n": 0}
 
-    def add_message_with_ctrl_c(self, *args, **kwargs):
+    def add_messages_with_ctrl_c(self, *args, **kwargs):
         calls["n"] += 1
-        if calls["n"] == 150:
+        if calls["n"] == 2:  # the second batch (steps 100..199)
             signal.raise_signal(signal.SIGINT)  # handler runs at the next bytecode boundary
         return original(self, *args, **kwargs)
 
-    monkeypatch.setattr(mcap.writer.Writer, "add_message", add_message_with_ctrl_c)
+    monkeypatch.setattr(sim.mcap_log._BulkWriter, "add_messages", add_messages_with_ctrl_c)
     appended = 0
     with pytest.raises(KeyboardInterrupt):
         with LogWriter(path, dt=1e-3, batch_size=100) as log:
@@ -515,3 +515,93 @@ def test_append_cost_is_printed(tmp_path, capsys):
         elapsed = time.perf_counter() - start
     with capsys.disabled():
         print(f"\n[mcap_log] 8-field append, amortised incl. encode+write: {elapsed / steps * 1e6:.1f} us/sample")
+
+
+def test_compiled_float_encoding_round_trips_exactly(tmp_path):
+    """The batch encoder's floats (Grisu2) read back to the identical float64 and nearly always equal ``repr``
+    (otherwise a longer digit string of the same float, e.g. 9.999999999999999e+22 for 1e+23).
+
+    Values: special cases (signed zero, subnormals, extremes, powers of ten at the fixed/exponent
+    switch of ``repr``), random bit patterns, random magnitudes and short decimals, as a real log gets.
+    """
+    from sim.mcap_log import _NUMBA, _BatchTemplate
+
+    if not _NUMBA:
+        pytest.skip("numba is not installed")
+    rng = np.random.default_rng(8)
+    special = [0.0, -0.0, 1.0, -1.5, 0.1, 0.5, 1 / 3, 2.2e9, 101325.0, 5e-324, 2.2250738585072014e-308,
+               1.7976931348623157e308, 1e-4, 1e-5, 9.999999999999999e-5, 1e15, 1e16, 1e17, 1234567890123456.0,
+               12345678901234567.0, 1e22, 1e23, 1e100, 1.5e-300, 123.456, 9.5]
+    bits = np.frombuffer(rng.bytes(8 * 20_000), dtype=np.float64)
+    values = np.concatenate([
+        special,
+        bits[np.isfinite(bits)],
+        rng.standard_normal(20_000) * 10.0 ** rng.integers(-30, 30, 20_000),
+        np.round(rng.standard_normal(20_000) * 1000.0, 3),
+        [math.nan, math.inf, -math.inf],
+    ])
+    layout = _BatchTemplate('{{"timestamp":{{"sec":{0},"nsec":{1}}},"v":{2!r}}}')
+    n = len(values)
+    sec = rng.integers(0, 2**40, n)
+    nsec = rng.integers(0, 10**9, n)
+    buffer, ends = layout.encode(values.reshape(-1, 1), sec, nsec)
+    starts = np.concatenate(([0], ends[:-1]))
+    differs = 0
+    for k, (start, end) in enumerate(zip(starts.tolist(), ends.tolist())):
+        message = json.loads(buffer[start:end])
+        assert message["timestamp"] == {"sec": int(sec[k]), "nsec": int(nsec[k])}
+        x = float(values[k])
+        if not math.isfinite(x):
+            assert message["v"] is None
+            continue
+        got = message["v"]
+        assert isinstance(got, float) and got == x and math.copysign(1.0, got) == math.copysign(1.0, x), (x, got)
+        text = buffer[start:end].decode().split('"v":')[1][:-1]
+        if text != repr(x):
+            differs += 1
+            mantissa = text.lstrip("-").split("e")[0].replace(".", "").strip("0")
+            assert len(mantissa) <= 17, (x, text)  # Grisu2: not always the shortest, never more than 17 digits
+    assert differs < 0.005 * n  # measured ~0.25 % on random bit patterns
+
+
+def test_frame_channels_log_what_separate_channels_log(tmp_path):
+    """A Frame (one row per sample feeding several channels) writes the same messages as one channel per topic,
+    across batch and periodic-flush boundaries; its channels refuse their own appends."""
+    fields_a, fields_b = {"x": "x [m]", "y": "y [m]"}, {"p": "p [Pa]"}
+    steps = 2500  # > batch_size and several flush intervals
+    rng = np.random.default_rng(3)
+    rows = rng.standard_normal((steps, 4)) * 1e5
+
+    def write(path, framed):
+        with LogWriter(path, dt=1e-3, batch_size=700, flush_interval=0.9) as log:
+            if framed:
+                frame = log.frame(4)
+                a = frame.channel("/a", "t.A", flat_schema("t.A", fields_a), fields=list(fields_a), columns=[2, 0])
+                b = frame.channel("/b", "t.B", flat_schema("t.B", fields_b), fields=list(fields_b), columns=[3])
+                events = log.channel("/e", "foxglove.Log", log_schema())
+                with pytest.raises(TypeError):
+                    a.append(0, (1.0, 2.0))
+                with pytest.raises(TypeError):
+                    b.write(0, {"p": 1.0})
+            else:
+                a = log.channel("/a", "t.A", flat_schema("t.A", fields_a), fields=list(fields_a))
+                b = log.channel("/b", "t.B", flat_schema("t.B", fields_b), fields=list(fields_b))
+                events = log.channel("/e", "foxglove.Log", log_schema())
+            for step in range(steps):
+                if framed:
+                    frame.append(step, rows[step])
+                else:
+                    a.append(step, rows[step, [2, 0]])
+                    b.append(step, rows[step, [3]])
+                if step % 1000 == 0:
+                    events.write(step, log_message(LogLevel.INFO, f"step {step}"))
+        return path
+
+    framed, separate = write(tmp_path / "frame.mcap", True), write(tmp_path / "separate.mcap", False)
+    # (check_mcap also checks strict JSON, CRCs and the global log-time order of the file)
+    assert check_mcap(framed) == check_mcap(separate) == {"/a": steps, "/b": steps, "/e": 3}
+    la, lb = read_log(framed), read_log(separate)
+    for topic in ("/a", "/b", "/e"):
+        assert la.topic(topic).messages == lb.topic(topic).messages
+    np.testing.assert_array_equal(la.topic("/a")["x"], rows[:, 2])
+    np.testing.assert_array_equal(la.topic("/b")["p"], rows[:, 3])

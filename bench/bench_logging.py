@@ -1,0 +1,204 @@
+"""Cost of logging and of start-up, as ratios measured in one run (issue #8).
+
+Logging: the excavator dig cycle at 1 kHz for a few simulated seconds (default 3 s,
+from t = 0, the approach and the start of the dig), each configuration repeated and
+interleaved, medians reported:
+
+``no log``        load the scene, build :class:`MujocoPlantFast`, advance it in blocks of
+                  10 steps (the runner's block size at the default 100 Hz log rate) with
+                  the runner's finiteness check per block: everything ``run()`` does
+                  except logging;
+``default log``   ``sim.runner.run()`` at the scenario's log rate (100 Hz), the same work
+                  plus the recorder, the MCAP writer and the divergence/energy checks;
+``every step``    ``run()`` logging all 1000 samples per second (blocks of 1 step);
+``per-step path`` for reference, ``run(..., fast=False)`` at 100 Hz: :class:`MujocoPlant`, one
+                  Python-orchestrated step at a time (what ``run()`` did before the block path).
+
+Overhead = (time / no-log time) − 1.  Targets: default ≤ 10 %, every step ≤ 50 %.
+The per-sample cost is split into gathering (``RunRecorder.sample``), JSON encoding and
+MCAP writing by timing those parts alone on the same plant.
+
+Start-up: ``hydroplant run`` of the dig scenario for one step in a fresh interpreter
+(import, scene load, plant with its compiled callback, first step, log closed), twice:
+the first may compile numba kernels into the disk cache, the second shows the cached
+cost; wall and CPU time (user + system) of the process, since other jobs on a shared
+machine stretch the wall time.  Target: under 2 s.
+
+Run: ``.venv/bin/python bench/bench_logging.py [--seconds 3] [--reps 3]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DIG = ROOT / "models" / "excavator" / "dig.scenario.toml"
+
+STARTUP_SCRIPT = r"""
+import json, sys, time
+t0 = time.perf_counter()
+from sim.runner import run, make_plant
+from sim.scenario import load_scenario
+from sim.scene import load_scene
+t_import = time.perf_counter()
+scenario = load_scenario(sys.argv[1]).with_overrides(duration=float(sys.argv[3]))
+scene = load_scene(scenario)
+t_scene = time.perf_counter()
+plant = make_plant(scene)
+t_plant = time.perf_counter()
+plant.step()
+t_step = time.perf_counter()
+result = run(scenario, out=sys.argv[2])
+t_run = time.perf_counter()
+print(json.dumps({"import": t_import - t0, "scene": t_scene - t_import, "plant": t_plant - t_scene,
+                  "first_step": t_step - t_plant, "run_again": t_run - t_step, "fast": bool(getattr(plant, "fast", False))}))
+"""
+
+
+def startup(out_dir: Path) -> None:
+    """Fresh interpreters: ``hydroplant run`` end to end, and its parts."""
+    print("start-up of `hydroplant run` (fresh interpreter, dig scenario, 1 step of 1 ms):")
+    for attempt in (1, 2):
+        t = time.perf_counter()
+        cpu = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cli = subprocess.run([sys.executable, "-m", "sim.cli", "run", str(DIG), "--duration", "0.001", "--no-progress",
+                              "--out", str(out_dir / f"startup{attempt}.mcap")], cwd=ROOT, capture_output=True, text=True)
+        total = time.perf_counter() - t
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (after.ru_utime - cpu.ru_utime) + (after.ru_stime - cpu.ru_stime)
+        if cli.returncode != 0:
+            raise SystemExit(cli.stderr)
+        t = time.perf_counter()
+        parts = subprocess.run([sys.executable, "-c", STARTUP_SCRIPT, str(DIG), str(out_dir / f"parts{attempt}.mcap"), "0.001"],
+                               cwd=ROOT, capture_output=True, text=True)
+        if parts.returncode != 0:
+            raise SystemExit(parts.stderr)
+        p = json.loads(parts.stdout.strip().splitlines()[-1])
+        print(f"  run {attempt}: hydroplant run {total:5.2f} s wall, {cpu:5.2f} s CPU | python startup+import {p['import']:5.2f} s, scene load "
+              f"{p['scene']:5.2f} s, plant (fast={p['fast']}) {p['plant']:5.2f} s, first step {p['first_step'] * 1e3:6.1f} ms, "
+              f"a second run() in the same process {p['run_again']:5.2f} s")
+
+
+def no_log(seconds: float, block: int) -> tuple[float, float]:
+    """Wall and CPU time of everything run() does except logging (see module docstring) [s]."""
+    from sim.runner import make_plant
+    from sim.scenario import load_scenario
+    from sim.scene import load_scene
+
+    t, c = time.perf_counter(), time.process_time()
+    scenario = load_scenario(DIG).with_overrides(duration=seconds)
+    plant = make_plant(load_scene(scenario))
+    assert plant.fast
+    steps = scenario.step_count
+    while plant.step_index < steps:
+        report = plant.advance(min(block, steps - plant.step_index))
+        if not (report.success and plant.finite()):
+            raise RuntimeError(report.message)
+    return time.perf_counter() - t, time.process_time() - c
+
+
+def with_log(seconds: float, rate_hz: float, out: Path, fast: bool = True) -> tuple[float, float]:
+    """Wall and CPU time of ``run()`` at ``rate_hz`` [s] (``fast=False``: the per-step path)."""
+    from sim.runner import run
+    from sim.scenario import load_scenario
+
+    t, c = time.perf_counter(), time.process_time()
+    result = run(load_scenario(DIG).with_overrides(duration=seconds, log_rate_hz=rate_hz), out=out, fast=fast)
+    elapsed = time.perf_counter() - t, time.process_time() - c
+    assert result.status == "complete", result.message
+    return elapsed
+
+
+def sample_parts(samples: int, out: Path) -> dict:
+    """µs per sample of the recorder's three stages, on a plant at the dig's start."""
+    from sim.mcap_log import LogWriter
+    from sim.recorder import RunRecorder
+    from sim.runner import make_plant
+    from sim.scenario import load_scenario
+    from sim.scene import load_scene
+
+    scenario = load_scenario(DIG)
+    plant = make_plant(load_scene(scenario))
+    plant.advance(10)
+    with LogWriter(out, dt=scenario.dt, overwrite=True, flush_interval=float("inf"), batch_size=samples + 1) as log:
+        recorder = RunRecorder(log, plant)
+        first = plant.step_index
+        t0 = time.perf_counter()
+        for i in range(samples):
+            recorder.sample(first + i)
+        t1 = time.perf_counter()
+        for frame in log._frames:
+            frame._encode()
+        for channel in log._channels:
+            channel._encode_buffer()
+        t2 = time.perf_counter()
+        messages = sum(len(block[0]) for channel in log._channels for block in channel._encoded)
+        size = sum(len(block[2]) for channel in log._channels for block in channel._encoded)
+        t2b = time.perf_counter()
+        log._drain_now(end_chunk=True)  # merge in log-time order, MCAP records, compress the chunks, write
+        t3 = time.perf_counter() - (t2b - t2)
+    from hydraulics.energy import stored_energy
+
+    net, state = plant.network, plant.net_state
+    t4 = time.perf_counter()
+    for _ in range(samples):
+        net.chamber_stiffness(state.node_pressure, state.actuator_position)
+        stored_energy(net, state)
+        net.pressure_effort(state.node_pressure)
+    t5 = time.perf_counter()
+    for _ in range(samples):
+        plant.mechanical_energy()
+    t6 = time.perf_counter()
+    per = lambda a, b: (b - a) / samples * 1e6  # noqa: E731
+    return {"gather": per(t0, t1), "encode": per(t1, t2), "write": per(t2, t3), "messages": messages / samples,
+            "bytes": size / samples, "hydraulic_terms": per(t4, t5), "mechanics": per(t5, t6)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=3.0, help="simulated seconds per run [s]")
+    parser.add_argument("--reps", type=int, default=3)
+    parser.add_argument("--no-startup", action="store_true")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp)
+        if not args.no_startup:
+            startup(out)
+        no_log(0.02, 10)  # warm: callback compiled, kernels loaded, caches hot
+        with_log(0.02, 100.0, out / "warm.mcap")
+        times = {"no log": [], "default log (100 Hz)": [], "every step (1 kHz)": [], "per-step path, 100 Hz": []}
+        for rep in range(args.reps):
+            times["no log"].append(no_log(args.seconds, 10))
+            times["default log (100 Hz)"].append(with_log(args.seconds, 100.0, out / f"d{rep}.mcap"))
+            times["every step (1 kHz)"].append(with_log(args.seconds, 1000.0, out / f"e{rep}.mcap"))
+            times["per-step path, 100 Hz"].append(with_log(args.seconds, 100.0, out / f"p{rep}.mcap", fast=False))
+        steps = round(args.seconds / 1e-3)
+        base = [statistics.median(v[k] for v in times["no log"]) for k in (0, 1)]
+        print(f"excavator dig, {args.seconds:g} s at 1 kHz ({steps} steps), median of {args.reps} interleaved runs "
+              f"(wall time; CPU time of the process in brackets):")
+        targets = {"default log (100 Hz)": 0.10, "every step (1 kHz)": 0.50}
+        for name, values in times.items():
+            wall, cpu = (statistics.median(v[k] for v in values) for k in (0, 1))
+            line = f"  {name:22s} {wall:7.3f} s [{cpu:7.3f} s]  {wall / steps * 1e6:7.1f} µs/step [{cpu / steps * 1e6:7.1f}]"
+            if name in targets:
+                over, over_cpu = wall / base[0] - 1.0, cpu / base[1] - 1.0
+                line += (f"  overhead {over:+7.1%} [{over_cpu:+7.1%}]  (target ≤ {targets[name]:.0%}: "
+                         f"{'met' if max(over, over_cpu) <= targets[name] else 'NOT met'})")
+            print(line, flush=True)
+        parts = sample_parts(2000, out / "parts.mcap")
+        print(f"  one sample: {parts['messages']:.0f} messages, {parts['bytes']:.0f} B of JSON; gather {parts['gather']:.1f} µs "
+              f"(of which hydraulic terms {parts['hydraulic_terms']:.1f} µs: chamber_stiffness, stored_energy, pressure_effort; "
+              f"mechanical energy {parts['mechanics']:.1f} µs), encode {parts['encode']:.1f} µs, write {parts['write']:.1f} µs "
+              f"(merge, MCAP records, zstd)")
+
+
+if __name__ == "__main__":
+    main()
