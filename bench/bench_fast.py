@@ -1,15 +1,27 @@
-"""µs per coupled step at 1 kHz: bare mj_step vs MujocoPlant vs MujocoPlantFast, per scene.
+"""µs per coupled step at 1 kHz: bare ``mj_step`` vs MujocoPlantFast (and MujocoPlant), per scene, in one run.
 
-Same process, alternating blocks, medians over repetitions.  "bare" is
-``mj_step(m, d, nstep=B)`` on a copy of the fast plant's MjData with no
-callback (the mechanical cost alone); the fast plant is timed with blocks of
-10 steps (a 100 Hz log at 1 kHz: one ``advance(10)`` per logged sample) and of
-1000 steps.  Run: ``.venv/bin/python bench/bench_fast.py [--reps 7]``.
+For each scene every variant simulates the same window from the scene's
+initial state (the excavator: the first ``--window`` seconds of the dig cycle,
+approach and digging included), repeated ``--reps`` times in alternation; the
+median is reported:
+
+* ``bare``: ``mj_step(m, d, nstep=B)`` on the fast plant's MJCF (same model,
+  same actuators and integrator) from the same initial state, with constant
+  controls (the effort law of the plant's first step held), no callback: the
+  mechanical cost alone;
+* ``fast/10``: ``MujocoPlantFast.advance(10)`` — one block per logged sample of
+  a 100 Hz log at 1 kHz (the runner's default);
+* ``fast/1000``: ``advance(1000)``;
+* ``python``: the Python-orchestrated :class:`MujocoPlant` (first 0.2 s only).
+
+Prints µs/step, the ratio to bare, the real-time factor (simulated/wall time)
+and the process's peak RSS.  Run: ``.venv/bin/python bench/bench_fast.py``.
 """
 
 from __future__ import annotations
 
 import argparse
+import resource
 import statistics
 import time
 from pathlib import Path
@@ -27,48 +39,62 @@ SCENES = {
     "boom": MODELS / "boom" / "lift.scenario.toml",
     "excavator": MODELS / "excavator" / "dig.scenario.toml",
 }
+DT = 1e-3  # s
 
 
-def bench(name, path, reps, fast_steps=2000, python_steps=200):
-    scenario = load_scenario(path).with_overrides(dt=1e-3)
-    slow = MujocoPlant(load_scene(scenario))
-    fast = MujocoPlantFast(load_scene(scenario))
-    assert fast.fast
-    fast.advance(10)  # warm (callback compiled, caches hot)
-    for _ in range(10):
-        slow.step()
-    m = fast.model
-    bare = mujoco.MjData(m)
-    times = {"bare": [], "python": [], "fast/10": [], "fast/1000": []}
+def peak_rss_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def bench(name, path, reps, window, python_window=0.2):
+    scenario = load_scenario(path).with_overrides(dt=DT)
+    steps = int(round(window / DT))
+    python_steps = int(round(python_window / DT))
+    scene = load_scene(scenario)
+    probe = MujocoPlantFast(scene)
+    assert probe.fast
+    probe.advance(1)  # callback loaded/compiled; ctrl and biasprm hold the first step's effort law
+    m = probe.model
+    held = probe.data.ctrl.copy()
+    probe.reset()  # back to the initial state; biasprm (in the model) keeps the first law
+    start = mujoco.MjData(m)
+    mujoco.mj_copyData(start, m, probe.data)
+    start.ctrl[:] = held  # the bare loop's constant controls
+    times = {"bare": [], "fast/10": [], "fast/1000": [], "python": []}
+    newton = 0
     for _ in range(reps):
-        mujoco.mj_copyData(bare, m, fast.data)
+        bare = mujoco.MjData(m)
+        mujoco.mj_copyData(bare, m, start)
         t = time.perf_counter()
-        mujoco.mj_step(m, bare, nstep=fast_steps)
-        times["bare"].append((time.perf_counter() - t) / fast_steps)
+        mujoco.mj_step(m, bare, nstep=steps)
+        times["bare"].append((time.perf_counter() - t) / steps)
+        for block, key in ((10, "fast/10"), (1000, "fast/1000")):
+            fast = MujocoPlantFast(load_scene(scenario))
+            blocks = steps // block
+            t = time.perf_counter()
+            for _ in range(blocks):
+                report = fast.advance(block)
+                newton += report.newton_iterations
+            times[key].append((time.perf_counter() - t) / (blocks * block))
+            assert report.success, report.message
+        slow = MujocoPlant(load_scene(scenario))
         t = time.perf_counter()
         for _ in range(python_steps):
             slow.step()
         times["python"].append((time.perf_counter() - t) / python_steps)
-        t = time.perf_counter()
-        for _ in range(fast_steps // 10):
-            fast.advance(10)
-        times["fast/10"].append((time.perf_counter() - t) / fast_steps)
-        t = time.perf_counter()
-        for _ in range(fast_steps // 1000):
-            fast.advance(1000)
-        times["fast/1000"].append((time.perf_counter() - t) / fast_steps)
     med = {k: statistics.median(v) * 1e6 for k, v in times.items()}
-    ratios = "  ".join(f"{k} {med[k]:8.2f} µs ({med[k] / med['bare']:6.2f}×)" for k in med)
-    print(f"{name:10s} t={fast.time:7.2f}s  {ratios}", flush=True)
+    cells = "  ".join(f"{k} {med[k]:7.2f} µs {med[k] / med['bare']:5.2f}× RTF {DT * 1e6 / med[k]:6.1f}" for k in med)
+    print(f"{name:10s} {window:4.1f} s  {cells}  peak RSS {peak_rss_mib():.0f} MiB", flush=True)
     return med
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--reps", type=int, default=7)
+    parser.add_argument("--reps", type=int, default=5)
+    parser.add_argument("--window", type=float, default=6.0, help="simulated seconds per variant and repetition")
     args = parser.parse_args()
     for name, path in SCENES.items():
-        bench(name, path, args.reps)
+        bench(name, path, args.reps, args.window)
 
 
 if __name__ == "__main__":

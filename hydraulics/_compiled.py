@@ -17,6 +17,28 @@ the packed arrays at run time, so the numba disk cache (``cache=True``) can neve
 hold stale values of them.  Importing this module compiles nothing: the kernels
 are compiled on first use (≈ 15–20 s) and later processes load them from the
 cache.
+
+**Hot path, without allocation or reference counting.**  The ``*_core``
+functions (:func:`_step_core`, :func:`_linearize_core`, :func:`_solve_core`)
+write into output arrays and carve their temporaries out of one float64
+scratch buffer ``W`` (:func:`work_size` entries) passed in by the caller, so a
+caller that keeps its buffers (``sim.plant_mujoco_fast``) steps without any
+allocation.  Every function that allocates nothing is compiled with
+``_nrt=False`` (:func:`_kernel`): each read of a field of the packed network
+``net`` (a tuple of 22 arrays) otherwise costs a pair of ``NRT_incref`` /
+``NRT_decref`` calls, which cost more than the arithmetic in the Newton loops.
+Such functions may not create arrays (numba refuses), only views of arrays
+passed in; ``_unpack`` and the two Python entry points :func:`_step_kernel` and
+:func:`_linearize_kernel` (which allocate their outputs and scratch) keep the
+reference counting.
+
+**Round-off-level differences from the pure path** (same iterations, same
+decisions): ``sqrt`` instead of ``pow`` for s**0.25 and a**1.5 in the orifice
+laws; for pure oil (no entrained air) the compliant-node inversion solves
+ln(1 + V_wall(p)/V_g) + (p − p_rigid)/β = 0, which is ln(V·φ/m) = 0 rewritten
+with ln φ = (p − p_ref)/β and p_rigid = p_ref + β·ln(m/V_g) (one log1p per
+iteration instead of two logs and an exp); and β_eff = V/(∂V/∂p + V/β) with φ
+cancelled.
 """
 
 from __future__ import annotations
@@ -53,6 +75,28 @@ def _jit(function):
     if not _NUMBA:  # pragma: no cover
         return function
     return _numba.njit(cache=True, error_model="numpy", nogil=True)(function)
+
+
+def _kernel(function):
+    """:func:`_jit` without numba's reference counting (``_nrt=False``), for every function below that allocates
+    nothing and returns no array to a reference-counted caller.
+
+    Reading a field of the packed network ``net`` (a tuple of 22 arrays) in a
+    reference-counted function costs an ``NRT_incref``/``NRT_decref`` call pair;
+    in the Newton loops these calls cost more than the arithmetic.  Arrays are
+    borrowed from the (reference-counted) entry point that owns them.
+    """
+    if not _NUMBA:  # pragma: no cover
+        return function
+    return _numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=False)(function)
+
+
+def _inline(function):
+    """:func:`_kernel`, inlined into its callers at numba IR level (small helpers that take ``net``:
+    LLVM does not inline them, and each call passes ~170 machine words)."""
+    if not _NUMBA:  # pragma: no cover
+        return function
+    return _numba.njit(cache=True, error_model="numpy", nogil=True, inline="always", _nrt=False)(function)
 
 
 # ----------------------------------------------------------------------------
@@ -219,21 +263,21 @@ def _unpack(F, I):
 # ----------------------------------------------------------------------------
 # numpy element-wise semantics (NaN propagates like np.maximum / np.clip)
 # ----------------------------------------------------------------------------
-@_jit
+@_kernel
 def _maximum(a, b):
     if a != a or b != b:
         return math.nan
     return a if a >= b else b
 
 
-@_jit
+@_kernel
 def _minimum(a, b):
     if a != a or b != b:
         return math.nan
     return a if a <= b else b
 
 
-@_jit
+@_kernel
 def _clip(z, lo, hi):
     if z < lo:
         return lo
@@ -245,7 +289,7 @@ def _clip(z, lo, hi):
 # ----------------------------------------------------------------------------
 # Scalar laws (one per function; each mirrors the law named in its comment)
 # ----------------------------------------------------------------------------
-@_jit
+@_kernel
 def fill_ratio_nb(p, pref, beta, air, n):
     # mirrors hydraulics.fluid.Fluid.fill_ratio: φ(p) and dφ/dp
     liquid = math.exp(-(p - pref) / beta)
@@ -260,7 +304,7 @@ def fill_ratio_nb(p, pref, beta, air, n):
     return phi, -phi * dspecific / specific
 
 
-@_jit
+@_kernel
 def accumulator_liquid_volume_with_derivative_nb(p, gas, pre, n):
     # mirrors laws.accumulator_liquid_volume_with_derivative
     pc = _maximum(p, pre)
@@ -270,7 +314,7 @@ def accumulator_liquid_volume_with_derivative_nb(p, gas, pre, n):
     return 0.0, 0.0
 
 
-@_jit
+@_kernel
 def chamber_volumes_nb(x, stroke, cap_area, rod_area, dead_cap, dead_rod):
     # mirrors laws.chamber_volumes: V_cap, V_rod, dV_cap/dx, dV_rod/dx
     inside = 1.0 if (x > 0.0 and x < stroke) else 0.0
@@ -278,46 +322,47 @@ def chamber_volumes_nb(x, stroke, cap_area, rod_area, dead_cap, dead_rod):
     return dead_cap + cap_area * xc, dead_rod + rod_area * (stroke - xc), cap_area * inside, -rod_area * inside
 
 
-@_jit
+@_kernel
 def spool_step_nb(spool, command, tau, dt):
     # mirrors laws.spool_step
     decay = math.exp(-dt / tau) if tau > 0.0 else 0.0
     return command + (spool - command) * decay
 
 
-@_jit
+@_kernel
 def metering_opening_nb(spool, overlap):
     # mirrors laws.metering_opening
     return _clip((spool - overlap) / (1.0 - overlap), 0.0, 1.0)
 
 
-@_jit
+@_kernel
 def centre_opening_nb(spool, overlap):
     # mirrors laws.centre_opening
     return _clip(1.0 - abs(spool) / _maximum(overlap, 0.1), 0.0, 1.0)
 
 
-@_jit
+@_kernel
 def orifice_flow_with_derivative_nb(area, k, c, dp):
     # mirrors laws.orifice_flow_with_derivative; (k, c) from laws.orifice_coefficients
+    # (sqrt instead of pow: s**0.25 and area**1.5 to within an ulp, several times cheaper)
     adp = area * dp
     a_dp_sq = adp * adp
     s = a_dp_sq + c * c
-    root4 = s**0.25
-    a32 = area**1.5
+    root4 = math.sqrt(math.sqrt(s))
+    a32 = area * math.sqrt(area)
     return k * dp * a32 / root4, k * a32 * (0.5 * a_dp_sq + c * c) / (s * root4)
 
 
-@_jit
+@_kernel
 def orifice_flow_area_derivative_nb(area, k, c, dp):
     # mirrors laws.orifice_flow_area_derivative
     adp = area * dp
     a_dp_sq = adp * adp
     s = a_dp_sq + c * c
-    return k * dp * math.sqrt(area) * (a_dp_sq + 1.5 * c * c) / (s * s**0.25)
+    return k * dp * math.sqrt(area) * (a_dp_sq + 1.5 * c * c) / (s * math.sqrt(math.sqrt(s)))
 
 
-@_jit
+@_kernel
 def smooth_ramp_with_derivative_nb(z, width):
     # mirrors laws.smooth_ramp_with_derivative
     if z >= width:
@@ -327,20 +372,20 @@ def smooth_ramp_with_derivative_nb(z, width):
     return 0.0, 0.0
 
 
-@_jit
+@_kernel
 def unit_clip_with_derivative_nb(z):
     # mirrors laws.unit_clip_with_derivative
     return _clip(z, 0.0, 1.0), (1.0 if (z > 0.0 and z < 1.0) else 0.0)
 
 
-@_jit
+@_kernel
 def relief_flow_with_derivative_nb(dp, cracking, gradient, width):
     # mirrors laws.relief_flow_with_derivative
     ramp, slope = smooth_ramp_with_derivative_nb(dp - cracking, width)
     return gradient * ramp, gradient * slope
 
 
-@_jit
+@_kernel
 def check_valve_area_with_derivative_nb(dp, cracking, full_open, max_area, leakage_area):
     # mirrors laws.check_valve_area_with_derivative
     span = full_open - cracking
@@ -348,38 +393,38 @@ def check_valve_area_with_derivative_nb(dp, cracking, full_open, max_area, leaka
     return leakage_area + max_area * frac, max_area * dfrac / span
 
 
-@_jit
+@_kernel
 def compensated_displacement_with_derivative_nb(max_displacement, outlet, compensator, band):
     # mirrors laws.compensated_displacement_with_derivative
     frac, dfrac = unit_clip_with_derivative_nb((compensator + band - outlet) / band)
     return max_displacement * frac, -max_displacement * dfrac / band
 
 
-@_jit
+@_kernel
 def pump_flow_nb(displacement, speed, efficiency):
     # mirrors laws.pump_flow
     return efficiency * displacement * speed
 
 
-@_jit
+@_kernel
 def motor_flow_nb(displacement, shaft_speed):
     # mirrors laws.motor_flow
     return displacement * shaft_speed / (2.0 * np.pi)
 
 
-@_jit
+@_kernel
 def pump_torque_nb(displacement, delta_p):
     # mirrors laws.pump_torque
     return displacement * delta_p / (2.0 * np.pi)
 
 
-@_jit
+@_kernel
 def cylinder_pressure_force_nb(cap_pressure, rod_pressure, cap_area, rod_area, ambient):
     # mirrors laws.cylinder_pressure_force
     return cap_pressure * cap_area - rod_pressure * rod_area - ambient * (cap_area - rod_area)
 
 
-@_jit
+@_kernel
 def friction_force_with_derivative_nb(v, coulomb, static, stribeck_velocity, viscous, v_reg):
     # mirrors laws.friction_force_with_derivative (v_reg = laws.FRICTION_REGULARISATION_VELOCITY)
     vs = _maximum(stribeck_velocity, 1e-12)
@@ -395,7 +440,7 @@ def friction_force_with_derivative_nb(v, coulomb, static, stribeck_velocity, vis
 # ----------------------------------------------------------------------------
 # Node relations (mirror NetworkModel)
 # ----------------------------------------------------------------------------
-@_jit
+@_inline
 def _geometric_volume(net, x, geo):
     # NetworkModel.geometric_volume
     for k in range(geo.size):
@@ -411,7 +456,7 @@ def _geometric_volume(net, x, geo):
         geo[ci[c, CI_ROD]] += vr
 
 
-@_jit
+@_inline
 def _node_extra(net, k, p):
     # NetworkModel.extra_volume for node k at pressure p: wall expansion + accumulator liquid, and d/dp
     wall = net.node[k, NODE_WALL]
@@ -426,23 +471,75 @@ def _node_extra(net, k, p):
     return extra, dextra
 
 
-@_jit
+@_inline
 def _fill(net, p):
     sc = net.sc
     return fill_ratio_nb(p, sc[S_PREF], sc[S_BETA], sc[S_AIR], sc[S_NPOLY])
 
 
-@_jit
-def _invert_node(net, k, oil, geometric, rigid):
-    # NetworkModel._invert_compliant for one node (nodes are independent and frozen once converged)
-    tol = net.sc[S_PINV_TOL]
-    log_oil = math.log(oil)
+@_kernel
+def _invert_wall_node(geometric, rigid, wall, pref, beta, tol, max_iterations):
+    """_invert_node for a pure-oil node whose only compliance is its wall (scalars only: the hot case).
+
+    ln(V·φ/m) = ln(1 + w·(p − p_ref)/V_g) + (p − rigid)/β with rigid = p_ref + β·ln(m/V_g);
+    same safeguarded Newton as _invert_node.
+    """
+    inv_geometric, inv_beta = 1.0 / geometric, 1.0 / beta  # (multiplications instead of divisions in the loop)
     p = rigid
+    extra = wall * (p - pref)
+    value = math.log1p(extra * inv_geometric) + (p - rigid) * inv_beta
+    slope = wall / (geometric + extra) + inv_beta
+    lo = p if value <= 0 else -math.inf
+    hi = p if value > 0 else math.inf
+    for _ in range(max_iterations):
+        if abs(value) < tol:
+            break
+        newton = p - value / slope
+        if not math.isfinite(lo):
+            newton = _maximum(newton, 0.5 * p if p > 0 else p - 1e6)
+        bracketed = math.isfinite(lo) and math.isfinite(hi)
+        outside = newton <= lo or newton >= hi
+        p = 0.5 * (lo + hi) if (bracketed and outside) else newton
+        extra = wall * (p - pref)
+        value = math.log1p(extra * inv_geometric) + (p - rigid) * inv_beta
+        slope = wall / (geometric + extra) + inv_beta
+        if value <= 0:
+            lo = _maximum(lo, p)
+        if value > 0:
+            hi = _minimum(hi, p)
+    return p
+
+
+@_inline
+def _content_residual(net, k, p, geometric, rigid, log_oil, pure, beta):
+    # ln(V(p)·φ(p)/m) of node k and its p-derivative (see _invert_node)
     extra, dextra = _node_extra(net, k, p)
     volume = geometric + extra
+    if pure:
+        return math.log1p(extra / geometric) + (p - rigid) / beta, dextra / volume + 1.0 / beta
     phi, dphi = _fill(net, p)
-    value = math.log(volume * phi) - log_oil
-    slope = dextra / volume + dphi / phi
+    return math.log(volume * phi) - log_oil, dextra / volume + dphi / phi
+
+
+@_inline
+def _invert_node(net, k, oil, geometric, rigid):
+    # NetworkModel._invert_compliant for one node (nodes are independent and frozen once converged)
+    # Pure oil (no entrained air): ln φ = (p − p_ref)/β and ``rigid`` = p_ref + β·ln(m/V_g), so
+    # ln(V·φ/m) = ln(1 + V_extra/V_g) + (p − rigid)/β — the same function without its exp and
+    # two of its logs (round-off differences only).
+    tol = net.sc[S_PINV_TOL]
+    pure = net.sc[S_AIR] == 0.0
+    beta = net.sc[S_BETA]
+    if pure:
+        walled = True
+        for a in range(net.acc_node.size):
+            if net.acc_node[a] == k:
+                walled = False
+        if walled:
+            return _invert_wall_node(geometric, rigid, net.node[k, NODE_WALL], net.sc[S_PREF], beta, tol, net.ic[IC_PINV_MAX])
+    log_oil = 0.0 if pure else math.log(oil)
+    p = rigid
+    value, slope = _content_residual(net, k, p, geometric, rigid, log_oil, pure, beta)
     lo = p if value <= 0 else -math.inf
     hi = p if value > 0 else math.inf
     for _ in range(net.ic[IC_PINV_MAX]):
@@ -454,11 +551,7 @@ def _invert_node(net, k, oil, geometric, rigid):
         bracketed = math.isfinite(lo) and math.isfinite(hi)
         outside = newton <= lo or newton >= hi
         p = 0.5 * (lo + hi) if (bracketed and outside) else newton
-        extra, dextra = _node_extra(net, k, p)
-        volume = geometric + extra
-        phi, dphi = _fill(net, p)
-        value = math.log(volume * phi) - log_oil
-        slope = dextra / volume + dphi / phi
+        value, slope = _content_residual(net, k, p, geometric, rigid, log_oil, pure, beta)
         if value <= 0:
             lo = _maximum(lo, p)
         if value > 0:
@@ -466,7 +559,7 @@ def _invert_node(net, k, oil, geometric, rigid):
     return p
 
 
-@_jit
+@_kernel
 def _pressure(net, oil, x, geo, p, dpdm):
     # NetworkModel.pressure: fills geo (geometric volumes), p and dp/dm
     sc = net.sc
@@ -479,7 +572,7 @@ def _pressure(net, oil, x, geo, p, dpdm):
         p[k] = pref + beta * math.log(r)
     if sc[S_AIR] != 0.0:
         # Fluid.pressure_from_fill_ratio with entrained air: all nodes iterate until all converge
-        target = np.empty(n)
+        target = dpdm  # scratch until the last loop below
         for k in range(n):
             target[k] = math.log(1.0 if fixed[k] else oil[k] / geo[k])
             p[k] = _maximum(p[k], pref * 1e-3)
@@ -512,7 +605,7 @@ def _pressure(net, oil, x, geo, p, dpdm):
         dpdm[k] = 1.0 / (dvdp * phi + (geo[k] + extra) * dphi)
 
 
-@_jit
+@_kernel
 def _valve_areas(net, spool, area):
     # NetworkModel.valve_areas
     ori, ov = net.ori, net.or_valve
@@ -528,7 +621,7 @@ def _valve_areas(net, spool, area):
         area[i] = a
 
 
-@_jit
+@_kernel
 def _branch_flows(net, p, area, speed, velocity, flow, dfrom, dto):
     # NetworkModel.branch_flows
     ic, br = net.ic, net.br
@@ -566,7 +659,7 @@ def _branch_flows(net, p, area, speed, velocity, flow, dfrom, dto):
         flow[b] = motor_flow_nb(net.mot[i], velocity[net.mot_br_act[i]])
 
 
-@_jit
+@_kernel
 def _net_inflow(net, flow, inflow):
     # incidence @ flow
     inflow[:] = 0.0
@@ -578,7 +671,7 @@ def _net_inflow(net, flow, inflow):
             inflow[f] -= flow[b]
 
 
-@_jit
+@_kernel
 def _flow_jacobian(net, dfrom, dto, jq):
     # NetworkModel.flow_jacobian (full, node × node)
     jq[:, :] = 0.0
@@ -592,7 +685,7 @@ def _flow_jacobian(net, dfrom, dto, jq):
             jq[f, t] -= dto[b]
 
 
-@_jit
+@_kernel
 def _newton_matrix(net, dfrom, dto, dpdm, h, jac):
     # I − h·(∂Q/∂p)[free, free]·diag(∂p/∂m[free])
     jac[:, :] = 0.0
@@ -616,7 +709,7 @@ def _newton_matrix(net, dfrom, dto, dpdm, h, jac):
             jac[i, j] = (1.0 if i == j else 0.0) - h * jac[i, j] * dpdm[free[j]]
 
 
-@_jit
+@_kernel
 def _lu_solve(a, b):
     """Solve a·x = b in place (x in b, columns of b are right-hand sides) by Gaussian elimination with partial pivoting.
 
@@ -655,7 +748,7 @@ def _lu_solve(a, b):
     return True
 
 
-@_jit
+@_kernel
 def _evaluate(net, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, dto, inflow, residual):
     # StepperImplicitEuler._solve.evaluate
     _pressure(net, oil, x, geo, p, dpdm)
@@ -667,16 +760,18 @@ def _evaluate(net, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, d
         residual[j] = oil[k] - oil0[k] - h * inflow[k]
 
 
-@_jit
+@_inline
 def _volume_and_modulus(net, k, geometric, p):
     # NetworkModel.node_volume_at and .effective_bulk_modulus of a free node
     extra, dvdp = _node_extra(net, k, p)
     volume = geometric + extra
+    if net.sc[S_AIR] == 0.0:  # φ'/φ = 1/β: φ cancels (round-off only)
+        return volume, volume / (dvdp + volume / net.sc[S_BETA])
     phi, dphi = _fill(net, p)
     return volume, volume * phi / (dvdp * phi + volume * dphi)
 
 
-@_jit
+@_kernel
 def _trust_step(net, oil, delta, geo, p):
     # StepperImplicitEuler._trust_step
     sc = net.sc
@@ -692,7 +787,7 @@ def _trust_step(net, oil, delta, geo, p):
     return smallest if smallest < 1.0 else 1.0  # min(1.0, nan) is 1.0, as in Python
 
 
-@_jit
+@_inline
 def _scaled_norm(residual, scale):
     norm = 0.0
     for j in range(residual.size):
@@ -700,7 +795,7 @@ def _scaled_norm(residual, scale):
     return norm
 
 
-@_jit
+@_inline
 def _tolerance(net, p):
     big = 0.0
     free = net.free
@@ -709,34 +804,94 @@ def _tolerance(net, p):
     return net.sc[S_NEWTON_PTOL] + net.sc[S_NEWTON_RTOL] * big
 
 
-@_jit
-def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, dto_out, istats):
-    """StepperImplicitEuler._solve; returns the scaled residual norm, counters in ``istats``."""
+@_kernel
+def _copy(dst, src):
+    """dst[:] = src for 1-D arrays (a slice assignment may allocate a temporary)."""
+    for i in range(dst.size):
+        dst[i] = src[i]
+
+
+@_kernel
+def _take(W, offset, count):
+    """``count`` entries of the scratch buffer W from ``offset``, and the next offset (a view: no allocation)."""
+    return W[offset:offset + count], offset + count
+
+
+@_kernel
+def _solve_work_size(ic):
+    """Scratch entries _solve_core needs (float64)."""
+    n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
+    return (ic[IC_O1] - ic[IC_O0]) + 8 * n + 6 * nb + 4 * nf + nf * nf
+
+
+@_kernel
+def _step_work_size(ic):
+    """Scratch entries _step_core needs (float64)."""
+    return _solve_work_size(ic) + 2 * ic[IC_N]
+
+
+@_kernel
+def _linearize_work_size(ic):
+    """Scratch entries _linearize_core needs (float64)."""
+    n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
+    return (_solve_work_size(ic) + 3 * nb + 2 * n + 5 * n * na + (ic[IC_O1] - ic[IC_O0]) + n * n + nf * na + nf * nf
+            + na)
+
+
+def work_size(F, I) -> int:
+    """Length of the float64 scratch buffer the ``*_core`` kernels need for the packed network (F, I)."""
+    o = _NFF + 1
+    ic = I[I[o]:I[o + 1]]
+    return int(max(_step_work_size(ic), _linearize_work_size(ic)))
+
+
+@_kernel
+def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, dto_out, istats, W, p_first):
+    """StepperImplicitEuler._solve; returns the scaled residual norm, counters in ``istats``.
+
+    ``W`` is scratch (at least ``_solve_work_size``); ``p_first`` receives the
+    pressures of the first evaluation (at ``oil0``, ``x``).
+    """
     ic, sc, free = net.ic, net.sc, net.free
     n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
     halvings = ic[IC_HALVINGS]
-    area = np.empty(ic[IC_O1] - ic[IC_O0])
+    o = 0
+    area, o = _take(W, o, ic[IC_O1] - ic[IC_O0])
+    geo, o = _take(W, o, n)
+    inflow, o = _take(W, o, n)
+    oil, o = _take(W, o, n)
+    p, o = _take(W, o, n)
+    dpdm, o = _take(W, o, n)
+    t_oil, o = _take(W, o, n)
+    t_p, o = _take(W, o, n)
+    t_dpdm, o = _take(W, o, n)
+    flow, o = _take(W, o, nb)
+    dfrom, o = _take(W, o, nb)
+    dto, o = _take(W, o, nb)
+    t_flow, o = _take(W, o, nb)
+    t_dfrom, o = _take(W, o, nb)
+    t_dto, o = _take(W, o, nb)
+    residual, o = _take(W, o, nf)
+    t_residual, o = _take(W, o, nf)
+    scale, o = _take(W, o, nf)
+    delta_flat, o = _take(W, o, nf)
+    jac_flat, o = _take(W, o, nf * nf)
+    delta = delta_flat.reshape((nf, 1))
+    jac = jac_flat.reshape((nf, nf))
     _valve_areas(net, spool, area)
-    geo = np.empty(n)
-    inflow = np.empty(n)
-    oil, p, dpdm = oil0.copy(), np.empty(n), np.empty(n)
-    flow, dfrom, dto, residual = np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nf)
-    t_oil, t_p, t_dpdm = np.empty(n), np.empty(n), np.empty(n)
-    t_flow, t_dfrom, t_dto, t_residual = np.empty(nb), np.empty(nb), np.empty(nb), np.empty(nf)
+    _copy(oil, oil0)
     rhs = 0
     jacobians = 0
     iterations = 0
     _evaluate(net, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, dto, inflow, residual)
+    _copy(p_first, p)
     rhs += 1
-    scale = np.empty(nf)
     for j in range(nf):
         k = free[j]
         volume, beta = _volume_and_modulus(net, k, geo[k], p[k])
         scale[j] = beta / volume
     norm = _scaled_norm(residual, scale)
     converged = nf == 0 or norm < _tolerance(net, p)
-    jac = np.empty((nf, nf))
-    delta = np.empty((nf, 1))
     for _ in range(ic[IC_NEWTON_MAX]):
         if converged:
             break
@@ -747,10 +902,10 @@ def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, 
         if not _lu_solve(jac, delta):
             break
         iterations += 1
-        step = _trust_step(net, oil, delta[:, 0], geo, p)
+        step = _trust_step(net, oil, delta_flat, geo, p)
         t_norm = 0.0
         for halving in range(halvings):
-            t_oil[:] = oil
+            _copy(t_oil, oil)
             for j in range(nf):
                 t_oil[free[j]] = oil[free[j]] + step * delta[j, 0]
             _evaluate(net, t_oil, oil0, x, v, area, speed, h, geo, t_p, t_dpdm, t_flow, t_dfrom, t_dto, inflow, t_residual)
@@ -793,17 +948,17 @@ def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, 
     istats[IS_JAC] = jacobians
     # oil moves only by the converged flows: exact conservation
     _net_inflow(net, flow, inflow)
-    oil_out[:] = oil0
+    _copy(oil_out, oil0)
     for j in range(nf):
         k = free[j]
         oil_out[k] = oil0[k] + h * inflow[k]
-    flow_out[:] = flow
-    dfrom_out[:] = dfrom
-    dto_out[:] = dto
+    _copy(flow_out, flow)
+    _copy(dfrom_out, dfrom)
+    _copy(dto_out, dto)
     return norm
 
 
-@_jit
+@_kernel
 def _spool_end(net, spool0, command, h, spool):
     # Stepper._spool_end
     for i in range(spool.size):
@@ -811,40 +966,79 @@ def _spool_end(net, spool0, command, h, spool):
 
 
 # ----------------------------------------------------------------------------
-# Entry points (called from Python)
+# Cores (no allocation: outputs and scratch passed in) and entry points (called from Python)
 # ----------------------------------------------------------------------------
+@_kernel
+def _step_core(net, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats):
+    """One backward-Euler substep into the given outputs: spool update (or ``spool0`` as given), Newton solve,
+    end-of-step pressures; returns the residual norm.  ``W``: scratch of ``_step_work_size`` entries."""
+    n = net.ic[IC_N]
+    if update_spool:
+        _spool_end(net, spool0, command, h, spool)
+    else:
+        _copy(spool, spool0)
+    s = _solve_work_size(net.ic)
+    dpdm, o = _take(W, s, n)
+    geo, o = _take(W, o, n)
+    norm = _solve_core(net, oil0, x, v, spool, speed, h, oil, flow, dfrom, dto, istats, W, p)
+    _pressure(net, oil, x, geo, p, dpdm)
+    return norm
+
+
 @_jit
 def _step_kernel(F, I, oil0, spool0, command, speed, x, v, h, update_spool):
     """One backward-Euler substep: spool update (or ``spool0`` as given), Newton solve, end-of-step pressures."""
     net = _unpack(F, I)
     n, nb = net.ic[IC_N], net.ic[IC_NB]
-    spool = spool0.copy()
-    if update_spool:
-        _spool_end(net, spool0, command, h, spool)
-    oil, flow, dfrom, dto = np.empty(n), np.empty(nb), np.empty(nb), np.empty(nb)
+    W = np.empty(_step_work_size(net.ic))
+    spool = np.empty(spool0.size)
+    oil, p, flow, dfrom, dto = np.empty(n), np.empty(n), np.empty(nb), np.empty(nb), np.empty(nb)
     istats = np.zeros(6, np.int64)
-    norm = _solve_core(net, oil0, x, v, spool, speed, h, oil, flow, dfrom, dto, istats)
-    p, dpdm, geo = np.empty(n), np.empty(n), np.empty(n)
-    _pressure(net, oil, x, geo, p, dpdm)
+    norm = _step_core(net, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats)
     return oil, p, spool, flow, dfrom, dto, istats, norm
 
 
-@_jit
-def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt):
-    """StepperImplicitEuler.linearize."""
-    net = _unpack(F, I)
+@_kernel
+def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort, gradient,
+                    p_first):
+    """StepperImplicitEuler.linearize into the given outputs; returns the residual norm.
+
+    ``W``: scratch of ``_linearize_work_size`` entries; ``p_first`` receives
+    the pressures at (``oil0``, x0 + dt·velocity), the Newton solve's first evaluation.
+    """
     ic, sc, free = net.ic, net.sc, net.free
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
-    x = x0 + dt * velocity
-    spool = np.empty(spool0.size)
+    for a in range(na):
+        x[a] = x0[a] + dt * velocity[a]
     _spool_end(net, spool0, command, dt, spool)
-    oil, flow, dfrom, dto = np.empty(n), np.empty(nb), np.empty(nb), np.empty(nb)
-    istats = np.zeros(6, np.int64)
-    norm = _solve_core(net, oil0, x, velocity, spool, speed, dt, oil, flow, dfrom, dto, istats)
-    p, dpdm, geo = np.empty(n), np.empty(n), np.empty(n)
+    o = _solve_work_size(ic)
+    dfrom, o = _take(W, o, nb)
+    dto, o = _take(W, o, nb)
+    flow2, o = _take(W, o, nb)
+    dpdm, o = _take(W, o, n)
+    geo, o = _take(W, o, n)
+    norm = _solve_core(net, oil0, x, velocity, spool, speed, dt, oil, flow, dfrom, dto, istats, W, p_first)
     _pressure(net, oil, x, geo, p, dpdm)
+    t, o = _take(W, o, n * na)
+    dvdx = t.reshape((n, na))
+    t, o = _take(W, o, n * na)
+    dpdx_dt = t.reshape((n, na))  # dt·∂p/∂x
+    area, o = _take(W, o, ic[IC_O1] - ic[IC_O0])
+    t, o = _take(W, o, n * n)
+    jq = t.reshape((n, n))
+    t, o = _take(W, o, n * na)
+    mg = t.reshape((n, na))
+    t, o = _take(W, o, nf * na)
+    rhs = t.reshape((nf, na))
+    t, o = _take(W, o, nf * nf)
+    jac = t.reshape((nf, nf))
+    t, o = _take(W, o, n * na)
+    dpdv = t.reshape((n, na))
+    t, o = _take(W, o, na * n)
+    epg = t.reshape((na, n))
+    slope, o = _take(W, o, na)
     # ∂p/∂x at fixed oil: −φ·∂V/∂x·∂p/∂m
-    dvdx = np.zeros((n, na))
+    dvdx[:, :] = 0.0
     cyl, ci = net.cyl, net.cyl_i
     for c in range(cyl.shape[0]):
         _, _, dvc, _ = chamber_volumes_nb(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
@@ -854,27 +1048,22 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt):
         _, _, _, dvr = chamber_volumes_nb(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
                                           cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
         dvdx[ci[c, CI_ROD], ci[c, CI_ACT]] += dvr
-    dpdx_dt = np.empty((n, na))  # dt·∂p/∂x
     for k in range(n):
         phi, _ = _fill(net, p[k])
         w = -(dpdm[k] * phi)
         for a in range(na):
             dpdx_dt[k, a] = dt * (w * dvdx[k, a])
-    area = np.empty(ic[IC_O1] - ic[IC_O0])
     _valve_areas(net, spool, area)
-    flow2, dfrom2, dto2 = np.empty(nb), np.empty(nb), np.empty(nb)
-    _branch_flows(net, p, area, speed, velocity, flow2, dfrom2, dto2)
-    jq = np.empty((n, n))
-    _flow_jacobian(net, dfrom2, dto2, jq)
+    _branch_flows(net, p, area, speed, velocity, flow2, dfrom, dto)
+    _flow_jacobian(net, dfrom, dto, jq)
     # motor_flow_velocity_gradient
-    mg = np.zeros((n, na))
+    mg[:, :] = 0.0
     br = net.br
     for b in range(ic[IC_M0], ic[IC_M1]):
         i = b - ic[IC_M0]
         rate = net.mot[i] / (2.0 * np.pi)
         mg[br[b, 0], net.mot_br_act[i]] += -rate
         mg[br[b, 1], net.mot_br_act[i]] += rate
-    rhs = np.empty((nf, na))
     for j in range(nf):
         k = free[j]
         for a in range(na):
@@ -882,11 +1071,10 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt):
             for i in range(n):
                 s += jq[k, i] * dpdx_dt[i, a]
             rhs[j, a] = dt * (s + mg[k, a])  # = −drdv
-    jac = np.empty((nf, nf))
     for i in range(nf):
         for j in range(nf):
             jac[i, j] = (1.0 if i == j else 0.0) - dt * jq[free[i], free[j]] * dpdm[free[j]]
-    dpdv = dpdx_dt.copy()
+    _copy(dpdv.reshape(n * na), dpdx_dt.reshape(n * na))
     singular = False
     if nf:
         if _lu_solve(jac, rhs):  # rhs now holds doil = −J⁻¹·drdv
@@ -898,8 +1086,8 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt):
             singular = True
     istats[IS_SINGULAR] = 1 if singular else 0
     # efforts: pressure part + friction (NetworkModel.actuator_effort)
-    effort = np.zeros(na)
-    slope = np.zeros(na)
+    effort[:] = 0.0
+    slope[:] = 0.0
     for c in range(cyl.shape[0]):
         a = ci[c, CI_ACT]
         effort[a] = cylinder_pressure_force_nb(p[ci[c, CI_CAP]], p[ci[c, CI_ROD]], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA], sc[S_PREF])
@@ -913,7 +1101,7 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt):
         effort[a] = effort[a] + -f
         slope[a] = -df
     # effort_pressure_gradient @ dpdv + diag(friction slope)
-    epg = np.zeros((na, n))
+    epg[:, :] = 0.0
     for c in range(cyl.shape[0]):
         epg[ci[c, CI_ACT], ci[c, CI_CAP]] += cyl[c, CYL_CAP_AREA]
     for c in range(cyl.shape[0]):
@@ -922,13 +1110,27 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt):
         epg[mi[i, MI_ACT], mi[i, MI_A]] += net.mot[i] / (2.0 * np.pi)
     for i in range(mi.shape[0]):
         epg[mi[i, MI_ACT], mi[i, MI_B]] += -(net.mot[i] / (2.0 * np.pi))
-    gradient = np.zeros((na, na))
     for a in range(na):
         for b in range(na):
             s = 0.0
             for k in range(n):
                 s += epg[a, k] * dpdv[k, b]
             gradient[a, b] = s + (slope[a] if a == b else 0.0)
+    return norm
+
+
+@_jit
+def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt):
+    """StepperImplicitEuler.linearize."""
+    net = _unpack(F, I)
+    ic = net.ic
+    n, na, nb = ic[IC_N], ic[IC_NA], ic[IC_NB]
+    W = np.empty(_linearize_work_size(ic))
+    oil, p, spool, x, flow = np.empty(n), np.empty(n), np.empty(spool0.size), np.empty(na), np.empty(nb)
+    istats = np.zeros(6, np.int64)
+    effort, gradient, p_first = np.empty(na), np.empty((na, na)), np.empty(n)
+    norm = _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
+                           gradient, p_first)
     return oil, p, spool, x, flow, istats, norm, effort, gradient
 
 

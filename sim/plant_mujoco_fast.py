@@ -12,17 +12,36 @@ state :class:`MujocoPlant` sees after ``mj_step1``.  In the callback of step k:
 
 1. finish step k−1 (if pending): v⁺ = J_{k−1}·q̇ (q̇ is now the integrated
    velocity), x⁺ = x_{k−1} + h·v⁺, the compiled backward-Euler step of the
-   network (``_compiled._step_kernel``, sub-stepped as ``Stepper._step``), the
+   network (``_compiled._step_core``, sub-stepped as ``Stepper._step``), the
    applied effort law(v⁺) and the energy ledger (pump/motor work, hydraulic,
    friction and mechanical dissipation);
 2. dense moments J_k from MuJoCo's sparse ``actuator_moment``, M⁻¹·Jᵀ by
    MuJoCo's own ``mj_solveM`` (called through its C entry point), effective
    masses and θ as :func:`hydraulics.coupling.blend_factor`;
-3. the effort law of :meth:`CouplingImplicit.begin` (``_compiled._linearize_kernel``)
-   written to ``ctrl`` and ``actuator_biasprm[:, 2]``.
+3. the effort law of :meth:`CouplingImplicit.begin` (``_compiled._linearize_core``)
+   written to ``ctrl`` and ``actuator_biasprm[:, 2]``.  The start pressures
+   p(m, x) are the linearisation's first Newton evaluation whenever the
+   velocity guess is zero (x + h·0 = x exactly), so they are not recomputed.
+
+**Cost and caching.**  The callback allocates nothing: every temporary lives
+in buffers the plant allocates once (``_work`` for the ``_compiled`` cores,
+``_scratch`` for this module's, see :func:`scratch_size`), and the kernels run
+without numba's reference counting (``_compiled._kernel``).  The callback is a
+thin ``cfunc`` around :func:`_coupled_step` compiled with ``cache=True``: it
+bakes in no process-specific address — the pointer table is the external
+symbol ``CTX_SYMBOL`` and ``mj_solveM`` the external function
+``SOLVEM_SYMBOL``, both registered with ``llvmlite.binding.add_symbol`` before
+the callback is loaded — so numba's disk cache (``sim/__pycache__``) holds it
+and a new process loads it in milliseconds instead of compiling it (≈ 3 s the
+first time after a change of this file or of ``hydraulics/_compiled.py``).
+numba keys a cached function by its own file only, so the callback carries a
+sha256 of both source files as a closure variable (part of numba's cache key),
+and this module's other numba functions are not cached on their own: they
+exist only inside the callback.  The last step of a block is finished by
+calling the same callback from Python in finish-only mode (``C_MODE``).
 
 The last step of a block is finished from Python after ``mj_step`` returns
-(the same compiled function), so ``net_state``, ``effort``, ``theta``,
+(through the same callback), so ``net_state``, ``effort``, ``theta``,
 ``energy``, ``control``, ``last_report`` and ``step_index`` are coherent after
 every :meth:`MujocoPlantFast.advance`.  Operator inputs are sampled for the
 block's step times in Python beforehand (piecewise-linear schedules
@@ -31,6 +50,18 @@ vectorised, callables called per step).
 Results agree with :class:`MujocoPlant` to round-off (θ is exact: the
 effective masses come from the same ``mj_solveM`` at the same state); the only
 differences are summation orders (J·q̇, energy sums).
+
+**API** (unchanged by the cached, allocation-free rewrite): ``advance(n)`` runs
+n coupled steps and returns the last step's :class:`StepReport` (``success``,
+``message``, ``status``; Newton counters of the last step); ``step()`` is
+``advance(1)``; after each call ``net_state``, ``effort``, ``theta``,
+``energy``, ``control``, ``last_report``, ``step_index`` and ``time`` describe
+the same instant.  New: ``node_pressure_max`` / ``node_pressure_min`` [Pa], the
+running extremes of every successful step's end pressures since
+:meth:`reset` (initial pressures included; the runner folds them into its
+peaks, so they cover every step, not only the logged ones; assigning them is
+allowed, :meth:`advance` continues from the assigned values); module-level
+:func:`scratch_size`, ``CTX_SYMBOL``, ``SOLVEM_SYMBOL``, ``MODE_*``.
 
 **Global state / limitations**
 
@@ -56,8 +87,10 @@ differences are summation orders (J·q̇, energy sums).
 from __future__ import annotations
 
 import ctypes
+import hashlib
 import os
 import threading
+from collections import namedtuple
 
 import mujoco
 import numpy as np
@@ -71,7 +104,9 @@ from .plant_mujoco import MujocoPlant
 from .scenario import Schedule
 
 try:  # pragma: no branch
+    import llvmlite.binding as llvm_binding
     import numba
+    from llvmlite import ir as llvm_ir
     from numba import carray, types
     from numba.extending import intrinsic
 
@@ -85,19 +120,37 @@ except ImportError:  # pragma: no cover
 # ----------------------------------------------------------------------------
 (
     C_NA, C_NV, C_NU, C_N, C_NB, C_NVALVE, C_NPUMP, C_NBIAS, C_SUBSTEPS, C_NCYL,
-    C_K, C_PENDING, C_FAILED, C_STATUS, C_WORST, C_NEWTON, C_RHS, C_JAC,
+    C_K, C_PENDING, C_FAILED, C_STATUS, C_WORST, C_NEWTON, C_RHS, C_JAC, C_NF, C_NI, C_NW, C_NS, C_ROWS, C_MODE,
     P_F, P_I, P_ACT, P_CLOSED, P_LENGTH, P_AVEL, P_MOMENT, P_ROWADR, P_ROWNNZ, P_COLIND, P_QVEL, P_CTRL, P_BIASPRM,
     P_PASSIVE, P_CONSTRAINT, P_J, P_MINVJ, P_OIL, P_PRESSURE, P_SPOOL, P_XPOS, P_XVEL, P_CMD, P_SPEED,
     P_XSTART, P_VSTART, P_CONST, P_SLOPE, P_THETA, P_MEFF, P_EFFORT, P_FLOW, P_PASSIVE_SAVED, P_FS, P_QUAD,
+    P_WORK, P_SCRATCH, P_ISTATS, P_PMAX, P_PMIN,
     NCTX,
-) = range(54)
+) = range(65)
 
 # float scalars (P_FS): step, residual of the last step, ledger terms
 FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD = range(8)
 NFS = 8
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
+MODE_STEP, MODE_FINISH = range(2)  # C_MODE: a coupled step (from mj_step), or only finish the pending step
 
 POTENTIAL_QUADRATURE_POINTS = 16  # must match hydraulics.fluid (entrained air only)
+
+# Symbols the cached callback resolves when it is loaded (registered below with llvmlite):
+# the pointer table and MuJoCo's mj_solveM.  Nothing process-specific is baked into the
+# compiled code, so numba's disk cache can hold it.
+CTX_SYMBOL = "hydroplant_fast_plant_ctx"
+SOLVEM_SYMBOL = "hydroplant_mj_solveM"
+
+
+def _finish_scratch(na, n, nb, nvalve):
+    return 4 * na + 3 * n + 2 * nb + nvalve
+
+
+def scratch_size(na, n, nb, nvalve):
+    """Length of the plant's float64 scratch (P_SCRATCH): _finish_pending's part, then _begin's."""
+    return _finish_scratch(na, n, nb, nvalve) + 8 * na + 4 * n + na * na + n + nvalve + na + nb
+
 
 if _NUMBA:
 
@@ -137,41 +190,63 @@ if _NUMBA:
 
         return sig, codegen
 
-    _jit = C._jit
+    @intrinsic
+    def _ctx_address(typingctx):
+        """Address of the process's pointer table: an external int64 symbol resolved at load time."""
+        sig = types.int64()
+
+        def codegen(context, builder, signature, args):
+            module = builder.module
+            table = module.globals.get(CTX_SYMBOL)
+            if table is None:
+                table = llvm_ir.GlobalVariable(module, llvm_ir.IntType(64), CTX_SYMBOL)
+                table.linkage = "external"
+            return builder.ptrtoint(table, llvm_ir.IntType(64))
+
+        return sig, codegen
+
+    _mj_solveM_nb = types.ExternalFunction(
+        SOLVEM_SYMBOL, types.void(types.voidptr, types.voidptr, types.voidptr, types.voidptr, types.int32)
+    )
+    # Not cached on their own: they are only ever compiled into the control callback, whose cache
+    # key includes a fingerprint of this file and of hydraulics/_compiled.py (see callback()).
+    # (numba's cache of a function does not notice changes of the functions it calls in other files.)
+    def _jit(function):
+        return numba.njit(error_model="numpy", nogil=True)(function)
+
+    def _kernel(function):
+        return numba.njit(error_model="numpy", nogil=True, _nrt=False)(function)
 else:  # pragma: no cover
     def _jit(f):
         return f
 
+    _kernel = _jit
 
-@_jit
+
+_finish_scratch_nb = _kernel(_finish_scratch)
+
+
+@_jit  # returns a view of foreign memory (no NRT reference to drop)
 def _vf(ctx, slot, n):
     return carray(_pf64(ctx[slot]), (n,))
 
 
-@_jit
+@_jit  # returns a view of foreign memory (no NRT reference to drop)
 def _mf(ctx, slot, rows, cols):
     return carray(_pf64(ctx[slot]), (rows, cols))
 
 
-@_jit
+@_jit  # returns a view of foreign memory (no NRT reference to drop)
 def _vi32(ctx, slot, n):
     return carray(_pi32(ctx[slot]), (n,))
 
 
-@_jit
+@_jit  # returns a view of foreign memory (no NRT reference to drop)
 def _vi64(ctx, slot, n):
     return carray(_pi64(ctx[slot]), (n,))
 
 
-@_jit
-def _packed(ctx):
-    ihead = carray(_pi64(ctx[P_I]), (C._NFF + C._NIF + 2,))
-    ilen = ihead[C._NFF + 1 + C._NIF]
-    flen = ihead[C._NFF]
-    return carray(_pf64(ctx[P_F]), (flen,)), carray(_pi64(ctx[P_I]), (ilen,))
-
-
-@_jit
+@_kernel
 def _pressure_effort(net, p, out):
     # NetworkModel.pressure_effort
     out[:] = 0.0
@@ -184,7 +259,7 @@ def _pressure_effort(net, p, out):
         out[mi[i, C.MI_ACT]] = C.pump_torque_nb(net.mot[i], p[mi[i, C.MI_A]] - p[mi[i, C.MI_B]])
 
 
-@_jit
+@_kernel
 def _friction_effort(net, v, effort, slope):
     # NetworkModel.friction_effort
     effort[:] = 0.0
@@ -198,7 +273,7 @@ def _friction_effort(net, v, effort, slope):
         slope[a] = -df
 
 
-@_jit
+@_kernel
 def _potential(net, p, quad):
     # Fluid.pressure_potential
     sc = net.sc
@@ -215,8 +290,24 @@ def _potential(net, p, quad):
     return half * s
 
 
+_Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W', 'istats', 'cmd', 'speed', 'oil', 'pres', 'spool', 'pos', 'vel', 'flow', 'const', 'slope', 'effort', 'quad', 'passive_saved', 'constraint', 'passive', 'act', 'closed', 'length', 'avel', 'meff', 'theta', 'ctrl', 'bias', 'rowadr', 'rownnz', 'colind', 'moment', 'pmax', 'pmin'))
+
+
 @_jit
-def _finish_pending(ctx):
+def _views(ctx):
+    """The arrays of the pointer table as views (built here, in reference-counted code: the kernels below
+    run without numba's reference counting and cannot create arrays)."""
+    na, nv, nu, n, nb = ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N], ctx[C_NB]
+    nvalve, npump = ctx[C_NVALVE], ctx[C_NPUMP]
+    rowadr, rownnz = _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu)
+    nnz = 0
+    for a in range(nu):
+        nnz = max(nnz, rowadr[a] + rownnz[a])
+    return _Views(_vf(ctx, P_FS, NFS), _mf(ctx, P_J, na, nv), _mf(ctx, P_MINVJ, na, nv), _vf(ctx, P_QVEL, nv), _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na), _vf(ctx, P_SCRATCH, ctx[C_NS]), _vf(ctx, P_WORK, ctx[C_NW]), _vi64(ctx, P_ISTATS, 6), _mf(ctx, P_CMD, ctx[C_ROWS], nvalve), _mf(ctx, P_SPEED, ctx[C_ROWS], npump), _vf(ctx, P_OIL, n), _vf(ctx, P_PRESSURE, n), _vf(ctx, P_SPOOL, nvalve), _vf(ctx, P_XPOS, na), _vf(ctx, P_XVEL, na), _vf(ctx, P_FLOW, nb), _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na), _vf(ctx, P_EFFORT, na), _vf(ctx, P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, P_PASSIVE_SAVED, nv), _vf(ctx, P_CONSTRAINT, nv), _vf(ctx, P_PASSIVE, nv), _vi64(ctx, P_ACT, na), _vf(ctx, P_CLOSED, na), _vf(ctx, P_LENGTH, nu), _vf(ctx, P_AVEL, nu), _vf(ctx, P_MEFF, na), _vf(ctx, P_THETA, na), _vf(ctx, P_CTRL, nu), _vf(ctx, P_BIASPRM, nu * ctx[C_NBIAS]), _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu), _vi32(ctx, P_COLIND, nnz), _vf(ctx, P_MOMENT, nnz), _vf(ctx, P_PMAX, n), _vf(ctx, P_PMIN, n))
+
+
+@_kernel
+def _finish_pending(ctx, net, V):
     """Finish the pending step with the realised velocities J_prev·q̇ (MujocoPlant.step after mj_step2)."""
     if ctx[C_PENDING] == 0:
         return
@@ -226,46 +317,59 @@ def _finish_pending(ctx):
     na, nv, n, nb = ctx[C_NA], ctx[C_NV], ctx[C_N], ctx[C_NB]
     nvalve, npump = ctx[C_NVALVE], ctx[C_NPUMP]
     k = ctx[C_K] - 1
-    F, I = _packed(ctx)
-    net = C._unpack(F, I)
-    fs = _vf(ctx, P_FS, NFS)
+    fs = V.fs
     dt = fs[FS_DT]
-    J = _mf(ctx, P_J, na, nv)
-    qvel = _vf(ctx, P_QVEL, nv)
-    xs, vs = _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na)
-    v_end = np.empty(na)
-    x_end = np.empty(na)
+    J = V.J
+    qvel = V.qvel
+    xs, vs = V.xs, V.vs
+    S = V.S  # carved below (scratch_size)
+    W = V.W
+    istats = V.istats
+    o = 0
+    v_end, o = C._take(S, o, na)
+    x_end, o = C._take(S, o, na)
+    xe, o = C._take(S, o, na)
+    ve, o = C._take(S, o, na)
+    o2, o = C._take(S, o, n)
+    p2, o = C._take(S, o, n)
+    mu, o = C._take(S, o, n)
+    fl, o = C._take(S, o, nb)
+    dfl, o = C._take(S, o, nb)
+    sp2, o = C._take(S, o, nvalve)
     for i in range(na):
         s = 0.0
         for j in range(nv):
             s += J[i, j] * qvel[j]
         v_end[i] = s
         x_end[i] = xs[i] + dt * s
-    cmd = _mf(ctx, P_CMD, ctx[C_K], nvalve)[k]
-    speed = _mf(ctx, P_SPEED, ctx[C_K], npump)[k]
-    oil, pres, spool = _vf(ctx, P_OIL, n), _vf(ctx, P_PRESSURE, n), _vf(ctx, P_SPOOL, nvalve)
-    pos, vel = _vf(ctx, P_XPOS, na), _vf(ctx, P_XVEL, na)
-    flow_out = _vf(ctx, P_FLOW, nb)
+    cmd = V.cmd[k]
+    speed = V.speed[k]
+    oil, pres, spool = V.oil, V.pres, V.spool
+    pos, vel = V.pos, V.vel
+    flow_out = V.flow
     substeps = ctx[C_SUBSTEPS]
     h = dt / substeps
     newton, rhs, jac = 0, 0, 0
     residual = 0.0
     status, worst = ST_OK, -1
-    xe, ve = x_end, v_end
     for s in range(substeps):
         if substeps > 1:  # ActuatorMotion.part: linear interpolation to the substep end
             frac = (s + 1) / substeps
-            xe = xs + frac * (x_end - xs)
-            ve = vs + frac * (v_end - vs)
-        o2, p2, sp2, fl, _, _, ist, norm = C._step_kernel(F, I, oil, spool, cmd, speed, xe, ve, h, True)
-        newton += ist[C.IS_NEWTON]
-        rhs += ist[C.IS_RHS]
-        jac += ist[C.IS_JAC]
+            for i in range(na):
+                xe[i] = xs[i] + frac * (x_end[i] - xs[i])
+                ve[i] = vs[i] + frac * (v_end[i] - vs[i])
+        else:
+            C._copy(xe, x_end)
+            C._copy(ve, v_end)
+        norm = C._step_core(net, W, oil, spool, cmd, speed, xe, ve, h, True, o2, p2, sp2, fl, dfl, dfl, istats)
+        newton += istats[C.IS_NEWTON]
+        rhs += istats[C.IS_RHS]
+        jac += istats[C.IS_JAC]
         if norm > residual:
             residual = norm
-        flow_out[:] = fl
-        if ist[C.IS_STATUS] != C._OK:
-            status, worst = ST_NEWTON, ist[C.IS_WORST]
+        C._copy(flow_out, fl)
+        if istats[C.IS_STATUS] != C._OK:
+            status, worst = ST_NEWTON, istats[C.IS_WORST]
             break
         bad = -1
         for i in range(n):
@@ -275,23 +379,29 @@ def _finish_pending(ctx):
         if bad >= 0:
             status, worst = ST_NONFINITE, bad
             break
-        oil[:] = o2
-        pres[:] = p2
-        spool[:] = sp2
-        pos[:] = xe
-        vel[:] = ve
+        C._copy(oil, o2)
+        C._copy(pres, p2)
+        C._copy(spool, sp2)
+        C._copy(pos, xe)
+        C._copy(vel, ve)
     ctx[C_NEWTON], ctx[C_RHS], ctx[C_JAC] = newton, rhs, jac
     ctx[C_STATUS], ctx[C_WORST] = status, worst
     fs[FS_NORM] = residual
     if status != ST_OK:
         ctx[C_FAILED] = k
+    else:  # running extremes of the end-of-step pressures
+        pmax, pmin = V.pmax, V.pmin
+        for i in range(n):
+            if pres[i] > pmax[i]:
+                pmax[i] = pres[i]
+            if pres[i] < pmin[i]:
+                pmin[i] = pres[i]
     # applied effort: law(v⁺)
-    const, slope, effort = _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na), _vf(ctx, P_EFFORT, na)
+    const, slope, effort = V.const, V.slope, V.effort
     for i in range(na):
         effort[i] = const[i] + slope[i] * v_end[i]
     # energy ledger (PlantBase._account, MujocoPlant._account)
-    quad = _vf(ctx, P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS)
-    mu = np.empty(n)
+    quad = V.quad
     for i in range(n):
         mu[i] = _potential(net, pres[i], quad)
     ic, br = net.ic, net.br
@@ -307,32 +417,26 @@ def _finish_pending(ctx):
     fs[FS_PUMP] += dt * -pump
     fs[FS_MOTOR] += dt * motor
     fs[FS_DISS_H] += dt * dissipated
-    friction, fslope = np.empty(na), np.empty(na)
+    friction, fslope = xe, ve  # free again
     _friction_effort(net, v_end, friction, fslope)
     fw = 0.0
     for i in range(na):
         fw += friction[i] * v_end[i]
     fs[FS_DISS_F] -= dt * fw
-    passive, constraint = _vf(ctx, P_PASSIVE_SAVED, nv), _vf(ctx, P_CONSTRAINT, nv)
+    passive, constraint = V.passive_saved, V.constraint
     mw = 0.0
     for j in range(nv):
         mw += (passive[j] + constraint[j]) * qvel[j]
     fs[FS_DISS_M] -= dt * mw
 
 
-@_jit
-def _prepare(ctx):
-    """Callback part 1: finish the previous step, then the dense moments J of the current one."""
-    _finish_pending(ctx)
+@_kernel
+def _prepare(ctx, V):
+    """Dense moments J of the current step from MuJoCo's sparse actuator_moment."""
     na, nv = ctx[C_NA], ctx[C_NV]
-    J = _mf(ctx, P_J, na, nv)
-    act = _vi64(ctx, P_ACT, na)
-    rowadr, rownnz = _vi32(ctx, P_ROWADR, ctx[C_NU]), _vi32(ctx, P_ROWNNZ, ctx[C_NU])
-    nnz_total = 0
-    for a in range(ctx[C_NU]):
-        nnz_total = max(nnz_total, rowadr[a] + rownnz[a])
-    colind = _vi32(ctx, P_COLIND, nnz_total)
-    moment = _vf(ctx, P_MOMENT, nnz_total)
+    J = V.J
+    act = V.act
+    rowadr, rownnz, colind, moment = V.rowadr, V.rownnz, V.colind, V.moment
     J[:, :] = 0.0
     for i in range(na):
         aid = act[i]
@@ -341,26 +445,46 @@ def _prepare(ctx):
             J[i, colind[adr + q]] = moment[adr + q]
 
 
-@_jit
-def _begin(ctx):
-    """Callback part 2 (after M⁻¹·Jᵀ): the effort law of CouplingImplicit.begin, written to ctrl and biasprm."""
+@_kernel
+def _begin(ctx, net, V):
+    """After M⁻¹·Jᵀ: the effort law of CouplingImplicit.begin, written to ctrl and biasprm."""
     k = ctx[C_K]
     ctx[C_K] = k + 1
     if ctx[C_FAILED] >= 0:
         return  # hydraulics frozen after a failed step: hold the last law
     na, nv, nu, n = ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N]
-    nvalve, npump = ctx[C_NVALVE], ctx[C_NPUMP]
-    F, I = _packed(ctx)
-    net = C._unpack(F, I)
-    fs = _vf(ctx, P_FS, NFS)
+    nb, nvalve, npump = ctx[C_NB], ctx[C_NVALVE], ctx[C_NPUMP]
+    fs = V.fs
     dt = fs[FS_DT]
-    act = _vi64(ctx, P_ACT, na)
-    closed = _vf(ctx, P_CLOSED, na)
-    length, avel = _vf(ctx, P_LENGTH, nu), _vf(ctx, P_AVEL, nu)
-    J, MinvJ = _mf(ctx, P_J, na, nv), _mf(ctx, P_MINVJ, na, nv)
-    xs, vs = _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na)
-    meff, theta = _vf(ctx, P_MEFF, na), _vf(ctx, P_THETA, na)
-    const, slope = _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na)
+    act = V.act
+    closed = V.closed
+    length, avel = V.length, V.avel
+    J, MinvJ = V.J, V.MinvJ
+    xs, vs = V.xs, V.vs
+    meff, theta = V.meff, V.theta
+    const, slope = V.const, V.slope
+    S = V.S
+    W = V.W
+    istats = V.istats
+    o = _finish_scratch_nb(na, n, nb, nvalve)  # after _finish_pending's part
+    guess, o = C._take(S, o, na)
+    fg, o = C._take(S, o, na)
+    fslope_guess, o = C._take(S, o, na)
+    pressure_end, o = C._take(S, o, na)
+    pressure_start, o = C._take(S, o, na)
+    friction, o = C._take(S, o, na)
+    fslope, o = C._take(S, o, na)
+    effort_end, o = C._take(S, o, na)
+    geo, o = C._take(S, o, n)
+    p0, o = C._take(S, o, n)
+    dpdm, o = C._take(S, o, n)
+    lin_p, o = C._take(S, o, n)
+    g, o = C._take(S, o, na * na)
+    gradient = g.reshape((na, na))
+    lin_oil, o = C._take(S, o, n)
+    lin_spool, o = C._take(S, o, nvalve)
+    lin_x, o = C._take(S, o, na)
+    lin_flow, o = C._take(S, o, nb)
     for i in range(na):
         xs[i] = length[act[i]] - closed[i]
         vs[i] = avel[act[i]]
@@ -368,83 +492,130 @@ def _begin(ctx):
         for j in range(nv):
             inverse += J[i, j] * MinvJ[i, j]
         meff[i] = 1.0 / inverse if inverse > 0 else np.inf
-    cmd = _mf(ctx, P_CMD, k + 1, nvalve)[k]
-    speed = _mf(ctx, P_SPEED, k + 1, npump)[k]
-    oil, spool = _vf(ctx, P_OIL, n), _vf(ctx, P_SPOOL, nvalve)
+    cmd = V.cmd[k]
+    speed = V.speed[k]
+    oil, spool = V.oil, V.spool
     # predicted end velocities: zero, clipped so the cylinders stay inside their stroke
-    guess = np.zeros(na)
+    guess[:] = 0.0
     cyl, ci = net.cyl, net.cyl_i
     for c in range(cyl.shape[0]):
         a = ci[c, C.CI_ACT]
         guess[a] = C._minimum(C._maximum(guess[a], -xs[a] / dt), (cyl[c, C.CYL_STROKE] - xs[a]) / dt)
-    _, p_end, _, _, _, ist, _, _, gradient = C._linearize_kernel(F, I, oil, spool, cmd, speed, xs, guess, dt)
-    if ist[C.IS_SINGULAR]:
+    held = True
+    for a in range(na):
+        if guess[a] != 0.0:
+            held = False
+    norm = C._linearize_core(net, W, oil, spool, cmd, speed, xs, guess, dt, lin_oil, lin_p, lin_spool, lin_x, lin_flow,
+                             istats, effort_end, gradient, p0)
+    if istats[C.IS_SINGULAR]:
         ctx[C_STATUS] = ST_SINGULAR
         ctx[C_FAILED] = k
         return
-    fg, fslope_guess = np.empty(na), np.empty(na)
     _friction_effort(net, guess, fg, fslope_guess)
-    pressure_end, pressure_start = np.empty(na), np.empty(na)
-    _pressure_effort(net, p_end, pressure_end)
-    geo, p0, dpdm = np.empty(n), np.empty(n), np.empty(n)
-    C._pressure(net, oil, xs, geo, p0, dpdm)
+    _pressure_effort(net, lin_p, pressure_end)
+    if not held:  # the linearisation's first evaluation was at x + dt·guess ≠ x: the start pressures separately
+        C._pressure(net, oil, xs, geo, p0, dpdm)
     _pressure_effort(net, p0, pressure_start)
-    friction, fslope = np.empty(na), np.empty(na)
     _friction_effort(net, vs, friction, fslope)
-    ctrl, bias = _vf(ctx, P_CTRL, nu), _vf(ctx, P_BIASPRM, nu * ctx[C_NBIAS])
+    ctrl, bias = V.ctrl, V.bias
     for i in range(na):
         pslope = gradient[i, i] - fslope_guess[i]
         w = C._maximum(-pslope, 0.0) * dt / meff[i]
         th = C._clip(1.0 - 2.0 / w, 0.0, 1.0)
         theta[i] = th
-        fs = min(fslope[i], 0.0)  # see CouplingImplicit.begin: no negative damping in the implicit matrix
-        const[i] = (1.0 - th) * pressure_start[i] + th * (pressure_end[i] - pslope * guess[i]) + friction[i] - fs * vs[i]
-        slope[i] = th * pslope + fs
+        fsl = min(fslope[i], 0.0)  # see CouplingImplicit.begin: no negative damping in the implicit matrix
+        const[i] = (1.0 - th) * pressure_start[i] + th * (pressure_end[i] - pslope * guess[i]) + friction[i] - fsl * vs[i]
+        slope[i] = th * pslope + fsl
         ctrl[act[i]] = const[i]
         bias[act[i] * ctx[C_NBIAS] + 2] = slope[i]
-    _vf(ctx, P_PASSIVE_SAVED, nv)[:] = _vf(ctx, P_PASSIVE, nv)
+    C._copy(V.passive_saved, V.passive)
     ctx[C_PENDING] = 1
 
 
+@_jit
+def _coupled_step(address, m, d):
+    """The whole callback: finish step k−1, moments, M⁻¹·Jᵀ (MuJoCo's mj_solveM), effort law of step k."""
+    ctx = carray(_pi64(address), (NCTX,))
+    F = carray(_pf64(ctx[P_F]), (ctx[C_NF],))
+    I = carray(_pi64(ctx[P_I]), (ctx[C_NI],))
+    net = C._unpack(F, I)
+    V = _views(ctx)
+    _finish_pending(ctx, net, V)
+    if ctx[C_MODE] == MODE_FINISH:  # called from Python after the block: finish its last step only
+        return
+    _prepare(ctx, V)
+    _mj_solveM_nb(m, d, _pvoid(ctx[P_MINVJ]), _pvoid(ctx[P_J]), np.int32(ctx[C_NA]))
+    _begin(ctx, net, V)
+
+
+def _callback_function(fingerprint):
+    """The callback's Python source; ``fingerprint`` (a closure variable, hence part of numba's cache key) is the
+    hash of the sources compiled into it."""
+
+    def coupled_step_c(m, d):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable
+            return
+        _coupled_step(_ctx_address(), m, d)
+
+    return coupled_step_c
+
+
+def _source_fingerprint() -> str:
+    """sha256 of this file and of hydraulics/_compiled.py (everything the callback compiles in, apart from numba)."""
+    digest = hashlib.sha256()
+    for path in (__file__, C.__file__):
+        try:
+            with open(path, "rb") as f:
+                digest.update(f.read())
+        except OSError:  # pragma: no cover - no sources: never reuse a cache entry across versions
+            digest.update(repr((path, os.getpid())).encode())
+    digest.update(numba.__version__.encode())
+    return digest.hexdigest()
+
+
 # ----------------------------------------------------------------------------
-# The process-wide callback (compiled once per process, on first use)
+# The process-wide callback (loaded from numba's disk cache, or compiled once, on first use)
 # ----------------------------------------------------------------------------
-_CTX = np.zeros(NCTX, np.int64)  # the pointer table the callback reads; its address is baked into the cfunc
+_CTX = np.zeros(NCTX, np.int64)  # the pointer table the callback reads (symbol CTX_SYMBOL)
 _CALLBACK = None
+_CALLBACK_POINTER = None  # its ctypes function pointer, for mujoco.set_mjcb_control
+_BLOCK_START = np.array([0, 0, -1, ST_OK, -1], np.int64)  # C_K … C_WORST at the start of a block
+assert (C_PENDING, C_FAILED, C_STATUS, C_WORST) == (C_K + 1, C_K + 2, C_K + 3, C_K + 4)
+assert (C_STATUS, C_WORST, C_NEWTON, C_RHS, C_JAC) == (C_FAILED + 1, C_FAILED + 2, C_FAILED + 3, C_FAILED + 4, C_FAILED + 5)
 _LOCK = threading.Lock()
 
 
-def _mj_solveM():
-    """ctypes handle of MuJoCo's ``mj_solveM`` from the library the bindings loaded."""
+def _mj_solveM_address():
+    """Address of MuJoCo's ``mj_solveM`` in the library the bindings loaded."""
     folder = os.path.dirname(mujoco.__file__)
     name = next(f for f in sorted(os.listdir(folder)) if f.startswith("libmujoco.so"))
     lib = ctypes.CDLL(os.path.join(folder, name))
-    f = lib.mj_solveM
-    f.argtypes = (ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int)
-    f.restype = None
-    return f
+    return ctypes.cast(lib.mj_solveM, ctypes.c_void_p).value
 
 
 def callback():
-    """The numba ``cfunc`` (MuJoCo ``mjfGeneric``) that couples one step; compiled on first use in a process."""
-    global _CALLBACK
+    """The numba ``cfunc`` (MuJoCo ``mjfGeneric``) that couples one step.
+
+    Loaded from numba's disk cache (``__pycache__``), or compiled on first use
+    (≈ 3 s, once per change of this file or of :mod:`hydraulics._compiled`).
+    """
+    global _CALLBACK, _CALLBACK_POINTER
     if _CALLBACK is None:
-        ctx_addr = int(_CTX.ctypes.data)
-        solve = _mj_solveM()
-
-        @numba.cfunc(types.void(types.voidptr, types.voidptr), error_model="numpy")
-        def coupled_step(m, d):
-            ctx = carray(_pi64(ctx_addr), (NCTX,))
-            _prepare(ctx)
-            solve(m, d, _pvoid(ctx[P_MINVJ]), _pvoid(ctx[P_J]), np.int32(ctx[C_NA]))
-            _begin(ctx)
-
-        _CALLBACK = coupled_step
+        llvm_binding.add_symbol(CTX_SYMBOL, int(_CTX.ctypes.data))
+        llvm_binding.add_symbol(SOLVEM_SYMBOL, _mj_solveM_address())
+        _CALLBACK = numba.cfunc(types.void(types.voidptr, types.voidptr), error_model="numpy", cache=True)(
+            _callback_function(_source_fingerprint()))
+        _CALLBACK_POINTER = _CALLBACK.ctypes
     return _CALLBACK
 
 
 def _finish_python():
-    _finish_pending(_CTX)
+    """Finish the block's last step (after mj_step returned) through the callback itself, in finish-only mode."""
+    _CTX[C_MODE] = MODE_FINISH
+    try:
+        _CALLBACK_POINTER(None, None)
+    finally:
+        _CTX[C_MODE] = MODE_STEP
 
 
 # ----------------------------------------------------------------------------
@@ -482,6 +653,10 @@ class MujocoPlantFast(MujocoPlant):
         self._const, self._slope, self._theta, self._meff, self._effort = (np.zeros(na) for _ in range(5))
         self._flow = np.zeros(len(net.branch_names))
         self._passive = np.zeros(nv)
+        self._work = np.zeros(C.work_size(self._F, self._I))
+        self._scratch = np.zeros(scratch_size(na, n, len(net.branch_names), len(net.valve_names)))
+        self._istats = np.zeros(6, np.int64)
+        self._pmax, self._pmin = np.zeros(n), np.zeros(n)
         self._fs = np.zeros(NFS)
         self._fs[FS_DT] = self.dt
         quad_nodes, quad_weights = np.polynomial.legendre.leggauss(POTENTIAL_QUADRATURE_POINTS)
@@ -496,6 +671,7 @@ class MujocoPlantFast(MujocoPlant):
         ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N], ctx[C_NB] = na, nv, m.nu, n, len(net.branch_names)
         ctx[C_NVALVE], ctx[C_NPUMP], ctx[C_NBIAS] = len(net.valve_names), len(net.pump_names), m.actuator_biasprm.shape[1]
         ctx[C_SUBSTEPS], ctx[C_NCYL] = stepper.substeps, len(net.cylinder_actuator)
+        ctx[C_NF], ctx[C_NI], ctx[C_NW], ctx[C_NS] = self._F.size, self._I.size, self._work.size, self._scratch.size
         addresses = {
             P_F: self._F, P_I: self._I, P_ACT: self._act, P_CLOSED: self._closed, P_LENGTH: d.actuator_length,
             P_AVEL: d.actuator_velocity, P_MOMENT: d.actuator_moment, P_ROWADR: d.moment_rowadr, P_ROWNNZ: d.moment_rownnz,
@@ -504,7 +680,8 @@ class MujocoPlantFast(MujocoPlant):
             P_OIL: self._oil, P_PRESSURE: self._p, P_SPOOL: self._spool, P_XPOS: self._x, P_XVEL: self._v,
             P_XSTART: self._xs, P_VSTART: self._vs, P_CONST: self._const, P_SLOPE: self._slope, P_THETA: self._theta,
             P_MEFF: self._meff, P_EFFORT: self._effort, P_FLOW: self._flow, P_PASSIVE_SAVED: self._passive, P_FS: self._fs,
-            P_QUAD: self._quad,
+            P_QUAD: self._quad, P_WORK: self._work, P_SCRATCH: self._scratch, P_ISTATS: self._istats,
+            P_PMAX: self._pmax, P_PMIN: self._pmin,
         }
         assert d.moment_rowadr.dtype == np.int32 and d.moment_colind.dtype == np.int32
         for slot, array in addresses.items():
@@ -512,6 +689,12 @@ class MujocoPlantFast(MujocoPlant):
         self._keep = addresses  # the arrays must outlive the table
         self._ctx = ctx
         callback()
+
+    def reset(self) -> None:
+        """As :meth:`MujocoPlant.reset`; the running pressure extremes restart from the initial pressures."""
+        super().reset()
+        self.node_pressure_max = self.net_state.node_pressure.copy()
+        self.node_pressure_min = self.net_state.node_pressure.copy()
 
     # ------------------------------------------------------------------ inputs
     def _input_plan(self):
@@ -533,13 +716,17 @@ class MujocoPlantFast(MujocoPlant):
             self._capacity = max(n, 2 * self._capacity)
             self._cmd = np.zeros((self._capacity, len(self.network.valve_names)))
             self._speed = np.zeros((self._capacity, len(self.network.pump_names)))
+            self._step_numbers = np.arange(self._capacity)
+            # the callback reads rows of the whole buffers (row stride = capacity rows)
+            ctx = self._ctx
+            ctx[P_CMD], ctx[P_SPEED], ctx[C_ROWS] = self._cmd.ctypes.data, self._speed.ctypes.data, self._capacity
         cmd, speed = self._cmd[:n], self._speed[:n]
         cmd[:] = self.control.valve_command
         speed[:] = self.control.pump_speed
         times = None
         for is_valve, index, schedule in self._inputs:
             if times is None:
-                times = (np.arange(n) + self.step_index) * self.dt
+                times = (self._step_numbers[:n] + self.step_index) * self.dt  # = (np.arange(n) + step_index)·dt
             target = cmd if is_valve else speed
             if isinstance(schedule, Schedule):
                 target[:, index] = np.interp(times, schedule.t, schedule.value)
@@ -568,6 +755,8 @@ class MujocoPlantFast(MujocoPlant):
                 report = MujocoPlant.step(self)
                 if not report.success:
                     break
+                np.maximum(self.node_pressure_max, self.net_state.node_pressure, out=self.node_pressure_max)
+                np.minimum(self.node_pressure_min, self.net_state.node_pressure, out=self.node_pressure_min)
             return report
         state = self.net_state
         self._oil[:] = state.node_oil
@@ -575,29 +764,29 @@ class MujocoPlantFast(MujocoPlant):
         self._spool[:] = state.valve_spool
         self._x[:] = state.actuator_position
         self._v[:] = state.actuator_velocity
+        self._pmax[:] = self.node_pressure_max
+        self._pmin[:] = self.node_pressure_min
         e = self.energy
         fs = self._fs
         fs[FS_PUMP], fs[FS_MOTOR], fs[FS_DISS_H] = e.pump_work, e.motor_work, e.dissipated_hydraulic
         fs[FS_DISS_F], fs[FS_DISS_M] = e.dissipated_friction, e.dissipated_mechanical
         cmd, speed = self._sample_inputs(n)
         ctx = self._ctx
-        ctx[P_CMD], ctx[P_SPEED] = cmd.ctypes.data, speed.ctypes.data
-        ctx[C_K], ctx[C_PENDING], ctx[C_FAILED], ctx[C_STATUS], ctx[C_WORST] = 0, 0, -1, ST_OK, -1
+        ctx[C_K:C_WORST + 1] = _BLOCK_START  # C_K, C_PENDING, C_FAILED, C_STATUS, C_WORST
         if not _LOCK.acquire(blocking=False):
             raise RuntimeError("another MujocoPlantFast is stepping in this process (MuJoCo's control callback is global)")
         try:
             _CTX[:] = ctx
             previous = mujoco.get_mjcb_control()
-            mujoco.set_mjcb_control(_CALLBACK.ctypes)
+            mujoco.set_mjcb_control(_CALLBACK_POINTER)
             try:
                 mujoco.mj_step(self.model, self.data, nstep=n)
             finally:
                 mujoco.set_mjcb_control(previous)
             _finish_python()
-            out = _CTX.copy()
+            failed, status, worst, newton, rhs, jac = _CTX[C_FAILED:C_JAC + 1].tolist()
         finally:
             _LOCK.release()
-        failed = int(out[C_FAILED])
         steps = n if failed < 0 else failed + 1
         last = steps - 1
         self.control.valve_command[:] = cmd[last]
@@ -609,9 +798,10 @@ class MujocoPlantFast(MujocoPlant):
         e.dissipated_friction, e.dissipated_mechanical = float(fs[FS_DISS_F]), float(fs[FS_DISS_M])
         self.effort = self._effort.copy()
         self.theta = self._theta.copy()
-        report = StepReport(newton_iterations=int(out[C_NEWTON]), rhs_evaluations=int(out[C_RHS]),
-                            jacobian_evaluations=int(out[C_JAC]), residual=float(fs[FS_NORM]), branch_flow=self._flow.copy())
-        status, worst = int(out[C_STATUS]), int(out[C_WORST])
+        self.node_pressure_max = self._pmax.copy()
+        self.node_pressure_min = self._pmin.copy()
+        report = StepReport(newton_iterations=newton, rhs_evaluations=rhs, jacobian_evaluations=jac,
+                            residual=float(fs[FS_NORM]), branch_flow=self._flow.copy())
         names = self.network.node_names
         if status == ST_NEWTON:
             report.status = StepStatus.NEWTON_FAILED

@@ -32,7 +32,10 @@ CASES = {
          "bucket_valve": ramp(0.05, 0.12, 0.5), "swing_valve": ramp(0.02, 0.1, 1.0)},
         300,
     ),
+    # two hydraulic substeps per MuJoCo step (the callback interpolates the actuator motion)
+    "boom/2 substeps": (MODELS / "boom" / "lift.scenario.toml", {"boom_valve": ramp(0.02, 0.08, 1.0)}, 150),
 }
+OVERRIDES = {"boom/2 substeps": {"hydraulic_substeps": 2}}
 
 
 def plants(case):
@@ -42,6 +45,8 @@ def plants(case):
     scenario = load_scenario(path)
     if inputs:
         scenario = scenario.with_overrides(inputs={**scenario.inputs, **inputs})
+    if case in OVERRIDES:
+        scenario = scenario.with_overrides(**OVERRIDES[case])
     assert scenario.compiled and scenario.coupling == "implicit"
     reference, fast = MujocoPlant(load_scene(scenario)), MujocoPlantFast(load_scene(scenario))
     assert fast.fast
@@ -73,17 +78,25 @@ def test_fast_plant_matches_python_plant(case):
     blocks = [1, 7, 50, 1, 13, 100]
     done, i = 0, 0
     moved = False
+    peak, low = reference.net_state.node_pressure.copy(), reference.net_state.node_pressure.copy()
     while done < steps:
         n = min(blocks[i % len(blocks)], steps - done)
         i += 1
         for _ in range(n):
             reference.step()
+            np.maximum(peak, reference.net_state.node_pressure, out=peak)
+            np.minimum(low, reference.net_state.node_pressure, out=low)
         report = fast.advance(n)
         done += n
         assert report.success
         assert_same(reference, fast)
+        # running extremes over every step, not only the block ends
+        np.testing.assert_allclose(fast.node_pressure_max, peak, rtol=PRESSURE_RTOL, atol=PRESSURE_ATOL)
+        np.testing.assert_allclose(fast.node_pressure_min, low, rtol=PRESSURE_RTOL, atol=PRESSURE_ATOL)
         moved |= bool(np.any(fast.control.valve_command != 0))
     assert moved or case == "seed"
+    if case in OVERRIDES:
+        assert fast.coupling.stepper.substeps == 2
     assert mujoco.get_mjcb_control() is None  # the callback is only installed inside advance()
 
 
@@ -102,3 +115,28 @@ def test_step_is_advance_one_and_callback_restored():
     finally:
         mujoco.set_mjcb_control(None)
     assert_same(reference, fast)
+
+
+def test_newton_failure_reported_at_the_same_step(monkeypatch):
+    """With the Newton limit cut to 1 (packed at construction) a valve slam fails in the same step and with the same
+    message in both plants; the fast plant's network state, time and step index point at that step."""
+    from hydraulics import steppers
+    from sim.plant_mujoco_fast import MujocoPlantFast
+
+    monkeypatch.setattr(steppers, "NEWTON_MAX_ITERATIONS", 1)
+    scenario = load_scenario(MODELS / "boom" / "lift.scenario.toml")
+    slam = Schedule(np.array([0.0, 0.01, 0.011]), np.array([0.0, 0.0, 1.0]))
+    scenario = scenario.with_overrides(inputs={**scenario.inputs, "boom_valve": slam})
+    reference, fast = MujocoPlant(load_scene(scenario)), MujocoPlantFast(load_scene(scenario))
+    assert fast.fast
+    for _ in range(100):
+        expected = reference.step()
+        if not expected.success:
+            break
+    assert not expected.success
+    report = fast.advance(100)
+    assert not report.success and report.status == expected.status and report.message == expected.message
+    assert fast.step_index == reference.step_index and fast.time == reference.time == fast.net_state.time
+    np.testing.assert_allclose(fast.net_state.node_pressure, reference.net_state.node_pressure, rtol=PRESSURE_RTOL,
+                               atol=PRESSURE_ATOL)
+    assert mujoco.get_mjcb_control() is None
