@@ -1,4 +1,4 @@
-"""Stability maps of the seed cylinder and the excavator, written to docs/stability/ (``make bench`` runs it).
+"""Stability maps of the seed cylinder, the excavator and the boom, written to docs/stability/ (``make bench`` runs it).
 
     .venv/bin/python bench/bench_stability.py [--quick] [--scenes seed,excavator,boom] [--workers N]
 
@@ -6,7 +6,8 @@ Per scene and method: ``docs/stability/stability-<scene>-<method>.png`` (heat ma
 of dt against bulk modulus, mass, dead volume and event; ≤ 150 kB each), plus
 ``<scene>.csv`` (every run) and ``<scene>-summary.txt`` (the stability boundary
 per method).  Work files (variants, run cache) go to ``.cache/stability/<scene>``,
-so a second call only re-plots.
+so a second call only re-plots (the cache is keyed on the simulation source too: after a change
+to ``hydraulics/`` or ``sim/`` every run is made again).
 
 Shortened, to keep the bench in minutes on two cores:
 
@@ -17,6 +18,7 @@ Shortened, to keep the bench in minutes on two cores:
   mass 1/100 and 100; dead volume 1e-7; all four events; configurations
   3 periods of the fastest (bucket, 21 Hz) column = 0.14 s; MuJoCo runs cut at
   1500 steps and PBD runs at 60 steps (flagged ``*`` in the figures);
+* boom (``lift`` scenario): the default grid, configurations 0.3 s long; PBD runs cut at 200 steps;
 * ``--quick``: the tests' grid (3 dt values, runs ≤ 0.1 s).
 """
 
@@ -49,7 +51,7 @@ SCENES = {
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the tests' small grid")
-    parser.add_argument("--scenes", default="seed,excavator", help="comma-separated subset of " + ", ".join(SCENES))
+    parser.add_argument("--scenes", default="seed,excavator,boom", help="comma-separated subset of " + ", ".join(SCENES))
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "stability")
     args = parser.parse_args(argv)

@@ -1,6 +1,7 @@
 """Accuracy against cost on the seed cylinder and the excavator approach: compare + tradeoff, printed.
 
-    python bench/bench_tradeoff.py [--full] [--docs] [--scheduler tcp://host:port] [--workers N]
+    python bench/bench_tradeoff.py [--full] [--docs] [--scenes seed,excavator] [--no-compare]
+                                   [--scheduler tcp://host:port] [--workers N]
 
 1. Seed cylinder (the seed report's Figure 3 scene), 0.1 s at the seed's 1200 Hz: the converged
    reference against MuJoCo implicit, MuJoCo explicit and, when the PBD plant imports, PBD (XPBD
@@ -11,7 +12,8 @@
    reference converges only at first order from a large error (halving 62.5 µs → 31.25 µs
    still moves the bucket cap pressure by ~22× the 0.1 % tolerance over 3 s).
 3. The tradeoff sweep of both (``--full``: every setting of :func:`sim.tradeoff.sweep_settings`,
-   3 timed runs each; default: the quick sweep).
+   3 timed runs each, fidelity levels included (``incompressible`` at a frame-rate step, ``lines``);
+   default: the quick sweep, with ``incompressible`` at dt0 and ≈ 1/30 s).
 
 Outputs go to ``logs/bench-tradeoff/``; with ``--docs`` the figures (PNG), tables (CSV) and
 Markdown are copied to ``docs/figures/``. References and sweep points are cached
@@ -47,7 +49,10 @@ def main(argv=None) -> int:
     parser.add_argument("--scheduler", help="Dask scheduler address (default: local process pool)")
     parser.add_argument("--workers", type=int, help="local worker processes (default: CPU count)")
     parser.add_argument("--out", type=Path, default=ROOT / "logs/bench-tradeoff")
+    parser.add_argument("--scenes", default="seed,excavator", help="comma-separated subset of seed, excavator")
+    parser.add_argument("--no-compare", action="store_true", help="only the tradeoff sweeps (no compare runs)")
     args = parser.parse_args(argv)
+    scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     os.chdir(ROOT)  # the caches are relative to the repository
     print(f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}")
     modes = default_modes()
@@ -55,11 +60,14 @@ def main(argv=None) -> int:
         print("PBD plant not importable: comparing MuJoCo explicit and implicit only")
     outputs = {}
     for name, scenario, duration in (("seed", SEED, None), ("excavator", DIG, DIG_DURATION)):
+        if name not in scenes:
+            continue
         started = time.perf_counter()
-        out = args.out / f"{name}-compare"
-        result = compare_runs(scenario, parse_runs(modes), out, duration=duration, progress=True)
-        print(f"\n## {name}: compare ({time.perf_counter() - started:.0f} s), reference {result.reference_text}")
-        print(summary_table(result.comparisons))
+        out = None if args.no_compare else args.out / f"{name}-compare"
+        if out is not None:
+            result = compare_runs(scenario, parse_runs(modes), out, duration=duration, progress=True)
+            print(f"\n## {name}: compare ({time.perf_counter() - started:.0f} s), reference {result.reference_text}")
+            print(summary_table(result.comparisons))
         started = time.perf_counter()
         tout = args.out / f"{name}-tradeoff"
         t = tradeoff(scenario, tout, scheduler=args.scheduler, workers=args.workers, quick=not args.full,
@@ -75,12 +83,13 @@ def main(argv=None) -> int:
     if args.docs:
         DOCS.mkdir(parents=True, exist_ok=True)
         for name, (out, tout) in outputs.items():
-            shutil.copyfile(out / "overlay.png", DOCS / f"{name}-compare-overlay.png")
-            shutil.copyfile(out / "error.png", DOCS / f"{name}-compare-error.png")
+            if out is not None:
+                shutil.copyfile(out / "overlay.png", DOCS / f"{name}-compare-overlay.png")
+                shutil.copyfile(out / "error.png", DOCS / f"{name}-compare-error.png")
+                report = (out / "report.md").read_text().replace("(overlay.png)", f"({name}-compare-overlay.png)")
+                (DOCS / f"{name}-compare.md").write_text(report.replace("(error.png)", f"({name}-compare-error.png)"))
             shutil.copyfile(tout / "pareto.png", DOCS / f"{name}-pareto.png")
             shutil.copyfile(tout / "tradeoff.csv", DOCS / f"{name}-tradeoff.csv")
-            report = (out / "report.md").read_text().replace("(overlay.png)", f"({name}-compare-overlay.png)")
-            (DOCS / f"{name}-compare.md").write_text(report.replace("(error.png)", f"({name}-compare-error.png)"))
             (DOCS / f"{name}-tradeoff.md").write_text((tout / "tradeoff.md").read_text().replace("(pareto.png)", f"({name}-pareto.png)"))
         print(f"\ncopied to {DOCS}")
     return 0

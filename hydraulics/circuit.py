@@ -28,12 +28,14 @@ from .components import COMPONENT_TYPES, CircuitError, build_component, check_nu
 from .fluid import Fluid
 
 FLUID_FIELDS = {
-    "density": param("kg/m^3", low=0.0, high=2e4),
-    "bulk_modulus": param("Pa", low=0.0, high=1e12),
-    "kinematic_viscosity": param("m^2/s", low=0.0, high=1.0),
-    "reference_pressure": param("Pa", low=0.0, high=1e7, low_open=False),
-    "cavitation_pressure": param("Pa", low=0.0, high=1e7),
-    "air_fraction": param("-", low=0.0, high=0.99, low_open=False),
+    # ranges of real hydraulic fluids (mineral oils, water glycols, esters, water), so that a typo
+    # such as a bulk modulus of 1 Pa or a density in g/cm^3 is refused instead of simulated
+    "density": param("kg/m^3", low=500.0, high=2000.0, low_open=False),
+    "bulk_modulus": param("Pa", low=1e7, high=1e11, low_open=False),
+    "kinematic_viscosity": param("m^2/s", low=1e-7, high=1e-2, low_open=False),
+    "reference_pressure": param("Pa", low=0.0, high=1e6, low_open=False),
+    "cavitation_pressure": param("Pa", low=0.0, high=2e5),
+    "air_fraction": param("-", low=0.0, high=0.5, low_open=False),
     "polytropic_index": param("-", low=1.0, high=1.67, low_open=False),
 }
 FLUID_FIELDS = {name: f.metadata for name, f in FLUID_FIELDS.items()}

@@ -143,7 +143,7 @@ class Volume:
 
     volume: float = param("m^3", low=0.0, high=10.0)
     """Volume at the reference pressure [m³]."""
-    wall_bulk_modulus: float = param("Pa", low=0.0, high=1e12, default=math.inf)
+    wall_bulk_modulus: float = param("Pa", low=1e7, high=1e12, low_open=False, default=math.inf)
     """Wall compliance as a bulk modulus [Pa]; inf = rigid."""
     PORTS = ("port",)
 
@@ -156,7 +156,7 @@ class Hose:
     """Length [m]."""
     inner_diameter: float = param("m", low=0.0, high=0.5)
     """Inner diameter [m]."""
-    wall_bulk_modulus: float = param("Pa", low=0.0, high=1e12, default=math.inf)
+    wall_bulk_modulus: float = param("Pa", low=1e7, high=1e12, low_open=False, default=math.inf)
     """Wall compliance as a bulk modulus [Pa] (rubber hose ≈ 1e8–1e9); inf = rigid."""
     PORTS = ("a", "b")
 

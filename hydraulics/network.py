@@ -51,7 +51,11 @@ FIDELITIES = ("incompressible", "compressible", "lines")
 (see :class:`hydraulics.coupling.CouplingIncompressible`).
 ``compressible``: chamber pressure states, each hose lumped into the net its ends join.
 ``lines``: each hose is a π-line — half its volume at each end net, a laminar
-(Hagen–Poiseuille) resistance between them — for pressure-wave and valve-slam studies."""
+(Hagen–Poiseuille) resistance between them — for pressure-wave and valve-slam studies.
+
+Levels may differ per actuator (``actuator_fidelity`` of :meth:`NetworkModel.from_circuit`):
+``compressible`` and ``lines`` mix freely (see :func:`line_hoses`); ``incompressible`` has no
+pressure states at all and applies to every actuator of a network or to none."""
 
 
 class _UnionFind:
@@ -98,6 +102,64 @@ def prune(circuit: Circuit):
     if not pruned:
         return circuit, ()
     return Circuit(circuit.fluid, kept, circuit.source), pruned
+
+
+def resolve_fidelity(circuit: Circuit, fidelity: str, actuator_fidelity=None) -> tuple:
+    """Per-actuator fidelity levels (cylinders and motors in circuit order) and the network's level.
+
+    ``fidelity`` is the default (the scene's level), ``actuator_fidelity`` maps actuator
+    names to overriding levels.  Returns ``(levels, network_level)`` where the network's
+    level is ``incompressible`` when every actuator is, ``lines`` when any is ``lines``
+    (some hoses are lines), else ``compressible``.  Raises :class:`CircuitError` for an
+    unknown level or name, and when ``incompressible`` is mixed with another level (the
+    incompressible law has no pressure states, the others need the shared supply's).
+    """
+    if fidelity not in FIDELITIES:
+        raise CircuitError(f"{circuit.source}: fidelity {fidelity!r} is not one of {list(FIDELITIES)}")
+    overrides = dict(actuator_fidelity or {})
+    names = [c.name for c in circuit.by_kind("cylinder", "motor")]
+    for name, level in overrides.items():
+        if name not in names:
+            raise CircuitError(f"{circuit.source}: fidelity for '{name}': no cylinder or motor of that name; actuators: {names}")
+        if level not in FIDELITIES:
+            raise CircuitError(f"{circuit.source}: fidelity for '{name}': {level!r} is not one of {list(FIDELITIES)}")
+    levels = tuple(overrides.get(name, fidelity) for name in names)
+    if "incompressible" in levels and set(levels) != {"incompressible"}:
+        fast = [n for n, lv in zip(names, levels) if lv == "incompressible"]
+        other = [n for n, lv in zip(names, levels) if lv != "incompressible"]
+        raise CircuitError(
+            f"{circuit.source}: fidelity 'incompressible' for {fast} cannot be mixed with 'compressible'/'lines' for {other} "
+            "in one circuit (the incompressible law has no pressure states; the others need the pressures of the nets they "
+            "share); give every actuator 'incompressible' or none"
+        )
+    if levels and set(levels) == {"incompressible"}:
+        return levels, "incompressible"
+    if not levels:
+        return levels, fidelity
+    return levels, "lines" if "lines" in levels else "compressible"
+
+
+def line_hoses(circuit: Circuit, fidelity: str, actuator_fidelity=None) -> frozenset:
+    """Names of the hoses modelled as π-lines.
+
+    A hose belongs to the actuators whose chamber (or motor port) net it joins once all
+    hoses are lumped, i.e. the work-port hoses between a valve and a cylinder.  It is a
+    line when one of its actuators is at ``lines`` (the higher level wins for a shared
+    hose); a hose of no actuator (e.g. a supply hose) follows the default ``fidelity``.
+    """
+    hoses = circuit.by_kind("hose")
+    if not actuator_fidelity:
+        return frozenset(c.name for c in hoses) if fidelity == "lines" else frozenset()
+    levels, _ = resolve_fidelity(circuit, fidelity, actuator_fidelity)
+    uf = _UnionFind()
+    for c in hoses:
+        uf.union(c.ports["a"], c.ports["b"])
+    owner_level = {}
+    for c, level in zip(circuit.by_kind("cylinder", "motor"), levels):
+        for net in c.ports.values():
+            root = uf.find(net)
+            owner_level[root] = "lines" if "lines" in (level, owner_level.get(root)) else level
+    return frozenset(c.name for c in hoses if owner_level.get(uf.find(c.ports["a"]), fidelity) == "lines")
 
 
 @dataclass
@@ -231,11 +293,19 @@ class NetworkModel:
     fidelity: str = "compressible"
     pruned: tuple = ()  # names of the circuit components that were not built
     incidence: np.ndarray = field(default=None, repr=False)  # (node_count, branch_count)
+    actuator_fidelity: tuple = ()  # fidelity level of every actuator (cylinders and motors, circuit order)
+    hose_lines: tuple = ()  # names of the hoses built as π-lines (own end nodes + laminar resistance)
 
     # ------------------------------------------------------------------ build
     @classmethod
-    def from_circuit(cls, circuit: Circuit, *, fidelity: str = "compressible") -> "NetworkModel":
+    def from_circuit(cls, circuit: Circuit, *, fidelity: str = "compressible", actuator_fidelity=None) -> "NetworkModel":
         """Assemble the network of ``circuit`` at the given fidelity.
+
+        ``fidelity`` is the default level; ``actuator_fidelity`` ({actuator name: level})
+        overrides it per cylinder or motor (:func:`resolve_fidelity`, :func:`line_hoses`):
+        the hoses of a ``lines`` actuator become π-lines while the others stay lumped.
+        ``fidelity`` of the model is then the network's level (``lines`` when any hose is
+        a line); ``actuator_fidelity`` and ``hose_lines`` record the details.
 
         Components that no cylinder or motor can reach (tanks do not connect)
         are pruned: not built and not stepped; ``pruned`` names them.
@@ -243,13 +313,16 @@ class NetworkModel:
         if fidelity not in FIDELITIES:
             raise CircuitError(f"{circuit.source}: fidelity {fidelity!r} is not one of {FIDELITIES}")
         circuit, pruned = prune(circuit)
-        lines = fidelity == "lines"
+        levels, network_fidelity = resolve_fidelity(circuit, fidelity, actuator_fidelity)
+        line_set = line_hoses(circuit, fidelity, actuator_fidelity)
+        if line_set and network_fidelity == "compressible":
+            network_fidelity = "lines"  # a hose of no actuator follows the default level
         uf = _UnionFind()
         for c in circuit.components:
             for net in c.ports.values():
                 uf.find(net)
-        if not lines:
-            for c in circuit.by_kind("hose"):
+        for c in circuit.by_kind("hose"):
+            if c.name not in line_set:
                 uf.union(c.ports["a"], c.ports["b"])
         roots = []
         for c in circuit.components:
@@ -278,7 +351,7 @@ class NetworkModel:
             fixed[k], fixed_p[k] = True, c.params.pressure
         for c in circuit.by_kind("volume", "hose"):
             # a lumped hose puts its volume on its (merged) net; a line puts half at each end
-            ends = ("port",) if c.kind == "volume" else (("a", "b") if lines else ("a",))
+            ends = ("port",) if c.kind == "volume" else (("a", "b") if c.name in line_set else ("a",))
             for end in ends:
                 k = node(c, end)
                 volume[k] += c.params.volume / len(ends)
@@ -343,9 +416,11 @@ class NetworkModel:
             if c.params.leakage_conductance > 0:
                 add_branch(f"{c.name}.leakage", node(c, "a"), node(c, "b"))
                 lam.append(c.params.leakage_conductance)
-        if lines:
+        if line_set:
             viscosity = circuit.fluid.density * circuit.fluid.kinematic_viscosity
             for c in circuit.by_kind("hose"):
+                if c.name not in line_set:
+                    continue
                 add_branch(f"{c.name}.line", node(c, "a"), node(c, "b"))
                 lam.append(laws.line_conductance(c.params.inner_diameter, c.params.length, viscosity))
         slices["laminar"] = slice(start, len(branch_names))
@@ -449,9 +524,11 @@ class NetworkModel:
             pump_compensator=f([getattr(c.params, "compensator_pressure", math.inf) for c in pumps], float),
             pump_band=f([getattr(c.params, "compensator_band", 1.0) for c in pumps], float),
             motor_branch_actuator=f([act_names.index(c.name) for c in mot], int),
-            fidelity=fidelity,
+            fidelity=network_fidelity,
             pruned=pruned,
             incidence=incidence,
+            actuator_fidelity=levels,
+            hose_lines=tuple(c.name for c in circuit.by_kind("hose") if c.name in line_set),
         )
         return model
 

@@ -28,7 +28,8 @@ G = its gradient, the branch a dead-headed pump ends on) and report it in
 
 :func:`check_plant` (or :func:`check_scenario`) returns a :class:`GuardReport`
 whose ``rows`` hold these numbers per actuator and whose ``warnings`` say which
-setting would be stable.  Guards never fail a run.
+setting would be stable.  Guards never fail a run for stability; a state that is
+not finite at t = 0 is bad input (:func:`check_initial_state`).
 """
 
 from __future__ import annotations
@@ -307,8 +308,47 @@ def relief_limits(network, net_state) -> list:
     return out
 
 
+def check_initial_state(plant) -> None:
+    """Raise :class:`~sim.scenario.ScenarioError` when a freshly built plant's state is not finite at t = 0.
+
+    The loaders reject the known causes with their own field (joint range, chamber
+    volume at the start pose, fluid and component ranges); this is the backstop for the
+    rest, naming the first non-finite node or joint and the files to look at.
+    """
+    from .scenario import ScenarioError
+
+    scenario, net = plant.scene.scenario, plant.network
+    p = np.asarray(plant.net_state.node_pressure, float)
+    q, qd = plant.joint_state()
+    effort = np.asarray(getattr(plant, "effort", np.zeros(0)), float)
+    bad_nodes = np.flatnonzero(~np.isfinite(p))
+    if len(bad_nodes):
+        name = net.node_names[bad_nodes[0]]
+        field_name = f"field 'initial.pressures.{name}'" if name in scenario.pressures else "[initial]"
+        raise ScenarioError(
+            f"{scenario.path}, {field_name}: the initial pressure of node '{name}' is {p[bad_nodes[0]]} Pa (not finite) at the "
+            f"start pose; check the initial joint values and pressures, and the volumes and fluid in {scenario.circuit}"
+        )
+    bad_joints = np.flatnonzero(~(np.isfinite(q) & np.isfinite(qd)))
+    if len(bad_joints):
+        name = plant.joint_names[bad_joints[0]]
+        raise ScenarioError(f"{scenario.path}, field 'initial.qpos.{name}': the initial state of joint '{name}' is not finite ({scenario.mjcf})")
+    bad = np.flatnonzero(~np.isfinite(effort))
+    if len(bad):
+        name = net.actuator_names[bad[0]]
+        raise ScenarioError(
+            f"{scenario.circuit}: component '{name}': its initial effort is not finite; check its parameters and the initial "
+            f"pressures in {scenario.path}"
+        )
+
+
 def check_plant(plant) -> GuardReport:
-    """Guard report of a freshly built plant (MuJoCo or PBD) at its initial state."""
+    """Guard report of a freshly built plant (MuJoCo or PBD) at its initial state.
+
+    Raises :class:`~sim.scenario.ScenarioError` (bad input, exit status 2) when that state
+    is not finite (:func:`check_initial_state`); otherwise it only warns.
+    """
+    check_initial_state(plant)
     return check(plant.scene, plant.net_state)
 
 

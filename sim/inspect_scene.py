@@ -52,7 +52,7 @@ def describe(scenario_path, overrides=None) -> str:
     scene = load_scene(scenario)
     plant = MujocoPlant(scene)
     m, net = scene.mjmodel, scene.network
-    lines = [f"scenario  {scenario.path}", f"run       mode {scenario.mode}, coupling {scenario.coupling}, dt {scenario.dt:g} s, fidelity {scenario.fidelity}"]
+    lines = [f"scenario  {scenario.path}", f"run       mode {scenario.mode}, coupling {scenario.coupling}, dt {scenario.dt:g} s, fidelity {scenario.fidelity_label}"]
     lines.append(f"bodies    {m.nbody - 1} (+ world), total mass {float(np.sum(m.body_mass)):.1f} kg")
     for b in range(1, m.nbody):
         lines.append(f"  {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or f'body{b}':<20s} {m.body_mass[b]:10.2f} kg")
@@ -67,6 +67,10 @@ def describe(scenario_path, overrides=None) -> str:
         f"circuit   {Path(scenario.circuit).name}: fidelity {net.fidelity}, {net.node_count} nodes, "
         f"{net.state_count} hydraulic states, {len(net.branch_names)} flow branches"
     )
+    if len(set(net.actuator_fidelity)) > 1:
+        lines.append("fidelity  " + ", ".join(f"{a} {lv}" for a, lv in zip(net.actuator_names, net.actuator_fidelity)))
+    if net.hose_lines:
+        lines.append(f"lines     {', '.join(net.hose_lines)} (pi-lines: own end volumes + laminar resistance)")
     lines.append(f"pruned    {', '.join(net.pruned) if net.pruned else 'nothing'}")
     mid, end = at_positions(plant, (0.5, NEAR_END))
     report_mid = guards.check(scene, mid)

@@ -12,9 +12,10 @@ of the log period, so that every run logs at the same instants and no comparison
 interpolates.
 
 References are cached in ``cache_dir/<key>/`` (default ``.cache/references/``), ``key`` the
-SHA-256 of the MJCF, circuit and scenario file contents, the effective run settings
-(duration, log rate, fidelity, initial state, inputs) and the reference settings; a cached
-reference is re-checked when it is loaded.
+SHA-256 of the MJCF, circuit and scenario file contents, the source code of ``hydraulics/``
+and ``sim/`` (:func:`sim.sweep.code_hash`), the effective run settings (duration, log rate,
+fidelity and its per-actuator overrides, initial state, inputs) and the reference settings;
+a cached reference is re-checked when it is loaded.
 
 :func:`require_converged` rejects a candidate pair of logs at ``h`` and ``h/2`` that is not
 converged, with a message naming every signal that moved too much.
@@ -34,7 +35,7 @@ from pathlib import Path
 
 from .mcap_log import RUN_METADATA, read_log
 from .scenario import Scenario, ScenarioError, load_scenario
-from .sweep import content_hash
+from .sweep import code_hash, content_hash
 
 __all__ = [
     "ConvergenceReport",
@@ -327,6 +328,7 @@ def _scenario_state(s: Scenario) -> dict:
         "duration": s.duration,
         "log_rate_hz": s.log_rate_hz,
         "fidelity": s.fidelity,
+        "actuator_fidelity": dict(sorted(s.actuator_fidelity.items())),
         "stepper": s.stepper,
         "qpos": s.qpos,
         "qvel": s.qvel,
@@ -347,6 +349,7 @@ def reference_key(scenario: Scenario, settings: ReferenceSettings) -> str:
         "version": REFERENCE_VERSION,
         "hydroplant": version,
         "files": content_hash(scenario.mjcf, scenario.circuit, scenario.path),
+        "code": code_hash(),  # the hydraulics/ and sim/ source: a code change recomputes the reference
         "scenario": _scenario_state(scenario),
         "settings": asdict(settings),
     }

@@ -23,6 +23,15 @@ Example::
     boom_valve = { t = [0.0, 1.0, 1.3], value = [0.0, 0.0, 1.0] }
     [log]
     rate_hz = 100
+
+Fidelity (see :data:`hydraulics.network.FIDELITIES`) is the scene's default level,
+``[run] fidelity`` or ``[fidelity] default``, overridable per cylinder or motor::
+
+    [fidelity]
+    default = "compressible"
+    boom_cyl = "lines"         # this cylinder's hoses as pi-lines, the others lumped
+
+``compressible`` and ``lines`` mix; ``incompressible`` applies to all actuators or none.
 """
 
 from __future__ import annotations
@@ -75,6 +84,7 @@ class Scenario:
     pbd_substeps: int = 20
     pbd_iterations: int = 1
     fidelity: str = "compressible"
+    actuator_fidelity: dict = field(default_factory=dict)  # actuator name -> level overriding `fidelity`
     compiled: bool = True
     qpos: dict = field(default_factory=dict)
     qvel: dict = field(default_factory=dict)
@@ -89,6 +99,14 @@ class Scenario:
     def name(self) -> str:
         """Scenario name: the file name without ``.scenario.toml``."""
         return self.path.name.removesuffix(".toml").removesuffix(".scenario")
+
+    @property
+    def fidelity_label(self) -> str:
+        """The default level and its per-actuator overrides, e.g. ``compressible (boom_cyl: lines)``."""
+        overrides = {k: v for k, v in self.actuator_fidelity.items() if v != self.fidelity}
+        if not overrides:
+            return self.fidelity
+        return f"{self.fidelity} (" + ", ".join(f"{k}: {v}" for k, v in sorted(overrides.items())) + ")"
 
     @property
     def scene_name(self) -> str:
@@ -211,6 +229,13 @@ def _validate_run(s: Scenario, where):
         value = getattr(s, key)
         if not (isinstance(value, int) and 1 <= value <= 100000):
             _error(where, f"field 'run.{key}': {value!r} is not an integer in [1, 100000]")
+    if s.fidelity not in FIDELITIES:
+        _error(where, f"field 'run.fidelity': {s.fidelity!r} is not one of {list(FIDELITIES)}")
+    if not isinstance(s.actuator_fidelity, dict):
+        _error(where, "field 'fidelity': expected a table of actuator name = level")
+    for name, level in s.actuator_fidelity.items():
+        if level not in FIDELITIES:
+            _error(where, f"field 'fidelity.{name}': {level!r} is not one of {list(FIDELITIES)}")
     if not (math.isfinite(s.log_rate_hz) and s.log_rate_hz > 0):
         _error(where, f"field 'log.rate_hz': {s.log_rate_hz!r} is not in (0, inf) Hz")
 
@@ -229,7 +254,7 @@ def load_scenario(path) -> Scenario:
         raise ScenarioError(f"{path}: cannot read scenario file ({exc.strerror})") from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
-    allowed = {"scene", "run", "initial", "inputs", "inputs_csv", "log"}
+    allowed = {"scene", "run", "initial", "inputs", "inputs_csv", "log", "fidelity"}
     unknown = sorted(set(data) - allowed)
     if unknown:
         _error(where, f"unknown top-level key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -275,10 +300,24 @@ def load_scenario(path) -> Scenario:
     if not isinstance(pressures, dict):
         _error(where, "field 'initial.pressures': expected a table of net name = absolute pressure [Pa]")
     for name in pressures:
-        _number(pressures, name, f"{where}, [initial.pressures]", low=-1e10, high=1e10)
+        _number(pressures, name, f"{where}, [initial.pressures]", low=0.0, high=1e10, low_open=False)  # Pa absolute
     equilibrium = initial.get("equilibrium", True)
     if not isinstance(equilibrium, bool):
         _error(where, f"field 'initial.equilibrium': expected true or false, got {equilibrium!r}")
+    fidelity = _choice(run, "fidelity", w, FIDELITIES, "compressible")
+    actuator_fidelity = {}
+    fidelity_table = data.get("fidelity", {})
+    if not isinstance(fidelity_table, dict):
+        _error(where, f"[fidelity] must be a table of default = level and actuator name = level; levels: {list(FIDELITIES)}")
+    for name, level in fidelity_table.items():
+        if not isinstance(level, str) or level not in FIDELITIES:
+            _error(where, f"field 'fidelity.{name}': {level!r} is not one of {list(FIDELITIES)}")
+        if name == "default":
+            if "fidelity" in run and run["fidelity"] != level:
+                _error(where, f"field 'fidelity.default': {level!r} contradicts field 'run.fidelity' = {run['fidelity']!r}; give one of them")
+            fidelity = level
+        else:
+            actuator_fidelity[name] = level
     inputs_table = data.get("inputs", {})
     if not isinstance(inputs_table, dict):
         _error(where, "[inputs] must be a table of input name = schedule")
@@ -299,7 +338,8 @@ def load_scenario(path) -> Scenario:
         hydraulic_substeps=_number(run, "hydraulic_substeps", w, low=1, high=1e5, low_open=False, default=1, integer=True),
         pbd_substeps=_number(run, "pbd_substeps", w, low=1, high=1e5, low_open=False, default=20, integer=True),
         pbd_iterations=_number(run, "pbd_iterations", w, low=1, high=1e5, low_open=False, default=1, integer=True),
-        fidelity=_choice(run, "fidelity", w, FIDELITIES, "compressible"),
+        fidelity=fidelity,
+        actuator_fidelity=actuator_fidelity,
         compiled=_flag(run, "compiled", w, True),
         qpos=joint_table("qpos"),
         qvel=joint_table("qvel"),

@@ -11,13 +11,14 @@ of this and raises :class:`~sim.scenario.ScenarioError` naming both files.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from hydraulics.circuit import load_circuit
+from hydraulics.components import CircuitError
 from hydraulics.network import ACTUATOR_CYLINDER, NetworkModel
 
 from .scenario import Scenario, ScenarioError
@@ -137,10 +138,30 @@ def has_contact_pairs(mjmodel: mujoco.MjModel) -> bool:
     return bool(np.any(can & (body[:, None] != body[None, :])))
 
 
+def build_network(scenario: Scenario) -> NetworkModel:
+    """The scenario's circuit at its fidelity (default level + per-actuator ``[fidelity]`` overrides)."""
+    circuit = load_circuit(scenario.circuit)
+    names = [c.name for c in circuit.by_kind("cylinder", "motor")]
+    for name in scenario.actuator_fidelity:
+        if name not in names:
+            raise ScenarioError(
+                f"{scenario.path}, field 'fidelity.{name}': no cylinder or motor called '{name}' in {scenario.circuit}; "
+                f"actuators: {names}"
+            )
+    try:
+        return NetworkModel.from_circuit(circuit, fidelity=scenario.fidelity, actuator_fidelity=scenario.actuator_fidelity)
+    except CircuitError as exc:
+        if "cannot be mixed" in str(exc):
+            raise ScenarioError(f"{scenario.path}, [fidelity] / field 'run.fidelity': {str(exc).split(': ', 1)[1]}") from None
+        raise
+
+
 def load_scene(scenario: Scenario) -> Scene:
     """Compile the MJCF, build the network and bind them; MJCF timestep set to the scenario's dt."""
     mjmodel = load_mjmodel(scenario.mjcf)
-    network = NetworkModel.from_circuit(load_circuit(scenario.circuit), fidelity=scenario.fidelity)
+    network = build_network(scenario)
+    if network.fidelity == "incompressible" and scenario.fidelity != "incompressible":
+        scenario = replace(scenario, fidelity="incompressible")  # every actuator overridden: the plants' switch
     binding = bind(network, mjmodel, scenario.circuit, scenario.mjcf)
     configure_actuators(mjmodel, binding)
     mjmodel.opt.timestep = scenario.dt
@@ -159,7 +180,81 @@ def load_scene(scenario: Scenario) -> Scene:
     for net in scenario.pressures:
         if net not in network.net_node:
             raise ScenarioError(f"{scenario.path}, field 'initial.pressures.{net}': no net '{net}' in {scenario.circuit}")
-    return Scene(scenario, mjmodel, network, binding, joints)
+    scene = Scene(scenario, mjmodel, network, binding, joints)
+    check_initial_joints(scene)
+    check_start_pose(scene)
+    return scene
+
+
+JOINT_UNITS = {int(mujoco.mjtJoint.mjJNT_HINGE): "rad", int(mujoco.mjtJoint.mjJNT_SLIDE): "m"}
+JOINT_RANGE_TOLERANCE = 1e-9  # rad or m: round-off allowance at a joint limit
+
+
+def check_initial_joints(scene: Scene) -> None:
+    """Reject ``[initial] qpos`` values on joints that are not scalar, or outside a limited joint's range."""
+    m, scenario = scene.mjmodel, scene.scenario
+    for key in ("qpos", "qvel"):
+        for name in getattr(scenario, key):
+            j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+            if int(m.jnt_type[j]) not in JOINT_UNITS:
+                raise ScenarioError(
+                    f"{scenario.path}, field 'initial.{key}.{name}': joint '{name}' in {scenario.mjcf} is a free or ball "
+                    "joint; [initial] sets hinge and slide joints only"
+                )
+    for name, value in scenario.qpos.items():
+        j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if not m.jnt_limited[j]:
+            continue
+        low, high = (float(v) for v in m.jnt_range[j])
+        if not (low - JOINT_RANGE_TOLERANCE <= value <= high + JOINT_RANGE_TOLERANCE):
+            unit = JOINT_UNITS[int(m.jnt_type[j])]
+            raise ScenarioError(
+                f"{scenario.path}, field 'initial.qpos.{name}': {value!r} {unit} is outside the joint's range "
+                f"[{low:g}, {high:g}] {unit} in {scenario.mjcf}"
+            )
+
+
+def check_start_pose(scene: Scene) -> None:
+    """Reject a start pose that puts a cylinder outside its stroke or leaves a chamber with no volume.
+
+    The extension x = tendon length − closed length (MJCF tendon range lower bound)
+    must lie in [0, stroke] (± ``STROKE_TOLERANCE``), and both chamber volumes
+    V_cap = V_dead,cap + A_cap·x and V_rod = V_dead,rod + A_rod·(stroke − x) [m³]
+    must be positive there: otherwise the pressures are NaN at t = 0.
+    """
+    net, m, scenario = scene.network, scene.mjmodel, scene.scenario
+    if not len(net.cylinder_actuator):
+        return
+    data = mujoco.MjData(m)
+    data.qpos[:], data.qvel[:] = initial_qpos_qvel(scene)
+    mujoco.mj_fwdPosition(m, data)
+    for i, a in enumerate(net.cylinder_actuator):
+        name = net.actuator_names[a]
+        aid, tid = scene.binding.actuator_id[a], scene.binding.tendon_id[a]
+        length = float(data.ten_length[tid])
+        closed = float(scene.binding.closed_length[a])
+        stroke = float(net.cylinder_stroke[i])
+        x = length - closed
+        where = f"{scenario.path}, field 'initial.qpos'"
+        if not (-STROKE_TOLERANCE <= x <= stroke + STROKE_TOLERANCE):
+            raise ScenarioError(
+                f"{where}: at the start pose cylinder '{name}' is {length:.4f} m pin to pin, extension x = {x:.4f} m, "
+                f"outside its stroke [0, {stroke:g}] m (tendon range [{closed:g}, {closed + stroke:g}] m in {scenario.mjcf}); "
+                "its chamber volumes would be wrong or negative; choose joint angles that put it inside"
+            )
+        xc = min(max(x, 0.0), stroke)
+        cap = float(net.cylinder_dead_cap[i] + net.cylinder_cap_area[i] * xc)
+        rod = float(net.cylinder_dead_rod[i] + net.cylinder_rod_area[i] * (stroke - xc))
+        nodes = (net.cylinder_cap_node[i], net.cylinder_rod_node[i])
+        for chamber, volume, field_name, node in (("cap", cap, "dead_volume_cap", nodes[0]), ("rod", rod, "dead_volume_rod", nodes[1])):
+            if net.node_fixed[node]:
+                continue  # a chamber on a tank net holds no pressure state
+            if not volume + net.node_volume[node] > 0.0:
+                raise ScenarioError(
+                    f"{where}: at the start pose cylinder '{name}' (x = {x:.4g} m of stroke {stroke:g} m) has a {chamber} chamber "
+                    f"volume of {volume:g} m^3; it must be > 0 m^3 (start away from the end of the stroke, or give "
+                    f"field '{field_name}' in {scenario.circuit} a value > 0)"
+                )
 
 
 def initial_qpos_qvel(scene: Scene):

@@ -51,7 +51,7 @@ run with fewer than ``MIN_COMPARED_SAMPLES`` steps in that window is inaccurate.
 Outputs in ``OUT``: ``stability.csv`` (one row per run), ``stability-<method>.png``
 (heat maps of dt against each swept quantity), ``summary.txt`` (the stability
 boundary per method).  The runs go through :func:`sim.sweep.run_sweep` (process
-pool, or Dask with ``--scheduler``), cached in ``OUT/cache`` (keyed on the point and
+pool, or Dask with ``--scheduler``), cached in ``OUT/cache`` (keyed on the point, the hash of the hydraulics/ and sim/ source and
 the contents of the variant files) so an interrupted map resumes.
 """
 
@@ -683,9 +683,11 @@ def build_points(facts: SceneFacts, grid: Grid, out_dir) -> tuple[list, list]:
     points, configs = [], []
     D = facts.duration
     rate = SAMPLES_PER_RUN / D
+    from .sweep import code_hash, content_hash
+
+    code = code_hash()  # cached runs are reused only with the same hydraulics/ and sim/ source
     for config in grid_configs(facts, grid):
         path = write_variant(facts, config, out_dir / "variants" / config.id)
-        from .sweep import content_hash
 
         info = variant_info(path, facts.full_flow)
         omega, actuators = info["omega_h"], info["actuators"]
@@ -697,7 +699,7 @@ def build_points(facts: SceneFacts, grid: Grid, out_dir) -> tuple[list, list]:
         common = {"config": config.id, "sweep": config.sweep, "value": config.value, "event": config.event,
                   "scenario": str(path), "omega_h": omega, "actuators": actuators, "log_rate_hz": rate,
                   "pressure_ceiling": info["pressure_ceiling"], "node_ceilings": info["node_ceilings"],
-                  "files": content_hash(loaded.path, loaded.circuit, loaded.mjcf)}
+                  "files": content_hash(loaded.path, loaded.circuit, loaded.mjcf), "code": code}
         ref = dict(common, method=REFERENCE_METHOD, mode="mujoco", coupling="implicit", dt=dt_ref, duration=ref_duration,
                    reference=True, truncated=ref_duration < D, log=str(out_dir / "logs" / f"{config.id}-reference.mcap"))
         points.append(ref)

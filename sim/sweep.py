@@ -39,7 +39,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-__all__ = ["SweepError", "content_hash", "finite_or_none", "point_key", "run_sweep"]
+__all__ = ["SweepError", "code_hash", "content_hash", "finite_or_none", "point_key", "run_sweep"]
 
 CACHE_VERSION = 1  # bump when the cache file layout changes
 
@@ -75,6 +75,25 @@ def content_hash(*items) -> str:
         digest.update(len(data).to_bytes(8, "little"))  # so that ("ab", "c") != ("a", "bc")
         digest.update(data)
     return digest.hexdigest()
+
+
+CODE_PACKAGES = ("hydraulics", "sim")
+"""Packages whose source code a simulation result depends on (see :func:`code_hash`)."""
+ANALYSIS_FILES = frozenset({"compare.py", "tradeoff.py", "sweep.py", "reference.py", "cli.py", "inspect_scene.py", "demo.py"})
+"""Files of those packages that analyse or launch runs but do not change a run's result."""
+
+
+def code_hash(root=None, packages=CODE_PACKAGES, exclude=ANALYSIS_FILES) -> str:
+    """SHA-256 (hex) of the simulation source: every ``*.py`` below ``packages`` but ``exclude``, by relative path.
+
+    Put it into sweep points and reference keys so that a cached result is not reused
+    after the code that computed it has changed.  ``root`` defaults to the directory
+    holding this package (the project root).
+    """
+    root = Path(root) if root is not None else Path(__file__).resolve().parents[1]
+    files = sorted(p for package in packages for p in (root / package).rglob("*.py")
+                   if p.name not in exclude and "__pycache__" not in p.parts)
+    return content_hash(*(p.relative_to(root).as_posix().encode() for p in files), *files)
 
 
 def _canonical(value) -> str:

@@ -5,7 +5,8 @@
     hydroplant tradeoff SCENARIO [--scheduler tcp://host:port] [--out DIR] [--quick] [--duration S]
 
 Sweeps the step ``dt``, the hydraulic substeps (MuJoCo mode), the XPBD substeps and
-iterations (PBD modes, when the PBD plant is importable) and both couplings
+iterations (PBD modes, when the PBD plant is importable), both couplings and the fidelity
+level (``incompressible`` / ``compressible`` / ``lines``, :data:`hydraulics.network.FIDELITIES`)
 (:func:`sweep_settings`), runs every setting through :func:`sim.sweep.run_sweep` (a local
 process pool, or a Dask cluster with ``--scheduler``), and measures per setting
 
@@ -19,6 +20,11 @@ Writes ``tradeoff.csv`` (one row per setting), ``pareto.png`` (error against cos
 log-log, Pareto fronts drawn) and ``tradeoff.md`` naming the Pareto-optimal settings, e.g.
 "for ≤ 1 mm stroke error the fastest setting is …".  The dt ladder keeps every step a
 divisor (or a multiple) of the log period, so runs and reference log at common instants.
+
+Fidelity: the reference is at the scenario's own level unless ``reference_fidelity`` (``--reference-fidelity``)
+names another (``lines`` measures what lumping the hoses costs as well); a setting at another level than
+the scenario's is uniform (its per-actuator ``[fidelity]`` overrides dropped).  Its errors then include
+the model's simplification, which is what tells whether ``incompressible`` is good enough.
 """
 
 from __future__ import annotations
@@ -60,17 +66,15 @@ REPEAT_BELOW_S = 10.0  # s of wall time: a run longer than this is timed once, n
 KIND_SCALE = {"joint": (1e3, "mrad"), "stroke": (1e3, "mm"), "pressure": (1e-5, "bar")}  # display factor, unit
 ERROR_COLUMNS = ("status", "diverged_at_s", "joint_max", "joint_rms", "stroke_max_m", "stroke_rms_m",
                  "pressure_max_pa", "pressure_rms_pa", "energy_drift_rel")
-SETTING_COLUMNS = ("label", "mode", "coupling", "dt_s", "hydraulic_substeps", "pbd_substeps", "pbd_iterations")
+SETTING_COLUMNS = ("label", "mode", "coupling", "fidelity", "dt_s", "hydraulic_substeps", "pbd_substeps", "pbd_iterations")
 COST_COLUMNS = ("wall_per_sim_s", "wall_per_sim_s_runs")
-# Files whose contents do not change a run's result (analysis and command-line code):
-NOT_SIMULATION = {"compare.py", "tradeoff.py", "sweep.py", "reference.py", "cli.py", "inspect_scene.py", "demo.py"}
 
 
 def code_hash() -> str:
-    """Content hash of the simulation code (``hydraulics/`` and ``sim/`` minus the analysis tools)."""
-    root = Path(__file__).resolve().parents[1]
-    files = sorted(p for d in ("hydraulics", "sim") for p in (root / d).rglob("*.py") if p.name not in NOT_SIMULATION)
-    return content_hash(*(str(p.relative_to(root)).encode() for p in files), *files)
+    """Content hash of the simulation code (``hydraulics/`` and ``sim/`` minus the analysis tools), see :func:`sim.sweep.code_hash`."""
+    from .sweep import code_hash as simulation_code_hash
+
+    return simulation_code_hash()
 
 
 def dt_ladder(scenario, exponents) -> list[float]:
@@ -92,8 +96,8 @@ def dt_ladder(scenario, exponents) -> list[float]:
     return out
 
 
-def sweep_settings(scenario, *, quick: bool = False, modes=None) -> list[dict]:
-    """The settings to sweep: dicts of mode, coupling, dt, hydraulic_substeps, pbd_substeps, pbd_iterations.
+def sweep_settings(scenario, *, quick: bool = False, modes=None, fidelities=None) -> list[dict]:
+    """The settings to sweep: dicts of mode, coupling, fidelity, dt, hydraulic_substeps, pbd_substeps, pbd_iterations.
 
     ``dt0`` is the scenario's step (see :func:`dt_ladder`). Full sweep:
 
@@ -106,13 +110,29 @@ def sweep_settings(scenario, *, quick: bool = False, modes=None) -> list[dict]:
 
     Quick: MuJoCo implicit at dt0·{2, 1, 1/2, 1/4}, explicit at dt0·{1, 1/2, 1/4, 1/8}, PBD implicit at
     dt0 × {10, 20} substeps, naive PBD at dt0·{1, 1/2} × 20 substeps.
+
+    All of these at the scenario's fidelity.  Other levels (``fidelities``; default every level,
+    quick: the scenario's and ``incompressible``), MuJoCo mode implicit:
+
+    - ``incompressible`` at dt0·{32, 4, 1} (≈ 1/30 s at a 1 kHz scenario: a frame-rate step), and in
+      PBD mode at dt0 × 10 substeps; quick: dt0·{32, 1};
+    - ``compressible`` / ``lines`` at dt0·{2, 1, 1/2}; quick: dt0 (not when the circuit has no hoses:
+      the two levels then build the same network).
     """
     from .compare import pbd_available
 
+    from hydraulics.network import FIDELITIES
+
     if modes is None:
         modes = ["mujoco", "pbd", "pbd-naive"] if pbd_available()[0] else ["mujoco"]
+    if fidelities is None:
+        fidelities = (scenario.fidelity, "incompressible") if quick else FIDELITIES
+    bad = [f for f in fidelities if f not in FIDELITIES]
+    if bad:
+        raise CircuitError(f"fidelities {bad} are not among {list(FIDELITIES)}")
     s = scenario
     out = []
+    level = scenario.fidelity
 
     def add(mode, coupling, exps, hyd=(1,), sub=(None,), it=(None,), max_rate=math.inf):
         for k, dt in zip(exps, dt_ladder(scenario, exps)):
@@ -121,7 +141,7 @@ def sweep_settings(scenario, *, quick: bool = False, modes=None) -> list[dict]:
                     if n is not None and n * 2.0 ** (-k) > max_rate:
                         continue
                     for i in it:
-                        setting = {"mode": mode, "coupling": coupling, "dt": dt, "hydraulic_substeps": h,
+                        setting = {"mode": mode, "coupling": coupling, "fidelity": level, "dt": dt, "hydraulic_substeps": h,
                                    "pbd_substeps": n if n is not None else s.pbd_substeps,
                                    "pbd_iterations": i if i is not None else s.pbd_iterations}
                         if setting not in out:
@@ -146,11 +166,27 @@ def sweep_settings(scenario, *, quick: bool = False, modes=None) -> list[dict]:
             add("pbd-naive", "explicit", (0, -1), sub=(20,), it=(1,))
         else:
             add("pbd-naive", "explicit", (0, -1), sub=(10, 20), it=(1,))
+    if scenario.fidelity == "incompressible":
+        out = [o for o in out if o["mode"] != "pbd-naive"]  # the naive scheme needs pressure states
+    from hydraulics.circuit import load_circuit
+
+    has_hoses = bool(load_circuit(scenario.circuit).by_kind("hose"))
+    for level in dict.fromkeys(fidelities):
+        if level == scenario.fidelity or (not has_hoses and "incompressible" not in (level, scenario.fidelity)):
+            continue  # without hoses 'lines' and 'compressible' build the same network
+        if level == "incompressible":
+            if "mujoco" in modes:
+                add("mujoco", "implicit", (5, 0) if quick else (5, 2, 0))
+            if "pbd" in modes and not quick:
+                add("pbd", "implicit", (0,), sub=(10,), it=(1,))
+        elif "mujoco" in modes:
+            add("mujoco", "implicit", (0,) if quick else (1, 0, -1))
     return out
 
 
-def setting_label(p: dict) -> str:
-    """``mujoco implicit dt 1 ms``, ``… ×4 hydraulic substeps``, ``pbd dt 1 ms 20 substeps × 1 iterations``."""
+def setting_label(p: dict, default_fidelity: str | None = None) -> str:
+    """``mujoco implicit dt 1 ms``, ``… ×4 hydraulic substeps``, ``pbd dt 1 ms 20 substeps × 1 iterations``,
+    with ``[incompressible]`` appended when the setting's fidelity is not ``default_fidelity``."""
     text = f"{p['mode']} {p['coupling']} dt {p['dt'] * 1e3:.4g} ms"
     if p["mode"] == "mujoco":
         if p["hydraulic_substeps"] != 1:
@@ -158,6 +194,9 @@ def setting_label(p: dict) -> str:
     else:
         coupling = "" if p["mode"] == "pbd-naive" else f" {p['coupling']}"  # the naive scheme is always explicit
         text = f"{p['mode']}{coupling} dt {p['dt'] * 1e3:.4g} ms, {p['pbd_substeps']} substeps × {p['pbd_iterations']} iterations"
+    fidelity = p.get("fidelity")
+    if fidelity is not None and fidelity != default_fidelity:
+        text += f" [{fidelity}]"
     return text
 
 
@@ -165,7 +204,8 @@ def sweep_points(scenario, settings: list[dict], *, repeats: int) -> list[dict]:
     """Sweep points: the settings plus what their results depend on (file and code hashes, duration, repeats)."""
     files = content_hash(scenario.mjcf, scenario.circuit, scenario.path)
     code = code_hash()
-    return [{**setting, "scenario": str(scenario.path), "files": files, "code": code, "duration": scenario.duration,
+    return [{**setting, "fidelity": setting.get("fidelity", scenario.fidelity), "scenario_fidelity": scenario.fidelity,
+             "scenario": str(scenario.path), "files": files, "code": code, "duration": scenario.duration,
              "repeats": repeats, "repeat_below_s": REPEAT_BELOW_S} for setting in settings]
 
 
@@ -186,6 +226,8 @@ def run_point(point: dict) -> dict:
 
     overrides = {k: point[k] for k in ("mode", "coupling", "dt", "hydraulic_substeps", "pbd_substeps", "pbd_iterations",
                                        "duration")}
+    if point.get("fidelity") is not None and point["fidelity"] != point.get("scenario_fidelity"):
+        overrides.update(fidelity=point["fidelity"], actuator_fidelity={})  # another level: the whole network at it
     costs = []
     with tempfile.TemporaryDirectory(prefix="hydroplant-tradeoff-") as tmp:
         try:
@@ -214,7 +256,7 @@ def _warm_up(point: dict, overrides: dict, tmp: Path) -> None:
     (imports, compilation, caches) are not charged to the first timed setting."""
     from .runner import run
 
-    key = (point["scenario"], point["mode"], point["coupling"])
+    key = (point["scenario"], point["mode"], point["coupling"], point.get("fidelity"))
     if key in _WARM:
         return
     short = {**overrides, "duration": min(point["duration"], WARM_UP_STEPS * point["dt"])}
@@ -228,7 +270,8 @@ def error_rows(points: list[dict], results: list[dict], ref_signals: dict) -> li
 
     rows = []
     for p, r in zip(points, results):
-        row = {"label": setting_label(p), "mode": p["mode"], "coupling": p["coupling"], "dt_s": p["dt"],
+        row = {"label": setting_label(p, p.get("scenario_fidelity")), "mode": p["mode"], "coupling": p["coupling"],
+               "fidelity": p.get("fidelity", p.get("scenario_fidelity")), "dt_s": p["dt"],
                "hydraulic_substeps": p["hydraulic_substeps"], "pbd_substeps": p["pbd_substeps"],
                "pbd_iterations": p["pbd_iterations"], "status": r["status"], "diverged_at_s": r["diverged_at_s"],
                "wall_per_sim_s": r["wall_per_sim_s"], "wall_per_sim_s_runs": " ".join(f"{c:.4g}" for c in r["wall_per_sim_s_runs"])}
@@ -311,6 +354,8 @@ def stability_statements(rows: list[dict]) -> list[str]:
     groups: dict[str, list] = {}
     for r in rows:
         key = r["mode"] if r["mode"] == "pbd-naive" else f"{r['mode']} {r['coupling']}"
+        if "[" in r["label"]:
+            key += f" [{r.get('fidelity')}]"
         groups.setdefault(key, []).append(r)
     out = []
     for key, group in groups.items():
@@ -352,6 +397,7 @@ def write_csv(rows: list[dict], path) -> Path:
 
 
 MARKERS = {(True, "implicit"): "o", (True, "explicit"): "s", (False, "implicit"): "^", (False, "explicit"): "v"}  # (MuJoCo?, coupling)
+FIDELITY_MARKERS = {"incompressible": "D", "lines": "P", "compressible": "h"}  # settings at another level than the scenario's
 MODE_COLORS = {"mujoco": "tab:blue", "pbd": "tab:green", "pbd-naive": "tab:red"}
 
 
@@ -376,6 +422,9 @@ def pareto_figure(rows: list[dict], path, *, title: str = "", kinds=("stroke", "
             color = MODE_COLORS.get(r["mode"], "tab:gray")
             marker = MARKERS.get((r["mode"] == "mujoco", r["coupling"]), "o")
             key = (r["mode"], "" if r["mode"] == "pbd-naive" else r["coupling"])
+            if "[" in r["label"]:  # at another fidelity than the scenario's
+                marker = FIDELITY_MARKERS.get(r.get("fidelity"), marker)
+                key = key + (f"[{r.get('fidelity')}]",)
             groups.setdefault(" ".join(k for k in key if k), (color, marker))
             filled = r["hydraulic_substeps"] == 1 if r["mode"] == "mujoco" else r["pbd_iterations"] == 1
             if _feasible(r) and r in stable:
@@ -436,8 +485,12 @@ def evaluate(scenario, settings: list[dict], reference_log, *, repeats: int = DE
 
 def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = False, duration=None, modes=None,
              repeats=None, tolerance=None, cache_dir=None, sweep_cache=None, fresh_reference: bool = False,
-             progress: bool = False) -> TradeoffResult:
-    """The full sweep of a scenario; writes ``tradeoff.csv``, ``pareto.png`` and ``tradeoff.md`` into ``out_dir``."""
+             progress: bool = False, fidelities=None, reference_fidelity: str | None = None) -> TradeoffResult:
+    """The full sweep of a scenario; writes ``tradeoff.csv``, ``pareto.png`` and ``tradeoff.md`` into ``out_dir``.
+
+    ``fidelities`` are the levels swept (see :func:`sweep_settings`); ``reference_fidelity`` the level of
+    the reference (default: the scenario's own, per-actuator overrides included).
+    """
     from .reference import DEFAULT_CACHE_DIR, compute_reference
     from .scenario import Scenario, load_scenario
 
@@ -447,9 +500,12 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
         scenario = scenario.with_overrides(duration=duration)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    reference = compute_reference(scenario, tolerance=tolerance, cache_dir=cache_dir or DEFAULT_CACHE_DIR,
+    reference_scenario = scenario
+    if reference_fidelity is not None and reference_fidelity != scenario.fidelity:
+        reference_scenario = scenario.with_overrides(fidelity=reference_fidelity, actuator_fidelity={})
+    reference = compute_reference(reference_scenario, tolerance=tolerance, cache_dir=cache_dir or DEFAULT_CACHE_DIR,
                                   fresh=fresh_reference, progress=progress)
-    settings = sweep_settings(scenario, quick=quick, modes=modes)
+    settings = sweep_settings(scenario, quick=quick, modes=modes, fidelities=fidelities)
     repeats = repeats or (QUICK_REPEATS if quick else DEFAULT_REPEATS)
 
     def report(done, total):
@@ -467,11 +523,14 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
     fig = pareto_figure(rows, out_dir / "pareto.png", title=title)
     floors = reference_floors(reference.report)
     statements = {kind: pareto_statements(rows, kind, floors[kind]) for kind in ("stroke", "pressure", "joint")}
-    ref_text = f"{reference.settings_text()}; {reference.report.text().splitlines()[0]}"
+    ref_text = (f"{reference.settings_text()}, fidelity {reference_scenario.fidelity_label}; "
+                f"{reference.report.text().splitlines()[0]}")
     lines = [f"# Accuracy against cost: {title}", "", f"Reference: {ref_text}", "",
              f"{len(rows)} settings. Cost: wall-clock time per simulated second, the median of {repeats} run(s) "
              f"(one for runs over {REPEAT_BELOW_S:g} s), {'on the workers of ' + str(scheduler) if scheduler else 'in a local process pool'}; "
-             "timings vary with the machine and its load, errors do not. Errors: largest over the run against the reference.", ""]
+             "timings vary with the machine and its load, errors do not. Errors: largest over the run against the reference; "
+             f"settings marked [level] run at that fidelity instead of the scenario's ({scenario.fidelity_label}), so their "
+             "errors include the simpler model's.", ""]
     for kind in ("stroke", "pressure", "joint"):
         lines += [f"- {s}" for s in statements[kind]]
     floor_text = ", ".join(f"{floors[k] * KIND_SCALE[k][0]:.2g} {KIND_SCALE[k][1]} ({k})" for k in ("stroke", "pressure", "joint"))
@@ -514,6 +573,8 @@ def add_parser(subparsers):
     parser.add_argument("--modes", help="comma-separated subset of mujoco,pbd,pbd-naive (default: those available)")
     parser.add_argument("--tolerance", type=float, help="relative convergence tolerance of the reference (default 1e-3)")
     parser.add_argument("--fresh-reference", action="store_true", help="recompute the reference even if it is cached")
+    parser.add_argument("--fidelities", help="comma-separated fidelity levels to sweep (default: all; quick: the scenario's and incompressible)")
+    parser.add_argument("--reference-fidelity", help="fidelity of the reference (default: the scenario's)")
     parser.set_defaults(func=main)
 
 
@@ -538,6 +599,16 @@ def main(args) -> int:
         bad = [m for m in modes if m not in MODES]
         if bad:
             raise CircuitError(f"--modes: {bad} not in {list(MODES)}")
+    from hydraulics.network import FIDELITIES
+
+    fidelities = None
+    if args.fidelities:
+        fidelities = [f.strip() for f in args.fidelities.split(",") if f.strip()]
+        bad = [f for f in fidelities if f not in FIDELITIES]
+        if bad or not fidelities:
+            raise CircuitError(f"--fidelities: {bad or args.fidelities!r} not in {list(FIDELITIES)}")
+    if args.reference_fidelity is not None and args.reference_fidelity not in FIDELITIES:
+        raise CircuitError(f"--reference-fidelity: {args.reference_fidelity!r} is not one of {list(FIDELITIES)}")
     from .scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
@@ -545,7 +616,8 @@ def main(args) -> int:
     result = tradeoff(scenario, out, scheduler=args.scheduler, workers=args.workers, quick=args.quick,
                       duration=args.duration, modes=modes, repeats=args.repeats,
                       tolerance=Tolerance(relative=args.tolerance) if args.tolerance else None,
-                      fresh_reference=args.fresh_reference, progress=True)
+                      fresh_reference=args.fresh_reference, progress=True, fidelities=fidelities,
+                      reference_fidelity=args.reference_fidelity)
     for kind in ("stroke", "pressure"):
         for s in result.statements[kind]:
             print(s)

@@ -104,3 +104,34 @@ def test_missing_file_and_bad_toml(tmp_path):
     bad.write_text("[[component]\nname=")
     with pytest.raises(CircuitError, match="bad.toml: not valid TOML"):
         load_circuit(bad)
+
+
+@pytest.mark.parametrize("line, field, allowed", [
+    ("bulk_modulus = 1.0", "bulk_modulus", "[1e+07, 1e+11] Pa"),  # 1 Pa: loads, but the oil is a gas
+    ("bulk_modulus = 1.5e12", "bulk_modulus", "[1e+07, 1e+11] Pa"),
+    ("density = 0.87", "density", "[500, 2000] kg/m^3"),  # g/cm^3 typed for kg/m^3
+    ("kinematic_viscosity = 46.0", "kinematic_viscosity", "[1e-07, 0.01] m^2/s"),  # cSt typed for m^2/s
+    ("air_fraction = 0.9", "air_fraction", "[0, 0.5] -"),
+    ("cavitation_pressure = 1e6", "cavitation_pressure", "(0, 200000] Pa"),
+])
+def test_physically_absurd_fluid(line, field, allowed):
+    msg = error_of(BASE.replace("bulk_modulus = 1.5e9", line))
+    assert "bad.toml" in msg and "[fluid]" in msg and f"field '{field}'" in msg and allowed in msg
+
+
+def test_hose_wall_softer_than_any_hose():
+    hose = '[[component]]\nname = "h"\ntype = "hose"\nlength = 1.0\ninner_diameter = 0.02\nwall_bulk_modulus = 10.0\nports = { a = "a", b = "b" }\n'
+    msg = error_of(BASE + CYLINDER.replace("BORE", "0.08") + hose)
+    assert "component 'h'" in msg and "field 'wall_bulk_modulus'" in msg and "[1e+07, 1e+12] Pa" in msg
+
+
+def test_fidelity_overrides_name_actuators_and_levels():
+    from hydraulics.circuit import parse_circuit
+    from hydraulics.network import NetworkModel
+    import tomllib
+
+    circuit = parse_circuit(tomllib.loads(BASE + CYLINDER.replace("BORE", "0.08")), "bad.toml")
+    with pytest.raises(CircuitError, match=r"bad.toml: fidelity for 'arm': no cylinder or motor of that name; actuators: \['cyl'\]"):
+        NetworkModel.from_circuit(circuit, actuator_fidelity={"arm": "lines"})
+    with pytest.raises(CircuitError, match=r"fidelity for 'cyl': 'exact' is not one of"):
+        NetworkModel.from_circuit(circuit, actuator_fidelity={"cyl": "exact"})

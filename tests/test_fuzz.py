@@ -31,6 +31,7 @@ from hydraulics.network import NetworkModel
 from sim import cli
 from sim.scenario import load_scenario
 from sim.plant_mujoco import MujocoPlant
+from sim.guards import check_plant
 from sim.scene import load_scene
 from sim.stability import dump_toml
 
@@ -125,8 +126,10 @@ def test_wrong_type_in_scenario(tmp_path, capsys, old, new, field, allowed):
     ("bore = 0.033851375012865375", "bore = -0.05", "bore", "(0, 1] m"),
     ("stroke = 10.0 ", "stroke = -1.0 ", "stroke", "(0, 20] m"),
     ("dead_volume_cap = 0.0 ", "dead_volume_cap = -1e-6 ", "dead_volume_cap", "[0, 1] m^3"),
-    ("bulk_modulus = 2.2e9", "bulk_modulus = 0.0", "bulk_modulus", "(0, 1e+12] Pa"),
-    ("density = 1000.0", "density = -870.0", "density", "(0, 20000] kg/m^3"),
+    ("bulk_modulus = 2.2e9", "bulk_modulus = 0.0", "bulk_modulus", "[1e+07, 1e+11] Pa"),
+    ("bulk_modulus = 2.2e9", "bulk_modulus = 1.0", "bulk_modulus", "[1e+07, 1e+11] Pa"),
+    ("density = 1000.0", "density = -870.0", "density", "[500, 2000] kg/m^3"),
+    ("density = 1000.0", "density = 0.87", "density", "[500, 2000] kg/m^3"),
 ])
 def test_zero_or_negative_geometry(tmp_path, capsys, old, new, field, allowed):
     d = scene_dir(tmp_path)
@@ -248,6 +251,93 @@ def test_unit_suspicious_step_rate_typed_as_dt(tmp_path, capsys):
     edit(d / "closed.scenario.toml", "dt = 0.0008333333333333334", "dt = 1200")
     err = run_bad(d / "closed.scenario.toml", capsys)
     assert "closed.scenario.toml" in err and "field 'dt'" in err and "(0.0, 1.0]" in err
+
+
+# ------------------------------------------------------------------------------- loads, but NaN at t = 0 (refused at load)
+def test_initial_joint_outside_its_range(tmp_path, capsys):
+    d = scene_dir(tmp_path, "boom")
+    edit(d / "hold.scenario.toml", "qpos = { boom_hinge = 0.2003 }", "qpos = { boom_hinge = 3.0 }")
+    err = run_bad(d / "hold.scenario.toml", capsys)
+    assert "hold.scenario.toml" in err and "field 'initial.qpos.boom_hinge'" in err and "[-0.2448, 0.771] rad" in err
+
+
+@pytest.mark.parametrize("x", ["12.0", "10.5"])
+def test_start_pose_outside_the_stroke(tmp_path, capsys, x):
+    """The seed's slide joint is unlimited: a start beyond the stroke would give a chamber of negative length."""
+    d = scene_dir(tmp_path)
+    edit(d / "closed.scenario.toml", "qpos = { x = 1.0 }", f"qpos = {{ x = {x} }}")
+    err = run_bad(d / "closed.scenario.toml", capsys)
+    assert "closed.scenario.toml" in err and "field 'initial.qpos'" in err and "cylinder 'cyl'" in err
+    assert "outside its stroke [0, 10] m" in err and "seed_cylinder.xml" in err
+
+
+def test_start_pose_with_an_empty_chamber(tmp_path, capsys):
+    """x = 0 with no cap dead volume: V_cap = 0 and the pressure m/V is NaN."""
+    d = scene_dir(tmp_path)
+    edit(d / "closed.scenario.toml", "qpos = { x = 1.0 }", "qpos = { x = 0.0 }")
+    err = run_bad(d / "closed.scenario.toml", capsys)
+    assert "cylinder 'cyl'" in err and "cap chamber volume of 0 m^3" in err and "> 0 m^3" in err and "'dead_volume_cap'" in err
+
+
+def test_negative_absolute_initial_pressure(tmp_path, capsys):
+    d = scene_dir(tmp_path)
+    edit(d / "closed.scenario.toml", "pressures = { cyl_cap = 2.2e9 }", "pressures = { cyl_cap = -1e5 }")
+    err = run_bad(d / "closed.scenario.toml", capsys)
+    assert "closed.scenario.toml" in err and "[initial.pressures]" in err and "'cyl_cap'" in err and "[0.0, 10000000000.0]" in err
+
+
+@pytest.mark.parametrize("old, new, field, allowed", [
+    ("bulk_modulus = 1.5e9", "bulk_modulus = 1.0", "bulk_modulus", "[1e+07, 1e+11] Pa"),
+    ("bulk_modulus = 1.5e9", "bulk_modulus = 1e13", "bulk_modulus", "[1e+07, 1e+11] Pa"),
+    ("wall_bulk_modulus = 1.0e9", "wall_bulk_modulus = 1.0", "wall_bulk_modulus", "[1e+07, 1e+12] Pa"),
+])
+def test_physically_absurd_fluid(tmp_path, capsys, old, new, field, allowed):
+    d = scene_dir(tmp_path, "boom")
+    text = (d / "boom.circuit.toml").read_text()
+    (d / "boom.circuit.toml").write_text(text.replace(old, new, 1))
+    err = run_bad(d / "hold.scenario.toml", capsys)
+    assert "boom.circuit.toml" in err and f"field '{field}'" in err and allowed in err
+
+
+def test_every_numeric_circuit_field_has_a_range():
+    from dataclasses import fields as dataclass_fields
+
+    from hydraulics.circuit import FLUID_FIELDS
+    from hydraulics.components import COMPONENT_TYPES
+
+    metas = [(f"{kind}.{f.name}", f.metadata) for kind, cls in COMPONENT_TYPES.items() for f in dataclass_fields(cls)]
+    metas += [(f"fluid.{name}", meta) for name, meta in FLUID_FIELDS.items()]
+    for name, meta in metas:
+        assert meta.get("unit") is not None, name
+        if not meta["choices"]:
+            assert meta["low"] is not None and meta["high"] is not None, f"{name} has no allowed range"
+
+
+# ------------------------------------------------------------------------------- per-actuator fidelity
+@pytest.mark.parametrize("table, expected", [
+    ('[fidelity]\nboom_cyl = "lines"\narm_cyl = "lines"\n', ["field 'fidelity.arm_cyl'", "no cylinder or motor called 'arm_cyl'", "'boom_cyl'"]),
+    ('[fidelity]\nboom_cyl = "exact"\n', ["field 'fidelity.boom_cyl'", "'exact'", "'incompressible', 'compressible', 'lines'"]),
+    ('[fidelity]\ndefault = "lines"\n', ["field 'fidelity.default'", "contradicts field 'run.fidelity'"]),
+    ('fidelity = "lines"\n', ["[fidelity] must be a table"]),
+])
+def test_bad_fidelity_table(tmp_path, capsys, table, expected):
+    d = scene_dir(tmp_path, "boom")
+    edit(d / "hold.scenario.toml", "[run]", "[run]\nfidelity = \"compressible\"")
+    text = (d / "hold.scenario.toml").read_text()
+    (d / "hold.scenario.toml").write_text(table + text if not table.startswith("[") else text + "\n" + table)
+    err = run_bad(d / "hold.scenario.toml", capsys)
+    assert "hold.scenario.toml" in err
+    for part in expected:
+        assert part in err, (part, err)
+
+
+def test_incompressible_cannot_be_mixed(tmp_path, capsys):
+    d = scene_dir(tmp_path, "excavator")
+    text = (d / "dig.scenario.toml").read_text()
+    (d / "dig.scenario.toml").write_text(text + '\n[fidelity]\nboom_cyl = "incompressible"\n')
+    err = run_bad(d / "dig.scenario.toml", capsys)
+    assert "dig.scenario.toml" in err and "'incompressible' for ['boom_cyl'] cannot be mixed" in err
+    assert "'stick_cyl'" in err and "give every actuator 'incompressible' or none" in err
 
 
 @pytest.mark.parametrize("argv, expected", [
@@ -411,7 +501,12 @@ def test_fuzz_scenarios_and_bindings(fuzz_dir, scene, target, data):
     elif not isinstance(loaded, Exception):
         plant = must_be_clean(MujocoPlant, loaded)  # initial state: equilibrium solve, effective masses
         if not isinstance(plant, Exception):
-            event(f"initial state finite: {plant.finite()}")
+            # a scenario that loads must start finite, or be refused at load with a message (exit 2)
+            guarded = must_be_clean(check_plant, plant)
+            if isinstance(guarded, CircuitError):
+                assert str(folder) in str(guarded)
+            else:
+                assert plant.finite(), "a scenario loaded whose state is not finite at t = 0"
 
 
 @settings(FUZZ, max_examples=300)
@@ -567,3 +662,18 @@ def test_negative_body_mass_compensated_by_a_child(tmp_path, capsys):
     edit(d / "boom.xml", 'mass="150"', 'mass="-150"')
     err = run_bad(d / "hold.scenario.toml", capsys)
     assert "boom.xml" in err and "'boom'" in err and "mass" in err
+
+
+def test_backstop_refuses_a_non_finite_initial_state():
+    """Causes the loaders miss are still refused before the first step, naming the node (exit 2, not a NaN run)."""
+    import numpy as np
+
+    from sim.guards import check_plant
+    from sim.scenario import ScenarioError
+
+    plant = MujocoPlant(load_scene(load_scenario(MODELS / "boom" / "hold.scenario.toml")))
+    check_plant(plant)  # the shipped scene starts finite
+    node = plant.network.node("boom_cyl_cap")
+    plant.net_state.node_pressure[node] = np.nan
+    with pytest.raises(ScenarioError, match=r"hold.scenario.toml, \[initial\]: the initial pressure of node 'boom_cyl_cap' is nan Pa"):
+        check_plant(plant)

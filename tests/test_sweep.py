@@ -79,3 +79,75 @@ def test_seed_sweep_gives_the_same_error_table_on_a_process_pool_and_on_dask(tmp
     implicit = pool[:2]
     assert implicit[1]["stroke_max_m"] < implicit[0]["stroke_max_m"]  # the finer step is closer to the fine run
     assert all(r["wall_per_sim_s"] > 0 for r in pool + dask)
+
+
+def test_code_hash_follows_the_simulation_source_only(tmp_path):
+    """A cached result keyed on the code is invalid after a change to the simulation code, not after a tool's."""
+    from sim.sweep import code_hash
+
+    for package in ("hydraulics", "sim"):
+        (tmp_path / package).mkdir()
+    (tmp_path / "hydraulics" / "laws.py").write_text("A = 1\n")
+    (tmp_path / "sim" / "runner.py").write_text("B = 1\n")
+    (tmp_path / "sim" / "compare.py").write_text("C = 1\n")
+    before = code_hash(tmp_path)
+    (tmp_path / "sim" / "compare.py").write_text("C = 2\n")  # an analysis tool: same results
+    assert code_hash(tmp_path) == before
+    (tmp_path / "hydraulics" / "laws.py").write_text("A = 2\n")
+    assert code_hash(tmp_path) != before
+    assert len(code_hash()) == 64
+
+
+def test_reference_key_includes_the_code_and_the_fidelity(monkeypatch):
+    import sim.reference as reference
+    from sim.scenario import load_scenario
+
+    scenario = load_scenario(MODELS / "boom" / "lift.scenario.toml")
+    settings = reference.ReferenceSettings()
+    key = reference.reference_key(scenario, settings)
+    assert reference.reference_key(scenario.with_overrides(actuator_fidelity={"boom_cyl": "lines"}), settings) != key
+    monkeypatch.setattr(reference, "code_hash", lambda: "0" * 64)
+    assert reference.reference_key(scenario, settings) != key
+
+
+def test_fidelity_is_a_sweep_dimension():
+    from sim.scenario import load_scenario
+    from sim.tradeoff import setting_label, sweep_settings
+
+    scenario = load_scenario(MODELS / "excavator" / "dig.scenario.toml")
+    quick = sweep_settings(scenario, quick=True, modes=["mujoco"])
+    assert {s["fidelity"] for s in quick} == {"compressible", "incompressible"}
+    frame_rate = [s for s in quick if s["fidelity"] == "incompressible" and s["dt"] > 0.02]
+    assert len(frame_rate) == 1 and frame_rate[0]["dt"] == pytest.approx(0.03)  # 3 log periods of 10 ms
+    assert setting_label(frame_rate[0], scenario.fidelity) == "mujoco implicit dt 30 ms [incompressible]"
+    full = sweep_settings(scenario, modes=["mujoco", "pbd"])
+    assert {s["fidelity"] for s in full} == {"compressible", "incompressible", "lines"}
+    assert any(s["mode"] == "pbd" and s["fidelity"] == "incompressible" for s in full)
+    assert sweep_settings(scenario, quick=True, modes=["mujoco"], fidelities=["compressible"]) == \
+        [s for s in quick if s["fidelity"] == "compressible"]
+
+
+def test_tradeoff_rows_show_when_incompressible_is_good_enough(tmp_path):
+    """Boom lift (valve opened at 1.0–1.3 s), 2 s against a fine compressible run: the incompressible model
+    lifts at Q/A like the oil-column model (stroke within 1 cm at 2 ms) but has no chamber pressures to
+    speak of (error > 50 bar), and the lines model is as good as the lumped one."""
+    from sim.runner import run
+    from sim.scenario import load_scenario
+    from sim.tradeoff import evaluate
+
+    scenario = load_scenario(MODELS / "boom" / "lift.scenario.toml").with_overrides(duration=2.0)
+    fine = run(scenario, out=tmp_path / "fine.mcap", overrides={"dt": 2.5e-4}).log_path
+    settings = [{"mode": "mujoco", "coupling": "implicit", "fidelity": f, "dt": dt, "hydraulic_substeps": 1,
+                 "pbd_substeps": 20, "pbd_iterations": 1}
+                for f, dt in (("compressible", 1e-3), ("incompressible", 2e-3), ("incompressible", 0.03), ("lines", 1e-3))]
+    rows = evaluate(scenario, settings, fine, repeats=1, workers=1, cache_dir=tmp_path / "cache")
+    by = {r["label"]: r for r in rows}
+    assert set(by) == {"mujoco implicit dt 1 ms", "mujoco implicit dt 2 ms [incompressible]",
+                       "mujoco implicit dt 30 ms [incompressible]", "mujoco implicit dt 1 ms [lines]"}
+    assert all(r["status"] == "complete" for r in rows)
+    assert [r["fidelity"] for r in rows] == ["compressible", "incompressible", "incompressible", "lines"]
+    lumped, fast, frame, lines = (by[k] for k in sorted(by, key=list(by).index))
+    assert lumped["stroke_max_m"] < 1e-3 and lines["stroke_max_m"] < 1e-3
+    assert fast["stroke_max_m"] < 0.01  # good enough for a centimetre question
+    assert frame["stroke_max_m"] > fast["stroke_max_m"]
+    assert fast["pressure_max_pa"] > 50e5 > lumped["pressure_max_pa"]  # not for a pressure question
