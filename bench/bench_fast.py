@@ -12,6 +12,9 @@ median is reported:
 * ``fast/10``: ``MujocoPlantFast.advance(10)`` — one block per logged sample of
   a 100 Hz log at 1 kHz (the runner's default);
 * ``fast/1000``: ``advance(1000)``;
+* ``linear/10``, ``linear/1000``: the same with coupling ``implicit-linear``
+  (linearly implicit finish, no second Newton solve; plant constructor
+  argument ``coupling``);
 * ``python``: the Python-orchestrated :class:`MujocoPlant` (first 0.2 s only).
 
 Prints µs/step, the ratio to bare, the real-time factor (simulated/wall time)
@@ -60,21 +63,24 @@ def bench(name, path, reps, window, python_window=0.2):
     start = mujoco.MjData(m)
     mujoco.mj_copyData(start, m, probe.data)
     start.ctrl[:] = held  # the bare loop's constant controls
-    times = {"bare": [], "fast/10": [], "fast/1000": [], "python": []}
-    newton = 0
+    times = {"bare": [], "fast/10": [], "fast/1000": [], "linear/10": [], "linear/1000": [], "python": []}
+    newton = {"implicit": 0, "implicit-linear": 0}
     for _ in range(reps):
         bare = mujoco.MjData(m)
         mujoco.mj_copyData(bare, m, start)
         t = time.perf_counter()
         mujoco.mj_step(m, bare, nstep=steps)
         times["bare"].append((time.perf_counter() - t) / steps)
-        for block, key in ((10, "fast/10"), (1000, "fast/1000")):
-            fast = MujocoPlantFast(load_scene(scenario))
+        for block, key, coupling in ((10, "fast/10", "implicit"), (1000, "fast/1000", "implicit"),
+                                     (10, "linear/10", "implicit-linear"), (1000, "linear/1000", "implicit-linear")):
+            fast = MujocoPlantFast(load_scene(scenario), coupling=coupling)
+            assert fast.fast
             blocks = steps // block
             t = time.perf_counter()
             for _ in range(blocks):
                 report = fast.advance(block)
-                newton += report.newton_iterations
+                if block == 10:
+                    newton[coupling] += report.newton_iterations
             times[key].append((time.perf_counter() - t) / (blocks * block))
             assert report.success, report.message
         slow = MujocoPlant(load_scene(scenario))
@@ -84,7 +90,10 @@ def bench(name, path, reps, window, python_window=0.2):
         times["python"].append((time.perf_counter() - t) / python_steps)
     med = {k: statistics.median(v) * 1e6 for k, v in times.items()}
     cells = "  ".join(f"{k} {med[k]:7.2f} µs {med[k] / med['bare']:5.2f}× RTF {DT * 1e6 / med[k]:6.1f}" for k in med)
-    print(f"{name:10s} {window:4.1f} s  {cells}  peak RSS {peak_rss_mib():.0f} MiB", flush=True)
+    # Newton iterations of the finish, sampled at the last step of each block of 10
+    sampled = {k: v / (reps * (steps // 10)) for k, v in newton.items()}
+    print(f"{name:10s} {window:4.1f} s  {cells}  peak RSS {peak_rss_mib():.0f} MiB  finish Newton it/step "
+          f"(sampled) implicit {sampled['implicit']:.2f}, implicit-linear {sampled['implicit-linear']:.2f}", flush=True)
     return med
 
 

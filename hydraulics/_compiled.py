@@ -32,6 +32,13 @@ passed in; ``_unpack`` and the two Python entry points :func:`_step_kernel` and
 :func:`_linearize_kernel` (which allocate their outputs and scratch) keep the
 reference counting.
 
+**Newton start and ∂m⁺/∂v.**  :func:`_solve_core` / :func:`_step_core` take
+the Newton start ``oil_init`` (the pure path's ``oil_guess``; the implicit
+coupling's finish passes its linearised prediction), and
+:func:`_linearize_core` also returns ∂m⁺/∂v (``doil``, the pure
+``Linearization.oil_velocity_gradient``), which the linearly implicit finish
+(coupling ``implicit-linear``) uses.
+
 **Round-off-level differences from the pure path** (same iterations, same
 decisions): ``sqrt`` instead of ``pow`` for s**0.25 and a**1.5 in the orifice
 laws; for pure oil (no entrained air) the compliant-node inversion solves
@@ -846,11 +853,13 @@ def work_size(F, I) -> int:
 
 
 @_kernel
-def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, dto_out, istats, W, p_first):
+def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, dto_out, istats, W, p_first, oil_init):
     """StepperImplicitEuler._solve; returns the scaled residual norm, counters in ``istats``.
 
     ``W`` is scratch (at least ``_solve_work_size``); ``p_first`` receives the
-    pressures of the first evaluation (at ``oil0``, ``x``).
+    pressures of the first evaluation (at ``oil_init``, ``x``).  Newton starts
+    from ``oil_init`` (``oil0`` for a cold start); the residual is always
+    m − oil0 − h·ΣQ(m).
     """
     ic, sc, free = net.ic, net.sc, net.free
     n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
@@ -879,7 +888,7 @@ def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, 
     delta = delta_flat.reshape((nf, 1))
     jac = jac_flat.reshape((nf, nf))
     _valve_areas(net, spool, area)
-    _copy(oil, oil0)
+    _copy(oil, oil_init)
     rhs = 0
     jacobians = 0
     iterations = 0
@@ -969,9 +978,11 @@ def _spool_end(net, spool0, command, h, spool):
 # Cores (no allocation: outputs and scratch passed in) and entry points (called from Python)
 # ----------------------------------------------------------------------------
 @_kernel
-def _step_core(net, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats):
-    """One backward-Euler substep into the given outputs: spool update (or ``spool0`` as given), Newton solve,
-    end-of-step pressures; returns the residual norm.  ``W``: scratch of ``_step_work_size`` entries."""
+def _step_core(net, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats,
+               oil_init):
+    """One backward-Euler substep into the given outputs: spool update (or ``spool0`` as given), Newton solve
+    started from ``oil_init``, end-of-step pressures; returns the residual norm.  ``W``: scratch of
+    ``_step_work_size`` entries."""
     n = net.ic[IC_N]
     if update_spool:
         _spool_end(net, spool0, command, h, spool)
@@ -980,31 +991,34 @@ def _step_core(net, W, oil0, spool0, command, speed, x, v, h, update_spool, oil,
     s = _solve_work_size(net.ic)
     dpdm, o = _take(W, s, n)
     geo, o = _take(W, o, n)
-    norm = _solve_core(net, oil0, x, v, spool, speed, h, oil, flow, dfrom, dto, istats, W, p)
+    norm = _solve_core(net, oil0, x, v, spool, speed, h, oil, flow, dfrom, dto, istats, W, p, oil_init)
     _pressure(net, oil, x, geo, p, dpdm)
     return norm
 
 
 @_jit
-def _step_kernel(F, I, oil0, spool0, command, speed, x, v, h, update_spool):
-    """One backward-Euler substep: spool update (or ``spool0`` as given), Newton solve, end-of-step pressures."""
+def _step_kernel(F, I, oil0, spool0, command, speed, x, v, h, update_spool, oil_init):
+    """One backward-Euler substep: spool update (or ``spool0`` as given), Newton solve from ``oil_init``,
+    end-of-step pressures."""
     net = _unpack(F, I)
     n, nb = net.ic[IC_N], net.ic[IC_NB]
     W = np.empty(_step_work_size(net.ic))
     spool = np.empty(spool0.size)
     oil, p, flow, dfrom, dto = np.empty(n), np.empty(n), np.empty(nb), np.empty(nb), np.empty(nb)
     istats = np.zeros(6, np.int64)
-    norm = _step_core(net, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats)
+    norm = _step_core(net, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats,
+                      oil_init)
     return oil, p, spool, flow, dfrom, dto, istats, norm
 
 
 @_kernel
 def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort, gradient,
-                    p_first):
+                    p_first, doil):
     """StepperImplicitEuler.linearize into the given outputs; returns the residual norm.
 
     ``W``: scratch of ``_linearize_work_size`` entries; ``p_first`` receives
-    the pressures at (``oil0``, x0 + dt·velocity), the Newton solve's first evaluation.
+    the pressures at (``oil0``, x0 + dt·velocity), the Newton solve's first evaluation;
+    ``doil`` (n × na) receives ∂m⁺/∂v (``Linearization.oil_velocity_gradient``; zero rows for fixed nodes).
     """
     ic, sc, free = net.ic, net.sc, net.free
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
@@ -1017,7 +1031,7 @@ def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil,
     flow2, o = _take(W, o, nb)
     dpdm, o = _take(W, o, n)
     geo, o = _take(W, o, n)
-    norm = _solve_core(net, oil0, x, velocity, spool, speed, dt, oil, flow, dfrom, dto, istats, W, p_first)
+    norm = _solve_core(net, oil0, x, velocity, spool, speed, dt, oil, flow, dfrom, dto, istats, W, p_first, oil0)
     _pressure(net, oil, x, geo, p, dpdm)
     t, o = _take(W, o, n * na)
     dvdx = t.reshape((n, na))
@@ -1076,11 +1090,13 @@ def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil,
             jac[i, j] = (1.0 if i == j else 0.0) - dt * jq[free[i], free[j]] * dpdm[free[j]]
     _copy(dpdv.reshape(n * na), dpdx_dt.reshape(n * na))
     singular = False
+    doil[:, :] = 0.0
     if nf:
         if _lu_solve(jac, rhs):  # rhs now holds doil = −J⁻¹·drdv
             for j in range(nf):
                 k = free[j]
                 for a in range(na):
+                    doil[k, a] = rhs[j, a]
                     dpdv[k, a] += dpdm[k] * rhs[j, a]
         else:
             singular = True
@@ -1128,10 +1144,10 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt):
     W = np.empty(_linearize_work_size(ic))
     oil, p, spool, x, flow = np.empty(n), np.empty(n), np.empty(spool0.size), np.empty(na), np.empty(nb)
     istats = np.zeros(6, np.int64)
-    effort, gradient, p_first = np.empty(na), np.empty((na, na)), np.empty(n)
+    effort, gradient, p_first, doil = np.empty(na), np.empty((na, na)), np.empty(n), np.empty((n, na))
     norm = _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
-                           gradient, p_first)
-    return oil, p, spool, x, flow, istats, norm, effort, gradient
+                           gradient, p_first, doil)
+    return oil, p, spool, x, flow, istats, norm, effort, gradient, doil
 
 
 # ----------------------------------------------------------------------------
@@ -1183,24 +1199,27 @@ class StepperImplicitEulerCompiled(StepperImplicitEuler):
         self.jacobian_count += report.jacobian_evaluations
         return report
 
-    def _substep(self, state, control, motion, h):
+    def _substep(self, state, control, motion, h, oil_guess=None):
         if not _NUMBA:  # pragma: no cover
-            return super()._substep(state, control, motion, h)
+            return super()._substep(state, control, motion, h, oil_guess)
+        oil0 = _f64(state.node_oil)
         oil, pressure, spool, flow, _, _, istats, norm = _step_kernel(
-            self._F, self._I, _f64(state.node_oil), _f64(state.valve_spool), _f64(control.valve_command),
+            self._F, self._I, oil0, _f64(state.valve_spool), _f64(control.valve_command),
             _f64(control.pump_speed), _f64(motion.position_end), _f64(motion.velocity_end), float(h), True,
+            oil0 if oil_guess is None else _f64(oil_guess),
         )
         report = self._make_report(istats, norm, flow)
         new = NetworkState(oil, pressure, spool, np.array(motion.position_end, float), np.array(motion.velocity_end, float),
                            state.time + h)
         return new, report
 
-    def _solve(self, state, control, position, velocity, spool, h):
+    def _solve(self, state, control, position, velocity, spool, h, oil_guess=None):
         if not _NUMBA:  # pragma: no cover
-            return super()._solve(state, control, position, velocity, spool, h)
+            return super()._solve(state, control, position, velocity, spool, h, oil_guess)
+        oil0 = _f64(state.node_oil)
         oil, _, _, flow, dfrom, dto, istats, norm = _step_kernel(
-            self._F, self._I, _f64(state.node_oil), _f64(spool), _f64(control.valve_command), _f64(control.pump_speed),
-            _f64(position), _f64(velocity), float(h), False,
+            self._F, self._I, oil0, _f64(spool), _f64(control.valve_command), _f64(control.pump_speed),
+            _f64(position), _f64(velocity), float(h), False, oil0 if oil_guess is None else _f64(oil_guess),
         )
         return oil, BranchFlows(flow, dfrom, dto), self._make_report(istats, norm, flow)
 
@@ -1208,7 +1227,7 @@ class StepperImplicitEulerCompiled(StepperImplicitEuler):
         if not _NUMBA:  # pragma: no cover
             return super().linearize(state, control, velocity, dt)
         velocity = _f64(np.asarray(velocity, float).reshape(self.model.actuator_count))
-        oil, pressure, spool, position, flow, istats, norm, effort, gradient = _linearize_kernel(
+        oil, pressure, spool, position, flow, istats, norm, effort, gradient, doil = _linearize_kernel(
             self._F, self._I, _f64(state.node_oil), _f64(state.valve_spool), _f64(control.valve_command),
             _f64(control.pump_speed), _f64(state.actuator_position), velocity, float(dt),
         )
@@ -1216,4 +1235,4 @@ class StepperImplicitEulerCompiled(StepperImplicitEuler):
         if istats[IS_SINGULAR]:
             raise scipy.linalg.LinAlgError("Matrix is singular.")
         predicted = NetworkState(oil, pressure, spool, position, velocity.copy(), state.time + dt)
-        return Linearization(velocity.copy(), effort, gradient, predicted, report)
+        return Linearization(velocity.copy(), effort, gradient, predicted, report, doil)

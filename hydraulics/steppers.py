@@ -13,7 +13,11 @@ scipy's ``OdeSolver`` family).
 * :class:`StepperImplicitEuler` — backward Euler with Newton's method on the
   node oil contents and the analytic Jacobian, order 1, L-stable.  Also
   provides :meth:`StepperImplicitEuler.linearize`, the sensitivity of the
-  actuator efforts to the actuator velocities used by implicit coupling.
+  actuator efforts (and of the end oil contents, ∂m⁺/∂v) to the actuator
+  velocities used by implicit coupling; the linearly implicit finish built
+  on it (coupling ``implicit-linear``) is described in
+  :mod:`hydraulics.coupling`.  ``step(..., oil_guess=m)`` starts Newton's
+  method from a prediction of the end oil (same equations and tolerance).
 * :class:`StepperReference` — ``scipy.integrate.solve_ivp`` (Radau) at tight
   tolerance inside each step, for references.
 
@@ -140,7 +144,8 @@ class StepReport:
 class Linearization:
     """Actuator effort as an affine function of the end-of-step actuator velocities.
 
-    effort(v) ≈ ``effort`` + ``effort_velocity_gradient`` @ (v − ``velocity``).
+    effort(v) ≈ ``effort`` + ``effort_velocity_gradient`` @ (v − ``velocity``),
+    m⁺(v) ≈ ``state.node_oil`` + ``oil_velocity_gradient`` @ (v − ``velocity``).
     """
 
     velocity: np.ndarray  # (actuator_count,) where the step was linearised
@@ -148,6 +153,9 @@ class Linearization:
     effort_velocity_gradient: np.ndarray  # (actuator_count, actuator_count) [N·s/m ...]
     state: NetworkState  # the predicted end-of-step state at ``velocity``
     report: StepReport
+    # (node_count, actuator_count) [kg·s/m ...]: ∂m⁺/∂v of the backward-Euler step (zero rows for fixed nodes);
+    # the columns of a closed network sum to zero (the flows' linearisation is conservative)
+    oil_velocity_gradient: np.ndarray | None = None
 
 
 class Stepper:
@@ -175,8 +183,13 @@ class Stepper:
         self.rhs_count = 0
         self.jacobian_count = 0
 
-    def step(self, state: NetworkState, control: NetworkControl, motion: ActuatorMotion, dt: float):
+    def step(self, state: NetworkState, control: NetworkControl, motion: ActuatorMotion, dt: float, *, oil_guess=None):
         """Advance ``state`` by ``dt`` [s]; ``state`` is not modified.
+
+        ``oil_guess`` (optional, shape (node_count,) [kg]) is a prediction of
+        the end-of-step oil contents; implicit steppers start Newton's method
+        from it (substep k of S from m + (k+1)/S·(guess − m)).  It changes
+        only the iterations, not the equations or the tolerance.
 
         Returns
         -------
@@ -189,15 +202,19 @@ class Stepper:
         if not dt > 0:
             raise ValueError(f"`dt` must be positive, got {dt!r}")
         with np.errstate(all="ignore"):  # non-finite results are detected and reported below
-            return self._step(state, control, motion, dt)
+            return self._step(state, control, motion, dt, oil_guess)
 
-    def _step(self, state, control, motion, dt):
+    def _step(self, state, control, motion, dt, oil_guess=None):
         h = dt / self.substeps
         current = state
         report = StepReport()
         for k in range(self.substeps):
             sub = motion if self.substeps == 1 else motion.part(k, self.substeps)
-            new, sub_report = self._substep(current, control, sub, h)
+            guess = oil_guess
+            if oil_guess is not None and self.substeps > 1:
+                guess = state.node_oil + ((k + 1) / self.substeps) * (oil_guess - state.node_oil)
+            new, sub_report = self._substep(current, control, sub, h) if guess is None else self._substep(
+                current, control, sub, h, guess)
             report.absorb(sub_report)
             if not sub_report.success:
                 return current, report
@@ -236,7 +253,7 @@ class StepperExplicitEuler(Stepper):
     name = "explicit_euler"
     order = 1
 
-    def _substep(self, state, control, motion, h):
+    def _substep(self, state, control, motion, h, oil_guess=None):  # oil_guess: not needed (explicit)
         m = self.model
         spool_end = self._spool_end(state, control, h)
         pressure, _ = m.pressure(state.node_oil, motion.position_start)
@@ -261,13 +278,14 @@ class StepperImplicitEuler(Stepper):
     order = 1
     implicit = True
 
-    def _solve(self, state, control, position, velocity, spool, h):
-        """Newton solve of the backward-Euler oil balance; returns (oil, flows, report, jacobian pieces)."""
+    def _solve(self, state, control, position, velocity, spool, h, oil_guess=None):
+        """Newton solve of the backward-Euler oil balance from ``oil_guess`` (default: the start contents);
+        returns (oil, flows, report)."""
         m = self.model
         free = self.free
         areas = m.valve_areas(spool)
         oil0 = state.node_oil
-        oil = oil0.copy()
+        oil = oil0.copy() if oil_guess is None else np.array(oil_guess, float)
         report = StepReport()
 
         def evaluate(oil):
@@ -344,9 +362,9 @@ class StepperImplicitEuler(Stepper):
         beta = m.effective_bulk_modulus(pressure, position)
         return beta[self.free] / volume[self.free]
 
-    def _substep(self, state, control, motion, h):
+    def _substep(self, state, control, motion, h, oil_guess=None):
         spool_end = self._spool_end(state, control, h)
-        oil, flows, report = self._solve(state, control, motion.position_end, motion.velocity_end, spool_end, h)
+        oil, flows, report = self._solve(state, control, motion.position_end, motion.velocity_end, spool_end, h, oil_guess)
         return self._finish(state, oil, spool_end, motion, h, flows), report
 
     def linearize(self, state: NetworkState, control: NetworkControl, velocity, dt: float) -> Linearization:
@@ -371,13 +389,15 @@ class StepperImplicitEuler(Stepper):
         drdv = -dt * (jq @ (dt * dpdx) + m.motor_flow_velocity_gradient())[free]
         jacobian = np.eye(len(free)) - dt * jq[np.ix_(free, free)] * dpdm[free][None, :]
         dpdv = dt * dpdx
+        oil_gradient = np.zeros((len(oil), m.actuator_count))
         if len(free):
             doil = -scipy.linalg.solve(jacobian, drdv, check_finite=False)
             dpdv[free] += dpdm[free][:, None] * doil
+            oil_gradient[free] = doil
         effort, friction_slope = m.actuator_effort(pressure, velocity)
         gradient = m.effort_pressure_gradient() @ dpdv + np.diag(friction_slope)
         predicted = NetworkState(oil, pressure, spool, position, velocity.copy(), state.time + dt)
-        return Linearization(velocity.copy(), effort, gradient, predicted, report)
+        return Linearization(velocity.copy(), effort, gradient, predicted, report, oil_gradient)
 
 
 class StepperReference(Stepper):
@@ -393,7 +413,7 @@ class StepperReference(Stepper):
     order = None
     implicit = True
 
-    def _substep(self, state, control, motion, h):
+    def _substep(self, state, control, motion, h, oil_guess=None):  # oil_guess: not used (solve_ivp)
         m = self.model
         free = self.free
         command = np.clip(control.valve_command, -1.0, 1.0)

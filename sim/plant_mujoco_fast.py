@@ -19,9 +19,16 @@ state :class:`MujocoPlant` sees after ``mj_step1``.  In the callback of step k:
    MuJoCo's own ``mj_solveM`` (called through its C entry point), effective
    masses and θ as :func:`hydraulics.coupling.blend_factor`;
 3. the effort law of :meth:`CouplingImplicit.begin` (``_compiled._linearize_core``)
-   written to ``ctrl`` and ``actuator_biasprm[:, 2]``.  The start pressures
-   p(m, x) are the linearisation's first Newton evaluation whenever the
-   velocity guess is zero (x + h·0 = x exactly), so they are not recomputed.
+   written to ``ctrl`` and ``actuator_biasprm[:, 2]``, linearised at the
+   start velocities (:func:`hydraulics.coupling.start_velocity_guess`, with
+   the same fallback to the held actuators when that linearisation fails).
+   The start pressures p(m, x) are the linearisation's first Newton
+   evaluation whenever the velocity guess is zero (x + h·0 = x exactly), so
+   they are then not recomputed.  The predicted oil m_lin, the guess and
+   ∂m⁺/∂v stay in the scratch buffer for step 1 of the next callback, which
+   starts the finish's Newton from m_lin + (∂m/∂v)·(v⁺ − v_guess)
+   (``implicit``) or takes that value as the end oil (``implicit-linear``,
+   ``C_LINEAR``; see :mod:`hydraulics.coupling`).
 
 **Cost and caching.**  The callback allocates nothing: every temporary lives
 in buffers the plant allocates once (``_work`` for the ``_compiled`` cores,
@@ -56,7 +63,8 @@ n coupled steps and returns the last step's :class:`StepReport` (``success``,
 ``message``, ``status``; Newton counters of the last step); ``step()`` is
 ``advance(1)``; after each call ``net_state``, ``effort``, ``theta``,
 ``energy``, ``control``, ``last_report``, ``step_index`` and ``time`` describe
-the same instant.  New: ``node_pressure_max`` / ``node_pressure_min`` [Pa], the
+the same instant.  The constructor takes ``coupling`` (as
+:class:`MujocoPlant`) to override the scenario's coupling.  New: ``node_pressure_max`` / ``node_pressure_min`` [Pa], the
 running extremes of every successful step's end pressures since
 :meth:`reset` (initial pressures included; the runner folds them into its
 peaks, so they cover every step, not only the logged ones; assigning them is
@@ -78,8 +86,8 @@ allowed, :meth:`advance` continues from the assigned values); module-level
   :class:`MujocoPlant`; MuJoCo's bodies, however, have been integrated to the
   end of the block (with the last effort law held), so ``qpos`` may be up to
   ``n − 1`` steps ahead of ``step_index`` after a failure.
-* Only the implicit coupling with the compiled implicit-Euler stepper is
-  accelerated; any other configuration (explicit / incompressible coupling,
+* Only the implicit couplings (``implicit``, ``implicit-linear``) with the
+  compiled implicit-Euler stepper are accelerated; any other configuration (explicit / incompressible coupling,
   ``compiled = false``, another stepper, no numba) falls back to
   :meth:`MujocoPlant.step` in a Python loop (``fast`` is then False).
 """
@@ -96,7 +104,7 @@ import mujoco
 import numpy as np
 
 from hydraulics import _compiled as C
-from hydraulics.coupling import CouplingImplicit
+from hydraulics.coupling import GUESS_VOLUME_FRACTION, CouplingImplicit, CouplingImplicitLinear
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepReport, StepStatus
 
@@ -124,13 +132,13 @@ except ImportError:  # pragma: no cover
     P_F, P_I, P_ACT, P_CLOSED, P_LENGTH, P_AVEL, P_MOMENT, P_ROWADR, P_ROWNNZ, P_COLIND, P_QVEL, P_CTRL, P_BIASPRM,
     P_PASSIVE, P_CONSTRAINT, P_J, P_MINVJ, P_OIL, P_PRESSURE, P_SPOOL, P_XPOS, P_XVEL, P_CMD, P_SPEED,
     P_XSTART, P_VSTART, P_CONST, P_SLOPE, P_THETA, P_MEFF, P_EFFORT, P_FLOW, P_PASSIVE_SAVED, P_FS, P_QUAD,
-    P_WORK, P_SCRATCH, P_ISTATS, P_PMAX, P_PMIN,
+    P_WORK, P_SCRATCH, P_ISTATS, P_PMAX, P_PMIN, C_LINEAR,
     NCTX,
-) = range(65)
+) = range(66)
 
 # float scalars (P_FS): step, residual of the last step, ledger terms
-FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD = range(8)
-NFS = 8
+FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD, FS_GUESS = range(9)
+NFS = 9
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
 MODE_STEP, MODE_FINISH = range(2)  # C_MODE: a coupled step (from mj_step), or only finish the pending step
 
@@ -144,12 +152,13 @@ SOLVEM_SYMBOL = "hydroplant_mj_solveM"
 
 
 def _finish_scratch(na, n, nb, nvalve):
-    return 4 * na + 3 * n + 2 * nb + nvalve
+    return 4 * na + 6 * n + 2 * nb + nvalve
 
 
 def scratch_size(na, n, nb, nvalve):
-    """Length of the plant's float64 scratch (P_SCRATCH): _finish_pending's part, then _begin's."""
-    return _finish_scratch(na, n, nb, nvalve) + 8 * na + 4 * n + na * na + n + nvalve + na + nb
+    """Length of the plant's float64 scratch (P_SCRATCH): _finish_pending's part, then _begin's (whose first
+    part — velocity guess, predicted oil and spool, ∂m⁺/∂v — persists until the step is finished)."""
+    return _finish_scratch(na, n, nb, nvalve) + 8 * na + 4 * n + na * na + n + nvalve + na + nb + n * na
 
 
 if _NUMBA:
@@ -336,12 +345,29 @@ def _finish_pending(ctx, net, V):
     fl, o = C._take(S, o, nb)
     dfl, o = C._take(S, o, nb)
     sp2, o = C._take(S, o, nvalve)
+    mpred, o = C._take(S, o, n)
+    mstart, o = C._take(S, o, n)
+    minit, o = C._take(S, o, n)
+    # what _begin left for this step: velocity guess, predicted oil and spool, ∂m⁺/∂v
+    guess, o = C._take(S, o, na)
+    lin_oil, o = C._take(S, o, n)
+    lin_spool, o = C._take(S, o, nvalve)
+    dflat, o = C._take(S, o, n * na)
+    doil = dflat.reshape((n, na))
     for i in range(na):
         s = 0.0
         for j in range(nv):
             s += J[i, j] * qvel[j]
         v_end[i] = s
         x_end[i] = xs[i] + dt * s
+    # linearised prediction m_lin + (∂m/∂v)·(v⁺ − v_guess) (CouplingImplicit.predicted_oil)
+    for a in range(na):
+        ve[a] = v_end[a] - guess[a]
+    for i in range(n):
+        s = 0.0
+        for a in range(na):
+            s += doil[i, a] * ve[a]
+        mpred[i] = lin_oil[i] + s
     cmd = V.cmd[k]
     speed = V.speed[k]
     oil, pres, spool = V.oil, V.pres, V.spool
@@ -352,16 +378,45 @@ def _finish_pending(ctx, net, V):
     newton, rhs, jac = 0, 0, 0
     residual = 0.0
     status, worst = ST_OK, -1
+    C._copy(mstart, oil)
+    if ctx[C_LINEAR]:  # implicit-linear: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
+        substeps = 0
+        C._copy(sp2, lin_spool)
+        wo = 0
+        area, wo = C._take(W, wo, net.ic[C.IC_O1] - net.ic[C.IC_O0])
+        geo, wo = C._take(W, wo, n)
+        dpdm, wo = C._take(W, wo, n)
+        C._pressure(net, mpred, x_end, geo, p2, dpdm)
+        C._valve_areas(net, sp2, area)
+        C._branch_flows(net, p2, area, speed, v_end, fl, dfl, dfl)
+        rhs = 1
+        C._copy(flow_out, fl)
+        bad = -1
+        for i in range(n):
+            if not np.isfinite(p2[i]):
+                bad = i
+                break
+        if bad >= 0:
+            status, worst = ST_NONFINITE, bad
+        else:
+            C._copy(oil, mpred)
+            C._copy(pres, p2)
+            C._copy(spool, sp2)
+            C._copy(pos, x_end)
+            C._copy(vel, v_end)
     for s in range(substeps):
         if substeps > 1:  # ActuatorMotion.part: linear interpolation to the substep end
             frac = (s + 1) / substeps
             for i in range(na):
                 xe[i] = xs[i] + frac * (x_end[i] - xs[i])
                 ve[i] = vs[i] + frac * (v_end[i] - vs[i])
+            for i in range(n):  # Stepper._step: Newton starts from m + frac·(guess − m)
+                minit[i] = mstart[i] + frac * (mpred[i] - mstart[i])
         else:
             C._copy(xe, x_end)
             C._copy(ve, v_end)
-        norm = C._step_core(net, W, oil, spool, cmd, speed, xe, ve, h, True, o2, p2, sp2, fl, dfl, dfl, istats)
+            C._copy(minit, mpred)
+        norm = C._step_core(net, W, oil, spool, cmd, speed, xe, ve, h, True, o2, p2, sp2, fl, dfl, dfl, istats, minit)
         newton += istats[C.IS_NEWTON]
         rhs += istats[C.IS_RHS]
         jac += istats[C.IS_JAC]
@@ -446,6 +501,21 @@ def _prepare(ctx, V):
 
 
 @_kernel
+def _usable(istats, p, gradient):
+    """coupling._usable: the linearisation converged to finite pressures and gradients (and was not singular)."""
+    if istats[C.IS_STATUS] != C._OK or istats[C.IS_SINGULAR]:
+        return False
+    for i in range(p.size):
+        if not np.isfinite(p[i]):
+            return False
+    for i in range(gradient.shape[0]):
+        for j in range(gradient.shape[1]):
+            if not np.isfinite(gradient[i, j]):
+                return False
+    return True
+
+
+@_kernel
 def _begin(ctx, net, V):
     """After M⁻¹·Jᵀ: the effort law of CouplingImplicit.begin, written to ctrl and biasprm."""
     k = ctx[C_K]
@@ -467,7 +537,12 @@ def _begin(ctx, net, V):
     W = V.W
     istats = V.istats
     o = _finish_scratch_nb(na, n, nb, nvalve)  # after _finish_pending's part
+    # kept for _finish_pending (same order there)
     guess, o = C._take(S, o, na)
+    lin_oil, o = C._take(S, o, n)
+    lin_spool, o = C._take(S, o, nvalve)
+    dflat, o = C._take(S, o, n * na)
+    doil = dflat.reshape((n, na))
     fg, o = C._take(S, o, na)
     fslope_guess, o = C._take(S, o, na)
     pressure_end, o = C._take(S, o, na)
@@ -481,8 +556,6 @@ def _begin(ctx, net, V):
     lin_p, o = C._take(S, o, n)
     g, o = C._take(S, o, na * na)
     gradient = g.reshape((na, na))
-    lin_oil, o = C._take(S, o, n)
-    lin_spool, o = C._take(S, o, nvalve)
     lin_x, o = C._take(S, o, na)
     lin_flow, o = C._take(S, o, nb)
     for i in range(na):
@@ -495,9 +568,18 @@ def _begin(ctx, net, V):
     cmd = V.cmd[k]
     speed = V.speed[k]
     oil, spool = V.oil, V.spool
-    # predicted end velocities: zero, clipped so the cylinders stay inside their stroke
-    guess[:] = 0.0
+    # predicted end velocities: the start velocities where their chord is short (coupling.start_velocity_guess),
+    # clipped so the cylinders stay inside their stroke
+    C._copy(guess, vs)
     cyl, ci = net.cyl, net.cyl_i
+    fraction = fs[FS_GUESS]
+    for c in range(cyl.shape[0]):
+        a = ci[c, C.CI_ACT]
+        vcap, vrod, _, _ = C.chamber_volumes_nb(xs[a], cyl[c, C.CYL_STROKE], cyl[c, C.CYL_CAP_AREA], cyl[c, C.CYL_ROD_AREA],
+                                                cyl[c, C.CYL_DEAD_CAP], cyl[c, C.CYL_DEAD_ROD])
+        swept = dt * abs(guess[a])
+        if not (swept * cyl[c, C.CYL_CAP_AREA] <= fraction * vcap and swept * cyl[c, C.CYL_ROD_AREA] <= fraction * vrod):
+            guess[a] = 0.0
     for c in range(cyl.shape[0]):
         a = ci[c, C.CI_ACT]
         guess[a] = C._minimum(C._maximum(guess[a], -xs[a] / dt), (cyl[c, C.CYL_STROKE] - xs[a]) / dt)
@@ -506,7 +588,19 @@ def _begin(ctx, net, V):
         if guess[a] != 0.0:
             held = False
     norm = C._linearize_core(net, W, oil, spool, cmd, speed, xs, guess, dt, lin_oil, lin_p, lin_spool, lin_x, lin_flow,
-                             istats, effort_end, gradient, p0)
+                             istats, effort_end, gradient, p0, doil)
+    if not held and not _usable(istats, lin_p, gradient):
+        # CouplingImplicit.begin: a useless guess (unresolved oscillation) → linearise at the held actuators
+        guess[:] = 0.0
+        for c in range(cyl.shape[0]):
+            a = ci[c, C.CI_ACT]
+            guess[a] = C._minimum(C._maximum(guess[a], -xs[a] / dt), (cyl[c, C.CYL_STROKE] - xs[a]) / dt)
+        held = True
+        for a in range(na):
+            if guess[a] != 0.0:
+                held = False
+        norm = C._linearize_core(net, W, oil, spool, cmd, speed, xs, guess, dt, lin_oil, lin_p, lin_spool, lin_x,
+                                 lin_flow, istats, effort_end, gradient, p0, doil)
     if istats[C.IS_SINGULAR]:
         ctx[C_STATUS] = ST_SINGULAR
         ctx[C_FAILED] = k
@@ -628,8 +722,8 @@ class MujocoPlantFast(MujocoPlant):
     ``step()`` is ``advance(1)``.
     """
 
-    def __init__(self, scene):
-        super().__init__(scene)
+    def __init__(self, scene, *, coupling: str | None = None):
+        super().__init__(scene, coupling=coupling)
         scenario = scene.scenario
         stepper = self.coupling.stepper
         self.fast = bool(
@@ -659,6 +753,7 @@ class MujocoPlantFast(MujocoPlant):
         self._pmax, self._pmin = np.zeros(n), np.zeros(n)
         self._fs = np.zeros(NFS)
         self._fs[FS_DT] = self.dt
+        self._fs[FS_GUESS] = GUESS_VOLUME_FRACTION
         quad_nodes, quad_weights = np.polynomial.legendre.leggauss(POTENTIAL_QUADRATURE_POINTS)
         self._quad = np.concatenate([quad_nodes, quad_weights])
         self._capacity = 0
@@ -671,6 +766,7 @@ class MujocoPlantFast(MujocoPlant):
         ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N], ctx[C_NB] = na, nv, m.nu, n, len(net.branch_names)
         ctx[C_NVALVE], ctx[C_NPUMP], ctx[C_NBIAS] = len(net.valve_names), len(net.pump_names), m.actuator_biasprm.shape[1]
         ctx[C_SUBSTEPS], ctx[C_NCYL] = stepper.substeps, len(net.cylinder_actuator)
+        ctx[C_LINEAR] = int(isinstance(self.coupling, CouplingImplicitLinear))
         ctx[C_NF], ctx[C_NI], ctx[C_NW], ctx[C_NS] = self._F.size, self._I.size, self._work.size, self._scratch.size
         addresses = {
             P_F: self._F, P_I: self._I, P_ACT: self._act, P_CLOSED: self._closed, P_LENGTH: d.actuator_length,
