@@ -146,22 +146,31 @@ def parse_circuit(data: dict, source: str = "<memory>") -> Circuit:
     return Circuit(fluid, tuple(components), source)
 
 
-def load_circuit(path) -> Circuit:
-    """Read and validate a circuit TOML file."""
-    path = Path(path)
+def read_toml(path: Path, what: str, error: type[CircuitError] = CircuitError) -> dict:
+    """The document of a UTF-8 TOML file, or ``error`` naming the file.
+
+    ``what`` names the kind of file in the messages ("circuit", "scenario");
+    ``error`` is the :class:`CircuitError` subclass raised (missing or unreadable
+    file, not UTF-8, not valid TOML).
+    """
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise CircuitError(f"{path}: circuit file not found") from None
+        raise error(f"{path}: {what} file not found") from None
     except UnicodeDecodeError:
-        raise CircuitError(f"{path}: not a UTF-8 text file (a circuit is TOML)") from None
+        raise error(f"{path}: not a UTF-8 text file (a {what} is TOML)") from None
     except OSError as exc:
-        raise CircuitError(f"{path}: cannot read circuit file ({exc.strerror})") from None
+        raise error(f"{path}: cannot read {what} file ({exc.strerror})") from None
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise CircuitError(f"{path}: not valid TOML: {exc}") from None
-    return parse_circuit(data, str(path))
+        raise error(f"{path}: not valid TOML: {exc}") from None
+
+
+def load_circuit(path) -> Circuit:
+    """Read and validate a circuit TOML file."""
+    path = Path(path)
+    return parse_circuit(read_toml(path, "circuit"), str(path))
 
 
 def finite(value) -> bool:

@@ -31,7 +31,8 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(EXIT_BAD_INPUT)
 
 
-def _positive_float(text):
+def positive_float(text):
+    """argparse type: a positive finite number (NaN and inf refused)."""
     try:
         value = float(text)
     except ValueError:
@@ -41,14 +42,21 @@ def _positive_float(text):
     return value
 
 
-def _positive_int(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
-    return value
+def int_in(low: int, high: int | None = None):
+    """argparse type: an integer in [low, high], or >= low when ``high`` is None."""
+
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        if high is None and value < low:
+            raise argparse.ArgumentTypeError(f"{text!r} must be >= {low}")
+        if high is not None and not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{text!r} must be an integer in [{low}, {high}]")
+        return value
+
+    return parse
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -59,11 +67,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("scenario", type=Path, help="scenario TOML file")
     run.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"))
     run.add_argument("--coupling", choices=("implicit", "explicit"))
-    run.add_argument("--dt", type=_positive_float, help="physics step [s]")
-    run.add_argument("--duration", type=_positive_float, help="simulated time [s]")
-    run.add_argument("--substeps", type=_positive_int, help="hydraulic substeps per physics step")
-    run.add_argument("--pbd-substeps", type=_positive_int, help="XPBD substeps per step (PBD mode)")
-    run.add_argument("--iterations", type=_positive_int, help="XPBD iterations per substep (PBD mode)")
+    run.add_argument("--dt", type=positive_float, help="physics step [s]")
+    run.add_argument("--duration", type=positive_float, help="simulated time [s]")
+    run.add_argument("--substeps", type=int_in(1), help="hydraulic substeps per physics step")
+    run.add_argument("--pbd-substeps", type=int_in(1), help="XPBD substeps per step (PBD mode)")
+    run.add_argument("--iterations", type=int_in(1), help="XPBD iterations per substep (PBD mode)")
     run.add_argument("--out", type=Path, help="log file (default: logs/<scene>-<scenario>-<mode>-<coupling>-<time>.mcap)")
     run.add_argument("--no-progress", action="store_true", help="no progress line")
     run.add_argument("--pure", action="store_true", help="pure numpy hydraulics instead of the compiled kernels (same results to round-off)")

@@ -433,12 +433,9 @@ def compare_runs(scenario, specs: list[RunSpec], out_dir, *, dt: float | None = 
     """Reference + one run per spec of a scenario; logs, merged log, report and figures in ``out_dir``."""
     from .reference import DEFAULT_CACHE_DIR, compute_reference
     from .runner import run
-    from .scenario import Scenario, load_scenario
+    from .scenario import as_scenario
 
-    if not isinstance(scenario, Scenario):
-        scenario = load_scenario(scenario)
-    if duration is not None:
-        scenario = scenario.with_overrides(duration=duration)
+    scenario = as_scenario(scenario, duration=duration)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     if any(s.mode.startswith("pbd") for s in specs):

@@ -38,12 +38,12 @@ from __future__ import annotations
 
 import csv
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from hydraulics.circuit import read_toml
 from hydraulics.components import CircuitError
 from hydraulics.network import FIDELITIES
 
@@ -240,20 +240,20 @@ def _validate_run(s: Scenario, where):
         _error(where, f"field 'log.rate_hz': {s.log_rate_hz!r} is not in (0, inf) Hz")
 
 
+def as_scenario(scenario, *, duration: float | None = None) -> Scenario:
+    """``scenario`` itself, or the scenario loaded from that path; with ``duration`` [s] overridden when given."""
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario)
+    if duration is not None:
+        scenario = scenario.with_overrides(duration=duration)
+    return scenario
+
+
 def load_scenario(path) -> Scenario:
     """Read and validate a scenario file."""
     path = Path(path).resolve()
     where = str(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ScenarioError(f"{path}: scenario file not found") from None
-    except UnicodeDecodeError:
-        raise ScenarioError(f"{path}: not a UTF-8 text file (a scenario is TOML)") from None
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read scenario file ({exc.strerror})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ScenarioError(f"{path}: not valid TOML: {exc}") from None
+    data = read_toml(path, "scenario", ScenarioError)
     allowed = {"scene", "run", "initial", "inputs", "inputs_csv", "log", "fidelity"}
     unknown = sorted(set(data) - allowed)
     if unknown:

@@ -74,6 +74,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .cli import int_in, positive_float
 from .scenario import ScenarioError, load_scenario
 
 # --------------------------------------------------------------------------- constants
@@ -1089,26 +1090,6 @@ def _name_list(choices):
     return parse
 
 
-def _tolerance(text):
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (0 < value < math.inf):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive finite number")
-    return value
-
-
-def _workers(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if not 1 <= value <= 1024:
-        raise argparse.ArgumentTypeError(f"{text!r} must be an integer in [1, 1024]")
-    return value
-
-
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``hydroplant stability``."""
     p = subparsers.add_parser("stability", help="stability map of a scenario at the extremes (dt, bulk modulus, mass, dead volume, events)")
@@ -1116,11 +1097,11 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, help="output directory (default logs/stability-<scene>-<scenario>)")
     p.add_argument("--quick", action="store_true", help="small grid and short runs (for tests)")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local process pool)")
-    p.add_argument("--workers", type=_workers, help="worker processes (default: all cores)")
+    p.add_argument("--workers", type=int_in(1, 1024), help="worker processes (default: all cores)")
     p.add_argument("--dt", type=_float_list, help="comma-separated steps [s], fractions allowed (e.g. 1e-4,1e-3,1/30)")
     p.add_argument("--methods", type=_name_list(tuple(METHODS)), help=f"comma-separated subset of {', '.join(METHODS)}")
     p.add_argument("--sweeps", type=_name_list(SWEEPS), help=f"comma-separated subset of {', '.join(SWEEPS)}")
-    p.add_argument("--tolerance", type=_tolerance, help="largest relative error of a stable-accurate run (default 0.05)")
+    p.add_argument("--tolerance", type=positive_float, help="largest relative error of a stable-accurate run (default 0.05)")
     p.add_argument("--keep-logs", action="store_true", help="keep the MCAP log of every run")
     p.add_argument("--check", action="store_true", help="only print the load-time guards of the scenario (no runs)")
     p.set_defaults(func=main)

@@ -227,17 +227,27 @@ def run_sweep(func: Callable[[dict], dict], points: Sequence[dict], *, scheduler
     return [results[key] for key in keys]
 
 
+def _collect(completed, key_of: dict, todo: dict, finished) -> None:
+    """Hand each future's result to ``finished(key, result)`` as it completes.
+
+    ``completed`` yields the futures in completion order (``as_completed`` of the
+    process pool or of dask), ``key_of`` maps a future to its cache key. A point
+    that raised becomes a :class:`SweepError` naming the point.
+    """
+    for future in completed:
+        key = key_of[future]
+        try:
+            result = future.result()
+        except Exception as exc:
+            raise SweepError(f"sweep point {todo[key]!r} failed: {type(exc).__name__}: {exc}") from exc
+        finished(key, result)
+
+
 def _run_pool(func, todo: dict, workers: int, finished) -> None:
     with ProcessPoolExecutor(max_workers=workers) as pool:
         futures = {pool.submit(func, point): key for key, point in todo.items()}
         try:
-            for future in as_completed(futures):
-                key = futures[future]
-                try:
-                    result = future.result()
-                except Exception as exc:
-                    raise SweepError(f"sweep point {todo[key]!r} failed: {type(exc).__name__}: {exc}") from exc
-                finished(key, result)
+            _collect(as_completed(futures), futures, todo, finished)
         except BaseException:
             for future in futures:
                 future.cancel()
@@ -256,13 +266,7 @@ def _run_dask(func, todo: dict, scheduler, finished) -> None:
         futures = client.map(func, [todo[k] for k in keys], key=[f"hydroplant-sweep-{k}" for k in keys], pure=False)
         by_future = dict(zip(futures, keys))
         try:
-            for future in dask_completed(futures):
-                key = by_future[future]
-                try:
-                    result = future.result()
-                except Exception as exc:
-                    raise SweepError(f"sweep point {todo[key]!r} failed: {type(exc).__name__}: {exc}") from exc
-                finished(key, result)
+            _collect(dask_completed(futures), by_future, todo, finished)
         except BaseException:
             client.cancel(futures)
             raise

@@ -492,12 +492,9 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
     the reference (default: the scenario's own, per-actuator overrides included).
     """
     from .reference import DEFAULT_CACHE_DIR, compute_reference
-    from .scenario import Scenario, load_scenario
+    from .scenario import as_scenario
 
-    if not isinstance(scenario, Scenario):
-        scenario = load_scenario(scenario)
-    if duration is not None:
-        scenario = scenario.with_overrides(duration=duration)
+    scenario = as_scenario(scenario, duration=duration)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     reference_scenario = scenario
