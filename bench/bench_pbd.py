@@ -78,7 +78,7 @@ def stroke_error(result, reference, scale, early=None):
     return max(errors), (max(early_errors) if early_errors else np.nan)
 
 
-def bench_scene(name, spec, substeps, quick, out):
+def bench_scene(name, spec, substeps, quick, out, pure_substeps=()):
     path = spec["path"]
     duration = QUICK_DURATION.get(name, spec["duration"]) if quick else spec["duration"]
     net = load_scene(load_scenario(path)).network
@@ -108,13 +108,16 @@ def bench_scene(name, spec, substeps, quick, out):
     print(head + (f" {'err t<' + format(early, 'g') + ' s':>11}" if early else ""))
     rows = [(label, dt, 1) for label in ("mujoco", "mujoco-fast") for dt in spec["mujoco_dt"]]
     rows += [("pbd", spec["pbd_dt"], n) for n in (spec.get("pbd_substeps") or substeps)]
+    rows += [("pbd-pure", spec["pbd_dt"], n) for n in pure_substeps]  # the pure-Python XPBD path, for the speed-up
     for label, dt in {(label, dt) for label, dt, _ in rows}:  # warm-up (numba cache, first calls)
-        mode = "pbd" if label == "pbd" else "mujoco"
-        run(path, out=out / "warmup.mcap", overrides={"mode": mode, "dt": dt, "duration": 5 * dt}, fast=label == "mujoco-fast")
+        mode = "pbd" if label.startswith("pbd") else "mujoco"
+        run(path, out=out / "warmup.mcap", overrides={"mode": mode, "dt": dt, "duration": 5 * dt, "compiled": label != "pbd-pure"},
+            fast=label == "mujoco-fast")
     results = []
     for label, dt, n in rows:
-        mode = "pbd" if label == "pbd" else "mujoco"
-        overrides = {"mode": mode, "dt": dt, "duration": duration, "pbd_substeps": n if mode == "pbd" else None}
+        mode = "pbd" if label.startswith("pbd") else "mujoco"
+        overrides = {"mode": mode, "dt": dt, "duration": duration, "pbd_substeps": n if mode == "pbd" else None,
+                     "compiled": label != "pbd-pure"}
         result = run(path, out=out / f"{name}-{label}-{n}-{dt:.6g}.mcap", overrides=overrides, fast=label == "mujoco-fast")
         err, err_early = stroke_error(result, reference, scale, early)
         results.append((label, dt, n, result.real_time_factor if result.status == "complete" else np.nan, err))
@@ -122,8 +125,12 @@ def bench_scene(name, spec, substeps, quick, out):
                 f"{result.real_time_factor:7.3f} {err:11.3%}")
         print(line + (f" {err_early:11.3%}" if early else ""), flush=True)
     pbd_rows = [r for r in results if r[0] == "pbd" and np.isfinite(r[3])]
+    for label, dt, n, rtf, err in results:
+        same = [r for r in pbd_rows if r[2] == n]
+        if label == "pbd-pure" and same and np.isfinite(rtf):
+            print(f"  compiled vs pure XPBD at {n} substeps: RTF {same[0][3]:.3f} vs {rtf:.3f} = {same[0][3] / rtf:.2f}× faster")
     for label, dt, _, rtf, err in results:
-        if label == "pbd" or not np.isfinite(rtf):
+        if label.startswith("pbd") or not np.isfinite(rtf):
             continue
         matched = [r for r in pbd_rows if r[4] <= err]
         if matched:
@@ -139,13 +146,16 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="boom 3 s and excavator 4 s instead of the full scenarios")
     parser.add_argument("--scenes", nargs="+", choices=list(SCENES), default=list(SCENES))
     parser.add_argument("--substeps", nargs="+", type=int, default=[5, 10, 20, 40], help="XPBD substeps per 60 Hz frame")
+    parser.add_argument("--pure-substeps", nargs="*", type=int, default=[10],
+                        help="also run the pure-Python XPBD path (``compiled = false``) at these substeps, for the speed-up")
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore", message="XpbdModel:")
     print(f"machine: {platform.processor() or platform.machine()}, {platform.python_implementation()} {platform.python_version()}, "
           f"mujoco {mujoco.__version__}, numpy {np.__version__}")
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.scenes:
-            bench_scene(name, SCENES[name], args.substeps, args.quick, Path(tmp))
+            pure = [n for n in args.pure_substeps if n in (SCENES[name].get("pbd_substeps") or args.substeps)]
+            bench_scene(name, SCENES[name], args.substeps, args.quick, Path(tmp), pure)
 
 
 if __name__ == "__main__":

@@ -58,6 +58,14 @@ jammed against its ground contacts (``push.scenario.toml``) then needs
 locked stick and bucket cylinders creep at 1–4 cm/s: the Gauss-Seidel coupling of
 the stiff rows with the contacts is not converged; ``tests/test_pbd_fidelity.py``).
 
+Compiled path
+-------------
+With the scenario's ``compiled`` flag (default; ``--pure`` / ``compiled = false``
+selects the pure reference) every XPBD substep runs in numba
+(``sim/xpbd/compiled.py``) and the network uses the compiled backward-Euler
+stepper; the hooks below (coupling law, network finish, energy ledger) stay in
+Python and are now most of a substep's cost.
+
 ``pbd-naive`` (the seed report's scheme)
 ----------------------------------------
 Explicit coupling with the explicit-Euler hydraulic stepper: the pressures
@@ -138,7 +146,8 @@ class PbdPlant(PlantBase):
         # cylinders: one length row each, in network cylinder order
         self.cylinders = np.array([a for a in range(net.actuator_count) if net.actuator_kind[a] == ACTUATOR_CYLINDER], int)
         rows = [LengthConstraint(*xm.tendon_site_pair(int(binding.tendon_id[a])), name=net.actuator_names[a]) for a in self.cylinders]
-        self.solver = SolverXPBD(xm, substeps=scenario.pbd_substeps, iterations=scenario.pbd_iterations, length_constraints=rows)
+        self.solver = SolverXPBD(xm, substeps=scenario.pbd_substeps, iterations=scenario.pbd_iterations, length_constraints=rows,
+                                 compiled=scenario.compiled)
         self.closed_length = binding.closed_length[self.cylinders]
         # motors: joint actuators, effort = motor torque, joint torque = gear × effort
         self.motors = np.array([a for a in range(net.actuator_count) if net.actuator_kind[a] != ACTUATOR_CYLINDER], int)

@@ -13,7 +13,7 @@ Example::
     circuit = "boom.circuit.toml"
     [run]
     mode = "mujoco"            # mujoco | pbd
-    coupling = "implicit"      # implicit | explicit
+    coupling = "implicit"      # implicit | explicit | implicit-linear (MuJoCo mode, one hydraulic substep)
     dt = 0.001                 # s
     duration = 6.0             # s
     [initial]
@@ -48,7 +48,7 @@ from hydraulics.components import CircuitError
 from hydraulics.network import FIDELITIES
 
 MODES = ("mujoco", "pbd", "pbd-naive")
-COUPLINGS = ("implicit", "explicit")
+COUPLINGS = ("implicit", "explicit", "implicit-linear")
 STEPPER_NAMES = ("implicit_euler", "explicit_euler", "reference")
 DEFAULT_BASE_PRESSURE = 1.0e6  # Pa absolute: the low side of a loaded cylinder at t = 0
 
@@ -219,6 +219,9 @@ def _validate_run(s: Scenario, where):
         _error(where, f"field 'run.mode': {s.mode!r} is not one of {list(MODES)}")
     if s.coupling not in COUPLINGS:
         _error(where, f"field 'run.coupling': {s.coupling!r} is not one of {list(COUPLINGS)}")
+    if s.coupling == "implicit-linear" and (s.mode != "mujoco" or s.hydraulic_substeps != 1):
+        _error(where, f"field 'run.coupling': 'implicit-linear' needs mode = 'mujoco' and hydraulic_substeps = 1 "
+                      f"(got mode {s.mode!r}, hydraulic_substeps {s.hydraulic_substeps})")
     if s.stepper is not None and s.stepper not in STEPPER_NAMES:
         _error(where, f"field 'run.stepper': {s.stepper!r} is not one of {list(STEPPER_NAMES)}")
     for key, low, high in (("dt", 0.0, 1.0), ("duration", 0.0, 1e6)):

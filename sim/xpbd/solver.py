@@ -154,6 +154,13 @@ class SolverXPBD:
     * ``velocity_sweeps``: projected Gauss-Seidel sweeps of the contact velocity pass
       (Coulomb-clamped accumulated impulses).
     * ``contact_margin`` [m]: candidate distance added to 2·dt·|v_rel|.
+    * ``compiled`` (default True): every substep runs in ``compiled.substep`` (numba,
+      ``cache=True``, one signature), a port of this class's substep on flat arrays with the
+      same operations in the same order; the hooks are still called per substep.  This
+      pure-Python path stays the reference (``compiled=False``; agreement to round-off in
+      ``tests/test_pbd_compiled.py``) and is used for a step whose contact candidates are not
+      all soft pyramidal (rigid, elliptic, condim 1, μ = 0) or with ``block_attach=False``.
+      ``compiled_steps`` counts the steps the compiled path took.
 
     Joint damping (MJCF ``damping``) is applied implicitly at the velocity level:
     rate ← rate/(1 + b h w), w the generalized inverse mass of the joint pair.
@@ -173,7 +180,7 @@ class SolverXPBD:
                  length_constraints: Sequence[LengthConstraint] = (),
                  contact_margin: float = 1e-3, block_attach: bool = True,
                  velocity_sweeps: int = 4, symmetric: bool = True, soft_contacts: bool = True,
-                 pyramid_friction: bool = True):
+                 pyramid_friction: bool = True, compiled: bool = True):
         if substeps < 1 or iterations < 1:
             raise ValueError("substeps and iterations must be >= 1")
         self.model = model
@@ -217,6 +224,74 @@ class SolverXPBD:
                       tup(m.eq_r2[e]), tup(m.eq_qoff[e])) for e in range(len(m.eq_type))]
         self._damped = [jt for jt in self._joints if jt[11] > 0.0 and jt[0] != JNT_FREE]
         self.last_forces: list[SubstepForces] = []
+        # compiled path (numba, ``compiled.substep``): same equations on flat arrays; the pure
+        # path above stays the reference (``tests/test_pbd_compiled.py``)
+        self.compiled = bool(compiled) and self.block_attach
+        self._flat = self._flat_model() if self.compiled else None
+        self.compiled_steps = 0  # steps taken by the compiled path (the others fell back to the pure one)
+
+    def _flat_model(self):
+        """Writable contiguous copies of the model for ``compiled.substep`` (one numba signature)."""
+        m = self.model
+        f64 = lambda a, shape: np.ascontiguousarray(np.array(a, dtype=np.float64).reshape(shape))  # noqa: E731
+        nj, ne = m.njnt, len(m.eq_type)
+        jvec = np.zeros((nj, 4, 3))
+        if nj:
+            jvec[:, 0], jvec[:, 1] = f64(m.jnt_r1, (nj, 3)), f64(m.jnt_r2, (nj, 3))
+            jvec[:, 2], jvec[:, 3] = f64(m.jnt_a1, (nj, 3)), f64(m.jnt_a2, (nj, 3))
+        evec = np.zeros((ne, 2, 3))
+        if ne:
+            evec[:, 0], evec[:, 1] = f64(m.eq_r1, (ne, 3)), f64(m.eq_r2, (ne, 3))
+        return dict(
+            IM=f64(m.group_inv_mass, (-1,)), II=f64(m.group_inv_inertia, (-1, 3)), GI=f64(m.group_inertia, (-1, 3)),
+            gravity=f64(m.gravity, (3,)),
+            jt=np.array(m.jnt_type, dtype=np.int64).reshape(nj),
+            jg=np.array(np.column_stack([np.asarray(m.jnt_g1).reshape(nj), np.asarray(m.jnt_g2).reshape(nj)]), dtype=np.int64),
+            jvec=jvec, jqoff=f64(m.jnt_qoff, (nj, 4)), jlim=np.array(m.jnt_limited, dtype=np.bool_).reshape(nj),
+            jlo=f64(m.jnt_lo, (nj,)), jhi=f64(m.jnt_hi, (nj,)), jdamp=f64(m.jnt_damping, (nj,)),
+            et=np.array(m.eq_type, dtype=np.int64).reshape(ne),
+            eg=np.array(np.column_stack([np.asarray(m.eq_g1).reshape(ne), np.asarray(m.eq_g2).reshape(ne)]), dtype=np.int64),
+            evec=evec, eqoff=f64(m.eq_qoff, (ne, 4)),
+            body_group=np.array(m.body_group, dtype=np.int64), in_group_quat=f64(m.body_in_group_quat, (-1, 4)),
+            in_group_pos=f64(m.body_in_group_pos, (-1, 3)),
+        )
+
+    def _scatter_compiled(self, X, Q, V, W, state):
+        from .compiled import scatter
+
+        fm = self._flat
+        x, q, v, w = (np.empty((self.model.nbody, k)) for k in (3, 4, 3, 3))
+        scatter(X, Q, V, W, fm["body_group"], fm["in_group_quat"], fm["in_group_pos"], x, q, v, w)
+        state.x[:], state.q[:], state.v[:], state.w[:] = x, q, v, w
+
+    def _flat_rows(self):
+        nr = len(self._rows)
+        rg = np.array([[r[0], r[1]] for r in self._rows], dtype=np.int64).reshape(nr, 2)
+        rvec = np.array([[r[2], r[3]] for r in self._rows], dtype=np.float64).reshape(nr, 2, 3)
+        return rg, rvec
+
+    def _flat_contacts(self, cands):
+        """The step's contact candidates as arrays for ``compiled.substep``, or None when one of them is
+        not a soft pyramidal contact (the pure path handles those)."""
+        m = self.model
+        nc = len(cands)
+        if nc == 0:
+            return (np.zeros((0, 2), np.int64), np.zeros((0, 4, 3)), np.zeros(0), np.zeros(0), np.zeros((0, 2)),
+                    np.zeros((0, 5)), np.zeros(0, np.int64), np.zeros(0))
+        if not (self.soft_contacts and self.pyramid_friction and m.contact_cone == 0):
+            return None
+        idx = np.array(self._cidx, dtype=np.int64)
+        condim = np.array(m.contact_condim, dtype=np.int64)[idx]
+        mu = np.array(m.contact_mu, dtype=np.float64)[idx]
+        tran = np.array(m.contact_tran, dtype=np.float64)[idx]
+        if np.any(condim < 3) or np.any(~(mu > 0.0)) or np.any(~(tran > 0.0)):
+            return None
+        cg = np.array([[c[0], c[3]] for c in cands], dtype=np.int64)
+        planes = np.asarray(m.contact_plane)[idx]
+        cvec = np.array([[c[1], c[4], c[5], self._plane_tangent[int(pl)]] for c, pl in zip(cands, planes)], dtype=np.float64)
+        crad = np.array([c[2] for c in cands], dtype=np.float64)
+        return (cg, cvec, crad, mu, np.ascontiguousarray(np.array(m.contact_solref, dtype=np.float64)[idx].reshape(nc, 2)),
+                np.ascontiguousarray(np.array(m.contact_solimp, dtype=np.float64)[idx].reshape(nc, 5)), condim, tran)
 
     # ------------------------------------------------------------------ rows
     def add_length_constraint(self, lc: LengthConstraint) -> int:
@@ -751,7 +826,7 @@ class SolverXPBD:
                 va = point_velocity(V, W, g2, r2c)
                 vb = point_velocity(V, W, g1, r1c)
                 vr = (va[0] - vb[0], va[1] - vb[1], va[2] - vb[2])
-                t1 = quat_rotate(Q[g1], self._plane_tangent[cands[ci][3]])
+                t1 = quat_rotate(Q[g1], self._plane_tangent[int(m.contact_plane[i])])  # the plane's own tangent
                 t2 = cross(n, t1)
                 edges = []
                 for t in (t1, t2):
@@ -951,6 +1026,10 @@ class SolverXPBD:
         h = dt / self.substeps
         x, q, v, w = self._gather(state)
         cands = self._collect_contacts(x, q, v, w, dt)
+        if self.compiled:
+            flat_contacts = self._flat_contacts(cands)
+            if flat_contacts is not None:
+                return self._step_compiled(state, dt, hooks, inputs, x, q, v, w, flat_contacts)
         X, Q, V, W = x.tolist(), q.tolist(), v.tolist(), w.tolist()
         nr = len(self._rows)
         before = getattr(hooks, "before_substep", None)
@@ -1032,6 +1111,80 @@ class SolverXPBD:
         state.qpos_hint = m.qpos_qvel(state)[0]
         return state
 
+    def _step_compiled(self, state, dt, hooks, inputs, x, q, v, w, contacts):
+        """``step`` with every substep in ``compiled.substep`` (same order of operations as the pure loop)."""
+        from .compiled import substep as _substep
+
+        m = self.model
+        fm = self._flat
+        h = dt / self.substeps
+        X, Q, V, W = (np.ascontiguousarray(a, dtype=np.float64) for a in (x, q, v, w))
+        ng = X.shape[0]
+        nr = len(self._rows)
+        nj = m.njnt
+        rg, rvec = self._flat_rows()
+        before = getattr(hooks, "before_substep", None)
+        after = getattr(hooks, "after_substep", None)
+        t0 = state.time
+        self.last_forces = []
+        zeros_r = np.zeros(nr)
+        minus_inf, plus_inf = np.full(nr, -np.inf), np.full(nr, np.inf)
+        no_mob = np.zeros((0, ng, 6))
+        no_gg = np.zeros((ng, 6))
+        zeros_g = np.zeros((ng, 3))
+        no_tau = np.zeros(nj)
+        cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran = contacts
+        cone, impratio = int(m.contact_cone), float(m.contact_impratio)
+        for k in range(self.substeps):
+            inp = inputs
+            if before is not None:
+                r = before(k, h, state)
+                if r is not None:
+                    inp = r
+            if nr and inp is not None and inp.target_length is not None:  # as _row_setup
+                tgt = _f64(inp.target_length)
+                alpha = zeros_r if inp.compliance is None else np.asarray(inp.compliance, np.float64)
+                lo = minus_inf if inp.force_min is None else _f64(np.asarray(inp.force_min, np.float64) * h * h)
+                hi = plus_inf if inp.force_max is None else _f64(np.asarray(inp.force_max, np.float64) * h * h)
+                act = np.nonzero(np.isfinite(tgt) & np.isfinite(alpha))[0].astype(np.int64)
+                at = _f64(alpha / (h * h))
+            else:
+                act = np.zeros(0, np.int64)
+                tgt = at = lo = hi = zeros_r
+            use_block = len(act) > 0 and inp.row_mobility is not None
+            mob = _f64(inp.row_mobility) if use_block else no_mob
+            F, T = self._external(inp, X.tolist(), Q.tolist()) if inp is not None else (None, None)
+            F = zeros_g if F is None else np.array(F, dtype=np.float64)
+            T = zeros_g if T is None else np.array(T, dtype=np.float64)
+            use_tau = inp is not None and inp.joint_force is not None
+            tau = _f64(inp.joint_force) if use_tau else no_tau
+            use_gg = inp is not None and inp.group_gravity is not None
+            gg = _f64(inp.group_gravity) if use_gg else no_gg
+            lam = np.zeros(nr)
+            ell = np.zeros(nr)
+            rate = np.zeros(nr)
+            _substep(X, Q, V, W, fm["IM"], fm["II"], fm["GI"], fm["gravity"], float(h), self.iterations, self.symmetric,
+                     fm["jt"], fm["jg"], fm["jvec"], fm["jqoff"], fm["jlim"], fm["jlo"], fm["jhi"], fm["jdamp"],
+                     fm["et"], fm["eg"], fm["evec"], fm["eqoff"],
+                     rg, rvec, act, tgt, at, lo, hi, use_block, mob, use_gg, gg, F, T, use_tau, tau,
+                     cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
+                     self.linear_damping, self.angular_damping, lam, ell, rate)
+            if after is not None or nr:
+                active = np.zeros(nr, dtype=bool)
+                active[act] = True
+                if after is not None:
+                    self._scatter_compiled(X, Q, V, W, state)
+                    state.time = t0 + (k + 1) * h
+                forces = SubstepForces(lam / (h * h), lam, ell, rate, active)
+                self.last_forces.append(forces)
+                if after is not None:
+                    after(k, h, state, forces)
+        self._scatter_compiled(X, Q, V, W, state)
+        state.time = t0 + dt
+        state.qpos_hint = m.qpos_qvel(state)[0]
+        self.compiled_steps += 1
+        return state
+
     def _row_kinematics(self, x, q, v, w):
         nr = len(self._rows)
         if nr == 0:
@@ -1045,6 +1198,12 @@ class SolverXPBD:
         n = d / np.where(ell > 0, ell, 1.0)[:, None]
         dv = (v[gb] + np_cross(w[gb], rb)) - (v[ga] + np_cross(w[ga], ra))
         return ell, np.einsum("ij,ij->i", dv, n)
+
+
+def _f64(a):
+    """A C-contiguous, writeable float64 array: the one array type ``compiled.substep`` is compiled for."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
 
 
 def mujoco_impedance(solimp, pos):

@@ -1,0 +1,1009 @@
+"""Compiled (numba ``nopython``) XPBD substep: the same equations as ``solver.py``/``kernels.py``.
+
+``substep`` advances the rigid groups by one substep h in place, on flat arrays:
+prediction (gravity or given group accelerations, external forces, gyroscopic term,
+hinge torque impulses), ``iterations`` position passes (symmetric Gauss-Seidel by default:
+joints with limits (6-row lock block at a hinge limit), connect/weld equalities, the
+length rows — as one block with their articulated mobility or by Gauss-Seidel — and soft
+pyramidal plane contacts solved per body pair with an active set), the velocity update,
+implicit joint damping and global damping.  It is a line-by-line port of
+``SolverXPBD.step``'s substep (the pure path, which stays the reference); the results agree
+to round-off (``tests/test_pbd_compiled.py``).  Units and sign conventions as in
+``solver.py``: positions [m], quaternions (w, x, y, z), velocities [m/s], [rad/s],
+multipliers λ [N·s²] (row force λ/h² [N], + pushes the sites apart).
+
+Supported contacts: soft pyramidal (MuJoCo's default cone, condim ≥ 3, μ > 0); the solver
+falls back to the pure path for a step with any other contact candidate.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+_EPS = 1e-14
+JNT_FREE, JNT_BALL, JNT_SLIDE, JNT_HINGE = 0, 1, 2, 3
+EQ_CONNECT, EQ_WELD = 0, 1
+
+
+# ---------------------------------------------------------------------------- algebra on tuples
+
+
+@njit(cache=True, inline="always")
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True, inline="always")
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@njit(cache=True, inline="always")
+def _qmul(a, b):
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw)
+
+
+@njit(cache=True, inline="always")
+def _qconj(q):
+    return (q[0], -q[1], -q[2], -q[3])
+
+
+@njit(cache=True, inline="always")
+def _rot(q, v):
+    w, x, y, z = q
+    vx, vy, vz = v
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    return (vx + w * tx + (y * tz - z * ty), vy + w * ty + (z * tx - x * tz), vz + w * tz + (x * ty - y * tx))
+
+
+@njit(cache=True, inline="always")
+def _rotinv(q, v):
+    w = q[0]
+    x, y, z = -q[1], -q[2], -q[3]
+    vx, vy, vz = v
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    return (vx + w * tx + (y * tz - z * ty), vy + w * ty + (z * tx - x * tz), vz + w * tz + (x * ty - y * tx))
+
+
+@njit(cache=True, inline="always")
+def _qadd(q, d, s):
+    dx, dy, dz = d
+    w, x, y, z = q
+    hs = 0.5 * s
+    nw = w + hs * (-dx * x - dy * y - dz * z)
+    nx = x + hs * (dx * w + dy * z - dz * y)
+    ny = y + hs * (-dx * z + dy * w + dz * x)
+    nz = z + hs * (dx * y - dy * x + dz * w)
+    inv = 1.0 / math.sqrt(nw * nw + nx * nx + ny * ny + nz * nz)
+    return (nw * inv, nx * inv, ny * inv, nz * inv)
+
+
+@njit(cache=True, inline="always")
+def _v3(A, i):
+    return (A[i, 0], A[i, 1], A[i, 2])
+
+
+@njit(cache=True, inline="always")
+def _q4(A, i):
+    return (A[i, 0], A[i, 1], A[i, 2], A[i, 3])
+
+
+@njit(cache=True, inline="always")
+def _setq(A, i, q):
+    A[i, 0] = q[0]
+    A[i, 1] = q[1]
+    A[i, 2] = q[2]
+    A[i, 3] = q[3]
+
+
+@njit(cache=True, inline="always")
+def _winv(q, invI, v):
+    l = _rotinv(q, v)
+    return _rot(q, (invI[0] * l[0], invI[1] * l[1], invI[2] * l[2]))
+
+
+@njit(cache=True)
+def _pos_w(invm, invI, q, r, n):
+    if invm == 0.0:
+        return 0.0
+    c = _rotinv(q, _cross(r, n))
+    return invm + invI[0] * c[0] * c[0] + invI[1] * c[1] * c[1] + invI[2] * c[2] * c[2]
+
+
+@njit(cache=True)
+def _ang_w(invI, q, n):
+    c = _rotinv(q, n)
+    return invI[0] * c[0] * c[0] + invI[1] * c[1] * c[1] + invI[2] * c[2] * c[2]
+
+
+@njit(cache=True)
+def _apply_pos(X, Q, IM, II, b, r, p, sign):
+    invm = IM[b]
+    if invm == 0.0:
+        return
+    X[b, 0] = X[b, 0] + sign * invm * p[0]
+    X[b, 1] = X[b, 1] + sign * invm * p[1]
+    X[b, 2] = X[b, 2] + sign * invm * p[2]
+    q = _q4(Q, b)
+    d = _winv(q, _v3(II, b), _cross(r, p))
+    _setq(Q, b, _qadd(q, d, sign))
+
+
+@njit(cache=True)
+def _apply_ang(Q, IM, II, b, p, sign):
+    if IM[b] == 0.0:
+        return
+    q = _q4(Q, b)
+    d = _winv(q, _v3(II, b), p)
+    _setq(Q, b, _qadd(q, d, sign))
+
+
+@njit(cache=True)
+def _apply_vel(V, W, Q, IM, II, b, r, p, sign):
+    invm = IM[b]
+    if invm == 0.0:
+        return
+    V[b, 0] = V[b, 0] + sign * invm * p[0]
+    V[b, 1] = V[b, 1] + sign * invm * p[1]
+    V[b, 2] = V[b, 2] + sign * invm * p[2]
+    d = _winv(_q4(Q, b), _v3(II, b), _cross(r, p))
+    W[b, 0] = W[b, 0] + sign * d[0]
+    W[b, 1] = W[b, 1] + sign * d[1]
+    W[b, 2] = W[b, 2] + sign * d[2]
+
+
+@njit(cache=True)
+def _apply_angvel(W, Q, IM, II, b, p, sign):
+    if IM[b] == 0.0:
+        return
+    d = _winv(_q4(Q, b), _v3(II, b), p)
+    W[b, 0] = W[b, 0] + sign * d[0]
+    W[b, 1] = W[b, 1] + sign * d[1]
+    W[b, 2] = W[b, 2] + sign * d[2]
+
+
+@njit(cache=True)
+def _point_vel(V, W, b, r):
+    c = _cross(_v3(W, b), r)
+    return (V[b, 0] + c[0], V[b, 1] + c[1], V[b, 2] + c[2])
+
+
+@njit(cache=True)
+def _solve_pos(X, Q, IM, II, b1, b2, r1, r2, n, c, at, lam, lo, hi):
+    w = _pos_w(IM[b1], _v3(II, b1), _q4(Q, b1), r1, n) + _pos_w(IM[b2], _v3(II, b2), _q4(Q, b2), r2, n)
+    den = w + at
+    dlam = 0.0 if den <= 0.0 else (-c - at * lam) / den
+    new = lam + dlam
+    if new < lo:
+        new = lo
+    elif new > hi:
+        new = hi
+    dlam = new - lam
+    if dlam == 0.0:
+        return 0.0
+    p = (dlam * n[0], dlam * n[1], dlam * n[2])
+    _apply_pos(X, Q, IM, II, b2, r2, p, 1.0)
+    _apply_pos(X, Q, IM, II, b1, r1, p, -1.0)
+    return dlam
+
+
+@njit(cache=True)
+def _solve_ang(Q, IM, II, b1, b2, n, theta):
+    w = 0.0
+    if IM[b1] != 0.0:
+        w += _ang_w(_v3(II, b1), _q4(Q, b1), n)
+    if IM[b2] != 0.0:
+        w += _ang_w(_v3(II, b2), _q4(Q, b2), n)
+    dlam = 0.0 if w <= 0.0 else -theta / w
+    if dlam == 0.0:
+        return 0.0
+    p = (dlam * n[0], dlam * n[1], dlam * n[2])
+    _apply_ang(Q, IM, II, b2, p, 1.0)
+    _apply_ang(Q, IM, II, b1, p, -1.0)
+    return dlam
+
+
+@njit(cache=True)
+def _mobility(invm, invI, q, r, K, add):
+    """K (+)= point mobility (1/m) E − [r]× I⁻¹ [r]× (``kernels.point_mobility``); False if static."""
+    if invm == 0.0:
+        return False
+    x, y, z = _rotinv(q, r)
+    a, b, c = invI
+    m00 = b * z * z + c * y * y + invm
+    m11 = a * z * z + c * x * x + invm
+    m22 = a * y * y + b * x * x + invm
+    m01 = -c * x * y
+    m02 = -b * x * z
+    m12 = -a * y * z
+    w, qx, qy, qz = q
+    R = np.empty((3, 3))
+    R[0, 0] = 1 - 2 * (qy * qy + qz * qz)
+    R[0, 1] = 2 * (qx * qy - w * qz)
+    R[0, 2] = 2 * (qx * qz + w * qy)
+    R[1, 0] = 2 * (qx * qy + w * qz)
+    R[1, 1] = 1 - 2 * (qx * qx + qz * qz)
+    R[1, 2] = 2 * (qy * qz - w * qx)
+    R[2, 0] = 2 * (qx * qz - w * qy)
+    R[2, 1] = 2 * (qy * qz + w * qx)
+    R[2, 2] = 1 - 2 * (qx * qx + qy * qy)
+    RM = np.empty((3, 3))
+    for i in range(3):
+        RM[i, 0] = R[i, 0] * m00 + R[i, 1] * m01 + R[i, 2] * m02
+        RM[i, 1] = R[i, 0] * m01 + R[i, 1] * m11 + R[i, 2] * m12
+        RM[i, 2] = R[i, 0] * m02 + R[i, 1] * m12 + R[i, 2] * m22
+    for i in range(3):
+        for j in range(3):
+            v = RM[i, 0] * R[j, 0] + RM[i, 1] * R[j, 1] + RM[i, 2] * R[j, 2]
+            K[i, j] = K[i, j] + v if add else v
+    return True
+
+
+@njit(cache=True)
+def _solve3(K, b):
+    a00, a01, a02 = K[0, 0], K[0, 1], K[0, 2]
+    a10, a11, a12 = K[1, 0], K[1, 1], K[1, 2]
+    a20, a21, a22 = K[2, 0], K[2, 1], K[2, 2]
+    c00 = a11 * a22 - a12 * a21
+    c01 = a12 * a20 - a10 * a22
+    c02 = a10 * a21 - a11 * a20
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    if det == 0.0:
+        return False, (0.0, 0.0, 0.0)
+    inv = 1.0 / det
+    b0, b1, b2 = b
+    return True, (inv * (c00 * b0 + (a02 * a21 - a01 * a22) * b1 + (a01 * a12 - a02 * a11) * b2),
+                  inv * (c01 * b0 + (a00 * a22 - a02 * a20) * b1 + (a02 * a10 - a00 * a12) * b2),
+                  inv * (c02 * b0 + (a01 * a20 - a00 * a21) * b1 + (a00 * a11 - a01 * a10) * b2))
+
+
+@njit(cache=True)
+def _pair_mobility(IM, II, Q, b1, b2, r1, r2):
+    K = np.zeros((3, 3))
+    h1 = _mobility(IM[b1], _v3(II, b1), _q4(Q, b1), r1, K, False)
+    h2 = _mobility(IM[b2], _v3(II, b2), _q4(Q, b2), r2, K, h1)
+    return h1 or h2, K
+
+
+@njit(cache=True)
+def _solve_dense(A, b, x):
+    """A x = b by Gaussian elimination with partial pivoting (``solver._solve_dense``); False if singular."""
+    n = b.shape[0]
+    M = np.empty((n, n + 1))
+    for i in range(n):
+        for j in range(n):
+            M[i, j] = A[i, j]
+        M[i, n] = b[i]
+    for c in range(n):
+        p = c
+        best = abs(M[c, c])
+        for r in range(c + 1, n):
+            if abs(M[r, c]) > best:
+                best = abs(M[r, c])
+                p = r
+        if best < 1e-300:
+            return False
+        if p != c:
+            for cc in range(n + 1):
+                tmp = M[c, cc]
+                M[c, cc] = M[p, cc]
+                M[p, cc] = tmp
+        piv = M[c, c]
+        for r in range(c + 1, n):
+            f = M[r, c] / piv
+            if f != 0.0:
+                for cc in range(c, n + 1):
+                    M[r, cc] -= f * M[c, cc]
+    for r in range(n - 1, -1, -1):
+        acc = M[r, n]
+        for cc in range(r + 1, n):
+            acc -= M[r, cc] * x[cc]
+        x[r] = acc / M[r, r]
+    return True
+
+
+# ---------------------------------------------------------------------------- joints
+
+
+@njit(cache=True)
+def _attach(X, Q, IM, II, g1, g2, r1, r2):
+    r1w = _rot(_q4(Q, g1), r1)
+    r2w = _rot(_q4(Q, g2), r2)
+    d = (X[g2, 0] + r2w[0] - X[g1, 0] - r1w[0], X[g2, 1] + r2w[1] - X[g1, 1] - r1w[1],
+         X[g2, 2] + r2w[2] - X[g1, 2] - r1w[2])
+    if d[0] != 0.0 or d[1] != 0.0 or d[2] != 0.0:
+        ok, K = _pair_mobility(IM, II, Q, g1, g2, r1w, r2w)
+        if not ok:
+            return
+        ok, p = _solve3(K, (-d[0], -d[1], -d[2]))
+        if not ok:
+            return
+        _apply_pos(X, Q, IM, II, g2, r2w, p, 1.0)
+        _apply_pos(X, Q, IM, II, g1, r1w, p, -1.0)
+
+
+@njit(cache=True)
+def _align_axes(Q, IM, II, g1, g2, a1, a2):
+    a1w = _rot(_q4(Q, g1), a1)
+    a2w = _rot(_q4(Q, g2), a2)
+    e = _cross(a1w, a2w)
+    s = math.sqrt(_dot(e, e))
+    if s > _EPS:
+        th = math.atan2(s, _dot(a1w, a2w))
+        _solve_ang(Q, IM, II, g1, g2, (e[0] / s, e[1] / s, e[2] / s), th)
+
+
+@njit(cache=True)
+def _fix_orientation(Q, IM, II, g1, g2, qoff):
+    qe = _qmul(_q4(Q, g2), _qconj(_qmul(_q4(Q, g1), qoff)))
+    if qe[0] < 0.0:
+        qe = (-qe[0], -qe[1], -qe[2], -qe[3])
+    s = math.sqrt(qe[1] * qe[1] + qe[2] * qe[2] + qe[3] * qe[3])
+    if s > _EPS:
+        th = 2.0 * math.atan2(s, qe[0])
+        _solve_ang(Q, IM, II, g1, g2, (qe[1] / s, qe[2] / s, qe[3] / s), th)
+
+
+@njit(cache=True)
+def _body_block(K, invm, invI, q, r):
+    """K += 6×6 response of body point r to (positional impulse, angular impulse) (``kernels._body_block``)."""
+    w, x, y, z = q
+    R = np.empty((3, 3))
+    R[0, 0] = 1 - 2 * (y * y + z * z)
+    R[0, 1] = 2 * (x * y - w * z)
+    R[0, 2] = 2 * (x * z + w * y)
+    R[1, 0] = 2 * (x * y + w * z)
+    R[1, 1] = 1 - 2 * (x * x + z * z)
+    R[1, 2] = 2 * (y * z - w * x)
+    R[2, 0] = 2 * (x * z - w * y)
+    R[2, 1] = 2 * (y * z + w * x)
+    R[2, 2] = 1 - 2 * (x * x + y * y)
+    Ii = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(3):
+            Ii[i, j] = R[i, 0] * invI[0] * R[j, 0] + R[i, 1] * invI[1] * R[j, 1] + R[i, 2] * invI[2] * R[j, 2]
+    S = np.zeros((3, 3))
+    S[0, 1], S[0, 2], S[1, 0], S[1, 2], S[2, 0], S[2, 1] = -r[2], r[1], r[2], -r[0], -r[1], r[0]
+    SI = S @ Ii
+    SIS = SI @ S
+    IS = Ii @ S
+    for i in range(3):
+        for j in range(3):
+            K[i, j] += (invm if i == j else 0.0) - SIS[i, j]
+            K[i, 3 + j] += -SI[i, j]
+            K[3 + i, j] += IS[i, j]
+            K[3 + i, 3 + j] += Ii[i, j]
+
+
+@njit(cache=True)
+def _hinge_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, lo, hi):
+    q1 = _q4(Q, g1)
+    aw = _rot(q1, a1)
+    qt = _qmul(q1, qoff)
+    qe = _qmul(_q4(Q, g2), _qconj(qt))
+    s = qe[1] * aw[0] + qe[2] * aw[1] + qe[3] * aw[2]
+    ang = 2.0 * math.atan2(s, qe[0])
+    if ang > math.pi:
+        ang -= 2.0 * math.pi
+    elif ang <= -math.pi:
+        ang += 2.0 * math.pi
+    if ang < lo:
+        viol = ang - lo
+    elif ang > hi:
+        viol = ang - hi
+    else:
+        return False
+    target = ang - viol
+    r1w = _rot(_q4(Q, g1), r1)
+    r2w = _rot(_q4(Q, g2), r2)
+    c_pin = (X[g2, 0] + r2w[0] - X[g1, 0] - r1w[0], X[g2, 1] + r2w[1] - X[g1, 1] - r1w[1],
+             X[g2, 2] + r2w[2] - X[g1, 2] - r1w[2])
+    sn, cs = math.sin(0.5 * target), math.cos(0.5 * target)
+    q2t = _qmul((cs, sn * aw[0], sn * aw[1], sn * aw[2]), qt)
+    qe = _qmul(_q4(Q, g2), _qconj(q2t))
+    if qe[0] < 0.0:
+        qe = (-qe[0], -qe[1], -qe[2], -qe[3])
+    vn = math.sqrt(qe[1] * qe[1] + qe[2] * qe[2] + qe[3] * qe[3])
+    if vn > _EPS:
+        th = 2.0 * math.atan2(vn, qe[0]) / vn
+        c_ang = (th * qe[1], th * qe[2], th * qe[3])
+    else:
+        c_ang = (0.0, 0.0, 0.0)
+    K = np.zeros((6, 6))
+    if IM[g1] != 0.0:
+        _body_block(K, IM[g1], _v3(II, g1), _q4(Q, g1), r1w)
+    if IM[g2] != 0.0:
+        _body_block(K, IM[g2], _v3(II, g2), _q4(Q, g2), r2w)
+    rhs = np.empty(6)
+    rhs[0], rhs[1], rhs[2] = -c_pin[0], -c_pin[1], -c_pin[2]
+    rhs[3], rhs[4], rhs[5] = -c_ang[0], -c_ang[1], -c_ang[2]
+    z = np.empty(6)
+    if not _solve_dense(K, rhs, z):
+        return True
+    P = (z[0], z[1], z[2])
+    L = (z[3], z[4], z[5])
+    _apply_pos(X, Q, IM, II, g2, r2w, P, 1.0)
+    _apply_ang(Q, IM, II, g2, L, 1.0)
+    _apply_pos(X, Q, IM, II, g1, r1w, P, -1.0)
+    _apply_ang(Q, IM, II, g1, L, -1.0)
+    return True
+
+
+@njit(cache=True)
+def _slide_axis(X, Q, IM, II, g1, g2, r1, a1, limited, lo, hi):
+    q1 = _q4(Q, g1)
+    r1w = _rot(q1, r1)
+    aw = _rot(q1, a1)
+    d = (X[g2, 0] - X[g1, 0] - r1w[0], X[g2, 1] - X[g1, 1] - r1w[1], X[g2, 2] - X[g1, 2] - r1w[2])
+    dist = _dot(d, aw)
+    perp = (d[0] - dist * aw[0], d[1] - dist * aw[1], d[2] - dist * aw[2])
+    pl = math.sqrt(_dot(perp, perp))
+    zero = (0.0, 0.0, 0.0)
+    if pl > _EPS:
+        _solve_pos(X, Q, IM, II, g1, g2, (X[g2, 0] - X[g1, 0], X[g2, 1] - X[g1, 1], X[g2, 2] - X[g1, 2]),
+                   zero, (perp[0] / pl, perp[1] / pl, perp[2] / pl), pl, 0.0, 0.0, -math.inf, math.inf)
+    if limited:
+        q1 = _q4(Q, g1)
+        r1w = _rot(q1, r1)
+        aw = _rot(q1, a1)
+        dist = (X[g2, 0] - X[g1, 0] - r1w[0]) * aw[0] + (X[g2, 1] - X[g1, 1] - r1w[1]) * aw[1] + \
+            (X[g2, 2] - X[g1, 2] - r1w[2]) * aw[2]
+        viol = dist - lo if dist < lo else (dist - hi if dist > hi else 0.0)
+        if viol != 0.0:
+            _solve_pos(X, Q, IM, II, g1, g2, (X[g2, 0] - X[g1, 0], X[g2, 1] - X[g1, 1], X[g2, 2] - X[g1, 2]),
+                       zero, aw, viol, 0.0, 0.0, -math.inf, math.inf)
+
+
+@njit(cache=True)
+def _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, reverse):
+    """Joint rows (``SolverXPBD._solve_joints``); jvec[j] = (r1, r2, a1, a2) as (4, 3)."""
+    nj = jt.shape[0]
+    for k in range(nj):
+        j = nj - 1 - k if reverse else k
+        t, g1, g2 = jt[j], jg[j, 0], jg[j, 1]
+        r1, r2, a1, a2 = _v3(jvec[j], 0), _v3(jvec[j], 1), _v3(jvec[j], 2), _v3(jvec[j], 3)
+        if t == JNT_HINGE:
+            if jlim[j] and _hinge_limit(X, Q, IM, II, g1, g2, r1, r2, a1, _q4(jqoff, j), jlo[j], jhi[j]):
+                continue
+            if reverse:
+                _attach(X, Q, IM, II, g1, g2, r1, r2)
+                _align_axes(Q, IM, II, g1, g2, a1, a2)
+            else:
+                _align_axes(Q, IM, II, g1, g2, a1, a2)
+                _attach(X, Q, IM, II, g1, g2, r1, r2)
+        elif t == JNT_SLIDE:
+            if reverse:
+                _slide_axis(X, Q, IM, II, g1, g2, r1, a1, jlim[j], jlo[j], jhi[j])
+                _fix_orientation(Q, IM, II, g1, g2, _q4(jqoff, j))
+            else:
+                _fix_orientation(Q, IM, II, g1, g2, _q4(jqoff, j))
+                _slide_axis(X, Q, IM, II, g1, g2, r1, a1, jlim[j], jlo[j], jhi[j])
+        elif t == JNT_BALL:
+            _attach(X, Q, IM, II, g1, g2, r1, r2)
+
+
+@njit(cache=True)
+def _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, reverse):
+    ne = et.shape[0]
+    for k in range(ne):
+        e = ne - 1 - k if reverse else k
+        if et[e] == EQ_WELD:
+            _fix_orientation(Q, IM, II, eg[e, 0], eg[e, 1], _q4(eqoff, e))
+        _attach(X, Q, IM, II, eg[e, 0], eg[e, 1], _v3(evec[e], 0), _v3(evec[e], 1))
+
+
+# ---------------------------------------------------------------------------- length rows
+
+
+@njit(cache=True)
+def _row_geometry(X, Q, rg, rvec, i):
+    ga, gb = rg[i, 0], rg[i, 1]
+    raw = _rot(_q4(Q, ga), _v3(rvec[i], 0))
+    rbw = _rot(_q4(Q, gb), _v3(rvec[i], 1))
+    d = (X[gb, 0] + rbw[0] - X[ga, 0] - raw[0], X[gb, 1] + rbw[1] - X[ga, 1] - raw[1],
+         X[gb, 2] + rbw[2] - X[ga, 2] - raw[2])
+    return ga, gb, raw, rbw, d
+
+
+@njit(cache=True)
+def _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, reverse):
+    n = act.shape[0]
+    for k in range(n):
+        i = act[n - 1 - k] if reverse else act[k]
+        ga, gb, raw, rbw, d = _row_geometry(X, Q, rg, rvec, i)
+        ell = math.sqrt(_dot(d, d))
+        if ell < _EPS:
+            continue
+        lam[i] += _solve_pos(X, Q, IM, II, ga, gb, raw, rbw, (d[0] / ell, d[1] / ell, d[2] / ell), ell - tgt[i],
+                             at[i], lam[i], lo[i], hi[i])
+
+
+@njit(cache=True)
+def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob):
+    k = act.shape[0]
+    A = np.zeros((k, k))
+    rhs = np.zeros(k)
+    live = np.zeros(k, np.bool_)
+    anylive = False
+    for m in range(k):
+        i = act[m]
+        ga, gb, raw, rbw, d = _row_geometry(X, Q, rg, rvec, i)
+        ell = math.sqrt(_dot(d, d))
+        if ell < _EPS:
+            A[m, m] = 1.0
+            continue
+        n = (d[0] / ell, d[1] / ell, d[2] / ell)
+        for j in range(k):
+            jj = act[j]
+            cb = _cross((mob[jj, gb, 3], mob[jj, gb, 4], mob[jj, gb, 5]), rbw)
+            ca = _cross((mob[jj, ga, 3], mob[jj, ga, 4], mob[jj, ga, 5]), raw)
+            A[m, j] = (n[0] * (mob[jj, gb, 0] + cb[0] - mob[jj, ga, 0] - ca[0])
+                       + n[1] * (mob[jj, gb, 1] + cb[1] - mob[jj, ga, 1] - ca[1])
+                       + n[2] * (mob[jj, gb, 2] + cb[2] - mob[jj, ga, 2] - ca[2]))
+        A[m, m] += at[i]
+        rhs[m] = -(ell - tgt[i]) - at[i] * lam[i]
+        live[m] = True
+        anylive = True
+    if not anylive:
+        return
+    dlam = np.zeros(k)
+    if not _solve_dense(A, rhs, dlam):
+        _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, False)
+        return
+    for m in range(k):
+        i = act[m]
+        if live[m]:
+            new = min(max(lam[i] + dlam[m], lo[i]), hi[i])
+        else:
+            new = lam[i]
+        dlam[m] = new - lam[i]
+        lam[i] = new
+    for g in range(1, X.shape[0]):
+        if IM[g] == 0.0:
+            continue
+        mv = np.zeros(6)
+        for j in range(k):
+            dl = dlam[j]
+            if dl != 0.0:
+                for c in range(6):
+                    mv[c] += dl * mob[act[j], g, c]
+        X[g, 0] = X[g, 0] + mv[0]
+        X[g, 1] = X[g, 1] + mv[1]
+        X[g, 2] = X[g, 2] + mv[2]
+        if mv[3] != 0.0 or mv[4] != 0.0 or mv[5] != 0.0:
+            _setq(Q, g, _qadd(_q4(Q, g), (mv[3], mv[4], mv[5]), 1.0))
+
+
+# ---------------------------------------------------------------------------- soft pyramidal contacts
+
+
+@njit(cache=True)
+def _impedance(solimp, pos):
+    dmin, dmax, width, mid, power = solimp[0], solimp[1], solimp[2], solimp[3], solimp[4]
+    dmin, dmax = min(max(dmin, 1e-4), 0.9999), min(max(dmax, 1e-4), 0.9999)
+    mid, power = min(max(mid, 1e-4), 0.9999), max(power, 1.0)
+    if dmin == dmax or width <= 1e-15:
+        return 0.5 * (dmin + dmax)
+    x = abs(pos) / width
+    if x >= 1.0 or x <= 0.0:
+        return dmax if x >= 1.0 else dmin
+    if power == 1.0:
+        y = x
+    elif x <= mid:
+        y = x**power / mid ** (power - 1.0)
+    else:
+        y = 1.0 - (1.0 - x) ** power / (1.0 - mid) ** (power - 1.0)
+    return dmin + y * (dmax - dmin)
+
+
+@njit(cache=True)
+def _contact_law(solref, solimp, condim, tran, mu, pos, cone, impratio, timestep):
+    """``solver.mujoco_contact_law``: (k·d, b, R)."""
+    tc, zeta = solref[0], solref[1]
+    d = _impedance(solimp, pos)
+    dmax = min(max(solimp[1], 1e-4), 0.9999)
+    if tc > 0.0:
+        tc = max(tc, 2.0 * timestep)
+        k = 1.0 / max(1e-15, dmax * dmax * tc * tc * zeta * zeta)
+        b = 2.0 / max(1e-15, dmax * tc)
+    else:
+        k = -tc / max(1e-15, dmax * dmax)
+        b = -zeta / max(1e-15, dmax)
+    r0 = (1.0 - d) / d * tran
+    if condim == 1 or cone == 1:
+        R = r0
+    else:
+        r0 *= 1.0 + mu * mu
+        R = 2.0 * mu * mu / max(impratio, 1e-15) * r0 / (2.0 * (condim - 1))
+    return k * d, b, R
+
+
+@njit(cache=True)
+def _contact_targets(X, Q, V, W, cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, h,
+                     active, clocal, edge):
+    """Soft pyramidal edge rows of every candidate for the substep (``SolverXPBD._soft_contact_targets``).
+
+    active[ci]: 1 if the candidate penetrates (edge rows live), else 0; clocal[ci] = (r1 local, r2 local);
+    edge[ci, j] = (ê (3), target Δ*/|e| [m], α̃ = R_e/|e|², 1/|e|)."""
+    for ci in range(cg.shape[0]):
+        g2, g1 = cg[ci, 0], cg[ci, 1]
+        r2l, ol, nl, t1l = _v3(cvec[ci], 0), _v3(cvec[ci], 1), _v3(cvec[ci], 2), _v3(cvec[ci], 3)
+        rad, mu = crad[ci], cmu[ci]
+        q1, q2 = _q4(Q, g1), _q4(Q, g2)
+        n = _rot(q1, nl)
+        o = _rot(q1, ol)
+        r2 = _rot(q2, r2l)
+        p = (X[g2, 0] + r2[0], X[g2, 1] + r2[1], X[g2, 2] + r2[2])
+        gap = (p[0] - X[g1, 0] - o[0]) * n[0] + (p[1] - X[g1, 1] - o[1]) * n[1] + (p[2] - X[g1, 2] - o[2]) * n[2] - rad
+        kd, b, R = _contact_law(csolref[ci], csolimp[ci], ccondim[ci], ctran[ci], mu, min(gap, 0.0),
+                                cone, impratio, h)
+        active[ci] = 0
+        if gap >= 0.0:
+            continue
+        ne = 2 * (ccondim[ci] - 1)
+        r_edge = R * ne
+        rel = (p[0] - rad * n[0], p[1] - rad * n[1], p[2] - rad * n[2])
+        r1c = (rel[0] - X[g1, 0], rel[1] - X[g1, 1], rel[2] - X[g1, 2])
+        r2c = (rel[0] - X[g2, 0], rel[1] - X[g2, 1], rel[2] - X[g2, 2])
+        va = _point_vel(V, W, g2, r2c)
+        vb = _point_vel(V, W, g1, r1c)
+        vr = (va[0] - vb[0], va[1] - vb[1], va[2] - vb[2])
+        t1 = _rot(q1, t1l)
+        t2 = _cross(n, t1)
+        j = 0
+        for tk in range(2):
+            t = t1 if tk == 0 else t2
+            for sk in range(2):
+                sgn = 1.0 if sk == 0 else -1.0
+                e = (n[0] + sgn * mu * t[0], n[1] + sgn * mu * t[1], n[2] + sgn * mu * t[2])
+                le = math.sqrt(_dot(e, e))
+                ve = _dot(vr, e)
+                target = h * ve - h * h * (b * ve + kd * gap)
+                edge[ci, j, 0] = e[0] / le
+                edge[ci, j, 1] = e[1] / le
+                edge[ci, j, 2] = e[2] / le
+                edge[ci, j, 3] = target / le
+                edge[ci, j, 4] = r_edge / (le * le)
+                edge[ci, j, 5] = 1.0 / le
+                j += 1
+        a1 = _rotinv(q1, r1c)
+        a2 = _rotinv(q2, r2c)
+        for c in range(3):
+            clocal[ci, 0, c] = a1[c]
+            clocal[ci, 1, c] = a2[c]
+        active[ci] = 1
+
+
+@njit(cache=True)
+def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e):
+    """All edge rows of the candidates ``cis`` between groups g1 (plane) and g2, solved together with an
+    active set over λ ≥ 0 (``SolverXPBD._contact_pyramids``)."""
+    npt = cis.shape[0]
+    n = 4 * npt
+    pts = np.empty((npt, 2, 3))
+    E = np.empty((n, 3))
+    tgt = np.empty(n)
+    alpha = np.empty(n)
+    lam = np.empty(n)
+    disp_rows = np.empty(n)
+    for pi in range(npt):
+        ci = cis[pi]
+        r1l, r2l = _v3(clocal[ci], 0), _v3(clocal[ci], 1)
+        r1w = _rot(_q4(Q, g1), r1l)
+        r2w = _rot(_q4(Q, g2), r2l)
+        r1p = _rot(_q4(Qp, g1), r1l)
+        r2p = _rot(_q4(Qp, g2), r2l)
+        disp = ((X[g2, 0] + r2w[0] - Xp[g2, 0] - r2p[0]) - (X[g1, 0] + r1w[0] - Xp[g1, 0] - r1p[0]),
+                (X[g2, 1] + r2w[1] - Xp[g2, 1] - r2p[1]) - (X[g1, 1] + r1w[1] - Xp[g1, 1] - r1p[1]),
+                (X[g2, 2] + r2w[2] - Xp[g2, 2] - r2p[2]) - (X[g1, 2] + r1w[2] - Xp[g1, 2] - r1p[2]))
+        for c in range(3):
+            pts[pi, 0, c] = r1w[c]
+            pts[pi, 1, c] = r2w[c]
+        for j in range(4):
+            row = 4 * pi + j
+            e = (edge[ci, j, 0], edge[ci, j, 1], edge[ci, j, 2])
+            E[row, 0], E[row, 1], E[row, 2] = e
+            tgt[row] = edge[ci, j, 3]
+            alpha[row] = edge[ci, j, 4]
+            lam[row] = lam_e[ci, j]
+            disp_rows[row] = _dot(disp, e)
+    A = np.zeros((n, n))
+    for side in range(2):
+        b = g1 if side == 0 else g2
+        if IM[b] == 0.0:
+            continue
+        q = _q4(Q, b)
+        invI = _v3(II, b)
+        ang = np.empty((n, 3))
+        for row in range(n):
+            r = _v3(pts[row // 4], side)
+            a = _rotinv(q, _cross(r, _v3(E, row)))  # principal frame: (r × e)ᵀ I⁻¹ (r × e')
+            ang[row, 0], ang[row, 1], ang[row, 2] = a
+        for i in range(n):
+            for j in range(n):
+                A[i, j] += IM[b] * (E[i, 0] * E[j, 0] + E[i, 1] * E[j, 1] + E[i, 2] * E[j, 2]) + \
+                    (invI[0] * ang[i, 0] * ang[j, 0] + invI[1] * ang[i, 1] * ang[j, 1] + invI[2] * ang[i, 2] * ang[j, 2])
+    rhs = np.empty(n)
+    for i in range(n):
+        rhs[i] = -(disp_rows[i] - tgt[i]) - alpha[i] * lam[i]
+        A[i, i] += alpha[i]
+    free = np.empty(n, np.bool_)
+    for i in range(n):
+        free[i] = rhs[i] > 0.0 or lam[i] > 0.0
+    dlam = np.zeros(n)
+    for _ in range(n + 1):
+        nf = 0
+        for i in range(n):
+            if not free[i]:
+                dlam[i] = -lam[i]
+            else:
+                nf += 1
+        if nf:
+            idx = np.empty(nf, np.int64)
+            k = 0
+            for i in range(n):
+                if free[i]:
+                    idx[k] = i
+                    k += 1
+            Af = np.empty((nf, nf))
+            bf = np.empty(nf)
+            for a in range(nf):
+                s = rhs[idx[a]]
+                for i in range(n):
+                    if not free[i]:
+                        s -= A[idx[a], i] * dlam[i]
+                bf[a] = s
+                for c in range(nf):
+                    Af[a, c] = A[idx[a], idx[c]]
+            xf = np.empty(nf)
+            if not _solve_dense(Af, bf, xf):
+                return
+            for a in range(nf):
+                dlam[idx[a]] = xf[a]
+        neg = False
+        for i in range(n):
+            if free[i] and lam[i] + dlam[i] < 0.0:
+                free[i] = False
+                neg = True
+        if not neg:
+            break
+    for pi in range(npt):
+        ci = cis[pi]
+        imp = [0.0, 0.0, 0.0]
+        for j in range(4):
+            row = 4 * pi + j
+            new = max(lam[row] + dlam[row], 0.0)
+            d = new - lam[row]
+            lam_e[ci, j] = new
+            for c in range(3):
+                imp[c] += d * E[row, c]
+        p = (imp[0], imp[1], imp[2])
+        _apply_pos(X, Q, IM, II, g2, _v3(pts[pi], 1), p, 1.0)
+        _apply_pos(X, Q, IM, II, g1, _v3(pts[pi], 0), p, -1.0)
+
+
+@njit(cache=True)
+def _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, reverse):
+    nc = cg.shape[0]
+    done = np.zeros(nc, np.bool_)
+    for k in range(nc):
+        ci = nc - 1 - k if reverse else k
+        if done[ci] or not active[ci]:
+            continue
+        g2, g1 = cg[ci, 0], cg[ci, 1]
+        cnt = 0
+        for k2 in range(k, nc):
+            cj = nc - 1 - k2 if reverse else k2
+            if active[cj] and cg[cj, 0] == g2 and cg[cj, 1] == g1:
+                cnt += 1
+        cis = np.empty(cnt, np.int64)
+        cnt = 0
+        for k2 in range(k, nc):
+            cj = nc - 1 - k2 if reverse else k2
+            if active[cj] and cg[cj, 0] == g2 and cg[cj, 1] == g1:
+                cis[cnt] = cj
+                done[cj] = True
+                cnt += 1
+        _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e)
+
+
+# ---------------------------------------------------------------------------- the substep
+
+
+@njit(cache=True)
+def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
+            jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp,
+            et, eg, evec, eqoff,
+            rg, rvec, act, tgt, at, lo, hi, use_block, mob,
+            use_gg, gg, F, T, use_tau, tau,
+            cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
+            lin_damp, ang_damp, lam_rows, ell, rate):
+    """One XPBD substep of length h [s] in place on the group arrays X, Q, V, W (see module docstring).
+
+    Rows: ``act`` the active row indices, tgt/at/lo/hi per row (ℓ* [m], α̃ = α/h², bounds on λ [N·s²]),
+    ``mob`` (nrows, ngroup, 6) the articulated mobility (``use_block``).  ``gg`` (ngroup, 6) group
+    accelerations replacing gravity (``use_gg``), F/T (ngroup, 3) external world forces/torques, ``tau``
+    (njnt,) hinge torques applied as impulses (``use_tau``).  Contacts: the step's candidates
+    (cg = (body group, plane group); cvec = (r2 local, plane origin, plane normal, tangent t₁)).
+    Outputs: lam_rows (λ of every row), ell and rate (ℓ [m], dℓ/dt [m/s] of every row after the substep).
+    """
+    ng = X.shape[0]
+    nr = rg.shape[0]
+    nc = cg.shape[0]
+    # hinge torques: angular impulse τ h a plus the workless pin impulse (kernels.apply_joint_torque_impulse)
+    if use_tau:
+        for j in range(jt.shape[0]):
+            if tau[j] == 0.0 or jt[j] != JNT_HINGE:
+                continue
+            g1, g2 = jg[j, 0], jg[j, 1]
+            q1, q2 = _q4(Q, g1), _q4(Q, g2)
+            aw = _rot(q1, _v3(jvec[j], 2))
+            s = tau[j] * h
+            L = (s * aw[0], s * aw[1], s * aw[2])
+            r1, r2 = _rot(q1, _v3(jvec[j], 0)), _rot(q2, _v3(jvec[j], 1))
+            d2 = _winv(q2, _v3(II, g2), L) if IM[g2] != 0.0 else (0.0, 0.0, 0.0)
+            d1 = _winv(q1, _v3(II, g1), L) if IM[g1] != 0.0 else (0.0, 0.0, 0.0)
+            c2 = _cross(d2, r2)
+            c1 = _cross(d1, r1)
+            mis = (c2[0] + c1[0], c2[1] + c1[1], c2[2] + c1[2])
+            _apply_angvel(W, Q, IM, II, g2, L, 1.0)
+            _apply_angvel(W, Q, IM, II, g1, L, -1.0)
+            ok, K = _pair_mobility(IM, II, Q, g1, g2, r1, r2)
+            if not ok:
+                continue
+            ok, P = _solve3(K, (-mis[0], -mis[1], -mis[2]))
+            if not ok:
+                continue
+            _apply_vel(V, W, Q, IM, II, g2, r2, P, 1.0)
+            _apply_vel(V, W, Q, IM, II, g1, r1, P, -1.0)
+    # soft contact rows of the substep
+    active = np.zeros(nc, np.int64)
+    clocal = np.zeros((nc, 2, 3))
+    edge = np.zeros((nc, 4, 6))
+    lam_e = np.zeros((nc, 4))
+    if nc:
+        _contact_targets(X, Q, V, W, cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, h,
+                         active, clocal, edge)
+    Xp = X.copy()
+    Qp = Q.copy()
+    # predict
+    for g in range(1, ng):
+        q = _q4(Q, g)
+        if use_gg:
+            acc = (gg[g, 0], gg[g, 1], gg[g, 2])
+            al = _rotinv(q, (gg[g, 3], gg[g, 4], gg[g, 5]))
+            ta = _rot(q, (GI[g, 0] * al[0], GI[g, 1] * al[1], GI[g, 2] * al[2]))
+            tq = (T[g, 0] + ta[0], T[g, 1] + ta[1], T[g, 2] + ta[2])
+        else:
+            acc = (gravity[0], gravity[1], gravity[2])
+            tq = (T[g, 0], T[g, 1], T[g, 2])
+        invm = IM[g]
+        for c in range(3):
+            V[g, c] = V[g, c] + h * (acc[c] + F[g, c] * invm)
+            X[g, c] = X[g, c] + h * V[g, c]
+        wl = _rotinv(q, _v3(W, g))
+        gy = _cross(wl, (GI[g, 0] * wl[0], GI[g, 1] * wl[1], GI[g, 2] * wl[2]))
+        tl = _rotinv(q, tq)
+        tl = (tl[0] - gy[0], tl[1] - gy[1], tl[2] - gy[2])
+        wl = (wl[0] + h * II[g, 0] * tl[0], wl[1] + h * II[g, 1] * tl[1], wl[2] + h * II[g, 2] * tl[2])
+        wn = _rot(q, wl)
+        W[g, 0], W[g, 1], W[g, 2] = wn
+        _setq(Q, g, _qadd(q, wn, h))
+    for r in range(nr):
+        lam_rows[r] = 0.0
+    for _ in range(iterations):
+        for sweep in range(2 if symmetric else 1):
+            rev = sweep == 1
+            if not rev:
+                _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, False)
+                _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, False)
+                if act.shape[0]:
+                    if use_block:
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob)
+                    else:
+                        _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, False)
+                if nc:
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, False)
+            else:
+                if nc:
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, True)
+                if act.shape[0]:
+                    if use_block:
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob)
+                    else:
+                        _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, True)
+                _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, True)
+                _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, True)
+    # velocity update
+    ih = 1.0 / h
+    for g in range(1, ng):
+        for c in range(3):
+            V[g, c] = (X[g, c] - Xp[g, c]) * ih
+        dq = _qmul(_q4(Q, g), _qconj(_q4(Qp, g)))
+        s = 2.0 * ih if dq[0] >= 0.0 else -2.0 * ih
+        W[g, 0], W[g, 1], W[g, 2] = s * dq[1], s * dq[2], s * dq[3]
+    # velocity pass: soft pyramidal contacts have none; implicit joint damping
+    for j in range(jt.shape[0]):
+        b = jdamp[j]
+        t = jt[j]
+        if not (b > 0.0) or t == JNT_FREE:
+            continue
+        g1, g2 = jg[j, 0], jg[j, 1]
+        q1, q2 = _q4(Q, g1), _q4(Q, g2)
+        if t == JNT_HINGE or t == JNT_BALL:
+            rel = (W[g2, 0] - W[g1, 0], W[g2, 1] - W[g1, 1], W[g2, 2] - W[g1, 2])
+            if t == JNT_HINGE:
+                n = _rot(q1, _v3(jvec[j], 2))
+                rt = _dot(rel, n)
+            else:
+                rt = math.sqrt(_dot(rel, rel))
+                if rt <= _EPS:
+                    continue
+                n = (rel[0] / rt, rel[1] / rt, rel[2] / rt)
+            wsum = (_ang_w(_v3(II, g1), q1, n) if IM[g1] else 0.0) + (_ang_w(_v3(II, g2), q2, n) if IM[g2] else 0.0)
+            if wsum <= 0.0:
+                continue
+            jimp = rt * b * h / (1.0 + b * h * wsum)
+            p = (jimp * n[0], jimp * n[1], jimp * n[2])
+            _apply_angvel(W, Q, IM, II, g2, p, -1.0)
+            _apply_angvel(W, Q, IM, II, g1, p, 1.0)
+        else:
+            n = _rot(q1, _v3(jvec[j], 2))
+            r1w = (X[g2, 0] - X[g1, 0], X[g2, 1] - X[g1, 1], X[g2, 2] - X[g1, 2])
+            zero = (0.0, 0.0, 0.0)
+            v1 = _point_vel(V, W, g1, r1w)
+            rt = (V[g2, 0] - v1[0]) * n[0] + (V[g2, 1] - v1[1]) * n[1] + (V[g2, 2] - v1[2]) * n[2]
+            wsum = _pos_w(IM[g1], _v3(II, g1), q1, r1w, n) + _pos_w(IM[g2], _v3(II, g2), q2, zero, n)
+            if wsum <= 0.0:
+                continue
+            jimp = rt * b * h / (1.0 + b * h * wsum)
+            p = (jimp * n[0], jimp * n[1], jimp * n[2])
+            _apply_vel(V, W, Q, IM, II, g2, zero, p, -1.0)
+            _apply_vel(V, W, Q, IM, II, g1, r1w, p, 1.0)
+    cl = 1.0 / (1.0 + lin_damp * h)
+    ca = 1.0 / (1.0 + ang_damp * h)
+    for g in range(1, ng):
+        if cl != 1.0:
+            for c in range(3):
+                V[g, c] = cl * V[g, c]
+        if ca != 1.0:
+            for c in range(3):
+                W[g, c] = ca * W[g, c]
+    # row kinematics after the substep
+    for i in range(nr):
+        ga, gb, raw, rbw, d = _row_geometry(X, Q, rg, rvec, i)
+        l = math.sqrt(_dot(d, d))
+        ell[i] = l
+        den = l if l > 0.0 else 1.0
+        n = (d[0] / den, d[1] / den, d[2] / den)
+        vb = _point_vel(V, W, gb, rbw)
+        va = _point_vel(V, W, ga, raw)
+        rate[i] = (vb[0] - va[0]) * n[0] + (vb[1] - va[1]) * n[1] + (vb[2] - va[2]) * n[2]
+
+
+@njit(cache=True)
+def scatter(X, Q, V, W, body_group, in_group_quat, in_group_pos, x, q, v, w):
+    """Group poses/velocities → every body's COM pose and velocity (``SolverXPBD._scatter``), in place."""
+    for b in range(body_group.shape[0]):
+        g = body_group[b]
+        qg = _q4(Q, g)
+        qb = _qmul(qg, _q4(in_group_quat, b))
+        _setq(q, b, qb)
+        r = _rot(qg, _v3(in_group_pos, b))
+        for c in range(3):
+            x[b, c] = X[g, c] + r[c]
+        d = (x[b, 0] - X[g, 0], x[b, 1] - X[g, 1], x[b, 2] - X[g, 2])
+        cr = _cross(_v3(W, g), d)
+        for c in range(3):
+            w[b, c] = W[g, c]
+            v[b, c] = V[g, c] + cr[c]
