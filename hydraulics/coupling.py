@@ -212,7 +212,10 @@ class CouplingImplicit(Coupling):
         _, friction_slope_at_guess = model.friction_effort(velocity)
         pressure_slope = np.diag(lin.effort_velocity_gradient) - friction_slope_at_guess
         pressure_end = model.pressure_effort(lin.state.node_pressure)
-        pressure_start = model.pressure_effort(model.pressure(state.node_oil, position)[0])
+        # the state's pressures already belong to its oil at this position (PBD mode); MuJoCo's tendon
+        # lengths differ from the network's x + h·v⁺ by round-off, so there they are recomputed
+        same_position = np.array_equal(position, state.actuator_position)
+        pressure_start = model.pressure_effort(state.node_pressure if same_position else model.pressure(state.node_oil, position)[0])
         theta = np.ones_like(pressure_slope) if effective_mass is None else blend_factor(pressure_slope, effective_mass, dt)
         self.last_theta = theta
         # friction depends on velocity only: linearise it at the start velocity, the best guess of v⁺.
