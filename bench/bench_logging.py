@@ -4,10 +4,10 @@ Logging: the excavator dig cycle at 1 kHz for a few simulated seconds (default 3
 from t = 0, the approach and the start of the dig), each configuration repeated and
 interleaved, medians reported:
 
-``no log``        load the scene, build :class:`MujocoPlantFast`, advance it in blocks of
-                  10 steps (the runner's block size at the default 100 Hz log rate) with
-                  the runner's finiteness check per block: everything ``run()`` does
-                  except logging;
+``no log``        load the scene, build :class:`MujocoPlantFast`, check its load-time guards,
+                  advance it in blocks of 10 steps (the runner's block size at the default
+                  100 Hz log rate) with a finiteness check per block: everything ``run()``
+                  does except logging;
 ``default log``   ``sim.runner.run()`` at the scenario's log rate (100 Hz), the same work
                   plus the recorder, the MCAP writer and the divergence/energy checks;
 ``every step``    ``run()`` logging all 1000 samples per second (blocks of 1 step);
@@ -15,8 +15,9 @@ interleaved, medians reported:
                   Python-orchestrated step at a time (what ``run()`` did before the block path).
 
 Overhead = (time / no-log time) − 1.  Targets: default ≤ 10 %, every step ≤ 50 %.
-The per-sample cost is split into gathering (``RunRecorder.sample``), JSON encoding and
-MCAP writing by timing those parts alone on the same plant.
+The per-sample cost is split into the recorder's stages (``capture`` of the raw state per
+sample, ``derive`` and ``push`` per batch), JSON encoding and MCAP writing, by timing those
+parts alone on the same plant.
 
 Start-up: ``hydroplant run`` of the dig scenario for one step in a fresh interpreter
 (import, scene load, plant with its compiled callback, first step, log closed), twice:
@@ -89,6 +90,7 @@ def startup(out_dir: Path) -> None:
 
 def no_log(seconds: float, block: int) -> tuple[float, float]:
     """Wall and CPU time of everything run() does except logging (see module docstring) [s]."""
+    from sim.guards import check_plant
     from sim.runner import make_plant
     from sim.scenario import load_scenario
     from sim.scene import load_scene
@@ -96,6 +98,7 @@ def no_log(seconds: float, block: int) -> tuple[float, float]:
     t, c = time.perf_counter(), time.process_time()
     scenario = load_scenario(DIG).with_overrides(duration=seconds)
     plant = make_plant(load_scene(scenario))
+    check_plant(plant)  # run() checks the load-time guards whether it logs or not
     assert plant.fast
     steps = scenario.step_count
     while plant.step_index < steps:
@@ -118,7 +121,13 @@ def with_log(seconds: float, rate_hz: float, out: Path, fast: bool = True) -> tu
 
 
 def sample_parts(samples: int, out: Path) -> dict:
-    """µs per sample of the recorder's three stages, on a plant at the dig's start."""
+    """µs per sample of the recorder's stages, on a plant at the dig's start.
+
+    capture (raw state into the ring, per sample), derive (the logged fields of a
+    whole ring, vectorised, per sample), push (rows into the log's frame), encode
+    (JSON), write (merge, MCAP records, zstd); plus, for comparison, the
+    per-sample numpy hydraulic terms the recorder used to compute for every sample.
+    """
     from sim.mcap_log import LogWriter
     from sim.recorder import RunRecorder
     from sim.runner import make_plant
@@ -131,9 +140,17 @@ def sample_parts(samples: int, out: Path) -> dict:
     with LogWriter(out, dt=scenario.dt, overwrite=True, flush_interval=float("inf"), batch_size=samples + 1) as log:
         recorder = RunRecorder(log, plant)
         first = plant.step_index
-        t0 = time.perf_counter()
+        capture = derive = push = 0.0
         for i in range(samples):
-            recorder.sample(first + i)
+            t = time.perf_counter()
+            due = recorder.capture(first + i)
+            capture += time.perf_counter() - t
+            if due or i == samples - 1:
+                t = time.perf_counter()
+                recorder.derive()
+                t2 = time.perf_counter()
+                recorder.push()
+                derive, push = derive + (t2 - t), push + (time.perf_counter() - t2)
         t1 = time.perf_counter()
         for frame in log._frames:
             frame._encode()
@@ -158,8 +175,10 @@ def sample_parts(samples: int, out: Path) -> dict:
         plant.mechanical_energy()
     t6 = time.perf_counter()
     per = lambda a, b: (b - a) / samples * 1e6  # noqa: E731
-    return {"gather": per(t0, t1), "encode": per(t1, t2), "write": per(t2, t3), "messages": messages / samples,
-            "bytes": size / samples, "hydraulic_terms": per(t4, t5), "mechanics": per(t5, t6)}
+    return {"capture": capture / samples * 1e6, "derive": derive / samples * 1e6, "push": push / samples * 1e6,
+            "encode": per(t1, t2), "write": per(t2, t3), "messages": messages / samples,
+            "bytes": size / samples, "hydraulic_terms": per(t4, t5), "mechanics": per(t5, t6),
+            "ring": len(recorder._raw)}
 
 
 def main() -> None:
@@ -194,10 +213,11 @@ def main() -> None:
                          f"{'met' if max(over, over_cpu) <= targets[name] else 'NOT met'})")
             print(line, flush=True)
         parts = sample_parts(2000, out / "parts.mcap")
-        print(f"  one sample: {parts['messages']:.0f} messages, {parts['bytes']:.0f} B of JSON; gather {parts['gather']:.1f} µs "
-              f"(of which hydraulic terms {parts['hydraulic_terms']:.1f} µs: chamber_stiffness, stored_energy, pressure_effort; "
-              f"mechanical energy {parts['mechanics']:.1f} µs), encode {parts['encode']:.1f} µs, write {parts['write']:.1f} µs "
-              f"(merge, MCAP records, zstd)")
+        print(f"  one sample: {parts['messages']:.0f} messages, {parts['bytes']:.0f} B of JSON; capture {parts['capture']:.1f} µs "
+              f"(of which mechanical energy {parts['mechanics']:.1f} µs), derive {parts['derive']:.1f} µs and push "
+              f"{parts['push']:.1f} µs (per sample, in batches of {parts['ring']}), encode {parts['encode']:.1f} µs, "
+              f"write {parts['write']:.1f} µs (merge, MCAP records, zstd); for comparison, the per-sample numpy "
+              f"hydraulic terms (chamber_stiffness, stored_energy, pressure_effort) cost {parts['hydraulic_terms']:.1f} µs")
 
 
 if __name__ == "__main__":

@@ -39,7 +39,7 @@ import signal
 import struct
 import threading
 import zlib
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -1478,6 +1478,44 @@ class Frame:
         self._last_step = int(self._steps[self._count])
         self._count += 1
 
+    def extend(self, step_index: Sequence[int] | np.ndarray, values: np.ndarray) -> None:
+        """Buffer many rows at once: row i of ``values`` (shape (rows, column_count), SI) for step ``step_index[i]``.
+
+        The same as :meth:`append` row by row (periodic flushes and batch drains happen
+        before the same rows), in a few array copies; a Ctrl-C is held back until every
+        row is buffered, so a batch is never half in the log.
+        """
+        steps = np.asarray(step_index, dtype=np.int64).ravel()
+        values = np.asarray(values, dtype=np.float64)
+        k = len(steps)
+        if values.shape != (k, self.column_count):
+            raise ValueError(f"frame: `values` must have shape ({k}, {self.column_count}), got {values.shape}")
+        if k == 0:
+            return
+        if steps[0] < self._last_step or (k > 1 and np.any(steps[1:] < steps[:-1])):
+            raise ValueError(f"frame: step indexes must be non-decreasing and >= {self._last_step}")
+        writer = self._writer
+        with _DeferredSigint():
+            i = 0
+            while i < k:
+                first = int(steps[i])
+                if self._count == self._capacity or first >= writer._next_flush_step:
+                    writer._check_open()
+                    if first >= writer._next_flush_step:
+                        writer._periodic_flush(first)
+                    if self._count == self._capacity:
+                        writer._drain(end_chunk=False)
+                j = min(k, i + self._capacity - self._count)
+                if math.isfinite(writer._next_flush_step):  # stop before the next periodic flush
+                    j = min(j, i + int(np.searchsorted(steps[i:j], writer._next_flush_step, side="left")))
+                j = max(j, i + 1)
+                n = self._count
+                self._values[n:n + j - i] = values[i:j]
+                self._steps[n:n + j - i] = steps[i:j]
+                self._count = n + j - i
+                self._last_step = int(steps[j - 1])
+                i = j
+
     def _encode(self) -> None:
         """Encode the buffered rows into every member channel's encoded blocks."""
         n = self._count
@@ -1577,6 +1615,7 @@ class LogWriter:
         self._result_info: dict[str, str] = {}
         self._last_step = -1
         self._closed = False
+        self._close_hooks: list[Callable[[], None]] = []
 
         if not overwrite:
             for existing in (self.path, self.partial_path):
@@ -1653,6 +1692,16 @@ class LogWriter:
         }
         return self._add_channel(JointStatesChannel, topic, "foxglove.JointStates", joint_states_schema(),
                                  layout=layout, metadata=metadata, extra={"joint_names": names})
+
+    def on_close(self, hook: Callable[[], None]) -> None:
+        """Call ``hook()`` when the log closes, before its last samples are written.
+
+        For callers that buffer samples themselves (e.g. :class:`sim.recorder.RunRecorder`):
+        the hook hands them over, so an exception or Ctrl-C that closes the log keeps
+        them.  An exception in a hook is recorded in ``hydroplant.result``
+        (``close_hook_error``) and the log is still finished.
+        """
+        self._close_hooks.append(hook)
 
     def frame(self, column_count: int) -> Frame:
         """A :class:`Frame`: one row of ``column_count`` floats per sample feeding several channels."""
@@ -1789,6 +1838,13 @@ class LogWriter:
         """
         if self._closed:
             return
+        with _DeferredSigint():
+            hooks, self._close_hooks = self._close_hooks, []
+            for hook in hooks:
+                try:
+                    hook()
+                except Exception as error:  # noqa: BLE001 - finishing the log matters more
+                    self._result_info["close_hook_error"] = f"{type(error).__name__}: {error}"
         self._closed = True
         self._next_flush_step = -math.inf  # any later append() reaches _check_open()
         with _DeferredSigint():

@@ -19,14 +19,19 @@ description and in the channel metadata):
 
 from __future__ import annotations
 
+import math
 import re
 
 import numpy as np
 
-from hydraulics.energy import stored_energy
+from hydraulics.energy import chamber_stiffness_batch, node_volumes_batch, stored_energy_batch
+from hydraulics.laws import cylinder_pressure_force
 
 from .foxglove_scene import FrameTransformsChannel, log_scene
 from .mcap_log import LogLevel, LogWriter, flat_schema, log_message, log_schema
+
+
+_sum = np.add.reduce
 
 
 def field_name(name: str) -> str:
@@ -75,10 +80,25 @@ SOLVER_FIELDS = {
 }
 
 
-class RunRecorder:
-    """Registers the channels of a plant on a :class:`LogWriter` and appends samples."""
+RING_SIZE = 128  # samples captured before their fields are derived and written, as one batch
 
-    def __init__(self, log: LogWriter, plant):
+
+class RunRecorder:
+    """Registers the channels of a plant on a :class:`LogWriter` and logs samples in batches.
+
+    Per sample, :meth:`capture` copies only the plant's raw state (pressures, oil,
+    actuator motion, efforts, controls, flows, energy ledger, joints, body poses)
+    into a ring of ``ring_size`` rows.  :meth:`derive` computes the logged fields
+    of all pending samples at once (chamber volumes, stiffness, stored oil energy,
+    pressure forces, pump powers, energy residual: the laws of
+    :mod:`hydraulics.energy` and :mod:`hydraulics.laws`, vectorised over samples)
+    and :meth:`push` hands the rows to the log's :class:`~sim.mcap_log.Frame`.
+    Values equal the per-sample formulas to round-off.  Pending samples are
+    pushed when the log closes (:meth:`LogWriter.on_close`), so an interrupted
+    run keeps every sample it captured.
+    """
+
+    def __init__(self, log: LogWriter, plant, *, ring_size: int | None = None):
         self.log = log
         self.plant = plant
         net = plant.network
@@ -153,70 +173,201 @@ class RunRecorder:
         self._pump_from = np.asarray(net.branch_from[self.pump_branches], dtype=np.intp)
         self._no_flow = np.zeros(len(net.branch_names))
         self._nj = nj
+        # The ring of raw samples: per sample one row of the plant's raw state, copied by one
+        # np.concatenate; everything derived (volumes, stiffness, stored energy, efforts, pump
+        # powers) is computed per batch in derive().
+        # (node pressures and joints first and adjacent: captured_finite() sums one slice)
+        raw_sizes = {"p": nnode, "joints": 2 * nj, "oil": nnode, "x": net.actuator_count, "v": net.actuator_count,
+                     "effort": net.actuator_count, "theta": net.actuator_count, "cmd": nvalve, "spool": nvalve,
+                     "speed": npump, "flow": nflow, "solver": 2, "energy": 6, "poses": 7 * nbody}
+        # A MuJoCo plant's joints are read as the whole qpos/qvel (two plain copies) and selected per batch
+        from .plant_mujoco import MujocoPlant
+
+        self._mj = getattr(type(plant), "joint_state", None) is MujocoPlant.joint_state
+        if self._mj:
+            m = plant.model
+            raw_sizes["joints"] = m.nq + m.nv
+            self._joint_columns = np.concatenate([m.jnt_qposadr[plant.scalar_joints],
+                                                  m.nq + m.jnt_dofadr[plant.scalar_joints]]).astype(np.intp)
+        raw_start = np.cumsum([0, *raw_sizes.values()])
+        self._rawcols = {name: slice(int(raw_start[i]), int(raw_start[i + 1])) for i, name in enumerate(raw_sizes)}
+        capacity = max(1, min(int(RING_SIZE if ring_size is None else ring_size), log._batch_size))
+        self._raw = np.zeros((capacity, int(raw_start[-1])))
+        self._raw_steps = np.zeros(capacity, dtype=np.int64)
+        self._rows = np.full((capacity, int(start[-1])), np.nan)  # joint efforts are never written: logged as null
+        self._pending = self._derived = 0
+        self.last: dict = {}
+        if self._mj:
+            d = plant.data
+            self._mj_views = (d.qpos, d.qvel, d.xpos.reshape(-1), d.xquat.reshape(-1))
+            assert all(np.shares_memory(v, a) for v, a in zip(self._mj_views[2:], plant.body_poses()))
+        self._state_end = self._rawcols["joints"].stop  # node pressures, qpos, qvel: what MujocoPlant.finite() checks
+        assert self._rawcols["p"].start == 0 and self._rawcols["joints"].start == self._rawcols["p"].stop
+        log.on_close(self.push_pending)
 
     def event(self, step_index: int, level: LogLevel, text: str) -> None:
         """Write a foxglove.Log event (divergence, warnings)."""
         self.events.write(step_index, log_message(level, text))
 
+    # ------------------------------------------------------------------ sampling
     def sample(self, step_index: int) -> dict:
-        """Append one sample of every topic; returns the energy terms (for summaries).
+        """Log one sample now (capture, derive, write); returns its energy terms (see :meth:`push`).
 
-        Values are gathered into one frame row (a numpy expression per topic
-        family); the JSON is written later, in batches, by the log writer
-        (:mod:`sim.mcap_log`).
+        The batched form is :meth:`capture` + :meth:`derive` + :meth:`push`; this is the three
+        in a row, for callers that log rarely.
+        """
+        self.capture(step_index)
+        self.derive()
+        self.push()
+        return self.last
+
+    def capture(self, step_index: int) -> bool:
+        """Copy the raw state of the plant for a sample at ``step_index`` into the ring; nothing is derived.
+
+        Returns True when the pending samples should be derived and pushed now: the ring is
+        full, or the sample crosses the log's next periodic flush (so the chunk that flush
+        writes holds every sample before it, as when samples went straight to the log).
         """
         plant = self.plant
-        net = plant.network
         state = plant.net_state
-        p = state.node_pressure
+        kinetic, potential = plant.mechanical_energy()  # refreshes the kinematics body_poses() reads
+        if self._mj:  # views of the MjData arrays, made once (MjData never moves them)
+            q, qd, xpos, xquat = self._mj_views
+        else:
+            xpos, xquat = plant.body_poses()
+            xpos, xquat = xpos.reshape(-1), xquat.reshape(-1)
+            q, qd = plant.joint_state()
+        control = plant.control
+        report = plant.last_report
+        e = plant.energy
+        if report is None:
+            flow, solver = self._no_flow, (0.0, 0.0)
+        else:
+            flow = report.branch_flow if len(report.branch_flow) else self._no_flow
+            solver = (report.newton_iterations, report.residual)
+        n = self._pending
+        np.concatenate((state.node_pressure, q, qd, state.node_oil, state.actuator_position, state.actuator_velocity,
+                        plant.effort, plant.theta, control.valve_command, state.valve_spool, control.pump_speed, flow,
+                        solver, (kinetic, potential, e.pump_work, e.dissipated_hydraulic, e.dissipated_friction,
+                                 e.dissipated_mechanical), xpos, xquat), out=self._raw[n])
+        self._raw_steps[n] = step_index
+        self._pending = n + 1  # last: an interrupt above leaves no half-captured sample
+        return self._pending == len(self._raw) or step_index >= self.log._next_flush_step
+
+    def captured_finite(self) -> bool:
+        """Whether the last captured sample's state is finite: node pressures, and every qpos/qvel of a MuJoCo
+        plant (the same test as its ``finite()``, on the copy; other plants are asked)."""
+        if not self._mj:
+            return bool(self.plant.finite())
+        # a sum is finite iff every term is (barring overflow beyond 1e308, which only costs the runner a replay)
+        return math.isfinite(_sum(self._raw[self._pending - 1, :self._state_end]))
+
+    def discard(self) -> None:
+        """Forget the last captured sample (not yet derived)."""
+        if self._pending > self._derived:
+            self._pending -= 1
+
+    @property
+    def pending(self) -> int:
+        """Samples captured and not yet pushed to the log."""
+        return self._pending
+
+    def derive(self) -> dict | None:
+        """Compute the logged fields of the pending samples, vectorised over them; None when none are pending.
+
+        Returns the batch's energy terms as arrays over its samples (``step``,
+        ``kinetic``, ``potential``, ``oil``, ``residual``, ``pump_work`` [J]), for
+        checks before :meth:`push` (e.g. the runner's energy-growth check).
+        """
+        k = self._pending
+        if k == 0:
+            return None
+        net, r, b = self.plant.network, self._raw[:k], self._rawcols
+        p, oil, x, v = r[:, b["p"]], r[:, b["oil"]], r[:, b["x"]], r[:, b["v"]]
+        effort, theta, flow = r[:, b["effort"]], r[:, b["theta"]], r[:, b["flow"]]
+        rows = self._rows[:k]
         block = self._block
-        kinetic, potential = plant.mechanical_energy()
-        xpos, xquat = plant.body_poses()
-        row = self.frame.claim(step_index)
-        row[block["xpos"]] = xpos.ravel()
-        row[block["xquat"]] = xquat.ravel()
-        q, qd = plant.joint_state()
-        nj, j0 = self._nj, block["joints"].start
-        row[j0:j0 + nj] = q
-        row[j0 + nj:j0 + 2 * nj] = qd  # (efforts: never written, logged as null like JointStatesChannel.append)
-        x, v = state.actuator_position, state.actuator_velocity
-        effort = plant.effort
+        rows[:, block["xpos"].start:block["xquat"].stop] = r[:, b["poses"]]
+        joints = r[:, b["joints"]]
+        rows[:, block["joints"].start:block["joints"].start + 2 * self._nj] = joints[:, self._joint_columns] if self._mj else joints
+        volumes = node_volumes_batch(net, x, p)
         if len(self._cyl):
             cyl = self._cyl
-            c = row[block["cylinders"]].reshape(len(cyl), len(CYLINDER_FIELDS))
-            c[:, 0], c[:, 1], c[:, 2], c[:, 3] = x[cyl], v[cyl], p[self._cyl_cap], p[self._cyl_rod]
-            c[:, 4], c[:, 5] = effort[cyl], net.pressure_effort(p)[cyl]
-            c[:, 6] = net.chamber_stiffness(p, x).sum(axis=0)
-            c[:, 7] = plant.theta[cyl]
+            c = rows[:, block["cylinders"]].reshape(k, len(cyl), len(CYLINDER_FIELDS))
+            c[:, :, 0], c[:, :, 1], c[:, :, 2], c[:, :, 3] = x[:, cyl], v[:, cyl], p[:, self._cyl_cap], p[:, self._cyl_rod]
+            c[:, :, 4] = effort[:, cyl]
+            c[:, :, 5] = cylinder_pressure_force(p[:, self._cyl_cap], p[:, self._cyl_rod], net.cylinder_cap_area,
+                                                 net.cylinder_rod_area, net.fluid.reference_pressure)
+            c[:, :, 6] = chamber_stiffness_batch(net, p, x, volumes).sum(axis=1)
+            c[:, :, 7] = theta[:, cyl]
+            rows[:, block["cylinders"]] = c.reshape(k, -1)
         if len(self._mot):
             mot = self._mot
-            m = row[block["motors"]].reshape(len(mot), len(MOTOR_FIELDS))
-            m[:, 0], m[:, 1], m[:, 2], m[:, 3], m[:, 4] = x[mot], v[mot], p[self._mot_a], p[self._mot_b], effort[mot]
+            m = rows[:, block["motors"]].reshape(k, len(mot), len(MOTOR_FIELDS))
+            m[:, :, 0], m[:, :, 1], m[:, :, 2], m[:, :, 3] = x[:, mot], v[:, mot], p[:, self._mot_a], p[:, self._mot_b]
+            m[:, :, 4] = effort[:, mot]
+            rows[:, block["motors"]] = m.reshape(k, -1)
         if self.valves:
-            valves = row[block["valves"]].reshape(len(self.valves), len(VALVE_FIELDS))
-            valves[:, 0], valves[:, 1] = plant.control.valve_command, state.valve_spool
-        report = plant.last_report
-        flow = report.branch_flow if report is not None and len(report.branch_flow) else self._no_flow
+            valves = rows[:, block["valves"]].reshape(k, len(self.valves), len(VALVE_FIELDS))
+            valves[:, :, 0], valves[:, :, 1] = r[:, b["cmd"]], r[:, b["spool"]]
+            rows[:, block["valves"]] = valves.reshape(k, -1)
         if self.pumps:
             mu = net.fluid.pressure_potential(p)
-            q_pump = flow[self.pump_branches]
-            pumps = row[block["pumps"]].reshape(len(self.pumps), len(PUMP_FIELDS))
-            pumps[:, 0], pumps[:, 1], pumps[:, 2] = plant.control.pump_speed, q_pump, p[self._pump_to]
-            pumps[:, 3] = q_pump * (mu[self._pump_to] - mu[self._pump_from])
-        row[block["nodes"]] = p
+            q_pump = flow[:, self.pump_branches]
+            pumps = rows[:, block["pumps"]].reshape(k, len(self.pumps), len(PUMP_FIELDS))
+            pumps[:, :, 0], pumps[:, :, 1], pumps[:, :, 2] = r[:, b["speed"]], q_pump, p[:, self._pump_to]
+            pumps[:, :, 3] = q_pump * (mu[:, self._pump_to] - mu[:, self._pump_from])
+            rows[:, block["pumps"]] = pumps.reshape(k, -1)
+        rows[:, block["nodes"]] = p
         if self.flows is not None:
-            row[block["flows"]] = flow
-        oil = stored_energy(net, state)
-        e = plant.energy
-        residual = e.residual(kinetic, potential, oil)
-        row[block["energy"]] = (kinetic, potential, oil, e.pump_work, e.dissipated_hydraulic, e.dissipated_friction,
-                                e.dissipated_mechanical, residual)
-        theta = plant.theta
-        row[block["solver"]] = (report.newton_iterations if report is not None else 0,
-                                report.residual if report is not None else 0.0,
-                                min(theta.min(), 1.0) if len(theta) else 1.0)
-        self.frame.commit()
-        return {"kinetic": kinetic, "potential": potential, "oil": oil, "residual": residual}
+            rows[:, block["flows"]] = flow
+        kinetic, potential, pump_work, diss_h, diss_f, diss_m = r[:, b["energy"]].T
+        oil_energy = stored_energy_batch(net, oil, p, x, volumes)
+        # EnergyLedger.residual, term by term
+        residual = pump_work - (kinetic + potential + oil_energy - self.plant.energy.initial_total) - (diss_h + diss_f + diss_m)
+        en = rows[:, block["energy"]]
+        en[:, 0], en[:, 1], en[:, 2], en[:, 3] = kinetic, potential, oil_energy, pump_work
+        en[:, 4], en[:, 5], en[:, 6], en[:, 7] = diss_h, diss_f, diss_m, residual
+        rows[:, block["energy"]] = en
+        s = rows[:, block["solver"]]
+        s[:, 0], s[:, 1] = r[:, b["solver"]].T
+        s[:, 2] = np.minimum(theta.min(axis=1), 1.0) if theta.shape[1] else 1.0
+        rows[:, block["solver"]] = s
+        self._derived = k
+        return {"step": self._raw_steps[:k], "kinetic": kinetic, "potential": potential, "oil": oil_energy,
+                "residual": residual, "pump_work": pump_work}
+
+    def push(self, count: int | None = None) -> None:
+        """Write the first ``count`` derived samples (all by default) to the log and empty the ring.
+
+        Samples after ``count`` are dropped (a run cut at a divergence).  ``last``
+        then holds the last written sample's energy terms [J] (``kinetic``,
+        ``potential``, ``oil``, ``residual``, ``pump_work``, ``dissipated``),
+        actuator positions and joint positions, for summaries.
+        """
+        if self._pending > self._derived:  # captured after derive() (or never derived): derive them too
+            self.derive()
+        k = self._derived
+        count = k if count is None else max(0, min(int(count), k))
+        if count > 0:
+            i = count - 1
+            r, b, rows, block = self._raw, self._rawcols, self._rows, self._block
+            en = rows[i, block["energy"]]
+            self.last = {"kinetic": float(en[0]), "potential": float(en[1]), "oil": float(en[2]), "residual": float(en[7]),
+                         "pump_work": float(en[3]), "dissipated": float(en[4] + en[5] + en[6]),
+                         "step": int(self._raw_steps[i]), "actuator_position": r[i, b["x"]].copy(),
+                         "joint_position": (r[i, b["joints"]][self._joint_columns] if self._mj else r[i, b["joints"]])[:self._nj].copy()}
+        # empty the ring first: a Ctrl-C (held back by extend until its rows are all buffered) must not leave them
+        # pending for the close hook to write twice; the ring's arrays are not touched until the next capture
+        self._pending = self._derived = 0
+        if count > 0:
+            self.frame.extend(self._raw_steps[:count], self._rows[:count])
+
+    def push_pending(self) -> None:
+        """Derive and write every pending sample (the log's close hook: an interrupted run keeps what it captured)."""
+        if self._pending:
+            self.derive()
+            self.push()
 
 
 __all__ = ["RunRecorder", "field_name"]

@@ -13,6 +13,14 @@ sample to the next; every other configuration, ``compiled = false``
 (``hydroplant run --pure``) and ``run(..., fast=False)`` step one step at a
 time.  Both paths log the same values to round-off (``tests/test_runner_fast.py``).
 
+Log samples are captured raw (:meth:`RunRecorder.capture`) and their fields
+derived and written per batch of up to ``sim.recorder.RING_SIZE`` samples,
+and at every periodic flush of the log; the energy-growth check runs on each
+batch and stops the run at the first offending sample: the log ends there,
+marked ``diverged`` at that sample's time, and the result's time, steps,
+strokes, joints and energy terms are those of that sample (the plant itself
+may have run on to the end of the batch).
+
 A run that diverges (non-finite state, or a hydraulic step that fails) stops
 at that step with the time and the component named, and its log keeps every
 logged step up to it, marked ``diverged`` (a failed block is rewound and
@@ -244,37 +252,42 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
             loop.blocks()
         else:
             loop.per_step()
-        if loop.status == "complete":
+        if loop.status == "complete" and loop.drain():  # the last batch of samples, checked like the others
             log.mark("complete")
+        loop.finish_extremes()
         wall = _time.perf_counter() - loop.start
     if progress and wall > PROGRESS_AFTER:
         print(file=sys.stderr)
     e = plant.energy
-    sample = loop.sample
-    dissipated = e.dissipated_hydraulic + e.dissipated_friction + e.dissipated_mechanical
+    sample = loop.sample  # the last logged sample (the final step, the failing step, or where energy growth was found)
+    pump_work, dissipated = sample["pump_work"], sample["dissipated"]
     total = sample["kinetic"] + sample["potential"] + sample["oil"]
-    q, _ = plant.joint_state()
-    strokes = {net.actuator_names[a]: float(plant.net_state.actuator_position[a]) for a in net.cylinder_actuator}
+    steps = plant.step_index if loop.stop_step is None else loop.stop_step
+    if loop.stop_step is None:
+        q, x = plant.joint_state()[0], plant.net_state.actuator_position
+    else:  # the plant ran on past the sample (energy growth is checked per batch of samples)
+        q, x = sample["joint_position"], sample["actuator_position"]
+    strokes = {net.actuator_names[a]: float(x[a]) for a in net.cylinder_actuator}
     free = [i for i in range(len(net.node_names)) if not net.node_fixed[i]]
     return RunResult(
         scenario=scenario,
         log_path=log_path,
         status=loop.status,
         message=loop.message,
-        simulated_time=plant.time,
+        simulated_time=steps * plant.dt,
         wall_time=wall,
-        steps=plant.step_index,
+        steps=steps,
         peak_pressure={net.node_names[i]: float(loop.peak[i]) for i in free},
         min_pressure={net.node_names[i]: float(loop.low[i]) for i in free},
         final_joints=dict(zip(plant.joint_names, map(float, q))),
         final_strokes=strokes,
         extremes_every_step=loop.extremes_every_step,
         energy={
-            "pump_work": e.pump_work,
+            "pump_work": pump_work,
             "delta": total - e.initial_total,
             "dissipated": dissipated,
             "residual": sample["residual"],
-            "relative": sample["residual"] / e.pump_work if e.pump_work else 0.0,
+            "relative": sample["residual"] / pump_work if pump_work else 0.0,
         },
     )
 
@@ -310,9 +323,11 @@ class _Loop:
         self.low = self.peak.copy()
         self.per_step_extremes = all(hasattr(plant, name) for name in _PLANT_EXTREMES)
         self.extremes_every_step = not getattr(plant, "fast", False) or self.per_step_extremes or self.every == 1
+        self.stop_step = None  # the step where energy growth was found (the plant may have run past it)
         self.start = _time.perf_counter()
         self.last_progress = self.start
-        self.sample = recorder.sample(0)
+        self.sample: dict = {}
+        self.log_sample()
 
     # ----------------------------------------------------------------- drivers
     def per_step(self) -> None:
@@ -323,7 +338,7 @@ class _Loop:
             self.show_progress()
 
     def blocks(self) -> None:
-        plant, steps, every = self.plant, self.steps, self.every
+        plant, recorder, steps, every = self.plant, self.recorder, self.steps, self.every
         snapshot = _Snapshot(plant)
         while plant.step_index < steps:
             k = plant.step_index
@@ -331,11 +346,18 @@ class _Loop:
             if n > 1:
                 snapshot.take(plant)
             report = plant.advance(n)
-            if report.success and plant.finite():
-                self.track_block()
-                if not self.log_sample():
-                    return
-            elif n == 1:  # a one-step block is its own replay
+            if report.success:
+                # capture the block's last step, then check it is finite on the captured copy (as plant.finite())
+                due = recorder.capture(plant.step_index)
+                if recorder.captured_finite():
+                    if not self.per_step_extremes:
+                        self.track_block()
+                    if due and not self.drain():
+                        return
+                    self.show_progress()
+                    continue
+                recorder.discard()
+            if n == 1:  # a one-step block is its own replay
                 if not self.after_step(report):
                     return
             else:  # rewind, then find the failing step one step at a time
@@ -364,36 +386,63 @@ class _Loop:
         p = plant.net_state.node_pressure
         np.maximum(self.peak, p, out=self.peak)
         np.minimum(self.low, p, out=self.low)
+
+    def finish_extremes(self) -> None:
+        """Fold in the plant's own per-step extremes (when it keeps them; they cover every successful step)."""
         if self.per_step_extremes:
-            np.maximum(self.peak, plant.node_pressure_max, out=self.peak)
-            np.minimum(self.low, plant.node_pressure_min, out=self.low)
+            np.maximum(self.peak, self.plant.node_pressure_max, out=self.peak)
+            np.minimum(self.low, self.plant.node_pressure_min, out=self.low)
 
     def diverged(self, report) -> None:
         plant = self.plant
+        if not self.drain():  # energy growth at an earlier sample still in the ring stops the run there
+            return
         component = _failed_component(plant, report)
         self.status = "diverged"
         self.message = f"t = {plant.time:.6g} s, {component}: {report.message or 'non-finite state'}"
-        self.recorder.sample(plant.step_index)
+        self.recorder.capture(plant.step_index)
+        self.drain(check=False)
         self.recorder.event(plant.step_index, LogLevel.ERROR, "diverged: " + self.message)
         self.log.mark("diverged", time_s=repr(plant.time), component=component, message=self.message)
 
     def log_sample(self) -> bool:
-        """Log a sample and check the energy growth; False when the run diverged."""
-        plant = self.plant
-        sample = self.sample = self.recorder.sample(plant.step_index)
-        e = plant.energy
-        gained = sample["kinetic"] + sample["potential"] + sample["oil"] - e.initial_total
-        allowed = ENERGY_GROWTH_LIMIT * (abs(e.initial_total) + e.pump_work) + ENERGY_GROWTH_FLOOR
-        if plant.coupling.name != "incompressible" and gained > allowed:  # (no energy terms without oil)
-            self.status = "diverged"
-            self.message = (
-                f"t = {plant.time:.6g} s, energy growth: the machine gained {gained:.4g} J, more than the "
-                f"{e.pump_work:.4g} J of pump work allows; the coupling is unstable at this step size"
-            )
-            self.recorder.event(plant.step_index, LogLevel.ERROR, "diverged: " + self.message)
-            self.log.mark("diverged", time_s=repr(plant.time), component="coupling (energy growth)", message=self.message)
-            return False
+        """Capture a sample (its fields are derived and written per batch, :meth:`drain`); False when the run diverged."""
+        if self.recorder.capture(self.plant.step_index):
+            return self.drain()
         return True
+
+    def drain(self, check: bool = True) -> bool:
+        """Derive and write the captured samples, checking energy growth on each; False when the run diverged.
+
+        The first sample whose mechanical + oil energy grew beyond what the pumps put in
+        stops the run: the log ends with that sample, marked ``diverged`` at its time.
+        """
+        plant, recorder = self.plant, self.recorder
+        batch = recorder.derive()
+        if batch is None:
+            return True
+        bad = None
+        if check and plant.coupling.name != "incompressible":  # (no energy terms without oil)
+            e = plant.energy
+            gained = batch["kinetic"] + batch["potential"] + batch["oil"] - e.initial_total
+            allowed = ENERGY_GROWTH_LIMIT * (abs(e.initial_total) + batch["pump_work"]) + ENERGY_GROWTH_FLOOR
+            over = np.flatnonzero(gained > allowed)
+            if len(over):
+                bad = int(over[0])
+                step, gain, pump_work = int(batch["step"][bad]), float(gained[bad]), float(batch["pump_work"][bad])
+        recorder.push(None if bad is None else bad + 1)
+        self.sample = recorder.last
+        if bad is None:
+            return True
+        time = step * plant.dt  # as plant.time
+        self.status, self.stop_step = "diverged", step
+        self.message = (
+            f"t = {time:.6g} s, energy growth: the machine gained {gain:.4g} J, more than the "
+            f"{pump_work:.4g} J of pump work allows; the coupling is unstable at this step size"
+        )
+        recorder.event(step, LogLevel.ERROR, "diverged: " + self.message)
+        self.log.mark("diverged", time_s=repr(time), component="coupling (energy growth)", message=self.message)
+        return False
 
     def show_progress(self) -> None:
         if self.progress:

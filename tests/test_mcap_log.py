@@ -605,3 +605,42 @@ def test_frame_channels_log_what_separate_channels_log(tmp_path):
         assert la.topic(topic).messages == lb.topic(topic).messages
     np.testing.assert_array_equal(la.topic("/a")["x"], rows[:, 2])
     np.testing.assert_array_equal(la.topic("/b")["p"], rows[:, 3])
+
+
+def test_frame_extend_writes_what_row_appends_write(tmp_path):
+    """Frame.extend (many rows at once, as the run recorder hands over a batch) gives the same file, byte for byte,
+    as one append per row, with batches that straddle batch-size and periodic-flush boundaries and repeated steps;
+    a close hook runs before the last drain, and rows out of order are refused."""
+    steps = np.repeat(np.arange(1800), 2)[::3]  # non-decreasing, some steps twice
+    rng = np.random.default_rng(5)
+    rows = rng.standard_normal((len(steps), 3)) * 1e3
+    rows[7, 1] = np.nan
+
+    def write(path, cuts):
+        with LogWriter(path, dt=1e-3, batch_size=250, flush_interval=0.4) as log:
+            frame = log.frame(3)
+            frame.channel("/a", "t.A", flat_schema("t.A", {"x": "x", "y": "y"}), fields=["x", "y"], columns=[1, 0])
+            frame.channel("/b", "t.B", flat_schema("t.B", {"z": "z"}), fields=["z"], columns=[2])
+            if cuts is None:
+                for step, row in zip(steps, rows):
+                    frame.append(int(step), row)
+            else:
+                tail = len(steps) - 5
+                for lo, hi in zip([0, *cuts], [*cuts, tail]):
+                    frame.extend(steps[lo:hi], rows[lo:hi])
+                log.on_close(lambda: frame.extend(steps[tail:], rows[tail:]))
+        return path.read_bytes()
+
+    reference = write(tmp_path / "rows.mcap", None)
+    assert write(tmp_path / "batches.mcap", [1, 2, 130, 131, 600, 601, 1100]) == reference
+    assert write(tmp_path / "one-batch.mcap", []) == reference
+    with LogWriter(tmp_path / "bad.mcap", dt=1e-3) as log:
+        frame = log.frame(1)
+        frame.channel("/a", "t.A", flat_schema("t.A", {"x": "x"}), fields=["x"], columns=[0])
+        with pytest.raises(ValueError, match="non-decreasing"):
+            frame.extend([3, 2], np.zeros((2, 1)))
+        frame.extend([5], np.zeros((1, 1)))
+        with pytest.raises(ValueError, match="non-decreasing"):
+            frame.extend([4], np.zeros((1, 1)))
+        with pytest.raises(ValueError, match="shape"):
+            frame.extend([6], np.zeros((1, 2)))
