@@ -24,7 +24,7 @@ import re
 
 import numpy as np
 
-from hydraulics.energy import chamber_stiffness_batch, node_volumes_batch, stored_energy_batch
+from hydraulics.energy import stored_energy_at
 from hydraulics.laws import cylinder_pressure_force
 
 from .foxglove_scene import FrameTransformsChannel, log_scene
@@ -90,10 +90,11 @@ class RunRecorder:
     actuator motion, efforts, controls, flows, energy ledger, joints, body poses)
     into a ring of ``ring_size`` rows.  :meth:`derive` computes the logged fields
     of all pending samples at once (chamber volumes, stiffness, stored oil energy,
-    pressure forces, pump powers, energy residual: the laws of
-    :mod:`hydraulics.energy` and :mod:`hydraulics.laws`, vectorised over samples)
-    and :meth:`push` hands the rows to the log's :class:`~sim.mcap_log.Frame`.
-    Values equal the per-sample formulas to round-off.  Pending samples are
+    pressure forces, pump powers, energy residual) with the same functions a
+    single sample uses: the node relations of :class:`~hydraulics.network.NetworkModel`,
+    :func:`hydraulics.energy.stored_energy_at` and :mod:`hydraulics.laws` broadcast
+    over the rows.  :meth:`push` hands the rows to the log's :class:`~sim.mcap_log.Frame`.
+    Values equal the per-sample ones to round-off.  Pending samples are
     pushed when the log closes (:meth:`LogWriter.on_close`), so an interrupted
     run keeps every sample it captured.
     """
@@ -290,7 +291,7 @@ class RunRecorder:
         rows[:, block["xpos"].start:block["xquat"].stop] = r[:, b["poses"]]
         joints = r[:, b["joints"]]
         rows[:, block["joints"].start:block["joints"].start + 2 * self._nj] = joints[:, self._joint_columns] if self._mj else joints
-        volumes = node_volumes_batch(net, x, p)
+        volumes = net.node_volume_at(x, p)  # node relations broadcast over the rows
         if len(self._cyl):
             cyl = self._cyl
             c = rows[:, block["cylinders"]].reshape(k, len(cyl), len(CYLINDER_FIELDS))
@@ -298,7 +299,7 @@ class RunRecorder:
             c[:, :, 4] = effort[:, cyl]
             c[:, :, 5] = cylinder_pressure_force(p[:, self._cyl_cap], p[:, self._cyl_rod], net.cylinder_cap_area,
                                                  net.cylinder_rod_area, net.fluid.reference_pressure)
-            c[:, :, 6] = chamber_stiffness_batch(net, p, x, volumes).sum(axis=1)
+            c[:, :, 6] = net.chamber_stiffness(p, x, volumes).sum(axis=1)
             c[:, :, 7] = theta[:, cyl]
             rows[:, block["cylinders"]] = c.reshape(k, -1)
         if len(self._mot):
@@ -322,7 +323,7 @@ class RunRecorder:
         if self.flows is not None:
             rows[:, block["flows"]] = flow
         kinetic, potential, pump_work, diss_h, diss_f, diss_m = r[:, b["energy"]].T
-        oil_energy = stored_energy_batch(net, oil, p, x, volumes)
+        oil_energy = stored_energy_at(net, oil, p, x, volumes)
         # EnergyLedger.residual, term by term
         residual = pump_work - (kinetic + potential + oil_energy - self.plant.energy.initial_total) - (diss_h + diss_f + diss_m)
         en = rows[:, block["energy"]]

@@ -96,10 +96,11 @@ def test_cli_run_writes_log_and_bad_input_exits_2(tmp_path, capsys):
 
 # ------------------------------------------------------------------------ batched logging
 def test_batched_hydraulic_terms_equal_the_per_sample_functions():
-    """hydraulics.energy's batch forms (rows = samples) equal the per-sample functions to round-off, on the
-    excavator circuit and on a circuit with every branch kind, an accumulator, a compliant hose and entrained air."""
+    """The node relations and stored energy called on batches (rows = samples, as the run logger does) equal the
+    per-sample calls to round-off, on the excavator circuit and on a circuit with every branch kind, an accumulator,
+    a compliant hose and entrained air."""
     from hydraulics.circuit import load_circuit
-    from hydraulics.energy import chamber_stiffness_batch, node_volumes_batch, stored_energy, stored_energy_batch
+    from hydraulics.energy import stored_energy, stored_energy_at
     from hydraulics.network import NetworkModel
     from conftest import network_from_toml
     from test_network import ALL_KINDS
@@ -117,9 +118,10 @@ def test_batched_hydraulic_terms_equal_the_per_sample_functions():
         oil = np.array([s.node_oil for s in states])
         p = np.array([s.node_pressure for s in states])
         x = np.array([s.actuator_position for s in states])
-        volumes = node_volumes_batch(net, x, p)
-        energy = stored_energy_batch(net, oil, p, x, volumes)
-        stiffness = chamber_stiffness_batch(net, p, x)
+        volumes = net.node_volume_at(x, p)
+        energy = stored_energy_at(net, oil, p, x, volumes)
+        stiffness = net.chamber_stiffness(p, x)
+        assert stiffness.shape == (len(states), 2, len(net.cylinder_cap_node))
         for i, s in enumerate(states):
             v, dv = net.node_volume_at(s.actuator_position, s.node_pressure)
             np.testing.assert_allclose(volumes[0][i], v, rtol=1e-15, atol=0)
@@ -127,7 +129,11 @@ def test_batched_hydraulic_terms_equal_the_per_sample_functions():
             single = stored_energy(net, s)
             assert energy[i] == pytest.approx(single, rel=1e-12, abs=1e-9 * max(1.0, abs(single)))
             np.testing.assert_allclose(stiffness[i], net.chamber_stiffness(s.node_pressure, s.actuator_position), rtol=1e-14)
-        assert stored_energy_batch(net, oil[:0], p[:0], x[:0]).shape == (0,)
+        assert stored_energy_at(net, oil[:0], p[:0], x[:0]).shape == (0,)
+        # any number of leading axes: a (3, 3) grid of samples gives the same values as the 9 rows
+        grid = net.node_volume_at(x.reshape(3, 3, -1), p.reshape(3, 3, -1))
+        np.testing.assert_array_equal(grid[0].reshape(9, -1), volumes[0])
+        np.testing.assert_array_equal(stored_energy_at(net, oil.reshape(3, 3, -1), p.reshape(3, 3, -1), x.reshape(3, 3, -1)).ravel(), energy)
 
 
 def _messages(path):
