@@ -63,8 +63,23 @@ Compiled path
 With the scenario's ``compiled`` flag (default; ``--pure`` / ``compiled = false``
 selects the pure reference) every XPBD substep runs in numba
 (``sim/xpbd/compiled.py``) and the network uses the compiled backward-Euler
-stepper; the hooks below (coupling law, network finish, energy ledger) stay in
-Python and are now most of a substep's cost.
+stepper.  On top of that, for the ``implicit`` coupling at the compressible
+fidelity (PBD mode's default):
+
+* the hooks' coupling law, network finish and energy ledger run in two
+  compiled calls per substep with preallocated buffers
+  (``sim/xpbd/hydraulics_nb.py``: ``_compiled._linearize_core`` / ``_step_core``);
+* on trees of hinges and slides with hinge motors and soft pyramidal contacts
+  (the seed, boom and excavator scenes), the whole step is one compiled call
+  (``sim/xpbd/frame_nb.py``: all substeps with the coupling, the XPBD substep
+  and the ledger; operator inputs sampled for the substeps beforehand) and
+  ``articulated`` is compiled too.  ``frame_steps`` counts these steps;
+  ``solver.last_forces`` is then left empty (the hooks are not called).
+
+Both give the Python hooks' results to round-off (``tests/test_pbd_fast.py``);
+the constructor's ``fast_hydraulics`` / ``frame`` (default: on where they apply)
+select the paths for tests.  :meth:`advance` steps n times (the
+:class:`~sim.plant_mujoco_fast.MujocoPlantFast` interface).
 
 ``pbd-naive`` (the seed report's scheme)
 ----------------------------------------
@@ -101,9 +116,11 @@ from hydraulics.network import ACTUATOR_CYLINDER
 from hydraulics.steppers import StepReport
 
 from .plant_base import PlantBase
-from .scenario import ScenarioError
+from .scenario import Schedule, ScenarioError
 from .scene import Scene, initial_qpos_qvel
 from .xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel
+from .xpbd.hydraulics_nb import FastHydraulics
+from .xpbd.hydraulics_nb import eligible as fast_eligible
 from .xpbd.kernels import np_cross, np_quat_rotate, np_quat_rotate_inv, quat_rotate
 from .xpbd.model import JNT_HINGE, JNT_SLIDE
 
@@ -122,7 +139,8 @@ class PbdPlant(PlantBase):
 
     mode = "pbd"
 
-    def __init__(self, scene: Scene, *, naive: bool = False):
+    def __init__(self, scene: Scene, *, naive: bool = False, fast_hydraulics: bool | None = None,
+                 frame: bool | None = None):
         self.scene = scene
         scenario = scene.scenario
         self.incompressible = scenario.fidelity == "incompressible"
@@ -179,6 +197,13 @@ class PbdPlant(PlantBase):
         iquat_conj = np.asarray(xm.body_iquat) * np.array([1.0, -1.0, -1.0, -1.0])
         self._axis_inertial = np_quat_rotate(iquat_conj[xm.jnt_body], np.asarray(xm.jnt_axis))
         self._origin_inertial = np_quat_rotate(iquat_conj, -np.asarray(xm.body_ipos))
+        # compiled coupling hooks (sim/xpbd/hydraulics_nb.py): default on the compiled path where they apply
+        if fast_hydraulics is None:
+            fast_hydraulics = bool(scenario.compiled)
+        self._fast = FastHydraulics(self) if fast_hydraulics and fast_eligible(self) else None
+        # whole steps in one compiled call (sim/xpbd/frame_nb.py) where they apply; else the hooks below
+        self.frame_steps = 0  # steps that ran as one compiled frame
+        self.frame_compiled = self._fast is not None if frame is None else bool(frame) and self._fast is not None
         self.reset()
 
     # ------------------------------------------------------------------ setup
@@ -270,7 +295,26 @@ class PbdPlant(PlantBase):
         self._report = StepReport()
         self._work = 0.0
         self.articulated()
+        if self.frame_compiled and self._step_frame():
+            return self._end_step()
+        fast = self._fast
+        if fast is not None:
+            fast.load(self.net_state, self.energy)
         self.solver.step(self.state, self.dt, hooks=self)
+        if fast is not None:
+            self.net_state, self._report = fast.store(self.energy)
+        return self._end_step()
+
+    def advance(self, n: int):
+        """``n`` steps (stops at the first failed one); returns the last step's report (MujocoPlantFast's interface)."""
+        report = None
+        for _ in range(int(n)):
+            report = self.step()
+            if not report.success:
+                break
+        return report
+
+    def _end_step(self):
         self.theta = getattr(self.coupling, "last_theta", self.theta)
         self.last_report = self._report
         mechanical = sum(self.mechanical_energy())
@@ -304,6 +348,8 @@ class PbdPlant(PlantBase):
         self._motor_inverse_inertia = np.zeros(len(self.motors))
         if not self._tree:
             return
+        if self.frame_compiled and self._articulated_compiled():
+            return
         mass, gravity, moment, jv, jw = self.joint_space(bodies=True)
         try:
             dq = np.linalg.solve(mass, np.column_stack([moment.T, gravity]))  # (nv, actuators + 1)
@@ -327,31 +373,189 @@ class PbdPlant(PlantBase):
         self._mobility = response[:ncyl] if ncyl else None
         self._motor_response = response[ncyl:ncyl + len(self.motors)] if len(self.motors) and GRAVITY_ARTICULATED else None
 
+    def _articulated_compiled(self) -> bool:
+        """``articulated`` in one compiled call (``frame_nb._articulated``, same results to round-off)."""
+        ctx = self._frame_context()
+        a = ctx["articulated"]
+        xm, st = self.xmodel, self.state
+        ok = ctx["articulated_kernel"](
+            _c64(st.x), _c64(st.q), a["iquat"], a["ipos"], a["jnt_body"], a["jnt_axis"], a["jnt_pos"], a["hinge"],
+            a["subtree"], a["body_mass"], a["inertia"], a["gravity"], a["site_body"], a["site_pos"], a["row_sites"],
+            ctx["cyl"], ctx["mot"], a["mot_dof"], ctx["gear"], a["body_group"], a["group_mass"], a["group_root"],
+            a["group_dynamic"], a["mobility"], a["group_gravity"], a["motor_response"], a["motor_inverse_inertia"],
+            a["effective_mass"])
+        if not ok:
+            return True  # singular mass matrix: no articulated data (as the numpy path)
+        self._effective_mass = a["effective_mass"].copy()
+        self._motor_inverse_inertia = a["motor_inverse_inertia"].copy()
+        self._group_gravity = a["group_gravity"].copy() if GRAVITY_ARTICULATED else None
+        self._mobility = a["mobility"].copy()
+        self._motor_response = a["motor_response"].copy() if len(self.motors) and GRAVITY_ARTICULATED else None
+        return True
+
+    def _frame_ready(self) -> bool:
+        """True when this step can run as one compiled frame (``sim/xpbd/frame_nb.py``)."""
+        return bool(
+            self._fast is not None and self.solver.compiled and len(self.cylinders) and self._mobility is not None
+            and self._group_gravity is not None and (self._motor_response is not None or not len(self.motors))
+            and all(self._hinge[self.motor_joint])
+        )
+
+    def _step_frame(self) -> bool:
+        """The whole step in one compiled call (same results as the hooks to round-off); False if it does not apply."""
+        if not self._frame_ready():
+            return False
+        solver, xm, st = self.solver, self.xmodel, self.state
+        x, q, v, w = solver._gather(st)
+        flat = solver._flat_contacts(solver._collect_contacts(x, q, v, w, self.dt))
+        if flat is None:
+            return False
+        ctx = self._frame_context()
+        nsub = solver.substeps
+        h = self.dt / nsub
+        cmd, speed = ctx["cmd"], ctx["speed"]
+        self._sample_inputs(ctx, h)
+        fast = self._fast
+        fast.load(self.net_state, self.energy)
+        Xg, Qg, Vg, Wg = (np.ascontiguousarray(a, dtype=np.float64) for a in (x, q, v, w))
+        fm = solver._flat
+        cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran = flat
+        xs, vs, ell0 = ctx["x"], ctx["v"], ctx["ell"]
+        xs[:], vs[:], ell0[:] = self._x, self._v, self._ell
+        out = ctx["out"]
+        status = ctx["kernel"](
+            fast._F, fast._I, fast._W, fast._S, fast._istats, fast._ledger, fast._quad, fast.oil, fast.pressure,
+            fast.spool, fast.position, fast.velocity, cmd, speed,
+            Xg, Qg, Vg, Wg, fm["IM"], fm["II"], fm["GI"], fm["gravity"], float(h), nsub, solver.iterations,
+            solver.symmetric, fm["jt"], fm["jg"], fm["jvec"], fm["jqoff"], fm["jlim"], fm["jlo"], fm["jhi"], fm["jdamp"],
+            fm["et"], fm["eg"], fm["evec"], fm["eqoff"], ctx["rg"], ctx["rvec"], _c64(self._mobility),
+            _c64(self._group_gravity), _c64(self._motor_response) if len(self.motors) else ctx["no_response"],
+            cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, int(xm.contact_cone), float(xm.contact_impratio),
+            solver.linear_damping, solver.angular_damping,
+            fm["body_group"], fm["in_group_quat"], fm["in_group_pos"], ctx["bx"], ctx["bq"], ctx["bv"], ctx["bw"],
+            ctx["cyl"], ctx["closed"], ctx["mot"], ctx["gear"], _c64(self._motor_inverse_inertia), ctx["mbody"],
+            ctx["mparent"], ctx["maxis"], xs, vs, ell0, ctx["const"], ctx["slope"], ctx["effort"], ctx["motor_effort"],
+            fast.flow, out,
+        )
+        if status != 0:
+            raise np.linalg.LinAlgError("Matrix is singular.")
+        for _ in range(int(out[1])):  # network time: + h per successful substep (as the hooks)
+            fast._time += h
+        self.net_state, self._report = fast.store(self.energy)
+        self._work = float(out[0])
+        self._x, self._v, self._ell = xs.copy(), vs.copy(), ell0.copy()
+        self.effort = ctx["effort"].copy()
+        self._motor_effort = ctx["motor_effort"].copy()
+        solver._scatter_compiled(Xg, Qg, Vg, Wg, st)
+        st.time = st.time + self.dt
+        st.qpos_hint = self._qpos_qvel()[0].copy()  # with the previous hint, as the solver; memoised for joint_state
+        solver.last_forces = []
+        solver.compiled_steps += 1
+        self.frame_steps += 1
+        return True
+
+    def _sample_inputs(self, ctx, h):
+        """The schedules at every substep's start time t + k·h (rows of ctx's cmd/speed), as ``before_substep``
+        sets them one by one; ``self.control`` ends at the last substep's values (as after the hooks)."""
+        cmd, speed, ks = ctx["cmd"], ctx["speed"], ctx["substep_numbers"]
+        control = self.control
+        cmd[:] = control.valve_command  # row 0: step() applied the inputs at the frame's start
+        speed[:] = control.pump_speed
+        if len(ks) > 1:
+            times = self.time + ks[1:] * h
+            for is_valve, index, schedule in ctx["inputs"]:
+                target = cmd if is_valve else speed
+                if isinstance(schedule, Schedule):
+                    target[1:, index] = np.interp(times, schedule.t, schedule.value)
+                elif callable(schedule):
+                    target[1:, index] = [schedule(t) for t in times]
+                else:
+                    target[1:, index] = schedule
+            control.valve_command[:] = cmd[-1]
+            control.pump_speed[:] = speed[-1]
+
+    def _input_plan(self):
+        """Per scenario input: (is_valve, index, schedule), for sampling a frame's substeps at once."""
+        net = self.network
+        plan = []
+        for name, schedule in self.scene.scenario.inputs.items():
+            if name in net.valve_names:
+                plan.append((True, net.valve_names.index(name), schedule))
+            elif name in net.pump_names:
+                plan.append((False, net.pump_names.index(name), schedule))
+            else:
+                net.set_control(self.control, name, 0.0)  # raises the usual KeyError
+        return plan
+
+    def _frame_context(self):
+        """Buffers of the compiled frame (allocated once)."""
+        ctx = getattr(self, "_frame_ctx", None)
+        if ctx is not None:
+            return ctx
+        from .xpbd.frame_nb import articulated, frame
+
+        xm, net = self.xmodel, self.network
+        na, nsub = net.actuator_count, self.solver.substeps
+        rg, rvec = self.solver._flat_rows()
+        mb = np.array([int(xm.jnt_body[j]) for j in self.motor_joint], np.int64)
+        ctx = dict(
+            kernel=frame(), inputs=self._input_plan(), substep_numbers=np.arange(nsub), cmd=np.zeros((nsub, len(net.valve_names))), speed=np.zeros((nsub, len(net.pump_names))),
+            x=np.zeros(na), v=np.zeros(na), ell=np.zeros(len(self.cylinders)), out=np.zeros(2),
+            rg=rg, rvec=_c64(rvec), no_response=np.zeros((0, xm.ngroup, 6)),
+            bx=np.zeros((xm.nbody, 3)), bq=np.zeros((xm.nbody, 4)), bv=np.zeros((xm.nbody, 3)), bw=np.zeros((xm.nbody, 3)),
+            cyl=np.asarray(self.cylinders, np.int64), closed=_c64(self.closed_length), mot=np.asarray(self.motors, np.int64),
+            gear=_c64(self.motor_gear), mbody=mb, mparent=np.array([int(xm.body_parent[b]) for b in mb], np.int64),
+            maxis=_c64(np.asarray(self._axis_inertial).reshape(-1, 3)[self.motor_joint].reshape(-1, 3)),
+            const=np.zeros(na), slope=np.zeros(na), effort=np.zeros(na), motor_effort=np.zeros(len(self.motors)),
+        )
+        ng, nr, nm = xm.ngroup, len(self.cylinders), len(self.motors)
+        ctx["articulated_kernel"] = articulated()
+        ctx["articulated"] = dict(
+            iquat=_c64(xm.body_iquat), ipos=_c64(xm.body_ipos), jnt_body=np.asarray(xm.jnt_body, np.int64),
+            jnt_axis=_c64(xm.jnt_axis), jnt_pos=_c64(xm.jnt_pos), hinge=np.ascontiguousarray(self._hinge, np.bool_),
+            subtree=np.ascontiguousarray(self._subtree, np.bool_), body_mass=_c64(self._body_mass),
+            inertia=_c64(self._body_inertia * (self._body_mass > 0)[:, None]), gravity=_c64(xm.gravity),
+            site_body=np.asarray(xm.site_body, np.int64), site_pos=_c64(xm.site_pos_inertial),
+            row_sites=np.ascontiguousarray(self._row_sites, np.int64),
+            mot_dof=np.asarray(xm.jnt_dofadr[self.motor_joint], np.int64), body_group=np.asarray(xm.body_group, np.int64),
+            group_mass=_c64(xm.group_mass), group_root=np.asarray(xm.group_root, np.int64),
+            group_dynamic=np.ascontiguousarray(xm.group_dynamic, np.bool_),
+            mobility=np.zeros((nr, ng, 6)), group_gravity=np.zeros((ng, 6)), motor_response=np.zeros((nm, ng, 6)),
+            motor_inverse_inertia=np.zeros(nm), effective_mass=np.zeros(na),
+        )
+        self._frame_ctx = ctx
+        return ctx
+
     def before_substep(self, k, h, state):
         """XPBD hook: the coupling's effort law for this substep as compliant rows (or explicit row forces) and joint torques."""
         if k:  # the scenario's schedules at the substep's time (step() set them at the frame's start)
             apply_inputs(self.network, self.control, self.scene.scenario.inputs, self.time + k * h)
         x, v = self._x, self._v
-        law = self.coupling.begin(self.net_state, self.control, x, v, h, effective_mass=self._effective_mass if self.incompressible else None)
-        self._law = law
+        if self._fast is not None:  # the same law, compiled (θ = 1, no effort bounds)
+            law_constant, law_slope = self._fast.begin(self.control, x, v, h)
+            law_lower = law_upper = None
+        else:
+            law = self.coupling.begin(self.net_state, self.control, x, v, h,
+                                      effective_mass=self._effective_mass if self.incompressible else None)
+            law_constant, law_slope, law_lower, law_upper = law.constant, law.slope, law.lower, law.upper
         cyl = self.cylinders
-        c, s = law.constant[cyl], law.slope[cyl]
+        c, s = law_constant[cyl], law_slope[cyl]
         implicit = (s < IMPLICIT_SLOPE_LIMIT) & (not self.naive)
         with np.errstate(divide="ignore", invalid="ignore"):
             target = np.where(implicit, self._ell - h * c / s, np.nan)  # ℓ* = ℓ₀ − h·c/s
             compliance = np.where(implicit, -h / s, 0.0)  # α = −h/s
         force = np.where(implicit, 0.0, c + s * v[cyl])
         lower = upper = None
-        if law.lower is not None:
-            lower, upper = law.lower[cyl], law.upper[cyl]
+        if law_lower is not None:
+            lower, upper = law_lower[cyl], law_upper[cyl]
             force = np.clip(force, lower, upper)
         self._implicit, self._row_explicit = implicit, force
         # motors: backward Euler on the joint alone, ω⁺ = ω + h·w·τ with w = (M⁻¹)ⱼⱼ, τ = gear·(c + s·gear·ω⁺)
         mot = self.motors
-        damping = np.maximum(-law.slope[mot], 0.0) * self.motor_gear**2 * h * self._motor_inverse_inertia
-        self._motor_effort = (law.constant[mot] + law.slope[mot] * v[mot]) / (1.0 + damping)
-        if law.lower is not None:
-            self._motor_effort = np.clip(self._motor_effort, law.lower[mot], law.upper[mot])
+        damping = np.maximum(-law_slope[mot], 0.0) * self.motor_gear**2 * h * self._motor_inverse_inertia
+        self._motor_effort = (law_constant[mot] + law_slope[mot] * v[mot]) / (1.0 + damping)
+        if law_lower is not None:
+            self._motor_effort = np.clip(self._motor_effort, law_lower[mot], law_upper[mot])
         jf = self._joint_force
         group_acceleration = self._group_gravity
         if self._motor_response is not None:
@@ -378,8 +582,12 @@ class PbdPlant(PlantBase):
         v_end[cyl] = (ell - self._ell) / h
         v_end[mot] = self.motor_gear * self._joint_rates(state, self.motor_joint)
         x_end[mot] = x[mot] + h * v_end[mot]
-        self.net_state, report = self.coupling.finish(self.net_state, self.control, x, x_end, v, v_end, h)
-        self._report.absorb(report)
+        fast = self._fast
+        if fast is not None:  # network step and energy ledger compiled; net_state/report written back by step()
+            fast.finish(self.control, x_end, v_end, h)
+        else:
+            self.net_state, report = self.coupling.finish(self.net_state, self.control, x, x_end, v, v_end, h)
+            self._report.absorb(report)
         effort = np.zeros(self.network.actuator_count)
         effort[cyl] = np.where(self._implicit, forces.row_force, self._row_explicit)
         effort[mot] = self._motor_effort
@@ -389,7 +597,8 @@ class PbdPlant(PlantBase):
         v_next[cyl] = forces.row_rate
         # work of the efforts on the bodies, trapezoidal in the actuator speeds (exact for a free mass)
         self._work += 0.5 * h * float(effort @ (v + v_next))
-        self._account(report, v_end, h)
+        if fast is None:
+            self._account(report, v_end, h)
         self._ell = ell
         self._x, self._v = x_end, v_next
 
@@ -411,14 +620,33 @@ class PbdPlant(PlantBase):
         return out
 
     # ------------------------------------------------------------- observation
+    def _state_key(self):
+        """Identity of the current body state (the observations below are memoised on it: the step and the
+        log sample of the same instant share them)."""
+        s = self.state
+        return (id(s), s.x.tobytes(), s.q.tobytes(), s.v.tobytes(), s.w.tobytes())
+
+    def _memo(self, name, compute):
+        key = self._state_key()
+        memo = self.__dict__.setdefault("_observation_memo", {})
+        hit = memo.get(name)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        value = compute()
+        memo[name] = (key, value)
+        return value
+
     def mechanical_energy(self):
         """Kinetic and potential (gravity) energy of the bodies [J] at the current state (XPBD model)."""
-        return self.xmodel.kinetic_energy(self.state), self.xmodel.potential_energy(self.state)
+        return self._memo("energy", lambda: (self.xmodel.kinetic_energy(self.state), self.xmodel.potential_energy(self.state)))
+
+    def _qpos_qvel(self):
+        return self._memo("qpos_qvel", lambda: self.xmodel.qpos_qvel(self.state))
 
     def joint_state(self):
         """(positions, velocities) of the scalar joints [rad or m, rad/s or m/s]."""
         xm = self.xmodel
-        qpos, qvel = xm.qpos_qvel(self.state)
+        qpos, qvel = self._qpos_qvel()
         return qpos[xm.jnt_qposadr[self.scalar_joints]], qvel[xm.jnt_dofadr[self.scalar_joints]]
 
     def body_poses(self):
@@ -431,6 +659,12 @@ class PbdPlant(PlantBase):
             np.all(np.isfinite(s.x)) and np.all(np.isfinite(s.q)) and np.all(np.isfinite(s.v))
             and np.all(np.isfinite(s.w)) and np.all(np.isfinite(self.net_state.node_pressure))
         )
+
+
+def _c64(a):
+    """A C-contiguous, writeable float64 array (one numba signature)."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
 
 
 def make_pbd_plant(scene: Scene) -> PbdPlant:

@@ -327,9 +327,18 @@ def apply_angular_velocity_impulse(W, Q, IM, II, b, p, sign=1.0):
 
 def np_cross(a, b):
     """Row-wise cross product (much faster than ``np.cross`` for small arrays)."""
+    if np.ndim(a) == 1 and np.ndim(b) == 1:  # one vector pair: scalar arithmetic, one array
+        a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
+        b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
+        return np.array((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0))
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
+    c0 = a1 * b2 - a2 * b1
+    out = np.empty(c0.shape + (3,), dtype=np.result_type(c0, float))
+    out[..., 0] = c0
+    out[..., 1] = a2 * b0 - a0 * b2
+    out[..., 2] = a0 * b1 - a1 * b0
+    return out
 
 
 def np_quat_mul(a, b):

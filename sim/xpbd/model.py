@@ -39,6 +39,7 @@ from .kernels import (
     np_quat_conj,
     np_quat_mul,
     np_quat_rotate,
+    np_quat_rotate_inv,
     quat_conj,
     quat_mul,
     quat_rotate,
@@ -681,22 +682,27 @@ class XpbdModel:
         return state.v[b] + np_cross(state.w[b], r)
 
     def kinetic_energy(self, state: XpbdState) -> float:
-        """Σ ½ m v² + ½ ωᵀ I ω over dynamic groups [J]."""
-        e = 0.0
-        for g in range(1, self.ngroup):
-            r = self.group_root[g]
-            wl = quat_rotate_inv(self._group_quat(state, g), state.w[r])
-            xg, vg = self._group_com(state, g)
-            e += 0.5 * self.group_mass[g] * vg @ vg + 0.5 * np.dot(self.group_inertia[g], np.square(wl))
-        return float(e)
+        """Σ ½ m v² + ½ ωᵀ I ω over dynamic groups [J] (all groups at once)."""
+        if self.ngroup <= 1:
+            return 0.0
+        r = np.asarray(self.group_root[1:])
+        qr = state.q[r]
+        qg = np_quat_mul(qr, np.asarray(self.group_from_root_quat[1:]))
+        w = state.w[r]
+        wl = np_quat_rotate_inv(qg, w)
+        xg = state.x[r] + np_quat_rotate(qr, np.asarray(self.group_from_root_pos[1:]))
+        vg = state.v[r] + np_cross(w, xg - state.x[r])
+        m = np.asarray(self.group_mass[1:])
+        inertia = np.asarray(self.group_inertia[1:])
+        return float(np.sum(0.5 * m * np.einsum("gk,gk->g", vg, vg) + 0.5 * np.einsum("gk,gk->g", inertia, wl * wl)))
 
     def potential_energy(self, state: XpbdState) -> float:
-        """Gravitational potential −Σ m g·x over dynamic groups [J]."""
-        e = 0.0
-        for g in range(1, self.ngroup):
-            xg, _ = self._group_com(state, g)
-            e -= self.group_mass[g] * (self.gravity @ xg)
-        return float(e)
+        """Gravitational potential −Σ m g·x over dynamic groups [J] (all groups at once)."""
+        if self.ngroup <= 1:
+            return 0.0
+        r = np.asarray(self.group_root[1:])
+        xg = state.x[r] + np_quat_rotate(state.q[r], np.asarray(self.group_from_root_pos[1:]))
+        return float(-np.sum(np.asarray(self.group_mass[1:]) * (xg @ np.asarray(self.gravity))))
 
     def _group_quat(self, state, g):
         r = self.group_root[g]

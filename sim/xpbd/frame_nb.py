@@ -1,0 +1,399 @@
+"""One whole PBD frame (all XPBD substeps of one plant step, with the hydraulic coupling) in one compiled call.
+
+Per substep, in the order of :meth:`sim.plant_pbd.PbdPlant.before_substep`,
+:meth:`sim.xpbd.SolverXPBD._step_compiled` and
+:meth:`~sim.plant_pbd.PbdPlant.after_substep`:
+
+1. the effort law c + s·v⁺ of every actuator (``hydraulics_nb._begin_core``:
+   ``CouplingImplicit.begin`` at θ = 1, velocity guess 0);
+2. cylinder rows: compliant rows α = −h/s, ℓ* = ℓ₀ − h·c/s where s < −1e-9,
+   otherwise explicit row forces c + s·v₀ (``SolverXPBD._external``); motors:
+   backward Euler on the joint, effort (c + s·v)/(1 + max(−s, 0)·gear²·h·(M⁻¹)ⱼⱼ),
+   applied through the articulated response with gravity (group accelerations);
+3. the XPBD substep (``compiled.substep``) and the body write-back
+   (``compiled.scatter``);
+4. realised ℓ, v⁺ = (ℓ − ℓ₀)/h and motor joint rates finish the network step
+   and the energy ledger (``hydraulics_nb._finish_core``); the actuator
+   efforts' work on the bodies h·f·(v₀ + v⁺)/2.
+
+The operator inputs are sampled for every substep beforehand (rows of
+``cmd``/``speed``).  Only the case the plant's frame path checks is covered
+(:meth:`sim.plant_pbd.PbdPlant._frame_ready`): fast hydraulics, a tree of
+hinges/slides with the articulated response, hinge motors, soft pyramidal
+contacts.  Results equal the per-substep hooks to round-off.
+
+Caching as :mod:`sim.xpbd.hydraulics_nb`: the entry point carries a sha256 of
+this file, ``hydraulics_nb.py``, ``compiled.py`` and
+``hydraulics/_compiled.py`` (and numba's version) as a closure variable.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+
+import numpy as np
+
+from hydraulics import _compiled as C
+
+from . import compiled as XC
+from . import hydraulics_nb as H
+
+IMPLICIT_SLOPE_LIMIT = -1e-9  # must match sim.plant_pbd.IMPLICIT_SLOPE_LIMIT
+
+# frame status
+FRAME_OK, FRAME_SINGULAR = 0, 1
+
+
+def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed,
+           Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, substeps, iterations, symmetric,
+           jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
+           rg, rvec, mob, gg0, mresp,
+           cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp,
+           body_group, in_group_quat, in_group_pos, bx, bq, bv, bw,
+           cyl, closed, mot, gear, minv, mbody, mparent, maxis,
+           x, v, ell0, const, slope, effort, motor_effort, flow, out):
+    net = C._unpack(F, I)
+    na = x.size
+    nr = cyl.size
+    nm = mot.size
+    ng = Xg.shape[0]
+    tgt = np.empty(nr)
+    at = np.empty(nr)
+    lo = np.full(nr, -np.inf)
+    hi = np.full(nr, np.inf)
+    act = np.empty(nr, np.int64)
+    implicit = np.empty(nr, np.bool_)
+    rforce = np.zeros(nr)
+    Fe = np.zeros((ng, 3))
+    Te = np.zeros((ng, 3))
+    gg = np.empty((ng, 6))
+    tau = np.zeros(jt.shape[0])
+    lam = np.empty(nr)
+    ell = np.empty(nr)
+    rate = np.empty(nr)
+    x_end = np.empty(na)
+    v_end = np.empty(na)
+    hh = h * h
+    work = 0.0
+    out[1] = 0.0
+    for k in range(substeps):
+        if not H._begin_core(net, Wk, S, istats, oil, spool, cmd[k], speed[k], x, v, h, const, slope):
+            out[0] = work
+            return FRAME_SINGULAR
+        nact = 0
+        any_force = False
+        for r in range(nr):
+            a = cyl[r]
+            c, s = const[a], slope[a]
+            implicit[r] = s < IMPLICIT_SLOPE_LIMIT
+            if implicit[r]:
+                tgt[r] = ell0[r] - h * c / s
+                at[r] = (-h / s) / hh
+                rforce[r] = 0.0
+                act[nact] = r
+                nact += 1
+            else:
+                tgt[r] = np.nan
+                at[r] = 0.0
+                rforce[r] = c + s * v[a]
+                if rforce[r] != 0.0:
+                    any_force = True
+        for i in range(nm):
+            a = mot[i]
+            damping = max(-slope[a], 0.0) * gear[i] ** 2 * h * minv[i]
+            motor_effort[i] = (const[a] + slope[a] * v[a]) / (1.0 + damping)
+        for g in range(ng):
+            for c in range(6):
+                s = 0.0
+                for i in range(nm):
+                    s += motor_effort[i] * mresp[i, g, c]
+                gg[g, c] = gg0[g, c] + s if nm else gg0[g, c]
+        Fe[:, :] = 0.0
+        Te[:, :] = 0.0
+        if any_force:  # SolverXPBD._external: explicit row forces along the rows
+            for r in range(nr):
+                if rforce[r] == 0.0:
+                    continue
+                ga, gb = rg[r, 0], rg[r, 1]
+                ra = XC._rot(XC._q4(Qg, ga), XC._v3(rvec[r], 0))
+                rb = XC._rot(XC._q4(Qg, gb), XC._v3(rvec[r], 1))
+                d = ((Xg[gb, 0] + rb[0]) - (Xg[ga, 0] + ra[0]), (Xg[gb, 1] + rb[1]) - (Xg[ga, 1] + ra[1]),
+                     (Xg[gb, 2] + rb[2]) - (Xg[ga, 2] + ra[2]))
+                norm = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+                f = (rforce[r] * d[0] / norm, rforce[r] * d[1] / norm, rforce[r] * d[2] / norm)
+                cb = XC._cross(rb, f)
+                ca = XC._cross(ra, f)
+                for c in range(3):
+                    Fe[gb, c] += f[c]
+                    Te[gb, c] += cb[c]
+                    Fe[ga, c] -= f[c]
+                    Te[ga, c] -= ca[c]
+        XC.substep(Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, iterations, symmetric,
+                  jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
+                  rg, rvec, act[:nact], tgt, at, lo, hi, nact > 0, mob, True, gg, Fe, Te, False, tau,
+                  cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
+                  lin_damp, ang_damp, lam, ell, rate)
+        XC.scatter(Xg, Qg, Vg, Wg, body_group, in_group_quat, in_group_pos, bx, bq, bv, bw)
+        # end of the substep: realised motion (PbdPlant.after_substep)
+        for a in range(na):
+            x_end[a] = x[a]
+            v_end[a] = v[a]
+        for r in range(nr):
+            a = cyl[r]
+            x_end[a] = ell[r] - closed[r]
+            v_end[a] = (ell[r] - ell0[r]) / h
+        for i in range(nm):
+            b, p = mbody[i], mparent[i]
+            ax = XC._rot(XC._q4(bq, b), XC._v3(maxis, i))
+            rate_j = (bw[b, 0] - bw[p, 0]) * ax[0] + (bw[b, 1] - bw[p, 1]) * ax[1] + (bw[b, 2] - bw[p, 2]) * ax[2]
+            a = mot[i]
+            v_end[a] = gear[i] * rate_j
+            x_end[a] = x[a] + h * v_end[a]
+        H._finish_core(net, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd[k], speed[k], x_end, v_end, h, flow)
+        out[1] += istats[H.I_LAST_OK]
+        for a in range(na):
+            effort[a] = 0.0
+        for r in range(nr):
+            effort[cyl[r]] = lam[r] / hh if implicit[r] else rforce[r]
+        for i in range(nm):
+            effort[mot[i]] = motor_effort[i]
+        # v_next: cylinder speeds as the bodies now move; work trapezoidal in the actuator speeds
+        for r in range(nr):
+            v_end[cyl[r]] = rate[r]
+        s = 0.0
+        for a in range(na):
+            s += effort[a] * (v[a] + v_end[a])
+        work += 0.5 * h * s
+        for r in range(nr):
+            ell0[r] = ell[r]
+        for a in range(na):
+            x[a] = x_end[a]
+            v[a] = v_end[a]
+    out[0] = work
+    return FRAME_OK
+
+
+def _fingerprint() -> str:
+    """sha256 of every source compiled into the frame (this file, hydraulics_nb.py, compiled.py,
+    hydraulics/_compiled.py) and numba's version: part of the cache key."""
+    digest = hashlib.sha256()
+    for path in (__file__, H.__file__, XC.__file__, C.__file__):
+        try:
+            with open(path, "rb") as f:
+                digest.update(f.read())
+        except OSError:  # pragma: no cover
+            digest.update(repr((path, os.getpid())).encode())
+    import numba
+
+    digest.update(numba.__version__.encode())
+    return digest.hexdigest()
+
+
+def _entry(fingerprint):
+    import numba
+
+    def frame(*args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            return -1
+        return _frame_jit(*args)
+
+    return numba.njit(cache=True, error_model="numpy")(frame)
+
+
+_FRAME = None
+_frame_jit = None
+
+
+def frame():
+    """The compiled frame (numba's disk cache, or compiled on first use: one signature)."""
+    global _FRAME, _frame_jit
+    if _FRAME is None:
+        import numba
+
+        _frame_jit = numba.njit(error_model="numpy")(_frame)  # not cached on its own: only inside the entry
+        _FRAME = _entry(_fingerprint())
+    return _FRAME
+
+
+# ---------------------------------------------------------------------------- articulated response
+
+
+def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia,
+                 gravity, site_body, site_pos, row_sites, cyl, mot, mot_dof, gear, body_group, group_mass, group_root,
+                 group_dynamic, mobility, group_gravity, motor_response, motor_inverse_inertia, effective_mass):
+    """``PbdPlant.articulated`` for trees of hinges and slides (one DOF per joint, joint j = DOF j); returns
+    False when the mass matrix is singular (outputs untouched)."""
+    nb = x.shape[0]
+    nj = jnt_body.shape[0]
+    na = effective_mass.size
+    nr = cyl.size
+    nm = mot.size
+    ng = group_mass.size
+    xb = np.empty((nb, 3))
+    qb = np.empty((nb, 4))
+    for b in range(nb):
+        qc = (body_iquat[b, 0], -body_iquat[b, 1], -body_iquat[b, 2], -body_iquat[b, 3])
+        qq = XC._qmul(XC._q4(q, b), qc)
+        XC._setq(qb, b, qq)
+        r = XC._rot(qq, XC._v3(body_ipos, b))
+        for c in range(3):
+            xb[b, c] = x[b, c] - r[c]
+    axis = np.empty((nj, 3))
+    anchor = np.empty((nj, 3))
+    for j in range(nj):
+        jb = jnt_body[j]
+        qq = XC._q4(qb, jb)
+        a = XC._rot(qq, XC._v3(jnt_axis, j))
+        p = XC._rot(qq, XC._v3(jnt_pos, j))
+        for c in range(3):
+            axis[j, c] = a[c]
+            anchor[j, c] = xb[jb, c] + p[c]
+    jv = np.zeros((nj, nb, 3))
+    jwl = np.zeros((nj, nb, 3))
+    for j in range(nj):
+        aj = XC._v3(axis, j)
+        for b in range(nb):
+            if not subtree[j, b]:
+                continue
+            if hinge[j]:
+                lever = (x[b, 0] - anchor[j, 0], x[b, 1] - anchor[j, 1], x[b, 2] - anchor[j, 2])
+                cr = XC._cross(aj, lever)
+                wl = XC._rotinv(XC._q4(q, b), aj)
+                for c in range(3):
+                    jv[j, b, c] = cr[c]
+                    jwl[j, b, c] = wl[c]
+            else:
+                for c in range(3):
+                    jv[j, b, c] = aj[c]
+    mass = np.zeros((nj, nj))
+    rhs = np.zeros((nj, na + 1))
+    for i in range(nj):
+        for k in range(nj):
+            s = 0.0
+            for b in range(nb):
+                s += body_mass[b] * (jv[i, b, 0] * jv[k, b, 0] + jv[i, b, 1] * jv[k, b, 1] + jv[i, b, 2] * jv[k, b, 2])
+            for b in range(nb):
+                s += (inertia[b, 0] * jwl[i, b, 0] * jwl[k, b, 0] + inertia[b, 1] * jwl[i, b, 1] * jwl[k, b, 1]
+                      + inertia[b, 2] * jwl[i, b, 2] * jwl[k, b, 2])
+            mass[i, k] = s
+        s = 0.0
+        for b in range(nb):
+            s += body_mass[b] * (jv[i, b, 0] * gravity[0] + jv[i, b, 1] * gravity[1] + jv[i, b, 2] * gravity[2])
+        rhs[i, na] = s
+    moment = np.zeros((na, nj))
+    for i in range(nm):
+        moment[mot[i], mot_dof[i]] = gear[i]
+    for r in range(nr):
+        sa, sb = row_sites[r, 0], row_sites[r, 1]
+        ba, bb = site_body[sa], site_body[sb]
+        pa = XC._rot(XC._q4(q, ba), XC._v3(site_pos, sa))
+        pb = XC._rot(XC._q4(q, bb), XC._v3(site_pos, sb))
+        A = (x[ba, 0] + pa[0], x[ba, 1] + pa[1], x[ba, 2] + pa[2])
+        B = (x[bb, 0] + pb[0], x[bb, 1] + pb[1], x[bb, 2] + pb[2])
+        d = (B[0] - A[0], B[1] - A[1], B[2] - A[2])
+        ln = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        n = (d[0] / ln, d[1] / ln, d[2] / ln)
+        for j in range(nj):
+            aj = XC._v3(axis, j)
+            jb_ = (0.0, 0.0, 0.0)
+            ja_ = (0.0, 0.0, 0.0)
+            if subtree[j, bb]:
+                jb_ = XC._cross(aj, (B[0] - anchor[j, 0], B[1] - anchor[j, 1], B[2] - anchor[j, 2])) if hinge[j] else aj
+            if subtree[j, ba]:
+                ja_ = XC._cross(aj, (A[0] - anchor[j, 0], A[1] - anchor[j, 1], A[2] - anchor[j, 2])) if hinge[j] else aj
+            moment[cyl[r], j] = n[0] * (jb_[0] - ja_[0]) + n[1] * (jb_[1] - ja_[1]) + n[2] * (jb_[2] - ja_[2])
+    for a in range(na):
+        for i in range(nj):
+            rhs[i, a] = moment[a, i]
+    # dq = M⁻¹·[Jᵀ, Q_gravity]: Gaussian elimination with partial pivoting
+    M = mass.copy()
+    for col in range(nj):
+        piv = col
+        for r in range(col + 1, nj):
+            if abs(M[r, col]) > abs(M[piv, col]):
+                piv = r
+        if M[piv, col] == 0.0 or not np.isfinite(M[piv, col]):
+            return False
+        if piv != col:
+            for c in range(nj):
+                M[col, c], M[piv, c] = M[piv, c], M[col, c]
+            for c in range(na + 1):
+                rhs[col, c], rhs[piv, c] = rhs[piv, c], rhs[col, c]
+        for r in range(col + 1, nj):
+            f = M[r, col] / M[col, col]
+            if f != 0.0:
+                for c in range(col, nj):
+                    M[r, c] -= f * M[col, c]
+                for c in range(na + 1):
+                    rhs[r, c] -= f * rhs[col, c]
+    for col in range(nj - 1, -1, -1):
+        for c in range(na + 1):
+            s = rhs[col, c]
+            for k in range(col + 1, nj):
+                s -= M[col, k] * rhs[k, c]
+            rhs[col, c] = s / M[col, col]
+    dq = rhs
+    for a in range(na):
+        s = 0.0
+        for i in range(nj):
+            s += moment[a, i] * dq[i, a]
+        effective_mass[a] = 1.0 / s if s != 0.0 else np.inf
+    for i in range(nm):
+        motor_inverse_inertia[i] = dq[mot_dof[i], mot[i]] / gear[i]
+    gjv = np.zeros((nj, ng, 3))
+    for i in range(nj):
+        for b in range(nb):
+            g = body_group[b]
+            for c in range(3):
+                gjv[i, g, c] += jv[i, b, c] * body_mass[b]
+        for g in range(ng):
+            gm = group_mass[g] if group_mass[g] > 0 else 1.0
+            for c in range(3):
+                gjv[i, g, c] /= gm
+    ncol = nr + nm + 1
+    for r in range(ncol):
+        col = cyl[r] if r < nr else (mot[r - nr] if r < nr + nm else na)
+        for g in range(ng):
+            root = group_root[g]
+            for c in range(6):
+                s = 0.0
+                if group_dynamic[g]:
+                    for i in range(nj):
+                        if c < 3:
+                            s += dq[i, col] * gjv[i, g, c]
+                        elif hinge[i] and subtree[i, root]:
+                            s += dq[i, col] * axis[i, c - 3]
+                if r < nr:
+                    mobility[r, g, c] = s
+                elif r < nr + nm:
+                    motor_response[r - nr, g, c] = s
+                else:
+                    group_gravity[g, c] = s
+    return True
+
+
+_ARTICULATED = None
+_articulated_jit = None
+
+
+def _articulated_entry(fingerprint):
+    import numba
+
+    def articulated_step(*args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            return False
+        return _articulated_jit(*args)
+
+    return numba.njit(cache=True, error_model="numpy")(articulated_step)
+
+
+def articulated():
+    """The compiled ``_articulated`` (numba's disk cache; the key includes the sources' fingerprint)."""
+    global _ARTICULATED, _articulated_jit
+    if _ARTICULATED is None:
+        import numba
+
+        _articulated_jit = numba.njit(error_model="numpy")(_articulated)
+        _ARTICULATED = _articulated_entry(_fingerprint())
+    return _ARTICULATED

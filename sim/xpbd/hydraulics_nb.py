@@ -1,0 +1,380 @@
+"""Compiled hydraulic hooks of the PBD plant: the implicit coupling's begin/finish and the energy ledger per substep.
+
+:class:`sim.plant_pbd.PbdPlant` calls, per XPBD substep,
+``CouplingImplicit.begin`` (the effort law c + s·v⁺ of every actuator),
+``CouplingImplicit.finish`` (one backward-Euler step of the network with the
+realised motion, Newton started from the linearisation's predicted oil) and
+``PlantBase._account`` (pump/motor work, hydraulic and friction losses).  In
+Python with :class:`~hydraulics._compiled.StepperImplicitEulerCompiled` these
+cost ≈ 300 µs per substep, most of it Python and numpy call overhead.
+:class:`FastHydraulics` does the same arithmetic in two numba calls per
+substep with buffers allocated once, calling the allocation-free cores of
+:mod:`hydraulics._compiled` (``_linearize_core``, ``_step_core``).  Same
+equations, same Newton iterations; the results agree with the Python hooks to
+round-off (summation orders of the ledger and of the oil prediction).
+
+Scope: the ``implicit`` coupling (PBD mode's default) at the ``compressible``
+fidelity with the compiled implicit-Euler stepper and one hydraulic substep
+per XPBD substep, where θ = 1 (no effective mass) and the linearisation is at
+the held actuators (velocity guess 0, clipped into the stroke).  Any other
+configuration keeps the Python hooks (:func:`eligible`).
+
+Caching: numba caches a function by its own file only, so the two entry points
+carry a sha256 of this file and of ``hydraulics/_compiled.py`` (and the numba
+version) as a closure variable, which is part of numba's cache key (as
+:mod:`sim.plant_mujoco_fast` does); the helpers below are not cached on their
+own and exist only inside the entry points.  One signature each.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+
+import numpy as np
+
+from hydraulics import _compiled as C
+from hydraulics.network import NetworkState
+from hydraulics.steppers import StepReport, StepStatus
+
+try:  # pragma: no branch
+    import numba
+
+    _NUMBA = C.compiled_available()
+except ImportError:  # pragma: no cover
+    _NUMBA = False
+
+POTENTIAL_QUADRATURE_POINTS = 16  # must match hydraulics.fluid (entrained air only)
+
+# int counters (istats of the frame): _compiled's 6 per-call slots, then the step's totals and failure
+(I_NEWTON, I_RHS, I_JAC, I_STATUS, I_WORST, I_LAST_OK) = range(6, 12)
+NI = 12
+# float ledger: pump work, motor work, hydraulic and friction dissipation [J], residual max, failing residual
+(L_PUMP, L_MOTOR, L_DISS_H, L_DISS_F, L_RESIDUAL, L_FAIL_NORM) = range(6)
+NL = 6
+ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
+
+
+def eligible(plant) -> bool:
+    """True when the plant's coupling is the one :class:`FastHydraulics` reproduces (see module docstring)."""
+    from hydraulics.coupling import CouplingImplicit
+
+    coupling = plant.coupling
+    stepper = getattr(coupling, "stepper", None)
+    return bool(
+        _NUMBA and not plant.naive and not plant.incompressible and type(coupling) is CouplingImplicit
+        and isinstance(stepper, C.StepperImplicitEulerCompiled) and stepper.substeps == 1
+        and coupling.predictor is stepper
+    )
+
+
+if _NUMBA:
+    def _kernel(function):
+        return numba.njit(error_model="numpy", nogil=True, _nrt=False)(function)
+else:  # pragma: no cover
+    def _kernel(function):
+        return function
+
+
+@_kernel
+def _pressure_effort(net, p, out):
+    # NetworkModel.pressure_effort
+    out[:] = 0.0
+    cyl, ci, mi = net.cyl, net.cyl_i, net.mot_i
+    pref = net.sc[C.S_PREF]
+    for c in range(cyl.shape[0]):
+        out[ci[c, C.CI_ACT]] = C.cylinder_pressure_force_nb(p[ci[c, C.CI_CAP]], p[ci[c, C.CI_ROD]], cyl[c, C.CYL_CAP_AREA],
+                                                            cyl[c, C.CYL_ROD_AREA], pref)
+    for i in range(mi.shape[0]):
+        out[mi[i, C.MI_ACT]] = C.pump_torque_nb(net.mot[i], p[mi[i, C.MI_A]] - p[mi[i, C.MI_B]])
+
+
+@_kernel
+def _friction_effort(net, v, effort, slope):
+    # NetworkModel.friction_effort
+    effort[:] = 0.0
+    slope[:] = 0.0
+    cyl, ci = net.cyl, net.cyl_i
+    for c in range(cyl.shape[0]):
+        a = ci[c, C.CI_ACT]
+        f, df = C.friction_force_with_derivative_nb(v[a], cyl[c, C.CYL_COULOMB], cyl[c, C.CYL_STATIC], cyl[c, C.CYL_STRIBECK],
+                                                    cyl[c, C.CYL_VISCOUS], net.sc[C.S_VREG])
+        effort[a] = -f
+        slope[a] = -df
+
+
+@_kernel
+def _potential(net, p, quad):
+    # Fluid.pressure_potential
+    sc = net.sc
+    pref, beta = sc[C.S_PREF], sc[C.S_BETA]
+    if sc[C.S_AIR] == 0.0:
+        return beta * -np.expm1(-(p - pref) / beta)
+    nq = quad.size // 2
+    half = 0.5 * (p - pref)
+    mid = 0.5 * (p + pref)
+    s = 0.0
+    for j in range(nq):
+        phi, _ = C._fill(net, mid + half * quad[j])
+        s += quad[nq + j] / phi
+    return half * s
+
+
+def keep_size(n, na, nb, nvalve):
+    """Length of the float64 buffer S: what begin leaves for finish, then begin's and finish's temporaries."""
+    return (na + n + n * na) + (na * 5 + 2 * n + nvalve + na * na + na + nb) + (4 * n + 2 * na + 3 * nb + nvalve)
+
+
+@_kernel
+def _begin_core(net, W, S, istats, oil, spool, cmd, speed, x, v, h, const, slope):
+    """CouplingImplicit.begin at θ = 1, velocity guess 0: the effort law (const, slope); returns False if singular."""
+    ic = net.ic
+    n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
+    nvalve = spool.size
+    o = 0
+    guess, o = C._take(S, o, na)
+    lin_oil, o = C._take(S, o, n)
+    dflat, o = C._take(S, o, n * na)
+    doil = dflat.reshape((n, na))
+    fg, o = C._take(S, o, na)
+    fsg, o = C._take(S, o, na)
+    pressure_end, o = C._take(S, o, na)
+    friction, o = C._take(S, o, na)
+    fslope, o = C._take(S, o, na)
+    lin_p, o = C._take(S, o, n)
+    p_first, o = C._take(S, o, n)
+    lin_spool, o = C._take(S, o, nvalve)
+    g, o = C._take(S, o, na * na)
+    gradient = g.reshape((na, na))
+    lin_x, o = C._take(S, o, na)
+    lin_flow, o = C._take(S, o, nb)
+    effort_end = fg  # overwritten by the guess's friction below
+    # velocity guess 0, kept inside the stroke
+    cyl, ci = net.cyl, net.cyl_i
+    for a in range(na):
+        guess[a] = 0.0
+    for c in range(cyl.shape[0]):
+        a = ci[c, C.CI_ACT]
+        guess[a] = C._minimum(C._maximum(guess[a], -x[a] / h), (cyl[c, C.CYL_STROKE] - x[a]) / h)
+    C._linearize_core(net, W, oil, spool, cmd, speed, x, guess, h, lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats,
+                      effort_end, gradient, p_first, doil)
+    if istats[C.IS_SINGULAR]:
+        return False
+    _friction_effort(net, guess, fg, fsg)
+    _pressure_effort(net, lin_p, pressure_end)
+    _friction_effort(net, v, friction, fslope)
+    for i in range(na):
+        pslope = gradient[i, i] - fsg[i]
+        fsl = min(fslope[i], 0.0)  # no negative damping in the implicit law (CouplingImplicit.begin)
+        const[i] = (pressure_end[i] - pslope * guess[i]) + friction[i] - fsl * v[i]
+        slope[i] = pslope + fsl
+    return True
+
+
+@_kernel
+def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow):
+    """CouplingImplicit.finish + PlantBase._account: on success the state arrays (oil, pres, spool, pos, vel)
+    become the end of the substep; counters and failure in ``istats``, ledger terms in ``ledger``."""
+    ic = net.ic
+    n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
+    nvalve = spool.size
+    o = 0
+    guess, o = C._take(S, o, na)
+    lin_oil, o = C._take(S, o, n)
+    dflat, o = C._take(S, o, n * na)
+    doil = dflat.reshape((n, na))
+    o += na * 5 + 2 * n + nvalve + na * na + na + nb  # begin's temporaries
+    mpred, o = C._take(S, o, n)
+    o2, o = C._take(S, o, n)
+    p2, o = C._take(S, o, n)
+    mu, o = C._take(S, o, n)
+    dv, o = C._take(S, o, na)
+    fric, o = C._take(S, o, na)
+    dfrom, o = C._take(S, o, nb)
+    dto, o = C._take(S, o, nb)
+    fl, o = C._take(S, o, nb)
+    sp2, o = C._take(S, o, nvalve)
+    # CouplingImplicit.predicted_oil: m_lin + (∂m/∂v)·(v⁺ − v_guess)
+    for a in range(na):
+        dv[a] = v_end[a] - guess[a]
+    for i in range(n):
+        s = 0.0
+        for a in range(na):
+            s += doil[i, a] * dv[a]
+        mpred[i] = lin_oil[i] + s
+    norm = C._step_core(net, W, oil, spool, cmd, speed, x_end, v_end, h, True, o2, p2, sp2, fl, dfrom, dto, istats, mpred)
+    istats[I_NEWTON] += istats[C.IS_NEWTON]
+    istats[I_RHS] += istats[C.IS_RHS]
+    istats[I_JAC] += istats[C.IS_JAC]
+    if norm > ledger[L_RESIDUAL]:
+        ledger[L_RESIDUAL] = norm
+    C._copy(flow, fl)
+    istats[I_LAST_OK] = 0
+    if istats[C.IS_STATUS] != C._OK:
+        istats[I_STATUS], istats[I_WORST] = ST_NEWTON, istats[C.IS_WORST]
+        ledger[L_FAIL_NORM] = norm
+    else:
+        bad = -1
+        for i in range(n):
+            if not np.isfinite(p2[i]):
+                bad = i
+                break
+        if bad >= 0:
+            istats[I_STATUS], istats[I_WORST] = ST_NONFINITE, bad
+        else:
+            istats[I_LAST_OK] = 1
+            C._copy(oil, o2)
+            C._copy(pres, p2)
+            C._copy(spool, sp2)
+            C._copy(pos, x_end)
+            C._copy(vel, v_end)
+    # energy ledger (PlantBase._account, energy.branch_powers) at the state's pressures
+    for i in range(n):
+        mu[i] = _potential(net, pres[i], quad)
+    br = net.br
+    pump = 0.0
+    for b in range(ic[C.IC_P0], ic[C.IC_P1]):
+        pump += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+    motor = 0.0
+    for b in range(ic[C.IC_M0], ic[C.IC_M1]):
+        motor += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+    dissipated = 0.0
+    for b in range(ic[C.IC_O0], ic[C.IC_C1]):
+        dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+    ledger[L_PUMP] += h * -pump
+    ledger[L_MOTOR] += h * motor
+    ledger[L_DISS_H] += h * dissipated
+    _friction_effort(net, v_end, fric, dv)
+    fw = 0.0
+    for i in range(na):
+        fw += fric[i] * v_end[i]
+    ledger[L_DISS_F] -= h * fw
+
+
+def _fingerprint() -> str:
+    """sha256 of this file and of hydraulics/_compiled.py (everything compiled into the entry points) and numba's version."""
+    digest = hashlib.sha256()
+    for path in (__file__, C.__file__):
+        try:
+            with open(path, "rb") as f:
+                digest.update(f.read())
+        except OSError:  # pragma: no cover - no sources: never reuse a cache entry across versions
+            digest.update(repr((path, os.getpid())).encode())
+    digest.update(numba.__version__.encode() if _NUMBA else b"")
+    return digest.hexdigest()
+
+
+def _entry_points(fingerprint):
+    """The two cached entry points; ``fingerprint`` is a closure variable, hence part of numba's cache key."""
+
+    def begin(F, I, W, S, istats, oil, spool, cmd, speed, x, v, h, const, slope):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable
+            return False
+        net = C._unpack(F, I)
+        return _begin_core(net, W, S, istats, oil, spool, cmd, speed, x, v, h, const, slope)
+
+    def finish(F, I, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow):
+        if fingerprint is None:
+            return
+        net = C._unpack(F, I)
+        _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow)
+
+    jit = numba.njit(cache=True, error_model="numpy", nogil=True)
+    return jit(begin), jit(finish)
+
+
+_ENTRIES = None
+
+
+def entry_points():
+    """(begin, finish), compiled or loaded from numba's disk cache on first use."""
+    global _ENTRIES
+    if _ENTRIES is None:
+        _ENTRIES = _entry_points(_fingerprint())
+    return _ENTRIES
+
+
+def _f64(a):
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
+
+
+class FastHydraulics:
+    """The PBD plant's per-substep hydraulics in compiled code (see module docstring).
+
+    Usage per step: :meth:`load` (from ``plant.net_state`` / ``plant.energy``),
+    then per substep :meth:`begin` and :meth:`finish`, then :meth:`store`
+    (back to ``net_state``, ``energy`` and the step's :class:`StepReport`).
+    """
+
+    def __init__(self, plant):
+        net = plant.network
+        stepper = plant.coupling.stepper
+        self.network = net
+        self._F, self._I = stepper._F, stepper._I
+        n, na = net.node_count, net.actuator_count
+        nb, nvalve = len(net.branch_names), len(net.valve_names)
+        self._W = np.zeros(C.work_size(self._F, self._I))
+        self._S = np.zeros(keep_size(n, na, nb, nvalve))
+        self._istats = np.zeros(NI, np.int64)
+        self._ledger = np.zeros(NL)
+        nodes, weights = np.polynomial.legendre.leggauss(POTENTIAL_QUADRATURE_POINTS)
+        self._quad = np.concatenate([nodes, weights])
+        self.oil, self.pressure, self.spool = np.zeros(n), np.zeros(n), np.zeros(nvalve)
+        self.position, self.velocity = np.zeros(na), np.zeros(na)
+        self.flow = np.zeros(nb)
+        self.constant, self.slope = np.zeros(na), np.zeros(na)
+        self._begin, self._finish = entry_points()
+        self._time = 0.0
+
+    def load(self, state: NetworkState, energy) -> None:
+        """Start a step from ``state`` and the ledger ``energy``."""
+        self.oil[:] = state.node_oil
+        self.pressure[:] = state.node_pressure
+        self.spool[:] = state.valve_spool
+        self.position[:] = state.actuator_position
+        self.velocity[:] = state.actuator_velocity
+        self._time = float(state.time)
+        self._istats[:] = 0
+        self._istats[I_WORST] = -1
+        L = self._ledger
+        L[L_PUMP], L[L_MOTOR] = energy.pump_work, energy.motor_work
+        L[L_DISS_H], L[L_DISS_F] = energy.dissipated_hydraulic, energy.dissipated_friction
+        L[L_RESIDUAL] = L[L_FAIL_NORM] = 0.0
+
+    def begin(self, control, x, v, h):
+        """The effort law (constant [N or N·m], slope [N·s/m or N·m·s/rad]) of this substep (arrays reused)."""
+        ok = self._begin(self._F, self._I, self._W, self._S, self._istats, self.oil, self.spool,
+                         _f64(control.valve_command), _f64(control.pump_speed), _f64(x), _f64(v), float(h),
+                         self.constant, self.slope)
+        if not ok:
+            raise np.linalg.LinAlgError("Matrix is singular.")
+        return self.constant, self.slope
+
+    def finish(self, control, x_end, v_end, h) -> None:
+        """Finish the substep with the realised end positions and velocities; ledger included."""
+        self._finish(self._F, self._I, self._W, self._S, self._istats, self._ledger, self._quad, self.oil, self.pressure,
+                     self.spool, self.position, self.velocity, _f64(control.valve_command), _f64(control.pump_speed),
+                     _f64(x_end), _f64(v_end), float(h), self.flow)
+        if self._istats[I_LAST_OK]:
+            self._time += h
+
+    def store(self, energy) -> tuple[NetworkState, StepReport]:
+        """The network state after the step, the step's report; the ledger written back to ``energy``."""
+        L = self._ledger
+        energy.pump_work, energy.motor_work = float(L[L_PUMP]), float(L[L_MOTOR])
+        energy.dissipated_hydraulic, energy.dissipated_friction = float(L[L_DISS_H]), float(L[L_DISS_F])
+        s = self._istats
+        report = StepReport(newton_iterations=int(s[I_NEWTON]), rhs_evaluations=int(s[I_RHS]),
+                            jacobian_evaluations=int(s[I_JAC]), residual=float(L[L_RESIDUAL]), branch_flow=self.flow.copy())
+        names = self.network.node_names
+        if s[I_STATUS] == ST_NEWTON:
+            worst = names[int(s[I_WORST])] if s[I_WORST] >= 0 else "?"
+            report.status = StepStatus.NEWTON_FAILED
+            report.message = f"{StepStatus.NEWTON_FAILED.value} (worst node '{worst}', residual {L[L_FAIL_NORM]:.3g} Pa)"
+        elif s[I_STATUS] == ST_NONFINITE:
+            report.status = StepStatus.NONFINITE
+            report.message = f"pressure of node '{names[int(s[I_WORST])]}' is not finite: {StepStatus.NONFINITE.value}"
+        state = NetworkState(self.oil.copy(), self.pressure.copy(), self.spool.copy(), self.position.copy(),
+                             self.velocity.copy(), self._time)
+        return state, report
