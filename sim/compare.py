@@ -18,6 +18,14 @@ metrics are pure functions of (time, value) arrays: :func:`align` puts two signa
 common times (the sparser of the two grids, over the span both cover, the other signal
 interpolated linearly), :func:`error_stats` gives the maximum and RMS absolute error and
 both relative to the reference's range.
+
+Where point-wise errors are not a meaningful measure -- the excavator's teeth stick-slipping
+through the soil at ~6 Hz, where the instant of each slip moves with the step and point-wise
+differences of pressures stay large at any affordable step -- :func:`filtered_error_stats`
+compares the signals after a centred moving average over a stated window
+(:func:`moving_average`, default :data:`DEFAULT_FILTER_WINDOW` = 0.1 s): an offset passes
+unchanged, a delay ``d`` of a sine of frequency ω shows as ``2a·sin(ωd/2)·sinc(ωw/2)``,
+and chatter faster than the window averages out. ``compare --filter-window`` reports both.
 """
 
 from __future__ import annotations
@@ -45,6 +53,9 @@ __all__ = [
     "energy_drift",
     "error_series",
     "error_stats",
+    "filtered_error_stats",
+    "moving_average",
+    "DEFAULT_FILTER_WINDOW",
     "log_signals",
     "log_status",
     "parse_runs",
@@ -58,6 +69,7 @@ CYLINDER_PREFIX = "/hydroplant/cylinders/"
 MOTOR_PREFIX = "/hydroplant/motors/"
 ENERGY_TOPIC = "/hydroplant/energy"
 TIME_MATCH_NS = 1000  # sample times closer than this [ns] count as the same instant
+DEFAULT_FILTER_WINDOW = 0.1  # s: window of the moving-average (filtered) error metric
 
 
 # ---------------------------------------------------------------------------------------
@@ -211,6 +223,63 @@ def error_stats(t_ref, y_ref, t, y) -> ErrorStats:
     return ErrorStats(max_abs, rms, ref_range, rel(max_abs), rel(rms), float(times[i]), float(times[-1]), len(e))
 
 
+def moving_average(t, y, window: float):
+    """Centred moving average of ``y(t)`` over ``window`` seconds.
+
+    Parameters
+    ----------
+    t : array_like, shape (n,)
+        Increasing sample times [s] (any spacing).
+    y : array_like, shape (n,)
+        Values (any unit), finite.
+    window : float
+        Averaging window [s], > 0.
+
+    Returns
+    -------
+    times, mean : ndarray, shape (k,)
+        ``mean[i] = (1/w)·∫ y dt`` over ``[times[i] − w/2, times[i] + w/2]``, the integral of
+        the piecewise-linear interpolant (exact for a linear signal), at the samples whose whole
+        window lies inside ``[t[0], t[-1]]``. ``k`` may be 0 (span shorter than the window).
+    """
+    t, y = np.asarray(t, dtype=float), np.asarray(y, dtype=float)
+    if not (math.isfinite(window) and window > 0):
+        raise ValueError(f"moving average: window {window!r} s must be a positive finite number")
+    if len(t) < 2:
+        return np.zeros(0), np.zeros(0)
+    integral = np.concatenate(([0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(t))))
+    lo, hi = t - window / 2, t + window / 2
+    slack = TIME_MATCH_NS * 1e-9
+    ok = (lo >= t[0] - slack) & (hi <= t[-1] + slack)
+    lo, hi = np.clip(lo[ok], t[0], t[-1]), np.clip(hi[ok], t[0], t[-1])
+    return t[ok], (np.interp(hi, t, integral) - np.interp(lo, t, integral)) / window
+
+
+def filtered_error_stats(t_ref, y_ref, t, y, window: float = DEFAULT_FILTER_WINDOW) -> ErrorStats:
+    """:func:`error_stats` of the two signals after a centred moving average over ``window`` [s].
+
+    Both signals are put on common times (:func:`align`), each is averaged over the window
+    (:func:`moving_average`), and the max / RMS of the difference is taken where the whole
+    window lies inside the compared span. ``ref_range`` is the unfiltered reference's
+    peak-to-peak, as for the point-wise metric, so tolerances relative to the range mean the
+    same in both.
+    """
+    y_ref_all = np.asarray(y_ref, dtype=float)
+    finite = y_ref_all[np.isfinite(y_ref_all)]
+    ref_range = float(np.ptp(finite)) if len(finite) else math.nan
+    times, ref, other = align(t_ref, y_ref, t, y)
+    times_f, ref_f = moving_average(times, ref, window) if len(times) else (np.zeros(0), np.zeros(0))
+    _, other_f = moving_average(times, other, window) if len(times) else (np.zeros(0), np.zeros(0))
+    if len(times_f) == 0:
+        return ErrorStats(math.nan, math.nan, ref_range, math.nan, math.nan, math.nan, math.nan, 0)
+    e = other_f - ref_f
+    a = np.abs(e)
+    i = int(np.argmax(a))
+    max_abs, rms = float(a[i]), float(np.sqrt(np.mean(e * e)))
+    rel = (lambda v: v / ref_range) if ref_range > 0 else (lambda v: math.nan)
+    return ErrorStats(max_abs, rms, ref_range, rel(max_abs), rel(rms), float(times_f[i]), float(times_f[-1]), len(e))
+
+
 def energy_drift(log) -> dict:
     """Energy-balance residual of a run log (pump work − Δ(kinetic+potential+oil) − dissipation).
 
@@ -284,10 +353,16 @@ class RunComparison:
     real_time_factor: float = math.nan
     energy: dict = field(default_factory=dict)
     settings: str = ""
+    filtered: dict = field(default_factory=dict)  # str -> ErrorStats of the moving averages (empty: not computed)
+    filter_window: float = math.nan  # s
 
-    def kind_stats(self, kind: str) -> dict:
-        """Worst signal of a kind: ``max_abs``, ``rms``, ``max_rel`` (maxima over its signals) and ``worst``."""
-        rows = {n: s for n, s in self.signals.items() if _kind_of(n) == kind and s.samples}
+    def kind_stats(self, kind: str, filtered: bool = False) -> dict:
+        """Worst signal of a kind: ``max_abs``, ``rms``, ``max_rel`` (maxima over its signals) and ``worst``.
+
+        ``filtered=True``: of the moving-averaged signals (:func:`filtered_error_stats`).
+        """
+        source = self.filtered if filtered else self.signals
+        rows = {n: s for n, s in source.items() if _kind_of(n) == kind and s.samples}
         if not rows:
             return {"max_abs": math.nan, "rms": math.nan, "max_rel": math.nan, "worst": ""}
         worst = max(rows, key=lambda n: rows[n].max_abs)
@@ -333,8 +408,12 @@ def check_same_scene(ref_log, log) -> None:
 
 
 def compare_logs(ref_log, log, *, label: str | None = None, wall_time: float = math.nan,
-                 real_time_factor: float = math.nan) -> RunComparison:
-    """Compare a run log with the reference log (paths or :class:`RunLog`)."""
+                 real_time_factor: float = math.nan, filter_window: float | None = None) -> RunComparison:
+    """Compare a run log with the reference log (paths or :class:`RunLog`).
+
+    ``filter_window`` [s]: also the errors of the signals averaged over that window
+    (:func:`filtered_error_stats`), in ``RunComparison.filtered``.
+    """
     ref_log = ref_log if hasattr(ref_log, "topic") else read_log(ref_log)
     log = log if hasattr(log, "topic") else read_log(log)
     check_same_scene(ref_log, log)
@@ -343,8 +422,71 @@ def compare_logs(ref_log, log, *, label: str | None = None, wall_time: float = m
     status, when = log_status(log)
     meta = log.metadata.get(RUN_METADATA, {})
     settings = run_settings_text(meta)
+    filtered = {}
+    if filter_window:
+        filtered = {name: filtered_error_stats(ref[name].t, ref[name].y, run[name].t, run[name].y, filter_window)
+                    for name in ref if name in run}
     return RunComparison(label or log.path.stem, log.path, status, when if status == "diverged" else math.nan, stats,
-                         wall_time, real_time_factor, energy_drift(log), settings)
+                         wall_time, real_time_factor, energy_drift(log), settings, filtered,
+                         float(filter_window) if filter_window else math.nan)
+
+
+def circuit_scales(log) -> dict:
+    """Scales for relative errors from the circuit attached to a log.
+
+    Returns
+    -------
+    dict
+        ``"stroke"``: cylinder name -> stroke [m]; ``"relief_pa"``: the highest relief
+        cracking pressure of the circuit [Pa] (NaN when none or no circuit attached).
+    """
+    import tomllib
+
+    data = log.attachments.get("circuit.toml")
+    out = {"stroke": {}, "relief_pa": math.nan}
+    if data is None:
+        return out
+    try:
+        circuit = tomllib.loads(data.decode() if isinstance(data, bytes) else str(data))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError):
+        return out
+    reliefs = []
+    for comp in circuit.get("component", []):
+        if not isinstance(comp, dict):
+            continue
+        if "stroke" in comp and "name" in comp:
+            out["stroke"][comp["name"]] = float(comp["stroke"])
+        if "relief" in str(comp.get("type", "")) and "cracking_pressure" in comp:
+            reliefs.append(float(comp["cracking_pressure"]))
+    if reliefs:
+        out["relief_pa"] = max(reliefs)
+    return out
+
+
+def percent_table(comparisons: list, scales: dict) -> str:
+    """Markdown: per run, the largest stroke error in % of that cylinder's stroke and the largest
+    pressure error in % of the highest relief setting, point-wise and (when computed) filtered."""
+    relief = scales.get("relief_pa", math.nan)
+    strokes = scales.get("stroke", {})
+    window = next((c.filter_window for c in comparisons if math.isfinite(c.filter_window)), math.nan)
+    head = ["run", "stroke max [% of stroke]", f"pressure max [% of {_num(relief / 1e5)} bar]"]
+    if math.isfinite(window):
+        head += [f"stroke, {window:g} s average [% of stroke]", f"pressure, {window:g} s average [% of relief]"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+
+    def worst(source):
+        st = [(100 * v.max_abs / strokes[n.removeprefix("stroke ")], n) for n, v in source.items()
+              if n.startswith("stroke ") and n.removeprefix("stroke ") in strokes and v.samples]
+        pr = [(100 * v.max_abs / relief, n) for n, v in source.items() if _kind_of(n) == "pressure" and v.samples]
+        fmt = lambda rows: f"{_num(max(rows)[0])} ({max(rows)[1]})" if rows else "–"  # noqa: E731
+        return [fmt(st), fmt(pr)]
+
+    for c in comparisons:
+        row = [c.label] + worst(c.signals)
+        if math.isfinite(window):
+            row += worst(c.filtered) if c.filtered else ["–", "–"]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
 
 
 def run_settings_text(meta: dict) -> str:
@@ -358,6 +500,8 @@ def run_settings_text(meta: dict) -> str:
         text += f", {meta['hydraulic_substeps']} hydraulic substeps"
     if mode.startswith("pbd"):
         text += f", {meta.get('pbd_substeps', '?')} substeps × {meta.get('pbd_iterations', '?')} iterations"
+    if meta.get("fidelity", "compressible") != "compressible":
+        text += f", {meta['fidelity']}"
     return text
 
 
@@ -429,8 +573,18 @@ class CompareResult:
 
 
 def compare_runs(scenario, specs: list[RunSpec], out_dir, *, dt: float | None = None, duration: float | None = None,
-                 tolerance=None, cache_dir=None, fresh_reference: bool = False, progress: bool = False) -> CompareResult:
-    """Reference + one run per spec of a scenario; logs, merged log, report and figures in ``out_dir``."""
+                 tolerance=None, cache_dir=None, fresh_reference: bool = False, progress: bool = False,
+                 filter_window: float | None = None, reference_options: dict | None = None,
+                 run_overrides: dict | None = None, figure_runs: list | None = None) -> CompareResult:
+    """Reference + one run per spec of a scenario; logs, merged log, report and figures in ``out_dir``.
+
+    ``filter_window`` [s]: the reference's convergence is checked on the signals averaged over
+    that window (:func:`sim.reference.check_convergence`), and the report adds the errors of the
+    averaged signals. ``reference_options``: more keyword arguments of
+    :func:`sim.reference.compute_reference` (``start_dt``, ``max_steps`` …). ``run_overrides``:
+    label -> scenario overrides for that run (e.g. ``{"pbd-40": {"pbd_substeps": 40}}``).
+    ``figure_runs``: labels of the runs drawn in the figures (default all; the tables list all).
+    """
     from .reference import DEFAULT_CACHE_DIR, compute_reference
     from .runner import run
     from .scenario import as_scenario
@@ -443,29 +597,43 @@ def compare_runs(scenario, specs: list[RunSpec], out_dir, *, dt: float | None = 
         if not ok:
             raise CircuitError(f"--modes: {why}; leave the pbd modes out")
     reference = compute_reference(scenario, tolerance=tolerance, cache_dir=cache_dir or DEFAULT_CACHE_DIR,
-                                  fresh=fresh_reference, progress=progress)
+                                  fresh=fresh_reference, progress=progress, filter_window=filter_window,
+                                  **(reference_options or {}))
     ref_copy = out_dir / "reference.mcap"
     shutil.copyfile(reference.log_path, ref_copy)
     ref_log = read_log(ref_copy)
     comparisons = []
     for spec in specs:
         path = out_dir / f"{spec.label}.mcap"
-        result = run(scenario, out=path, overrides={"mode": spec.mode, "coupling": spec.coupling, "dt": dt})
+        overrides = {"mode": spec.mode, "coupling": spec.coupling, "dt": dt, **(run_overrides or {}).get(spec.label, {})}
+        result = run(scenario, out=path, overrides=overrides)
         if progress:
             import sys
 
             print(f"compare: {spec.label}: {result.status}, {result.wall_time:.2f} s wall", file=sys.stderr)
         comparisons.append(compare_logs(ref_log, path, label=spec.label, wall_time=result.wall_time,
-                                        real_time_factor=result.real_time_factor))
+                                        real_time_factor=result.real_time_factor, filter_window=filter_window))
     merged = out_dir / "merged.mcap"
     merge_logs({"reference": ref_copy, **{c.label: c.log_path for c in comparisons}}, merged, overwrite=True)
     title = f"{scenario.scene_name}/{scenario.name}, {scenario.duration:g} s"
     ref_text = f"{reference.settings_text()} ({'cached' if reference.cached else f'computed in {reference.wall_time:.0f} s'})"
-    return _write_report(out_dir, title, "reference", ref_log, ref_text, reference.report.text(), comparisons, merged)
+    convergence_text = reference.report.text()
+    if filter_window:  # the same pair point-wise, for the record
+        from .reference import check_convergence
+
+        pointwise = check_convergence(reference.coarse_log_path, reference.log_path, reference.settings.tolerance)
+        worst = sorted(pointwise.checks, key=lambda c: -(c.change / c.allowed if c.allowed > 0 else math.inf))[:3]
+        convergence_text += (
+            f"\n\nPoint-wise, the same pair is {'converged' if pointwise.converged else 'NOT converged'} at that tolerance"
+            + (": " + "; ".join(f"{c.name} changes by {c.change * KIND_DISPLAY[c.kind][0]:.3g} {KIND_DISPLAY[c.kind][1]} "
+                                f"at t = {c.t_max:.3g} s ({c.change / c.allowed:.2g}× allowed)" for c in worst) if worst else "")
+            + ".")
+    return _write_report(out_dir, title, "reference", ref_log, ref_text, convergence_text, comparisons, merged,
+                         figure_runs=figure_runs)
 
 
-def compare_existing(logs: list, out_dir) -> CompareResult:
-    """``compare A.mcap B.mcap …``: A is the reference."""
+def compare_existing(logs: list, out_dir, *, filter_window: float | None = None) -> CompareResult:
+    """``compare A.mcap B.mcap …``: A is the reference (``filter_window`` as in :func:`compare_runs`)."""
     for path in logs:
         if not Path(path).is_file():
             raise CircuitError(f"{path}: log file not found")
@@ -481,7 +649,7 @@ def compare_existing(logs: list, out_dir) -> CompareResult:
         while label in labels or label == "reference":
             label += "_"
         labels.add(label)
-        comparisons.append(compare_logs(ref_log, log, label=label))
+        comparisons.append(compare_logs(ref_log, log, label=label, filter_window=filter_window))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = ref_log.metadata.get(RUN_METADATA, {})
@@ -510,8 +678,8 @@ def _status_text(c: RunComparison) -> str:
     return "stable" if c.status == "complete" else c.status
 
 
-def summary_table(comparisons: list) -> str:
-    """Markdown table: one row per run."""
+def summary_table(comparisons: list, filtered: bool = False) -> str:
+    """Markdown table: one row per run (``filtered``: errors of the moving-averaged signals)."""
     head = ["run", "settings", "status", "wall [s]", "RTF"]
     for kind in KINDS:
         unit = KIND_DISPLAY[kind][1]
@@ -521,7 +689,7 @@ def summary_table(comparisons: list) -> str:
     for c in comparisons:
         row = [c.label, c.settings or "–", _status_text(c), _num(c.wall_time), _num(c.real_time_factor)]
         for kind in KINDS:
-            s = c.kind_stats(kind)
+            s = c.kind_stats(kind, filtered)
             factor = KIND_DISPLAY[kind][0]
             row += [_num(s["max_abs"] * factor), _num(s["rms"] * factor)]
         row += [_num(c.energy.get("max_abs_j", math.nan)), _num(c.energy.get("relative", math.nan))]
@@ -641,9 +809,11 @@ def error_figure(ref_log, comparisons: list, path, *, title: str = "") -> Path:
 
 
 def _write_report(out_dir: Path, title: str, ref_label: str, ref_log, ref_text: str, convergence_text: str,
-                  comparisons: list, merged) -> CompareResult:
-    overlay = overlay_figure(ref_log, comparisons, out_dir / "overlay.png", title=title)
-    errors = error_figure(ref_log, comparisons, out_dir / "error.png", title=title)
+                  comparisons: list, merged, figure_runs: list | None = None) -> CompareResult:
+    drawn = [c for c in comparisons if figure_runs is None or c.label in figure_runs]
+    overlay = overlay_figure(ref_log, drawn, out_dir / "overlay.png", title=title)
+    errors = error_figure(ref_log, drawn, out_dir / "error.png", title=title)
+    left_out = [c.label for c in comparisons if c not in drawn]
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     lines = [
         f"# Comparison: {title}",
@@ -663,11 +833,28 @@ def _write_report(out_dir: Path, title: str, ref_label: str, ref_log, ref_text: 
         "",
         summary_table(comparisons),
         "",
+    ]
+    window = next((c.filter_window for c in comparisons if math.isfinite(c.filter_window)), math.nan)
+    if math.isfinite(window):
+        lines += [
+            f"Errors of the signals averaged over a centred {window:g} s moving window (`filtered_error_stats`; "
+            "chatter faster than the window averages out, offsets and slow drifts stay):",
+            "",
+            summary_table(comparisons, filtered=True),
+            "",
+        ]
+    scales = circuit_scales(ref_log)
+    if scales["stroke"] or math.isfinite(scales["relief_pa"]):
+        lines += ["Relative to the machine: stroke errors in % of each cylinder's stroke, pressure errors in % of "
+                  "the circuit's highest relief setting (worst signal in brackets):", "", percent_table(comparisons, scales), ""]
+    lines += [
         f"![reference vs runs]({overlay.name})",
         "",
         f"![error over time]({errors.name})",
         "",
     ]
+    if left_out:
+        lines += [f"Not drawn in the figures (tables only): {', '.join(left_out)}.", ""]
     for c in comparisons:
         lines += [f"### {c.label}: {c.settings or c.log_path.name}, {_status_text(c)}", "", signal_table(c), ""]
     files = ["reference.mcap"] + [c.log_path.name for c in comparisons] + ([merged.name] if merged else [])
@@ -697,8 +884,11 @@ def add_parser(subparsers):
     parser.add_argument("--out", type=Path, help="output directory (default: logs/compare-<scene>-<scenario>)")
     parser.add_argument("--tolerance", type=float, help="relative convergence tolerance of the reference (default 1e-3)")
     parser.add_argument("--cache", type=Path, help="reference cache directory (default .cache/references)")
+    parser.add_argument("--filter-window", type=float, help="also compare the signals averaged over this moving window "
+                        f"[s] (e.g. {DEFAULT_FILTER_WINDOW}), and check the reference's convergence on them")
+    parser.add_argument("--max-steps", type=int, help="largest reference run [steps] (default 2 000 000)")
     parser.add_argument("--fresh-reference", action="store_true", help="recompute the reference even if it is cached "
-                        "(the cache key covers the scene and scenario files, not the code)")
+                        "(the cache key covers the scene, circuit and scenario files and the simulation code)")
     parser.set_defaults(func=main)
 
 
@@ -709,21 +899,26 @@ def main(args) -> int:
         if len(inputs) < 2:
             raise CircuitError(f"{inputs[0]}: compare needs a reference log and at least one more log")
         out = args.out or Path("logs") / f"compare-{inputs[0].stem}"
-        result = compare_existing(inputs, out)
+        result = compare_existing(inputs, out, filter_window=getattr(args, "filter_window", None))
     elif len(inputs) == 1:
         from .reference import Tolerance
         from .scenario import load_scenario
 
         scenario = load_scenario(inputs[0])
-        for name in ("dt", "duration", "tolerance"):
-            value = getattr(args, name)
+        for name in ("dt", "duration", "tolerance", "filter_window"):
+            value = getattr(args, name, None)
             if value is not None and not (math.isfinite(value) and value > 0):
-                raise CircuitError(f"--{name}: {value!r} must be a positive finite number")
+                raise CircuitError(f"--{name.replace('_', '-')}: {value!r} must be a positive finite number")
+        max_steps = getattr(args, "max_steps", None)
+        if max_steps is not None and max_steps < 1:
+            raise CircuitError(f"--max-steps: {max_steps!r} must be a positive number of steps")
         specs = parse_runs(args.modes or default_modes(), scenario.coupling)
         tolerance = Tolerance(relative=args.tolerance) if args.tolerance else None
         out = args.out or Path("logs") / f"compare-{scenario.scene_name}-{scenario.name}"
         result = compare_runs(scenario, specs, out, dt=args.dt, duration=args.duration, tolerance=tolerance,
-                              cache_dir=args.cache, fresh_reference=args.fresh_reference, progress=True)
+                              cache_dir=args.cache, fresh_reference=args.fresh_reference, progress=True,
+                              filter_window=getattr(args, "filter_window", None),
+                              reference_options={"max_steps": args.max_steps} if getattr(args, "max_steps", None) else None)
     else:
         raise CircuitError(f"compare takes one scenario file or two or more .mcap logs, got {[str(p) for p in inputs]}")
     print(summary_table(result.comparisons))

@@ -19,6 +19,14 @@ a cached reference is re-checked when it is loaded.
 
 :func:`require_converged` rejects a candidate pair of logs at ``h`` and ``h/2`` that is not
 converged, with a message naming every signal that moved too much.
+
+Point-wise or filtered: by default the change of every sample counts (point-wise). When the
+dynamics are not point-wise step-convergent at any affordable step -- the excavator's teeth
+stick-slipping in the soil, where the instants of the slips move with the step -- a
+reference may instead be proven on the signals averaged over a centred moving window
+(``filter_window`` [s], e.g. 0.1 s; :func:`sim.compare.filtered_error_stats`): the same
+tolerance then applies to the averaged signals, and the report says so. The point-wise
+check is unchanged and stays the default.
 """
 
 from __future__ import annotations
@@ -141,6 +149,13 @@ class ConvergenceReport:
     problems: list = field(default_factory=list)
     coarse: str = ""
     fine: str = ""
+    filter_window: float | None = None  # s: the signals were averaged over this window (None: point-wise)
+
+    def metric_text(self) -> str:
+        """``"point-wise"`` or ``"of the signals averaged over a centred 0.1 s moving window"``."""
+        if self.filter_window:
+            return f"of the signals averaged over a centred {self.filter_window:g} s moving window"
+        return "point-wise"
 
     def failures(self) -> list:
         return [c for c in self.checks if not c.ok]
@@ -153,9 +168,11 @@ class ConvergenceReport:
         """Markdown: the verdict, the tolerance and one row per signal."""
         verdict = "converged" if self.converged else "NOT converged"
         lines = [
-            f"Convergence: {verdict}: halving the step from {self.dt_coarse:.4g} s to {self.dt_fine:.4g} s changes every "
-            f"compared signal by at most the tolerance {self.tolerance.text()}." if self.converged else
-            f"Convergence: {verdict} (step {self.dt_coarse:.4g} s → {self.dt_fine:.4g} s; tolerance {self.tolerance.text()}).",
+            f"Convergence ({self.metric_text()}): {verdict}: halving the step from {self.dt_coarse:.4g} s to "
+            f"{self.dt_fine:.4g} s changes every compared signal by at most the tolerance {self.tolerance.text()}."
+            if self.converged else
+            f"Convergence ({self.metric_text()}): {verdict} (step {self.dt_coarse:.4g} s → {self.dt_fine:.4g} s; "
+            f"tolerance {self.tolerance.text()}).",
         ]
         for problem in self.problems:
             lines.append(f"- problem: {problem}")
@@ -174,7 +191,7 @@ class ConvergenceReport:
                          f"(allowed {_fmt(c.allowed, c.kind)})")
         if len(bad) > 4:
             parts.append(f"and {len(bad) - 4} more signals")
-        return (f"reference rejected: not converged: halving the step from {self.dt_coarse:.4g} s to {self.dt_fine:.4g} s "
+        return (f"reference rejected: not converged ({self.metric_text()}): halving the step from {self.dt_coarse:.4g} s to {self.dt_fine:.4g} s "
                 f"({self.coarse} → {self.fine}): " + "; ".join(parts) + f". Tolerance: {self.tolerance.text()}")
 
     def to_dict(self) -> dict:
@@ -207,7 +224,8 @@ def _log_dt(log) -> float:
         return math.nan
 
 
-def check_convergence(coarse, fine, tolerance: Tolerance | None = None) -> ConvergenceReport:
+def check_convergence(coarse, fine, tolerance: Tolerance | None = None, *,
+                      filter_window: float | None = None) -> ConvergenceReport:
     """Does halving the step change every compared signal by less than the tolerance?
 
     Parameters
@@ -216,6 +234,10 @@ def check_convergence(coarse, fine, tolerance: Tolerance | None = None) -> Conve
         Logs of the same scenario at steps ``h`` and ``h/2``.
     tolerance : Tolerance, optional
         Allowed change per signal kind (default :class:`Tolerance`).
+    filter_window : float, optional
+        Compare the signals averaged over a centred moving window of this length [s]
+        (:func:`sim.compare.filtered_error_stats`) instead of point-wise; the tolerance then
+        applies to the averaged signals (ranges are those of the unfiltered signals).
 
     Returns
     -------
@@ -225,8 +247,10 @@ def check_convergence(coarse, fine, tolerance: Tolerance | None = None) -> Conve
         signal is missing from one log, or when the logs state steps that are not ``h`` and
         ``h/2``.
     """
-    from .compare import check_same_scene, error_stats, log_signals, log_status
+    from .compare import check_same_scene, error_stats, filtered_error_stats, log_signals, log_status
 
+    if filter_window is not None and not (math.isfinite(filter_window) and filter_window > 0):
+        raise ScenarioError(f"reference: filter_window {filter_window!r} s must be a positive finite number")
     tolerance = tolerance or Tolerance()
     coarse = coarse if hasattr(coarse, "topic") else read_log(coarse)
     fine = fine if hasattr(fine, "topic") else read_log(fine)
@@ -248,20 +272,27 @@ def check_convergence(coarse, fine, tolerance: Tolerance | None = None) -> Conve
     for name, sig in ref.items():
         if name not in other:
             continue
-        stats = error_stats(sig.t, sig.y, other[name].t, other[name].y)
+        if filter_window:
+            stats = filtered_error_stats(sig.t, sig.y, other[name].t, other[name].y, filter_window)
+        else:
+            stats = error_stats(sig.t, sig.y, other[name].t, other[name].y)
         checks.append(SignalCheck(name, sig.kind, stats.max_abs, tolerance.allowed(sig.kind, stats.ref_range),
                                   stats.ref_range, stats.t_max))
-        if stats.samples and abs(stats.t_end - sig.t[-1]) > 1e-6 and not problems:
+        span_end = sig.t[-1] - (filter_window / 2 if filter_window else 0.0)  # the last whole window
+        if stats.samples and abs(stats.t_end - span_end) > 1e-6 + (0.5 * filter_window if filter_window else 0.0) \
+                and not problems:
             problems.append(f"the logs cover different spans ({other[name].t[-1]:.6g} s and {sig.t[-1]:.6g} s)")
     if not checks:
         problems.append("no signal to compare")
     converged = not problems and all(c.ok for c in checks)
-    return ConvergenceReport(converged, dt_coarse, dt_fine, tolerance, checks, problems, str(coarse.path), str(fine.path))
+    return ConvergenceReport(converged, dt_coarse, dt_fine, tolerance, checks, problems, str(coarse.path), str(fine.path),
+                             filter_window)
 
 
-def require_converged(coarse, fine, tolerance: Tolerance | None = None) -> ConvergenceReport:
+def require_converged(coarse, fine, tolerance: Tolerance | None = None, *,
+                      filter_window: float | None = None) -> ConvergenceReport:
     """:func:`check_convergence`, raising :class:`NotConvergedError` (with the reasons) when it fails."""
-    report = check_convergence(coarse, fine, tolerance)
+    report = check_convergence(coarse, fine, tolerance, filter_window=filter_window)
     if not report.converged:
         raise NotConvergedError(report.rejection())
     return report
@@ -280,6 +311,7 @@ class ReferenceSettings:
     hydraulic_substeps: int = 1
     start_dt: float | None = None  # s; default the scenario's dt
     tolerance: Tolerance = Tolerance()
+    filter_window: float | None = None  # s: convergence of moving averages (None: point-wise)
 
 
 @dataclass
@@ -319,7 +351,8 @@ class Reference:
     def settings_text(self) -> str:
         s = self.settings
         sub = f", {s.hydraulic_substeps} hydraulic substeps" if s.hydraulic_substeps != 1 else ""
-        return f"MuJoCo mode, {s.coupling} coupling, dt {self.dt:.4g} s{sub}"
+        window = f", converged on {s.filter_window:g} s moving averages" if s.filter_window else ""
+        return f"MuJoCo mode, {s.coupling} coupling, dt {self.dt:.4g} s{sub}{window}"
 
 
 def _scenario_state(s: Scenario) -> dict:
@@ -351,7 +384,7 @@ def reference_key(scenario: Scenario, settings: ReferenceSettings) -> str:
         "files": content_hash(scenario.mjcf, scenario.circuit, scenario.path),
         "code": code_hash(),  # the hydraulics/ and sim/ source: a code change recomputes the reference
         "scenario": _scenario_state(scenario),
-        "settings": asdict(settings),
+        "settings": {k: v for k, v in asdict(settings).items() if not (k == "filter_window" and v is None)},
     }
     return content_hash(json.dumps(payload, sort_keys=True).encode())
 
@@ -371,7 +404,7 @@ def _load_cached(directory: Path, scenario: Scenario, settings: ReferenceSetting
     try:
         info = json.loads(info_path.read_text())
         fine, coarse = directory / "reference.mcap", directory / "coarse.mcap"
-        report = check_convergence(coarse, fine, settings.tolerance)
+        report = check_convergence(coarse, fine, settings.tolerance, filter_window=settings.filter_window)
     except (OSError, ValueError, KeyError, TypeError):
         return None
     if not report.converged:
@@ -382,7 +415,7 @@ def _load_cached(directory: Path, scenario: Scenario, settings: ReferenceSetting
 def compute_reference(scenario, *, tolerance: Tolerance | None = None, cache_dir=DEFAULT_CACHE_DIR,
                       start_dt: float | None = None, coupling: str = "implicit", hydraulic_substeps: int = 1,
                       max_halvings: int = MAX_HALVINGS, max_steps: int = MAX_STEPS, fresh: bool = False,
-                      progress: bool = False) -> Reference:
+                      progress: bool = False, filter_window: float | None = None) -> Reference:
     """The converged reference of a scenario, from the cache or computed now.
 
     Parameters
@@ -407,6 +440,9 @@ def compute_reference(scenario, *, tolerance: Tolerance | None = None, cache_dir
         Ignore (and replace) a cached reference.
     progress : bool
         Print one line per run to stderr.
+    filter_window : float, optional
+        Prove convergence on the signals averaged over this centred moving window [s]
+        instead of point-wise (see the module docstring); part of the cache key.
 
     Raises
     ------
@@ -418,7 +454,7 @@ def compute_reference(scenario, *, tolerance: Tolerance | None = None, cache_dir
 
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
-    settings = ReferenceSettings(coupling, hydraulic_substeps, start_dt, tolerance or Tolerance())
+    settings = ReferenceSettings(coupling, hydraulic_substeps, start_dt, tolerance or Tolerance(), filter_window)
     key = reference_key(scenario, settings)
     cache_dir = Path(cache_dir)
     directory = cache_dir / key[:24]
@@ -444,7 +480,7 @@ def compute_reference(scenario, *, tolerance: Tolerance | None = None, cache_dir
             result = run(base.with_overrides(dt=dt), out=path)
             runs.append({"dt": dt, "wall_time": result.wall_time, "status": result.status})
             if previous is not None:
-                report = check_convergence(previous, path, settings.tolerance)
+                report = check_convergence(previous, path, settings.tolerance, filter_window=filter_window)
                 if progress:
                     worst = report.worst()
                     share = f"worst {worst.name} {worst.change / worst.allowed:.3g}× allowed" if worst else ""
@@ -471,6 +507,7 @@ def compute_reference(scenario, *, tolerance: Tolerance | None = None, cache_dir
         final.rename(directory)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    report = check_convergence(directory / "coarse.mcap", directory / "reference.mcap", settings.tolerance)
+    report = check_convergence(directory / "coarse.mcap", directory / "reference.mcap", settings.tolerance,
+                               filter_window=filter_window)
     return Reference(directory / "reference.mcap", directory / "coarse.mcap", dt, report, key, False,
                      _time.perf_counter() - started, scenario.path, settings, runs)

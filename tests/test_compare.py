@@ -233,7 +233,80 @@ def test_cli_bad_input_exits_2_through_the_hydroplant_command(tmp_path, monkeypa
     assert "needs a reference log and at least one more log" in capsys.readouterr().err
     assert sim.cli.main(["compare", str(SEED), "--modes", "mujoco:sideways"]) == 2
     assert "coupling 'sideways'" in capsys.readouterr().err
+    assert sim.cli.main(["compare", str(SEED), "--filter-window", "-0.1"]) == 2
+    assert "--filter-window: -0.1 must be a positive finite number" in capsys.readouterr().err
     assert sim.cli.main(["tradeoff", str(SEED), "--scheduler", "localhost:8786"]) == 2
     assert "not a scheduler address" in capsys.readouterr().err
     assert sim.cli.main(["tradeoff", str(tmp_path / "missing.scenario.toml")]) == 2
     assert "scenario file not found" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------
+# Filtered (moving-average) metric: for signals that are not point-wise step-convergent
+# ---------------------------------------------------------------------------------------
+
+
+def test_moving_average_is_exact_for_a_line_and_damps_a_sine_by_its_sinc():
+    """Centred window w: a line is unchanged; a·sin(ωt) becomes a·sinc(ωw/2)·sin(ωt); only whole windows are kept."""
+    t = np.arange(0, 1.0 + 1e-9, 1e-4)
+    times, mean = compare.moving_average(t, 3.0 + 2.0 * t, 0.1)
+    assert times[0] == pytest.approx(0.05, abs=1e-9) and times[-1] == pytest.approx(0.95, abs=1e-9)
+    assert np.max(np.abs(mean - (3.0 + 2.0 * times))) < 1e-12
+    times, mean = compare.moving_average(t, np.sin(OMEGA * t), 0.1)
+    gain = math.sin(OMEGA * 0.05) / (OMEGA * 0.05)
+    assert np.max(np.abs(mean - gain * np.sin(OMEGA * times))) < 1e-6
+    with pytest.raises(ValueError, match="window"):
+        compare.moving_average(t, t, 0.0)
+
+
+def test_filtered_metric_keeps_an_offset_and_gives_the_analytic_error_of_a_delay():
+    """After a 0.1 s moving average: an offset stays the offset; a delay d of a·sin(ωt) gives 2a·sin(ωd/2)·sinc(ωw/2)."""
+    t = np.arange(0, 1.0 + 1e-9, 1e-4)
+    s = compare.filtered_error_stats(t, sine(t), t, sine(t) + 0.003, 0.1)
+    assert s.max_abs == pytest.approx(0.003, rel=1e-9) and s.rms == pytest.approx(0.003, rel=1e-9)
+    assert s.ref_range == pytest.approx(0.2, rel=1e-4)  # the unfiltered range, as for the point-wise metric
+    d, w = 0.01, 0.1
+    s = compare.filtered_error_stats(t, sine(t), t, sine(t - d), w)
+    expected = 2 * 0.1 * math.sin(OMEGA * d / 2) * math.sin(OMEGA * w / 2) / (OMEGA * w / 2)
+    assert s.max_abs == pytest.approx(expected, rel=1e-4)
+    assert s.t_end == pytest.approx(1.0 - w / 2, abs=1e-9)
+
+
+def test_filtered_metric_removes_chatter_that_the_point_wise_metric_sees():
+    """Stick-slip-like chatter (±5 mm at 50 Hz, a whole number of periods per window) on a 0.5 mm offset:
+    point-wise error 5.5 mm, filtered error the offset; different rates (1 kHz vs 300 Hz) change neither much."""
+    chatter = lambda t: sine(t) + 5e-4 + 5e-3 * np.sin(2 * math.pi * 50 * t)  # noqa: E731
+    t_ref = np.arange(0, 1.0 + 1e-9, 1e-4)
+    assert error_stats(t_ref, sine(t_ref), t_ref, chatter(t_ref)).max_abs == pytest.approx(5.5e-3, rel=1e-3)
+    s = compare.filtered_error_stats(t_ref, sine(t_ref), t_ref, chatter(t_ref), 0.1)
+    assert s.max_abs == pytest.approx(5e-4, rel=1e-3)
+    t = np.arange(0, 1.0 + 1e-9, 1 / 3000)
+    assert compare.filtered_error_stats(t_ref, sine(t_ref), t, chatter(t), 0.1).max_abs == pytest.approx(5e-4, rel=0.05)
+
+
+def test_filtered_convergence_check_accepts_chatter_the_point_wise_check_rejects(tmp_path):
+    """A pair that differs by 50 Hz chatter of 2 mm: the point-wise check rejects it, the 0.1 s check accepts it
+    and says so; a 2 mm offset is rejected by both (filtering is no licence for a shifted reference)."""
+    fine = write_log(tmp_path / "fine.mcap", 5e-4, 0.5, stroke=sine)
+    chatter = write_log(tmp_path / "chatter.mcap", 1e-3, 0.5, stroke=lambda t: sine(t) + 2e-3 * np.sin(2 * math.pi * 50 * t))
+    far = write_log(tmp_path / "far.mcap", 1e-3, 0.5, stroke=lambda t: sine(t) + 2e-3)
+    assert not check_convergence(chatter, fine).converged
+    report = check_convergence(chatter, fine, filter_window=0.1)
+    assert report.converged and report.filter_window == 0.1
+    assert "averaged over a centred 0.1 s moving window" in report.text()
+    with pytest.raises(NotConvergedError, match=r"not converged \(of the signals averaged over a centred 0.1 s"):
+        require_converged(far, fine, filter_window=0.1)
+    with pytest.raises(Exception, match="filter_window"):
+        check_convergence(chatter, fine, filter_window=-1.0)
+
+
+def test_compare_logs_reports_filtered_errors_and_percent_of_stroke(tmp_path):
+    """compare_existing with a filter window writes the filtered table; circuit scales come from the attachment."""
+    ref = write_log(tmp_path / "ref.mcap", 1e-3, 0.5, stroke=sine)
+    run = write_log(tmp_path / "run.mcap", 1e-3, 0.5, stroke=lambda t: sine(t) + 1e-3)
+    c = compare_logs(ref, run, filter_window=0.1)
+    assert c.kind_stats("stroke", filtered=True)["max_abs"] == pytest.approx(1e-3, rel=1e-9)
+    table = compare.percent_table([c], {"stroke": {"c": 0.5}, "relief_pa": 3.5e7})
+    assert "0.2 (stroke c)" in table  # 1 mm of a 0.5 m stroke
+    result = compare.compare_existing([ref, run], tmp_path / "out", filter_window=0.1)
+    assert "averaged over a centred 0.1 s moving window" in result.report_path.read_text()
