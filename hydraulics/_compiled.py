@@ -39,6 +39,13 @@ coupling's finish passes its linearised prediction), and
 ``Linearization.oil_velocity_gradient``), which the linearly implicit finish
 (coupling ``implicit-linear``) uses.
 
+**Pieces of the implicit coupling's step** (:func:`_effort_law_terms`,
+:func:`_predicted_oil`, :func:`_commit_if_finite`, :func:`_account`, …) are
+here too, allocation-free on the packed network: the two compiled coupled
+steps (``sim.plant_mujoco_fast``'s control callback and
+``sim.xpbd.hydraulics_nb``'s PBD hooks) both call them.  Both fingerprint this
+file into their cached entry points, so a change here recompiles them.
+
 **Round-off-level differences from the pure path** (same iterations, same
 decisions): ``sqrt`` instead of ``pow`` for s**0.25 and a**1.5 in the orifice
 laws; for pure oil (no entrained air) the compliant-node inversion solves
@@ -1148,6 +1155,154 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt):
     norm = _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
                            gradient, p_first, doil)
     return oil, p, spool, x, flow, istats, norm, effort, gradient, doil
+
+
+# ----------------------------------------------------------------------------
+# Pieces of the implicit coupling's step shared by the two compiled coupled steps
+# (sim.plant_mujoco_fast: MuJoCo's control callback; sim.xpbd.hydraulics_nb: the PBD plant's hooks).
+# Pure hydraulics on the packed network; allocation-free.
+# ----------------------------------------------------------------------------
+@_kernel
+def _take_linearization(S, o, n, na, nvalve):
+    """Views of what the coupling's begin keeps for its finish, carved from ``S`` at offset ``o``
+    (na + n + nvalve + n·na entries): velocity guess [m/s or rad/s] (na), predicted oil m_lin [kg] (n),
+    predicted spools [-] (nvalve), ∂m⁺/∂v (n × na); returns them and the offset after them."""
+    guess, o = _take(S, o, na)
+    lin_oil, o = _take(S, o, n)
+    lin_spool, o = _take(S, o, nvalve)
+    dflat, o = _take(S, o, n * na)
+    return guess, lin_oil, lin_spool, dflat.reshape((n, na)), o
+
+
+@_kernel
+def _pressure_effort(net, p, out):
+    """NetworkModel.pressure_effort: actuator efforts [N or N·m] of the node pressures ``p`` [Pa] into ``out``."""
+    out[:] = 0.0
+    cyl, ci, mi = net.cyl, net.cyl_i, net.mot_i
+    pref = net.sc[S_PREF]
+    for c in range(cyl.shape[0]):
+        out[ci[c, CI_ACT]] = cylinder_pressure_force_nb(p[ci[c, CI_CAP]], p[ci[c, CI_ROD]], cyl[c, CYL_CAP_AREA],
+                                                        cyl[c, CYL_ROD_AREA], pref)
+    for i in range(mi.shape[0]):
+        out[mi[i, MI_ACT]] = pump_torque_nb(net.mot[i], p[mi[i, MI_A]] - p[mi[i, MI_B]])
+
+
+@_kernel
+def _friction_effort(net, v, effort, slope):
+    """NetworkModel.friction_effort: cylinder friction efforts [N] at velocities ``v`` [m/s] and their slopes
+    ∂effort/∂v [N·s/m] (zero for motors)."""
+    effort[:] = 0.0
+    slope[:] = 0.0
+    cyl, ci = net.cyl, net.cyl_i
+    for c in range(cyl.shape[0]):
+        a = ci[c, CI_ACT]
+        f, df = friction_force_with_derivative_nb(v[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC], cyl[c, CYL_STRIBECK],
+                                                  cyl[c, CYL_VISCOUS], net.sc[S_VREG])
+        effort[a] = -f
+        slope[a] = -df
+
+
+@_kernel
+def _potential(net, p, quad):
+    """Fluid.pressure_potential μ(p) [Pa] (flow work per unit oil content) at one pressure ``p`` [Pa]; ``quad``
+    holds the Gauss–Legendre nodes then weights (used only with entrained air)."""
+    sc = net.sc
+    pref, beta = sc[S_PREF], sc[S_BETA]
+    if sc[S_AIR] == 0.0:
+        return beta * -np.expm1(-(p - pref) / beta)
+    nq = quad.size // 2
+    half = 0.5 * (p - pref)
+    mid = 0.5 * (p + pref)
+    s = 0.0
+    for j in range(nq):
+        phi, _ = _fill(net, mid + half * quad[j])
+        s += quad[nq + j] / phi
+    return half * s
+
+
+@_kernel
+def _clip_to_stroke(net, x, h, v):
+    """Clip the cylinders' velocities ``v`` [m/s] in place so that x + h·v stays inside [0, stroke] (coupling's guess)."""
+    cyl, ci = net.cyl, net.cyl_i
+    for c in range(cyl.shape[0]):
+        a = ci[c, CI_ACT]
+        v[a] = _minimum(_maximum(v[a], -x[a] / h), (cyl[c, CYL_STROKE] - x[a]) / h)
+
+
+@_kernel
+def _effort_law_terms(net, guess, p_end, v, gradient, fg, fsg, end_const, end_slope, friction, damping):
+    """The terms of CouplingImplicit.begin's effort law c + s·v⁺ from a linearisation at velocities ``guess``
+    (end pressures ``p_end`` [Pa], effort gradient ``gradient`` ∂f/∂v⁺) and the start velocities ``v``:
+
+    end_slope = diag(gradient) − friction slope at the guess (the pressure part's slope),
+    end_const = pressure effort(p_end) − end_slope·guess, friction = friction effort(v),
+    damping = min(friction slope at v, 0) (no negative damping in the implicit law).
+    The law at blend θ: c = (1 − θ)·f_pressure(start) + θ·end_const + friction − damping·v, s = θ·end_slope + damping.
+    ``fg``, ``fsg``: scratch (friction effort and slope at the guess).
+    """
+    _friction_effort(net, guess, fg, fsg)
+    _pressure_effort(net, p_end, end_const)
+    _friction_effort(net, v, friction, damping)
+    for i in range(guess.size):
+        pslope = gradient[i, i] - fsg[i]
+        end_const[i] = end_const[i] - pslope * guess[i]
+        end_slope[i] = pslope
+        damping[i] = min(damping[i], 0.0)
+
+
+@_kernel
+def _predicted_oil(lin_oil, doil, guess, v_end, dv, out):
+    """CouplingImplicit.predicted_oil: out = m_lin + (∂m/∂v)·(v⁺ − v_guess) [kg]; ``dv``: scratch (na)."""
+    na = guess.size
+    for a in range(na):
+        dv[a] = v_end[a] - guess[a]
+    for i in range(lin_oil.size):
+        s = 0.0
+        for a in range(na):
+            s += doil[i, a] * dv[a]
+        out[i] = lin_oil[i] + s
+
+
+@_kernel
+def _commit_if_finite(oil, pres, spool, pos, vel, oil_new, p_new, spool_new, x_new, v_new):
+    """Copy the step's end (oil, pressures, spools, actuator positions and velocities) into the state arrays if
+    every end pressure is finite; returns -1 then, else the first node whose pressure is not finite (state kept)."""
+    for i in range(p_new.size):
+        if not np.isfinite(p_new[i]):
+            return i
+    _copy(oil, oil_new)
+    _copy(pres, p_new)
+    _copy(spool, spool_new)
+    _copy(pos, x_new)
+    _copy(vel, v_new)
+    return -1
+
+
+@_kernel
+def _account(net, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
+    """PlantBase._account over a step ``h`` [s]: adds pump work, motor work, hydraulic and friction dissipation [J]
+    to ``ledger[at]``, ``ledger[at + 1]``, ``ledger[at + 2]``, ``ledger[at + 3]`` (energy.branch_powers at the
+    pressures ``pres``, branch flows ``flow``, actuator velocities ``v``); ``mu``, ``friction``, ``fslope``: scratch."""
+    for i in range(pres.size):
+        mu[i] = _potential(net, pres[i], quad)
+    ic, br = net.ic, net.br
+    pump = 0.0
+    for b in range(ic[IC_P0], ic[IC_P1]):
+        pump += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+    motor = 0.0
+    for b in range(ic[IC_M0], ic[IC_M1]):
+        motor += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+    dissipated = 0.0
+    for b in range(ic[IC_O0], ic[IC_C1]):
+        dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+    ledger[at] += h * -pump
+    ledger[at + 1] += h * motor
+    ledger[at + 2] += h * dissipated
+    _friction_effort(net, v, friction, fslope)
+    fw = 0.0
+    for i in range(v.size):
+        fw += friction[i] * v[i]
+    ledger[at + 3] -= h * fw
 
 
 # ----------------------------------------------------------------------------

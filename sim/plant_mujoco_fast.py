@@ -54,6 +54,12 @@ every :meth:`MujocoPlantFast.advance`.  Operator inputs are sampled for the
 block's step times in Python beforehand (piecewise-linear schedules
 vectorised, callables called per step).
 
+The effort-law terms, the oil prediction, the commit of a finite step and
+the energy ledger are the kernels of :mod:`hydraulics._compiled` that
+:mod:`sim.xpbd.hydraulics_nb` (the PBD plant's compiled coupling) calls too
+(``_effort_law_terms``, ``_predicted_oil``, ``_commit_if_finite``,
+``_account``; see there).
+
 Results agree with :class:`MujocoPlant` to round-off (θ is exact: the
 effective masses come from the same ``mj_solveM`` at the same state); the only
 differences are summation orders (J·q̇, energy sums).
@@ -108,8 +114,8 @@ from hydraulics.coupling import GUESS_VOLUME_FRACTION, CouplingImplicit, Couplin
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepReport, StepStatus
 
+from ._coupling_nb import input_plan, sample_inputs
 from .plant_mujoco import MujocoPlant
-from .scenario import Schedule
 
 try:  # pragma: no branch
     import llvmlite.binding as llvm_binding
@@ -137,7 +143,7 @@ except ImportError:  # pragma: no cover
 ) = range(66)
 
 # float scalars (P_FS): step, residual of the last step, ledger terms
-FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD, FS_GUESS = range(9)
+FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD, FS_GUESS = range(9)  # ledger: C._account's order
 NFS = 9
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
 MODE_STEP, MODE_FINISH = range(2)  # C_MODE: a coupled step (from mj_step), or only finish the pending step
@@ -158,7 +164,7 @@ def _finish_scratch(na, n, nb, nvalve):
 def scratch_size(na, n, nb, nvalve):
     """Length of the plant's float64 scratch (P_SCRATCH): _finish_pending's part, then _begin's (whose first
     part — velocity guess, predicted oil and spool, ∂m⁺/∂v — persists until the step is finished)."""
-    return _finish_scratch(na, n, nb, nvalve) + 8 * na + 4 * n + na * na + n + nvalve + na + nb + n * na
+    return _finish_scratch(na, n, nb, nvalve) + 9 * na + 4 * n + na * na + n + nvalve + na + nb + n * na
 
 
 if _NUMBA:
@@ -255,50 +261,6 @@ def _vi64(ctx, slot, n):
     return carray(_pi64(ctx[slot]), (n,))
 
 
-@_kernel
-def _pressure_effort(net, p, out):
-    # NetworkModel.pressure_effort
-    out[:] = 0.0
-    cyl, ci, mi = net.cyl, net.cyl_i, net.mot_i
-    pref = net.sc[C.S_PREF]
-    for c in range(cyl.shape[0]):
-        out[ci[c, C.CI_ACT]] = C.cylinder_pressure_force_nb(p[ci[c, C.CI_CAP]], p[ci[c, C.CI_ROD]], cyl[c, C.CYL_CAP_AREA],
-                                                            cyl[c, C.CYL_ROD_AREA], pref)
-    for i in range(mi.shape[0]):
-        out[mi[i, C.MI_ACT]] = C.pump_torque_nb(net.mot[i], p[mi[i, C.MI_A]] - p[mi[i, C.MI_B]])
-
-
-@_kernel
-def _friction_effort(net, v, effort, slope):
-    # NetworkModel.friction_effort
-    effort[:] = 0.0
-    slope[:] = 0.0
-    cyl, ci = net.cyl, net.cyl_i
-    for c in range(cyl.shape[0]):
-        a = ci[c, C.CI_ACT]
-        f, df = C.friction_force_with_derivative_nb(v[a], cyl[c, C.CYL_COULOMB], cyl[c, C.CYL_STATIC], cyl[c, C.CYL_STRIBECK],
-                                                    cyl[c, C.CYL_VISCOUS], net.sc[C.S_VREG])
-        effort[a] = -f
-        slope[a] = -df
-
-
-@_kernel
-def _potential(net, p, quad):
-    # Fluid.pressure_potential
-    sc = net.sc
-    pref, beta = sc[C.S_PREF], sc[C.S_BETA]
-    if sc[C.S_AIR] == 0.0:
-        return beta * -np.expm1(-(p - pref) / beta)
-    nq = quad.size // 2
-    half = 0.5 * (p - pref)
-    mid = 0.5 * (p + pref)
-    s = 0.0
-    for j in range(nq):
-        phi, _ = C._fill(net, mid + half * quad[j])
-        s += quad[nq + j] / phi
-    return half * s
-
-
 _Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W', 'istats', 'cmd', 'speed', 'oil', 'pres', 'spool', 'pos', 'vel', 'flow', 'const', 'slope', 'effort', 'quad', 'passive_saved', 'constraint', 'passive', 'act', 'closed', 'length', 'avel', 'meff', 'theta', 'ctrl', 'bias', 'rowadr', 'rownnz', 'colind', 'moment', 'pmax', 'pmin'))
 
 
@@ -349,11 +311,7 @@ def _finish_pending(ctx, net, V):
     mstart, o = C._take(S, o, n)
     minit, o = C._take(S, o, n)
     # what _begin left for this step: velocity guess, predicted oil and spool, ∂m⁺/∂v
-    guess, o = C._take(S, o, na)
-    lin_oil, o = C._take(S, o, n)
-    lin_spool, o = C._take(S, o, nvalve)
-    dflat, o = C._take(S, o, n * na)
-    doil = dflat.reshape((n, na))
+    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, nvalve)
     for i in range(na):
         s = 0.0
         for j in range(nv):
@@ -361,13 +319,7 @@ def _finish_pending(ctx, net, V):
         v_end[i] = s
         x_end[i] = xs[i] + dt * s
     # linearised prediction m_lin + (∂m/∂v)·(v⁺ − v_guess) (CouplingImplicit.predicted_oil)
-    for a in range(na):
-        ve[a] = v_end[a] - guess[a]
-    for i in range(n):
-        s = 0.0
-        for a in range(na):
-            s += doil[i, a] * ve[a]
-        mpred[i] = lin_oil[i] + s
+    C._predicted_oil(lin_oil, doil, guess, v_end, ve, mpred)
     cmd = V.cmd[k]
     speed = V.speed[k]
     oil, pres, spool = V.oil, V.pres, V.spool
@@ -391,19 +343,9 @@ def _finish_pending(ctx, net, V):
         C._branch_flows(net, p2, area, speed, v_end, fl, dfl, dfl)
         rhs = 1
         C._copy(flow_out, fl)
-        bad = -1
-        for i in range(n):
-            if not np.isfinite(p2[i]):
-                bad = i
-                break
+        bad = C._commit_if_finite(oil, pres, spool, pos, vel, mpred, p2, sp2, x_end, v_end)
         if bad >= 0:
             status, worst = ST_NONFINITE, bad
-        else:
-            C._copy(oil, mpred)
-            C._copy(pres, p2)
-            C._copy(spool, sp2)
-            C._copy(pos, x_end)
-            C._copy(vel, v_end)
     for s in range(substeps):
         if substeps > 1:  # ActuatorMotion.part: linear interpolation to the substep end
             frac = (s + 1) / substeps
@@ -426,19 +368,10 @@ def _finish_pending(ctx, net, V):
         if istats[C.IS_STATUS] != C._OK:
             status, worst = ST_NEWTON, istats[C.IS_WORST]
             break
-        bad = -1
-        for i in range(n):
-            if not np.isfinite(p2[i]):
-                bad = i
-                break
+        bad = C._commit_if_finite(oil, pres, spool, pos, vel, o2, p2, sp2, xe, ve)
         if bad >= 0:
             status, worst = ST_NONFINITE, bad
             break
-        C._copy(oil, o2)
-        C._copy(pres, p2)
-        C._copy(spool, sp2)
-        C._copy(pos, xe)
-        C._copy(vel, ve)
     ctx[C_NEWTON], ctx[C_RHS], ctx[C_JAC] = newton, rhs, jac
     ctx[C_STATUS], ctx[C_WORST] = status, worst
     fs[FS_NORM] = residual
@@ -455,29 +388,8 @@ def _finish_pending(ctx, net, V):
     const, slope, effort = V.const, V.slope, V.effort
     for i in range(na):
         effort[i] = const[i] + slope[i] * v_end[i]
-    # energy ledger (PlantBase._account, MujocoPlant._account)
-    quad = V.quad
-    for i in range(n):
-        mu[i] = _potential(net, pres[i], quad)
-    ic, br = net.ic, net.br
-    pump = 0.0
-    for b in range(ic[C.IC_P0], ic[C.IC_P1]):
-        pump += flow_out[b] * (mu[br[b, 0]] - mu[br[b, 1]])
-    motor = 0.0
-    for b in range(ic[C.IC_M0], ic[C.IC_M1]):
-        motor += flow_out[b] * (mu[br[b, 0]] - mu[br[b, 1]])
-    dissipated = 0.0
-    for b in range(ic[C.IC_O0], ic[C.IC_C1]):
-        dissipated += flow_out[b] * (mu[br[b, 0]] - mu[br[b, 1]])
-    fs[FS_PUMP] += dt * -pump
-    fs[FS_MOTOR] += dt * motor
-    fs[FS_DISS_H] += dt * dissipated
-    friction, fslope = xe, ve  # free again
-    _friction_effort(net, v_end, friction, fslope)
-    fw = 0.0
-    for i in range(na):
-        fw += friction[i] * v_end[i]
-    fs[FS_DISS_F] -= dt * fw
+    # energy ledger (PlantBase._account, MujocoPlant._account); xe, ve are free again
+    C._account(net, fs, FS_PUMP, dt, pres, flow_out, v_end, V.quad, mu, xe, ve)
     passive, constraint = V.passive_saved, V.constraint
     mw = 0.0
     for j in range(nv):
@@ -537,18 +449,15 @@ def _begin(ctx, net, V):
     W = V.W
     istats = V.istats
     o = _finish_scratch_nb(na, n, nb, nvalve)  # after _finish_pending's part
-    # kept for _finish_pending (same order there)
-    guess, o = C._take(S, o, na)
-    lin_oil, o = C._take(S, o, n)
-    lin_spool, o = C._take(S, o, nvalve)
-    dflat, o = C._take(S, o, n * na)
-    doil = dflat.reshape((n, na))
+    # kept for _finish_pending
+    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, nvalve)
     fg, o = C._take(S, o, na)
     fslope_guess, o = C._take(S, o, na)
-    pressure_end, o = C._take(S, o, na)
+    end_const, o = C._take(S, o, na)
+    end_slope, o = C._take(S, o, na)
     pressure_start, o = C._take(S, o, na)
     friction, o = C._take(S, o, na)
-    fslope, o = C._take(S, o, na)
+    damping, o = C._take(S, o, na)
     effort_end, o = C._take(S, o, na)
     geo, o = C._take(S, o, n)
     p0, o = C._take(S, o, n)
@@ -580,9 +489,7 @@ def _begin(ctx, net, V):
         swept = dt * abs(guess[a])
         if not (swept * cyl[c, C.CYL_CAP_AREA] <= fraction * vcap and swept * cyl[c, C.CYL_ROD_AREA] <= fraction * vrod):
             guess[a] = 0.0
-    for c in range(cyl.shape[0]):
-        a = ci[c, C.CI_ACT]
-        guess[a] = C._minimum(C._maximum(guess[a], -xs[a] / dt), (cyl[c, C.CYL_STROKE] - xs[a]) / dt)
+    C._clip_to_stroke(net, xs, dt, guess)
     held = True
     for a in range(na):
         if guess[a] != 0.0:
@@ -592,9 +499,7 @@ def _begin(ctx, net, V):
     if not held and not _usable(istats, lin_p, gradient):
         # CouplingImplicit.begin: a useless guess (unresolved oscillation) → linearise at the held actuators
         guess[:] = 0.0
-        for c in range(cyl.shape[0]):
-            a = ci[c, C.CI_ACT]
-            guess[a] = C._minimum(C._maximum(guess[a], -xs[a] / dt), (cyl[c, C.CYL_STROKE] - xs[a]) / dt)
+        C._clip_to_stroke(net, xs, dt, guess)
         held = True
         for a in range(na):
             if guess[a] != 0.0:
@@ -605,21 +510,17 @@ def _begin(ctx, net, V):
         ctx[C_STATUS] = ST_SINGULAR
         ctx[C_FAILED] = k
         return
-    _friction_effort(net, guess, fg, fslope_guess)
-    _pressure_effort(net, lin_p, pressure_end)
+    C._effort_law_terms(net, guess, lin_p, vs, gradient, fg, fslope_guess, end_const, end_slope, friction, damping)
     if not held:  # the linearisation's first evaluation was at x + dt·guess ≠ x: the start pressures separately
         C._pressure(net, oil, xs, geo, p0, dpdm)
-    _pressure_effort(net, p0, pressure_start)
-    _friction_effort(net, vs, friction, fslope)
+    C._pressure_effort(net, p0, pressure_start)
     ctrl, bias = V.ctrl, V.bias
     for i in range(na):
-        pslope = gradient[i, i] - fslope_guess[i]
-        w = C._maximum(-pslope, 0.0) * dt / meff[i]
+        w = C._maximum(-end_slope[i], 0.0) * dt / meff[i]
         th = C._clip(1.0 - 2.0 / w, 0.0, 1.0)
         theta[i] = th
-        fsl = min(fslope[i], 0.0)  # see CouplingImplicit.begin: no negative damping in the implicit matrix
-        const[i] = (1.0 - th) * pressure_start[i] + th * (pressure_end[i] - pslope * guess[i]) + friction[i] - fsl * vs[i]
-        slope[i] = th * pslope + fsl
+        const[i] = (1.0 - th) * pressure_start[i] + th * end_const[i] + friction[i] - damping[i] * vs[i]
+        slope[i] = th * end_slope[i] + damping[i]
         ctrl[act[i]] = const[i]
         bias[act[i] * ctx[C_NBIAS] + 2] = slope[i]
     C._copy(V.passive_saved, V.passive)
@@ -758,7 +659,7 @@ class MujocoPlantFast(MujocoPlant):
         self._quad = np.concatenate([quad_nodes, quad_weights])
         self._capacity = 0
         self._cmd = self._speed = None
-        self._inputs = self._input_plan()
+        self._inputs = input_plan(net, self.control, scenario.inputs)
         for a in (d.qvel, d.ctrl, d.actuator_length, d.actuator_velocity, d.actuator_moment, d.qfrc_passive,
                   d.qfrc_constraint, m.actuator_biasprm):
             assert a.flags.c_contiguous and a.dtype == np.float64
@@ -793,19 +694,6 @@ class MujocoPlantFast(MujocoPlant):
         self.node_pressure_min = self.net_state.node_pressure.copy()
 
     # ------------------------------------------------------------------ inputs
-    def _input_plan(self):
-        """Per input: (is_valve, index, schedule) for vectorised sampling."""
-        net = self.network
-        plan = []
-        for name, schedule in self.scene.scenario.inputs.items():
-            if name in net.valve_names:
-                plan.append((True, net.valve_names.index(name), schedule))
-            elif name in net.pump_names:
-                plan.append((False, net.pump_names.index(name), schedule))
-            else:
-                net.set_control(self.control, name, 0.0)  # raises the usual KeyError
-        return plan
-
     def _sample_inputs(self, n):
         """Controls of the next n steps (rows), as PlantBase.apply_inputs at each step's time."""
         if n > self._capacity:
@@ -819,17 +707,9 @@ class MujocoPlantFast(MujocoPlant):
         cmd, speed = self._cmd[:n], self._speed[:n]
         cmd[:] = self.control.valve_command
         speed[:] = self.control.pump_speed
-        times = None
-        for is_valve, index, schedule in self._inputs:
-            if times is None:
-                times = (self._step_numbers[:n] + self.step_index) * self.dt  # = (np.arange(n) + step_index)·dt
-            target = cmd if is_valve else speed
-            if isinstance(schedule, Schedule):
-                target[:, index] = np.interp(times, schedule.t, schedule.value)
-            elif callable(schedule):
-                target[:, index] = [schedule(t) for t in times]
-            else:
-                target[:, index] = schedule
+        if self._inputs:
+            times = (self._step_numbers[:n] + self.step_index) * self.dt  # = (np.arange(n) + step_index)·dt
+            sample_inputs(self._inputs, times, cmd, speed)
         return cmd, speed
 
     # -------------------------------------------------------------------- step

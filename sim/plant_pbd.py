@@ -115,8 +115,9 @@ from hydraulics.load import apply_inputs
 from hydraulics.network import ACTUATOR_CYLINDER
 from hydraulics.steppers import StepReport
 
+from ._coupling_nb import input_plan, sample_inputs
 from .plant_base import PlantBase
-from .scenario import Schedule, ScenarioError
+from .scenario import ScenarioError
 from .scene import Scene, initial_qpos_qvel
 from .xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel
 from .xpbd.hydraulics_nb import FastHydraulics
@@ -462,30 +463,9 @@ class PbdPlant(PlantBase):
         cmd[:] = control.valve_command  # row 0: step() applied the inputs at the frame's start
         speed[:] = control.pump_speed
         if len(ks) > 1:
-            times = self.time + ks[1:] * h
-            for is_valve, index, schedule in ctx["inputs"]:
-                target = cmd if is_valve else speed
-                if isinstance(schedule, Schedule):
-                    target[1:, index] = np.interp(times, schedule.t, schedule.value)
-                elif callable(schedule):
-                    target[1:, index] = [schedule(t) for t in times]
-                else:
-                    target[1:, index] = schedule
+            sample_inputs(ctx["inputs"], self.time + ks[1:] * h, cmd[1:], speed[1:])
             control.valve_command[:] = cmd[-1]
             control.pump_speed[:] = speed[-1]
-
-    def _input_plan(self):
-        """Per scenario input: (is_valve, index, schedule), for sampling a frame's substeps at once."""
-        net = self.network
-        plan = []
-        for name, schedule in self.scene.scenario.inputs.items():
-            if name in net.valve_names:
-                plan.append((True, net.valve_names.index(name), schedule))
-            elif name in net.pump_names:
-                plan.append((False, net.pump_names.index(name), schedule))
-            else:
-                net.set_control(self.control, name, 0.0)  # raises the usual KeyError
-        return plan
 
     def _frame_context(self):
         """Buffers of the compiled frame (allocated once)."""
@@ -499,7 +479,7 @@ class PbdPlant(PlantBase):
         rg, rvec = self.solver._flat_rows()
         mb = np.array([int(xm.jnt_body[j]) for j in self.motor_joint], np.int64)
         ctx = dict(
-            kernel=frame(), inputs=self._input_plan(), substep_numbers=np.arange(nsub), cmd=np.zeros((nsub, len(net.valve_names))), speed=np.zeros((nsub, len(net.pump_names))),
+            kernel=frame(), inputs=input_plan(net, self.control, self.scene.scenario.inputs), substep_numbers=np.arange(nsub), cmd=np.zeros((nsub, len(net.valve_names))), speed=np.zeros((nsub, len(net.pump_names))),
             x=np.zeros(na), v=np.zeros(na), ell=np.zeros(len(self.cylinders)), out=np.zeros(2),
             rg=rg, rvec=_c64(rvec), no_response=np.zeros((0, xm.ngroup, 6)),
             bx=np.zeros((xm.nbody, 3)), bq=np.zeros((xm.nbody, 4)), bv=np.zeros((xm.nbody, 3)), bw=np.zeros((xm.nbody, 3)),

@@ -9,7 +9,10 @@ Python with :class:`~hydraulics._compiled.StepperImplicitEulerCompiled` these
 cost ≈ 300 µs per substep, most of it Python and numpy call overhead.
 :class:`FastHydraulics` does the same arithmetic in two numba calls per
 substep with buffers allocated once, calling the allocation-free cores of
-:mod:`hydraulics._compiled` (``_linearize_core``, ``_step_core``).  Same
+:mod:`hydraulics._compiled` (``_linearize_core``, ``_step_core``) and the
+pieces of the coupled step it shares with :mod:`sim.plant_mujoco_fast`
+(``_take_linearization``, ``_clip_to_stroke``, ``_effort_law_terms``,
+``_predicted_oil``, ``_commit_if_finite``, ``_account``).  Same
 equations, same Newton iterations; the results agree with the Python hooks to
 round-off (summation orders of the ledger and of the oil prediction).
 
@@ -50,7 +53,7 @@ POTENTIAL_QUADRATURE_POINTS = 16  # must match hydraulics.fluid (entrained air o
 (I_NEWTON, I_RHS, I_JAC, I_STATUS, I_WORST, I_LAST_OK) = range(6, 12)
 NI = 12
 # float ledger: pump work, motor work, hydraulic and friction dissipation [J], residual max, failing residual
-(L_PUMP, L_MOTOR, L_DISS_H, L_DISS_F, L_RESIDUAL, L_FAIL_NORM) = range(6)
+(L_PUMP, L_MOTOR, L_DISS_H, L_DISS_F, L_RESIDUAL, L_FAIL_NORM) = range(6)  # the first four in C._account's order
 NL = 6
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
 
@@ -76,53 +79,17 @@ else:  # pragma: no cover
         return function
 
 
-@_kernel
-def _pressure_effort(net, p, out):
-    # NetworkModel.pressure_effort
-    out[:] = 0.0
-    cyl, ci, mi = net.cyl, net.cyl_i, net.mot_i
-    pref = net.sc[C.S_PREF]
-    for c in range(cyl.shape[0]):
-        out[ci[c, C.CI_ACT]] = C.cylinder_pressure_force_nb(p[ci[c, C.CI_CAP]], p[ci[c, C.CI_ROD]], cyl[c, C.CYL_CAP_AREA],
-                                                            cyl[c, C.CYL_ROD_AREA], pref)
-    for i in range(mi.shape[0]):
-        out[mi[i, C.MI_ACT]] = C.pump_torque_nb(net.mot[i], p[mi[i, C.MI_A]] - p[mi[i, C.MI_B]])
-
-
-@_kernel
-def _friction_effort(net, v, effort, slope):
-    # NetworkModel.friction_effort
-    effort[:] = 0.0
-    slope[:] = 0.0
-    cyl, ci = net.cyl, net.cyl_i
-    for c in range(cyl.shape[0]):
-        a = ci[c, C.CI_ACT]
-        f, df = C.friction_force_with_derivative_nb(v[a], cyl[c, C.CYL_COULOMB], cyl[c, C.CYL_STATIC], cyl[c, C.CYL_STRIBECK],
-                                                    cyl[c, C.CYL_VISCOUS], net.sc[C.S_VREG])
-        effort[a] = -f
-        slope[a] = -df
-
-
-@_kernel
-def _potential(net, p, quad):
-    # Fluid.pressure_potential
-    sc = net.sc
-    pref, beta = sc[C.S_PREF], sc[C.S_BETA]
-    if sc[C.S_AIR] == 0.0:
-        return beta * -np.expm1(-(p - pref) / beta)
-    nq = quad.size // 2
-    half = 0.5 * (p - pref)
-    mid = 0.5 * (p + pref)
-    s = 0.0
-    for j in range(nq):
-        phi, _ = C._fill(net, mid + half * quad[j])
-        s += quad[nq + j] / phi
-    return half * s
+def _begin_temporaries(n, na, nb, nvalve):
+    return na * 6 + 2 * n + na * na + na + nb
 
 
 def keep_size(n, na, nb, nvalve):
-    """Length of the float64 buffer S: what begin leaves for finish, then begin's and finish's temporaries."""
-    return (na + n + n * na) + (na * 5 + 2 * n + nvalve + na * na + na + nb) + (4 * n + 2 * na + 3 * nb + nvalve)
+    """Length of the float64 buffer S: what begin leaves for finish (``C._take_linearization``), then begin's and
+    finish's temporaries."""
+    return (na + n + nvalve + n * na) + _begin_temporaries(n, na, nb, nvalve) + (4 * n + 2 * na + 3 * nb + nvalve)
+
+
+_begin_temporaries_nb = _kernel(_begin_temporaries)
 
 
 @_kernel
@@ -131,43 +98,32 @@ def _begin_core(net, W, S, istats, oil, spool, cmd, speed, x, v, h, const, slope
     ic = net.ic
     n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
     nvalve = spool.size
-    o = 0
-    guess, o = C._take(S, o, na)
-    lin_oil, o = C._take(S, o, n)
-    dflat, o = C._take(S, o, n * na)
-    doil = dflat.reshape((n, na))
+    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, 0, n, na, nvalve)
     fg, o = C._take(S, o, na)
     fsg, o = C._take(S, o, na)
-    pressure_end, o = C._take(S, o, na)
+    end_const, o = C._take(S, o, na)
+    end_slope, o = C._take(S, o, na)
     friction, o = C._take(S, o, na)
-    fslope, o = C._take(S, o, na)
+    damping, o = C._take(S, o, na)
     lin_p, o = C._take(S, o, n)
     p_first, o = C._take(S, o, n)
-    lin_spool, o = C._take(S, o, nvalve)
     g, o = C._take(S, o, na * na)
     gradient = g.reshape((na, na))
     lin_x, o = C._take(S, o, na)
     lin_flow, o = C._take(S, o, nb)
     effort_end = fg  # overwritten by the guess's friction below
     # velocity guess 0, kept inside the stroke
-    cyl, ci = net.cyl, net.cyl_i
     for a in range(na):
         guess[a] = 0.0
-    for c in range(cyl.shape[0]):
-        a = ci[c, C.CI_ACT]
-        guess[a] = C._minimum(C._maximum(guess[a], -x[a] / h), (cyl[c, C.CYL_STROKE] - x[a]) / h)
+    C._clip_to_stroke(net, x, h, guess)
     C._linearize_core(net, W, oil, spool, cmd, speed, x, guess, h, lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats,
                       effort_end, gradient, p_first, doil)
     if istats[C.IS_SINGULAR]:
         return False
-    _friction_effort(net, guess, fg, fsg)
-    _pressure_effort(net, lin_p, pressure_end)
-    _friction_effort(net, v, friction, fslope)
-    for i in range(na):
-        pslope = gradient[i, i] - fsg[i]
-        fsl = min(fslope[i], 0.0)  # no negative damping in the implicit law (CouplingImplicit.begin)
-        const[i] = (pressure_end[i] - pslope * guess[i]) + friction[i] - fsl * v[i]
-        slope[i] = pslope + fsl
+    C._effort_law_terms(net, guess, lin_p, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
+    for i in range(na):  # θ = 1
+        const[i] = end_const[i] + friction[i] - damping[i] * v[i]
+        slope[i] = end_slope[i] + damping[i]
     return True
 
 
@@ -178,12 +134,8 @@ def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cm
     ic = net.ic
     n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
     nvalve = spool.size
-    o = 0
-    guess, o = C._take(S, o, na)
-    lin_oil, o = C._take(S, o, n)
-    dflat, o = C._take(S, o, n * na)
-    doil = dflat.reshape((n, na))
-    o += na * 5 + 2 * n + nvalve + na * na + na + nb  # begin's temporaries
+    guess, lin_oil, _, doil, o = C._take_linearization(S, 0, n, na, nvalve)
+    o += _begin_temporaries_nb(n, na, nb, nvalve)
     mpred, o = C._take(S, o, n)
     o2, o = C._take(S, o, n)
     p2, o = C._take(S, o, n)
@@ -194,14 +146,7 @@ def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cm
     dto, o = C._take(S, o, nb)
     fl, o = C._take(S, o, nb)
     sp2, o = C._take(S, o, nvalve)
-    # CouplingImplicit.predicted_oil: m_lin + (∂m/∂v)·(v⁺ − v_guess)
-    for a in range(na):
-        dv[a] = v_end[a] - guess[a]
-    for i in range(n):
-        s = 0.0
-        for a in range(na):
-            s += doil[i, a] * dv[a]
-        mpred[i] = lin_oil[i] + s
+    C._predicted_oil(lin_oil, doil, guess, v_end, dv, mpred)
     norm = C._step_core(net, W, oil, spool, cmd, speed, x_end, v_end, h, True, o2, p2, sp2, fl, dfrom, dto, istats, mpred)
     istats[I_NEWTON] += istats[C.IS_NEWTON]
     istats[I_RHS] += istats[C.IS_RHS]
@@ -214,41 +159,13 @@ def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cm
         istats[I_STATUS], istats[I_WORST] = ST_NEWTON, istats[C.IS_WORST]
         ledger[L_FAIL_NORM] = norm
     else:
-        bad = -1
-        for i in range(n):
-            if not np.isfinite(p2[i]):
-                bad = i
-                break
+        bad = C._commit_if_finite(oil, pres, spool, pos, vel, o2, p2, sp2, x_end, v_end)
         if bad >= 0:
             istats[I_STATUS], istats[I_WORST] = ST_NONFINITE, bad
         else:
             istats[I_LAST_OK] = 1
-            C._copy(oil, o2)
-            C._copy(pres, p2)
-            C._copy(spool, sp2)
-            C._copy(pos, x_end)
-            C._copy(vel, v_end)
     # energy ledger (PlantBase._account, energy.branch_powers) at the state's pressures
-    for i in range(n):
-        mu[i] = _potential(net, pres[i], quad)
-    br = net.br
-    pump = 0.0
-    for b in range(ic[C.IC_P0], ic[C.IC_P1]):
-        pump += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
-    motor = 0.0
-    for b in range(ic[C.IC_M0], ic[C.IC_M1]):
-        motor += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
-    dissipated = 0.0
-    for b in range(ic[C.IC_O0], ic[C.IC_C1]):
-        dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
-    ledger[L_PUMP] += h * -pump
-    ledger[L_MOTOR] += h * motor
-    ledger[L_DISS_H] += h * dissipated
-    _friction_effort(net, v_end, fric, dv)
-    fw = 0.0
-    for i in range(na):
-        fw += fric[i] * v_end[i]
-    ledger[L_DISS_F] -= h * fw
+    C._account(net, ledger, L_PUMP, h, pres, flow, v_end, quad, mu, fric, dv)
 
 
 def _fingerprint() -> str:
