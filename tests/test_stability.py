@@ -14,6 +14,7 @@ import csv
 import hashlib
 import math
 import tomllib
+from dataclasses import replace
 
 import mujoco
 import numpy as np
@@ -45,19 +46,25 @@ def boom_facts():
     return st.scene_facts(BOOM, st.QUICK_GRID)
 
 
-def staged(facts, config, directory, *, coupling, dt, duration):
-    """Run ``config`` of ``facts``' scene once; returns (classified row, its MCAP log)."""
+def grid_point(facts, config, directory, *, coupling, dt, duration, mode="mujoco", log_rate_hz=None):
+    """The map's point of ``config`` (variant written into ``directory``), logged every step by default."""
     path = st.write_variant(facts, config, directory / config.id)
     info = st.variant_info(path, facts.full_flow)
-    log = directory / f"{config.id}-{coupling}-{dt:.3g}.mcap"
-    point = {
+    method = f"mujoco-{coupling}" if mode == "mujoco" else mode
+    log = directory / f"{config.id}-{method}-{dt:.3g}.mcap"
+    return {
         "config": config.id, "sweep": config.sweep, "value": config.value, "event": config.event, "scenario": str(path),
-        "omega_h": info["omega_h"], "actuators": info["actuators"], "log_rate_hz": 1.0 / dt,
+        "omega_h": info["omega_h"], "actuators": info["actuators"], "log_rate_hz": log_rate_hz or 1.0 / dt,
         "pressure_ceiling": info["pressure_ceiling"], "node_ceilings": info["node_ceilings"],
-        "method": f"mujoco-{coupling}", "mode": "mujoco", "coupling": coupling, "dt": dt, "duration": duration,
+        "method": method, "mode": mode, "coupling": coupling, "dt": dt, "duration": duration,
         "reference": False, "truncated": False, "log": str(log), "keep_log": True,
     }
-    return st.classify(st.run_point(point), None, facts, st.QUICK_GRID.tolerance), read_log(log)
+
+
+def staged(facts, config, directory, *, coupling, dt, duration, mode="mujoco"):
+    """Run ``config`` of ``facts``' scene once; returns (classified row, its MCAP log)."""
+    point = grid_point(facts, config, directory, coupling=coupling, dt=dt, duration=duration, mode=mode)
+    return st.classify(st.run_point(point), None, facts, st.QUICK_GRID.tolerance), read_log(point["log"])
 
 
 def assert_stable(row, log, facts):
@@ -112,6 +119,13 @@ def test_seed_extreme_implicit_stable_explicit_diverges(name, config, dt, implic
     assert "energy growth" in row["fail_component"]
 
 
+@pytest.mark.parametrize("name, config, dt, implicit_duration, explicit_duration", SEED_EXTREMES, ids=[e[0] for e in SEED_EXTREMES])
+def test_seed_extreme_pbd_stable(name, config, dt, implicit_duration, explicit_duration, seed_facts, tmp_path):
+    """PBD mode on the undamped seed at the same extremes: finite, physical, no energy growth."""
+    row, log = staged(seed_facts, config, tmp_path, mode="pbd", coupling="implicit", dt=dt, duration=implicit_duration)
+    assert_stable(row, log, seed_facts)
+
+
 @pytest.mark.parametrize("name, config", BOOM_EXTREMES, ids=[e[0] for e in BOOM_EXTREMES])
 def test_boom_extreme_implicit_stable_explicit_diverges(name, config, boom_facts, tmp_path):
     """The boom at its extremes: implicit stable at the default 1 ms and at 30 Hz; explicit diverges at 30 Hz."""
@@ -126,6 +140,13 @@ def test_boom_extreme_implicit_stable_explicit_diverges(name, config, boom_facts
             assert x.max() == pytest.approx(boom_facts.stroke["boom_cyl"], abs=2e-3)
     row, _ = staged(boom_facts, config, tmp_path, coupling="explicit", dt=1.0 / 30.0, duration=10.0 / 30.0)
     assert_diverged(row)
+
+
+@pytest.mark.parametrize("name, config", BOOM_EXTREMES, ids=[e[0] for e in BOOM_EXTREMES])
+def test_boom_extreme_pbd_stable_at_30hz(name, config, boom_facts, tmp_path):
+    """The other recommended method: PBD mode (implicit hydraulics inside XPBD) at 30 Hz stays physical at every extreme."""
+    row, log = staged(boom_facts, config, tmp_path, mode="pbd", coupling="implicit", dt=1.0 / 30.0, duration=10.0 / 30.0)
+    assert_stable(row, log, boom_facts)
 
 
 def test_boom_explicit_stable_at_default_step(boom_facts, tmp_path):
@@ -308,3 +329,89 @@ def test_run_prints_and_logs_guard_warnings(tmp_path, capsys):
     assert "warning: cyl: omega_h = 1407 rad/s" in capsys.readouterr().err
     events = read_log(out).topic("/hydroplant/events").messages
     assert any(m["level"] == 3 and "use coupling implicit" in m["message"] for m in events)
+
+
+# ------------------------------------------------------------------------------------ per-step extremes
+def test_map_classifies_on_per_step_extremes_not_logged_samples(boom_facts, tmp_path):
+    """Block stepping logs every 500th step here; the pressure extremes the map checks still cover every step.
+
+    Valve slam at dt = 1e-4 s logged at 20 Hz: the rod chamber's minimum (1.0e5 Pa) falls between
+    samples (logged minimum 4.3e5 Pa).  ``run_point`` must report the per-step extremes, equal to the
+    per-step MujocoPlant run's, and a pressure floor between the two minima must classify the run as
+    diverged at that node.
+    """
+    import dataclasses
+
+    from sim.runner import run
+
+    point = grid_point(boom_facts, st.Config("nominal", None, "valve_slam"), tmp_path, coupling="implicit", dt=1e-4,
+                       duration=0.1, log_rate_hz=20.0)
+    result = st.run_point(point)
+    assert result["status"] == "complete" and result["extremes_every_step"] is True
+    overrides = {"mode": "mujoco", "coupling": "implicit", "dt": 1e-4, "duration": 0.1, "log_rate_hz": 20.0}
+    per_step = run(point["scenario"], out=tmp_path / "per-step.mcap", overrides=overrides, fast=False)
+    for node, peak in per_step.peak_pressure.items():
+        assert result["peak_pressure"][node] == pytest.approx(peak, rel=1e-9)
+        assert result["min_pressure"][node] == pytest.approx(per_step.min_pressure[node], rel=1e-9)
+    logged = [p for p in result["samples"]["p"]["boom_cyl_rod"] if p is not None]
+    true_min = result["min_pressure"]["boom_cyl_rod"]
+    assert true_min < 0.5 * min(logged), "the logged samples should miss the minimum (else the test shows nothing)"
+    floor = math.sqrt(true_min * min(logged))  # between the per-step and the logged minimum
+    # the cap chamber sits at the vapour floor all along: classify the rod chamber alone
+    only_rod = dict(result, peak_pressure={"boom_cyl_rod": result["peak_pressure"]["boom_cyl_rod"]},
+                    min_pressure={"boom_cyl_rod": true_min})
+    row = st.classify(only_rod, None, dataclasses.replace(boom_facts, cavitation_pressure=floor), st.QUICK_GRID.tolerance)
+    assert row["class"] == st.CLASS_DIVERGED and row["fail_component"] == "node boom_cyl_rod", row["message"]
+
+
+def test_run_point_repeats_a_run_without_per_step_extremes(boom_facts, tmp_path, monkeypatch):
+    """A run whose extremes cover only the logged samples is repeated with ``fast=False`` (per-step checks)."""
+    import sim.runner
+
+    real_run, calls = sim.runner.run, []
+
+    def sampled_only(*args, fast=True, **kwargs):  # a plant without node_pressure_max/min
+        calls.append(fast)
+        result = real_run(*args, fast=fast, **kwargs)
+        if fast:
+            result.extremes_every_step = False
+            result.min_pressure = {k: v + 1e5 for k, v in result.min_pressure.items()}  # what the samples would say
+        return result
+
+    monkeypatch.setattr(sim.runner, "run", sampled_only)
+    point = grid_point(boom_facts, st.Config("event", "cavitation", "cavitation"), tmp_path, coupling="implicit", dt=1e-3,
+                       duration=0.1, log_rate_hz=100.0)
+    result = st.run_point(point)
+    assert calls == [True, False]
+    assert result["extremes_every_step"] is True
+    assert min(result["min_pressure"].values()) == pytest.approx(boom_facts.cavitation_pressure)
+
+
+# ------------------------------------------------------------------------------------ the committed maps
+def _map_cells(scene):
+    """{(method, config, dt): row} of the committed map docs/stability/<scene>.csv (runs only)."""
+    from conftest import ROOT
+
+    with open(ROOT / "docs" / "stability" / f"{scene}.csv", newline="") as f:
+        return {(r["method"], r["config"], round(float(r["dt"]), 12)): r for r in csv.DictReader(f) if r["reference"] == "False"}
+
+
+def test_boom_map_cells_at_30hz_are_reproduced(tmp_path, monkeypatch):
+    """docs/stability/boom.csv says which method diverges at each boom extreme at dt = 1/30 s; a fresh run agrees.
+
+    The same grid as the map (configuration duration 0.3 s, runs lengthened to 20 steps; references
+    at 1 ms instead of 0.1 ms, which only set the pressure bound where their peak exceeds the
+    relief ceiling): the explicit baseline fails in exactly the cells the map marks diverged, the
+    implicit coupling and PBD stay stable where it says so.
+    """
+    monkeypatch.setattr(st, "REFERENCE_DT_RANGE", (1e-3, 1e-3))
+    cells = _map_cells("boom")
+    grid = replace(st.DEFAULT_GRID, dts=(1.0 / 30.0,), methods=("mujoco-implicit", "mujoco-explicit", "pbd"))
+    result = st.stability_map(BOOM, grid=grid, out_dir=tmp_path, workers=1, write=False)
+    runs = [r for r in result.rows if not r["reference"]]
+    assert len(runs) == 3 * (len(BOOM_EXTREMES) + 2)  # + the beta 1e8 and 1e9 configurations
+    for r in runs:
+        committed = cells[(r["method"], r["config"], round(r["dt"], 12))]
+        assert (r["class"] == st.CLASS_DIVERGED) == (committed["class"] == st.CLASS_DIVERGED), (r["method"], r["config"], r["message"])
+    explicit = [r for r in runs if r["method"] == "mujoco-explicit"]
+    assert sum(r["class"] == st.CLASS_DIVERGED for r in explicit) >= len(explicit) - 1  # all but beta 1e8 (omega_h*dt 0.42)
