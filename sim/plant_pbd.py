@@ -108,6 +108,8 @@ their friction is Coulomb's.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from hydraulics.coupling import make_coupling
@@ -167,6 +169,7 @@ class PbdPlant(PlantBase):
         rows = [LengthConstraint(*xm.tendon_site_pair(int(binding.tendon_id[a])), name=net.actuator_names[a]) for a in self.cylinders]
         self.solver = SolverXPBD(xm, substeps=scenario.pbd_substeps, iterations=scenario.pbd_iterations, length_constraints=rows,
                                  compiled=scenario.compiled)
+        xm.set_compiled_observations(self.solver.compiled)  # the pure path keeps the numpy observations (reference)
         self.closed_length = binding.closed_length[self.cylinders]
         # motors: joint actuators, effort = motor torque, joint torque = gear × effort
         self.motors = np.array([a for a in range(net.actuator_count) if net.actuator_kind[a] != ACTUATOR_CYLINDER], int)
@@ -618,7 +621,7 @@ class PbdPlant(PlantBase):
 
     def mechanical_energy(self):
         """Kinetic and potential (gravity) energy of the bodies [J] at the current state (XPBD model)."""
-        return self._memo("energy", lambda: (self.xmodel.kinetic_energy(self.state), self.xmodel.potential_energy(self.state)))
+        return self._memo("energy", lambda: self.xmodel.energies(self.state))
 
     def _qpos_qvel(self):
         return self._memo("qpos_qvel", lambda: self.xmodel.qpos_qvel(self.state))
@@ -634,11 +637,11 @@ class PbdPlant(PlantBase):
         return self.xmodel.body_frames(self.state)
 
     def finite(self) -> bool:
+        """Whether the body state and the node pressures are finite (a sum is finite iff every term is, barring
+        overflow beyond 1e308, itself a blow-up; as the recorder's ``captured_finite``)."""
         s = self.state
-        return bool(
-            np.all(np.isfinite(s.x)) and np.all(np.isfinite(s.q)) and np.all(np.isfinite(s.v))
-            and np.all(np.isfinite(s.w)) and np.all(np.isfinite(self.net_state.node_pressure))
-        )
+        return math.isfinite(float(s.x.sum()) + float(s.q.sum()) + float(s.v.sum()) + float(s.w.sum())
+                             + float(self.net_state.node_pressure.sum()))
 
 
 def _c64(a):

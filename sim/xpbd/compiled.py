@@ -1007,3 +1007,164 @@ def scatter(X, Q, V, W, body_group, in_group_quat, in_group_pos, x, q, v, w):
         for c in range(3):
             w[b, c] = W[g, c]
             v[b, c] = V[g, c] + cr[c]
+
+
+# ---------------------------------------------------------------------------- per-step conversions
+# The conversions done once per step outside the substep, fused per body / joint / group /
+# contact: the group gather (inverse of ``scatter``), the contact-candidate test, generalized
+# coordinates, body frames and energies.  Same equations and operation order as the numpy
+# reference (``SolverXPBD._gather`` / ``_collect_contacts``, ``XpbdModel._qpos_qvel_numpy`` etc.);
+# agreement to round-off in ``tests/test_pbd_fast.py``.
+
+
+@njit(cache=True, inline="always")
+def _vadd(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+@njit(cache=True, inline="always")
+def _vsub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+@njit(cache=True)
+def gather(x, q, v, w, root, from_root_quat, from_root_pos, X, Q, V, W):
+    """Rigid-group poses and velocities (centre of mass [m], principal-frame quaternion, [m/s], [rad/s])
+    from the body rows of their root bodies (``SolverXPBD._gather``); group 0 is the static world."""
+    for g in range(root.shape[0]):
+        r = root[g]
+        qr = _q4(q, r)
+        qg = _qmul(qr, _q4(from_root_quat, g))
+        xr = _v3(x, r)
+        xg = _vadd(xr, _rot(qr, _v3(from_root_pos, g)))
+        wg = _v3(w, r)
+        vg = _vadd(_v3(v, r), _cross(wg, _vsub(xg, xr)))
+        for k in range(3):
+            X[g, k] = xg[k]
+            V[g, k] = vg[k]
+            W[g, k] = wg[k]
+        for k in range(4):
+            Q[g, k] = qg[k]
+    for k in range(3):
+        X[0, k] = 0.0
+        V[0, k] = 0.0
+        W[0, k] = 0.0
+    Q[0, 0], Q[0, 1], Q[0, 2], Q[0, 3] = 1.0, 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def contact_candidates(X, Q, V, W, group, plane, plane_group, local, radius, plane_origin, plane_normal,
+                          margin0, dt, out):
+    """Indices of the contact points whose gap to their plane is below margin0 + 2·dt·|v_rel| [m]
+    (``SolverXPBD._collect_contacts``), written to ``out``; returns their number."""
+    n = 0
+    for i in range(group.shape[0]):
+        g = group[i]
+        pl = plane[i]
+        pg = plane_group[pl]
+        xg = _v3(X, g)
+        xp = _v3(X, pg)
+        qp = _q4(Q, pg)
+        P = _vadd(xg, _rot(_q4(Q, g), _v3(local, i)))
+        nrm = _rot(qp, _v3(plane_normal, pl))
+        o = _vadd(xp, _rot(qp, _v3(plane_origin, pl)))
+        d = _dot(_vsub(P, o), nrm) - radius[i]
+        va = _vadd(_v3(V, g), _cross(_v3(W, g), _vsub(P, xg)))
+        vb = _vadd(_v3(V, pg), _cross(_v3(W, pg), _vsub(P, xp)))
+        vr = _vsub(va, vb)
+        margin = margin0 + 2.0 * dt * math.sqrt(_dot(vr, vr))
+        if d < margin:
+            out[n] = i
+            n += 1
+    return n
+
+
+@njit(cache=True)
+def body_frames(x, q, iquat, ipos, xb, qb):
+    """World poses of the body frames (xpos [m], xquat) from the inertial-frame state (``body_frames``)."""
+    for b in range(x.shape[0]):
+        qf = _qmul(_q4(q, b), (iquat[b, 0], -iquat[b, 1], -iquat[b, 2], -iquat[b, 3]))
+        xf = _vsub(_v3(x, b), _rot(qf, _v3(ipos, b)))
+        for k in range(3):
+            xb[b, k] = xf[k]
+        for k in range(4):
+            qb[b, k] = qf[k]
+
+
+@njit(cache=True)
+def qpos_qvel(x, q, v, w, hint, iquat, ipos, body_parent, body_quat, body_pos, jnt_type, jnt_body,
+                 jnt_qposadr, jnt_dofadr, jnt_axis, qpos0, xb, qb, qpos, qvel):
+    """MuJoCo generalized coordinates from the body state (``XpbdModel.qpos_qvel``; also fills the body
+    frames ``xb``, ``qb``).  Joint types: 0 free, 1 ball, 2 slide, 3 hinge."""
+    body_frames(x, q, iquat, ipos, xb, qb)
+    for k in range(qpos.shape[0]):
+        qpos[k] = qpos0[k]
+    for k in range(qvel.shape[0]):
+        qvel[k] = 0.0
+    for j in range(jnt_type.shape[0]):
+        b = jnt_body[j]
+        p = body_parent[b]
+        t, qa, da = jnt_type[j], jnt_qposadr[j], jnt_dofadr[j]
+        xbb = _v3(xb, b)
+        qbb = _q4(qb, b)
+        wb = _v3(w, b)
+        vob = _vadd(_v3(v, b), _cross(wb, _vsub(xbb, _v3(x, b))))
+        if t == 0:  # free
+            for k in range(3):
+                qpos[qa + k] = xbb[k]
+                qvel[da + k] = vob[k]
+            for k in range(4):
+                qpos[qa + 3 + k] = qbb[k]
+            wl = _rotinv(qbb, wb)
+            for k in range(3):
+                qvel[da + 3 + k] = wl[k]
+            continue
+        qbp = _q4(qb, p)
+        zq = _qmul(qbp, _q4(body_quat, b))
+        axis = _v3(jnt_axis, j)
+        if t == 2:  # slide
+            zp = _vadd(_v3(xb, p), _rot(qbp, _v3(body_pos, b)))
+            ax = _rot(qbb, axis)
+            qpos[qa] = qpos0[qa] + _dot(_vsub(xbb, zp), ax)
+            vp = _vadd(_v3(v, p), _cross(_v3(w, p), _vsub(xbb, _v3(x, p))))
+            qvel[da] = _dot(_vsub(vob, vp), ax)
+            continue
+        qloc = _qmul((zq[0], -zq[1], -zq[2], -zq[3]), qbb)
+        wrel = _vsub(wb, _v3(w, p))
+        if t == 3:  # hinge: twist about the axis, unwrapped to the branch nearest the hint
+            ang = 2.0 * math.atan2(qloc[1] * axis[0] + qloc[2] * axis[1] + qloc[3] * axis[2], qloc[0])
+            ref = hint[qa] - qpos0[qa]
+            ang = ref + ((ang - ref + math.pi) % (2.0 * math.pi) - math.pi)
+            qpos[qa] = qpos0[qa] + ang
+            ax = _rot(qbb, axis)
+            qvel[da] = _dot(wrel, ax)
+        else:  # ball
+            s = 1.0 if qloc[0] >= 0 else -1.0
+            for k in range(4):
+                qpos[qa + k] = s * qloc[k]
+            wl = _rotinv(qbb, wrel)
+            for k in range(3):
+                qvel[da + k] = wl[k]
+
+
+@njit(cache=True)
+def energies(x, q, v, w, root, from_root_quat, from_root_pos, group_mass, group_inertia, gravity):
+    """(kinetic Σ ½mv² + ½ωᵀIω, potential −Σ m g·x) over the dynamic groups [J] (``kinetic_energy``,
+    ``potential_energy``)."""
+    kin = 0.0
+    pot = 0.0
+    grav = (gravity[0], gravity[1], gravity[2])
+    for g in range(1, root.shape[0]):
+        r = root[g]
+        qr = _q4(q, r)
+        qg = _qmul(qr, _q4(from_root_quat, g))
+        wr = _v3(w, r)
+        wl = _rotinv(qg, wr)
+        xr = _v3(x, r)
+        xg = _vadd(xr, _rot(qr, _v3(from_root_pos, g)))
+        vg = _vadd(_v3(v, r), _cross(wr, _vsub(xg, xr)))
+        m = group_mass[g]
+        kin += 0.5 * m * _dot(vg, vg) + 0.5 * (group_inertia[g, 0] * (wl[0] * wl[0]) + group_inertia[g, 1] * (wl[1] * wl[1])
+                                                  + group_inertia[g, 2] * (wl[2] * wl[2]))
+        pot += m * _dot(xg, grav)
+    return kin, -pot

@@ -88,6 +88,11 @@ def _mat2quat(mat):
     return q / np.linalg.norm(q)
 
 
+def _f64(a):
+    """``a`` as a C-contiguous float64 array (no copy when it already is one)."""
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
 def _wrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
@@ -618,8 +623,44 @@ class XpbdModel:
             vo[b] = vo[p] + np.cross(w[p], xpos[b] - xpos[p]) + vj
         return xpos, xquat, vo, w
 
+    # The per-step observations below (body frames, generalized coordinates, energies) run as
+    # compiled kernels (``compiled.body_frames``, ``qpos_qvel``, ``energies``) unless ``set_compiled_observations(False)``; the numpy
+    # versions (``_*_numpy``) stay the reference (agreement to round-off: tests/test_pbd_fast.py).
+    compiled_observations = True
+
+    def set_compiled_observations(self, flag: bool) -> None:
+        """Use the compiled (True, default) or numpy (False) observation kernels for this model."""
+        self.__dict__["compiled_observations"] = bool(flag)
+
+    def _nb_arrays(self):
+        """Contiguous int64/float64 copies of the model arrays the compiled observations read (made once)."""
+        a = self.__dict__.get("_nb")
+        if a is None:
+            from . import compiled
+
+            f = lambda v, *shape: np.ascontiguousarray(np.array(v, dtype=np.float64).reshape(*shape))  # noqa: E731
+            i = lambda v: np.ascontiguousarray(np.array(v, dtype=np.int64).reshape(-1))  # noqa: E731
+            a = dict(iquat=f(self.body_iquat, -1, 4), ipos=f(self.body_ipos, -1, 3), parent=i(self.body_parent),
+                     body_quat=f(self.body_quat, -1, 4), body_pos=f(self.body_pos, -1, 3),
+                     jnt_type=i(self.jnt_type), jnt_body=i(self.jnt_body), jnt_qposadr=i(self.jnt_qposadr),
+                     jnt_dofadr=i(self.jnt_dofadr), jnt_axis=f(self.jnt_axis, -1, 3), qpos0=f(self.qpos0, -1),
+                     root=i(self.group_root), from_root_quat=f(self.group_from_root_quat, -1, 4),
+                     from_root_pos=f(self.group_from_root_pos, -1, 3), group_mass=f(self.group_mass, -1),
+                     group_inertia=f(self.group_inertia, -1, 3), gravity=f(self.gravity, 3),
+                     body_frames=compiled.body_frames, qpos_qvel=compiled.qpos_qvel, energies=compiled.energies)
+            self.__dict__["_nb"] = a
+        return a
+
     def body_frames(self, state: XpbdState):
-        """World poses of the MuJoCo body frames (xpos, xquat) from a state."""
+        """World poses of the MuJoCo body frames (xpos [m] (nbody, 3), xquat (nbody, 4)) from a state."""
+        if self.compiled_observations:
+            a = self._nb_arrays()
+            xb, qb = np.empty((self.nbody, 3)), np.empty((self.nbody, 4))
+            a["body_frames"](_f64(state.x), _f64(state.q), a["iquat"], a["ipos"], xb, qb)
+            return xb, qb
+        return self._body_frames_numpy(state)
+
+    def _body_frames_numpy(self, state: XpbdState):
         qb = np_quat_mul(state.q, np_quat_conj(self.body_iquat))
         xb = state.x - np_quat_rotate(qb, self.body_ipos)
         return xb, qb
@@ -634,7 +675,18 @@ class XpbdModel:
         Ball: relative quaternion / child-frame relative angular velocity.  Free: body
         origin + body quaternion / world linear velocity of the origin + local ω.
         """
-        xb, qb = self.body_frames(state)
+        if self.compiled_observations:
+            a = self._nb_arrays()
+            xb, qb = np.empty((self.nbody, 3)), np.empty((self.nbody, 4))
+            qpos, qvel = np.empty(len(a["qpos0"])), np.empty(self.nv)
+            a["qpos_qvel"](_f64(state.x), _f64(state.q), _f64(state.v), _f64(state.w), _f64(state.qpos_hint),
+                         a["iquat"], a["ipos"], a["parent"], a["body_quat"], a["body_pos"], a["jnt_type"],
+                         a["jnt_body"], a["jnt_qposadr"], a["jnt_dofadr"], a["jnt_axis"], a["qpos0"], xb, qb, qpos, qvel)
+            return qpos, qvel
+        return self._qpos_qvel_numpy(state)
+
+    def _qpos_qvel_numpy(self, state: XpbdState):
+        xb, qb = self._body_frames_numpy(state)
         qpos = np.array(self.qpos0, dtype=float)
         qvel = np.zeros(self.nv)
         hint = state.qpos_hint
@@ -681,8 +733,23 @@ class XpbdModel:
         r = np_quat_rotate(state.q[b], self.site_pos_inertial)
         return state.v[b] + np_cross(state.w[b], r)
 
+    def energies(self, state: XpbdState) -> tuple[float, float]:
+        """(kinetic, potential) energy of the dynamic groups [J] in one pass (see the two methods below)."""
+        if self.compiled_observations:
+            a = self._nb_arrays()
+            return a["energies"](_f64(state.x), _f64(state.q), _f64(state.v), _f64(state.w), a["root"],
+                               a["from_root_quat"], a["from_root_pos"], a["group_mass"], a["group_inertia"], a["gravity"])
+        return self._kinetic_energy_numpy(state), self._potential_energy_numpy(state)
+
     def kinetic_energy(self, state: XpbdState) -> float:
         """Σ ½ m v² + ½ ωᵀ I ω over dynamic groups [J] (all groups at once)."""
+        return self.energies(state)[0] if self.compiled_observations else self._kinetic_energy_numpy(state)
+
+    def potential_energy(self, state: XpbdState) -> float:
+        """Gravitational potential −Σ m g·x over dynamic groups [J] (all groups at once)."""
+        return self.energies(state)[1] if self.compiled_observations else self._potential_energy_numpy(state)
+
+    def _kinetic_energy_numpy(self, state: XpbdState) -> float:
         if self.ngroup <= 1:
             return 0.0
         r = np.asarray(self.group_root[1:])
@@ -696,8 +763,7 @@ class XpbdModel:
         inertia = np.asarray(self.group_inertia[1:])
         return float(np.sum(0.5 * m * np.einsum("gk,gk->g", vg, vg) + 0.5 * np.einsum("gk,gk->g", inertia, wl * wl)))
 
-    def potential_energy(self, state: XpbdState) -> float:
-        """Gravitational potential −Σ m g·x over dynamic groups [J] (all groups at once)."""
+    def _potential_energy_numpy(self, state: XpbdState) -> float:
         if self.ngroup <= 1:
             return 0.0
         r = np.asarray(self.group_root[1:])

@@ -160,7 +160,9 @@ class SolverXPBD:
       pure-Python path stays the reference (``compiled=False``; agreement to round-off in
       ``tests/test_pbd_compiled.py``) and is used for a step whose contact candidates are not
       all soft pyramidal (rigid, elliptic, condim 1, μ = 0) or with ``block_attach=False``.
-      ``compiled_steps`` counts the steps the compiled path took.
+      ``compiled_steps`` counts the steps the compiled path took.  On the compiled path the
+      per-step group gather and contact-candidate test are compiled too (``compiled.gather``,
+      ``compiled.contact_candidates``; same values as the numpy code, tests/test_pbd_fast.py).
 
     Joint damping (MJCF ``damping``) is applied implicitly at the velocity level:
     rate ← rate/(1 + b h w), w the generalized inverse mass of the joint pair.
@@ -260,6 +262,10 @@ class SolverXPBD:
         from .compiled import scatter
 
         fm = self._flat
+        out = (state.x, state.q, state.v, state.w)
+        if all(a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable for a in out):
+            scatter(X, Q, V, W, fm["body_group"], fm["in_group_quat"], fm["in_group_pos"], *out)  # in place
+            return
         x, q, v, w = (np.empty((self.model.nbody, k)) for k in (3, 4, 3, 3))
         scatter(X, Q, V, W, fm["body_group"], fm["in_group_quat"], fm["in_group_pos"], x, q, v, w)
         state.x[:], state.q[:], state.v[:], state.w[:] = x, q, v, w
@@ -270,16 +276,54 @@ class SolverXPBD:
         rvec = np.array([[r[2], r[3]] for r in self._rows], dtype=np.float64).reshape(nr, 2, 3)
         return rg, rvec
 
+    def _contact_arrays(self):
+        """Per contact point of the model, made once: the inputs of ``compiled.contact_candidates``, the
+        candidate tuples ``_collect_contacts`` returns, and the rows of ``_flat_contacts``."""
+        c = getattr(self, "_contact_cache", None)
+        if c is not None:
+            return c
+        m = self.model
+        nc = len(m.contact_group)
+        f = lambda v, *shape: np.ascontiguousarray(np.array(v, dtype=np.float64).reshape(*shape))  # noqa: E731
+        i = lambda v: np.ascontiguousarray(np.array(v, dtype=np.int64).reshape(-1))  # noqa: E731
+        g, pl = i(m.contact_group), i(m.contact_plane)
+        pg = i(m.plane_group)[pl] if nc else np.zeros(0, np.int64)
+        c = dict(group=g, plane=pl, plane_group=i(m.plane_group), local=f(m.contact_local, -1, 3),
+                 radius=f(m.contact_radius, -1), plane_origin=f(m.plane_origin, -1, 3),
+                 plane_normal=f(m.plane_normal, -1, 3), out=np.zeros(nc, np.int64))
+        c["tuples"] = [(int(g[k]), tuple(map(float, m.contact_local[k])), float(m.contact_radius[k]),
+                        int(pg[k]), tuple(map(float, m.plane_origin[pl[k]])),
+                        tuple(map(float, m.plane_normal[pl[k]])), float(m.contact_mu[k])) for k in range(nc)]
+        if nc and self.soft_contacts:
+            c["cg"] = np.column_stack([g, pg]).astype(np.int64)
+            c["cvec"] = np.array([[c["tuples"][k][1], c["tuples"][k][4], c["tuples"][k][5], self._plane_tangent[int(pl[k])]]
+                                  for k in range(nc)], dtype=np.float64).reshape(nc, 4, 3)
+            c["crad"] = f(m.contact_radius, -1)
+            c["condim"] = i(m.contact_condim)
+            c["mu"] = f(m.contact_mu, -1)
+            c["tran"] = f(m.contact_tran, -1)
+            c["solref"] = f(m.contact_solref, nc, 2)
+            c["solimp"] = f(m.contact_solimp, nc, 5)
+            c["eligible"] = (c["condim"] >= 3) & (c["mu"] > 0.0) & (c["tran"] > 0.0)
+        self._contact_cache = c
+        return c
+
     def _flat_contacts(self, cands):
         """The step's contact candidates as arrays for ``compiled.substep``, or None when one of them is
         not a soft pyramidal contact (the pure path handles those)."""
         m = self.model
         nc = len(cands)
         if nc == 0:
-            return (np.zeros((0, 2), np.int64), np.zeros((0, 4, 3)), np.zeros(0), np.zeros(0), np.zeros((0, 2)),
-                    np.zeros((0, 5)), np.zeros(0, np.int64), np.zeros(0))
+            return _NO_CONTACTS
         if not (self.soft_contacts and self.pyramid_friction and m.contact_cone == 0):
             return None
+        if self.compiled:  # rows of the per-contact arrays made once (same values as below)
+            c = self._contact_arrays()
+            idx = np.array(self._cidx, dtype=np.int64)
+            if not c["eligible"][idx].all():
+                return None
+            return (c["cg"][idx], c["cvec"][idx], c["crad"][idx], c["mu"][idx], c["solref"][idx], c["solimp"][idx],
+                    c["condim"][idx], c["tran"][idx])
         idx = np.array(self._cidx, dtype=np.int64)
         condim = np.array(m.contact_condim, dtype=np.int64)[idx]
         mu = np.array(m.contact_mu, dtype=np.float64)[idx]
@@ -325,6 +369,15 @@ class SolverXPBD:
 
     # ------------------------------------------------------------------ gather / scatter
     def _gather(self, state):
+        if self.compiled:  # one compiled pass (compiled.gather, same equations)
+            from .compiled import gather
+
+            m, a = self.model, self.model._nb_arrays()
+            ng = len(a["root"])
+            x, q, v, w = np.empty((ng, 3)), np.empty((ng, 4)), np.empty((ng, 3)), np.empty((ng, 3))
+            gather(_f64(state.x), _f64(state.q), _f64(state.v), _f64(state.w), a["root"], a["from_root_quat"],
+                        a["from_root_pos"], x, q, v, w)
+            return x, q, v, w
         m = self.model
         r = m.group_root
         qr = state.q[r]
@@ -351,6 +404,16 @@ class SolverXPBD:
         self._cidx = []
         if len(m.contact_group) == 0:
             return []
+        if self.compiled:  # the candidate test in one compiled pass (compiled.contact_candidates)
+            from .compiled import contact_candidates
+
+            c = self._contact_arrays()
+            n = contact_candidates(_f64(x), _f64(q), _f64(v), _f64(w), c["group"], c["plane"], c["plane_group"],
+                                        c["local"], c["radius"], c["plane_origin"], c["plane_normal"],
+                                        self.contact_margin, float(dt), c["out"])
+            idx = c["out"][:n].tolist()
+            self._cidx = idx
+            return [c["tuples"][i] for i in idx]
         g = m.contact_group
         pl = m.contact_plane
         pg = m.plane_group[pl]
@@ -1198,6 +1261,11 @@ class SolverXPBD:
         n = d / np.where(ell > 0, ell, 1.0)[:, None]
         dv = (v[gb] + np_cross(w[gb], rb)) - (v[ga] + np_cross(w[ga], ra))
         return ell, np.einsum("ij,ij->i", dv, n)
+
+
+_NO_CONTACTS = tuple(np.zeros(shape, dtype) for shape, dtype in (  # ``_flat_contacts`` of no candidate (shared: zero-size)
+    ((0, 2), np.int64), ((0, 4, 3), np.float64), (0, np.float64), (0, np.float64), ((0, 2), np.float64),
+    ((0, 5), np.float64), (0, np.int64), (0, np.float64)))
 
 
 def _f64(a):
