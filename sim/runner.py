@@ -204,7 +204,7 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
         "hydraulic_substeps": str(scenario.hydraulic_substeps),
         "pbd_substeps": str(scenario.pbd_substeps),
         "pbd_iterations": str(scenario.pbd_iterations),
-        "fidelity": scenario.fidelity,
+        "fidelity": scenario.fidelity_label,  # the level, with per-actuator overrides
         "compiled": str(scenario.compiled),
         "log_rate_hz": repr(scenario.log_rate_hz),
         "hydroplant_version": version("hydroplant"),
