@@ -42,6 +42,23 @@ def _cross(a, b):
 
 
 @njit(cache=True, inline="always")
+def _mat_from_quat(q):
+    """Rotation matrix of the unit quaternion q = (w, x, y, z) (``kernels._mat_from_quat``)."""
+    w, x, y, z = q
+    R = np.empty((3, 3))
+    R[0, 0] = 1 - 2 * (y * y + z * z)
+    R[0, 1] = 2 * (x * y - w * z)
+    R[0, 2] = 2 * (x * z + w * y)
+    R[1, 0] = 2 * (x * y + w * z)
+    R[1, 1] = 1 - 2 * (x * x + z * z)
+    R[1, 2] = 2 * (y * z - w * x)
+    R[2, 0] = 2 * (x * z - w * y)
+    R[2, 1] = 2 * (y * z + w * x)
+    R[2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+@njit(cache=True, inline="always")
 def _qmul(a, b):
     aw, ax, ay, az = a
     bw, bx, by, bz = b
@@ -226,17 +243,7 @@ def _mobility(invm, invI, q, r, K, add):
     m01 = -c * x * y
     m02 = -b * x * z
     m12 = -a * y * z
-    w, qx, qy, qz = q
-    R = np.empty((3, 3))
-    R[0, 0] = 1 - 2 * (qy * qy + qz * qz)
-    R[0, 1] = 2 * (qx * qy - w * qz)
-    R[0, 2] = 2 * (qx * qz + w * qy)
-    R[1, 0] = 2 * (qx * qy + w * qz)
-    R[1, 1] = 1 - 2 * (qx * qx + qz * qz)
-    R[1, 2] = 2 * (qy * qz - w * qx)
-    R[2, 0] = 2 * (qx * qz - w * qy)
-    R[2, 1] = 2 * (qy * qz + w * qx)
-    R[2, 2] = 1 - 2 * (qx * qx + qy * qy)
+    R = _mat_from_quat(q)
     RM = np.empty((3, 3))
     for i in range(3):
         RM[i, 0] = R[i, 0] * m00 + R[i, 1] * m01 + R[i, 2] * m02
@@ -357,17 +364,7 @@ def _fix_orientation(Q, IM, II, g1, g2, qoff):
 @njit(cache=True)
 def _body_block(K, invm, invI, q, r):
     """K += 6×6 response of body point r to (positional impulse, angular impulse) (``kernels._body_block``)."""
-    w, x, y, z = q
-    R = np.empty((3, 3))
-    R[0, 0] = 1 - 2 * (y * y + z * z)
-    R[0, 1] = 2 * (x * y - w * z)
-    R[0, 2] = 2 * (x * z + w * y)
-    R[1, 0] = 2 * (x * y + w * z)
-    R[1, 1] = 1 - 2 * (x * x + z * z)
-    R[1, 2] = 2 * (y * z - w * x)
-    R[2, 0] = 2 * (x * z - w * y)
-    R[2, 1] = 2 * (y * z + w * x)
-    R[2, 2] = 1 - 2 * (x * x + y * y)
+    R = _mat_from_quat(q)
     Ii = np.zeros((3, 3))
     for i in range(3):
         for j in range(3):
