@@ -626,18 +626,23 @@ class SolverXPBD:
                 self._fix_orientation(Q, g1, g2, qoff)
             self._attach(X, Q, g1, g2, r1, r2)
 
+    def _row_geometry(self, i, X, Q):
+        """Row i at the current poses: its groups, world-frame anchor offsets, the vector d between
+        the anchors [m] and its length ℓ [m]."""
+        ga, gb, ra, rb = self._rows[i][:4]
+        raw = quat_rotate(Q[ga], ra)
+        rbw = quat_rotate(Q[gb], rb)
+        xa, xb = X[ga], X[gb]
+        d = (xb[0] + rbw[0] - xa[0] - raw[0], xb[1] + rbw[1] - xa[1] - raw[1],
+             xb[2] + rbw[2] - xa[2] - raw[2])
+        return ga, gb, raw, rbw, d, math.sqrt(dot(d, d))
+
     def _solve_rows(self, X, Q, rowdata, lam_rows):
         """Compliant length rows: C = ℓ − ℓ*, Δλ = (−C − α̃λ)/(w + α̃), λ clamped to its
         bounds ([XPBD] eq. 18, [RB] eqs. 2–9)."""
         IM, II = self._IM, self._II
         for (i, tgt, at, lo, hi) in rowdata:
-            ga, gb, ra, rb = self._rows[i][:4]
-            raw = quat_rotate(Q[ga], ra)
-            rbw = quat_rotate(Q[gb], rb)
-            xa, xb = X[ga], X[gb]
-            d = (xb[0] + rbw[0] - xa[0] - raw[0], xb[1] + rbw[1] - xa[1] - raw[1],
-                 xb[2] + rbw[2] - xa[2] - raw[2])
-            ell = math.sqrt(dot(d, d))
+            ga, gb, raw, rbw, d, ell = self._row_geometry(i, X, Q)
             if ell < _EPS:
                 continue
             lam_rows[i] += solve_positional(X, Q, IM, II, ga, gb, raw, rbw,
@@ -654,13 +659,7 @@ class SolverXPBD:
         rhs = [0.0] * k
         live = [False] * k
         for m, (i, tgt, at, lo, hi) in enumerate(rowdata):
-            ga, gb, ra, rb = self._rows[i][:4]
-            raw = quat_rotate(Q[ga], ra)
-            rbw = quat_rotate(Q[gb], rb)
-            xa, xb = X[ga], X[gb]
-            d = (xb[0] + rbw[0] - xa[0] - raw[0], xb[1] + rbw[1] - xa[1] - raw[1],
-                 xb[2] + rbw[2] - xa[2] - raw[2])
-            ell = math.sqrt(dot(d, d))
+            ga, gb, raw, rbw, d, ell = self._row_geometry(i, X, Q)
             if ell < _EPS:
                 A[m][m] = 1.0
                 continue
