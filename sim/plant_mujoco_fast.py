@@ -169,41 +169,22 @@ def scratch_size(na, n, nb, nvalve):
 
 if _NUMBA:
 
-    @intrinsic
-    def _pf64(typingctx, addr):
-        sig = types.CPointer(types.float64)(addr)
+    def _pointer_cast(nbtype):
+        """A numba intrinsic that turns an integer address into a pointer of type ``nbtype``."""
 
-        def codegen(context, builder, signature, args):
-            return builder.inttoptr(args[0], context.get_value_type(types.CPointer(types.float64)))
+        @intrinsic
+        def cast(typingctx, addr):
+            def codegen(context, builder, signature, args):
+                return builder.inttoptr(args[0], context.get_value_type(nbtype))
 
-        return sig, codegen
+            return nbtype(addr), codegen
 
-    @intrinsic
-    def _pi64(typingctx, addr):
-        sig = types.CPointer(types.int64)(addr)
+        return cast
 
-        def codegen(context, builder, signature, args):
-            return builder.inttoptr(args[0], context.get_value_type(types.CPointer(types.int64)))
-
-        return sig, codegen
-
-    @intrinsic
-    def _pi32(typingctx, addr):
-        sig = types.CPointer(types.int32)(addr)
-
-        def codegen(context, builder, signature, args):
-            return builder.inttoptr(args[0], context.get_value_type(types.CPointer(types.int32)))
-
-        return sig, codegen
-
-    @intrinsic
-    def _pvoid(typingctx, addr):
-        sig = types.voidptr(addr)
-
-        def codegen(context, builder, signature, args):
-            return builder.inttoptr(args[0], context.get_value_type(types.voidptr))
-
-        return sig, codegen
+    _pf64 = _pointer_cast(types.CPointer(types.float64))
+    _pi64 = _pointer_cast(types.CPointer(types.int64))
+    _pi32 = _pointer_cast(types.CPointer(types.int32))
+    _pvoid = _pointer_cast(types.voidptr)
 
     @intrinsic
     def _ctx_address(typingctx):
