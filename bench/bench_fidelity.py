@@ -25,6 +25,21 @@ CYLINDERS = ("boom_cyl", "stick_cyl", "bucket_cyl")
 JOINTS = ("swing", "boom", "stick", "bucket")
 
 
+RIGID_FRONT = {"stick_cyl": "incompressible", "bucket_cyl": "incompressible", "swing_motor": "incompressible"}
+SETTINGS = (  # (label, run overrides)
+    ("incompressible", {"fidelity": "incompressible", "dt": 1 / 30}),
+    ("incompressible", {"fidelity": "incompressible", "dt": 1e-3}),
+    ("compressible boom, rigid front", {"actuator_fidelity": RIGID_FRONT, "dt": 1e-3}),
+    ("compressible boom, rigid front", {"actuator_fidelity": RIGID_FRONT, "dt": 5e-3}),
+    ("… PBD × 10 substeps", {"actuator_fidelity": RIGID_FRONT, "dt": 1 / 30, "mode": "pbd", "pbd_substeps": 10,
+                              "pbd_iterations": 4}),
+    ("compressible", {"fidelity": "compressible", "dt": 1e-3}),
+    ("lines", {"fidelity": "lines", "dt": 2e-3}),
+)
+"""Levels and mixes measured; "rigid front": stick, bucket and swing ``incompressible`` (rigid actuators of the
+compressible network, :class:`hydraulics.coupling.CouplingMixed`)."""
+
+
 def signals(path):
     log = read_log(path)
     joints = log.topic("/hydroplant/joint_states")
@@ -61,13 +76,14 @@ def main(argv=None):
           f"reference: lines level, implicit coupling, dt {args.reference_dt:g} s")
     reference_run = run(DIG, out=out / "reference.mcap", overrides={"fidelity": "lines", "dt": args.reference_dt, "duration": args.duration})
     reference = signals(reference_run.log_path)
-    print(f"{'level':<15} {'dt [s]':>8} {'status':>9} {'wall/sim':>9} {'joint [rad]':>12} {'stroke [mm]':>12} {'pressure [bar]':>15}")
-    for fidelity, dt in (("incompressible", 1 / 30), ("incompressible", 1e-3), ("compressible", 1e-3), ("lines", 2e-3)):
-        result = run(DIG, out=out / f"{fidelity}-{dt:g}.mcap", overrides={"fidelity": fidelity, "dt": dt, "duration": args.duration})
+    print(f"{'level':<34} {'dt [s]':>8} {'status':>9} {'wall/sim':>9} {'joint [rad]':>12} {'stroke [mm]':>12} {'pressure [bar]':>15}")
+    for label, overrides in SETTINGS:
+        dt = overrides["dt"]
+        result = run(DIG, out=out / f"{len(label)}-{dt:g}.mcap", overrides={**overrides, "duration": args.duration})
         e = errors(signals(result.log_path), reference) if result.status == "complete" else {"joint": np.nan, "stroke": np.nan, "pressure": np.nan}
-        print(f"{fidelity:<15} {dt:8.4g} {result.status:>9} {result.wall_time / result.simulated_time:9.3f} "
-              f"{e['joint']:12.4f} {1e3 * e['stroke']:12.1f} {e['pressure'] / 1e5:15.1f}")
-    print(f"{'lines (ref)':<15} {args.reference_dt:8.4g} {reference_run.status:>9} {reference_run.wall_time / reference_run.simulated_time:9.3f}")
+        print(f"{label:<34} {dt:8.4g} {result.status:>9} {result.wall_time / result.simulated_time:9.3f} "
+              f"{e['joint']:12.4f} {1e3 * e['stroke']:12.1f} {e['pressure'] / 1e5:15.1f}", flush=True)
+    print(f"{'lines (ref)':<34} {args.reference_dt:8.4g} {reference_run.status:>9} {reference_run.wall_time / reference_run.simulated_time:9.3f}")
 
 
 if __name__ == "__main__":

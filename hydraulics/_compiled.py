@@ -152,6 +152,9 @@ _OK, _NEWTON_FAILED = 0, 1
 
 def pack_network(model: NetworkModel):
     """Flat float64 / int64 arrays (F, I) holding everything the kernels need from ``model``."""
+    if np.any(model.actuator_rigid):
+        raise ValueError("the compiled kernels do not model rigid (incompressible among compressible) actuators; "
+                         "step this network on the numpy path")
     fl = model.fluid
     n = model.node_count
     sl = model.branch_slices

@@ -291,6 +291,39 @@ INCOMPRESSIBLE_TRACKING_GAIN = 100.0  # [-]
 INCOMPRESSIBLE_UNBOUNDED_PRESSURE = 1e12  # Pa
 
 
+def _tracking_gain(effective_mass, like, dt):
+    """Stiffness [N·s/m or N·m·s/rad] of a velocity tracker: INCOMPRESSIBLE_TRACKING_GAIN·m_eff/h (m_eff = 1 if unknown)."""
+    mass = np.ones_like(like) if effective_mass is None else np.where(np.isfinite(effective_mass), effective_mass, 1.0)
+    return INCOMPRESSIBLE_TRACKING_GAIN * mass / dt
+
+
+def _free_speed(drive, resist):
+    """Speed [m/s or rad/s] of a metered rigid actuator without load: √(|F_d|/R)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.sqrt(np.abs(drive) / resist)
+
+
+def _quadratic_damper(drive, resist, velocity):
+    """F_d − R·v⁺·|v⁺| linearised at ``velocity``: (constant, slope) of constant + slope·v⁺."""
+    return drive + resist * velocity * np.abs(velocity), -2.0 * resist * np.abs(velocity)
+
+
+def derive_chamber_pressures(model: NetworkModel, effort, pressure, actuators) -> None:
+    """Write into ``pressure`` [Pa] the chamber (motor port) pressures of the masked ``actuators`` that carry
+    ``effort`` [N or N·m] with rigid oil: the loaded side at p_ref + |effort|/area, the other at p_ref."""
+    ref = model.fluid.reference_pressure
+    for i, a in enumerate(model.cylinder_actuator):
+        if actuators[a]:
+            cap, rod = model.cylinder_cap_node[i], model.cylinder_rod_node[i]
+            pressure[cap] = ref + max(effort[a], 0.0) / model.cylinder_cap_area[i]
+            pressure[rod] = ref + max(-effort[a], 0.0) / model.cylinder_rod_area[i]
+    for i, a in enumerate(model.motor_actuator):
+        if actuators[a]:
+            rate = model.motor_displacement[i] / (2.0 * np.pi)
+            pressure[model.motor_a_node[i]] = ref + max(effort[a], 0.0) / rate
+            pressure[model.motor_b_node[i]] = ref + max(-effort[a], 0.0) / rate
+
+
 class CouplingIncompressible(Coupling):
     """``incompressible`` fidelity: no pressure states.
 
@@ -358,8 +391,7 @@ class CouplingIncompressible(Coupling):
         m = self.model
         rho = m.fluid.density
         p_s, p_t = self.supply_pressure, m.fluid.reference_pressure
-        mass = np.ones_like(velocity) if effective_mass is None else np.where(np.isfinite(effective_mass), effective_mass, 1.0)
-        gain = INCOMPRESSIBLE_TRACKING_GAIN * mass / dt
+        gain = _tracking_gain(effective_mass, velocity, dt)
         if not np.any(self.edges >= 0):  # no metering valve reaches any actuator: rigid oil locks them all
             return EffortLaw(np.zeros_like(velocity), -gain, self.force_lower, self.force_upper)
         areas = m.valve_areas(spool)
@@ -372,13 +404,10 @@ class CouplingIncompressible(Coupling):
         a_out = np.where(direction >= 0, self.retract_area, self.extend_area)
         c_in = np.where(direction >= 0, coefficient[:, 0], coefficient[:, 2])
         c_out = np.where(direction >= 0, coefficient[:, 1], coefficient[:, 3])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            resist = 0.5 * rho * (a_in**3 / c_in**2 + a_out**3 / c_out**2)
-        drive = direction * (p_s * a_in - p_t * a_out)
-        constant = drive + resist * velocity * np.abs(velocity)
-        slope = -2.0 * resist * np.abs(velocity)
+        drive, resist = laws.metered_actuator_force(direction, a_in, a_out, c_in, c_out, p_s, p_t, rho, p_t)
+        constant, slope = _quadratic_damper(drive, resist, velocity)
         # flow share of the pumps: demands beyond the delivery are scaled down together
-        free_speed = np.sqrt(np.maximum(np.abs(drive), 0.0) / resist)
+        free_speed = _free_speed(drive, resist)
         demand = np.where(direction != 0, free_speed * a_in, 0.0)
         supply = float(np.sum(laws.pump_flow(m.pump_displacement, pump_speed, m.pump_efficiency)))
         share = demand * min(1.0, supply / demand.sum()) if demand.sum() > 0 else demand
@@ -396,23 +425,144 @@ class CouplingIncompressible(Coupling):
 
     def finish(self, state, control, position_start, position_end, velocity_start, velocity_end, dt):
         m = self.model
-        effort = np.clip(self._law(np.asarray(velocity_end, float)), self.force_lower, self.force_upper)
+        effort = np.clip(self._law(np.asarray(velocity_end, float)), self._law.lower, self._law.upper)
         ref = m.fluid.reference_pressure
         pressure = np.full(m.node_count, ref)
         pressure[m.node_fixed] = m.node_fixed_pressure[m.node_fixed]
-        for i, a in enumerate(m.cylinder_actuator):
-            if effort[a] >= 0:
-                pressure[m.cylinder_cap_node[i]] = ref + effort[a] / m.cylinder_cap_area[i]
-            else:
-                pressure[m.cylinder_rod_node[i]] = ref - effort[a] / m.cylinder_rod_area[i]
-        for i, a in enumerate(m.motor_actuator):
-            node = m.motor_a_node[i] if effort[a] >= 0 else m.motor_b_node[i]
-            pressure[node] = ref + abs(effort[a]) * 2.0 * np.pi / m.motor_displacement[i]
+        derive_chamber_pressures(m, effort, pressure, np.ones(m.actuator_count, bool))
         new = NetworkState(
             m.oil_from_pressure(pressure, np.asarray(position_end, float)), pressure, self._spool,
             np.asarray(position_end, float).copy(), np.asarray(velocity_end, float).copy(), state.time + dt,
         )
         return new, StepReport(branch_flow=np.zeros(len(m.branch_names)))
+
+
+class CouplingMixed(Coupling):
+    """Rigid (``incompressible``) actuators on a compressible network, around any other coupling (``inner``).
+
+    The network (:meth:`NetworkModel.from_circuit` with some actuators ``incompressible``) has no
+    pressure states on a rigid actuator's chambers; a rigid branch P → T of its valve carries the
+    flow its rod displaces, Q = r(spool)·v (:meth:`NetworkModel.rigid_rates`), so the supply it
+    shares with the compressible actuators sees every drop of its demand.  The compressible
+    actuators get the ``inner`` coupling's law unchanged.  A rigid actuator's law is the metered
+    rigid-oil force of :func:`hydraulics.laws.metered_actuator_force` with the *live* supply
+    pressure p_P instead of a fixed setting, plus its seal friction:
+
+        F(v⁺) = d·(p_P(v⁺)·A_in − p_T·A_out) − R·v⁺·|v⁺| + F_friction(v⁺),
+
+    with p_P(v⁺) = p_P,lin + (∂p_P/∂v)·(v⁺ − v_g) from the inner coupling's backward-Euler
+    linearisation (so the supply's oil column, −h·β·A_in²/V_P in the slope, is implicit; θ = 1),
+    or the start pressure for the explicit inner coupling.  A closed spool (or a rigid actuator
+    without a valve) locks the actuator with the stiff velocity tracker of
+    :class:`CouplingIncompressible`; the effort is bounded by the highest relief setting on its
+    areas.  The flow share of the pumps needs no rule here: an over-demanded supply loses pressure.
+    Logged chamber pressures of rigid actuators are derived from their effort
+    (:func:`derive_chamber_pressures`).
+    """
+
+    name = "mixed"
+
+    def __init__(self, model, inner: Coupling):
+        super().__init__(model, inner.stepper)
+        self.inner = inner
+        self.name = f"{inner.name}+rigid"
+        self.rigid = np.asarray(model.actuator_rigid, bool)
+        self.branch = {int(a): k for k, a in enumerate(model.rigid_branch_actuator)}  # actuator -> rigid branch
+        s = model.branch_slices["rigid"]
+        self.supply_node = model.branch_from[s]
+        self.tank_node = model.branch_to[s]
+        relief = np.max(model.relief_cracking) if len(model.relief_cracking) else INCOMPRESSIBLE_UNBOUNDED_PRESSURE
+        n = model.actuator_count
+        extend, retract = np.zeros(n), np.zeros(n)
+        extend[model.cylinder_actuator] = model.cylinder_cap_area
+        retract[model.cylinder_actuator] = model.cylinder_rod_area
+        extend[model.motor_actuator] = retract[model.motor_actuator] = model.motor_displacement / (2.0 * np.pi)
+        self.supply_top = model.fluid.reference_pressure + relief  # Pa, highest supply pressure the reliefs allow
+        self.force_upper = np.where(self.rigid, relief * extend, np.inf)
+        self.force_lower = np.where(self.rigid, -relief * retract, -np.inf)
+        self.blend = True  # pass effective masses to the inner coupling's θ-rule (the PBD plant turns this off)
+        self.last_theta = np.ones(n)
+
+    def _supply(self, state, control, dt):
+        """Supply pressure p_P [Pa] of every rigid branch at the linearisation's velocities, its gradient
+        ∂p_P/∂v of the branch's own actuator [Pa·s/m], and those velocities."""
+        m = self.model
+        lin = getattr(self.inner, "last_linearization", None)
+        a = m.rigid_branch_actuator
+        if lin is None or lin.oil_velocity_gradient is None:  # explicit inner coupling: the start pressure
+            return state.node_pressure[self.supply_node], np.zeros(len(a)), np.zeros(len(a))
+        _, dpdm = m.pressure(lin.state.node_oil, lin.state.actuator_position)
+        gradient = dpdm[self.supply_node] * lin.oil_velocity_gradient[self.supply_node, a]
+        return lin.state.node_pressure[self.supply_node], gradient, lin.velocity[a]
+
+    def begin(self, state, control, position, velocity, dt, *, effective_mass=None, velocity_guess=None):
+        m = self.model
+        if velocity_guess is None:
+            # the rigid actuators' supply pressure is linearised about this guess: at the held actuators a supply
+            # that an overrunning load drains to its cavitation floor would be extrapolated far below it
+            velocity_guess = start_velocity_guess(m, position, velocity, dt)
+        law = self.inner.begin(state, control, position, velocity, dt,
+                               effective_mass=effective_mass if self.blend else None, velocity_guess=velocity_guess)
+        self.last_theta = np.where(self.rigid, 1.0, getattr(self.inner, "last_theta", np.ones(m.actuator_count)))
+        velocity = np.asarray(velocity, float)
+        constant, slope = law.constant.copy(), law.slope.copy()
+        lower, upper = self.force_lower.copy(), self.force_upper.copy()
+        # velocity trackers: rigid actuators without a valve or with a closed spool hold still (target 0)
+        tracking = self.rigid.copy()
+        target = np.zeros(m.actuator_count)
+        if len(m.rigid_branch_actuator):
+            spool = laws.spool_step(state.valve_spool, np.clip(control.valve_command, -1.0, 1.0), m.valve_time_constant, dt)
+            a = m.rigid_branch_actuator
+            direction = m.rigid_direction(spool)
+            a_in = np.where(direction >= 0, m.rigid_extend_area, m.rigid_retract_area)
+            a_out = np.where(direction >= 0, m.rigid_retract_area, m.rigid_extend_area)
+            edge = m.rigid_cd * m.rigid_metering_area(spool)
+            p_supply, dp_dv, v_guess = self._supply(state, control, dt)
+            p_tank = m.node_fixed_pressure[self.tank_node]
+
+            def metered(p):
+                return laws.metered_actuator_force(direction, a_in, a_out, edge, edge, p, p_tank, m.fluid.density,
+                                                   m.fluid.reference_pressure)
+
+            drive, resist = metered(p_supply)
+            c, k = _quadratic_damper(drive, resist, velocity[a])
+            # live supply: + d·A_in·∂p_P/∂v·(v⁺ − v_g), a (negative) stiffness of the supply's oil column
+            supply_slope = direction * a_in * dp_dv
+            friction, friction_slope = m.friction_effort(velocity)
+            friction_slope = np.minimum(friction_slope, 0.0)
+            c = c - supply_slope * v_guess + friction[a] - friction_slope[a] * velocity[a]
+            k = k + supply_slope + friction_slope[a]
+            # beyond its free speed (e.g. a spool just past its overlap) the actuator tracks that speed
+            free = _free_speed(drive, resist)
+            damper = (direction != 0) & np.isfinite(resist) & (np.abs(velocity[a]) < free)
+            constant[a], slope[a] = np.where(damper, c, 0.0), np.where(damper, k, 0.0)
+            tracking[a] = ~damper
+            target[a] = np.where(direction != 0, direction * np.nan_to_num(free), 0.0)
+            # an open valve: the force the supply can give, F at p_P in [cavitation floor, highest relief]
+            ends = [metered(p)[0] for p in (m.fluid.pressure_floor, self.supply_top)]
+            offset = c + k * velocity[a] - drive  # damper and friction at the start velocity
+            lower[a] = np.where(damper, np.minimum(*ends) + offset, lower[a])
+            upper[a] = np.where(damper, np.maximum(*ends) + offset, upper[a])
+        # tracker F = K·(target − v⁺), K = gain·m_eff/h, lowered so that F at the start velocity stays within the
+        # relief bound: MuJoCo applies a force clamped at the start of its step explicitly, and the bound force
+        # over a long step would throw a light link far past its target
+        gain = _tracking_gain(effective_mass, velocity, dt)
+        error = target - velocity
+        bound = np.where(error >= 0, upper, -lower)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gain = np.where(np.abs(error) > 0, np.minimum(gain, bound / np.abs(error)), gain)
+        constant = np.where(tracking, gain * target, constant)
+        slope = np.where(tracking, -gain, slope)
+        self._law = EffortLaw(constant, slope, lower, upper)
+        return self._law
+
+    def finish(self, state, control, position_start, position_end, velocity_start, velocity_end, dt):
+        new, report = self.inner.finish(state, control, position_start, position_end, velocity_start, velocity_end, dt)
+        effort = np.clip(self._law(np.asarray(velocity_end, float)), self._law.lower, self._law.upper)
+        hydraulic = effort - self.model.friction_effort(np.asarray(velocity_end, float))[0]
+        new = new.copy()
+        derive_chamber_pressures(self.model, hydraulic, new.node_pressure, self.rigid)
+        return new, report
 
 
 COUPLINGS = {
@@ -431,13 +581,18 @@ DEFAULT_STEPPER = {
 def make_coupling(name: str, model: NetworkModel, *, stepper=None, substeps: int = 1, compiled: bool = False) -> Coupling:
     """Build a coupling scheme with its finishing stepper (default per :data:`DEFAULT_STEPPER`).
 
-    ``compiled`` selects the numba-compiled backward Euler where it applies.
+    ``compiled`` selects the numba-compiled backward Euler where it applies.  A network
+    with rigid actuators (``incompressible`` among compressible ones) gets the named
+    coupling wrapped in :class:`CouplingMixed`.
     """
     if name not in COUPLINGS:
         raise ValueError(f"unknown coupling {name!r}; choose from {sorted(COUPLINGS)}")
     stepper = make_stepper(stepper or DEFAULT_STEPPER[name], model, substeps=substeps, compiled=compiled)
-    return COUPLINGS[name](model, stepper)
+    coupling = COUPLINGS[name](model, stepper)
+    if name != "incompressible" and np.any(model.actuator_rigid):
+        return CouplingMixed(model, coupling)
+    return coupling
 
 
-__all__ = ["EffortLaw", "Coupling", "CouplingExplicit", "CouplingImplicit", "CouplingImplicitLinear", "COUPLINGS",
+__all__ = ["EffortLaw", "Coupling", "CouplingExplicit", "CouplingImplicit", "CouplingImplicitLinear", "CouplingMixed", "COUPLINGS",
            "make_coupling", "start_velocity_guess", "StepReport"]

@@ -66,10 +66,12 @@ def branch_powers(model: NetworkModel, state: NetworkState, flow: np.ndarray) ->
     """Power of each branch family [W] at the given pressures and branch flows.
 
     Returns ``{"pump": supplied by pumps, "motor": delivered to motor shafts,
-    "dissipated": lost in orifices, valves, reliefs, checks and leaks}``.
+    "dissipated": lost in orifices, valves, reliefs, checks and leaks,
+    "rigid": delivered to rigid actuators (their metering loss and their work)}``.
     """
     mu = model.fluid.pressure_potential(state.node_pressure)
     power = flow * (mu[model.branch_from] - mu[model.branch_to])
     sl = model.branch_slices
     dissipative = np.concatenate([power[sl[k]] for k in ("orifice", "laminar", "relief", "check")])
-    return {"pump": float(-np.sum(power[sl["pump"]])), "motor": float(np.sum(power[sl["motor"]])), "dissipated": float(np.sum(dissipative))}
+    return {"pump": float(-np.sum(power[sl["pump"]])), "motor": float(np.sum(power[sl["motor"]])),
+            "dissipated": float(np.sum(dissipative)), "rigid": float(np.sum(power[sl["rigid"]]))}

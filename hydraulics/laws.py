@@ -255,6 +255,25 @@ def friction_force_with_derivative(velocity, coulomb, static, stribeck_velocity,
     return level * th + viscous * v, dlevel * th + level * dth + viscous
 
 
+def metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out, supply_pressure, tank_pressure, density,
+                           ambient_pressure):
+    """Valve-metered actuator with rigid oil (Merritt §5.2, quasi-static): F(v) = F_d − R·v·|v| [N or N·m].
+
+    With the metering edges P → inlet chamber (effective area ``orifice_in`` = C_d·a_in [m²]) and outlet
+    chamber → T (``orifice_out``), piston areas A_in, A_out [m²] (D/2π [m³/rad] for a motor) of the
+    commanded ``direction`` (+1 extending: A_in = A_cap; −1 retracting: A_in = A_rod), and the
+    ambient pressure p_a on the rod side of the piston (as :func:`cylinder_pressure_force`):
+
+        F_d = direction·((p_s − p_a)·A_in − (p_t − p_a)·A_out),
+        R = (ρ/2)·(A_in³/(C_d·a_in)² + A_out³/(C_d·a_out)²).
+
+    Returns (F_d [N], R [N·s²/m²]); R is inf where an edge is shut.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        resistance = 0.5 * density * (area_in**3 / orifice_in**2 + area_out**3 / orifice_out**2)
+    return direction * ((supply_pressure - ambient_pressure) * area_in - (tank_pressure - ambient_pressure) * area_out), resistance
+
+
 def hydraulic_stiffness(bulk_modulus, area, volume):
     """Oil-column spring stiffness k = β·A²/V [N/m] of one chamber."""
     return bulk_modulus * area**2 / volume

@@ -54,8 +54,11 @@ FIDELITIES = ("incompressible", "compressible", "lines")
 (Hagen–Poiseuille) resistance between them — for pressure-wave and valve-slam studies.
 
 Levels may differ per actuator (``actuator_fidelity`` of :meth:`NetworkModel.from_circuit`):
-``compressible`` and ``lines`` mix freely (see :func:`line_hoses`); ``incompressible`` has no
-pressure states at all and applies to every actuator of a network or to none."""
+``compressible`` and ``lines`` mix freely (see :func:`line_hoses`).  ``incompressible`` for every
+actuator leaves no pressure states at all; for some actuators only, those become *rigid*
+actuators of a compressible network (see :func:`rigid_actuator_nets`): their chamber nets are
+not pressure states, and a rigid branch from their valve's P net to its T net carries the flow
+their rods displace, so the supply they share with the compressible actuators stays exact."""
 
 
 def _per_sample(values, like):
@@ -119,9 +122,9 @@ def resolve_fidelity(circuit: Circuit, fidelity: str, actuator_fidelity=None) ->
     ``fidelity`` is the default (the scene's level), ``actuator_fidelity`` maps actuator
     names to overriding levels.  Returns ``(levels, network_level)`` where the network's
     level is ``incompressible`` when every actuator is, ``lines`` when any is ``lines``
-    (some hoses are lines), else ``compressible``.  Raises :class:`CircuitError` for an
-    unknown level or name, and when ``incompressible`` is mixed with another level (the
-    incompressible law has no pressure states, the others need the shared supply's).
+    (some hoses are lines), else ``compressible`` (``incompressible`` actuators among
+    others are rigid actuators of that network).  Raises :class:`CircuitError` for an
+    unknown level or name.
     """
     if fidelity not in FIDELITIES:
         raise CircuitError(f"{circuit.source}: fidelity {fidelity!r} is not one of {list(FIDELITIES)}")
@@ -133,14 +136,6 @@ def resolve_fidelity(circuit: Circuit, fidelity: str, actuator_fidelity=None) ->
         if level not in FIDELITIES:
             raise CircuitError(f"{circuit.source}: fidelity for '{name}': {level!r} is not one of {list(FIDELITIES)}")
     levels = tuple(overrides.get(name, fidelity) for name in names)
-    if "incompressible" in levels and set(levels) != {"incompressible"}:
-        fast = [n for n, lv in zip(names, levels) if lv == "incompressible"]
-        other = [n for n, lv in zip(names, levels) if lv != "incompressible"]
-        raise CircuitError(
-            f"{circuit.source}: fidelity 'incompressible' for {fast} cannot be mixed with 'compressible'/'lines' for {other} "
-            "in one circuit (the incompressible law has no pressure states; the others need the pressures of the nets they "
-            "share); give every actuator 'incompressible' or none"
-        )
     if levels and set(levels) == {"incompressible"}:
         return levels, "incompressible"
     if not levels:
@@ -304,6 +299,17 @@ class NetworkModel:
     incidence: np.ndarray = field(default=None, repr=False)  # (node_count, branch_count)
     actuator_fidelity: tuple = ()  # fidelity level of every actuator (cylinders and motors, circuit order)
     hose_lines: tuple = ()  # names of the hoses built as π-lines (own end nodes + laminar resistance)
+    # rigid actuators: ``incompressible`` ones in a compressible network (their chamber nodes are fixed nodes
+    # whose logged pressures the coupling derives from the effort); one rigid branch per metered one
+    actuator_rigid: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # bool (actuator_count,)
+    rigid_branch_actuator: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    rigid_valve: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # valve index of each rigid branch
+    rigid_sign: np.ndarray = field(default_factory=lambda: np.zeros(0))  # +1: spool > 0 feeds the cap (port a)
+    rigid_extend_area: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m² (m³/rad): cap area, D/2π
+    rigid_retract_area: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m² (m³/rad): rod area, D/2π
+    rigid_cd: np.ndarray = field(default_factory=lambda: np.zeros(0))  # discharge coefficient of the metering edges
+    rigid_base_area: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m², leakage area of a closed edge
+    rigid_max_area: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m², fully open edge
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -358,6 +364,40 @@ class NetworkModel:
             if fixed[k] and fixed_p[k] != c.params.pressure:
                 raise CircuitError(f"{circuit.source}: component '{c.name}': net '{c.ports['port']}' joins two tanks at different pressures")
             fixed[k], fixed_p[k] = True, c.params.pressure
+        # rigid actuators (incompressible among compressible ones): their chamber nets hold no pressure state
+        rigid_node = {}  # node -> name of the rigid actuator whose chamber (or motor port) it is
+        if network_fidelity != "incompressible":
+            owner = {}  # node -> actuators with a port on it
+            for c in circuit.by_kind("cylinder", "motor"):
+                for port in c.ports:
+                    owner.setdefault(node(c, port), []).append(c.name)
+            for c, level in zip(circuit.by_kind("cylinder", "motor"), levels):
+                if level != "incompressible":
+                    continue
+                for port, net in c.ports.items():
+                    k = node(c, port)
+                    if fixed[k]:
+                        raise CircuitError(f"{circuit.source}: actuator '{c.name}' at fidelity 'incompressible': its port '{port}' "
+                                           f"is on the tank net '{net}'; only actuators whose ports have their own nets can be rigid")
+                    if len(owner[k]) > 1:
+                        raise CircuitError(f"{circuit.source}: actuator '{c.name}' at fidelity 'incompressible': its net '{net}' is shared "
+                                           f"with {[a for a in owner[k] if a != c.name]}; give actuators that share oil the same fidelity")
+                    rigid_node[k] = c.name
+                    fixed[k], fixed_p[k] = True, ref
+
+        def keep(c, a, b):
+            """Whether the branch of component ``c`` between nodes a and b is built: not when it lives on rigid
+            chamber nets (and tanks) only; an error when it joins a rigid chamber net to a pressure state."""
+            if a not in rigid_node and b not in rigid_node:
+                return True
+            if fixed[a] and fixed[b]:
+                return False
+            inner, outer = (a, b) if a in rigid_node else (b, a)
+            raise CircuitError(
+                f"{circuit.source}: component '{c.name}' joins net '{names[inner]}' of actuator '{rigid_node[inner]}' "
+                f"(fidelity 'incompressible', no pressure state) to net '{names[outer]}', which has one; "
+                f"give '{rigid_node[inner]}' the fidelity 'compressible' or 'lines'"
+            )
         for c in circuit.by_kind("volume", "hose"):
             # a lumped hose puts its volume on its (merged) net; a line puts half at each end
             ends = ("port",) if c.kind == "volume" else (("a", "b") if c.name in line_set else ("a",))
@@ -401,11 +441,30 @@ class NetworkModel:
             o_sign.append(sign)
 
         for c in circuit.by_kind("orifice"):
-            add_orifice(c.name, node(c, "a"), node(c, "b"), c.params.discharge_coefficient, c.params.area)
+            if keep(c, node(c, "a"), node(c, "b")):
+                add_orifice(c.name, node(c, "a"), node(c, "b"), c.params.discharge_coefficient, c.params.area)
         valves = circuit.by_kind("valve_4_3")
+        rigid_valve = {}  # rigid actuator name -> (valve index, +1 if port A feeds its cap / motor port a, else -1)
         for vi, c in enumerate(valves):
             p = c.params
             P, T, A, B = (node(c, q) for q in ("P", "T", "A", "B"))
+            if A in rigid_node or B in rigid_node:
+                actuator = circuit.component(rigid_node.get(A, rigid_node.get(B)))
+                ports = [node(actuator, q) for q in actuator.ports]  # cap, rod / a, b
+                if {A, B} != set(ports) or P in rigid_node or T in rigid_node:
+                    raise CircuitError(
+                        f"{circuit.source}: valve '{c.name}' meters actuator '{actuator.name}' (fidelity 'incompressible') "
+                        f"but its ports A, B are not that actuator's two nets; give '{actuator.name}' the fidelity 'compressible'")
+                if not fixed[T]:
+                    raise CircuitError(
+                        f"{circuit.source}: valve '{c.name}' of actuator '{actuator.name}' (fidelity 'incompressible'): its T net "
+                        f"'{c.ports['T']}' must be a tank (the rigid actuator returns its oil there)")
+                if actuator.name in rigid_valve:
+                    raise CircuitError(f"{circuit.source}: actuator '{actuator.name}' (fidelity 'incompressible') is metered by two valves")
+                rigid_valve[actuator.name] = (vi, 1 if A == ports[0] else -1)
+                if p.centre in ("open", "tandem"):
+                    add_orifice(f"{c.name}.P-T", P, T, p.discharge_coefficient, 0.0, 0.0, p.centre_area, vi, 0)
+                continue
             for edge, a, b, sign in (("P-A", P, A, 1), ("B-T", B, T, 1), ("P-B", P, B, -1), ("A-T", A, T, -1)):
                 add_orifice(f"{c.name}.{edge}", a, b, p.discharge_coefficient, p.leakage_area, p.max_area, 0.0, vi, sign)
             if p.centre in ("open", "tandem"):
@@ -418,11 +477,11 @@ class NetworkModel:
         start = len(branch_names)
         lam = []
         for c in cyl:
-            if c.params.leakage_conductance > 0:
+            if c.params.leakage_conductance > 0 and keep(c, node(c, "cap"), node(c, "rod")):
                 add_branch(f"{c.name}.leakage", node(c, "cap"), node(c, "rod"))
                 lam.append(c.params.leakage_conductance)
         for c in mot:
-            if c.params.leakage_conductance > 0:
+            if c.params.leakage_conductance > 0 and keep(c, node(c, "a"), node(c, "b")):
                 add_branch(f"{c.name}.leakage", node(c, "a"), node(c, "b"))
                 lam.append(c.params.leakage_conductance)
         if line_set:
@@ -435,13 +494,13 @@ class NetworkModel:
         slices["laminar"] = slice(start, len(branch_names))
 
         start = len(branch_names)
-        relief = circuit.by_kind("relief_valve")
+        relief = [c for c in circuit.by_kind("relief_valve") if keep(c, node(c, "inlet"), node(c, "outlet"))]
         for c in relief:
             add_branch(c.name, node(c, "inlet"), node(c, "outlet"))
         slices["relief"] = slice(start, len(branch_names))
 
         start = len(branch_names)
-        checks = circuit.by_kind("check_valve")
+        checks = [c for c in circuit.by_kind("check_valve") if keep(c, node(c, "inlet"), node(c, "outlet"))]
         for c in checks:
             add_branch(c.name, node(c, "inlet"), node(c, "outlet"))
         slices["check"] = slice(start, len(branch_names))
@@ -449,13 +508,29 @@ class NetworkModel:
         start = len(branch_names)
         pumps = circuit.by_kind("pump_fixed", "pump_compensated")
         for c in pumps:
+            keep(c, node(c, "inlet"), node(c, "outlet"))
             add_branch(c.name, node(c, "inlet"), node(c, "outlet"))
         slices["pump"] = slice(start, len(branch_names))
 
         start = len(branch_names)
-        for c in mot:
+        flow_motors = [c for c in mot if keep(c, node(c, "a"), node(c, "b"))]  # a rigid motor's flow is a rigid branch
+        for c in flow_motors:
             add_branch(c.name, node(c, "a"), node(c, "b"))
         slices["motor"] = slice(start, len(branch_names))
+
+        # rigid branches: valve P -> T, carrying the flow a rigid actuator's rod (shaft) displaces
+        start = len(branch_names)
+        rigid = [c for c in actuators if c.name in rigid_valve]
+        for c in rigid:
+            v = valves[rigid_valve[c.name][0]]
+            add_branch(f"{c.name}.rigid", node(v, "P"), node(v, "T"))
+        slices["rigid"] = slice(start, len(branch_names))
+
+        def rate(c, side):
+            """Displaced volume per unit rod travel [m²] (per radian for a motor) of the cap/a (0) or rod/b (1) side."""
+            if c.kind == "motor":
+                return c.params.displacement / (2.0 * np.pi)
+            return (c.params.cap_area, c.params.rod_area)[side]
 
         nb = len(branch_names)
         b_from = np.array(b_from, int)
@@ -538,12 +613,21 @@ class NetworkModel:
             pump_efficiency=column(pumps, "volumetric_efficiency", 1.0),
             pump_compensator=column(pumps, "compensator_pressure", math.inf),
             pump_band=column(pumps, "compensator_band", 1.0),
-            motor_branch_actuator=f([act_names.index(c.name) for c in mot], int),
+            motor_branch_actuator=f([act_names.index(c.name) for c in flow_motors], int),
             fidelity=network_fidelity,
             pruned=pruned,
             incidence=incidence,
             actuator_fidelity=levels,
             hose_lines=tuple(c.name for c in circuit.by_kind("hose") if c.name in line_set),
+            actuator_rigid=f([c.name in rigid_node.values() for c in actuators], bool),
+            rigid_branch_actuator=f([act_names.index(c.name) for c in rigid], int),
+            rigid_valve=f([rigid_valve[c.name][0] for c in rigid], int),
+            rigid_sign=f([rigid_valve[c.name][1] for c in rigid], float),
+            rigid_extend_area=f([rate(c, 0) for c in rigid], float),
+            rigid_retract_area=f([rate(c, 1) for c in rigid], float),
+            rigid_cd=column([valves[rigid_valve[c.name][0]] for c in rigid], "discharge_coefficient"),
+            rigid_base_area=column([valves[rigid_valve[c.name][0]] for c in rigid], "leakage_area"),
+            rigid_max_area=column([valves[rigid_valve[c.name][0]] for c in rigid], "max_area"),
         )
         return model
 
@@ -767,7 +851,8 @@ class NetworkModel:
 
     # ------------------------------------------------------------ flows
     def valve_areas(self, spool):
-        """Open area [m²] of every orifice-law branch for the given spool positions."""
+        """Open area [m²] of every orifice-law branch for the given spool positions, followed (when the
+        network has rigid actuators) by the displacement rate of every rigid branch (:meth:`rigid_rates`)."""
         area = self.orifice_base_area.copy()
         if len(self.valve_names):
             has_valve = self.orifice_valve >= 0
@@ -775,7 +860,28 @@ class NetworkModel:
             overlap = np.where(has_valve, self.valve_overlap[np.maximum(self.orifice_valve, 0)], 0.0)
             area = area + self.orifice_max_area * laws.metering_opening(self.orifice_sign * s, overlap)
             area = area + self.orifice_centre_area * laws.centre_opening(s, overlap)
+        if len(self.rigid_branch_actuator):
+            area = np.concatenate([area, self.rigid_rates(spool)])
         return area
+
+    def rigid_direction(self, spool):
+        """Metering direction of every rigid branch [-]: +1 when the spool feeds the cap (motor port a) from P,
+        −1 the rod (port b), 0 while the spool is inside its overlap (closed)."""
+        s = self.rigid_sign * spool[self.rigid_valve]
+        return np.sign(s) * (laws.metering_opening(np.abs(s), self.valve_overlap[self.rigid_valve]) > 0)
+
+    def rigid_rates(self, spool):
+        """Flow drawn from P per unit actuator velocity [m² or m³/rad] of every rigid branch: the cap area
+        (D/2π) feeding the extension, −rod area feeding the retraction, 0 closed.  With rigid oil the
+        flow P → actuator is this rate times the velocity, whatever its sign (an overrunning load pushes
+        oil back into P)."""
+        direction = self.rigid_direction(spool)
+        return np.where(direction > 0, self.rigid_extend_area, np.where(direction < 0, -self.rigid_retract_area, 0.0))
+
+    def rigid_metering_area(self, spool):
+        """Open area [m²] of each rigid branch's metering edges (P → inlet, outlet → T) at ``spool``."""
+        s = np.abs(spool[self.rigid_valve])
+        return self.rigid_base_area + self.rigid_max_area * laws.metering_opening(s, self.valve_overlap[self.rigid_valve])
 
     def branch_flows(self, pressure, orifice_area, pump_speed, actuator_velocity) -> BranchFlows:
         """Flow [m³/s] of every branch and its pressure derivatives.
@@ -784,7 +890,7 @@ class NetworkModel:
         ----------
         pressure : ndarray, shape (node_count,)
             Absolute node pressures [Pa].
-        orifice_area : ndarray, shape (orifice branches,)
+        orifice_area : ndarray, shape (orifice branches [+ rigid branches],)
             From :meth:`valve_areas`.
         pump_speed : ndarray, shape (pump_count,)
             [rev/s].
@@ -800,7 +906,7 @@ class NetworkModel:
         sl = self.branch_slices
 
         s = sl["orifice"]
-        q, g = laws.orifice_flow_with_derivative(orifice_area, self.orifice_cd, dp[s], fluid.density, fluid.kinematic_viscosity)
+        q, g = laws.orifice_flow_with_derivative(orifice_area[s], self.orifice_cd, dp[s], fluid.density, fluid.kinematic_viscosity)
         flow[s], dfrom[s], dto[s] = q, g, -g
 
         s = sl["laminar"]
@@ -828,7 +934,11 @@ class NetworkModel:
         dto[s] = laws.pump_flow(ddisp, pump_speed, self.pump_efficiency)
 
         s = sl["motor"]
-        flow[s] = laws.motor_flow(self.motor_displacement, actuator_velocity[self.motor_branch_actuator])
+        flow[s] = laws.motor_flow(self.motor_displacement[self._flow_motor], actuator_velocity[self.motor_branch_actuator])
+
+        s = sl["rigid"]
+        if s.stop > s.start:
+            flow[s] = orifice_area[sl["orifice"].stop:] * actuator_velocity[self.rigid_branch_actuator]
         return BranchFlows(flow, dfrom, dto)
 
     def flow_jacobian(self, flows: BranchFlows) -> np.ndarray:
@@ -840,13 +950,24 @@ class NetworkModel:
         np.add.at(d, (idx, self.branch_to), flows.dflow_dto)
         return self.incidence @ d
 
-    def motor_flow_velocity_gradient(self) -> np.ndarray:
-        """∂(net inflow)/∂v_actuator [m³/rad], shape (node_count, actuator_count) (motors only)."""
+    @property
+    def _flow_motor(self) -> np.ndarray:
+        """Index into the motor arrays of each motor branch (rigid motors have none)."""
+        return np.searchsorted(self.motor_actuator, self.motor_branch_actuator)
+
+    def flow_velocity_gradient(self, orifice_area=None) -> np.ndarray:
+        """∂(net inflow)/∂v_actuator [m² or m³/rad], shape (node_count, actuator_count): motor branches and,
+        given ``orifice_area`` from :meth:`valve_areas`, rigid branches."""
         grad = np.zeros((self.node_count, self.actuator_count))
         s = self.branch_slices["motor"]
-        rate = self.motor_displacement / (2.0 * np.pi)
+        rate = self.motor_displacement[self._flow_motor] / (2.0 * np.pi)
         np.add.at(grad, (self.branch_from[s], self.motor_branch_actuator), -rate)
         np.add.at(grad, (self.branch_to[s], self.motor_branch_actuator), rate)
+        s = self.branch_slices.get("rigid", slice(0, 0))
+        if s.stop > s.start:
+            rate = orifice_area[self.branch_slices["orifice"].stop:]
+            np.add.at(grad, (self.branch_from[s], self.rigid_branch_actuator), -rate)
+            np.add.at(grad, (self.branch_to[s], self.rigid_branch_actuator), rate)
         return grad
 
     # ----------------------------------------------------------- efforts

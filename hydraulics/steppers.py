@@ -385,8 +385,9 @@ class StepperImplicitEuler(Stepper):
         phi, _ = m.fluid.fill_ratio(pressure)
         # ∂p/∂x at fixed oil: −φ·∂V/∂x·∂p/∂m
         dpdx = -(dpdm * phi)[:, None] * m.volume_position_gradient(position)
-        jq = m.flow_jacobian(m.branch_flows(pressure, m.valve_areas(spool), control.pump_speed, velocity))
-        drdv = -dt * (jq @ (dt * dpdx) + m.motor_flow_velocity_gradient())[free]
+        areas = m.valve_areas(spool)
+        jq = m.flow_jacobian(m.branch_flows(pressure, areas, control.pump_speed, velocity))
+        drdv = -dt * (jq @ (dt * dpdx) + m.flow_velocity_gradient(areas))[free]
         jacobian = np.eye(len(free)) - dt * jq[np.ix_(free, free)] * dpdm[free][None, :]
         dpdv = dt * dpdx
         oil_gradient = np.zeros((len(oil), m.actuator_count))
@@ -468,13 +469,15 @@ def make_stepper(name_or_class, model: NetworkModel, *, compiled: bool = False, 
 
     ``compiled=True`` picks the numba-compiled backward Euler
     (:class:`hydraulics._compiled.StepperImplicitEulerCompiled`, same results to
-    round-off) for ``"implicit_euler"`` when numba is available.
+    round-off) for ``"implicit_euler"`` when numba is available and the network
+    has no rigid actuators.
     """
     if isinstance(name_or_class, str):
         if name_or_class not in STEPPERS:
             raise ValueError(f"unknown stepper {name_or_class!r}; choose from {sorted(STEPPERS)}")
         name_or_class = STEPPERS[name_or_class]
-    if compiled and name_or_class is StepperImplicitEuler:
+    if compiled and name_or_class is StepperImplicitEuler and not np.any(model.actuator_rigid):
+        # (the compiled kernels know no rigid branches: a network with rigid actuators steps on the numpy path)
         from ._compiled import StepperImplicitEulerCompiled, compiled_available  # imports this module
 
         if compiled_available():

@@ -20,6 +20,17 @@ What is known about the schemes (``docs/stability/`` has the measured maps):
     ω_h·dt < 2ζ.  Seal friction, valve flow gains and joint damping make the
     practical limit ω_h·dt ≈ 0.1–0.2 on real machines (``EXPLICIT_OMEGA_DT_LIMIT``).
 
+Rigid actuators (``incompressible`` among compressible ones, :class:`hydraulics.coupling.CouplingMixed`)
+have no chambers of their own; their column is the supply net they draw from,
+k = β_eff·A_cap²/V_P (motors: D/2π).  Measured on the excavator dig (stick, bucket
+and swing rigid; ω·dt of the bucket, the stiffest): MuJoCo mode loses energy as it
+should (residual +5.9 % of the pump work over the first 3.5 s) at 1 and 2 ms
+(ω·dt ≤ 0.36); at 5 ms (0.9) it completes the 20 s dig but creates 3 % of the pump
+work during the soil contact; at 10 ms (1.8) it diverges at 14.6 s and at 1/30 s (6)
+at 2.8 s: the supply's pressure kinks (cavitation floor, relief) break the
+linearisation when its column is not resolved.  The guards warn above
+``RIGID_SUPPLY_OMEGA_DT`` (PBD mode: per XPBD substep).
+
 With coupling ``explicit`` the network itself is stepped by forward Euler
 (``explicit_euler``), whose own limit is h < 2·V/(β_eff·G) for a node of volume V
 behind a branch of slope G; the guards check it for every relief valve (a fixed
@@ -51,6 +62,8 @@ UNDAMPED_RATIO = 1e-3  # [-]
 # ω_h·dt beyond which the implicit coupling damps the oil column numerically (θ > 0, see
 # hydraulics.coupling.blend_factor): stable, but the ω_h oscillation is not resolved.
 IMPLICIT_RESOLVED_OMEGA_DT = math.sqrt(2.0)  # [-]
+# ω·h up to which a rigid actuator's supply column was measured stable (see module docstring).
+RIGID_SUPPLY_OMEGA_DT = 0.5  # [-]
 # Methods (mode or coupling names) that step the oil column with forward Euler.
 EXPLICIT_METHODS = ("explicit", "pbd-naive")
 
@@ -82,6 +95,9 @@ class GuardRow:
     (× ``pbd_substeps`` in the PBD modes), 0 if undamped."""
     stable: bool
     """Whether the chosen method is expected to be stable for this actuator at the chosen dt."""
+    rigid: bool = False
+    """A rigid (``incompressible`` among compressible) actuator: its column is its supply net, and
+    ``explicit_max_dt`` holds the step that resolves it for the mixed coupling, RIGID_SUPPLY_OMEGA_DT/ω (× substeps)."""
 
     @property
     def frequency_hz(self) -> float:
@@ -187,6 +203,12 @@ def oil_column_stiffness(network, pressure, position) -> np.ndarray:
         for node in (network.motor_a_node[i], network.motor_b_node[i]):
             if free[node]:
                 k[a] += laws.hydraulic_stiffness(beta[node], rate, volume[node])
+    # rigid actuators: the supply net of their rigid branch, on the larger (cap) area
+    s = network.branch_slices.get("rigid", slice(0, 0))
+    for b, a in zip(range(s.start, s.stop), network.rigid_branch_actuator):
+        node = network.branch_from[b]
+        if free[node]:
+            k[a] = laws.hydraulic_stiffness(beta[node], network.rigid_extend_area[b - s.start], volume[node])
     return k
 
 
@@ -229,6 +251,10 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
     rows, warnings, notes = [], [], []
     for a, name in enumerate(network.actuator_names):
         m, ka, c = float(mass[a]), float(k[a]), float(damping[a])
+        rigid = bool(network.actuator_rigid[a])
+        if rigid and ka == 0.0:
+            notes.append(f"{name}: fidelity incompressible without a valve: locked by a velocity tracker, no oil column")
+            continue
         omega = math.sqrt(ka / m) if (ka > 0 and math.isfinite(m) and m > 0) else 0.0
         zeta = c / (2.0 * math.sqrt(ka * m)) if omega > 0 else math.inf
         limit = max(2.0 * zeta, EXPLICIT_OMEGA_DT_LIMIT) if zeta >= UNDAMPED_RATIO else 0.0
@@ -242,8 +268,9 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
             omega_h_dt=omega * dt,
             k_dt2_over_m=(omega * dt) ** 2,
             damping_ratio=zeta,
-            explicit_max_dt=substeps * limit / omega if omega > 0 else math.inf,
-            stable=expected_stable(method, omega * step, zeta),
+            explicit_max_dt=substeps * (RIGID_SUPPLY_OMEGA_DT if rigid else limit) / omega if omega > 0 else math.inf,
+            rigid=rigid,
+            stable=(omega * step <= RIGID_SUPPLY_OMEGA_DT) if rigid else expected_stable(method, omega * step, zeta),
         )
         rows.append(row)
         where = (
@@ -251,7 +278,16 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
             f"omega_h*dt = {row.omega_h_dt:.3g}, k*dt^2/m = {row.k_dt2_over_m:.3g} at dt = {dt:g} s"
             + (f" (oil column stepped per XPBD substep: omega_h*h = {omega * step:.3g}, h = dt/{substeps})" if substeps > 1 else "")
         )
-        if not row.stable:
+        if rigid:
+            where = where.replace(f"{name}: ", f"{name} (incompressible, drawing from its supply net): ", 1)
+            if not row.stable:
+                warnings.append(
+                    f"{where}: the rigid actuator's supply column is not resolved (omega*h > {RIGID_SUPPLY_OMEGA_DT:g}); the mixed "
+                    f"coupling may create energy or diverge there; use dt <= {row.explicit_max_dt:.3g} s"
+                    + (" (or more XPBD substeps)" if substeps > 1 else " (or mode pbd with substeps)")
+                    + ", or give it the fidelity 'compressible'"
+                )
+        elif not row.stable:
             what = "explicit coupling" if method == "explicit" else "mode pbd-naive"
             if zeta < UNDAMPED_RATIO:
                 growth = 0.5 * omega**2 * step

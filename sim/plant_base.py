@@ -83,3 +83,8 @@ class PlantBase:
         e.dissipated_hydraulic += dt * powers["dissipated"]
         friction, _ = net.friction_effort(velocity)
         e.dissipated_friction -= dt * float(friction @ velocity)
+        if powers["rigid"]:
+            # rigid actuators: what their branches deliver minus the work of their hydraulic force is metering loss
+            rigid = net.actuator_rigid
+            e.motor_work += dt * powers["rigid"]
+            e.dissipated_hydraulic += dt * (powers["rigid"] - float((self.effort - friction)[rigid] @ velocity[rigid]))

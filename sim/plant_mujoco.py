@@ -56,7 +56,7 @@ class MujocoPlant(PlantBase):
         self.binding = scene.binding
         self.dt = scenario.dt
         self.coupling = make_coupling(
-            "incompressible" if scenario.fidelity == "incompressible" else (coupling or scenario.coupling),
+            "incompressible" if self.network.fidelity == "incompressible" else (coupling or scenario.coupling),
             self.network, stepper=scenario.stepper, substeps=scenario.hydraulic_substeps, compiled=scenario.compiled,
         )
         m = self.model
@@ -142,9 +142,11 @@ class MujocoPlant(PlantBase):
         if law.lower is not None:
             # MuJoCo clamps within the step and keeps the implicit term only while unclamped:
             # exactly a velocity tracker that stalls at its force limit
-            m.actuator_forcelimited[ids] = 1
-            m.actuator_forcerange[ids, 0] = law.lower
-            m.actuator_forcerange[ids, 1] = law.upper
+            # (only actuators with finite bounds: the compressible ones of a mixed-fidelity network have none)
+            bounded = np.isfinite(law.lower) | np.isfinite(law.upper)
+            m.actuator_forcelimited[ids] = bounded
+            m.actuator_forcerange[ids, 0] = np.where(bounded, law.lower, 0.0)
+            m.actuator_forcerange[ids, 1] = np.where(bounded, law.upper, 0.0)
         mujoco.mj_step2(m, d)
         v_end = moment @ d.qvel
         x_end = x + dt * v_end

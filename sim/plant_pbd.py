@@ -146,8 +146,9 @@ class PbdPlant(PlantBase):
                  frame: bool | None = None):
         self.scene = scene
         scenario = scene.scenario
-        self.incompressible = scenario.fidelity == "incompressible"
-        if naive and self.incompressible:
+        self.incompressible = scene.network.fidelity == "incompressible"
+        self.rigid = bool(np.any(scene.network.actuator_rigid))  # some actuators incompressible (CouplingMixed)
+        if naive and (self.incompressible or self.rigid):
             raise ScenarioError(
                 f"{scenario.path}, field 'run.fidelity': 'incompressible' has no pressure states for the seed's "
                 "explicit scheme (mode 'pbd-naive'); use mode = \"pbd\" or fidelity = \"compressible\""
@@ -162,6 +163,8 @@ class PbdPlant(PlantBase):
             "explicit" if naive else "incompressible" if self.incompressible else scenario.coupling, net,
             stepper="explicit_euler" if naive else scenario.stepper, substeps=1, compiled=scenario.compiled,
         )
+        if self.rigid:
+            self.coupling.blend = False  # XPBD takes the compressible laws with θ = 1; the masses only size the trackers
         m = self.model
         self.xmodel = xm = XpbdModel.from_mjmodel(m)
         # cylinders: one length row each, in network cylinder order
@@ -519,7 +522,7 @@ class PbdPlant(PlantBase):
             law_lower = law_upper = None
         else:
             law = self.coupling.begin(self.net_state, self.control, x, v, h,
-                                      effective_mass=self._effective_mass if self.incompressible else None)
+                                      effective_mass=self._effective_mass if self.incompressible or self.rigid else None)
             law_constant, law_slope, law_lower, law_upper = law.constant, law.slope, law.lower, law.upper
         cyl = self.cylinders
         c, s = law_constant[cyl], law_slope[cyl]

@@ -31,7 +31,8 @@ Fidelity (see :data:`hydraulics.network.FIDELITIES`) is the scene's default leve
     default = "compressible"
     boom_cyl = "lines"         # this cylinder's hoses as pi-lines, the others lumped
 
-``compressible`` and ``lines`` mix; ``incompressible`` applies to all actuators or none.
+Levels mix freely: ``incompressible`` actuators among compressible ones become rigid actuators
+of the compressible network (:class:`hydraulics.coupling.CouplingMixed`).
 """
 
 from __future__ import annotations

@@ -151,7 +151,7 @@ def build_network(scenario: Scenario) -> NetworkModel:
     try:
         return NetworkModel.from_circuit(circuit, fidelity=scenario.fidelity, actuator_fidelity=scenario.actuator_fidelity)
     except CircuitError as exc:
-        if "cannot be mixed" in str(exc):
+        if "fidelity 'incompressible'" in str(exc):
             raise ScenarioError(f"{scenario.path}, [fidelity] / field 'run.fidelity': {str(exc).split(': ', 1)[1]}") from None
         raise
 
@@ -162,6 +162,11 @@ def load_scene(scenario: Scenario) -> Scene:
     network = build_network(scenario)
     if network.fidelity == "incompressible" and scenario.fidelity != "incompressible":
         scenario = replace(scenario, fidelity="incompressible")  # every actuator overridden: the plants' switch
+    elif network.fidelity != "incompressible" and scenario.fidelity == "incompressible":
+        # some actuators overridden to compressible/lines: the others are rigid actuators of a compressible network
+        levels = dict(zip(network.actuator_names, network.actuator_fidelity))
+        scenario = replace(scenario, fidelity=network.fidelity,
+                           actuator_fidelity={a: lv for a, lv in levels.items() if lv != network.fidelity})
     binding = bind(network, mjmodel, scenario.circuit, scenario.mjcf)
     configure_actuators(mjmodel, binding)
     mjmodel.opt.timestep = scenario.dt

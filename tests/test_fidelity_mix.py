@@ -1,7 +1,7 @@
 """Fidelity per actuator: the scene's default level, overridden per cylinder or motor in the scenario.
 
 ``compressible`` and ``lines`` mix in one network (the hoses of a ``lines`` actuator become
-π-lines, the others stay lumped into their chambers); ``incompressible`` is all or nothing.
+π-lines, the others stay lumped into their chambers); ``incompressible`` among them: tests/test_fidelity_rigid.py.
 """
 
 import numpy as np
@@ -46,9 +46,8 @@ def test_state_counts_per_mixed_configuration(circuit, default, overrides, extra
     assert model.fidelity == ("lines" if lines else "compressible")
 
 
-def test_incompressible_is_all_or_nothing(circuit):
-    with pytest.raises(CircuitError, match=r"'incompressible' for \['bucket_cyl'\] cannot be mixed"):
-        NetworkModel.from_circuit(circuit, actuator_fidelity={"bucket_cyl": "incompressible"})
+def test_incompressible_for_every_actuator_is_the_incompressible_network(circuit):
+    """(Some actuators only: rigid actuators of a compressible network, tests/test_fidelity_rigid.py.)"""
     every = {name: "incompressible" for name in FOUR_ACTUATORS}
     model = NetworkModel.from_circuit(circuit, fidelity="lines", actuator_fidelity=every)
     assert model.fidelity == "incompressible" and model.hose_lines == ()

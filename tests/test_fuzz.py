@@ -288,13 +288,18 @@ def test_bad_fidelity_table(tmp_path, capsys, table, expected):
         assert part in err, (part, err)
 
 
-def test_incompressible_cannot_be_mixed(tmp_path, capsys):
+def test_rigid_actuator_joined_to_a_pressure_node_is_refused(tmp_path, capsys):
+    """'incompressible' for one cylinder whose chamber net an orifice joins to the supply: exit 2, naming the
+    scenario's [fidelity] table, the component and the remedy."""
     d = scene_dir(tmp_path, "excavator")
+    circuit = d / "excavator.circuit.toml"
+    circuit.write_text(circuit.read_text() + '\n[[component]]\nname = "bleed"\ntype = "orifice"\narea = 1e-6\n'
+                       'ports = { a = "supply", b = "boom_cyl_cap" }\n')
     text = (d / "dig.scenario.toml").read_text()
     (d / "dig.scenario.toml").write_text(text + '\n[fidelity]\nboom_cyl = "incompressible"\n')
     err = run_bad(d / "dig.scenario.toml", capsys)
-    assert "dig.scenario.toml" in err and "'incompressible' for ['boom_cyl'] cannot be mixed" in err
-    assert "'stick_cyl'" in err and "give every actuator 'incompressible' or none" in err
+    assert "dig.scenario.toml" in err and "[fidelity]" in err and "component 'bleed'" in err
+    assert "give 'boom_cyl' the fidelity 'compressible' or 'lines'" in err
 
 
 @pytest.mark.parametrize("argv, expected", [
