@@ -18,8 +18,9 @@ Nodes
 Branches
     Two-terminal flow laws Q(p_from, p_to) [m³/s at reference density], each
     with analytic derivatives: orifices (fixed, valve edges, check valves),
-    laminar leaks, relief valves, pumps (sources) and motors (flow set by the
-    shaft speed).
+    laminar leaks, relief valves, pumps (sources), motors (flow set by the
+    shaft speed) and rigid branches (the flow a rigid actuator's rod displaces,
+    set by its speed and its valve's direction; see ``FIDELITIES``).
 
 Actuators
     Cylinders (coordinate: rod extension x [m], effort: force [N]) and motors
