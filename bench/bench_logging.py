@@ -10,14 +10,17 @@ interleaved, medians reported:
                   does except logging;
 ``default log``   ``sim.runner.run()`` at the scenario's log rate (100 Hz), the same work
                   plus the recorder, the MCAP writer and the divergence/energy checks;
-``every step``    ``run()`` logging all 1000 samples per second (blocks of 1 step);
+``every step``    ``run()`` logging all 1000 samples per second: blocks of 10 steps as at the default
+                  rate (``sim.runner.MIN_BLOCK_STEPS``), the samples inside a block copied by the
+                  plant from its compiled loop (``MujocoPlantFast.advance(n, record, every)``);
 ``per-step path`` for reference, ``run(..., fast=False)`` at 100 Hz: :class:`MujocoPlant`, one
                   Python-orchestrated step at a time (what ``run()`` did before the block path).
 
 Overhead = (time / no-log time) − 1.  Targets: default ≤ 10 %, every step ≤ 50 %.
 The per-sample cost is split into the recorder's stages (``capture`` of the raw state per
-sample, ``derive`` and ``push`` per batch), JSON encoding and MCAP writing, by timing those
-parts alone on the same plant.
+sample from Python at a block's end, or ``record`` of a sample inside a block by the plant's
+compiled loop; ``derive`` and ``push`` per batch), JSON encoding and MCAP writing, by timing
+those parts alone on the same plant.
 
 Start-up: ``hydroplant run`` of the dig scenario for one step in a fresh interpreter
 (import, scene load, plant with its compiled callback, first step, log closed), twice:
@@ -162,6 +165,21 @@ def sample_parts(samples: int, out: Path) -> dict:
         t2b = time.perf_counter()
         log._drain_now(end_chunk=True)  # merge in log-time order, MCAP records, compress the chunks, write
         t3 = time.perf_counter() - (t2b - t2)
+    # record: the plant's in-block copy of a sample, per recorded row (blocks of 10 steps, 9 rows recorded), as
+    # the difference of alternating blocks with and without recording
+    import numpy as np
+
+    rows = np.empty((9, plant.record_width))
+    with_record, without = [], []
+    for i in range(400):
+        t = time.perf_counter()
+        if i % 2:
+            plant.advance(10, rows, 1)
+            with_record.append(time.perf_counter() - t)
+        else:
+            plant.advance(10)
+            without.append(time.perf_counter() - t)
+    record = (statistics.median(with_record) - statistics.median(without)) / 9
     from hydraulics.energy import stored_energy
 
     net, state = plant.network, plant.net_state
@@ -178,7 +196,7 @@ def sample_parts(samples: int, out: Path) -> dict:
     return {"capture": capture / samples * 1e6, "derive": derive / samples * 1e6, "push": push / samples * 1e6,
             "encode": per(t1, t2), "write": per(t2, t3), "messages": messages / samples,
             "bytes": size / samples, "hydraulic_terms": per(t4, t5), "mechanics": per(t5, t6),
-            "ring": len(recorder._raw)}
+            "ring": len(recorder._raw), "record": record * 1e6}
 
 
 def main() -> None:
@@ -214,7 +232,8 @@ def main() -> None:
             print(line, flush=True)
         parts = sample_parts(2000, out / "parts.mcap")
         print(f"  one sample: {parts['messages']:.0f} messages, {parts['bytes']:.0f} B of JSON; capture {parts['capture']:.1f} µs "
-              f"(of which mechanical energy {parts['mechanics']:.1f} µs), derive {parts['derive']:.1f} µs and push "
+              f"(of which mechanical energy {parts['mechanics']:.1f} µs) at a block's end, or record {parts['record']:.2f} µs "
+              f"inside a block (median difference, noisy), derive {parts['derive']:.1f} µs and push "
               f"{parts['push']:.1f} µs (per sample, in batches of {parts['ring']}), encode {parts['encode']:.1f} µs, "
               f"write {parts['write']:.1f} µs (merge, MCAP records, zstd); for comparison, the per-sample numpy "
               f"hydraulic terms (chamber_stiffness, stored_energy, pressure_effort) cost {parts['hydraulic_terms']:.1f} µs")

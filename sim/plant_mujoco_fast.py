@@ -64,12 +64,22 @@ Results agree with :class:`MujocoPlant` to round-off (θ is exact: the
 effective masses come from the same ``mj_solveM`` at the same state); the only
 differences are summation orders (J·q̇, energy sums).
 
+**Recording.**  ``advance(n, record, every)`` (or :meth:`MujocoPlantFast.record_next` before
+``advance(n)``) copies the raw state after every step whose index becomes a multiple of
+``every`` into the next row of ``record``, from the callback of the following step (``_record``):
+MuJoCo has then already computed that state's ``xpos``, ``xquat`` and ``energy``, so the row is
+bit for bit :meth:`MujocoPlantFast.record_row` after that step, without returning to Python.
+The runner's recorder passes rows of its ring (same layout), so logging every step, or every
+tenth, no longer needs one ``advance`` per sample.
+
 **API** (unchanged by the cached, allocation-free rewrite): ``advance(n)`` runs
 n coupled steps and returns the last step's :class:`StepReport` (``success``,
 ``message``, ``status``; Newton counters of the last step); ``step()`` is
 ``advance(1)``; after each call ``net_state``, ``effort``, ``theta``,
 ``energy``, ``control``, ``last_report``, ``step_index`` and ``time`` describe
-the same instant.  The constructor takes ``coupling`` (as
+the same instant; ``net_state`` (its arrays), ``effort``, ``theta``, ``last_report`` and the pressure
+extremes are replaced by new objects by each compiled ``advance``, never written into (the runner's snapshot of a block keeps
+them by reference), while ``control``'s arrays are updated in place.  The constructor takes ``coupling`` (as
 :class:`MujocoPlant`) to override the scenario's coupling.  New: ``node_pressure_max`` / ``node_pressure_min`` [Pa], the
 running extremes of every successful step's end pressures since
 :meth:`reset` (initial pressures included; the runner folds them into its
@@ -139,8 +149,10 @@ except ImportError:  # pragma: no cover
     P_PASSIVE, P_CONSTRAINT, P_J, P_MINVJ, P_OIL, P_PRESSURE, P_SPOOL, P_XPOS, P_XVEL, P_CMD, P_SPEED,
     P_XSTART, P_VSTART, P_CONST, P_SLOPE, P_THETA, P_MEFF, P_EFFORT, P_FLOW, P_PASSIVE_SAVED, P_FS, P_QUAD,
     P_WORK, P_SCRATCH, P_ISTATS, P_PMAX, P_PMIN, C_LINEAR,
+    C_NQ, C_NBODY, C_REC_ROWS, C_REC_EVERY, C_REC_FIRST, C_REC_COUNT, C_REC_BAD, C_END_FINITE, C_REC_WIDTH,
+    P_QPOS, P_BXPOS, P_BXQUAT, P_ENERGY, P_REC,
     NCTX,
-) = range(66)
+) = range(80)
 
 # float scalars (P_FS): step, residual of the last step, ledger terms
 FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD, FS_GUESS = range(9)  # ledger: C._account's order
@@ -508,6 +520,66 @@ def _begin(ctx, net, V):
     ctx[C_PENDING] = 1
 
 
+@_kernel
+def _put(row, o, values):
+    for i in range(values.size):
+        row[o + i] = values[i]
+    return o + values.size
+
+
+@_jit
+def _record(ctx, V):
+    """Copy the state at the end of the step just finished into the next row of the record (see
+    :meth:`MujocoPlantFast.advance`), when that step is one to record.
+
+    In the callback of step k+1, after step k is finished, MuJoCo has already run the position and
+    velocity stages (``mj_fwdPosition``, ``mj_energyPos``, ``mj_fwdVelocity``, ``mj_energyVel``) at the
+    state that ends step k: ``xpos``, ``xquat`` and ``energy`` are those :meth:`MujocoPlant.mechanical_energy`
+    would compute after step k.
+    """
+    count = ctx[C_REC_COUNT]
+    j = ctx[C_K] - 1  # block-local index of the step just finished
+    first = ctx[C_REC_FIRST]
+    if count >= ctx[C_REC_ROWS] or j < first or ctx[C_FAILED] >= 0 or (j - first) % ctx[C_REC_EVERY] != 0:
+        return
+    width = ctx[C_REC_WIDTH]
+    row = carray(_pf64(ctx[P_REC] + 8 * count * width), (width,))
+    fs = V.fs
+    o = _put(row, 0, V.pres)
+    o = _put(row, o, _vf(ctx, P_QPOS, ctx[C_NQ]))
+    o = _put(row, o, V.qvel)
+    o = _put(row, o, V.oil)
+    o = _put(row, o, V.pos)
+    o = _put(row, o, V.vel)
+    o = _put(row, o, V.effort)
+    o = _put(row, o, V.theta)
+    o = _put(row, o, V.cmd[j])
+    o = _put(row, o, V.spool)
+    o = _put(row, o, V.speed[j])
+    o = _put(row, o, V.flow)
+    energy = _vf(ctx, P_ENERGY, 2)  # MuJoCo's (potential, kinetic)
+    row[o], row[o + 1], row[o + 2], row[o + 3] = ctx[C_NEWTON], fs[FS_NORM], energy[1], energy[0]
+    row[o + 4], row[o + 5], row[o + 6], row[o + 7] = fs[FS_PUMP], fs[FS_DISS_H], fs[FS_DISS_F], fs[FS_DISS_M]
+    o = _put(row, o + 8, _vf(ctx, P_BXPOS, 3 * ctx[C_NBODY]))
+    _put(row, o, _vf(ctx, P_BXQUAT, 4 * ctx[C_NBODY]))
+    ctx[C_REC_COUNT] = count + 1
+    if not _state_finite(ctx, V):
+        ctx[C_REC_BAD] += 1
+
+
+@_jit
+def _state_finite(ctx, V):
+    """Whether node pressures, qpos and qvel are all finite (MujocoPlant.finite())."""
+    s = 0.0
+    for x in V.pres:
+        s += x * 0.0
+    for x in _vf(ctx, P_QPOS, ctx[C_NQ]):
+        s += x * 0.0
+    for x in V.qvel:
+        s += x * 0.0
+    return s == 0.0
+
+
 @_jit
 def _coupled_step(address, m, d):
     """The whole callback: finish step k−1, moments, M⁻¹·Jᵀ (MuJoCo's mj_solveM), effort law of step k."""
@@ -518,7 +590,10 @@ def _coupled_step(address, m, d):
     V = _views(ctx)
     _finish_pending(ctx, net, V)
     if ctx[C_MODE] == MODE_FINISH:  # called from Python after the block: finish its last step only
+        ctx[C_END_FINITE] = _state_finite(ctx, V)
         return
+    if ctx[P_REC] != 0:
+        _record(ctx, V)
     _prepare(ctx, V)
     _mj_solveM_nb(m, d, _pvoid(ctx[P_MINVJ]), _pvoid(ctx[P_J]), np.int32(ctx[C_NA]))
     _begin(ctx, net, V)
@@ -605,6 +680,8 @@ class MujocoPlantFast(MujocoPlant):
     """
 
     def __init__(self, scene, *, coupling: str | None = None):
+        self._record_next = None
+        self.recorded, self.recorded_finite, self.end_finite = 0, True, True
         super().__init__(scene, coupling=coupling)
         scenario = scene.scenario
         stepper = self.coupling.stepper
@@ -649,6 +726,8 @@ class MujocoPlantFast(MujocoPlant):
         ctx[C_NVALVE], ctx[C_NPUMP], ctx[C_NBIAS] = len(net.valve_names), len(net.pump_names), m.actuator_biasprm.shape[1]
         ctx[C_SUBSTEPS], ctx[C_NCYL] = stepper.substeps, len(net.cylinder_actuator)
         ctx[C_LINEAR] = int(isinstance(self.coupling, CouplingImplicitLinear))
+        self._record_width = self.record_width
+        ctx[C_NQ], ctx[C_NBODY], ctx[C_REC_WIDTH] = m.nq, m.nbody, self._record_width
         ctx[C_NF], ctx[C_NI], ctx[C_NW], ctx[C_NS] = self._F.size, self._I.size, self._work.size, self._scratch.size
         addresses = {
             P_F: self._F, P_I: self._I, P_ACT: self._act, P_CLOSED: self._closed, P_LENGTH: d.actuator_length,
@@ -659,11 +738,14 @@ class MujocoPlantFast(MujocoPlant):
             P_XSTART: self._xs, P_VSTART: self._vs, P_CONST: self._const, P_SLOPE: self._slope, P_THETA: self._theta,
             P_MEFF: self._meff, P_EFFORT: self._effort, P_FLOW: self._flow, P_PASSIVE_SAVED: self._passive, P_FS: self._fs,
             P_QUAD: self._quad, P_WORK: self._work, P_SCRATCH: self._scratch, P_ISTATS: self._istats,
-            P_PMAX: self._pmax, P_PMIN: self._pmin,
+            P_PMAX: self._pmax, P_PMIN: self._pmin, P_QPOS: d.qpos, P_BXPOS: d.xpos, P_BXQUAT: d.xquat, P_ENERGY: d.energy,
         }
+        for a in (d.qpos, d.xpos, d.xquat, d.energy):
+            assert a.flags.c_contiguous and a.dtype == np.float64
         assert d.moment_rowadr.dtype == np.int32 and d.moment_colind.dtype == np.int32
         for slot, array in addresses.items():
             ctx[slot] = array.ctypes.data
+        ctx[P_REC] = 0  # set by advance() for a block that records
         self._keep = addresses  # the arrays must outlive the table
         self._ctx = ctx
         callback()
@@ -698,22 +780,103 @@ class MujocoPlantFast(MujocoPlant):
         """Advance one step of ``dt``; returns the hydraulic step report."""
         return self.advance(1)
 
-    def advance(self, n: int):
+    # ------------------------------------------------------------------ record
+    @property
+    def record_width(self) -> int:
+        """Floats per row of :meth:`advance`'s ``record`` (see :meth:`record_row` for the layout)."""
+        m, net = self.model, self.network
+        n, na = net.node_count, net.actuator_count
+        return (2 * n + m.nq + m.nv + 4 * na + 2 * len(net.valve_names) + len(net.pump_names) + len(net.branch_names)
+                + 8 + 7 * m.nbody)
+
+    def record_row(self, out: np.ndarray) -> None:
+        """Write the current state into ``out`` (``record_width`` floats), as :meth:`advance` records a step.
+
+        Layout, SI units: node pressures [Pa], ``qpos``, ``qvel``, node oil [m³ at reference density],
+        actuator positions [m|rad], velocities, efforts [N|N·m], θ [-], valve commands, valve spools [-],
+        pump speeds [rev/s], branch flows [m³/s], Newton iterations and residual [Pa] of the last step,
+        kinetic and potential energy [J], pump work, hydraulic, friction and mechanical dissipation [J],
+        body positions ``xpos`` (nbody×3) [m] and quaternions ``xquat`` (nbody×4).  Refreshes the kinematics
+        (:meth:`mechanical_energy`), as observing always does.
+        """
+        state, e, report = self.net_state, self.energy, self.last_report
+        kinetic, potential = self.mechanical_energy()
+        d = self.data
+        if report is None:
+            flow, solver = np.zeros(len(self.network.branch_names)), (0.0, 0.0)
+        else:
+            flow, solver = report.branch_flow, (report.newton_iterations, report.residual)
+        np.concatenate((state.node_pressure, d.qpos, d.qvel, state.node_oil, state.actuator_position,
+                        state.actuator_velocity, self.effort, self.theta, self.control.valve_command, state.valve_spool,
+                        self.control.pump_speed, flow, solver, (kinetic, potential, e.pump_work, e.dissipated_hydraulic,
+                                                              e.dissipated_friction, e.dissipated_mechanical),
+                        d.xpos.reshape(-1), d.xquat.reshape(-1)), out=out)
+
+    @staticmethod
+    def record_rows(step_index: int, n: int, every: int) -> int:
+        """Rows :meth:`advance` (n, record, every) records from ``step_index``: the steps s < ``step_index + n``
+        after which the step index is a multiple of ``every`` (the block's last step is never recorded)."""
+        first = (every - (step_index + 1) % every) % every  # block-local index of the first recorded step
+        return 0 if first > n - 2 else (n - 2 - first) // every + 1
+
+    def record_next(self, record: np.ndarray, every: int = 1) -> None:
+        """Make the next :meth:`advance` call that is given no ``record`` record into ``record`` every ``every`` steps.
+
+        The same as passing them to that call; for callers that go through a wrapped ``advance(n)``
+        (instrumentation, fault injection) and so cannot pass them.
+        """
+        self._record_next = (record, every)
+
+    # -------------------------------------------------------------------- step
+    def advance(self, n: int, record: np.ndarray | None = None, every: int = 1):
         """Advance ``n`` coupled steps in one ``mj_step(m, d, nstep=n)``; returns the last step's report.
 
         Stops early only in the sense that a failed hydraulic step freezes the
         network (see module docstring); ``step_index`` then points at the failure.
+
+        With ``record`` (float64, C-contiguous, shape (≥ rows, :attr:`record_width`)), the state at
+        the end of every step after which ``step_index`` is a multiple of ``every`` (all but the
+        block's last step; ``rows`` = :meth:`record_rows`) is copied into the next row of
+        ``record``, as :meth:`record_row` would copy it after that step, from inside the compiled
+        loop: a caller that samples every few steps need not stop MuJoCo at each sample.
+        ``recorded`` then holds the number of rows written (fewer after a failed step: the rows
+        from the failed step on are not written), ``recorded_finite`` whether their node pressures,
+        ``qpos`` and ``qvel`` are all finite, and ``end_finite`` the same of the state after the
+        block (:meth:`finite`, computed in the compiled loop).
         """
         n = int(n)
         if n < 1:
             raise ValueError(f"`n` must be >= 1, got {n!r}")
+        if record is None and self._record_next is not None:
+            record, every = self._record_next
+        self._record_next = None
+        every = int(every)
+        if every < 1:
+            raise ValueError(f"`every` must be >= 1, got {every!r}")
+        self.recorded = 0
+        self.recorded_finite = True
+        rows = 0
+        if record is not None:
+            first = (every - (self.step_index + 1) % every) % every  # block-local index of the first recorded step
+            rows = 0 if first > n - 2 else (n - 2 - first) // every + 1  # record_rows()
+            width = self._record_width if self.fast else self.record_width
+            flags = getattr(record, "flags", None)
+            if not (isinstance(record, np.ndarray) and record.dtype == np.float64 and record.ndim == 2
+                    and flags.c_contiguous and flags.writeable and record.shape[1] == width and record.shape[0] >= rows):
+                raise ValueError(f"`record` must be a writable C-contiguous float64 array of shape (>= {rows}, {width}), "
+                                 f"got {getattr(record, 'dtype', type(record).__name__)} {getattr(record, 'shape', '')}")
         if not self.fast:
             for _ in range(n):
                 report = MujocoPlant.step(self)
                 if not report.success:
                     break
-                np.maximum(self.node_pressure_max, self.net_state.node_pressure, out=self.node_pressure_max)
-                np.minimum(self.node_pressure_min, self.net_state.node_pressure, out=self.node_pressure_min)
+                self.node_pressure_max = np.maximum(self.node_pressure_max, self.net_state.node_pressure)
+                self.node_pressure_min = np.minimum(self.node_pressure_min, self.net_state.node_pressure)
+                if self.recorded < rows and self.step_index % every == 0:
+                    self.record_row(record[self.recorded])
+                    self.recorded += 1
+                    self.recorded_finite = self.recorded_finite and self.finite()
+            self.end_finite = self.finite()
             return report
         state = self.net_state
         self._oil[:] = state.node_oil
@@ -730,6 +893,9 @@ class MujocoPlantFast(MujocoPlant):
         cmd, speed = self._sample_inputs(n)
         ctx = self._ctx
         ctx[C_K:C_WORST + 1] = _BLOCK_START  # C_K, C_PENDING, C_FAILED, C_STATUS, C_WORST
+        if rows:
+            ctx[P_REC] = record.ctypes.data
+            ctx[C_REC_ROWS:C_REC_BAD + 1] = (rows, every, first, 0, 0)  # rows, every, first, count, bad
         if not _LOCK.acquire(blocking=False):
             raise RuntimeError("another MujocoPlantFast is stepping in this process (MuJoCo's control callback is global)")
         try:
@@ -742,7 +908,12 @@ class MujocoPlantFast(MujocoPlant):
                 mujoco.set_mjcb_control(previous)
             _finish_python()
             failed, status, worst, newton, rhs, jac = _CTX[C_FAILED:C_JAC + 1].tolist()
+            if rows:
+                self.recorded, bad = _CTX[C_REC_COUNT:C_REC_BAD + 1].tolist()
+                self.recorded_finite = bad == 0
+            self.end_finite = bool(_CTX[C_END_FINITE])
         finally:
+            ctx[P_REC] = _CTX[P_REC] = 0
             _LOCK.release()
         steps = n if failed < 0 else failed + 1
         last = steps - 1

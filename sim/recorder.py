@@ -88,7 +88,10 @@ class RunRecorder:
 
     Per sample, :meth:`capture` copies only the plant's raw state (pressures, oil,
     actuator motion, efforts, controls, flows, energy ledger, joints, body poses)
-    into a ring of ``ring_size`` rows.  :meth:`derive` computes the logged fields
+    into a ring of ``ring_size`` rows; a plant that records samples inside its
+    blocks (:class:`~sim.plant_mujoco_fast.MujocoPlantFast`, same row layout:
+    ``record_row``) writes them straight into the ring instead
+    (:meth:`record_target`, then :meth:`commit_recorded`).  :meth:`derive` computes the logged fields
     of all pending samples at once (chamber volumes, stiffness, stored oil energy,
     pressure forces, pump powers, energy residual) with the same functions a
     single sample uses: the node relations of :class:`~hydraulics.network.NetworkModel`,
@@ -195,6 +198,7 @@ class RunRecorder:
         capacity = max(1, min(int(RING_SIZE if ring_size is None else ring_size), log._batch_size))
         self._raw = np.zeros((capacity, int(raw_start[-1])))
         self._raw_steps = np.zeros(capacity, dtype=np.int64)
+        self._counting = np.arange(capacity, dtype=np.int64)
         self._rows = np.full((capacity, int(start[-1])), np.nan)  # joint efforts are never written: logged as null
         self._pending = self._derived = 0
         self.last: dict = {}
@@ -203,6 +207,9 @@ class RunRecorder:
             self._mj_views = (d.qpos, d.qvel, d.xpos.reshape(-1), d.xquat.reshape(-1))
             assert all(np.shares_memory(v, a) for v, a in zip(self._mj_views[2:], plant.body_poses()))
         self._state_end = self._rawcols["joints"].stop  # node pressures, qpos, qvel: what MujocoPlant.finite() checks
+        # A plant that records rows inside its blocks (MujocoPlantFast.advance(n, record, every)) writes this same
+        # raw layout (MujocoPlantFast.record_row), straight into the ring.
+        self.records = self._mj and getattr(plant, "record_width", None) == self._raw.shape[1]
         assert self._rawcols["p"].start == 0 and self._rawcols["joints"].start == self._rawcols["p"].stop
         log.on_close(self.push_pending)
 
@@ -255,6 +262,44 @@ class RunRecorder:
         self._pending = n + 1  # last: an interrupt above leaves no half-captured sample
         return self._pending == len(self._raw) or step_index >= self.log._next_flush_step
 
+    @property
+    def room(self) -> int:
+        """Free rows of the ring: samples that can be captured or recorded before a :meth:`push`."""
+        return len(self._raw) - self._pending
+
+    def record_target(self, rows: int) -> np.ndarray:
+        """The next ``rows`` free rows of the ring (a C-contiguous view), for a plant to record raw samples into
+        (``plant.advance(n, record=..., every=...)``, see :attr:`records`); then :meth:`commit_recorded`."""
+        if not self.records:
+            raise TypeError("this plant does not record raw rows (no record_width matching the recorder's layout)")
+        if rows > self.room:
+            raise ValueError(f"{rows} rows requested, {self.room} free in the ring")
+        return self._raw[self._pending:self._pending + rows]
+
+    def commit_recorded(self, first: int, every: int, count: int, *, checked: bool = False) -> bool:
+        """Accept the ``count`` rows a plant recorded into :meth:`record_target` as samples at steps ``first``,
+        ``first + every``, ..., if their state is finite (node pressures, qpos, qvel, as :meth:`captured_finite`;
+        ``checked``: the plant has checked it); returns whether they were accepted."""
+        if count <= 0:
+            return True
+        n = self._pending
+        if not checked and not math.isfinite(_sum(self._raw[n:n + count, :self._state_end], axis=None)):
+            return False
+        if count == 1:
+            self._raw_steps[n] = first
+        else:
+            steps = self._raw_steps[n:n + count]
+            np.multiply(self._counting[:count], every, out=steps)
+            steps += first
+        self._pending = n + count
+        return True
+
+    @property
+    def due(self) -> bool:
+        """Whether the pending samples should be derived and pushed now (as :meth:`capture` returns)."""
+        n = self._pending
+        return n == len(self._raw) or (n > 0 and self._raw_steps[n - 1] >= self.log._next_flush_step)
+
     def captured_finite(self) -> bool:
         """Whether the last captured sample's state is finite: node pressures, and every qpos/qvel of a MuJoCo
         plant (the same test as its ``finite()``, on the copy; other plants are asked)."""
@@ -263,10 +308,9 @@ class RunRecorder:
         # a sum is finite iff every term is (barring overflow beyond 1e308, which only costs the runner a replay)
         return math.isfinite(_sum(self._raw[self._pending - 1, :self._state_end]))
 
-    def discard(self) -> None:
-        """Forget the last captured sample (not yet derived)."""
-        if self._pending > self._derived:
-            self._pending -= 1
+    def discard(self, count: int = 1) -> None:
+        """Forget the last ``count`` captured or recorded samples (those not yet derived)."""
+        self._pending = max(self._derived, self._pending - int(count))
 
     @property
     def pending(self) -> int:

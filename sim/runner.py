@@ -8,12 +8,20 @@ Library use::
 
 MuJoCo mode with the implicit coupling and the compiled kernels (the
 defaults) advances :class:`~sim.plant_mujoco_fast.MujocoPlantFast` in blocks
-of ``scenario.log_every`` steps, one ``mj_step(m, d, nstep=n)`` from one log
-sample to the next; every other configuration, ``compiled = false``
-(``hydroplant run --pure``) and ``run(..., fast=False)`` step one step at a
-time.  Both paths log the same values to round-off (``tests/test_runner_fast.py``).
+of one ``mj_step(m, d, nstep=n)``: one log interval (``scenario.log_every``
+steps), or as many whole intervals as fit in ``MIN_BLOCK_STEPS`` = 10 steps
+when logging more often (every step: blocks of 10, as at the default 100 Hz
+at 1 kHz).  The plant records the log samples inside a block from its
+compiled loop straight into the recorder's ring
+(``MujocoPlantFast.advance(n, record, every)``), so a block runs one step past
+its last sample; a sample that ends a block (every-step logging, the run's
+last step) is captured from Python (:meth:`RunRecorder.capture`).  Every
+other configuration, ``compiled = false`` (``hydroplant run --pure``) and
+``run(..., fast=False)`` step one step at a time.  Both paths log the same
+values to round-off (``tests/test_runner_fast.py``), and recorded and
+captured samples are bit-identical.
 
-Log samples are captured raw (:meth:`RunRecorder.capture`) and their fields
+Log samples are kept raw in the recorder's ring and their fields
 derived and written per batch of up to ``sim.recorder.RING_SIZE`` samples,
 and at every periodic flush of the log; the energy-growth check runs on each
 batch and stops the run at the first offending sample: the log ends there,
@@ -83,9 +91,10 @@ def make_plant(scene, *, fast: bool = True):
 class _Snapshot:
     """Everything a :class:`MujocoPlantFast` block changes, so a failed block can be replayed step by step.
 
-    The MjData's integration state (``mj_getState``), the network state, efforts,
-    θ, controls and energy ledger are copied (``advance`` may update any of them
-    in place); ``last_report`` is replaced by ``advance`` and kept by reference.
+    The MjData's integration state (``mj_getState``), the energy ledger and the controls
+    (which ``advance`` writes in place) are copied; the network state, efforts, θ,
+    ``last_report`` and the pressure extremes are kept by reference: ``advance`` replaces
+    them with new objects and never writes into them (see :class:`MujocoPlantFast`).
     """
 
     SPEC = mujoco.mjtState.mjSTATE_INTEGRATION
@@ -94,20 +103,20 @@ class _Snapshot:
     def __init__(self, plant):
         self.buffer = np.empty(mujoco.mj_stateSize(plant.model, self.SPEC))
         self.extreme_names = tuple(name for name in _PLANT_EXTREMES if hasattr(plant, name))
+        self.valve_command = np.empty_like(plant.control.valve_command)
+        self.pump_speed = np.empty_like(plant.control.pump_speed)
         self.take(plant)
 
     def take(self, plant) -> None:
         mujoco.mj_getState(plant.model, plant.data, self.buffer, self.SPEC)
         self.step_index = plant.step_index
-        n = plant.net_state
-        self.net_state = type(n)(n.node_oil.copy(), n.node_pressure.copy(), n.valve_spool.copy(), n.actuator_position.copy(),
-                                 n.actuator_velocity.copy(), n.time)
-        self.effort, self.theta, self.last_report = plant.effort.copy(), plant.theta.copy(), plant.last_report
+        self.net_state, self.effort, self.theta, self.last_report = plant.net_state, plant.effort, plant.theta, plant.last_report
         e = plant.energy
         self.ledger = (e.pump_work, e.motor_work, e.dissipated_hydraulic, e.dissipated_friction, e.dissipated_mechanical)
-        self.valve_command = plant.control.valve_command.copy()
-        self.pump_speed = plant.control.pump_speed.copy()
-        self.extremes = [getattr(plant, name).copy() for name in self.extreme_names]
+        control = plant.control
+        np.copyto(self.valve_command, control.valve_command)
+        np.copyto(self.pump_speed, control.pump_speed)
+        self.extremes = [getattr(plant, name) for name in self.extreme_names]
 
     def restore(self, plant) -> None:
         mujoco.mj_setState(plant.model, plant.data, self.buffer, self.SPEC)
@@ -118,7 +127,26 @@ class _Snapshot:
         plant.control.valve_command[:] = self.valve_command
         plant.control.pump_speed[:] = self.pump_speed
         for name, value in zip(self.extreme_names, self.extremes):
-            setattr(plant, name, value.copy())
+            setattr(plant, name, value)
+
+
+# Steps between snapshots of the block path: a failed block is replayed from the last snapshot (the
+# steps before the block again without logging, then the block one step at a time; the same arithmetic).
+SNAPSHOT_STEPS = 100
+
+# Shortest block of the block path [steps] when the log interval is shorter (every-step logging): the
+# default log interval, so that logging every step steps the plant exactly as logging at the default rate.
+MIN_BLOCK_STEPS = 10
+
+
+class _NonFinite:
+    """Stands for a block whose recorded samples were not finite (replayed step by step like a failed one)."""
+
+    success = False
+    message = ""
+
+
+_NONFINITE = _NonFinite()
 
 
 # Per-step node pressure extremes [Pa] a plant may keep over its blocks (running max / min of the
@@ -302,10 +330,13 @@ class _Loop:
         divergence, peak and minimum pressures are checked after every step.
     :meth:`blocks`
         ``plant.advance(n)`` of a :class:`~sim.plant_mujoco_fast.MujocoPlantFast`
-        from one log sample to the next (``scenario.log_every`` steps).  The
-        plant's state at the start of each block is kept (:class:`_Snapshot`);
-        a block that fails (hydraulic step failed, or a non-finite state at its
-        end) is rewound and replayed one ``advance(1)`` at a time through the
+        in blocks chosen by :meth:`block_end`, the samples inside a block
+        recorded by the plant (:meth:`RunRecorder.record_target`,
+        :meth:`RunRecorder.commit_recorded`).  The plant's state is kept every
+        ``SNAPSHOT_STEPS`` steps (:class:`_Snapshot`); a block that fails
+        (hydraulic step failed, or a non-finite state in a recorded sample or
+        at its end) is rewound to the last snapshot, advanced again to its start
+        (unlogged), and replayed one ``advance(1)`` at a time through the
         per-step checks, so a divergence is reported at the failing step with
         the same time, component and log as on the per-step path (the replay
         repeats the block's arithmetic exactly).  Pressure extremes are taken
@@ -324,6 +355,8 @@ class _Loop:
         self.per_step_extremes = all(hasattr(plant, name) for name in _PLANT_EXTREMES)
         self.extremes_every_step = not getattr(plant, "fast", False) or self.per_step_extremes or self.every == 1
         self.stop_step = None  # the step where energy growth was found (the plant may have run past it)
+        # blocks of several log samples, recorded by the plant inside its compiled loop (MujocoPlantFast)
+        self.record_blocks = bool(getattr(plant, "fast", False)) and recorder.records
         self.start = _time.perf_counter()
         self.last_progress = self.start
         self.sample: dict = {}
@@ -337,31 +370,73 @@ class _Loop:
                 return
             self.show_progress()
 
+    def block_end(self, k: int) -> int:
+        """Where the block starting at step ``k`` ends.
+
+        Without in-block recording: at the next log sample (or the last step).  With it: at the
+        step after the block's last sample, so that the plant records every sample of the block
+        from its compiled loop (a block's last step can only be captured from Python; at every-step
+        logging, or at the end of the run, the block ends on that sample and it is captured).  A
+        block holds one log interval, or as many whole intervals as fit in ``MIN_BLOCK_STEPS``, within
+        the room left in the recorder's ring, and never a sample past the first one at or after the
+        log's next periodic flush (so that the flush still writes every sample before it when due).
+        """
+        steps, every = self.steps, self.every
+        end = min(k + every - k % every, steps)  # the next sample
+        if self.record_blocks:
+            last = end + (max(1, min(self.recorder.room, MIN_BLOCK_STEPS // every)) - 1) * every
+            flush = self.log._next_flush_step
+            if flush < math.inf:
+                last = min(last, max(end, -(-int(flush) // every) * every))  # the first sample at or after the flush
+            end = min(last, steps)
+            if every > 1 and end < steps:  # one step further: the sample at `end` is recorded too
+                end += 1
+        return end
+
     def blocks(self) -> None:
         plant, recorder, steps, every = self.plant, self.recorder, self.steps, self.every
         snapshot = _Snapshot(plant)
         while plant.step_index < steps:
             k = plant.step_index
-            n = min(every - k % every, steps - k)  # every block ends on a log sample (or the last step)
-            if n > 1:
+            end = self.block_end(k)
+            n = end - k
+            if k - snapshot.step_index >= SNAPSHOT_STEPS:  # (a failed block is replayed from the last snapshot)
                 snapshot.take(plant)
+            rows = plant.record_rows(k, n, every) if self.record_blocks else 0
+            if rows:  # the samples inside the block are recorded by the plant, straight into the recorder's ring
+                plant.record_next(recorder.record_target(rows), every)
             report = plant.advance(n)
             if report.success:
-                # capture the block's last step, then check it is finite on the captured copy (as plant.finite())
-                due = recorder.capture(plant.step_index)
-                if recorder.captured_finite():
-                    if not self.per_step_extremes:
-                        self.track_block()
-                    if due and not self.drain():
-                        return
-                    self.show_progress()
-                    continue
-                recorder.discard()
+                # commit the recorded samples if finite; capture the block's last step if it is a sample; check the
+                # final state is finite (on the captured copy, as plant.finite())
+                captured = end % every == 0 or end == steps
+                if rows and (plant.recorded != rows or not plant.recorded_finite
+                             or not recorder.commit_recorded((k // every + 1) * every, every, rows, checked=True)):
+                    report = _NONFINITE
+                else:
+                    if captured:
+                        due = recorder.capture(end)
+                        finite = recorder.captured_finite()
+                    else:
+                        due, finite = recorder.due, plant.end_finite  # (plant.finite(), from the compiled loop)
+                    if finite:
+                        if not self.per_step_extremes:
+                            self.track_block()
+                        if due and not self.drain():
+                            return
+                        self.show_progress()
+                        continue
+                    recorder.discard(rows + captured)
             if n == 1:  # a one-step block is its own replay
                 if not self.after_step(report):
                     return
-            else:  # rewind, then find the failing step one step at a time
+            else:  # rewind to the block's start, then find the failing step one step at a time
                 snapshot.restore(plant)
+                if k > plant.step_index:  # from the snapshot to the block's start: the same steps again, not logged
+                    report = plant.advance(k - plant.step_index)
+                    if not report.success or plant.step_index != k:  # (never: the same arithmetic succeeded before)
+                        self.diverged(report)
+                        return
                 for _ in range(n):
                     if not self.after_step(plant.advance(1)):
                         return

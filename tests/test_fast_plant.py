@@ -146,3 +146,46 @@ def test_newton_failure_reported_at_the_same_step(monkeypatch):
     np.testing.assert_allclose(fast.net_state.node_pressure, reference.net_state.node_pressure, rtol=PRESSURE_RTOL,
                                atol=PRESSURE_ATOL)
     assert mujoco.get_mjcb_control() is None
+
+
+@pytest.mark.parametrize("every", [1, 3])
+def test_recorded_rows_are_the_state_after_each_step(every):
+    """advance(n, record, every) copies, from inside the compiled loop, exactly (bit for bit) the row record_row()
+    gives after each recorded step when the same steps are taken one advance(1) at a time: network state, qpos/qvel,
+    efforts, θ, controls, flows, Newton counters, MuJoCo's energies and body poses (excavator, valves moving)."""
+    _, a, _ = plants("excavator")
+    _, b, _ = plants("excavator")
+    width = a.record_width
+    a.advance(20)
+    b.advance(20)
+    blocks = [7, 1, 2, 40, 13]
+    for i, n in enumerate(blocks):
+        rows = a.record_rows(a.step_index, n, every)
+        assert rows == sum(1 for s in range(a.step_index + 1, a.step_index + n) if s % every == 0)
+        record = np.full((rows + 1, width), -1.0)
+        if i % 2:  # through record_next(), for callers of a wrapped advance(n)
+            a.record_next(record, every)
+            a.advance(n)
+        else:
+            a.advance(n, record, every)
+        assert a.recorded == rows and a.recorded_finite and a.end_finite == a.finite() is True
+        expected = np.empty((rows, width))
+        r = 0
+        for _ in range(n):
+            b.advance(1)
+            if r < rows and b.step_index % every == 0:
+                b.record_row(expected[r])
+                r += 1
+        assert r == rows and a.step_index == b.step_index
+        assert np.array_equal(record[:rows], expected, equal_nan=True)
+        assert np.all(record[rows:] == -1.0)  # nothing past the recorded rows
+        end_a, end_b = np.empty(width), np.empty(width)
+        a.record_row(end_a)
+        b.record_row(end_b)
+        assert np.array_equal(end_a, end_b, equal_nan=True)  # blocks and single steps: the same arithmetic
+    assert a.advance(5).success and a.recorded == 0  # record_next() applies to one call only
+    with pytest.raises(ValueError, match="record"):
+        a.advance(5, np.zeros((4, width + 1)), 1)
+    with pytest.raises(ValueError, match="record"):
+        a.advance(5, np.zeros((3, width)), 1)  # 4 rows needed
+    assert mujoco.get_mjcb_control() is None

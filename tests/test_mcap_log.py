@@ -565,8 +565,9 @@ def test_compiled_float_encoding_round_trips_exactly(tmp_path):
 
 
 def test_frame_channels_log_what_separate_channels_log(tmp_path):
-    """A Frame (one row per sample feeding several channels) writes the same messages as one channel per topic,
-    across batch and periodic-flush boundaries; its channels refuse their own appends."""
+    """A Frame (one row per sample feeding several channels, from scattered or contiguous columns) writes the same
+    messages as one channel per topic, across batch and periodic-flush boundaries; its channels refuse their own
+    appends."""
     fields_a, fields_b = {"x": "x [m]", "y": "y [m]"}, {"p": "p [Pa]"}
     steps = 2500  # > batch_size and several flush intervals
     rng = np.random.default_rng(3)
@@ -578,6 +579,7 @@ def test_frame_channels_log_what_separate_channels_log(tmp_path):
                 frame = log.frame(4)
                 a = frame.channel("/a", "t.A", flat_schema("t.A", fields_a), fields=list(fields_a), columns=[2, 0])
                 b = frame.channel("/b", "t.B", flat_schema("t.B", fields_b), fields=list(fields_b), columns=[3])
+                c = frame.channel("/c", "t.A", flat_schema("t.A", fields_a), fields=list(fields_a), columns=[0, 1])
                 events = log.channel("/e", "foxglove.Log", log_schema())
                 with pytest.raises(TypeError):
                     a.append(0, (1.0, 2.0))
@@ -586,6 +588,7 @@ def test_frame_channels_log_what_separate_channels_log(tmp_path):
             else:
                 a = log.channel("/a", "t.A", flat_schema("t.A", fields_a), fields=list(fields_a))
                 b = log.channel("/b", "t.B", flat_schema("t.B", fields_b), fields=list(fields_b))
+                c = log.channel("/c", "t.A", flat_schema("t.A", fields_a), fields=list(fields_a))
                 events = log.channel("/e", "foxglove.Log", log_schema())
             for step in range(steps):
                 if framed:
@@ -593,18 +596,20 @@ def test_frame_channels_log_what_separate_channels_log(tmp_path):
                 else:
                     a.append(step, rows[step, [2, 0]])
                     b.append(step, rows[step, [3]])
+                    c.append(step, rows[step, [0, 1]])
                 if step % 1000 == 0:
                     events.write(step, log_message(LogLevel.INFO, f"step {step}"))
         return path
 
     framed, separate = write(tmp_path / "frame.mcap", True), write(tmp_path / "separate.mcap", False)
     # (check_mcap also checks strict JSON, CRCs and the global log-time order of the file)
-    assert check_mcap(framed) == check_mcap(separate) == {"/a": steps, "/b": steps, "/e": 3}
+    assert check_mcap(framed) == check_mcap(separate) == {"/a": steps, "/b": steps, "/c": steps, "/e": 3}
     la, lb = read_log(framed), read_log(separate)
-    for topic in ("/a", "/b", "/e"):
+    for topic in ("/a", "/b", "/c", "/e"):
         assert la.topic(topic).messages == lb.topic(topic).messages
     np.testing.assert_array_equal(la.topic("/a")["x"], rows[:, 2])
     np.testing.assert_array_equal(la.topic("/b")["p"], rows[:, 3])
+    np.testing.assert_array_equal(la.topic("/c")["y"], rows[:, 1])  # contiguous columns: read as a view
 
 
 def test_frame_extend_writes_what_row_appends_write(tmp_path):

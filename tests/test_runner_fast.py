@@ -137,3 +137,67 @@ def test_failed_block_is_replayed_to_the_failing_step(tmp_path, rate_hz):
         else:  # every step up to the failing one
             assert np.array_equal(t, np.arange(121) * 2_000_000)
         assert any("diverged" in m["message"] for m in log.topic("/hydroplant/events").messages)
+
+
+@pytest.mark.parametrize("path, overrides", [
+    (SEED, {"duration": 0.05}),                                           # every step (1200 Hz), 10-step blocks
+    (LIFT, {"duration": 1.2, "dt": 2e-3, "log_rate_hz": 250.0}),          # every 2nd step, across a periodic flush
+    (LIFT, {"duration": 1.1, "dt": 1e-3}),                                # the default 100 Hz: every 10th step
+])
+def test_samples_recorded_inside_blocks_give_the_same_log_file(tmp_path, monkeypatch, path, overrides):
+    """The plant records the samples inside each block from its compiled loop (MujocoPlantFast.advance(n, record,
+    every); blocks run one step past their last sample, or hold several samples when the log interval is shorter than
+    MIN_BLOCK_STEPS): the log file is byte for byte the one written with one block per sample, each captured by the
+    recorder from Python, and so is the summary."""
+    from sim import runner
+
+    original = runner._Loop.block_end
+    lengths = []
+
+    def logged_block_end(self, k):
+        end = original(self, k)
+        lengths.append(end - k)
+        return end
+
+    monkeypatch.setattr(runner._Loop, "block_end", logged_block_end)
+    recorded = run(path, out=tmp_path / "recorded.mcap", overrides=overrides)
+    every = load_scenario(path).with_overrides(**overrides).log_every
+    assert max(lengths) > every and max(lengths) >= runner.MIN_BLOCK_STEPS  # blocks with samples recorded inside
+    calls = []
+
+    def one_sample_per_block(self, k):
+        self.record_blocks = False
+        end = original(self, k)
+        calls.append(end - k)
+        return end
+
+    monkeypatch.setattr(runner._Loop, "block_end", one_sample_per_block)
+    captured = run(path, out=tmp_path / "captured.mcap", overrides=overrides)
+    assert max(calls) == min(calls[:-1]) == every  # one log interval per block
+    assert recorded.status == captured.status == "complete" and recorded.steps == captured.steps
+    assert (tmp_path / "recorded.mcap").read_bytes() == (tmp_path / "captured.mcap").read_bytes()
+    assert recorded.energy == captured.energy and recorded.final_joints == captured.final_joints
+    assert recorded.peak_pressure == captured.peak_pressure and recorded.min_pressure == captured.min_pressure
+
+
+def test_replay_from_an_older_snapshot_gives_the_same_log(tmp_path, monkeypatch):
+    """A failed block is replayed from the last snapshot (taken every SNAPSHOT_STEPS steps): the steps from the
+    snapshot to the block's start are advanced again, unlogged.  The diverged run's log file and summary are byte
+    for byte those of a snapshot at every block start (the same arithmetic either way)."""
+    from sim import runner
+
+    scenario = load_scenario(LIFT).with_overrides(duration=0.5, dt=2e-3, log_rate_hz=500.0)
+    base = scenario.inputs["boom_valve"]
+
+    def command(t):  # fails the hydraulic step of t = 0.238 s (step 120), inside a 10-step block
+        return math.nan if t >= 0.2371 else float(np.interp(t, base.t, base.value))
+
+    scenario = scenario.with_overrides(inputs={**scenario.inputs, "boom_valve": command})
+    assert runner.SNAPSHOT_STEPS > 20
+    older = run(scenario, out=tmp_path / "older.mcap")
+    monkeypatch.setattr(runner, "SNAPSHOT_STEPS", 1)
+    every_block = run(scenario, out=tmp_path / "every_block.mcap")
+    assert older.status == every_block.status == "diverged" and older.steps == every_block.steps == 120
+    assert older.message == every_block.message
+    assert (tmp_path / "older.mcap").read_bytes() == (tmp_path / "every_block.mcap").read_bytes()
+    assert repr((older.energy, older.final_joints)) == repr((every_block.energy, every_block.final_joints))  # NaNs
