@@ -31,12 +31,30 @@ import mujoco
 import numpy as np
 
 from hydraulics.coupling import make_coupling, start_velocity_guess
+from hydraulics.steppers import StepStatus
 
 from .plant_base import PlantBase
 from .scene import Scene, initial_qpos_qvel
 
 # MuJoCo joint types whose coordinate is one scalar (logged as joint states).
 SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+# MuJoCo answers a NaN or huge qpos / qvel / qacc (beyond mjMAXVAL) by resetting the data to the model's
+# reference pose and counting one of these warnings; a plant must not step on from that pose silently.
+BAD_STATE_WARNINGS = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                                            mujoco.mjtWarning.mjWARN_BADQACC))
+
+
+def mujoco_resets(data) -> int:
+    """How many times MuJoCo has reset ``data`` for a bad qpos, qvel or qacc (see ``BAD_STATE_WARNINGS``)."""
+    return sum(int(data.warning[w].number) for w in BAD_STATE_WARNINGS)
+
+
+def mark_reset(report, before: int, data) -> None:
+    """Turn ``report`` into a non-finite failure when MuJoCo reset ``data`` since the count ``before``."""
+    if mujoco_resets(data) > before:
+        report.status = StepStatus.NONFINITE
+        report.message = ("MuJoCo reset the bodies to the reference pose (non-finite or huge qpos, qvel or qacc): "
+                          f"{StepStatus.NONFINITE.value}")
 
 
 class MujocoPlant(PlantBase):
@@ -129,6 +147,7 @@ class MujocoPlant(PlantBase):
         m, d, net = self.model, self.data, self.network
         dt = self.dt
         self.apply_inputs()
+        resets = mujoco_resets(d)
         mujoco.mj_step1(m, d)
         x, v = self.actuator_motion()
         moment = self.moments().copy()
@@ -151,6 +170,7 @@ class MujocoPlant(PlantBase):
         v_end = moment @ d.qvel
         x_end = x + dt * v_end
         self.net_state, report = self.coupling.finish(self.net_state, self.control, x, x_end, v, v_end, dt)
+        mark_reset(report, resets, d)
         self.effort = law(v_end) if law.lower is None else np.clip(law(v_end), law.lower, law.upper)
         self.theta = getattr(self.coupling, "last_theta", self.theta)
         self.last_report = report

@@ -125,7 +125,7 @@ from hydraulics.network import NetworkState
 from hydraulics.steppers import StepReport, StepStatus
 
 from ._coupling_nb import input_plan, sample_inputs
-from .plant_mujoco import MujocoPlant
+from .plant_mujoco import MujocoPlant, mark_reset, mujoco_resets
 
 try:  # pragma: no branch
     import llvmlite.binding as llvm_binding
@@ -898,6 +898,7 @@ class MujocoPlantFast(MujocoPlant):
             ctx[C_REC_ROWS:C_REC_BAD + 1] = (rows, every, first, 0, 0)  # rows, every, first, count, bad
         if not _LOCK.acquire(blocking=False):
             raise RuntimeError("another MujocoPlantFast is stepping in this process (MuJoCo's control callback is global)")
+        resets = mujoco_resets(self.data)
         try:
             _CTX[:] = ctx
             previous = mujoco.get_mjcb_control()
@@ -941,6 +942,8 @@ class MujocoPlantFast(MujocoPlant):
         elif status == ST_SINGULAR:
             report.status = StepStatus.NEWTON_FAILED
             report.message = "the coupling's linearisation is singular"
+        if report.success:  # (a reset inside the block: the runner replays it step by step to find the step)
+            mark_reset(report, resets, self.data)
         self.last_report = report
         return report
 

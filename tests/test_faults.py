@@ -233,3 +233,20 @@ def test_log_info_of_an_incomplete_log(tmp_path, capsys):
     assert "status: incomplete" in text and "Boom: injected fault" in text and "scene: boom" in text
     log = read_log(tmp_path / "broken.mcap")
     assert log.topic("/hydroplant/joint_states").log_time[-1] == 20 * 5_000_000  # samples every 2 steps up to step 20
+
+
+@pytest.mark.parametrize("fast", [False, True])
+def test_a_mujoco_reset_is_a_divergence_not_a_fresh_start(fast):
+    """MuJoCo resets the bodies to the reference pose when qvel is huge (> mjMAXVAL = 1e10) and only counts a
+    warning; the plant reports that step as non-finite instead of stepping on from the reset pose."""
+    from sim.plant_mujoco import MujocoPlant
+    from sim.plant_mujoco_fast import MujocoPlantFast
+    from sim.scenario import load_scenario
+    from sim.scene import load_scene
+
+    scene = load_scene(load_scenario(MODELS / "boom" / "hold.scenario.toml"))
+    plant = MujocoPlantFast(scene) if fast else MujocoPlant(scene)
+    assert (plant.advance(10) if fast else plant.step()).success
+    plant.data.qvel[0] = 1e12
+    report = plant.advance(10) if fast else plant.step()
+    assert not report.success and "MuJoCo reset the bodies" in report.message
