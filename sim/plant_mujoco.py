@@ -170,7 +170,8 @@ class MujocoPlant(PlantBase):
         v_end = moment @ d.qvel
         x_end = x + dt * v_end
         self.net_state, report = self.coupling.finish(self.net_state, self.control, x, x_end, v, v_end, dt)
-        mark_reset(report, resets, d)
+        if report.success:  # (a failed hydraulic step names its own cause)
+            mark_reset(report, resets, d)
         self.effort = law(v_end) if law.lower is None else np.clip(law(v_end), law.lower, law.upper)
         self.theta = getattr(self.coupling, "last_theta", self.theta)
         self.last_report = report
