@@ -18,12 +18,23 @@ overtravel at the boom's end stop); the excavator's contacts are MuJoCo's soft
 pyramidal law in both modes.  Every mode is run once briefly before timing, so
 numba's cache loading is not timed.
 
+The excavator also runs PBD at fine settings (60 Hz × 320 substeps; 1 kHz frames × 10 and
+× 20 substeps: at 60 Hz the articulated responses computed once per frame limit the
+pressures, ``SolverXPBD.transport_response``) and,
+when the converged full-dig reference of ``bench/bench_tradeoff.py --full-dig`` is on
+disk (cache or its log copy; never recomputed here), prints every excavator row's
+largest pressure error in % of the relief setting per phase (0–1.6 s hold/approach,
+1.6–7 s dig, 7–20 s lift/swing/dump/hold), on 0.1 s centred moving averages
+(``sim.compare.filtered_error_stats``' metric) and point-wise, beside its RTF; without
+that reference the table is skipped with a message.
+
     python bench/bench_pbd.py [--quick] [--scenes seed_cylinder boom excavator] [--substeps 5 10 20 40]
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import platform
 import sys
 import tempfile
@@ -47,8 +58,13 @@ SCENES = {
     "boom": dict(path=ROOT / "models/boom/lift.scenario.toml", duration=6.0, pbd_dt=1 / 60,
                  mujoco_dt=(2e-3, 1e-3, 5e-4), reference=2.5e-4, early=2.4),
     "excavator": dict(path=ROOT / "models/excavator/dig.scenario.toml", duration=20.0, pbd_dt=1 / 60,
-                      mujoco_dt=(1e-3, 5e-4), reference=2.5e-4, early=1.5),
+                      mujoco_dt=(1e-3, 5e-4), reference=2.5e-4, early=1.5,
+                      fine=((1 / 60, 320, 1), (1e-3, 10, 1), (1e-3, 20, 1)), full_dig=True),
 }
+# Pressure errors of the excavator rows against the converged full-dig reference (bench/bench_tradeoff.py
+# --full-dig): 0.1 s centred moving averages and point-wise, % of the highest relief setting, per phase.
+FULL_DIG_PHASES = ((0.0, 1.6), (1.6, 7.0), (7.0, 20.0))  # s: hold + approach, dig (teeth in the soil), lift/swing/dump/hold
+FULL_DIG_LOG = ROOT / "logs/bench-tradeoff/excavator-compare-full/reference.mcap"  # bench_tradeoff --full-dig's copy
 QUICK_DURATION = {"boom": 3.0, "excavator": 4.0}
 
 
@@ -76,6 +92,98 @@ def stroke_error(result, reference, scale, early=None):
         if early is not None:
             early_errors.append(np.max(e[t < early]))
     return max(errors), (max(early_errors) if early_errors else np.nan)
+
+
+def full_dig_reference(scenario_path):
+    """(log path, description) of the converged full-dig reference of the excavator, or (None, reason).
+
+    Never computes it (4–5 min): the cache entry of the current code (``sim.reference`` key of
+    bench_tradeoff's ``--full-dig`` settings), else the newest cached full-dig entry of an earlier
+    code version, else the copy bench_tradeoff wrote to ``logs/bench-tradeoff/excavator-compare-full``.
+    """
+    import importlib.util
+    import json
+
+    from sim.reference import DEFAULT_CACHE_DIR, ReferenceSettings, reference_key
+
+    spec = importlib.util.spec_from_file_location("bench_tradeoff", ROOT / "bench/bench_tradeoff.py")
+    tradeoff = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tradeoff)
+    settings = ReferenceSettings("implicit", 1, tradeoff.FULL_DIG_START_DT, tradeoff.FULL_DIG_TOLERANCE, tradeoff.FULL_DIG_WINDOW)
+    cache = ROOT / DEFAULT_CACHE_DIR
+    key = reference_key(load_scenario(scenario_path), settings)
+    current = cache / key[:24] / "reference.mcap"
+    if current.is_file():
+        return current, f"cached full-dig reference {current.parent.name} (current code)"
+    entries = []
+    for info_path in cache.glob("*/reference.json"):
+        try:
+            info = json.loads(info_path.read_text())
+        except (OSError, ValueError):
+            continue
+        st = info.get("settings", {})
+        if (Path(info.get("scenario", "")).resolve() == Path(scenario_path).resolve() and st.get("filter_window") == settings.filter_window
+                and st.get("start_dt") == settings.start_dt and (info_path.parent / "reference.mcap").is_file()):
+            entries.append((info_path.stat().st_mtime, info_path.parent / "reference.mcap"))
+    if entries:
+        path = max(entries)[1]
+        return path, f"cached full-dig reference {path.parent.name} (an earlier code version: not recomputed)"
+    if FULL_DIG_LOG.is_file():
+        return FULL_DIG_LOG, f"{FULL_DIG_LOG.relative_to(ROOT)} (bench_tradeoff --full-dig)"
+    return None, "no full-dig reference on disk (run bench/bench_tradeoff.py --full-dig --no-tradeoff --scenes excavator)"
+
+
+def pressure_errors(ref_log, log_path, phases=FULL_DIG_PHASES, window=None):
+    """{(t0, t1): (filtered %, point-wise %, worst signal, time)} of the largest pressure error per phase,
+    in % of the circuit's highest relief setting; filtered = centred moving averages over ``window``
+    (default ``sim.compare.DEFAULT_FILTER_WINDOW``), as ``compare --filter-window``."""
+    from sim.compare import DEFAULT_FILTER_WINDOW, align, circuit_scales, log_signals, moving_average
+
+    window = DEFAULT_FILTER_WINDOW if window is None else window
+    relief = circuit_scales(ref_log)["relief_pa"]
+    ref, run_ = log_signals(ref_log), log_signals(read_log(log_path))
+    out = {p: [0.0, 0.0, "", math.nan] for p in phases}
+    for name, sig in ref.items():
+        if sig.kind != "pressure" or name not in run_:
+            continue
+        t, r, x = align(sig.t, sig.y, run_[name].t, run_[name].y)
+        tf, rf = moving_average(t, r, window)
+        _, xf = moving_average(t, x, window)
+        for p in phases:
+            m = (t >= p[0]) & (t < p[1])
+            mf = (tf >= p[0]) & (tf < p[1])
+            if m.any():
+                out[p][1] = max(out[p][1], 100 * float(np.max(np.abs(x[m] - r[m]))) / relief)
+            if mf.any():
+                e = np.abs(xf[mf] - rf[mf])
+                i = int(np.argmax(e))
+                if 100 * e[i] / relief > out[p][0]:
+                    out[p][0], out[p][2], out[p][3] = 100 * float(e[i]) / relief, name, float(tf[mf][i])
+    return {p: tuple(v) for p, v in out.items()}
+
+
+def print_full_dig_pressures(path, results):
+    """The excavator rows' pressure errors against the full-dig reference (skipped, with a message, without one)."""
+    ref_path, text = full_dig_reference(path)
+    if ref_path is None:
+        print(f"  pressures vs the full-dig reference: skipped, {text}")
+        return
+    ref_log = read_log(ref_path)
+    from sim.compare import DEFAULT_FILTER_WINDOW
+
+    print(f"  pressures vs {text}: max |Δp| in % of relief, {DEFAULT_FILTER_WINDOW:g} s moving averages "
+          f"(point-wise in brackets), per phase")
+    print("  " + f"{'mode':<11} {'dt [ms]':>8} {'substeps':>8} {'RTF':>7}  "
+          + "  ".join(f"{f'{a:g}-{b:g} s':>15}" for a, b in FULL_DIG_PHASES) + "  worst (filtered)")
+    for label, dt, n, rtf, _, log_path, iterations in results:
+        if label == "pbd-pure" or not np.isfinite(rtf):
+            continue
+        sub = f"{n}" + (f"×{iterations}it" if iterations != 1 else "") if label.startswith("pbd") else "-"
+        err = pressure_errors(ref_log, log_path)
+        worst = max(err.values())
+        cells = "  ".join(f"{f'{err[p][0]:.2f} ({err[p][1]:.1f})':>15}" for p in FULL_DIG_PHASES)
+        print(f"  {label:<11} {dt * 1e3:8.4g} {sub:>8} {rtf:7.3f}  {cells}  "
+              f"{worst[2]} at {worst[3]:.2f} s")
 
 
 def bench_scene(name, spec, substeps, quick, out, pure_substeps=()):
@@ -106,39 +214,44 @@ def bench_scene(name, spec, substeps, quick, out, pure_substeps=()):
     print(f"\n{name}: {duration:g} s, reference {ref_label}; stroke error = max over cylinders of |x − x_ref| / {scale_label}")
     head = f"  {'mode':<11} {'dt [ms]':>8} {'substeps':>8} {'h [ms]':>8} {'status':>9} {'RTF':>7} {'stroke err':>11}"
     print(head + (f" {'err t<' + format(early, 'g') + ' s':>11}" if early else ""))
-    rows = [(label, dt, 1) for label in ("mujoco", "mujoco-fast") for dt in spec["mujoco_dt"]]
-    rows += [("pbd", spec["pbd_dt"], n) for n in (spec.get("pbd_substeps") or substeps)]
-    rows += [("pbd-pure", spec["pbd_dt"], n) for n in pure_substeps]  # the pure-Python XPBD path, for the speed-up
-    for label, dt in {(label, dt) for label, dt, _ in rows}:  # warm-up (numba cache, first calls)
+    rows = [(label, dt, 1, 1) for label in ("mujoco", "mujoco-fast") for dt in spec["mujoco_dt"]]
+    rows += [("pbd", spec["pbd_dt"], n, 1) for n in (spec.get("pbd_substeps") or substeps)]
+    rows += [("pbd", dt, n, it) for dt, n, it in spec.get("fine", ())]  # fine: many substeps, finer frames, iterations
+    rows += [("pbd-pure", spec["pbd_dt"], n, 1) for n in pure_substeps]  # the pure-Python XPBD path, for the speed-up
+    for label, dt in {(label, dt) for label, dt, _, _ in rows}:  # warm-up (numba cache, first calls)
         mode = "pbd" if label.startswith("pbd") else "mujoco"
         run(path, out=out / "warmup.mcap", overrides={"mode": mode, "dt": dt, "duration": 5 * dt, "compiled": label != "pbd-pure"},
             fast=label == "mujoco-fast")
     results = []
-    for label, dt, n in rows:
+    for label, dt, n, iterations in rows:
         mode = "pbd" if label.startswith("pbd") else "mujoco"
         overrides = {"mode": mode, "dt": dt, "duration": duration, "pbd_substeps": n if mode == "pbd" else None,
-                     "compiled": label != "pbd-pure"}
-        result = run(path, out=out / f"{name}-{label}-{n}-{dt:.6g}.mcap", overrides=overrides, fast=label == "mujoco-fast")
+                     "pbd_iterations": iterations if mode == "pbd" else None, "compiled": label != "pbd-pure"}
+        result = run(path, out=out / f"{name}-{label}-{n}-{iterations}-{dt:.6g}.mcap", overrides=overrides, fast=label == "mujoco-fast")
         err, err_early = stroke_error(result, reference, scale, early)
-        results.append((label, dt, n, result.real_time_factor if result.status == "complete" else np.nan, err))
-        line = (f"  {label:<11} {dt * 1e3:8.4g} {n if mode == 'pbd' else '-':>8} {dt / n * 1e3:8.4g} {result.status:>9} "
+        results.append((label, dt, n, result.real_time_factor if result.status == "complete" else np.nan, err, result.log_path,
+                        iterations))
+        sub = f"{n}" + (f"×{iterations}it" if iterations != 1 else "") if mode == "pbd" else "-"
+        line = (f"  {label:<11} {dt * 1e3:8.4g} {sub:>8} {dt / n * 1e3:8.4g} {result.status:>9} "
                 f"{result.real_time_factor:7.3f} {err:11.3%}")
         print(line + (f" {err_early:11.3%}" if early else ""), flush=True)
     pbd_rows = [r for r in results if r[0] == "pbd" and np.isfinite(r[3])]
-    for label, dt, n, rtf, err in results:
-        same = [r for r in pbd_rows if r[2] == n]
+    for label, dt, n, rtf, err, _, _ in results:
+        same = [r for r in pbd_rows if r[2] == n and r[1] == dt and r[6] == 1]
         if label == "pbd-pure" and same and np.isfinite(rtf):
             print(f"  compiled vs pure XPBD at {n} substeps: RTF {same[0][3]:.3f} vs {rtf:.3f} = {same[0][3] / rtf:.2f}× faster")
-    for label, dt, _, rtf, err in results:
+    for label, dt, _, rtf, err, _, _ in results:
         if label.startswith("pbd") or not np.isfinite(rtf):
             continue
         matched = [r for r in pbd_rows if r[4] <= err]
         if matched:
             best = max(matched, key=lambda r: r[3])
-            print(f"  matched accuracy vs {label} dt {dt * 1e3:g} ms (err {err:.3%}, RTF {rtf:.3f}): fastest PBD {best[2]} substeps "
+            print(f"  matched accuracy vs {label} dt {dt * 1e3:g} ms (err {err:.3%}, RTF {rtf:.3f}): fastest PBD {best[2]} substeps × {best[6]} iterations at {best[1] * 1e3:.4g} ms "
                   f"(err {best[4]:.3%}, RTF {best[3]:.3f}) = {best[3] / rtf:.2f}× its speed")
         else:
             print(f"  matched accuracy vs {label} dt {dt * 1e3:g} ms (err {err:.3%}, RTF {rtf:.3f}): no PBD setting tried is as accurate")
+    if spec.get("full_dig"):
+        print_full_dig_pressures(path, results)
 
 
 def main(argv=None):

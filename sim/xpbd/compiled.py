@@ -5,7 +5,8 @@ prediction (gravity or given group accelerations, external forces, gyroscopic te
 hinge torque impulses), ``iterations`` position passes (symmetric Gauss-Seidel by default:
 joints with limits (6-row lock block at a hinge limit), connect/weld equalities, the
 length rows — as one block with their articulated mobility or by Gauss-Seidel — and soft
-pyramidal plane contacts solved per body pair with an active set), the velocity update,
+pyramidal plane contacts solved per body pair with an active set, with the articulated
+response of a hinge/slide tree (``articulated_inverse``) or the free-body one), the velocity update,
 implicit joint damping and global damping.  It is a line-by-line port of
 ``SolverXPBD.step``'s substep (the pure path, which stays the reference); the results agree
 to round-off (``tests/test_pbd_compiled.py``).  Units and sign conventions as in
@@ -682,9 +683,10 @@ def _contact_targets(X, Q, V, W, cg, cvec, crad, cmu, csolref, csolimp, ccondim,
 
 
 @njit(cache=True)
-def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e):
+def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, art, G, Minv):
     """All edge rows of the candidates ``cis`` between groups g1 (plane) and g2, solved together with an
-    active set over λ ≥ 0 (``SolverXPBD._contact_pyramids``)."""
+    active set over λ ≥ 0 (``SolverXPBD._contact_pyramids``).  ``art``: with the articulated response of
+    the mechanism (group Jacobian G, joint-space M⁻¹): W = J·M⁻¹·Jᵀ and the groups move by G·M⁻¹·Jᵀ·Δλ."""
     npt = cis.shape[0]
     n = 4 * npt
     pts = np.empty((npt, 2, 3))
@@ -715,9 +717,36 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e):
             lam[row] = lam_e[ci, j]
             disp_rows[row] = _dot(disp, e)
     A = np.zeros((n, n))
+    nj = G.shape[2]
+    Jc = np.zeros((n, nj))
+    if art:  # J[i, k] = ê_i·(v_g2,k(p) − v_g1,k(p)), v_g,k(p) = G_lin + G_ang × r
+        for row in range(n):
+            e = _v3(E, row)
+            for side in range(2):
+                b = g1 if side == 0 else g2
+                if IM[b] == 0.0:
+                    continue
+                sg = -1.0 if side == 0 else 1.0
+                r = _v3(pts[row // 4], side)
+                for k in range(nj):
+                    vk = _cross((G[b, 3, k], G[b, 4, k], G[b, 5, k]), r)
+                    Jc[row, k] += sg * (e[0] * (G[b, 0, k] + vk[0]) + e[1] * (G[b, 1, k] + vk[1]) + e[2] * (G[b, 2, k] + vk[2]))
+        MJ = np.zeros((nj, n))
+        for k in range(nj):
+            for j in range(n):
+                acc = 0.0
+                for l in range(nj):
+                    acc += Minv[k, l] * Jc[j, l]
+                MJ[k, j] = acc
+        for i in range(n):
+            for j in range(n):
+                acc = 0.0
+                for k in range(nj):
+                    acc += Jc[i, k] * MJ[k, j]
+                A[i, j] = acc
     for side in range(2):
         b = g1 if side == 0 else g2
-        if IM[b] == 0.0:
+        if IM[b] == 0.0 or art:
             continue
         q = _q4(Q, b)
         invI = _v3(II, b)
@@ -774,6 +803,30 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e):
                 neg = True
         if not neg:
             break
+    if art:
+        dq = np.zeros(nj)
+        for pi in range(npt):
+            ci = cis[pi]
+            for j in range(4):
+                row = 4 * pi + j
+                new = max(lam[row] + dlam[row], 0.0)
+                d = new - lam[row]
+                lam_e[ci, j] = new
+                for k in range(nj):
+                    dq[k] += MJ[k, row] * d
+        for g in range(X.shape[0]):
+            if IM[g] == 0.0:
+                continue
+            dx = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+            for c in range(6):
+                for k in range(nj):
+                    dx[c] += G[g, c, k] * dq[k]
+            X[g, 0] += dx[0]
+            X[g, 1] += dx[1]
+            X[g, 2] += dx[2]
+            if dx[3] != 0.0 or dx[4] != 0.0 or dx[5] != 0.0:
+                _setq(Q, g, _qadd(_q4(Q, g), (dx[3], dx[4], dx[5]), 1.0))
+        return
     for pi in range(npt):
         ci = cis[pi]
         imp = [0.0, 0.0, 0.0]
@@ -790,7 +843,7 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e):
 
 
 @njit(cache=True)
-def _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, reverse):
+def _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, reverse, art, G, Minv):
     nc = cg.shape[0]
     done = np.zeros(nc, np.bool_)
     for k in range(nc):
@@ -811,7 +864,7 @@ def _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rever
                 cis[cnt] = cj
                 done[cj] = True
                 cnt += 1
-        _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e)
+        _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, art, G, Minv)
 
 
 # ---------------------------------------------------------------------------- the substep
@@ -824,7 +877,7 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
             rg, rvec, act, tgt, at, lo, hi, use_block, mob,
             use_gg, gg, F, T, use_tau, tau,
             cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
-            lin_damp, ang_damp, lam_rows, ell, rate):
+            lin_damp, ang_damp, lam_rows, ell, rate, art_contacts, Gc, Minv):
     """One XPBD substep of length h [s] in place on the group arrays X, Q, V, W (see module docstring).
 
     Rows: ``act`` the active row indices, tgt/at/lo/hi per row (ℓ* [m], α̃ = α/h², bounds on λ [N·s²]),
@@ -833,6 +886,9 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
     (njnt,) hinge torques applied as impulses (``use_tau``).  Contacts: the step's candidates
     (cg = (body group, plane group); cvec = (r2 local, plane origin, plane normal, tangent t₁)).
     Outputs: lam_rows (λ of every row), ell and rate (ℓ [m], dℓ/dt [m/s] of every row after the substep).
+    ``art_contacts``: the contact pyramids are solved with the articulated response of a hinge/slide tree
+    (``articulated_inverse`` at the predicted pose, into the work arrays Gc (ngroup, 6, njnt) and Minv
+    (njnt, njnt)); otherwise (or for other joints) with the free-body response of the touching groups.
     """
     ng = X.shape[0]
     nr = rg.shape[0]
@@ -896,6 +952,9 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
         wn = _rot(q, wl)
         W[g, 0], W[g, 1], W[g, 2] = wn
         _setq(Q, g, _qadd(q, wn, h))
+    art = False
+    if nc and art_contacts:
+        art = articulated_inverse(X, Q, IM, GI, jt, jg, jvec, Gc, Minv)
     for r in range(nr):
         lam_rows[r] = 0.0
     for _ in range(iterations):
@@ -910,10 +969,10 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, False)
                 if nc:
-                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, False)
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, False, art, Gc, Minv)
             else:
                 if nc:
-                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, True)
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, True, art, Gc, Minv)
                 if act.shape[0]:
                     if use_block:
                         _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob)
@@ -1165,3 +1224,177 @@ def energies(x, q, v, w, root, from_root_quat, from_root_pos, group_mass, group_
                                                   + group_inertia[g, 2] * (wl[2] * wl[2]))
         pot += m * _dot(xg, grav)
     return kin, -pot
+
+
+# ---------------------------------------------------------------------------- articulated response transport
+# The articulated responses a plant hands the solver per step (``SubstepInputs.row_mobility``,
+# ``group_gravity``: group displacements / accelerations in the world frame, from
+# Δq = M⁻¹·Jᵀ at the step's start pose) are carried to each substep's pose through the joint
+# space: dq = G₀⁺·R₀ (G the group Jacobian of the hinge/slide tree, exact since R₀ lies in
+# G₀'s range), R_k = G_k·dq.  ``solver.SolverXPBD._transport`` is the numpy reference.
+
+
+@njit(cache=True)
+def group_jacobian(X, Q, IM, jt, jg, jvec, G):
+    """G[g, :, i] = (COM velocity [m/s], angular velocity [rad/s]) of group g per unit rate of joint i.
+
+    Hinges: (a × (x_g − p), a) for every dynamic group in the joint's subtree (a the world axis,
+    p the anchor on the parent); slides: (a, 0).  Returns False (G undefined) unless every
+    joint is a hinge or a slide and every group is the child of at most one joint (a tree).
+    """
+    ng = X.shape[0]
+    nj = jt.shape[0]
+    parent = np.full(ng, -1, np.int64)
+    for j in range(nj):
+        if jt[j] != JNT_HINGE and jt[j] != JNT_SLIDE:
+            return False
+        g2 = jg[j, 1]
+        if parent[g2] >= 0:
+            return False
+        parent[g2] = j
+    G[:, :, :] = 0.0
+    for j in range(nj):
+        g1 = jg[j, 0]
+        q1 = _q4(Q, g1)
+        a = _rot(q1, (jvec[j, 2, 0], jvec[j, 2, 1], jvec[j, 2, 2]))
+        r1 = _rot(q1, (jvec[j, 0, 0], jvec[j, 0, 1], jvec[j, 0, 2]))
+        p = (X[g1, 0] + r1[0], X[g1, 1] + r1[1], X[g1, 2] + r1[2])
+        for g in range(ng):
+            if IM[g] == 0.0:
+                continue
+            b = g
+            inside = False
+            for _ in range(nj + 1):  # walk up the tree from g
+                pj = parent[b]
+                if pj < 0:
+                    break
+                if pj == j:
+                    inside = True
+                    break
+                b = jg[pj, 0]
+            if not inside:
+                continue
+            if jt[j] == JNT_HINGE:
+                lin = _cross(a, (X[g, 0] - p[0], X[g, 1] - p[1], X[g, 2] - p[2]))
+                for c in range(3):
+                    G[g, c, j] = lin[c]
+                    G[g, 3 + c, j] = a[c]
+            else:
+                for c in range(3):
+                    G[g, c, j] = a[c]
+    return True
+
+
+@njit(cache=True)
+def jacobian_pinv(G, P):
+    """P = (GᵀG)⁻¹Gᵀ (nj, ng·6) of the group Jacobian (least squares); False if GᵀG is singular."""
+    ng, _, nj = G.shape
+    m = ng * 6
+    A = np.empty((nj, nj + m))
+    for i in range(nj):
+        for k in range(nj):
+            s = 0.0
+            for g in range(ng):
+                for c in range(6):
+                    s += G[g, c, i] * G[g, c, k]
+            A[i, k] = s
+        for g in range(ng):
+            for c in range(6):
+                A[i, nj + g * 6 + c] = G[g, c, i]
+    scale = 0.0
+    for i in range(nj):
+        scale = max(scale, abs(A[i, i]))
+    for c in range(nj):  # Gauss-Jordan with partial pivoting
+        p = c
+        for r in range(c + 1, nj):
+            if abs(A[r, c]) > abs(A[p, c]):
+                p = r
+        if not abs(A[p, c]) > 1e-12 * scale:
+            return False
+        if p != c:
+            for k in range(nj + m):
+                A[c, k], A[p, k] = A[p, k], A[c, k]
+        piv = A[c, c]
+        for k in range(nj + m):
+            A[c, k] /= piv
+        for r in range(nj):
+            if r != c and A[r, c] != 0.0:
+                f = A[r, c]
+                for k in range(nj + m):
+                    A[r, k] -= f * A[c, k]
+    for i in range(nj):
+        for k in range(m):
+            P[i, k] = A[i, nj + k]
+    return True
+
+
+@njit(cache=True)
+def transport(G, P, src, dst):
+    """dst = G·(P·src) for one response (ng, 6): the joint-space motion of ``src`` at G's pose
+    (``src`` and ``dst`` may be the same array)."""
+    ng, _, nj = G.shape
+    dq = np.zeros(nj)
+    for i in range(nj):
+        s = 0.0
+        for g in range(ng):
+            for c in range(6):
+                s += P[i, g * 6 + c] * src[g, c]
+        dq[i] = s
+    for g in range(ng):
+        for c in range(6):
+            s = 0.0
+            for i in range(nj):
+                s += G[g, c, i] * dq[i]
+            dst[g, c] = s
+
+
+@njit(cache=True)
+def articulated_inverse(X, Q, IM, GI, jt, jg, jvec, G, Minv):
+    """G (``group_jacobian``) and M⁻¹ (njnt, njnt) of the joint-space mass matrix
+    M = Σ_g m_g·G_linᵀG_lin + G_angᵀ·I_g·G_ang (group masses and principal inertias GI about the
+    group's centre of mass); False unless a hinge/slide tree with a regular M."""
+    if not group_jacobian(X, Q, IM, jt, jg, jvec, G):
+        return False
+    ng, _, nj = G.shape
+    if nj == 0:
+        return False
+    A = np.zeros((nj, 2 * nj))
+    wl = np.empty((nj, 3))
+    for g in range(ng):
+        if IM[g] == 0.0:
+            continue
+        m = 1.0 / IM[g]
+        q = _q4(Q, g)
+        for k in range(nj):
+            w = _rotinv(q, (G[g, 3, k], G[g, 4, k], G[g, 5, k]))
+            wl[k, 0], wl[k, 1], wl[k, 2] = w
+        for k in range(nj):
+            for l in range(nj):
+                A[k, l] += m * (G[g, 0, k] * G[g, 0, l] + G[g, 1, k] * G[g, 1, l] + G[g, 2, k] * G[g, 2, l]) + \
+                    GI[g, 0] * wl[k, 0] * wl[l, 0] + GI[g, 1] * wl[k, 1] * wl[l, 1] + GI[g, 2] * wl[k, 2] * wl[l, 2]
+    scale = 0.0
+    for k in range(nj):
+        A[k, nj + k] = 1.0
+        scale = max(scale, abs(A[k, k]))
+    for c in range(nj):  # Gauss-Jordan with partial pivoting
+        p = c
+        for r in range(c + 1, nj):
+            if abs(A[r, c]) > abs(A[p, c]):
+                p = r
+        if not abs(A[p, c]) > 1e-12 * scale:
+            return False
+        if p != c:
+            for k in range(2 * nj):
+                A[c, k], A[p, k] = A[p, k], A[c, k]
+        piv = A[c, c]
+        for k in range(2 * nj):
+            A[c, k] /= piv
+        for r in range(nj):
+            if r != c and A[r, c] != 0.0:
+                f = A[r, c]
+                for k in range(2 * nj):
+                    A[r, k] -= f * A[c, k]
+    for k in range(nj):
+        for l in range(nj):
+            Minv[k, l] = A[k, nj + l]
+    return True

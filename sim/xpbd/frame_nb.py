@@ -6,6 +6,9 @@ Per substep, in the order of :meth:`sim.plant_pbd.PbdPlant.before_substep`,
 
 1. the effort law c + s·v⁺ of every actuator (``hydraulics_nb._begin_core``:
    ``CouplingImplicit.begin`` at θ = 1, velocity guess 0);
+   With ``frame(transport=True)``, from the second substep on, the step's articulated
+   responses (row mobilities, group gravity + motor responses) are carried to the substep's
+   pose through joint space (``compiled.transport``, as ``SolverXPBD.transport_response``);
 2. cylinder rows: compliant rows α = −h/s, ℓ* = ℓ₀ − h·c/s where s < −1e-9,
    otherwise explicit row forces c + s·v₀ (``SolverXPBD._external``); motors:
    backward Euler on the joint, effort (c + s·v)/(1 + max(−s, 0)·gear²·h·(M⁻¹)ⱼⱼ),
@@ -52,7 +55,7 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
            cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp,
            body_group, in_group_quat, in_group_pos, bx, bq, bv, bw,
            cyl, closed, mot, gear, minv, mbody, mparent, maxis,
-           x, v, ell0, const, slope, effort, motor_effort, flow, out):
+           x, v, ell0, const, slope, effort, motor_effort, flow, out, transport, art_contacts):
     net = C._unpack(F, I)
     na = x.size
     nr = cyl.size
@@ -77,6 +80,14 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
     hh = h * h
     work = 0.0
     out[1] = 0.0
+    # articulated responses carried to each substep's pose (SolverXPBD.transport_response, default on)
+    nj = jt.shape[0]
+    Gk = np.zeros((ng, 6, nj))
+    P0 = np.zeros((nj, ng * 6))
+    carry = transport and nj > 0 and substeps > 1 and XC.group_jacobian(Xg, Qg, IM, jt, jg, jvec, Gk) and XC.jacobian_pinv(Gk, P0)
+    mobk = np.empty_like(mob)
+    Gc = np.zeros((ng, 6, nj))
+    Minv = np.zeros((nj, nj))
     for k in range(substeps):
         if not H._begin_core(net, Wk, S, istats, oil, spool, cmd[k], speed[k], x, v, h, const, slope):
             out[0] = work
@@ -109,6 +120,13 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
                 for i in range(nm):
                     s += motor_effort[i] * mresp[i, g, c]
                 gg[g, c] = gg0[g, c] + s if nm else gg0[g, c]
+        if carry and k > 0:
+            XC.group_jacobian(Xg, Qg, IM, jt, jg, jvec, Gk)
+            for r in range(nr):
+                XC.transport(Gk, P0, mob[r], mobk[r])
+            XC.transport(Gk, P0, gg, gg)
+        else:
+            mobk[:, :, :] = mob
         Fe[:, :] = 0.0
         Te[:, :] = 0.0
         if any_force:  # SolverXPBD._external: explicit row forces along the rows
@@ -131,9 +149,9 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
                     Te[ga, c] -= ca[c]
         XC.substep(Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, iterations, symmetric,
                   jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
-                  rg, rvec, act[:nact], tgt, at, lo, hi, nact > 0, mob, True, gg, Fe, Te, False, tau,
+                  rg, rvec, act[:nact], tgt, at, lo, hi, nact > 0, mobk, True, gg, Fe, Te, False, tau,
                   cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
-                  lin_damp, ang_damp, lam, ell, rate)
+                  lin_damp, ang_damp, lam, ell, rate, art_contacts, Gc, Minv)
         XC.scatter(Xg, Qg, Vg, Wg, body_group, in_group_quat, in_group_pos, bx, bq, bv, bw)
         # end of the substep: realised motion (PbdPlant.after_substep)
         for a in range(na):
@@ -190,30 +208,39 @@ def _fingerprint() -> str:
     return digest.hexdigest()
 
 
-def _entry(fingerprint):
+def _entry(fingerprint, transport, articulated_contacts):
     import numba
 
     def frame(*args):
         if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
             return -1
-        return _frame_jit(*args)
+        return _frame_jit(*args, transport, articulated_contacts)
 
     return numba.njit(cache=True, error_model="numpy")(frame)
 
 
-_FRAME = None
+_FRAME = {}
 _frame_jit = None
 
 
-def frame():
-    """The compiled frame (numba's disk cache, or compiled on first use: one signature)."""
-    global _FRAME, _frame_jit
-    if _FRAME is None:
+def frame(transport: bool = False, articulated_contacts: bool = True):
+    """The compiled frame (numba's disk cache, or compiled on first use: one signature per variant).
+
+    ``transport`` (as ``SolverXPBD(transport_response=...)``): carry the step's articulated
+    responses to each substep's pose (``compiled.transport``); False keeps them as given for the
+    whole step.  ``articulated_contacts`` (as ``SolverXPBD(articulated_contacts=...)``): solve the
+    contact pyramids with the mechanism's articulated response (default True, as the solver);
+    ``transport`` defaults to False (see ``SolverXPBD``).
+    """
+    global _frame_jit
+    key = (bool(transport), bool(articulated_contacts))
+    if key not in _FRAME:
         import numba
 
-        _frame_jit = numba.njit(error_model="numpy")(_frame)  # not cached on its own: only inside the entry
-        _FRAME = _entry(_fingerprint())
-    return _FRAME
+        if _frame_jit is None:
+            _frame_jit = numba.njit(error_model="numpy")(_frame)  # not cached on its own: only inside the entry
+        _FRAME[key] = _entry(_fingerprint(), *key)
+    return _FRAME[key]
 
 
 # ---------------------------------------------------------------------------- articulated response

@@ -19,7 +19,7 @@ Sign conventions
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional, Protocol, Sequence
 
 import numpy as np
@@ -154,6 +154,35 @@ class SolverXPBD:
     * ``velocity_sweeps``: projected Gauss-Seidel sweeps of the contact velocity pass
       (Coulomb-clamped accumulated impulses).
     * ``contact_margin`` [m]: candidate distance added to 2·dt·|v_rel|.
+    * ``articulated_contacts`` (default True): on a tree of hinges and slides the soft
+      pyramidal contacts are solved with the response of the whole mechanism, as MuJoCo's
+      contact problem is (its a = J·M⁻¹·Jᵀ·f + a₀): W = J·M⁻¹·Jᵀ of the edge rows and every
+      group moved by G·M⁻¹·Jᵀ·Δλ (G the group Jacobian, M the joint-space mass matrix of the
+      group masses and inertias at the predicted pose, ``_articulated_inverse``).  With the
+      free-body response of the touching body (``False``, the behaviour before), the edge rows
+      see the body as if it were free and the joint projection takes part of the correction
+      back; for MuJoCo's stiff soft contact (R ≈ 5–10 % of the effective inverse mass) this
+      changes the impact at any substep: a hinged arm striking the ground sinks 52 % deeper than
+      in MuJoCo (with: within 0.3 %, ``tests/test_xpbd_articulated_contact.py``), and the
+      excavator's teeth stick-slip in the soil with a lag (dig-phase pressures 5.5 % of relief
+      from the converged reference on 0.1 s averages at any substep with one iteration; with:
+      2.2 % at 1 kHz × 20).  Other joint types (free, ball): the free-body response.
+    * ``transport_response`` (default False): the articulated responses of ``SubstepInputs``
+      (``row_mobility``, ``group_gravity``; world-frame group motions a plant computes once per
+      step at the step's start pose) are carried to every later substep's pose through joint
+      space, R_k = G_k·G₀⁺·R₀ (G the group Jacobian of a tree of hinges and slides,
+      ``_transport``), as the response of the same joint-space motion Δq = M⁻¹·Jᵀ.  Without it
+      a 60 Hz frame applies the row and gravity responses in directions up to one frame old: a
+      swinging machine (≈ 1 rad/s, 17 mrad per frame) then gets cylinder and gravity
+      corrections tilted out of its moving boom plane, and its pressures converge with the
+      substeps to a frame-rate-dependent limit (excavator dig, 7–20 s: 0.1 s-averaged pressure
+      error 4.6 → 10 % of relief from × 40 to × 320 substeps at 60 Hz, 3.6 % at 19.2 kHz × 1).
+      M⁻¹ and the rows' moment arms stay those of the step's start (they do not depend on the
+      swing angle).  Other joint types or a singular Jacobian: no transport.  Off by default:
+      at 60 Hz × 10–40 the frame-old responses happen to offset part of backward Euler's
+      numerical damping (swing phase 14 % / 4.6 % with them, 24 % / 7.7 % without), so the
+      coarse settings' errors grow while the fine ones' shrink; the plant's compiled frame
+      selects the same behaviour with ``frame_nb.frame(transport=...)``.
     * ``compiled`` (default True): every substep runs in ``compiled.substep`` (numba,
       ``cache=True``, one signature), a port of this class's substep on flat arrays with the
       same operations in the same order; the hooks are still called per substep.  This
@@ -182,7 +211,8 @@ class SolverXPBD:
                  length_constraints: Sequence[LengthConstraint] = (),
                  contact_margin: float = 1e-3, block_attach: bool = True,
                  velocity_sweeps: int = 4, symmetric: bool = True, soft_contacts: bool = True,
-                 pyramid_friction: bool = True, compiled: bool = True):
+                 pyramid_friction: bool = True, compiled: bool = True, transport_response: bool = False,
+                 articulated_contacts: bool = True):
         if substeps < 1 or iterations < 1:
             raise ValueError("substeps and iterations must be >= 1")
         self.model = model
@@ -196,6 +226,8 @@ class SolverXPBD:
         self.symmetric = bool(symmetric)
         self.soft_contacts = bool(soft_contacts) and model.contact_solref is not None
         self.pyramid_friction = bool(pyramid_friction) and self.soft_contacts
+        self.transport_response = bool(transport_response)
+        self.articulated_contacts = bool(articulated_contacts)
         self._lam_edges: list = []
         # contact tangent t₁ of each plane (its geom x axis in the plane's group frame), t₂ = n × t₁
         self._plane_tangent = []
@@ -204,6 +236,7 @@ class SolverXPBD:
             t = axis - (axis @ nrm) * nrm
             self._plane_tangent.append(tuple(float(c) for c in t / np.linalg.norm(t)))
         self._csoft = None  # per substep: (target gap r* [m], α̃) of each contact candidate, or None (rigid)
+        self._art = None  # per substep: (G, M⁻¹) of the articulated contacts, or None (free-body response)
         self._cidx: list[int] = []  # model contact index of each candidate of the step
         self._rows: list[tuple] = []
         self.rows: list[LengthConstraint] = []
@@ -747,8 +780,21 @@ class SolverXPBD:
                 disp_rows.append(dot(disp, e))
         Ea = np.array(E)
         W = np.zeros((len(E), len(E)))
+        art = getattr(self, "_art", None)
+        if art is not None:  # articulated response: W = J·M⁻¹·Jᵀ, J_ik = ê_i·(v_g2,k(p) − v_g1,k(p))
+            G, Minv = art
+            J = np.zeros((len(E), G.shape[2]))
+            for side, b, sg in ((0, g1, -1.0), (1, g2, 1.0)):
+                if IM[b] == 0.0:
+                    continue
+                r = np.array([pts[o[0]][side] for o in owner])
+                for row in range(len(E)):
+                    v = G[b, :3, :] + np.cross(G[b, 3:, :].T, r[row]).T  # (3, njnt): point velocity per joint rate
+                    J[row] += sg * (Ea[row] @ v)
+            MJ = Minv @ J.T
+            W = J @ MJ
         for side, b in ((0, g1), (1, g2)):
-            if IM[b] == 0.0:
+            if IM[b] == 0.0 or art is not None:
                 continue
             r = np.array([pts[o[0]][side] for o in owner])
             ang = np.cross(r, Ea)
@@ -776,6 +822,21 @@ class SolverXPBD:
             free &= ~negative
         new = np.maximum(lam + dlam, 0.0)
         dlam = new - lam
+        if art is not None:  # every group moves by G·M⁻¹·Jᵀ·Δλ
+            for row, (pi, ci, j) in enumerate(owner):
+                self._lam_edges[ci][j] = float(new[row])
+            dq = MJ @ dlam
+            for g in range(1, len(X)):
+                if IM[g] == 0.0:
+                    continue
+                d = G[g] @ dq
+                X[g] = [X[g][0] + d[0], X[g][1] + d[1], X[g][2] + d[2]]
+                if d[3] != 0.0 or d[4] != 0.0 or d[5] != 0.0:
+                    Q[g] = K._quat_add_rotation(Q[g], (float(d[3]), float(d[4]), float(d[5])), 1.0)
+            for ci in cis:
+                edges = self._csoft[ci][3]
+                lam_n[ci] = sum(self._lam_edges[ci][j] * edges[j][3] for j in range(len(edges)))
+            return
         impulse = [[0.0, 0.0, 0.0] for _ in pts]
         for row, (pi, ci, j) in enumerate(owner):
             self._lam_edges[ci][j] = float(new[row])
@@ -1074,6 +1135,92 @@ class SolverXPBD:
                 apply_velocity_impulse(V, W, Q, IM, II, g2, zero, p, -1.0)
                 apply_velocity_impulse(V, W, Q, IM, II, g1, r1w, p, 1.0)
 
+    # ------------------------------------------------------------------ articulated response transport
+    def _group_jacobian(self, X, Q):
+        """G (ngroup, 6, njnt): COM velocity [m/s] and angular velocity [rad/s] of every dynamic
+        group per unit rate of each joint (hinge: (a × (x_g − p), a) for the groups of its
+        subtree, a the world axis and p the anchor on the parent; slide: (a, 0)); None unless the
+        joints are hinges and slides of a tree (numpy reference of ``compiled.group_jacobian``)."""
+        ng, nj = len(X), len(self._joints)
+        parent = [-1] * ng
+        for j, jt in enumerate(self._joints):
+            if jt[0] not in (JNT_HINGE, JNT_SLIDE) or parent[jt[2]] >= 0:
+                return None
+            parent[jt[2]] = j
+        G = np.zeros((ng, 6, nj))
+        for j, (t, g1, _, r1, _, a1) in enumerate(jt[:6] for jt in self._joints):
+            a = np.asarray(quat_rotate(Q[g1], a1))
+            p = np.asarray(X[g1]) + np.asarray(quat_rotate(Q[g1], r1))
+            for g in range(ng):
+                if self._IM[g] == 0.0:
+                    continue
+                b, inside = g, False
+                for _ in range(nj + 1):
+                    pj = parent[b]
+                    if pj < 0:
+                        break
+                    if pj == j:
+                        inside = True
+                        break
+                    b = self._joints[pj][1]
+                if not inside:
+                    continue
+                if t == JNT_HINGE:
+                    G[g, :3, j] = np.cross(a, np.asarray(X[g]) - p)
+                    G[g, 3:, j] = a
+                else:
+                    G[g, :3, j] = a
+        return G
+
+    def _articulated_inverse(self, X, Q):
+        """(G, M⁻¹) of a hinge/slide tree at the pose (X, Q): M = Σ_g m_g·G_linᵀG_lin + G_angᵀ·I_g·G_ang
+        (``compiled.articulated_inverse``), or None (other joints, no joints, singular M)."""
+        if not self._joints:
+            return None
+        G = self._group_jacobian(X, Q)
+        if G is None:
+            return None
+        nj = G.shape[2]
+        M = np.zeros((nj, nj))
+        for g in range(len(X)):
+            if self._IM[g] == 0.0:
+                continue
+            lin = G[g, :3]
+            R = np.array(K._mat_from_quat(Q[g]))
+            wl = R.T @ G[g, 3:]  # joint rates' angular velocities in the group's principal frame
+            M += lin.T @ lin / self._IM[g] + wl.T @ (np.asarray(self._GI[g])[:, None] * wl)
+        if not np.linalg.svd(M, compute_uv=False)[-1] > 1e-12 * np.max(np.abs(np.diag(M))):
+            return None
+        return G, np.linalg.inv(M)
+
+    def _transport_start(self, X, Q):
+        """P₀ = (G₀ᵀG₀)⁻¹G₀ᵀ at the step's start pose, or None (no transport: option off, not a
+        hinge/slide tree, no joints, singular)."""
+        if not self.transport_response or not self._joints:
+            return None
+        G = self._group_jacobian(X, Q)
+        if G is None:
+            return None
+        A = G.reshape(-1, G.shape[2])
+        N = A.T @ A
+        if not np.linalg.svd(N, compute_uv=False)[-1] > 1e-12 * np.max(np.abs(np.diag(N))):
+            return None
+        return np.linalg.solve(N, A.T)
+
+    def _transported(self, inp, X, Q, P0):
+        """``inp`` with its articulated responses carried to the pose (X, Q) (``transport_response``)."""
+        if inp is None or (inp.row_mobility is None and inp.group_gravity is None):
+            return inp
+        G = self._group_jacobian(X, Q)
+        mob, gg = inp.row_mobility, inp.group_gravity
+        if mob is not None:
+            mob = np.asarray(mob, float)
+            dq = mob.reshape(mob.shape[0], -1) @ P0.T  # (rows, njnt)
+            mob = np.einsum("gci,ri->rgc", G, dq)
+        if gg is not None:
+            gg = G @ (P0 @ np.asarray(gg, float).reshape(-1))
+        return replace(inp, row_mobility=mob, group_gravity=gg)
+
     # ------------------------------------------------------------------ step
     def step(self, state: XpbdState, dt: float, *, hooks: Optional[SubstepHooks] = None,
              inputs: Optional[SubstepInputs] = None) -> XpbdState:
@@ -1104,12 +1251,15 @@ class SolverXPBD:
         need_vel = bool(cands) or bool(self._damped)
         cl = 1.0 / (1.0 + self.linear_damping * h)
         ca = 1.0 / (1.0 + self.angular_damping * h)
+        P0 = self._transport_start(X, Q)
         for k in range(self.substeps):
             inp = inputs
             if before is not None:
                 r = before(k, h, state)
                 if r is not None:
                     inp = r
+            if P0 is not None and k:
+                inp = self._transported(inp, X, Q, P0)
             rowdata = self._row_setup(inp, h)
             block = None
             if rowdata and inp.row_mobility is not None:
@@ -1130,6 +1280,8 @@ class SolverXPBD:
                 X[g], Q[g], V[g], W[g] = predict_body(
                     X[g], Q[g], V[g], W[g], GI[g], II[g], IM[g], acc,
                     None if F is None else F[g], tq, h)
+            # articulated contacts: G and M⁻¹ at the predicted pose (compiled.articulated_inverse)
+            self._art = self._articulated_inverse(X, Q) if (cands and self.articulated_contacts) else None
             lam_rows = [0.0] * nr
             lam_n = [0.0] * len(cands)
             lam_t = [0.0] * len(cands)
@@ -1167,7 +1319,7 @@ class SolverXPBD:
                 self.last_forces.append(forces)
                 if after is not None:
                     after(k, h, state, forces)
-        self._csoft = None
+        self._csoft = self._art = None
         self._scatter(np.array(X), np.array(Q), np.array(V), np.array(W), state)
         state.time = t0 + dt
         state.qpos_hint = m.qpos_qvel(state)[0]
@@ -1197,12 +1349,34 @@ class SolverXPBD:
         no_tau = np.zeros(nj)
         cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran = contacts
         cone, impratio = int(m.contact_cone), float(m.contact_impratio)
+        Gc, Minv = np.zeros((ng, 6, nj)), np.zeros((nj, nj))  # work arrays of articulated contacts
+        Gk = P0 = None
+        if self.transport_response and nj:  # compiled.group_jacobian / jacobian_pinv / transport
+            from .compiled import group_jacobian, jacobian_pinv, transport
+
+            Gk = np.zeros((ng, 6, nj))
+            P0 = np.zeros((nj, ng * 6))
+            if not (group_jacobian(X, Q, fm["IM"], fm["jt"], fm["jg"], fm["jvec"], Gk) and jacobian_pinv(Gk, P0)):
+                P0 = None
         for k in range(self.substeps):
             inp = inputs
             if before is not None:
                 r = before(k, h, state)
                 if r is not None:
                     inp = r
+            if P0 is not None and k and inp is not None and (inp.row_mobility is not None or inp.group_gravity is not None):
+                group_jacobian(X, Q, fm["IM"], fm["jt"], fm["jg"], fm["jvec"], Gk)
+                mob = None
+                if inp.row_mobility is not None:
+                    src = _f64(inp.row_mobility)
+                    mob = np.empty_like(src)
+                    for i in range(src.shape[0]):
+                        transport(Gk, P0, src[i], mob[i])
+                gg = None
+                if inp.group_gravity is not None:
+                    gg = _f64(inp.group_gravity).copy()
+                    transport(Gk, P0, gg, gg)
+                inp = replace(inp, row_mobility=mob, group_gravity=gg)
             if nr and inp is not None and inp.target_length is not None:  # as _row_setup
                 tgt = _f64(inp.target_length)
                 alpha = zeros_r if inp.compliance is None else np.asarray(inp.compliance, np.float64)
@@ -1230,7 +1404,7 @@ class SolverXPBD:
                      fm["et"], fm["eg"], fm["evec"], fm["eqoff"],
                      rg, rvec, act, tgt, at, lo, hi, use_block, mob, use_gg, gg, F, T, use_tau, tau,
                      cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
-                     self.linear_damping, self.angular_damping, lam, ell, rate)
+                     self.linear_damping, self.angular_damping, lam, ell, rate, self.articulated_contacts, Gc, Minv)
             if after is not None or nr:
                 active = np.zeros(nr, dtype=bool)
                 active[act] = True
