@@ -14,7 +14,7 @@
 2b. ``--full-dig``: the excavator comparison over the whole 20 s dig instead: reference proven on
    0.1 s moving averages (:data:`FULL_DIG_TOLERANCE`, ladder from :data:`FULL_DIG_START_DT`),
    runs :data:`FULL_DIG_RUNS` (MuJoCo implicit / implicit-linear / explicit at 1 ms, PBD at
-   60 Hz × 10 and × 40 substeps, ``incompressible`` at 1/30 s in both modes).
+   60 Hz × 10 and × 40 substeps and 1 kHz × 20, ``incompressible`` at 1/30 s in both modes).
 3. The tradeoff sweep of both (``--full``: every setting of :func:`sim.tradeoff.sweep_settings`,
    3 timed runs each, fidelity levels included (``incompressible`` at a frame-rate step, ``lines``);
    default: the quick sweep, with ``incompressible`` at dt0 and ≈ 1/30 s).
@@ -57,6 +57,7 @@ FULL_DIG_RUNS = {  # label -> (mode, coupling, overrides)
     "mujoco-explicit-1ms": ("mujoco", "explicit", {"dt": 1e-3}),
     "pbd-60Hz-x10": ("pbd", "implicit", {"dt": 1 / 60, "pbd_substeps": 10}),
     "pbd-60Hz-x40": ("pbd", "implicit", {"dt": 1 / 60, "pbd_substeps": 40}),
+    "pbd-1kHz-x20": ("pbd", "implicit", {"dt": 1e-3, "pbd_substeps": 20}),
     "mujoco-incompressible-30Hz": ("mujoco", "implicit", {"dt": 1 / 30, "fidelity": "incompressible"}),
     "pbd-incompressible-30Hz": ("pbd", "implicit", {"dt": 1 / 30, "pbd_substeps": 10, "fidelity": "incompressible"}),
 }
