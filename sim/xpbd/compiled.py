@@ -1286,6 +1286,35 @@ def group_jacobian(X, Q, IM, jt, jg, jvec, G):
 
 
 @njit(cache=True)
+def _gauss_jordan(A, n):
+    """Reduce the square block A[:, :n] of the augmented matrix A (n, n + k) to the identity in place
+    (partial pivoting), so A[:, n:] becomes its inverse times the right-hand sides; False if singular."""
+    width = A.shape[1]
+    scale = 0.0
+    for i in range(n):
+        scale = max(scale, abs(A[i, i]))
+    for c in range(n):
+        p = c
+        for r in range(c + 1, n):
+            if abs(A[r, c]) > abs(A[p, c]):
+                p = r
+        if not abs(A[p, c]) > 1e-12 * scale:
+            return False
+        if p != c:
+            for k in range(width):
+                A[c, k], A[p, k] = A[p, k], A[c, k]
+        piv = A[c, c]
+        for k in range(width):
+            A[c, k] /= piv
+        for r in range(n):
+            if r != c and A[r, c] != 0.0:
+                f = A[r, c]
+                for k in range(width):
+                    A[r, k] -= f * A[c, k]
+    return True
+
+
+@njit(cache=True)
 def jacobian_pinv(G, P):
     """P = (GᵀG)⁻¹Gᵀ (nj, ng·6) of the group Jacobian (least squares); False if GᵀG is singular."""
     ng, _, nj = G.shape
@@ -1301,27 +1330,8 @@ def jacobian_pinv(G, P):
         for g in range(ng):
             for c in range(6):
                 A[i, nj + g * 6 + c] = G[g, c, i]
-    scale = 0.0
-    for i in range(nj):
-        scale = max(scale, abs(A[i, i]))
-    for c in range(nj):  # Gauss-Jordan with partial pivoting
-        p = c
-        for r in range(c + 1, nj):
-            if abs(A[r, c]) > abs(A[p, c]):
-                p = r
-        if not abs(A[p, c]) > 1e-12 * scale:
-            return False
-        if p != c:
-            for k in range(nj + m):
-                A[c, k], A[p, k] = A[p, k], A[c, k]
-        piv = A[c, c]
-        for k in range(nj + m):
-            A[c, k] /= piv
-        for r in range(nj):
-            if r != c and A[r, c] != 0.0:
-                f = A[r, c]
-                for k in range(nj + m):
-                    A[r, k] -= f * A[c, k]
+    if not _gauss_jordan(A, nj):
+        return False
     for i in range(nj):
         for k in range(m):
             P[i, k] = A[i, nj + k]
@@ -1372,28 +1382,10 @@ def articulated_inverse(X, Q, IM, GI, jt, jg, jvec, G, Minv):
             for l in range(nj):
                 A[k, l] += m * (G[g, 0, k] * G[g, 0, l] + G[g, 1, k] * G[g, 1, l] + G[g, 2, k] * G[g, 2, l]) + \
                     GI[g, 0] * wl[k, 0] * wl[l, 0] + GI[g, 1] * wl[k, 1] * wl[l, 1] + GI[g, 2] * wl[k, 2] * wl[l, 2]
-    scale = 0.0
     for k in range(nj):
         A[k, nj + k] = 1.0
-        scale = max(scale, abs(A[k, k]))
-    for c in range(nj):  # Gauss-Jordan with partial pivoting
-        p = c
-        for r in range(c + 1, nj):
-            if abs(A[r, c]) > abs(A[p, c]):
-                p = r
-        if not abs(A[p, c]) > 1e-12 * scale:
-            return False
-        if p != c:
-            for k in range(2 * nj):
-                A[c, k], A[p, k] = A[p, k], A[c, k]
-        piv = A[c, c]
-        for k in range(2 * nj):
-            A[c, k] /= piv
-        for r in range(nj):
-            if r != c and A[r, c] != 0.0:
-                f = A[r, c]
-                for k in range(2 * nj):
-                    A[r, k] -= f * A[c, k]
+    if not _gauss_jordan(A, nj):
+        return False
     for k in range(nj):
         for l in range(nj):
             Minv[k, l] = A[k, nj + l]
