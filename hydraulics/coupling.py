@@ -303,6 +303,17 @@ def _free_speed(drive, resist):
         return np.sqrt(np.abs(drive) / resist)
 
 
+def _bounded_tracker(target, velocity, gain, lower, upper):
+    """Velocity tracker F = K·(target − v⁺) as (constant, slope), K = ``gain`` lowered so that F at the start
+    ``velocity`` stays within [``lower``, ``upper``]: MuJoCo applies a force clamped at the start of its step
+    explicitly, and the bound force over a long step would throw a light link far past its target."""
+    error = target - velocity
+    bound = np.where(error >= 0, upper, -lower)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gain = np.where(np.abs(error) > 0, np.clip(bound / np.abs(error), 0.0, gain), gain)
+    return gain * target, -gain
+
+
 def _quadratic_damper(drive, resist, velocity):
     """F_d − R·v⁺·|v⁺| linearised at ``velocity``: (constant, slope) of constant + slope·v⁺."""
     return drive + resist * velocity * np.abs(velocity), -2.0 * resist * np.abs(velocity)
@@ -412,11 +423,20 @@ class CouplingIncompressible(Coupling):
         supply = float(np.sum(laws.pump_flow(m.pump_displacement, pump_speed, m.pump_efficiency)))
         share = demand * min(1.0, supply / demand.sum()) if demand.sum() > 0 else demand
         cap = np.where(a_in > 0, share / a_in, 0.0)
-        track = (direction == 0) | ~np.isfinite(resist) | (np.abs(velocity) >= cap)
+        # pump-limited (its share is slower than its valve would let it run unloaded): track the share speed with
+        # at most the force the metering edges pass at the current speed, so a load the valve cannot carry at that
+        # speed slows it to the valve's speed (a damper below the share would overshoot it within one step)
+        pump_limited = (direction != 0) & np.isfinite(resist) & (cap < free_speed)
+        track = (direction == 0) | ~np.isfinite(resist) | pump_limited | (np.abs(velocity) >= cap)
         target = direction * np.where(direction == 0, 0.0, cap)
-        constant = np.where(track, gain * target, constant)
-        slope = np.where(track, -gain, slope)
-        return EffortLaw(constant, slope, self.force_lower, self.force_upper)
+        damper_now = constant + slope * velocity  # F_d − R·v·|v| at the start speed
+        lower, upper = self.force_lower.copy(), self.force_upper.copy()
+        upper = np.where(pump_limited & (direction > 0), np.maximum(np.minimum(upper, damper_now), lower), upper)
+        lower = np.where(pump_limited & (direction < 0), np.minimum(np.maximum(lower, damper_now), upper), lower)
+        tracker_constant, tracker_slope = _bounded_tracker(target, velocity, gain, lower, upper)
+        constant = np.where(track, tracker_constant, constant)
+        slope = np.where(track, tracker_slope, slope)
+        return EffortLaw(constant, slope, lower, upper)
 
     def begin(self, state, control, position, velocity, dt, *, effective_mass=None, velocity_guess=None):
         self._spool = laws.spool_step(state.valve_spool, np.clip(control.valve_command, -1.0, 1.0), self.model.valve_time_constant, dt)
@@ -543,16 +563,10 @@ class CouplingMixed(Coupling):
             offset = c + k * velocity[a] - drive  # damper and friction at the start velocity
             lower[a] = np.where(damper, np.minimum(*ends) + offset, lower[a])
             upper[a] = np.where(damper, np.maximum(*ends) + offset, upper[a])
-        # tracker F = K·(target − v⁺), K = gain·m_eff/h, lowered so that F at the start velocity stays within the
-        # relief bound: MuJoCo applies a force clamped at the start of its step explicitly, and the bound force
-        # over a long step would throw a light link far past its target
-        gain = _tracking_gain(effective_mass, velocity, dt)
-        error = target - velocity
-        bound = np.where(error >= 0, upper, -lower)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            gain = np.where(np.abs(error) > 0, np.minimum(gain, bound / np.abs(error)), gain)
-        constant = np.where(tracking, gain * target, constant)
-        slope = np.where(tracking, -gain, slope)
+        tracker_constant, tracker_slope = _bounded_tracker(target, velocity, _tracking_gain(effective_mass, velocity, dt),
+                                                           lower, upper)
+        constant = np.where(tracking, tracker_constant, constant)
+        slope = np.where(tracking, tracker_slope, slope)
         self._law = EffortLaw(constant, slope, lower, upper)
         return self._law
 

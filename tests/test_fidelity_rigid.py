@@ -152,6 +152,22 @@ def test_rigid_bucket_and_compressible_boom_share_the_pump(tmp_path, circuit, co
     assert flows["bucket_cyl"] > 0.5 * q_pump
 
 
+def test_all_incompressible_hands_out_no_more_than_the_pump_delivers(tmp_path, circuit, compressible_share):
+    """The same boom-up + bucket-curl at the all-``incompressible`` level: its rule shares the pump by demand
+    (not by load, so the split differs from the compressible model's), but the shares add up to the pump's flow.
+    (A pump-limited actuator used to switch between its metering damper and the share tracker, overshooting
+    the share each step: 1.43× the pump's flow in total.)"""
+    d = scene_copy(tmp_path, "excavator")
+    path = d / "share.scenario.toml"
+    path.write_text(SHARE.format(mode="mujoco", dt=0.001) + '\n[fidelity]\ndefault = "incompressible"\n')
+    result = run(path, out=tmp_path / "share.mcap")
+    assert result.status == "complete"
+    flows = _flows(result, circuit)
+    q_pump = circuit.component("pump").params.displacement * 10.0
+    assert sum(flows.values()) == pytest.approx(q_pump, rel=0.02), flows
+    assert flows["boom_cyl"] > 2 * compressible_share["boom_cyl"]  # the demand rule is not the load split
+
+
 @pytest.mark.parametrize("mode, dt, warned", [
     ("mujoco", 1 / 30, {"stick_cyl", "bucket_cyl"}), ("mujoco", 0.005, {"bucket_cyl"}), ("mujoco", 0.002, set()),
     ("pbd", 1 / 60, set())])
