@@ -264,9 +264,13 @@ def _warm_up(point: dict, overrides: dict, tmp: Path) -> None:
     _WARM.add(key)
 
 
-def error_rows(points: list[dict], results: list[dict], ref_signals: dict) -> list[dict]:
-    """One row per point: settings, cost and errors against the reference signals (SI units)."""
-    from .compare import error_stats
+def error_rows(points: list[dict], results: list[dict], ref_signals: dict, filter_window: float | None = None) -> list[dict]:
+    """One row per point: settings, cost and errors against the reference signals (SI units).
+
+    ``filter_window`` [s]: errors of the signals averaged over a centred moving window
+    (:func:`sim.compare.filtered_error_stats`) instead of point-wise.
+    """
+    from .compare import error_stats, filtered_error_stats
 
     rows = []
     for p, r in zip(points, results):
@@ -280,7 +284,9 @@ def error_rows(points: list[dict], results: list[dict], ref_signals: dict) -> li
             sig = r["signals"].get(name)
             if sig is None:
                 continue
-            s = error_stats(ref.t, ref.y, np.array(sig["t"]), np.array(sig["y"], dtype=float))
+            t, y = np.array(sig["t"]), np.array(sig["y"], dtype=float)
+            s = (error_stats(ref.t, ref.y, t, y) if filter_window is None
+                 else filtered_error_stats(ref.t, ref.y, t, y, window=filter_window))
             if s.samples:
                 m, q = worst[ref.kind]
                 worst[ref.kind] = (np.fmax(m, s.max_abs), np.fmax(q, s.rms))
@@ -472,24 +478,29 @@ class TradeoffResult:
 
 
 def evaluate(scenario, settings: list[dict], reference_log, *, repeats: int = DEFAULT_REPEATS, scheduler=None,
-             workers=None, cache_dir=None, progress=None) -> list[dict]:
-    """Run the settings through :func:`sim.sweep.run_sweep` and return the error rows against ``reference_log``."""
+             workers=None, cache_dir=None, progress=None, filter_window: float | None = None) -> list[dict]:
+    """Run the settings through :func:`sim.sweep.run_sweep` and return the error rows against ``reference_log``
+    (``filter_window``: see :func:`error_rows`)."""
     from .compare import log_signals
     from .mcap_log import read_log
 
     points = sweep_points(scenario, settings, repeats=repeats)
     # The reference is not in the points: the workers return signals, the errors are computed here.
     results = run_sweep(run_point, points, scheduler=scheduler, workers=workers, cache_dir=cache_dir, progress=progress)
-    return error_rows(points, results, log_signals(read_log(reference_log)))
+    return error_rows(points, results, log_signals(read_log(reference_log)), filter_window)
 
 
 def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = False, duration=None, modes=None,
              repeats=None, tolerance=None, cache_dir=None, sweep_cache=None, fresh_reference: bool = False,
-             progress: bool = False, fidelities=None, reference_fidelity: str | None = None) -> TradeoffResult:
+             progress: bool = False, fidelities=None, reference_fidelity: str | None = None,
+             filter_window: float | None = None) -> TradeoffResult:
     """The full sweep of a scenario; writes ``tradeoff.csv``, ``pareto.png`` and ``tradeoff.md`` into ``out_dir``.
 
     ``fidelities`` are the levels swept (see :func:`sweep_settings`); ``reference_fidelity`` the level of
-    the reference (default: the scenario's own, per-actuator overrides included).
+    the reference (default: the scenario's own, per-actuator overrides included). ``filter_window`` [s]
+    compares the signals averaged over a centred moving window, for the reference's convergence and the
+    errors alike (for runs whose point-wise signals never converge, e.g. the whole excavator dig with
+    the teeth's stick-slip in the soil).
     """
     from .reference import DEFAULT_CACHE_DIR, compute_reference
     from .scenario import as_scenario
@@ -501,7 +512,7 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
     if reference_fidelity is not None and reference_fidelity != scenario.fidelity:
         reference_scenario = scenario.with_overrides(fidelity=reference_fidelity, actuator_fidelity={})
     reference = compute_reference(reference_scenario, tolerance=tolerance, cache_dir=cache_dir or DEFAULT_CACHE_DIR,
-                                  fresh=fresh_reference, progress=progress)
+                                  fresh=fresh_reference, progress=progress, filter_window=filter_window)
     settings = sweep_settings(scenario, quick=quick, modes=modes, fidelities=fidelities)
     repeats = repeats or (QUICK_REPEATS if quick else DEFAULT_REPEATS)
 
@@ -514,7 +525,7 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
 
     cache = Path(sweep_cache) if sweep_cache else Path(".cache/sweeps") / f"{scenario.scene_name}-{scenario.name}"
     rows = evaluate(scenario, settings, reference.log_path, repeats=repeats, scheduler=scheduler, workers=workers,
-                    cache_dir=cache, progress=report)
+                    cache_dir=cache, progress=report, filter_window=filter_window)
     title = f"{scenario.scene_name}/{scenario.name}, {scenario.duration:g} s"
     csv_path = write_csv(rows, out_dir / "tradeoff.csv")
     fig = pareto_figure(rows, out_dir / "pareto.png", title=title)
@@ -525,7 +536,8 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
     lines = [f"# Accuracy against cost: {title}", "", f"Reference: {ref_text}", "",
              f"{len(rows)} settings. Cost: wall-clock time per simulated second, the median of {repeats} run(s) "
              f"(one for runs over {REPEAT_BELOW_S:g} s), {'on the workers of ' + str(scheduler) if scheduler else 'in a local process pool'}; "
-             "timings vary with the machine and its load, errors do not. Errors: largest over the run against the reference; "
+             "timings vary with the machine and its load, errors do not. Errors: largest over the run against the reference"
+             + (f" of the signals averaged over a centred {filter_window:g} s moving window" if filter_window else "") + "; "
              f"settings marked [level] run at that fidelity instead of the scenario's ({scenario.fidelity_label}), so their "
              "errors include the simpler model's.", ""]
     for kind in ("stroke", "pressure", "joint"):
@@ -572,6 +584,8 @@ def add_parser(subparsers):
     parser.add_argument("--fresh-reference", action="store_true", help="recompute the reference even if it is cached")
     parser.add_argument("--fidelities", help="comma-separated fidelity levels to sweep (default: all; quick: the scenario's and incompressible)")
     parser.add_argument("--reference-fidelity", help="fidelity of the reference (default: the scenario's)")
+    parser.add_argument("--filter-window", type=float, help="compare signals averaged over a centred moving window [s] "
+                        "(reference convergence and errors; default: point-wise)")
     parser.set_defaults(func=main)
 
 
@@ -580,10 +594,10 @@ def main(args) -> int:
     from .reference import Tolerance
     from .scenario import MODES
 
-    for name in ("duration", "tolerance"):
+    for name in ("duration", "tolerance", "filter_window"):
         value = getattr(args, name)
         if value is not None and not (math.isfinite(value) and value > 0):
-            raise CircuitError(f"--{name}: {value!r} must be a positive finite number")
+            raise CircuitError(f"--{name.replace('_', '-')}: {value!r} must be a positive finite number")
     for name in ("workers", "repeats"):
         value = getattr(args, name)
         if value is not None and value < 1:
@@ -614,7 +628,7 @@ def main(args) -> int:
                       duration=args.duration, modes=modes, repeats=args.repeats,
                       tolerance=Tolerance(relative=args.tolerance) if args.tolerance else None,
                       fresh_reference=args.fresh_reference, progress=True, fidelities=fidelities,
-                      reference_fidelity=args.reference_fidelity)
+                      reference_fidelity=args.reference_fidelity, filter_window=args.filter_window)
     for kind in ("stroke", "pressure"):
         for s in result.statements[kind]:
             print(s)

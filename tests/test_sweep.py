@@ -1,9 +1,11 @@
 """Sweeps: content hashes, resuming an interrupted sweep, and the same error table from a process pool and Dask."""
 
 import json
+import math
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from conftest import MODELS
@@ -151,3 +153,26 @@ def test_tradeoff_rows_show_when_incompressible_is_good_enough(tmp_path):
     assert fast["stroke_max_m"] < 0.01  # good enough for a centimetre question
     assert frame["stroke_max_m"] > fast["stroke_max_m"]
     assert fast["pressure_max_pa"] > 50e5 > lumped["pressure_max_pa"]  # not for a pressure question
+
+
+def test_tradeoff_errors_on_filtered_signals_see_through_chatter():
+    """error_rows with a filter window: a run that chatters ±5 mm at 50 Hz around a 1 mm offset of the reference
+    has a point-wise stroke error of 6 mm and a 0.1 s-averaged one of the offset alone (1 mm: the window holds
+    whole chatter periods)."""
+    from sim.compare import Signal
+    from sim.scenario import load_scenario
+    from sim.tradeoff import error_rows, sweep_points
+
+    scenario = load_scenario(MODELS / "boom" / "lift.scenario.toml")
+    setting = {"mode": "mujoco", "coupling": "implicit", "dt": 1e-3, "hydraulic_substeps": 1, "pbd_substeps": 20,
+               "pbd_iterations": 1}
+    points = sweep_points(scenario, [setting], repeats=1)
+    t = np.linspace(0.0, 2.0, 4001)
+    reference = {"stroke boom_cyl": Signal("stroke boom_cyl", "stroke", t, 0.3 + 0.1 * t)}
+    run = 0.3 + 0.1 * t + 1e-3 + 5e-3 * np.sign(np.sin(2 * np.pi * 50.0 * t + 0.1))
+    result = {"status": "complete", "diverged_at_s": math.nan, "wall_per_sim_s": 1.0, "wall_per_sim_s_runs": [1.0],
+              "energy": {}, "signals": {"stroke boom_cyl": {"t": t.tolist(), "y": run.tolist()}}}
+    pointwise, = error_rows(points, [result], reference)
+    filtered, = error_rows(points, [result], reference, filter_window=0.1)
+    assert pointwise["stroke_max_m"] == pytest.approx(6e-3, rel=1e-6)
+    assert filtered["stroke_max_m"] == pytest.approx(1e-3, abs=2e-4)
