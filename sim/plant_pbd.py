@@ -50,8 +50,9 @@ gear·(c + s·ω⁺) on their joint (``joint_force``), with ω⁺ from backward 
 on the joint alone (its articulated inverse inertia (M⁻¹)ⱼⱼ): an implicit
 joint damping −gear²·s, exact for the swing drive, which no other joint moves.
 
-End stops are the joint limits (the scenes' joint ranges are the stroke
-ends); tendon limits are not rows.  At the ``incompressible`` fidelity the
+End stops are the joint limits and the cylinder tendons' limits, both soft
+with MuJoCo's law from the MJCF's solreflimit/solimplimit (``SolverXPBD.soft_limits``);
+at the boom's end stop both act and are solved together, as in MuJoCo.  At the ``incompressible`` fidelity the
 rows are stiff velocity trackers bounded at the relief force; a mechanism
 jammed against its ground contacts (``push.scenario.toml``) then needs
 ``pbd_iterations`` ≥ 4 to hold still (with 1–2 the stall force is right but the
@@ -101,7 +102,7 @@ term; the oil column's backward-Euler loss stays in the residual.  Not
 modelled by the XPBD solver (see ``sim/xpbd/solver.py``): joint armature (the
 excavator swing's 320 kg·m², 0.1–0.3 % of its inertia: a warning says so),
 frictionloss, joint stiffness, contacts other than sphere/capsule/box against
-planes; its joint limits are rigid (MuJoCo's are soft); its contacts are soft in the normal
+planes; its joint and two-site tendon limits follow MuJoCo's soft limit law; its contacts are soft in the normal
 direction with MuJoCo's law for the scene's solref/solimp (``sim.xpbd.solver.mujoco_contact_law``),
 with friction from the same soft pyramid, and each contact sees the articulated response of the
 whole mechanism (J·M⁻¹·Jᵀ, as MuJoCo's contact problem), not that of the touching body alone

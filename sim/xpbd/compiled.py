@@ -3,7 +3,9 @@
 ``substep`` advances the rigid groups by one substep h in place, on flat arrays:
 prediction (gravity or given group accelerations, external forces, gyroscopic term,
 hinge torque impulses), ``iterations`` position passes (symmetric Gauss-Seidel by default:
-joints with limits (6-row lock block at a hinge limit), connect/weld equalities, the
+joints with limits (MuJoCo's soft limit law: a 6-row block with the angle compliant at a hinge limit, a
+compliant row at a slide limit; or the rigid 6-row lock block), soft tendon limits (all active limits
+in one articulated block when a tendon limit is active), connect/weld equalities, the
 length rows — as one block with their articulated mobility or by Gauss-Seidel — and soft
 pyramidal plane contacts solved per body pair with an active set, with the articulated
 response of a hinge/slide tree (``articulated_inverse``) or the free-body one), the velocity update,
@@ -27,6 +29,9 @@ from numba import njit
 _EPS = 1e-14
 JNT_FREE, JNT_BALL, JNT_SLIDE, JNT_HINGE = 0, 1, 2, 3
 EQ_CONNECT, EQ_WELD = 0, 1
+# columns of the limit table ``jlim`` (``SolverXPBD._limit_table``): limited, solref (2), solimp (5), invweight;
+# the rows after the joints' are tendon limits with also lo, hi [m], groups a, b and the site offsets ra, rb
+LIMIT_COLS = 19
 
 
 # ---------------------------------------------------------------------------- algebra on tuples
@@ -463,15 +468,410 @@ def _slide_axis(X, Q, IM, II, g1, g2, r1, a1, limited, lo, hi):
 
 
 @njit(cache=True)
-def _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, reverse):
-    """Joint rows (``SolverXPBD._solve_joints``); jvec[j] = (r1, r2, a1, a2) as (4, 3)."""
+def _twist(Q, g1, g2, aw, qoff):
+    qt = _qmul(_q4(Q, g1), qoff)
+    qe = _qmul(_q4(Q, g2), _qconj(qt))
+    s = qe[1] * aw[0] + qe[2] * aw[1] + qe[3] * aw[2]
+    ang = 2.0 * math.atan2(s, qe[0])
+    if ang > math.pi:
+        ang -= 2.0 * math.pi
+    elif ang <= -math.pi:
+        ang += 2.0 * math.pi
+    return ang
+
+
+@njit(cache=True)
+def _limit_targets(X, Q, V, W, jt, jg, jvec, jqoff, jlim, jlo, jhi, h, jsoft):
+    """``SolverXPBD._soft_limit_targets``: jsoft[j] = (side ±1 or 0 = inactive, q*, α̃) of each soft limit."""
+    for j in range(jt.shape[0]):
+        jsoft[j, 0] = 0.0
+        if jlim[j, 0] == 0.0 or not (jlim[j, 8] > 0.0) or (jt[j] != JNT_HINGE and jt[j] != JNT_SLIDE):
+            continue
+        g1, g2 = jg[j, 0], jg[j, 1]
+        q1 = _q4(Q, g1)
+        aw = _rot(q1, _v3(jvec[j], 2))
+        if jt[j] == JNT_HINGE:
+            qv = _twist(Q, g1, g2, aw, _q4(jqoff, j))
+            qd = (W[g2, 0] - W[g1, 0]) * aw[0] + (W[g2, 1] - W[g1, 1]) * aw[1] + (W[g2, 2] - W[g1, 2]) * aw[2]
+        else:
+            r1w = _rot(q1, _v3(jvec[j], 0))
+            d = (X[g2, 0] - X[g1, 0] - r1w[0], X[g2, 1] - X[g1, 1] - r1w[1], X[g2, 2] - X[g1, 2] - r1w[2])
+            qv = _dot(d, aw)
+            v1 = _point_vel(V, W, g1, r1w)
+            wa = _cross(_v3(W, g1), aw)
+            qd = (V[g2, 0] - v1[0]) * aw[0] + (V[g2, 1] - v1[1]) * aw[1] + (V[g2, 2] - v1[2]) * aw[2] + _dot(d, wa)
+        lo, hi = jlo[j], jhi[j]
+        if qv > hi:
+            side, r, rd = 1.0, hi - qv, -qd
+        elif qv < lo:
+            side, r, rd = -1.0, qv - lo, qd
+        else:
+            continue
+        kd, b, R = _contact_law(jlim[j, 1:3], jlim[j, 3:8], 1, jlim[j, 8], 0.0, r, 0, 1.0, h)
+        c1 = 1.0 / (h * h) + b / h + kd
+        rs = ((1.0 / (h * h) + b / h) * r + rd / h) / c1
+        jsoft[j, 0] = side
+        jsoft[j, 1] = hi - rs if side > 0.0 else lo + rs
+        jsoft[j, 2] = R / (c1 * h * h)
+
+
+@njit(cache=True)
+def _tendon_geometry(X, Q, jlim, i):
+    ga, gb = int(jlim[i, 11]), int(jlim[i, 12])
+    raw = _rot(_q4(Q, ga), (jlim[i, 13], jlim[i, 14], jlim[i, 15]))
+    rbw = _rot(_q4(Q, gb), (jlim[i, 16], jlim[i, 17], jlim[i, 18]))
+    d = (X[gb, 0] + rbw[0] - X[ga, 0] - raw[0], X[gb, 1] + rbw[1] - X[ga, 1] - raw[1],
+         X[gb, 2] + rbw[2] - X[ga, 2] - raw[2])
+    ell = math.sqrt(_dot(d, d))
+    den = ell if ell > 0.0 else 1.0
+    return ga, gb, raw, rbw, ell, (d[0] / den, d[1] / den, d[2] / den)
+
+
+@njit(cache=True)
+def _tendon_limit_targets(X, Q, V, W, nj, jlim, h, tsoft):
+    """``SolverXPBD._tendon_limit_targets``: tsoft[t] = (side ±1 or 0, ℓ* [m], α̃) of each tendon limit."""
+    for t in range(jlim.shape[0] - nj):
+        i = nj + t
+        tsoft[t, 0] = 0.0
+        if jlim[i, 0] == 0.0 or not (jlim[i, 8] > 0.0):
+            continue
+        ga, gb, raw, rbw, ell, n = _tendon_geometry(X, Q, jlim, i)
+        vb = _point_vel(V, W, gb, rbw)
+        va = _point_vel(V, W, ga, raw)
+        rate = (vb[0] - va[0]) * n[0] + (vb[1] - va[1]) * n[1] + (vb[2] - va[2]) * n[2]
+        lo, hi = jlim[i, 9], jlim[i, 10]
+        if ell > hi:
+            side, r, rd = 1.0, hi - ell, -rate
+        elif ell < lo:
+            side, r, rd = -1.0, ell - lo, rate
+        else:
+            continue
+        kd, b, R = _contact_law(jlim[i, 1:3], jlim[i, 3:8], 1, jlim[i, 8], 0.0, r, 0, 1.0, h)
+        c1 = 1.0 / (h * h) + b / h + kd
+        rs = ((1.0 / (h * h) + b / h) * r + rd / h) / c1
+        tsoft[t, 0] = side
+        tsoft[t, 1] = hi - rs if side > 0.0 else lo + rs
+        tsoft[t, 2] = R / (c1 * h * h)
+
+
+@njit(cache=True)
+def _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, art, G, Minv, reverse):
+    """Soft tendon limit rows (``SolverXPBD._solve_tendon_limits``): C = ℓ − ℓ*, compliance α̃, λ ≤ 0 at an
+    upper limit (≥ 0 at a lower one); with the articulated response (``art``: W = J·M⁻¹·Jᵀ, the groups
+    moved by G·M⁻¹·Jᵀ·Δλ) or the free-body one of the two groups."""
+    nt = jlim.shape[0] - nj
+    for k in range(nt):
+        t = nt - 1 - k if reverse else k
+        side = tsoft[t, 0]
+        if side == 0.0:
+            continue
+        i = nj + t
+        ga, gb, raw, rbw, ell, n = _tendon_geometry(X, Q, jlim, i)
+        c = ell - tsoft[t, 1]
+        at = tsoft[t, 2]
+        lam = tlam[t]
+        lo = -math.inf if side > 0.0 else 0.0
+        hi = 0.0 if side > 0.0 else math.inf
+        if not art:
+            tlam[t] += _solve_pos(X, Q, IM, II, ga, gb, raw, rbw, n, c, at, lam, lo, hi)
+            continue
+        nq = G.shape[2]
+        J = np.zeros(nq)
+        for sd in range(2):
+            b = ga if sd == 0 else gb
+            if IM[b] == 0.0:
+                continue
+            sg = -1.0 if sd == 0 else 1.0
+            r = raw if sd == 0 else rbw
+            for q in range(nq):
+                vk = _cross((G[b, 3, q], G[b, 4, q], G[b, 5, q]), r)
+                J[q] += sg * (n[0] * (G[b, 0, q] + vk[0]) + n[1] * (G[b, 1, q] + vk[1]) + n[2] * (G[b, 2, q] + vk[2]))
+        MJ = np.zeros(nq)
+        w = 0.0
+        for q in range(nq):
+            acc = 0.0
+            for l in range(nq):
+                acc += Minv[q, l] * J[l]
+            MJ[q] = acc
+            w += J[q] * acc
+        den = w + at
+        if not (den > 0.0):
+            continue
+        new = lam + (-c - at * lam) / den
+        if new < lo:
+            new = lo
+        elif new > hi:
+            new = hi
+        dl = new - lam
+        tlam[t] = new
+        if dl == 0.0:
+            continue
+        for g in range(X.shape[0]):
+            if IM[g] == 0.0:
+                continue
+            dx = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+            for cc in range(6):
+                for q in range(nq):
+                    dx[cc] += G[g, cc, q] * MJ[q] * dl
+            X[g, 0] += dx[0]
+            X[g, 1] += dx[1]
+            X[g, 2] += dx[2]
+            if dx[3] != 0.0 or dx[4] != 0.0 or dx[5] != 0.0:
+                _setq(Q, g, _qadd(_q4(Q, g), (dx[3], dx[4], dx[5]), 1.0))
+
+
+@njit(cache=True)
+def _solve_limits_block(X, Q, IM, jt, jg, jvec, jqoff, jlim, bsoft, tsoft, mu, G, Minv):
+    """All active soft limits (joints' and tendons') of a hinge/slide tree together
+    (``SolverXPBD._solve_limits_block``): rows C = q − q* (joint) or ℓ − ℓ* (tendon) taken in their pushing
+    direction, W = J·M⁻¹·Jᵀ + diag(α̃), Δμ = W⁻¹(−C − α̃μ) with an active set over μ ≥ 0, every group moved
+    by G·M⁻¹·Jᵀ·Δμ."""
+    nj = jt.shape[0]
+    nt = tsoft.shape[0]
+    nq = G.shape[2]
+    n = 0
+    for j in range(nj):
+        if bsoft[j, 0] != 0.0:
+            n += 1
+    for t in range(nt):
+        if tsoft[t, 0] != 0.0:
+            n += 1
+    if n == 0:
+        return
+    rid = np.empty(n, np.int64)
+    Jr = np.zeros((n, nq))
+    C = np.empty(n)
+    at = np.empty(n)
+    lam = np.empty(n)
+    a = 0
+    for j in range(nj):
+        side = bsoft[j, 0]
+        if side == 0.0:
+            continue
+        g1, g2 = jg[j, 0], jg[j, 1]
+        q1 = _q4(Q, g1)
+        aw = _rot(q1, _v3(jvec[j], 2))
+        if jt[j] == JNT_HINGE:
+            qv = _twist(Q, g1, g2, aw, _q4(jqoff, j))
+        else:
+            r1w = _rot(q1, _v3(jvec[j], 0))
+            qv = (X[g2, 0] - X[g1, 0] - r1w[0]) * aw[0] + (X[g2, 1] - X[g1, 1] - r1w[1]) * aw[1] + \
+                (X[g2, 2] - X[g1, 2] - r1w[2]) * aw[2]
+        rid[a] = j
+        Jr[a, j] = -side
+        C[a] = -side * (qv - bsoft[j, 1])
+        at[a] = bsoft[j, 2]
+        lam[a] = mu[j]
+        a += 1
+    for t in range(nt):
+        side = tsoft[t, 0]
+        if side == 0.0:
+            continue
+        i = nj + t
+        ga, gb, raw, rbw, ell, nv = _tendon_geometry(X, Q, jlim, i)
+        for sd in range(2):
+            b = ga if sd == 0 else gb
+            if IM[b] == 0.0:
+                continue
+            sg = -side if sd == 0 else side
+            r = raw if sd == 0 else rbw
+            for q in range(nq):
+                vk = _cross((G[b, 3, q], G[b, 4, q], G[b, 5, q]), r)
+                Jr[a, q] -= sg * (nv[0] * (G[b, 0, q] + vk[0]) + nv[1] * (G[b, 1, q] + vk[1]) + nv[2] * (G[b, 2, q] + vk[2]))
+        rid[a] = i
+        C[a] = -side * (ell - tsoft[t, 1])
+        at[a] = tsoft[t, 2]
+        lam[a] = mu[i]
+        a += 1
+    MJ = np.zeros((nq, n))
+    for k in range(nq):
+        for c in range(n):
+            acc = 0.0
+            for l in range(nq):
+                acc += Minv[k, l] * Jr[c, l]
+            MJ[k, c] = acc
+    A = np.zeros((n, n))
+    rhs = np.empty(n)
+    for r in range(n):
+        for c in range(n):
+            acc = 0.0
+            for k in range(nq):
+                acc += Jr[r, k] * MJ[k, c]
+            A[r, c] = acc
+        A[r, r] += at[r]
+        rhs[r] = -C[r] - at[r] * lam[r]
+    free = np.empty(n, np.bool_)
+    for r in range(n):
+        free[r] = rhs[r] > 0.0 or lam[r] > 0.0
+    dlam = np.zeros(n)
+    for _ in range(n + 1):
+        nf = 0
+        for r in range(n):
+            if not free[r]:
+                dlam[r] = -lam[r]
+            else:
+                nf += 1
+        if nf:
+            idx = np.empty(nf, np.int64)
+            k = 0
+            for r in range(n):
+                if free[r]:
+                    idx[k] = r
+                    k += 1
+            Af = np.empty((nf, nf))
+            bf = np.empty(nf)
+            for u in range(nf):
+                sacc = rhs[idx[u]]
+                for r in range(n):
+                    if not free[r]:
+                        sacc -= A[idx[u], r] * dlam[r]
+                bf[u] = sacc
+                for c in range(nf):
+                    Af[u, c] = A[idx[u], idx[c]]
+            xf = np.empty(nf)
+            if not _solve_dense(Af, bf, xf):
+                return
+            for u in range(nf):
+                dlam[idx[u]] = xf[u]
+        neg = False
+        for r in range(n):
+            if free[r] and lam[r] + dlam[r] < 0.0:
+                free[r] = False
+                neg = True
+        if not neg:
+            break
+    dq = np.zeros(nq)
+    for r in range(n):
+        new = max(lam[r] + dlam[r], 0.0)
+        d = new - lam[r]
+        mu[rid[r]] = new
+        for k in range(nq):
+            dq[k] += MJ[k, r] * d
+    for g in range(X.shape[0]):
+        if IM[g] == 0.0:
+            continue
+        dx = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        for c in range(6):
+            for k in range(nq):
+                dx[c] += G[g, c, k] * dq[k]
+        X[g, 0] += dx[0]
+        X[g, 1] += dx[1]
+        X[g, 2] += dx[2]
+        if dx[3] != 0.0 or dx[4] != 0.0 or dx[5] != 0.0:
+            _setq(Q, g, _qadd(_q4(Q, g), (dx[3], dx[4], dx[5]), 1.0))
+
+
+@njit(cache=True)
+def _axis_basis(a):
+    ax, ay, az = abs(a[0]), abs(a[1]), abs(a[2])
+    if ax <= ay and ax <= az:
+        e = (1.0, 0.0, 0.0)
+    elif ay <= az:
+        e = (0.0, 1.0, 0.0)
+    else:
+        e = (0.0, 0.0, 1.0)
+    d = e[0] * a[0] + e[1] * a[1] + e[2] * a[2]
+    p = (e[0] - d * a[0], e[1] - d * a[1], e[2] - d * a[2])
+    n = math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+    p1 = (p[0] / n, p[1] / n, p[2] / n)
+    return p1, _cross(a, p1)
+
+
+@njit(cache=True)
+def _hinge_soft_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, side, target, at, lam):
+    """``SolverXPBD._hinge_soft_limit`` / ``kernels.solve_soft_lock_block``; returns Δλ."""
+    q1 = _q4(Q, g1)
+    aw = _rot(q1, a1)
+    qt = _qmul(q1, qoff)
+    r1w = _rot(_q4(Q, g1), r1)
+    r2w = _rot(_q4(Q, g2), r2)
+    c_pin = (X[g2, 0] + r2w[0] - X[g1, 0] - r1w[0], X[g2, 1] + r2w[1] - X[g1, 1] - r1w[1],
+             X[g2, 2] + r2w[2] - X[g1, 2] - r1w[2])
+    sn, cs = math.sin(0.5 * target), math.cos(0.5 * target)
+    q2t = _qmul((cs, sn * aw[0], sn * aw[1], sn * aw[2]), qt)
+    qe = _qmul(_q4(Q, g2), _qconj(q2t))
+    if qe[0] < 0.0:
+        qe = (-qe[0], -qe[1], -qe[2], -qe[3])
+    vn = math.sqrt(qe[1] * qe[1] + qe[2] * qe[2] + qe[3] * qe[3])
+    if vn > _EPS:
+        th = 2.0 * math.atan2(vn, qe[0]) / vn
+        c_ang = (th * qe[1], th * qe[2], th * qe[3])
+    else:
+        c_ang = (0.0, 0.0, 0.0)
+    K = np.zeros((6, 6))
+    if IM[g1] != 0.0:
+        _body_block(K, IM[g1], _v3(II, g1), _q4(Q, g1), r1w)
+    if IM[g2] != 0.0:
+        _body_block(K, IM[g2], _v3(II, g2), _q4(Q, g2), r2w)
+    for i in range(3):
+        for k in range(3):
+            K[3 + i, 3 + k] += at * aw[i] * aw[k]
+    rhs = np.empty(6)
+    rhs[0], rhs[1], rhs[2] = -c_pin[0], -c_pin[1], -c_pin[2]
+    for i in range(3):
+        rhs[3 + i] = -c_ang[i] - at * lam * aw[i]
+    z = np.empty(6)
+    if not _solve_dense(K, rhs, z):
+        return 0.0
+    dl = aw[0] * z[3] + aw[1] * z[4] + aw[2] * z[5]
+    if side * (lam + dl) > 0.0:  # would pull: axial impulse fixed at −λ
+        p1, p2 = _axis_basis(aw)
+        T = np.eye(6)
+        for i in range(3):
+            T[3 + i, 3], T[3 + i, 4], T[3 + i, 5] = aw[i], p1[i], p2[i]
+        M = T.T @ K @ T
+        r = T.T @ rhs
+        for k in range(6):
+            M[3, k] = 0.0
+        M[3, 3] = 1.0
+        r[3] = -lam
+        zt = np.empty(6)
+        if not _solve_dense(M, r, zt):
+            return 0.0
+        z = T @ zt
+        dl = -lam
+    P = (z[0], z[1], z[2])
+    L = (z[3], z[4], z[5])
+    _apply_pos(X, Q, IM, II, g2, r2w, P, 1.0)
+    _apply_ang(Q, IM, II, g2, L, 1.0)
+    _apply_pos(X, Q, IM, II, g1, r1w, P, -1.0)
+    _apply_ang(Q, IM, II, g1, L, -1.0)
+    return dl
+
+
+@njit(cache=True)
+def _slide_soft_limit(X, Q, IM, II, g1, g2, r1, a1, side, target, at, lam):
+    """The soft limit row of a slide (``SolverXPBD._slide_axis`` with ``sl``); returns Δλ."""
+    q1 = _q4(Q, g1)
+    r1w = _rot(q1, r1)
+    aw = _rot(q1, a1)
+    dist = (X[g2, 0] - X[g1, 0] - r1w[0]) * aw[0] + (X[g2, 1] - X[g1, 1] - r1w[1]) * aw[1] + \
+        (X[g2, 2] - X[g1, 2] - r1w[2]) * aw[2]
+    lo = -math.inf if side > 0.0 else 0.0
+    hi = 0.0 if side > 0.0 else math.inf
+    return _solve_pos(X, Q, IM, II, g1, g2, (X[g2, 0] - X[g1, 0], X[g2, 1] - X[g1, 1], X[g2, 2] - X[g1, 2]),
+                      (0.0, 0.0, 0.0), aw, dist - target, at, lam, lo, hi)
+
+
+@njit(cache=True)
+def _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, reverse, jsoft, jlam):
+    """Joint rows (``SolverXPBD._solve_joints``); jvec[j] = (r1, r2, a1, a2) as (4, 3).  A soft limit
+    (jlim[j, 8] > 0) acts where jsoft[j, 0] ≠ 0 (its multiplier accumulates in jlam[j]); a rigid one is
+    projected."""
     nj = jt.shape[0]
     for k in range(nj):
         j = nj - 1 - k if reverse else k
         t, g1, g2 = jt[j], jg[j, 0], jg[j, 1]
         r1, r2, a1, a2 = _v3(jvec[j], 0), _v3(jvec[j], 1), _v3(jvec[j], 2), _v3(jvec[j], 3)
+        soft = jlim[j, 0] != 0.0 and jlim[j, 8] > 0.0
+        rigid = jlim[j, 0] != 0.0 and not soft
+        side = jsoft[j, 0] if soft else 0.0
         if t == JNT_HINGE:
-            if jlim[j] and _hinge_limit(X, Q, IM, II, g1, g2, r1, r2, a1, _q4(jqoff, j), jlo[j], jhi[j]):
+            if side != 0.0:
+                jlam[j] += _hinge_soft_limit(X, Q, IM, II, g1, g2, r1, r2, a1, _q4(jqoff, j), side, jsoft[j, 1],
+                                             jsoft[j, 2], jlam[j])
+                continue
+            if rigid and _hinge_limit(X, Q, IM, II, g1, g2, r1, r2, a1, _q4(jqoff, j), jlo[j], jhi[j]):
                 continue
             if reverse:
                 _attach(X, Q, IM, II, g1, g2, r1, r2)
@@ -481,11 +881,15 @@ def _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, reverse):
                 _attach(X, Q, IM, II, g1, g2, r1, r2)
         elif t == JNT_SLIDE:
             if reverse:
-                _slide_axis(X, Q, IM, II, g1, g2, r1, a1, jlim[j], jlo[j], jhi[j])
+                _slide_axis(X, Q, IM, II, g1, g2, r1, a1, rigid, jlo[j], jhi[j])
+                if side != 0.0:
+                    jlam[j] += _slide_soft_limit(X, Q, IM, II, g1, g2, r1, a1, side, jsoft[j, 1], jsoft[j, 2], jlam[j])
                 _fix_orientation(Q, IM, II, g1, g2, _q4(jqoff, j))
             else:
                 _fix_orientation(Q, IM, II, g1, g2, _q4(jqoff, j))
-                _slide_axis(X, Q, IM, II, g1, g2, r1, a1, jlim[j], jlo[j], jhi[j])
+                _slide_axis(X, Q, IM, II, g1, g2, r1, a1, rigid, jlo[j], jhi[j])
+                if side != 0.0:
+                    jlam[j] += _slide_soft_limit(X, Q, IM, II, g1, g2, r1, a1, side, jsoft[j, 1], jsoft[j, 2], jlam[j])
         elif t == JNT_BALL:
             _attach(X, Q, IM, II, g1, g2, r1, r2)
 
@@ -885,6 +1289,8 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
     accelerations replacing gravity (``use_gg``), F/T (ngroup, 3) external world forces/torques, ``tau``
     (njnt,) hinge torques applied as impulses (``use_tau``).  Contacts: the step's candidates
     (cg = (body group, plane group); cvec = (r2 local, plane origin, plane normal, tangent t₁)).
+    Limits: ``jlim`` (njnt + ntendonlimits, LIMIT_COLS), ``SolverXPBD._limit_table``: soft limits (MuJoCo's law,
+    rows set up from the state at the substep's start) or, for a joint with invweight 0, the rigid projection.
     Outputs: lam_rows (λ of every row), ell and rate (ℓ [m], dℓ/dt [m/s] of every row after the substep).
     ``art_contacts``: the contact pyramids are solved with the articulated response of a hinge/slide tree
     (``articulated_inverse`` at the predicted pose, into the work arrays Gc (ngroup, 6, njnt) and Minv
@@ -893,6 +1299,19 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
     ng = X.shape[0]
     nr = rg.shape[0]
     nc = cg.shape[0]
+    # soft joint limit rows of the substep, from the state at its start (before the torque impulses)
+    nj = jt.shape[0]
+    jsoft = np.zeros((nj, 3))
+    jlam = np.zeros(nj)
+    _limit_targets(X, Q, V, W, jt, jg, jvec, jqoff, jlim, jlo, jhi, h, jsoft)
+    ntl = jlim.shape[0] - nj
+    tsoft = np.zeros((ntl, 3))
+    tlam = np.zeros(ntl)
+    _tendon_limit_targets(X, Q, V, W, nj, jlim, h, tsoft)
+    tact = False
+    for t in range(ntl):
+        if tsoft[t, 0] != 0.0:
+            tact = True
     # hinge torques: angular impulse τ h a plus the workless pin impulse (kernels.apply_joint_torque_impulse)
     if use_tau:
         for j in range(jt.shape[0]):
@@ -953,15 +1372,28 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
         W[g, 0], W[g, 1], W[g, 2] = wn
         _setq(Q, g, _qadd(q, wn, h))
     art = False
-    if nc and art_contacts:
+    if (nc and art_contacts) or tact:
         art = articulated_inverse(X, Q, IM, GI, jt, jg, jvec, Gc, Minv)
+    cart = art and art_contacts
+    blk = tact and art  # every active soft limit in one articulated block (joint rows out of the joint pass)
+    bsoft = np.zeros((nj, 3))
+    mu = np.zeros(nj + ntl)
+    if blk:
+        for j in range(nj):
+            for c in range(3):
+                bsoft[j, c] = jsoft[j, c]
+            jsoft[j, 0] = 0.0
     for r in range(nr):
         lam_rows[r] = 0.0
     for _ in range(iterations):
         for sweep in range(2 if symmetric else 1):
             rev = sweep == 1
             if not rev:
-                _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, False)
+                _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, False, jsoft, jlam)
+                if blk:
+                    _solve_limits_block(X, Q, IM, jt, jg, jvec, jqoff, jlim, bsoft, tsoft, mu, Gc, Minv)
+                elif tact:
+                    _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, False, Gc, Minv, False)
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, False)
                 if act.shape[0]:
                     if use_block:
@@ -969,17 +1401,21 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, False)
                 if nc:
-                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, False, art, Gc, Minv)
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, False, cart, Gc, Minv)
             else:
                 if nc:
-                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, True, art, Gc, Minv)
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, True, cart, Gc, Minv)
                 if act.shape[0]:
                     if use_block:
                         _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, True)
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, True)
-                _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, True)
+                if blk:
+                    _solve_limits_block(X, Q, IM, jt, jg, jvec, jqoff, jlim, bsoft, tsoft, mu, Gc, Minv)
+                elif tact:
+                    _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, False, Gc, Minv, True)
+                _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, True, jsoft, jlam)
     # velocity update
     ih = 1.0 / h
     for g in range(1, ng):

@@ -543,6 +543,78 @@ def solve_lock_block(X, Q, IM, II, b1, b2, r1, r2, c_pin, c_ang):
     apply_angular_impulse(Q, IM, II, b1, L, -1.0)
 
 
+def _soft_lock_system(K, aw, at, lam, c_pin, c_ang):
+    """The 6-row system of ``solve_soft_lock_block`` (K + α̃·a aᵀ on the angular block, right-hand side
+    −[C_pin; C_ang + α̃·λ·a]) as lists."""
+    A = [[float(K[i][j]) for j in range(6)] for i in range(6)]
+    for i in range(3):
+        for j in range(3):
+            A[3 + i][3 + j] += at * aw[i] * aw[j]
+    rhs = [-c_pin[0], -c_pin[1], -c_pin[2],
+           -c_ang[0] - at * lam * aw[0], -c_ang[1] - at * lam * aw[1], -c_ang[2] - at * lam * aw[2]]
+    return A, rhs
+
+
+def axis_basis(a):
+    """Two unit vectors p₁, p₂ completing the unit vector a to a right-handed orthonormal basis
+    (p₁ ⟂ a from the coordinate axis least aligned with a, p₂ = a × p₁)."""
+    ax, ay, az = abs(a[0]), abs(a[1]), abs(a[2])
+    e = (1.0, 0.0, 0.0) if (ax <= ay and ax <= az) else ((0.0, 1.0, 0.0) if ay <= az else (0.0, 0.0, 1.0))
+    d = e[0] * a[0] + e[1] * a[1] + e[2] * a[2]
+    p = (e[0] - d * a[0], e[1] - d * a[1], e[2] - d * a[2])
+    n = math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2])
+    p1 = (p[0] / n, p[1] / n, p[2] / n)
+    return p1, cross(a, p1)
+
+
+def solve_soft_lock_block(X, Q, IM, II, b1, b2, r1, r2, c_pin, c_ang, aw, at, lam, side):
+    """A hinge beyond a soft limit: pin (3 rows) and axis alignment (2 rows) rigid, the angle about the
+    unit axis ``aw`` compliant (α̃ = ``at``, accumulated multiplier ``lam`` [N·m·s²] along +aw), in one
+    6-row block (XPBD eq. 16 in block form, as ``solve_lock_block``):
+
+        (A₁ + A₂ + α̃·[0 0; 0 a aᵀ]) [P; L] = −[C_pin; C_ang + α̃·λ·a],
+
+    C_ang the rotation vector of body 2 away from its target orientation (the limit row's target angle).
+    One-sided: the new λ + a·L must be ≤ 0 at an upper limit (``side`` +1), ≥ 0 at a lower one (−1);
+    otherwise the block is solved again with the axial impulse fixed at a·L = −λ (λ → 0: pin and axis
+    rows only, in the basis (a, p₁, p₂) of ``axis_basis``).  Body 2 receives (P at r2, L), body 1 the
+    opposite.  Returns the applied Δλ = a·L.
+    """
+    K = np.zeros((6, 6))
+    if IM[b1] != 0.0:
+        K += _body_block(IM[b1], II[b1], Q[b1], r1)
+    if IM[b2] != 0.0:
+        K += _body_block(IM[b2], II[b2], Q[b2], r2)
+    A, rhs = _soft_lock_system(K, aw, at, lam, c_pin, c_ang)
+    try:
+        z = np.linalg.solve(np.array(A), np.array(rhs))
+    except np.linalg.LinAlgError:
+        return 0.0
+    dl = float(aw[0] * z[3] + aw[1] * z[4] + aw[2] * z[5])
+    if side * (lam + dl) > 0.0:  # would pull: fix the axial impulse at −λ
+        p1, p2 = axis_basis(aw)
+        T = np.eye(6)
+        T[3:, 3], T[3:, 4], T[3:, 5] = aw, p1, p2
+        M = T.T @ np.array(A) @ T
+        r = T.T @ np.array(rhs)
+        M[3, :] = 0.0
+        M[3, 3] = 1.0
+        r[3] = -lam
+        try:
+            zt = np.linalg.solve(M, r)
+        except np.linalg.LinAlgError:
+            return 0.0
+        z = T @ zt
+        dl = -lam
+    P = (float(z[0]), float(z[1]), float(z[2]))
+    L = (float(z[3]), float(z[4]), float(z[5]))
+    apply_positional_impulse(X, Q, IM, II, b2, r2, P, 1.0)
+    apply_angular_impulse(Q, IM, II, b2, L, 1.0)
+    apply_positional_impulse(X, Q, IM, II, b1, r1, P, -1.0)
+    apply_angular_impulse(Q, IM, II, b1, L, -1.0)
+    return dl
+
+
 def apply_joint_torque_impulse(V, W, Q, IM, II, b1, b2, r1, r2, L):
     """Apply the angular impulse ``L`` to body 2 and −L to body 1 (a hinge torque τ·h·a),
     together with the internal impulse at the pin that keeps the relative pin velocity

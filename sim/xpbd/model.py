@@ -227,6 +227,19 @@ class XpbdModel:
     contact_cone: int = 0                         # mjCONE_PYRAMIDAL (0) or mjCONE_ELLIPTIC (1)
     contact_impratio: float = 1.0
     contact_timestep: float = 0.0                 # MJCF timestep [s] (MuJoCo's timeconst ≥ 2·timestep safety)
+    # MuJoCo soft joint limits (``SolverXPBD(soft_limits=True)``): per joint solref/solimp of the limit and
+    # MuJoCo's diagonal approximation of its effective inverse inertia (dof_invweight0 [1/(kg·m²)] for a
+    # hinge, [1/kg] for a slide); None = rigid limits (a model built without them)
+    jnt_solref: Optional[np.ndarray] = None       # (nj, 2) timeconst [s], dampratio [-] (or −stiffness, −damping)
+    jnt_solimp: Optional[np.ndarray] = None       # (nj, 5) dmin, dmax, width [rad or m], midpoint, power
+    jnt_invweight: Optional[np.ndarray] = None    # (nj,) dof_invweight0 of the joint's (first) dof
+    # limited spatial tendons of two sites (MuJoCo's tendon limits): tendon ids, range [m], solref/solimp of the
+    # limit and tendon_invweight0 [1/kg]
+    tendon_limit_ids: tuple = field(default=())
+    tendon_limit_range: Optional[np.ndarray] = None    # (ntl, 2) [m]
+    tendon_limit_solref: Optional[np.ndarray] = None   # (ntl, 2)
+    tendon_limit_solimp: Optional[np.ndarray] = None   # (ntl, 5), width in m
+    tendon_limit_invweight: Optional[np.ndarray] = None  # (ntl,) [1/kg]
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -441,6 +454,17 @@ class XpbdModel:
                 tsites.append(tuple(int(i) for i in m.wrap_objid[adr:adr + num]))
             else:
                 tsites.append(())
+        # limited tendons of two sites on different rigid groups (soft length limits); others are noted
+        tl_ids = []
+        tendon_limited = np.array(m.tendon_limited, dtype=bool) & (not disabled("mjDSBL_LIMIT"))
+        for t in range(m.ntendon):
+            if not tendon_limited[t]:
+                continue
+            ts = tsites[t]
+            if len(ts) == 2 and body_group[sb[ts[0]]] != body_group[sb[ts[1]]]:
+                tl_ids.append(t)
+            else:
+                notes.append(f"tendon {t}: limit ignored (only straight two-site tendons between rigid groups)")
 
         # ---- contacts (sphere / capsule / box against planes)
         C = {k: [] for k in ("group", "local", "radius", "plane", "mu", "geom", "solref", "solimp", "condim", "tran")}
@@ -531,6 +555,13 @@ class XpbdModel:
             contact_condim=arr(C["condim"], (nc,), int), contact_tran=arr(C["tran"], (nc,)),
             contact_cone=int(m.opt.cone), contact_impratio=float(m.opt.impratio),
             contact_timestep=float(m.opt.timestep),
+            jnt_solref=arr(m.jnt_solref, (nj, 2)), jnt_solimp=arr(m.jnt_solimp, (nj, 5)),
+            jnt_invweight=arr([float(m.dof_invweight0[m.jnt_dofadr[j]]) for j in range(nj)], (nj,)),
+            tendon_limit_ids=tuple(tl_ids),
+            tendon_limit_range=arr([m.tendon_range[t] for t in tl_ids], (len(tl_ids), 2)),
+            tendon_limit_solref=arr([m.tendon_solref_lim[t] for t in tl_ids], (len(tl_ids), 2)),
+            tendon_limit_solimp=arr([m.tendon_solimp_lim[t] for t in tl_ids], (len(tl_ids), 5)),
+            tendon_limit_invweight=arr([float(m.tendon_invweight0[t]) for t in tl_ids], (len(tl_ids),)),
         )
         if warn and notes:
             warnings.warn("XpbdModel: " + "; ".join(notes), stacklevel=2)
