@@ -700,46 +700,9 @@ def _solve_limits_block(X, Q, IM, jt, jg, jvec, jqoff, jlim, bsoft, tsoft, mu, G
             A[r, c] = acc
         A[r, r] += at[r]
         rhs[r] = -C[r] - at[r] * lam[r]
-    free = np.empty(n, np.bool_)
-    for r in range(n):
-        free[r] = rhs[r] > 0.0 or lam[r] > 0.0
     dlam = np.zeros(n)
-    for _ in range(n + 1):
-        nf = 0
-        for r in range(n):
-            if not free[r]:
-                dlam[r] = -lam[r]
-            else:
-                nf += 1
-        if nf:
-            idx = np.empty(nf, np.int64)
-            k = 0
-            for r in range(n):
-                if free[r]:
-                    idx[k] = r
-                    k += 1
-            Af = np.empty((nf, nf))
-            bf = np.empty(nf)
-            for u in range(nf):
-                sacc = rhs[idx[u]]
-                for r in range(n):
-                    if not free[r]:
-                        sacc -= A[idx[u], r] * dlam[r]
-                bf[u] = sacc
-                for c in range(nf):
-                    Af[u, c] = A[idx[u], idx[c]]
-            xf = np.empty(nf)
-            if not _solve_dense(Af, bf, xf):
-                return
-            for u in range(nf):
-                dlam[idx[u]] = xf[u]
-        neg = False
-        for r in range(n):
-            if free[r] and lam[r] + dlam[r] < 0.0:
-                free[r] = False
-                neg = True
-        if not neg:
-            break
+    if not _nonnegative_increment(A, rhs, lam, dlam):
+        return
     dq = np.zeros(nq)
     for r in range(n):
         new = max(lam[r] + dlam[r], 0.0)
@@ -1167,46 +1130,9 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
     for i in range(n):
         rhs[i] = -(disp_rows[i] - tgt[i]) - alpha[i] * lam[i]
         A[i, i] += alpha[i]
-    free = np.empty(n, np.bool_)
-    for i in range(n):
-        free[i] = rhs[i] > 0.0 or lam[i] > 0.0
     dlam = np.zeros(n)
-    for _ in range(n + 1):
-        nf = 0
-        for i in range(n):
-            if not free[i]:
-                dlam[i] = -lam[i]
-            else:
-                nf += 1
-        if nf:
-            idx = np.empty(nf, np.int64)
-            k = 0
-            for i in range(n):
-                if free[i]:
-                    idx[k] = i
-                    k += 1
-            Af = np.empty((nf, nf))
-            bf = np.empty(nf)
-            for a in range(nf):
-                s = rhs[idx[a]]
-                for i in range(n):
-                    if not free[i]:
-                        s -= A[idx[a], i] * dlam[i]
-                bf[a] = s
-                for c in range(nf):
-                    Af[a, c] = A[idx[a], idx[c]]
-            xf = np.empty(nf)
-            if not _solve_dense(Af, bf, xf):
-                return
-            for a in range(nf):
-                dlam[idx[a]] = xf[a]
-        neg = False
-        for i in range(n):
-            if free[i] and lam[i] + dlam[i] < 0.0:
-                free[i] = False
-                neg = True
-        if not neg:
-            break
+    if not _nonnegative_increment(A, rhs, lam, dlam):
+        return
     if art:
         dq = np.zeros(nj)
         for pi in range(npt):
@@ -1718,6 +1644,53 @@ def group_jacobian(X, Q, IM, jt, jg, jvec, G):
             else:
                 for c in range(3):
                     G[g, c, j] = a[c]
+    return True
+
+
+@njit(cache=True)
+def _nonnegative_increment(A, rhs, lam, dlam):
+    """Δλ of the one-sided block A·Δλ = rhs with λ + Δλ ≥ 0 (active set: a row whose total would turn negative is
+    released to Δλ = −λ and the rest re-solved, at most n + 1 times); False if a free sub-block is singular."""
+    n = len(rhs)
+    free = np.empty(n, np.bool_)
+    for r in range(n):
+        free[r] = rhs[r] > 0.0 or lam[r] > 0.0
+    for _ in range(n + 1):
+        nf = 0
+        for r in range(n):
+            if not free[r]:
+                dlam[r] = -lam[r]
+            else:
+                nf += 1
+        if nf:
+            idx = np.empty(nf, np.int64)
+            k = 0
+            for r in range(n):
+                if free[r]:
+                    idx[k] = r
+                    k += 1
+            Af = np.empty((nf, nf))
+            bf = np.empty(nf)
+            for u in range(nf):
+                sacc = rhs[idx[u]]
+                for r in range(n):
+                    if not free[r]:
+                        sacc -= A[idx[u], r] * dlam[r]
+                bf[u] = sacc
+                for c in range(nf):
+                    Af[u, c] = A[idx[u], idx[c]]
+            xf = np.empty(nf)
+            if not _solve_dense(Af, bf, xf):
+                return False
+            for u in range(nf):
+                dlam[idx[u]] = xf[u]
+        neg = False
+        for r in range(n):
+            if free[r] and lam[r] + dlam[r] < 0.0:
+                free[r] = False
+                neg = True
+        if not neg:
+            break
     return True
 
 

@@ -884,22 +884,7 @@ class SolverXPBD:
         q1 = Q[g1]
         aw = quat_rotate(q1, a1)
         qt = quat_mul(q1, qoff)
-        r1w = quat_rotate(Q[g1], r1)
-        r2w = quat_rotate(Q[g2], r2)
-        x1, x2 = X[g1], X[g2]
-        c_pin = (x2[0] + r2w[0] - x1[0] - r1w[0], x2[1] + r2w[1] - x1[1] - r1w[1],
-                 x2[2] + r2w[2] - x1[2] - r1w[2])
-        s, c = math.sin(0.5 * target), math.cos(0.5 * target)
-        q2t = quat_mul((c, s * aw[0], s * aw[1], s * aw[2]), qt)
-        qe = quat_mul(Q[g2], quat_conj(q2t))
-        if qe[0] < 0.0:
-            qe = (-qe[0], -qe[1], -qe[2], -qe[3])
-        vn = math.sqrt(qe[1] * qe[1] + qe[2] * qe[2] + qe[3] * qe[3])
-        if vn > _EPS:
-            th = 2.0 * math.atan2(vn, qe[0]) / vn
-            c_ang = (th * qe[1], th * qe[2], th * qe[3])
-        else:
-            c_ang = (0.0, 0.0, 0.0)
+        r1w, r2w, c_pin, c_ang = self._lock_errors(X, Q, g1, g2, r1, r2, aw, target, qt)
         return K.solve_soft_lock_block(X, Q, self._IM, self._II, g1, g2, r1w, r2w, c_pin, c_ang, aw, at, lam, side)
 
     def _align_axes(self, Q, g1, g2, a1, a2):
@@ -1180,9 +1165,9 @@ class SolverXPBD:
             solve_positional(X, Q, self._IM, self._II, g1, g2, r1w, r2w,
                              (d[0] / c, d[1] / c, d[2] / c), c)
 
-    def _hinge_at_limit(self, X, Q, g1, g2, r1, r2, aw, target, qt):
-        """Hinge beyond a limit: project pin, axis and angle (clamped to ``target``)
-        together with one 6-row block solve (see ``kernels.solve_lock_block``)."""
+    @staticmethod
+    def _lock_errors(X, Q, g1, g2, r1, r2, aw, target, qt):
+        """World lever arms, pin error [m] and rotation error [rad] (axis·angle) of a hinge held at angle ``target``."""
         r1w = quat_rotate(Q[g1], r1)
         r2w = quat_rotate(Q[g2], r2)
         x1, x2 = X[g1], X[g2]
@@ -1199,6 +1184,12 @@ class SolverXPBD:
             c_ang = (th * qe[1], th * qe[2], th * qe[3])
         else:
             c_ang = (0.0, 0.0, 0.0)
+        return r1w, r2w, c_pin, c_ang
+
+    def _hinge_at_limit(self, X, Q, g1, g2, r1, r2, aw, target, qt):
+        """Hinge beyond a limit: project pin, axis and angle (clamped to ``target``)
+        together with one 6-row block solve (see ``kernels.solve_lock_block``)."""
+        r1w, r2w, c_pin, c_ang = self._lock_errors(X, Q, g1, g2, r1, r2, aw, target, qt)
         K.solve_lock_block(X, Q, self._IM, self._II, g1, g2, r1w, r2w, c_pin, c_ang)
 
     def _fix_orientation(self, Q, g1, g2, qoff):
