@@ -407,26 +407,7 @@ def _hinge_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, lo, hi):
     else:
         return False
     target = ang - viol
-    r1w = _rot(_q4(Q, g1), r1)
-    r2w = _rot(_q4(Q, g2), r2)
-    c_pin = (X[g2, 0] + r2w[0] - X[g1, 0] - r1w[0], X[g2, 1] + r2w[1] - X[g1, 1] - r1w[1],
-             X[g2, 2] + r2w[2] - X[g1, 2] - r1w[2])
-    sn, cs = math.sin(0.5 * target), math.cos(0.5 * target)
-    q2t = _qmul((cs, sn * aw[0], sn * aw[1], sn * aw[2]), qt)
-    qe = _qmul(_q4(Q, g2), _qconj(q2t))
-    if qe[0] < 0.0:
-        qe = (-qe[0], -qe[1], -qe[2], -qe[3])
-    vn = math.sqrt(qe[1] * qe[1] + qe[2] * qe[2] + qe[3] * qe[3])
-    if vn > _EPS:
-        th = 2.0 * math.atan2(vn, qe[0]) / vn
-        c_ang = (th * qe[1], th * qe[2], th * qe[3])
-    else:
-        c_ang = (0.0, 0.0, 0.0)
-    K = np.zeros((6, 6))
-    if IM[g1] != 0.0:
-        _body_block(K, IM[g1], _v3(II, g1), _q4(Q, g1), r1w)
-    if IM[g2] != 0.0:
-        _body_block(K, IM[g2], _v3(II, g2), _q4(Q, g2), r2w)
+    r1w, r2w, c_pin, c_ang, K = _lock_system(X, Q, IM, II, g1, g2, r1, r2, aw, target, qt)
     rhs = np.empty(6)
     rhs[0], rhs[1], rhs[2] = -c_pin[0], -c_pin[1], -c_pin[2]
     rhs[3], rhs[4], rhs[5] = -c_ang[0], -c_ang[1], -c_ang[2]
@@ -741,11 +722,9 @@ def _axis_basis(a):
 
 
 @njit(cache=True)
-def _hinge_soft_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, side, target, at, lam):
-    """``SolverXPBD._hinge_soft_limit`` / ``kernels.solve_soft_lock_block``; returns Δλ."""
-    q1 = _q4(Q, g1)
-    aw = _rot(q1, a1)
-    qt = _qmul(q1, qoff)
+def _lock_system(X, Q, IM, II, g1, g2, r1, r2, aw, target, qt):
+    """A hinge held at angle ``target``: world lever arms, pin error [m], rotation error [rad] (axis·angle) and
+    the 6×6 effective-mass block of pin + rotation (``SolverXPBD._lock_errors`` and the kernels' lock blocks)."""
     r1w = _rot(_q4(Q, g1), r1)
     r2w = _rot(_q4(Q, g2), r2)
     c_pin = (X[g2, 0] + r2w[0] - X[g1, 0] - r1w[0], X[g2, 1] + r2w[1] - X[g1, 1] - r1w[1],
@@ -766,6 +745,16 @@ def _hinge_soft_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, side, target, at, 
         _body_block(K, IM[g1], _v3(II, g1), _q4(Q, g1), r1w)
     if IM[g2] != 0.0:
         _body_block(K, IM[g2], _v3(II, g2), _q4(Q, g2), r2w)
+    return r1w, r2w, c_pin, c_ang, K
+
+
+@njit(cache=True)
+def _hinge_soft_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, side, target, at, lam):
+    """``SolverXPBD._hinge_soft_limit`` / ``kernels.solve_soft_lock_block``; returns Δλ."""
+    q1 = _q4(Q, g1)
+    aw = _rot(q1, a1)
+    qt = _qmul(q1, qoff)
+    r1w, r2w, c_pin, c_ang, K = _lock_system(X, Q, IM, II, g1, g2, r1, r2, aw, target, qt)
     for i in range(3):
         for k in range(3):
             K[3 + i, 3 + k] += at * aw[i] * aw[k]
