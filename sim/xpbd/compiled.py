@@ -481,19 +481,26 @@ def _limit_targets(X, Q, V, W, jt, jg, jvec, jqoff, jlim, jlo, jhi, h, jsoft):
             v1 = _point_vel(V, W, g1, r1w)
             wa = _cross(_v3(W, g1), aw)
             qd = (V[g2, 0] - v1[0]) * aw[0] + (V[g2, 1] - v1[1]) * aw[1] + (V[g2, 2] - v1[2]) * aw[2] + _dot(d, wa)
-        lo, hi = jlo[j], jhi[j]
-        if qv > hi:
-            side, r, rd = 1.0, hi - qv, -qd
-        elif qv < lo:
-            side, r, rd = -1.0, qv - lo, qd
-        else:
-            continue
-        kd, b, R = _contact_law(jlim[j, 1:3], jlim[j, 3:8], 1, jlim[j, 8], 0.0, r, 0, 1.0, h)
-        c1 = 1.0 / (h * h) + b / h + kd
-        rs = ((1.0 / (h * h) + b / h) * r + rd / h) / c1
-        jsoft[j, 0] = side
-        jsoft[j, 1] = hi - rs if side > 0.0 else lo + rs
-        jsoft[j, 2] = R / (c1 * h * h)
+        _soft_limit_target(jlim[j], qv, qd, jlo[j], jhi[j], h, jsoft[j])
+
+
+@njit(cache=True)
+def _soft_limit_target(params, value, rate, lo, hi, h, out):
+    """A soft limit beyond [``lo``, ``hi``] at ``value`` moving at ``rate``: out = (side ±1, target, α̃) of its
+    one-sided compliant row under MuJoCo's law of the limit row ``params`` (solref, solimp, invweight0); ``out``
+    is left as it is inside the range."""
+    if value > hi:
+        side, r, rd = 1.0, hi - value, -rate
+    elif value < lo:
+        side, r, rd = -1.0, value - lo, rate
+    else:
+        return
+    kd, b, R = _contact_law(params[1:3], params[3:8], 1, params[8], 0.0, r, 0, 1.0, h)
+    c1 = 1.0 / (h * h) + b / h + kd
+    rs = ((1.0 / (h * h) + b / h) * r + rd / h) / c1
+    out[0] = side
+    out[1] = hi - rs if side > 0.0 else lo + rs
+    out[2] = R / (c1 * h * h)
 
 
 @njit(cache=True)
@@ -520,19 +527,7 @@ def _tendon_limit_targets(X, Q, V, W, nj, jlim, h, tsoft):
         vb = _point_vel(V, W, gb, rbw)
         va = _point_vel(V, W, ga, raw)
         rate = (vb[0] - va[0]) * n[0] + (vb[1] - va[1]) * n[1] + (vb[2] - va[2]) * n[2]
-        lo, hi = jlim[i, 9], jlim[i, 10]
-        if ell > hi:
-            side, r, rd = 1.0, hi - ell, -rate
-        elif ell < lo:
-            side, r, rd = -1.0, ell - lo, rate
-        else:
-            continue
-        kd, b, R = _contact_law(jlim[i, 1:3], jlim[i, 3:8], 1, jlim[i, 8], 0.0, r, 0, 1.0, h)
-        c1 = 1.0 / (h * h) + b / h + kd
-        rs = ((1.0 / (h * h) + b / h) * r + rd / h) / c1
-        tsoft[t, 0] = side
-        tsoft[t, 1] = hi - rs if side > 0.0 else lo + rs
-        tsoft[t, 2] = R / (c1 * h * h)
+        _soft_limit_target(jlim[i], ell, rate, jlim[i, 9], jlim[i, 10], h, tsoft[t])
 
 
 @njit(cache=True)
