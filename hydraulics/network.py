@@ -522,8 +522,8 @@ class NetworkModel:
         # rigid branches: valve P -> T, carrying the flow a rigid actuator's rod (shaft) displaces
         start = len(branch_names)
         rigid = [c for c in actuators if c.name in rigid_valve]
-        for c in rigid:
-            v = valves[rigid_valve[c.name][0]]
+        rigid_valves = [valves[rigid_valve[c.name][0]] for c in rigid]
+        for c, v in zip(rigid, rigid_valves):
             add_branch(f"{c.name}.rigid", node(v, "P"), node(v, "T"))
         slices["rigid"] = slice(start, len(branch_names))
 
@@ -626,9 +626,9 @@ class NetworkModel:
             rigid_sign=f([rigid_valve[c.name][1] for c in rigid], float),
             rigid_extend_area=f([rate(c, 0) for c in rigid], float),
             rigid_retract_area=f([rate(c, 1) for c in rigid], float),
-            rigid_cd=column([valves[rigid_valve[c.name][0]] for c in rigid], "discharge_coefficient"),
-            rigid_base_area=column([valves[rigid_valve[c.name][0]] for c in rigid], "leakage_area"),
-            rigid_max_area=column([valves[rigid_valve[c.name][0]] for c in rigid], "max_area"),
+            rigid_cd=column(rigid_valves, "discharge_coefficient"),
+            rigid_base_area=column(rigid_valves, "leakage_area"),
+            rigid_max_area=column(rigid_valves, "max_area"),
         )
         return model
 
