@@ -686,18 +686,7 @@ def _solve_limits_block(X, Q, IM, jt, jg, jvec, jqoff, jlim, bsoft, tsoft, mu, G
         mu[rid[r]] = new
         for k in range(nq):
             dq[k] += MJ[k, r] * d
-    for g in range(X.shape[0]):
-        if IM[g] == 0.0:
-            continue
-        dx = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-        for c in range(6):
-            for k in range(nq):
-                dx[c] += G[g, c, k] * dq[k]
-        X[g, 0] += dx[0]
-        X[g, 1] += dx[1]
-        X[g, 2] += dx[2]
-        if dx[3] != 0.0 or dx[4] != 0.0 or dx[5] != 0.0:
-            _setq(Q, g, _qadd(_q4(Q, g), (dx[3], dx[4], dx[5]), 1.0))
+    _move_groups(X, Q, IM, G, dq)
 
 
 @njit(cache=True)
@@ -1128,18 +1117,7 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
                 lam_e[ci, j] = new
                 for k in range(nj):
                     dq[k] += MJ[k, row] * d
-        for g in range(X.shape[0]):
-            if IM[g] == 0.0:
-                continue
-            dx = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-            for c in range(6):
-                for k in range(nj):
-                    dx[c] += G[g, c, k] * dq[k]
-            X[g, 0] += dx[0]
-            X[g, 1] += dx[1]
-            X[g, 2] += dx[2]
-            if dx[3] != 0.0 or dx[4] != 0.0 or dx[5] != 0.0:
-                _setq(Q, g, _qadd(_q4(Q, g), (dx[3], dx[4], dx[5]), 1.0))
+        _move_groups(X, Q, IM, G, dq)
         return
     for pi in range(npt):
         ci = cis[pi]
@@ -1629,6 +1607,24 @@ def group_jacobian(X, Q, IM, jt, jg, jvec, G):
                 for c in range(3):
                     G[g, c, j] = a[c]
     return True
+
+
+@njit(cache=True)
+def _move_groups(X, Q, IM, G, dq):
+    """Move every dynamic group by G·dq: the joint-space displacement ``dq`` through the group Jacobian G."""
+    nq = len(dq)
+    for g in range(X.shape[0]):
+        if IM[g] == 0.0:
+            continue
+        dx = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+        for c in range(6):
+            for k in range(nq):
+                dx[c] += G[g, c, k] * dq[k]
+        X[g, 0] += dx[0]
+        X[g, 1] += dx[1]
+        X[g, 2] += dx[2]
+        if dx[3] != 0.0 or dx[4] != 0.0 or dx[5] != 0.0:
+            _setq(Q, g, _qadd(_q4(Q, g), (dx[3], dx[4], dx[5]), 1.0))
 
 
 @njit(cache=True)

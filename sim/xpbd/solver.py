@@ -131,6 +131,17 @@ class SubstepHooks(Protocol):
     def after_substep(self, k: int, h: float, state: XpbdState, forces: SubstepForces) -> None: ...
 
 
+def _move_groups(X, Q, IM, G, dq):
+    """Move every dynamic group by G·dq: the joint-space displacement ``dq`` through the group Jacobian G."""
+    for g in range(1, len(X)):
+        if IM[g] == 0.0:
+            continue
+        d = G[g] @ dq
+        X[g] = [X[g][0] + d[0], X[g][1] + d[1], X[g][2] + d[2]]
+        if d[3] != 0.0 or d[4] != 0.0 or d[5] != 0.0:
+            Q[g] = K._quat_add_rotation(Q[g], (float(d[3]), float(d[4]), float(d[5])), 1.0)
+
+
 class SolverXPBD:
     """Substepped rigid-body XPBD ([RB] Algorithm 2).
 
@@ -791,13 +802,7 @@ class SolverXPBD:
         for (rid, *_), v in zip(rows, new):
             self._mu[rid] = float(v)
         dq = MJ @ (new - lam)
-        for g in range(1, len(X)):
-            if IM[g] == 0.0:
-                continue
-            d = G[g] @ dq
-            X[g] = [X[g][0] + d[0], X[g][1] + d[1], X[g][2] + d[2]]
-            if d[3] != 0.0 or d[4] != 0.0 or d[5] != 0.0:
-                Q[g] = K._quat_add_rotation(Q[g], (float(d[3]), float(d[4]), float(d[5])), 1.0)
+        _move_groups(X, Q, IM, G, dq)
 
     def _tendon_geometry(self, X, Q, k):
         ga, gb, ra, rb = self._tlaw[k][:4]
@@ -868,13 +873,7 @@ class SolverXPBD:
             if dl == 0.0:
                 continue
             dq = MJ * dl
-            for g in range(1, len(X)):
-                if IM[g] == 0.0:
-                    continue
-                d = G[g] @ dq
-                X[g] = [X[g][0] + d[0], X[g][1] + d[1], X[g][2] + d[2]]
-                if d[3] != 0.0 or d[4] != 0.0 or d[5] != 0.0:
-                    Q[g] = K._quat_add_rotation(Q[g], (float(d[3]), float(d[4]), float(d[5])), 1.0)
+            _move_groups(X, Q, IM, G, dq)
 
     def _hinge_soft_limit(self, X, Q, g1, g2, r1, r2, a1, qoff, sl, lam):
         """Hinge beyond a soft limit: pin and axis rigid, the angle compliant towards its target, in one
@@ -1126,13 +1125,7 @@ class SolverXPBD:
             for row, (pi, ci, j) in enumerate(owner):
                 self._lam_edges[ci][j] = float(new[row])
             dq = MJ @ dlam
-            for g in range(1, len(X)):
-                if IM[g] == 0.0:
-                    continue
-                d = G[g] @ dq
-                X[g] = [X[g][0] + d[0], X[g][1] + d[1], X[g][2] + d[2]]
-                if d[3] != 0.0 or d[4] != 0.0 or d[5] != 0.0:
-                    Q[g] = K._quat_add_rotation(Q[g], (float(d[3]), float(d[4]), float(d[5])), 1.0)
+            _move_groups(X, Q, IM, G, dq)
             for ci in cis:
                 edges = self._csoft[ci][3]
                 lam_n[ci] = sum(self._lam_edges[ci][j] * edges[j][3] for j in range(len(edges)))
