@@ -131,6 +131,21 @@ class SubstepHooks(Protocol):
     def after_substep(self, k: int, h: float, state: XpbdState, forces: SubstepForces) -> None: ...
 
 
+def _soft_limit_target(value, rate, lo, hi, solref, solimp, invweight, h):
+    """(side ±1, target, α̃) of the one-sided compliant row of a soft limit at ``value`` moving at ``rate``
+    under MuJoCo's law (``mujoco_limit_law``), or None inside [``lo``, ``hi``] (see ``_soft_limit_targets``)."""
+    if value > hi:
+        side, r, rd = 1.0, hi - value, -rate
+    elif value < lo:
+        side, r, rd = -1.0, value - lo, rate
+    else:
+        return None
+    kd, b, R = mujoco_limit_law(solref, solimp, invweight, r, timestep=h)
+    c1 = 1.0 / (h * h) + b / h + kd
+    rs = ((1.0 / (h * h) + b / h) * r + rd / h) / c1
+    return side, hi - rs if side > 0.0 else lo + rs, R / (c1 * h * h)
+
+
 def _move_groups(X, Q, IM, G, dq):
     """Move every dynamic group by G·dq: the joint-space displacement ``dq`` through the group Jacobian G."""
     for g in range(1, len(X)):
@@ -720,16 +735,7 @@ class SolverXPBD:
                 v1 = point_velocity(V, W, g1, r1w)
                 wa = cross(W[g1], aw)
                 qd = (V[g2][0] - v1[0]) * aw[0] + (V[g2][1] - v1[1]) * aw[1] + (V[g2][2] - v1[2]) * aw[2] + dot(d, wa)
-            if qv > hi:
-                side, r, rd = 1.0, hi - qv, -qd
-            elif qv < lo:
-                side, r, rd = -1.0, qv - lo, qd
-            else:
-                continue
-            kd, b, R = mujoco_limit_law(law[0], law[1], law[2], r, timestep=h)
-            c1 = 1.0 / (h * h) + b / h + kd
-            rs = ((1.0 / (h * h) + b / h) * r + rd / h) / c1
-            out[j] = (side, hi - rs if side > 0.0 else lo + rs, R / (c1 * h * h))
+            out[j] = _soft_limit_target(qv, qd, lo, hi, law[0], law[1], law[2], h)
         return out
 
     def _solve_limits_block(self, X, Q):
@@ -825,16 +831,7 @@ class SolverXPBD:
             vb = point_velocity(V, W, gb, rbw)
             va = point_velocity(V, W, ga, raw)
             rate = (vb[0] - va[0]) * n[0] + (vb[1] - va[1]) * n[1] + (vb[2] - va[2]) * n[2]
-            if ell > hi:
-                side, r, rd = 1.0, hi - ell, -rate
-            elif ell < lo:
-                side, r, rd = -1.0, ell - lo, rate
-            else:
-                continue
-            kd, b, R = mujoco_limit_law(solref, solimp, invw, r, timestep=h)
-            c1 = 1.0 / (h * h) + b / h + kd
-            rs = ((1.0 / (h * h) + b / h) * r + rd / h) / c1
-            out[k] = (side, hi - rs if side > 0.0 else lo + rs, R / (c1 * h * h))
+            out[k] = _soft_limit_target(ell, rate, lo, hi, solref, solimp, invw, h)
         return out
 
     def _solve_tendon_limits(self, X, Q, reverse):
