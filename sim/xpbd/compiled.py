@@ -186,6 +186,17 @@ def _apply_vel(V, W, Q, IM, II, b, r, p, sign):
 
 
 @njit(cache=True)
+def _apply_lock_impulse(X, Q, IM, II, g1, g2, r1w, r2w, z):
+    """Apply a hinge lock's 6-vector z = (positional P, angular L) to g2 and its opposite to g1."""
+    P = (z[0], z[1], z[2])
+    L = (z[3], z[4], z[5])
+    _apply_pos(X, Q, IM, II, g2, r2w, P, 1.0)
+    _apply_ang(Q, IM, II, g2, L, 1.0)
+    _apply_pos(X, Q, IM, II, g1, r1w, P, -1.0)
+    _apply_ang(Q, IM, II, g1, L, -1.0)
+
+
+@njit(cache=True)
 def _apply_angvel(W, Q, IM, II, b, p, sign):
     if IM[b] == 0.0:
         return
@@ -414,12 +425,7 @@ def _hinge_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, lo, hi):
     z = np.empty(6)
     if not _solve_dense(K, rhs, z):
         return True
-    P = (z[0], z[1], z[2])
-    L = (z[3], z[4], z[5])
-    _apply_pos(X, Q, IM, II, g2, r2w, P, 1.0)
-    _apply_ang(Q, IM, II, g2, L, 1.0)
-    _apply_pos(X, Q, IM, II, g1, r1w, P, -1.0)
-    _apply_ang(Q, IM, II, g1, L, -1.0)
+    _apply_lock_impulse(X, Q, IM, II, g1, g2, r1w, r2w, z)
     return True
 
 
@@ -766,12 +772,7 @@ def _hinge_soft_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, side, target, at, 
             return 0.0
         z = T @ zt
         dl = -lam
-    P = (z[0], z[1], z[2])
-    L = (z[3], z[4], z[5])
-    _apply_pos(X, Q, IM, II, g2, r2w, P, 1.0)
-    _apply_ang(Q, IM, II, g2, L, 1.0)
-    _apply_pos(X, Q, IM, II, g1, r1w, P, -1.0)
-    _apply_ang(Q, IM, II, g1, L, -1.0)
+    _apply_lock_impulse(X, Q, IM, II, g1, g2, r1w, r2w, z)
     return dl
 
 
