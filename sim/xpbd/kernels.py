@@ -213,6 +213,16 @@ def apply_angular_impulse(Q, IM, II, b, p, sign=1.0):
     Q[b] = _quat_add_rotation(q, d, sign)
 
 
+def apply_lock_impulse(X, Q, IM, II, b1, b2, r1, r2, z):
+    """Apply a hinge lock's 6-vector z = (positional P, angular L) to body b2 and its opposite to b1."""
+    P = (float(z[0]), float(z[1]), float(z[2]))
+    L = (float(z[3]), float(z[4]), float(z[5]))
+    apply_positional_impulse(X, Q, IM, II, b2, r2, P, 1.0)
+    apply_angular_impulse(Q, IM, II, b2, L, 1.0)
+    apply_positional_impulse(X, Q, IM, II, b1, r1, P, -1.0)
+    apply_angular_impulse(Q, IM, II, b1, L, -1.0)
+
+
 def solve_positional(X, Q, IM, II, b1, b2, r1, r2, n, c, alpha_tilde=0.0, lam=0.0,
                      lam_min=-_INF, lam_max=_INF):
     """One Gauss-Seidel projection of a positional constraint ([RB] Sec. 3.3.1).
@@ -535,12 +545,7 @@ def solve_lock_block(X, Q, IM, II, b1, b2, r1, r2, c_pin, c_ang):
         z = np.linalg.solve(K, rhs)
     except np.linalg.LinAlgError:
         return
-    P = (float(z[0]), float(z[1]), float(z[2]))
-    L = (float(z[3]), float(z[4]), float(z[5]))
-    apply_positional_impulse(X, Q, IM, II, b2, r2, P, 1.0)
-    apply_angular_impulse(Q, IM, II, b2, L, 1.0)
-    apply_positional_impulse(X, Q, IM, II, b1, r1, P, -1.0)
-    apply_angular_impulse(Q, IM, II, b1, L, -1.0)
+    apply_lock_impulse(X, Q, IM, II, b1, b2, r1, r2, z)
 
 
 def _soft_lock_system(K, aw, at, lam, c_pin, c_ang):
@@ -606,12 +611,7 @@ def solve_soft_lock_block(X, Q, IM, II, b1, b2, r1, r2, c_pin, c_ang, aw, at, la
             return 0.0
         z = T @ zt
         dl = -lam
-    P = (float(z[0]), float(z[1]), float(z[2]))
-    L = (float(z[3]), float(z[4]), float(z[5]))
-    apply_positional_impulse(X, Q, IM, II, b2, r2, P, 1.0)
-    apply_angular_impulse(Q, IM, II, b2, L, 1.0)
-    apply_positional_impulse(X, Q, IM, II, b1, r1, P, -1.0)
-    apply_angular_impulse(Q, IM, II, b1, L, -1.0)
+    apply_lock_impulse(X, Q, IM, II, b1, b2, r1, r2, z)
     return dl
 
 
