@@ -1022,6 +1022,101 @@ def _step_kernel(F, I, oil0, spool0, command, speed, x, v, h, update_spool, oil_
 
 
 @_kernel
+def _newton_matrix_of(net, jq, dpdm, h, jac):
+    """I − h·jq[free, free]·diag(∂p/∂m[free]) from the node × node flow Jacobian ``jq`` (:func:`_newton_matrix`'s
+    matrix, for callers that have ``jq`` already)."""
+    free = net.free
+    nf = free.size
+    for i in range(nf):
+        for j in range(nf):
+            jac[i, j] = (1.0 if i == j else 0.0) - h * jq[free[i], free[j]] * dpdm[free[j]]
+
+
+@_kernel
+def _position_pressure_gradient(net, x, p, dpdm, dt, dvdx, dpdx_dt):
+    """dt·∂p/∂x at fixed oil, −dt·φ(p)·(∂V/∂x)·∂p/∂m [Pa·s/m or Pa·s/rad], into ``dpdx_dt`` (n × na) at actuator
+    positions ``x`` and node pressures ``p`` with their ∂p/∂m ``dpdm``; ``dvdx`` (n × na) receives ∂V/∂x [m²]."""
+    dvdx[:, :] = 0.0
+    cyl, ci = net.cyl, net.cyl_i
+    for c in range(cyl.shape[0]):
+        _, _, dvc, _ = chamber_volumes_nb(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
+                                          cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
+        dvdx[ci[c, CI_CAP], ci[c, CI_ACT]] += dvc
+    for c in range(cyl.shape[0]):
+        _, _, _, dvr = chamber_volumes_nb(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
+                                          cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
+        dvdx[ci[c, CI_ROD], ci[c, CI_ACT]] += dvr
+    na = x.size
+    for k in range(p.size):
+        phi, _ = _fill(net, p[k])
+        w = -(dpdm[k] * phi)
+        for a in range(na):
+            dpdx_dt[k, a] = dt * (w * dvdx[k, a])
+
+
+@_kernel
+def _velocity_residual_gradient(net, jq, dpdx_dt, dt, mg, rhs, col):
+    """−∂r/∂v of the backward-Euler residual r = m⁺ − m − dt·ΣQ(p(m⁺, x + dt·v), v) on the free nodes,
+    dt·((∂Q/∂p)·dt·∂p/∂x + ∂Q/∂v) [kg·s/m ...], into columns ``col`` … ``col + na − 1`` of ``rhs`` (nf rows);
+    ``jq``: the node × node flow Jacobian ∂(net inflow)/∂p, ``mg`` (n × na): scratch (the motors' ∂Q/∂v)."""
+    ic, free = net.ic, net.free
+    na = mg.shape[1]
+    mg[:, :] = 0.0  # motor_flow_velocity_gradient
+    br = net.br
+    for b in range(ic[IC_M0], ic[IC_M1]):
+        i = b - ic[IC_M0]
+        rate = net.mot[i] / (2.0 * np.pi)
+        mg[br[b, 0], net.mot_br_act[i]] += -rate
+        mg[br[b, 1], net.mot_br_act[i]] += rate
+    for j in range(free.size):
+        k = free[j]
+        for a in range(na):
+            s = 0.0
+            for i in range(jq.shape[1]):
+                s += jq[k, i] * dpdx_dt[i, a]
+            rhs[j, col + a] = dt * (s + mg[k, a])
+
+
+@_kernel
+def _effort_gradient(net, p, velocity, dpdv, effort, gradient, epg, slope):
+    """NetworkModel.actuator_effort at pressures ``p`` [Pa] and velocities ``velocity`` into ``effort`` [N or N·m],
+    and ∂effort/∂v⁺ = (∂f/∂p)·(∂p/∂v⁺) + diag(friction slope) into ``gradient`` (na × na) from ``dpdv`` (n × na);
+    ``epg`` (na × n), ``slope`` (na): scratch."""
+    sc = net.sc
+    cyl, ci, mi = net.cyl, net.cyl_i, net.mot_i
+    na = effort.size
+    effort[:] = 0.0
+    slope[:] = 0.0
+    for c in range(cyl.shape[0]):
+        a = ci[c, CI_ACT]
+        effort[a] = cylinder_pressure_force_nb(p[ci[c, CI_CAP]], p[ci[c, CI_ROD]], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA], sc[S_PREF])
+    for i in range(mi.shape[0]):
+        effort[mi[i, MI_ACT]] = pump_torque_nb(net.mot[i], p[mi[i, MI_A]] - p[mi[i, MI_B]])
+    for c in range(cyl.shape[0]):
+        a = ci[c, CI_ACT]
+        f, df = friction_force_with_derivative_nb(velocity[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC], cyl[c, CYL_STRIBECK],
+                                                  cyl[c, CYL_VISCOUS], sc[S_VREG])
+        effort[a] = effort[a] + -f
+        slope[a] = -df
+    # effort_pressure_gradient @ dpdv + diag(friction slope)
+    epg[:, :] = 0.0
+    for c in range(cyl.shape[0]):
+        epg[ci[c, CI_ACT], ci[c, CI_CAP]] += cyl[c, CYL_CAP_AREA]
+    for c in range(cyl.shape[0]):
+        epg[ci[c, CI_ACT], ci[c, CI_ROD]] += -cyl[c, CYL_ROD_AREA]
+    for i in range(mi.shape[0]):
+        epg[mi[i, MI_ACT], mi[i, MI_A]] += net.mot[i] / (2.0 * np.pi)
+    for i in range(mi.shape[0]):
+        epg[mi[i, MI_ACT], mi[i, MI_B]] += -(net.mot[i] / (2.0 * np.pi))
+    for a in range(na):
+        for b in range(na):
+            s = 0.0
+            for k in range(p.size):
+                s += epg[a, k] * dpdv[k, b]
+            gradient[a, b] = s + (slope[a] if a == b else 0.0)
+
+
+@_kernel
 def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort, gradient,
                     p_first, doil):
     """StepperImplicitEuler.linearize into the given outputs; returns the residual norm.
@@ -1030,7 +1125,7 @@ def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil,
     the pressures at (``oil0``, x0 + dt·velocity), the Newton solve's first evaluation;
     ``doil`` (n × na) receives ∂m⁺/∂v (``Linearization.oil_velocity_gradient``; zero rows for fixed nodes).
     """
-    ic, sc, free = net.ic, net.sc, net.free
+    ic, free = net.ic, net.free
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
     for a in range(na):
         x[a] = x0[a] + dt * velocity[a]
@@ -1061,43 +1156,12 @@ def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil,
     t, o = _take(W, o, na * n)
     epg = t.reshape((na, n))
     slope, o = _take(W, o, na)
-    # ∂p/∂x at fixed oil: −φ·∂V/∂x·∂p/∂m
-    dvdx[:, :] = 0.0
-    cyl, ci = net.cyl, net.cyl_i
-    for c in range(cyl.shape[0]):
-        _, _, dvc, _ = chamber_volumes_nb(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
-                                          cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
-        dvdx[ci[c, CI_CAP], ci[c, CI_ACT]] += dvc
-    for c in range(cyl.shape[0]):
-        _, _, _, dvr = chamber_volumes_nb(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
-                                          cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
-        dvdx[ci[c, CI_ROD], ci[c, CI_ACT]] += dvr
-    for k in range(n):
-        phi, _ = _fill(net, p[k])
-        w = -(dpdm[k] * phi)
-        for a in range(na):
-            dpdx_dt[k, a] = dt * (w * dvdx[k, a])
+    _position_pressure_gradient(net, x, p, dpdm, dt, dvdx, dpdx_dt)
     _valve_areas(net, spool, area)
     _branch_flows(net, p, area, speed, velocity, flow2, dfrom, dto)
     _flow_jacobian(net, dfrom, dto, jq)
-    # motor_flow_velocity_gradient
-    mg[:, :] = 0.0
-    br = net.br
-    for b in range(ic[IC_M0], ic[IC_M1]):
-        i = b - ic[IC_M0]
-        rate = net.mot[i] / (2.0 * np.pi)
-        mg[br[b, 0], net.mot_br_act[i]] += -rate
-        mg[br[b, 1], net.mot_br_act[i]] += rate
-    for j in range(nf):
-        k = free[j]
-        for a in range(na):
-            s = 0.0
-            for i in range(n):
-                s += jq[k, i] * dpdx_dt[i, a]
-            rhs[j, a] = dt * (s + mg[k, a])  # = −drdv
-    for i in range(nf):
-        for j in range(nf):
-            jac[i, j] = (1.0 if i == j else 0.0) - dt * jq[free[i], free[j]] * dpdm[free[j]]
+    _velocity_residual_gradient(net, jq, dpdx_dt, dt, mg, rhs, 0)
+    _newton_matrix_of(net, jq, dpdm, dt, jac)
     _copy(dpdv.reshape(n * na), dpdx_dt.reshape(n * na))
     singular = False
     doil[:, :] = 0.0
@@ -1111,43 +1175,108 @@ def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil,
         else:
             singular = True
     istats[IS_SINGULAR] = 1 if singular else 0
-    # efforts: pressure part + friction (NetworkModel.actuator_effort)
-    effort[:] = 0.0
-    slope[:] = 0.0
-    for c in range(cyl.shape[0]):
-        a = ci[c, CI_ACT]
-        effort[a] = cylinder_pressure_force_nb(p[ci[c, CI_CAP]], p[ci[c, CI_ROD]], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA], sc[S_PREF])
-    mi = net.mot_i
-    for i in range(mi.shape[0]):
-        effort[mi[i, MI_ACT]] = pump_torque_nb(net.mot[i], p[mi[i, MI_A]] - p[mi[i, MI_B]])
-    for c in range(cyl.shape[0]):
-        a = ci[c, CI_ACT]
-        f, df = friction_force_with_derivative_nb(velocity[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC], cyl[c, CYL_STRIBECK],
-                                                  cyl[c, CYL_VISCOUS], sc[S_VREG])
-        effort[a] = effort[a] + -f
-        slope[a] = -df
-    # effort_pressure_gradient @ dpdv + diag(friction slope)
-    epg[:, :] = 0.0
-    for c in range(cyl.shape[0]):
-        epg[ci[c, CI_ACT], ci[c, CI_CAP]] += cyl[c, CYL_CAP_AREA]
-    for c in range(cyl.shape[0]):
-        epg[ci[c, CI_ACT], ci[c, CI_ROD]] += -cyl[c, CYL_ROD_AREA]
-    for i in range(mi.shape[0]):
-        epg[mi[i, MI_ACT], mi[i, MI_A]] += net.mot[i] / (2.0 * np.pi)
-    for i in range(mi.shape[0]):
-        epg[mi[i, MI_ACT], mi[i, MI_B]] += -(net.mot[i] / (2.0 * np.pi))
-    for a in range(na):
-        for b in range(na):
-            s = 0.0
-            for k in range(n):
-                s += epg[a, k] * dpdv[k, b]
-            gradient[a, b] = s + (slope[a] if a == b else 0.0)
+    _effort_gradient(net, p, velocity, dpdv, effort, gradient, epg, slope)
     return norm
 
 
+@_kernel
+def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
+                             gradient, p_first, doil):
+    """StepperImplicitEuler.linearize(…, newton=False): the Rosenbrock–Euler (W-method) twin of
+    :func:`_linearize_core`, with the same arguments and outputs.
+
+    One Newton step of the backward-Euler residual from the start oil, with the Jacobian at
+    (``oil0``, x = x0 + dt·velocity) and no iteration: m_lin = oil0 + Δ, (I − dt·(∂Q/∂p)·∂p/∂m)·[Δ | ∂m/∂v]
+    = [dt·ΣQ | −∂r/∂v] in one elimination; ``p`` = p_first + (∂p/∂m)·Δ (linearised, no second pressure
+    inversion), ``flow`` the flows at (``oil0``, x), ``effort`` and ``gradient`` at that linear prediction.
+    Counters: one residual and one Jacobian evaluation, one Newton step.
+
+    Returns whether the step is accepted: False when Δ leaves the Newton solve's trust region
+    (:func:`_trust_step` < 1: a pressure would move by more than max(TRUST_PRESSURE, TRUST_FRACTION·|p|)
+    outside a vapour void, e.g. a pump filling a small volume past a relief's cracking pressure in one
+    step) or the matrix is singular; the outputs are then incomplete and the caller solves
+    (:func:`_linearize_any`).
+    """
+    ic, free = net.ic, net.free
+    n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
+    for a in range(na):
+        x[a] = x0[a] + dt * velocity[a]
+    _spool_end(net, spool0, command, dt, spool)
+    o = 0
+    area, o = _take(W, o, ic[IC_O1] - ic[IC_O0])
+    geo, o = _take(W, o, n)
+    inflow, o = _take(W, o, n)
+    dpdm, o = _take(W, o, n)
+    dfrom, o = _take(W, o, nb)
+    dto, o = _take(W, o, nb)
+    residual, o = _take(W, o, nf)
+    t, o = _take(W, o, n * na)
+    dvdx = t.reshape((n, na))
+    t, o = _take(W, o, n * na)
+    dpdx_dt = t.reshape((n, na))
+    t, o = _take(W, o, n * na)
+    mg = t.reshape((n, na))
+    t, o = _take(W, o, n * na)
+    dpdv = t.reshape((n, na))
+    t, o = _take(W, o, n * n)
+    jq = t.reshape((n, n))
+    t, o = _take(W, o, nf * (na + 1))
+    rhs = t.reshape((nf, na + 1))
+    t, o = _take(W, o, nf * nf)
+    jac = t.reshape((nf, nf))
+    t, o = _take(W, o, na * n)
+    epg = t.reshape((na, n))
+    slope, o = _take(W, o, na)
+    _valve_areas(net, spool, area)
+    _evaluate(net, oil0, oil0, x, velocity, area, speed, dt, geo, p_first, dpdm, flow, dfrom, dto, inflow, residual)
+    _position_pressure_gradient(net, x, p_first, dpdm, dt, dvdx, dpdx_dt)
+    _flow_jacobian(net, dfrom, dto, jq)
+    for j in range(nf):
+        rhs[j, 0] = -residual[j]  # dt·ΣQ at the start oil
+    _velocity_residual_gradient(net, jq, dpdx_dt, dt, mg, rhs, 1)
+    _newton_matrix_of(net, jq, dpdm, dt, jac)
+    _copy(oil, oil0)
+    _copy(p, p_first)
+    _copy(dpdv.reshape(n * na), dpdx_dt.reshape(n * na))
+    doil[:, :] = 0.0
+    istats[IS_STATUS] = _OK
+    istats[IS_WORST] = -1
+    istats[IS_NEWTON] = 1 if nf else 0
+    istats[IS_RHS] = 1
+    istats[IS_JAC] = 1
+    istats[IS_SINGULAR] = 0
+    if nf:
+        if not _lu_solve(jac, rhs):
+            return False
+        if _trust_step(net, oil0, rhs[:, 0], geo, p_first) < 1.0:
+            return False
+        for j in range(nf):
+            k = free[j]
+            oil[k] += rhs[j, 0]
+            p[k] += dpdm[k] * rhs[j, 0]
+            for a in range(na):
+                doil[k, a] = rhs[j, a + 1]
+                dpdv[k, a] += dpdm[k] * rhs[j, a + 1]
+    _effort_gradient(net, p, velocity, dpdv, effort, gradient, epg, slope)
+    return True
+
+
+@_kernel
+def _linearize_any(newton, net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
+                   gradient, p_first, doil):
+    """:func:`_linearize_core` (``newton``: backward Euler solved by Newton), or :func:`_linearize_one_step_core`
+    (Rosenbrock–Euler, one Newton step) where it accepts its step and :func:`_linearize_core` where it does not;
+    same arguments and outputs; returns the residual norm (0 for an accepted one-step linearisation)."""
+    if not newton and _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x,
+                                               flow, istats, effort, gradient, p_first, doil):
+        return 0.0
+    return _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
+                           effort, gradient, p_first, doil)
+
+
 @_jit
-def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt):
-    """StepperImplicitEuler.linearize."""
+def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt, newton):
+    """StepperImplicitEuler.linearize (``newton`` False: its Rosenbrock–Euler variant)."""
     net = _unpack(F, I)
     ic = net.ic
     n, na, nb = ic[IC_N], ic[IC_NA], ic[IC_NB]
@@ -1155,8 +1284,8 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt):
     oil, p, spool, x, flow = np.empty(n), np.empty(n), np.empty(spool0.size), np.empty(na), np.empty(nb)
     istats = np.zeros(6, np.int64)
     effort, gradient, p_first, doil = np.empty(na), np.empty((na, na)), np.empty(n), np.empty((n, na))
-    norm = _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
-                           gradient, p_first, doil)
+    norm = _linearize_any(newton, net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
+                          effort, gradient, p_first, doil)
     return oil, p, spool, x, flow, istats, norm, effort, gradient, doil
 
 
@@ -1381,13 +1510,13 @@ class StepperImplicitEulerCompiled(StepperImplicitEuler):
         )
         return oil, BranchFlows(flow, dfrom, dto), self._make_report(istats, norm, flow)
 
-    def linearize(self, state: NetworkState, control, velocity, dt: float) -> Linearization:
+    def linearize(self, state: NetworkState, control, velocity, dt: float, *, newton: bool = True) -> Linearization:
         if not _NUMBA:  # pragma: no cover
-            return super().linearize(state, control, velocity, dt)
+            return super().linearize(state, control, velocity, dt, newton=newton)
         velocity = _f64(np.asarray(velocity, float).reshape(self.model.actuator_count))
         oil, pressure, spool, position, flow, istats, norm, effort, gradient, doil = _linearize_kernel(
             self._F, self._I, _f64(state.node_oil), _f64(state.valve_spool), _f64(control.valve_command),
-            _f64(control.pump_speed), _f64(state.actuator_position), velocity, float(dt),
+            _f64(control.pump_speed), _f64(state.actuator_position), velocity, float(dt), bool(newton),
         )
         report = self._make_report(istats, norm, flow)
         if istats[IS_SINGULAR]:

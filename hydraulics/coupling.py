@@ -59,6 +59,21 @@ coupling can finish the hydraulic step.  Two schemes:
     ignores ``substeps`` (one linearisation per plant step; asking for more
     substeps is an error).  Reported branch flows are evaluated at the end
     state (p⁺, v⁺), for the energy ledger.
+``rosenbrock``
+    Rosenbrock–Euler (W-method) throughout: ``implicit-linear`` whose
+    linearisation takes one Newton step instead of solving backward Euler,
+
+        (I − h·(∂Q/∂p)·diag(∂p/∂m))·[Δ | ∂m/∂v] = [h·ΣQ(p(m, x_g), v_g) | −∂r/∂v],
+        m_lin = m + Δ,   x_g = x + h·v_g,
+
+    with the Jacobian at (m, x_g); the effort law is taken at the linear
+    prediction p_lin = p(m, x_g) + (∂p/∂m)·Δ and the finish is
+    ``implicit-linear``'s.  No nonlinear solve in the step: one Jacobian, one
+    elimination (for Δ and ∂m/∂v together) and two pressure evaluations
+    (start, end).  Order 1; L-stable on the linear oil column; oil of a
+    closed network conserved to round-off.  It gives up the Newton
+    iterations' trust region and line search: a valve slam or a relief
+    crossing within one step is taken on the start-of-step Jacobian.
 """
 
 from __future__ import annotations
@@ -177,6 +192,7 @@ class CouplingImplicit(Coupling):
     """Linearly implicit coupling through :meth:`StepperImplicitEuler.linearize`."""
 
     name = "implicit"
+    newton = True  # the linearisation solves its backward-Euler step by Newton (False: one Newton step, ``rosenbrock``)
 
     def __init__(self, model, stepper):
         super().__init__(model, stepper)
@@ -194,7 +210,7 @@ class CouplingImplicit(Coupling):
         velocity[c] = np.clip(velocity[c], -position[c] / dt, (model.cylinder_stroke - position[c]) / dt)
         start = NetworkState(state.node_oil, state.node_pressure, state.valve_spool, position, velocity, state.time)
         try:
-            lin = self.predictor.linearize(start, control, velocity, dt)
+            lin = self.predictor.linearize(start, control, velocity, dt, newton=self.newton)
         except np.linalg.LinAlgError:
             if not np.any(velocity):
                 raise
@@ -205,7 +221,7 @@ class CouplingImplicit(Coupling):
             velocity = np.zeros_like(velocity)
             velocity[c] = np.clip(velocity[c], -position[c] / dt, (model.cylinder_stroke - position[c]) / dt)
             start = NetworkState(state.node_oil, state.node_pressure, state.valve_spool, position, velocity, state.time)
-            lin = self.predictor.linearize(start, control, velocity, dt)
+            lin = self.predictor.linearize(start, control, velocity, dt, newton=self.newton)
         self.last_linearization = lin
         self._begun = (state, dt)  # finish() uses the linearisation only for this state and step
         # pressure part: backward-Euler law around the guess, blended with the start force by θ
@@ -267,7 +283,7 @@ class CouplingImplicitLinear(CouplingImplicit):
         m = self.model
         oil = self.predicted_oil(state, velocity_end, dt)
         if oil is None:
-            raise RuntimeError("coupling 'implicit-linear': finish() must follow begin() for the same state and dt")
+            raise RuntimeError(f"coupling {self.name!r}: finish() must follow begin() for the same state and dt")
         lin = self.last_linearization
         position_end = np.asarray(position_end, float).copy()
         velocity_end = np.asarray(velocity_end, float).copy()
@@ -282,6 +298,18 @@ class CouplingImplicitLinear(CouplingImplicit):
             report.message = f"pressure of node '{bad}' is not finite: {StepStatus.NONFINITE.value}"
             return state, report
         return NetworkState(oil, pressure, spool.copy(), position_end, velocity_end, state.time + dt), report
+
+
+class CouplingRosenbrock(CouplingImplicitLinear):
+    """``rosenbrock``: ``implicit-linear`` with the linearisation's Newton solve replaced by one Newton step.
+
+    The effort law and the finish of ``implicit-linear``, from the Rosenbrock–Euler (W-method)
+    linearisation of :meth:`StepperImplicitEuler.linearize` (``newton=False``): no nonlinear
+    solve anywhere in the step, one Jacobian and one elimination per step.
+    """
+
+    name = "rosenbrock"
+    newton = False
 
 
 # Incompressible fidelity: the rod follows its metered flow with this stiffness relative to
@@ -581,13 +609,13 @@ class CouplingMixed(Coupling):
 
 COUPLINGS = {
     "explicit": CouplingExplicit, "implicit": CouplingImplicit, "implicit-linear": CouplingImplicitLinear,
-    "incompressible": CouplingIncompressible,
+    "rosenbrock": CouplingRosenbrock, "incompressible": CouplingIncompressible,
 }
 """Coupling names → classes."""
 
 DEFAULT_STEPPER = {
     "explicit": "explicit_euler", "implicit": "implicit_euler", "implicit-linear": "implicit_euler",
-    "incompressible": "implicit_euler",
+    "rosenbrock": "implicit_euler", "incompressible": "implicit_euler",
 }
 """The hydraulic stepper each coupling uses unless told otherwise."""
 
@@ -608,5 +636,6 @@ def make_coupling(name: str, model: NetworkModel, *, stepper=None, substeps: int
     return coupling
 
 
-__all__ = ["EffortLaw", "Coupling", "CouplingExplicit", "CouplingImplicit", "CouplingImplicitLinear", "CouplingMixed", "COUPLINGS",
+__all__ = ["EffortLaw", "Coupling", "CouplingExplicit", "CouplingImplicit", "CouplingImplicitLinear", "CouplingMixed",
+           "CouplingRosenbrock", "COUPLINGS",
            "make_coupling", "start_velocity_guess", "StepReport"]

@@ -367,34 +367,75 @@ class StepperImplicitEuler(Stepper):
         oil, flows, report = self._solve(state, control, motion.position_end, motion.velocity_end, spool_end, h, oil_guess)
         return self._finish(state, oil, spool_end, motion, h, flows), report
 
-    def linearize(self, state: NetworkState, control: NetworkControl, velocity, dt: float) -> Linearization:
+    def linearize(self, state: NetworkState, control: NetworkControl, velocity, dt: float, *,
+                  newton: bool = True) -> Linearization:
         """Predict one backward-Euler step with end velocities ``velocity`` and differentiate the efforts.
 
         The actuators are assumed to end at x = x_state + dt·v.  Returns the
         efforts at ``velocity`` and ∂effort/∂v (pressure part through the
         network, including the oil-column stiffness h·β·A²/V and valve terms,
         plus the friction slope).
+
+        ``newton=False`` is the **Rosenbrock–Euler (W-method) linearisation**: no Newton
+        iteration, one step of it from the start oil m with the Jacobian at (m, x):
+
+            (I − dt·(∂Q/∂p)·diag(∂p/∂m))·[Δ | ∂m/∂v] = [dt·ΣQ(p(m, x), v) | −∂r/∂v],
+            m_lin = m + Δ,   p_lin = p(m, x) + (∂p/∂m)·Δ,
+
+        one elimination for the prediction and its velocity gradient; the efforts and
+        ∂effort/∂v are those of the linear prediction.  Order 1 like backward Euler
+        (it is backward Euler with the flows linearised about the start of the step), and
+        L-stable on the linear oil column; the predicted oil of a closed network is
+        conserved to round-off (1ᵀ·(I − dt·J) = 1ᵀ when every flow leaves one node and
+        enters another).  Where Δ leaves the Newton solve's trust region (a pressure would
+        move by more than max(TRUST_PRESSURE, TRUST_FRACTION·|p|) outside a vapour void: a
+        pump filling a small volume past its relief's cracking pressure in one step, a
+        valve slam) or the matrix is singular, the step is solved by Newton instead
+        (``newton=True``), whose line search handles such a switch.
         """
         m = self.model
         free = self.free
         velocity = np.asarray(velocity, float)
         position = state.actuator_position + dt * velocity
         spool = self._spool_end(state, control, dt)
-        oil, flows, report = self._solve(state, control, position, velocity, spool, dt)
-        pressure, dpdm = m.pressure(oil, position)
+        areas = m.valve_areas(spool)
+        if newton:
+            oil, _, report = self._solve(state, control, position, velocity, spool, dt)
+            pressure, dpdm = m.pressure(oil, position)
+            flows = m.branch_flows(pressure, areas, control.pump_speed, velocity)
+        else:
+            oil = state.node_oil.copy()
+            pressure, dpdm = m.pressure(oil, position)
+            flows = m.branch_flows(pressure, areas, control.pump_speed, velocity)
+            report = StepReport(newton_iterations=1 if len(free) else 0, rhs_evaluations=1, jacobian_evaluations=1,
+                                branch_flow=flows.flow)
+            self.rhs_count += 1
+            self.jacobian_count += 1
         phi, _ = m.fluid.fill_ratio(pressure)
         # ∂p/∂x at fixed oil: −φ·∂V/∂x·∂p/∂m
         dpdx = -(dpdm * phi)[:, None] * m.volume_position_gradient(position)
-        areas = m.valve_areas(spool)
-        jq = m.flow_jacobian(m.branch_flows(pressure, areas, control.pump_speed, velocity))
+        jq = m.flow_jacobian(flows)
         drdv = -dt * (jq @ (dt * dpdx) + m.flow_velocity_gradient(areas))[free]
         jacobian = np.eye(len(free)) - dt * jq[np.ix_(free, free)] * dpdm[free][None, :]
         dpdv = dt * dpdx
         oil_gradient = np.zeros((len(oil), m.actuator_count))
         if len(free):
-            doil = -scipy.linalg.solve(jacobian, drdv, check_finite=False)
-            dpdv[free] += dpdm[free][:, None] * doil
-            oil_gradient[free] = doil
+            columns = -drdv if newton else np.column_stack([dt * self._net_inflow(flows)[free], -drdv])
+            try:
+                solution = scipy.linalg.solve(jacobian, columns, check_finite=False)
+            except scipy.linalg.LinAlgError:
+                if newton:
+                    raise
+                return self.linearize(state, control, velocity, dt, newton=True)
+            if not newton:
+                delta, solution = solution[:, 0], solution[:, 1:]
+                if self._trust_step(oil, delta, position, pressure) < 1.0:
+                    return self.linearize(state, control, velocity, dt, newton=True)
+                oil[free] += delta
+                pressure = pressure.copy()
+                pressure[free] += dpdm[free] * delta
+            dpdv[free] += dpdm[free][:, None] * solution
+            oil_gradient[free] = solution
         effort, friction_slope = m.actuator_effort(pressure, velocity)
         gradient = m.effort_pressure_gradient() @ dpdv + np.diag(friction_slope)
         predicted = NetworkState(oil, pressure, spool, position, velocity.copy(), state.time + dt)

@@ -66,7 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="run a scenario and write an MCAP log")
     run.add_argument("scenario", type=Path, help="scenario TOML file")
     run.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"))
-    run.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear"))  # sim.scenario.COUPLINGS
+    run.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear", "rosenbrock"))  # sim.scenario.COUPLINGS
     run.add_argument("--dt", type=positive_float, help="physics step [s]")
     run.add_argument("--duration", type=positive_float, help="simulated time [s]")
     run.add_argument("--substeps", type=int_in(1), help="hydraulic substeps per physics step")

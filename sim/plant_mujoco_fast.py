@@ -28,7 +28,9 @@ state :class:`MujocoPlant` sees after ``mj_step1``.  In the callback of step k:
    ∂m⁺/∂v stay in the scratch buffer for step 1 of the next callback, which
    starts the finish's Newton from m_lin + (∂m/∂v)·(v⁺ − v_guess)
    (``implicit``) or takes that value as the end oil (``implicit-linear``,
-   ``C_LINEAR``; see :mod:`hydraulics.coupling`).
+   ``C_LINEAR``; see :mod:`hydraulics.coupling`).  With ``rosenbrock`` the
+   linearisation is one Newton step (``_compiled._linearize_one_step_core``), so
+   the step has no nonlinear solve at all.
 
 **Cost and caching.**  The callback allocates nothing: every temporary lives
 in buffers the plant allocates once (``_work`` for the ``_compiled`` cores,
@@ -102,7 +104,7 @@ allowed, :meth:`advance` continues from the assigned values); module-level
   :class:`MujocoPlant`; MuJoCo's bodies, however, have been integrated to the
   end of the block (with the last effort law held), so ``qpos`` may be up to
   ``n − 1`` steps ahead of ``step_index`` after a failure.
-* Only the implicit couplings (``implicit``, ``implicit-linear``) with the
+* Only the implicit couplings (``implicit``, ``implicit-linear``, ``rosenbrock``) with the
   compiled implicit-Euler stepper are accelerated; any other configuration (explicit / incompressible coupling,
   ``compiled = false``, another stepper, no numba) falls back to
   :meth:`MujocoPlant.step` in a Python loop (``fast`` is then False).
@@ -120,7 +122,7 @@ import mujoco
 import numpy as np
 
 from hydraulics import _compiled as C
-from hydraulics.coupling import GUESS_VOLUME_FRACTION, CouplingImplicit, CouplingImplicitLinear
+from hydraulics.coupling import GUESS_VOLUME_FRACTION, CouplingImplicit, CouplingImplicitLinear, CouplingRosenbrock
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepReport, StepStatus
 
@@ -158,7 +160,9 @@ except ImportError:  # pragma: no cover
 FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD, FS_GUESS = range(9)  # ledger: C._account's order
 NFS = 9
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
-MODE_STEP, MODE_FINISH = range(2)  # C_MODE: a coupled step (from mj_step), or only finish the pending step
+MODE_STEP, MODE_FINISH = range(2)
+# C_LINEAR: Newton finish (implicit), linear finish (implicit-linear), linear finish of a one-Newton-step linearisation (rosenbrock)
+LINEAR_NONE, LINEAR_FINISH, LINEAR_ROSENBROCK = range(3)  # C_MODE: a coupled step (from mj_step), or only finish the pending step
 
 POTENTIAL_QUADRATURE_POINTS = 16  # must match hydraulics.fluid (entrained air only)
 
@@ -324,7 +328,7 @@ def _finish_pending(ctx, net, V):
     residual = 0.0
     status, worst = ST_OK, -1
     C._copy(mstart, oil)
-    if ctx[C_LINEAR]:  # implicit-linear: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
+    if ctx[C_LINEAR]:  # implicit-linear, rosenbrock: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
         substeps = 0
         C._copy(sp2, lin_spool)
         wo = 0
@@ -487,8 +491,9 @@ def _begin(ctx, net, V):
     for a in range(na):
         if guess[a] != 0.0:
             held = False
-    norm = C._linearize_core(net, W, oil, spool, cmd, speed, xs, guess, dt, lin_oil, lin_p, lin_spool, lin_x, lin_flow,
-                             istats, effort_end, gradient, p0, doil)
+    newton = ctx[C_LINEAR] != LINEAR_ROSENBROCK
+    norm = C._linearize_any(newton, net, W, oil, spool, cmd, speed, xs, guess, dt, lin_oil, lin_p, lin_spool, lin_x,
+                            lin_flow, istats, effort_end, gradient, p0, doil)
     if not held and not _usable(istats, lin_p, gradient):
         # CouplingImplicit.begin: a useless guess (unresolved oscillation) → linearise at the held actuators
         guess[:] = 0.0
@@ -497,8 +502,8 @@ def _begin(ctx, net, V):
         for a in range(na):
             if guess[a] != 0.0:
                 held = False
-        norm = C._linearize_core(net, W, oil, spool, cmd, speed, xs, guess, dt, lin_oil, lin_p, lin_spool, lin_x,
-                                 lin_flow, istats, effort_end, gradient, p0, doil)
+        norm = C._linearize_any(newton, net, W, oil, spool, cmd, speed, xs, guess, dt, lin_oil, lin_p, lin_spool, lin_x,
+                                lin_flow, istats, effort_end, gradient, p0, doil)
     if istats[C.IS_SINGULAR]:
         ctx[C_STATUS] = ST_SINGULAR
         ctx[C_FAILED] = k
@@ -725,7 +730,8 @@ class MujocoPlantFast(MujocoPlant):
         ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N], ctx[C_NB] = na, nv, m.nu, n, len(net.branch_names)
         ctx[C_NVALVE], ctx[C_NPUMP], ctx[C_NBIAS] = len(net.valve_names), len(net.pump_names), m.actuator_biasprm.shape[1]
         ctx[C_SUBSTEPS], ctx[C_NCYL] = stepper.substeps, len(net.cylinder_actuator)
-        ctx[C_LINEAR] = int(isinstance(self.coupling, CouplingImplicitLinear))
+        ctx[C_LINEAR] = (LINEAR_ROSENBROCK if isinstance(self.coupling, CouplingRosenbrock)
+                         else LINEAR_FINISH if isinstance(self.coupling, CouplingImplicitLinear) else LINEAR_NONE)
         self._record_width = self.record_width
         ctx[C_NQ], ctx[C_NBODY], ctx[C_REC_WIDTH] = m.nq, m.nbody, self._record_width
         ctx[C_NF], ctx[C_NI], ctx[C_NW], ctx[C_NS] = self._F.size, self._I.size, self._work.size, self._scratch.size

@@ -13,7 +13,7 @@ Example::
     circuit = "boom.circuit.toml"
     [run]
     mode = "mujoco"            # mujoco | pbd
-    coupling = "implicit"      # implicit | explicit | implicit-linear (MuJoCo mode, one hydraulic substep)
+    coupling = "implicit"      # implicit | explicit | implicit-linear | rosenbrock (the last two: MuJoCo mode, one hydraulic substep)
     dt = 0.001                 # s
     duration = 6.0             # s
     [initial]
@@ -49,7 +49,8 @@ from hydraulics.components import CircuitError
 from hydraulics.network import FIDELITIES
 
 MODES = ("mujoco", "pbd", "pbd-naive")
-COUPLINGS = ("implicit", "explicit", "implicit-linear")
+COUPLINGS = ("implicit", "explicit", "implicit-linear", "rosenbrock")
+LINEAR_COUPLINGS = ("implicit-linear", "rosenbrock")  # one linearly implicit step per plant step: MuJoCo mode only
 STEPPER_NAMES = ("implicit_euler", "explicit_euler", "reference")
 DEFAULT_BASE_PRESSURE = 1.0e6  # Pa absolute: the low side of a loaded cylinder at t = 0
 
@@ -220,8 +221,8 @@ def _validate_run(s: Scenario, where):
         _error(where, f"field 'run.mode': {s.mode!r} is not one of {list(MODES)}")
     if s.coupling not in COUPLINGS:
         _error(where, f"field 'run.coupling': {s.coupling!r} is not one of {list(COUPLINGS)}")
-    if s.coupling == "implicit-linear" and (s.mode != "mujoco" or s.hydraulic_substeps != 1):
-        _error(where, f"field 'run.coupling': 'implicit-linear' needs mode = 'mujoco' and hydraulic_substeps = 1 "
+    if s.coupling in LINEAR_COUPLINGS and (s.mode != "mujoco" or s.hydraulic_substeps != 1):
+        _error(where, f"field 'run.coupling': {s.coupling!r} needs mode = 'mujoco' and hydraulic_substeps = 1 "
                       f"(got mode {s.mode!r}, hydraulic_substeps {s.hydraulic_substeps})")
     if s.stepper is not None and s.stepper not in STEPPER_NAMES:
         _error(where, f"field 'run.stepper': {s.stepper!r} is not one of {list(STEPPER_NAMES)}")

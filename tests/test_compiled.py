@@ -121,16 +121,17 @@ def test_hard_motion_and_substeps_match():
     run_both("all_kinds", steps=150, amplitude=0.3, substeps=2)
 
 
+@pytest.mark.parametrize("newton", [True, False], ids=["newton", "one-step"])
 @pytest.mark.parametrize("name", list(CIRCUITS))
-def test_linearize_matches_pure_stepper(name):
+def test_linearize_matches_pure_stepper(name, newton):
     m = model(name)
     history = _histories.get(name) or run_both(name)[1]
     pure, fast = StepperImplicitEuler(m), StepperImplicitEulerCompiled(m)
     control = m.control()
     for state, command, velocity in history[::25]:
         control.valve_command[:] = command
-        a = pure.linearize(state, control, velocity, DT)
-        b = fast.linearize(state, control, velocity, DT)
+        a = pure.linearize(state, control, velocity, DT, newton=newton)
+        b = fast.linearize(state, control, velocity, DT, newton=newton)
         rel = LINEARIZATION_RTOL
         scale = np.max(np.abs(a.effort_velocity_gradient))
         np.testing.assert_allclose(b.effort, a.effort, rtol=rel, atol=rel * np.max(np.abs(a.effort)))

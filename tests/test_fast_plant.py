@@ -36,10 +36,12 @@ CASES = {
     "boom/2 substeps": (MODELS / "boom" / "lift.scenario.toml", {"boom_valve": ramp(0.02, 0.08, 1.0)}, 150),
 }
 OVERRIDES = {"boom/2 substeps": {"hydraulic_substeps": 2}}
-# the linearly implicit finish (coupling "implicit-linear", plant constructor argument)
+# the linearly implicit finish (coupling "implicit-linear", plant constructor argument), and with a
+# one-Newton-step linearisation too (coupling "rosenbrock")
 for _name in ("seed", "boom", "excavator"):
-    CASES[f"{_name}/implicit-linear"] = CASES[_name]
-COUPLING = {name: "implicit-linear" for name in CASES if name.endswith("/implicit-linear")}
+    for _coupling in ("implicit-linear", "rosenbrock"):
+        CASES[f"{_name}/{_coupling}"] = CASES[_name]
+COUPLING = {name: name.split("/")[1] for name in CASES if name.endswith(("/implicit-linear", "/rosenbrock"))}
 
 
 def plants(case):
