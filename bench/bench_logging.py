@@ -19,7 +19,7 @@ interleaved, medians reported:
 Overhead = (time / no-log time) − 1.  Targets: default ≤ 10 %, every step ≤ 50 %.
 The per-sample cost is split into the recorder's stages (``capture`` of the raw state per
 sample from Python at a block's end, or ``record`` of a sample inside a block by the plant's
-compiled loop; ``derive`` and ``push`` per batch), JSON encoding and MCAP writing, by timing
+compiled loop; ``derive`` and ``push`` per batch), CDR encoding (the MCAP Message records of a sample, built as numpy rows) and MCAP writing, by timing
 those parts alone on the same plant.
 
 Start-up: ``hydroplant run`` of the dig scenario for one step in a fresh interpreter
@@ -128,7 +128,7 @@ def sample_parts(samples: int, out: Path) -> dict:
 
     capture (raw state into the ring, per sample), derive (the logged fields of a
     whole ring, vectorised, per sample), push (rows into the log's frame), encode
-    (JSON), write (merge, MCAP records, zstd); plus, for comparison, the
+    (CDR Message records), write (merge, chunks, message indexes, zstd); plus, for comparison, the
     per-sample numpy hydraulic terms the recorder used to compute for every sample.
     """
     from sim.mcap_log import LogWriter
@@ -160,8 +160,9 @@ def sample_parts(samples: int, out: Path) -> dict:
         for channel in log._channels:
             channel._encode_buffer()
         t2 = time.perf_counter()
-        messages = sum(len(block[0]) for channel in log._channels for block in channel._encoded)
-        size = sum(len(block[2]) for channel in log._channels for block in channel._encoded)
+        blocks = [block for owner in (*log._frames, *log._channels) for block in owner._encoded]
+        messages = sum(len(block.log_times) * len(block.offsets) for block in blocks)
+        size = sum(block.rows.size for block in blocks)
         t2b = time.perf_counter()
         log._drain_now(end_chunk=True)  # merge in log-time order, MCAP records, compress the chunks, write
         t3 = time.perf_counter() - (t2b - t2)
@@ -231,11 +232,11 @@ def main() -> None:
                          f"{'met' if max(over, over_cpu) <= targets[name] else 'NOT met'})")
             print(line, flush=True)
         parts = sample_parts(2000, out / "parts.mcap")
-        print(f"  one sample: {parts['messages']:.0f} messages, {parts['bytes']:.0f} B of JSON; capture {parts['capture']:.1f} µs "
+        print(f"  one sample: {parts['messages']:.0f} messages, {parts['bytes']:.0f} B of Message records (CDR); capture {parts['capture']:.1f} µs "
               f"(of which mechanical energy {parts['mechanics']:.1f} µs) at a block's end, or record {parts['record']:.2f} µs "
               f"inside a block (median difference, noisy), derive {parts['derive']:.1f} µs and push "
               f"{parts['push']:.1f} µs (per sample, in batches of {parts['ring']}), encode {parts['encode']:.1f} µs, "
-              f"write {parts['write']:.1f} µs (merge, MCAP records, zstd); for comparison, the per-sample numpy "
+              f"write {parts['write']:.1f} µs (merge, chunks, message indexes, zstd); for comparison, the per-sample numpy "
               f"hydraulic terms (chamber_stiffness, stored_energy, pressure_effort) cost {parts['hydraulic_terms']:.1f} µs")
 
 

@@ -1,9 +1,9 @@
 """Foxglove 3D view of a MuJoCo model: static scene geometry and per-step body transforms.
 
 The pattern (see ``/work/shared/notes/mcap-logging.md`` §3.2): one ``foxglove.SceneUpdate``
-at t = 0 with an entity per body (``frame_locked``, infinite lifetime, primitives in the
-body frame), then a ``foxglove.FrameTransforms`` message per logged step giving every
-body's pose in ``world``.
+(JSON) at t = 0 with an entity per body (``frame_locked``, infinite lifetime, primitives in
+the body frame), then a ``foxglove_msgs/msg/FrameTransforms`` message (ROS 2, CDR) per
+logged step giving every body's pose in ``world``.
 """
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ import mujoco
 import numpy as np
 
 from sim.mcap_log import (
+    FRAME_TRANSFORMS,
     TIMESTAMP,
     Channel,
     Column,
     LogWriter,
-    frame_transforms_schema,
     scene_update_schema,
 )
 
@@ -199,7 +199,7 @@ def log_scene(log: LogWriter, model: mujoco.MjModel, *, topic: str = "/hydroplan
 
 
 class FrameTransformsChannel:
-    """Columnar ``foxglove.FrameTransforms`` channel with the world pose of every body.
+    """Columnar ``foxglove_msgs/msg/FrameTransforms`` channel (CDR) with the world pose of every body.
 
     Each message holds one transform per body except the world body, parent
     ``parent_frame``, child :func:`body_frame_ids`, translation ``data.xpos`` [m] and
@@ -247,9 +247,8 @@ class FrameTransformsChannel:
             })
         # Columns: xpos.ravel() then xquat.ravel(), world body included (unused) so that
         # append copies both arrays whole; the last quaternion column is 7 * nbody - 1.
-        layout = {"timestamp": TIMESTAMP, "transforms": transforms}
-        self.channel = log.channel(topic, "foxglove.FrameTransforms", frame_transforms_schema(), layout=layout,
-                                   metadata=metadata)
+        layout = {"transforms": transforms}
+        self.channel = log.cdr_channel(topic, FRAME_TRANSFORMS, layout=layout, metadata=metadata)
 
     def append(self, step_index: int, xpos: np.ndarray, xquat: np.ndarray) -> None:
         """Buffer the body poses of one step.

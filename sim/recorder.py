@@ -35,8 +35,21 @@ _sum = np.add.reduce
 
 
 def field_name(name: str) -> str:
-    """A component or node name as a JSON field name (letters, digits, underscores)."""
-    return re.sub(r"[^A-Za-z0-9_]", "_", name)
+    """A component or node name as a ROS 2 field name: lower case, digits and single underscores,
+    starting with a letter (``"boom_valve.P-A"`` -> ``"boom_valve_p_a"``, ``"2nd"`` -> ``"n_2nd"``)."""
+    text = re.sub(r"_+", "_", re.sub(r"[^a-z0-9]", "_", name.lower())).strip("_")
+    return text if text[:1].isalpha() else f"n_{text}".rstrip("_")
+
+
+def _named_fields(prefix: str, names, description: str) -> dict[str, str]:
+    """``{prefix.field_name(name): description}`` for every name, refusing two names with the same field name."""
+    fields: dict[str, str] = {}
+    for name in names:
+        key = f"{prefix}.{field_name(name)}"
+        if key in fields:
+            raise ValueError(f"two components are both logged as field {key!r}; rename one (e.g. {name!r})")
+        fields[key] = description.format(name)
+    return fields
 
 
 CYLINDER_FIELDS = {
@@ -79,6 +92,13 @@ SOLVER_FIELDS = {
     "theta_min": "Smallest implicit weight over actuators [-]",
 }
 
+# The ROS 2 message types of the fixed topics (the node and flow types depend on the circuit)
+CYLINDER_STATE = flat_schema("hydroplant_msgs/msg/CylinderState", CYLINDER_FIELDS)
+MOTOR_STATE = flat_schema("hydroplant_msgs/msg/MotorState", MOTOR_FIELDS)
+VALVE_STATE = flat_schema("hydroplant_msgs/msg/ValveState", VALVE_FIELDS)
+PUMP_STATE = flat_schema("hydroplant_msgs/msg/PumpState", PUMP_FIELDS)
+ENERGY = flat_schema("hydroplant_msgs/msg/Energy", ENERGY_FIELDS)
+SOLVER = flat_schema("hydroplant_msgs/msg/Solver", SOLVER_FIELDS)
 
 RING_SIZE = 128  # samples captured before their fields are derived and written, as one batch
 
@@ -108,8 +128,8 @@ class RunRecorder:
         net = plant.network
         si = {"units": "SI"}
         self.pump_branches = np.arange(net.branch_slices["pump"].start, net.branch_slices["pump"].stop)
-        node_fields = {f"pressure_pa.{field_name(n)}": f"Absolute pressure of node {n} [Pa]" for n in net.node_names}
-        flow_fields = {f"flow_m3ps.{field_name(b)}": f"Flow of branch {b}, positive from its first port [m^3/s]" for b in net.branch_names}
+        node_fields = _named_fields("pressure_pa", net.node_names, "Absolute pressure of node {} [Pa]")
+        flow_fields = _named_fields("flow_m3ps", net.branch_names, "Flow of branch {}, positive from its first port [m^3/s]")
         # One frame row per sample holds every columnar topic, /tf included (its channel reads xpos.ravel() then
         # xquat.ravel(), see FrameTransformsChannel): one commit per sample, so an interrupt never splits a sample.
         nj, ncyl, nmot = len(plant.joint_names), len(net.cylinder_actuator), len(net.motor_actuator)
@@ -130,38 +150,36 @@ class RunRecorder:
         self.joints = frame.joint_states_channel("/hydroplant/joint_states", plant.joint_names,
                                                  columns=np.arange(block["joints"].start, block["joints"].stop), metadata=si)
         self.cylinders = [
-            frame.channel(f"/hydroplant/cylinders/{net.actuator_names[a]}", "hydroplant.CylinderState",
-                          flat_schema("hydroplant.CylinderState", CYLINDER_FIELDS), fields=list(CYLINDER_FIELDS),
+            frame.channel(f"/hydroplant/cylinders/{net.actuator_names[a]}", CYLINDER_STATE, fields=list(CYLINDER_FIELDS),
                           columns=columns("cylinders", i, len(CYLINDER_FIELDS)), metadata=si)
             for i, a in enumerate(net.cylinder_actuator)
         ]
         self.motors = [
-            frame.channel(f"/hydroplant/motors/{net.actuator_names[a]}", "hydroplant.MotorState",
-                          flat_schema("hydroplant.MotorState", MOTOR_FIELDS), fields=list(MOTOR_FIELDS),
+            frame.channel(f"/hydroplant/motors/{net.actuator_names[a]}", MOTOR_STATE, fields=list(MOTOR_FIELDS),
                           columns=columns("motors", i, len(MOTOR_FIELDS)), metadata=si)
             for i, a in enumerate(net.motor_actuator)
         ]
         self.valves = [
-            frame.channel(f"/hydroplant/valves/{name}", "hydroplant.ValveState", flat_schema("hydroplant.ValveState", VALVE_FIELDS),
-                          fields=list(VALVE_FIELDS), columns=columns("valves", i, len(VALVE_FIELDS)), metadata=si)
+            frame.channel(f"/hydroplant/valves/{name}", VALVE_STATE, fields=list(VALVE_FIELDS),
+                          columns=columns("valves", i, len(VALVE_FIELDS)), metadata=si)
             for i, name in enumerate(net.valve_names)
         ]
         self.pumps = [
-            frame.channel(f"/hydroplant/pumps/{name}", "hydroplant.PumpState", flat_schema("hydroplant.PumpState", PUMP_FIELDS),
-                          fields=list(PUMP_FIELDS), columns=columns("pumps", i, len(PUMP_FIELDS)), metadata=si)
+            frame.channel(f"/hydroplant/pumps/{name}", PUMP_STATE, fields=list(PUMP_FIELDS),
+                          columns=columns("pumps", i, len(PUMP_FIELDS)), metadata=si)
             for i, name in enumerate(net.pump_names)
         ]
-        self.nodes = frame.channel("/hydroplant/nodes", "hydroplant.NodePressures", flat_schema("hydroplant.NodePressures", node_fields),
+        self.nodes = frame.channel("/hydroplant/nodes", flat_schema("hydroplant_msgs/msg/NodePressures", node_fields),
                                    fields=list(node_fields), columns=columns("nodes", 0, nnode), metadata=si)
         self.flows = (
-            frame.channel("/hydroplant/flows", "hydroplant.BranchFlows", flat_schema("hydroplant.BranchFlows", flow_fields),
+            frame.channel("/hydroplant/flows", flat_schema("hydroplant_msgs/msg/BranchFlows", flow_fields),
                           fields=list(flow_fields), columns=columns("flows", 0, nflow), metadata=si)
             if flow_fields else None
         )
-        self.energy = frame.channel("/hydroplant/energy", "hydroplant.Energy", flat_schema("hydroplant.Energy", ENERGY_FIELDS),
-                                    fields=list(ENERGY_FIELDS), columns=columns("energy", 0, len(ENERGY_FIELDS)), metadata=si)
-        self.solver = frame.channel("/hydroplant/solver", "hydroplant.Solver", flat_schema("hydroplant.Solver", SOLVER_FIELDS),
-                                    fields=list(SOLVER_FIELDS), columns=columns("solver", 0, len(SOLVER_FIELDS)), metadata=si)
+        self.energy = frame.channel("/hydroplant/energy", ENERGY, fields=list(ENERGY_FIELDS),
+                                    columns=columns("energy", 0, len(ENERGY_FIELDS)), metadata=si)
+        self.solver = frame.channel("/hydroplant/solver", SOLVER, fields=list(SOLVER_FIELDS),
+                                    columns=columns("solver", 0, len(SOLVER_FIELDS)), metadata=si)
         self.events = log.channel("/hydroplant/events", "foxglove.Log", log_schema())
         self.tf = FrameTransformsChannel(log, plant.model)
         frame.adopt(self.tf.channel, np.arange(block["xpos"].start, block["xquat"].stop))

@@ -1,10 +1,12 @@
-"""Run logs: every declared topic and field present, metadata and attachments, strict JSON, exact sim-time stamps."""
+"""Run logs: every declared topic and field present, metadata and attachments, strict JSON and ROS 2 CDR, exact
+sim-time stamps."""
 
 import json
 
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
 
 from conftest import MODELS
 from sim.cli import main
@@ -46,7 +48,7 @@ def test_topics_and_fields(boom_log):
     assert len(t) == 151 and np.all(np.diff(t) == 10_000_000)
 
 
-def test_metadata_attachments_and_strict_json(boom_log):
+def test_metadata_attachments_strict_json_and_cdr(boom_log):
     log = read_log(boom_log.log_path)
     run_meta = log.metadata["hydroplant.run"]
     for key in ("scenario", "mode", "coupling", "dt_s", "mujoco_version", "hydroplant_version", "python_version"):
@@ -59,14 +61,21 @@ def test_metadata_attachments_and_strict_json(boom_log):
     def reject(constant):
         raise ValueError(f"non-standard JSON constant {constant}")
 
+    decoders = DecoderFactory()
     with open(boom_log.log_path, "rb") as f:
         reader = make_reader(f)
-        schemas = {s.name for s in reader.get_summary().schemas.values()}
+        schemas = {s.name: s.encoding for s in reader.get_summary().schemas.values()}
         count = 0
         for schema, channel, message in reader.iter_messages():
-            json.loads(message.data, parse_constant=reject)
+            if channel.message_encoding == "json":  # the irregular topics: scene, events
+                json.loads(message.data, parse_constant=reject)
+            else:  # every numeric topic: ROS 2 CDR that Foxglove's own decoder reads
+                assert channel.message_encoding == "cdr" and message.data[:4] == b"\x00\x01\x00\x00"
+                decoders.decoder_for("cdr", schema)(message.data)
             count += 1
-    assert {"foxglove.JointStates", "foxglove.FrameTransforms", "foxglove.SceneUpdate", "foxglove.Log"} <= schemas
+    assert schemas["foxglove_msgs/msg/JointStates"] == schemas["foxglove_msgs/msg/FrameTransforms"] == "ros2msg"
+    assert schemas["hydroplant_msgs/msg/CylinderState"] == "ros2msg"
+    assert schemas["foxglove.SceneUpdate"] == schemas["foxglove.Log"] == "jsonschema"
     assert count > 1000
 
 
@@ -78,9 +87,9 @@ def test_two_runs_log_identical_values(tmp_path):
     for topic in ("/hydroplant/cylinders/boom_cyl", "/hydroplant/nodes", "/hydroplant/energy"):
         ta, tb = la.topic(topic), lb.topic(topic)
         assert np.array_equal(ta.log_time, tb.log_time)
-        for name in ta.fields if hasattr(ta, "fields") else []:
-            assert np.array_equal(ta[name], tb[name])
-        assert [m for m in ta.messages] == [m for m in tb.messages]
+        for name in ta.fields:
+            assert np.array_equal(ta[name], tb[name], equal_nan=True)
+    assert _messages(a.log_path) == _messages(b.log_path)
 
 
 def test_cli_run_writes_log_and_bad_input_exits_2(tmp_path, capsys):
@@ -137,8 +146,12 @@ def test_batched_hydraulic_terms_equal_the_per_sample_functions():
 
 
 def _messages(path):
-    log = read_log(path)
-    return {topic: (log.topic(topic).log_time.tolist(), log.topic(topic).messages) for topic in log.topics}
+    """Log times and message bytes per topic (bytes: NaN-safe, and stricter than decoded values)."""
+    out = {}
+    with open(path, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=True):
+            out.setdefault(channel.topic, []).append((message.log_time, bytes(message.data)))
+    return out
 
 
 def test_ring_size_does_not_change_the_log(tmp_path, monkeypatch):
