@@ -1,22 +1,44 @@
-"""MCAP logging of simulation runs: JSON messages with JSON Schema, zstd chunks, all indexes.
+"""MCAP logging of simulation runs: ROS 2 CDR for the numeric topics, JSON for the irregular ones, zstd chunks, all indexes.
 
-The writer is built for a stepping loop. Samples are appended into per-channel numpy
-buffers (:meth:`Channel.append`, a few hundred ns) and encoded in batches, outside the
-loop body: each channel's JSON template (built once from its fields or layout, next to
-its pre-built JSON schema) is filled for all buffered samples by a compiled encoder
-(numba; floats exact to the last bit, see ``_encode_rows``), or by ``str.format`` without
-numba. Irregular messages (events, scene updates) go through :meth:`Channel.write`.
-Buffered messages of all channels are merged in log-time order and their MCAP records
-built in one compiled pass (:meth:`_BulkWriter.add_messages`) before they reach the
-chunks of :class:`mcap.writer.Writer`, so every file is globally ordered by ``log_time``
-and every batch is written whole, within a chunk or across a chunk boundary.
+Two kinds of channels, both read by Foxglove natively:
+
+- **CDR channels** (:meth:`LogWriter.cdr_channel`, :meth:`Frame.channel`) carry the numeric,
+  fixed-layout topics as ROS 2 messages, as rosbag2 writes them: schema encoding
+  ``ros2msg`` (the ``.msg`` text of a :class:`MsgType`, nested types appended as
+  ``MSG: pkg/Name`` sections), message encoding ``cdr`` (the little-endian encapsulation
+  header ``00 01 00 00``, then the fields in order, each primitive aligned to its size
+  from the end of the header, strings and sequences with a uint32 count first). Flat
+  topics are ``builtin_interfaces/Time timestamp`` plus float64 fields (:func:`flat_schema`;
+  dotted field names become nested types); joint states are
+  ``foxglove_msgs/msg/JointStates`` and body poses ``foxglove_msgs/msg/FrameTransforms``,
+  the ROS 2 forms of the Foxglove schemas, with the same field names as the JSON ones.
+- **JSON channels** (:meth:`LogWriter.channel`) with JSON Schema carry irregular messages
+  (events, the scene update), written one by one with :meth:`Channel.write`.
+
+The writer is built for a stepping loop. Samples are appended into numpy buffers
+(:meth:`Channel.append`, or one row per sample for many topics with :class:`Frame`, a few
+hundred ns) and encoded in batches, outside the loop body: the MCAP Message records of one
+sample of every topic of a frame are one constant byte row (record headers, CDR templates
+with their strings and padding) with slots, and a batch of samples is that row repeated and
+its slots (sequence, log time, timestamps, runs of adjacent float64 fields) filled by a few
+numpy assignments (:class:`_RecordRows`). Batches of all channels are merged in log-time
+order, sample by sample, and handed whole to the chunks of :class:`mcap.writer.Writer`
+(:meth:`_BulkWriter.add_records`), so every file is globally ordered by ``log_time``. Chunks
+are compressed with zstd at level -1 (:attr:`_BulkWriter.ZSTD_LEVEL`).
+
+:func:`read_log` reads both kinds back as numpy columns with the field names of the
+messages (``"p_cap_pa"``, ``"pressure_pa.supply"``, ``"position/<joint>"``,
+``"translation.x/<frame>"``, ``"timestamp.nanosec"``); a CDR topic whose messages share
+one layout is read as strided views of the message bytes (bit-exact floats).
 
 Conventions (see ``/work/shared/notes/mcap-logging.md``):
 
 - ``log_time = publish_time`` is *simulation* time in integer nanoseconds computed from
   the integer step index, never from an accumulated float time (:func:`step_log_time`).
-- Every message carries ``timestamp {sec, nsec}`` equal to its log time.
-- Strict JSON: non-finite floats are written as ``null`` and read back as NaN.
+- Every sample carries a ``timestamp`` equal to its log time (``{sec, nanosec}`` in CDR,
+  ``{sec, nsec}`` in JSON).
+- NaN and ±inf are stored as they are in CDR (float64); JSON is strict: non-finite floats
+  are written as ``null`` and read back as NaN.
 - The file is written to ``PATH.partial`` and renamed to ``PATH`` when it is finished,
   also when the ``with`` block raises. A file cut by SIGKILL can be rebuilt with
   :func:`recover`.
@@ -68,20 +90,25 @@ __all__ = [
     "Channel",
     "Column",
     "FOXGLOVE_SCHEMAS",
+    "FRAME_TRANSFORMS",
     "Frame",
+    "JOINT_STATES",
     "JointStatesChannel",
     "LogLevel",
     "LogWriter",
+    "MsgField",
+    "MsgType",
     "RecoverReport",
     "RESULT_METADATA",
     "RUN_METADATA",
     "RunLog",
     "RunStatus",
+    "TIME",
     "TIMESTAMP",
     "TopicData",
+    "cdr_decode",
+    "cdr_encode",
     "flat_schema",
-    "frame_transforms_schema",
-    "joint_states_schema",
     "library_string",
     "log_info",
     "log_message",
@@ -89,6 +116,7 @@ __all__ = [
     "merge_logs",
     "read_log",
     "recover",
+    "ros2msg_type",
     "scene_update_schema",
     "step_log_time",
     "to_json_bytes",
@@ -206,8 +234,9 @@ def _loads(data: bytes) -> Any:
     return json.loads(data, parse_constant=_reject_constant)
 
 
+@functools.lru_cache(maxsize=1)
 def library_string() -> str:
-    """Header library string ``"hydroplant/<version> mcap-python/<version>"``."""
+    """Header library string ``"hydroplant/<version> mcap-python/<version>"`` (read once per process: ~1 ms)."""
     try:
         version = importlib.metadata.version("hydroplant")
     except importlib.metadata.PackageNotFoundError:
@@ -1355,7 +1384,7 @@ class Channel:
         self._channel_id = channel_id
         self._order = order
         self._template = template
-        self._records = _RecordRows([(channel_id, template, slice(0, column_count))]) if template is not None else None
+        self._records: _RecordRows | None = None  # its own samples' records, built at their first encode
         self._capacity = capacity if template is not None else 0
         self._values = np.empty((self._capacity, column_count), dtype=np.float64)
         self._steps = np.empty(self._capacity, dtype=np.int64)
@@ -1374,7 +1403,7 @@ class Channel:
             Physics step of the sample; non-decreasing per channel.
         values : sequence of float or ndarray, shape (column_count,)
             Field values in the order of the channel's ``fields`` (SI units); NaN and inf
-            are logged as ``null``.
+            are stored as they are (float64).
         """
         n = self._count
         if n == self._capacity or step_index >= self._writer._next_flush_step:
@@ -1479,6 +1508,8 @@ class Channel:
         if n == 0:
             return
         log_times = _step_log_times(self._steps[:n], self._writer.dt)
+        if self._records is None:
+            self._records = _RecordRows([(self._channel_id, self._template, slice(0, self.column_count))])
         rows = self._records.encode(self._values[:n], log_times, [self._sequence + 1])
         self._sequence += n
         self._encoded.append(_RecordBlock(log_times, rows, self._records.channel_ids, self._records.offsets, self._order,

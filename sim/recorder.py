@@ -1,20 +1,27 @@
 """What a run logs: the topics, their schemas, and one sample per logged step.
 
 The same topics are written by every plant (MuJoCo or PBD), so two logs of a
-scenario compare field by field.  Topics (all SI, units in each field's
-description and in the channel metadata):
+scenario compare field by field.  Every numeric topic is a ROS 2 message in CDR
+(schema encoding ``ros2msg``, see :mod:`sim.mcap_log`) with a
+``builtin_interfaces/Time timestamp`` and SI-suffixed float64 fields (units in each
+field's comment in the schema and in the channel metadata); the events and the
+scene are JSON:
 
-``/hydroplant/joint_states``            foxglove.JointStates of the scalar joints
-``/hydroplant/cylinders/<name>``        stroke, speed, pressures, forces, stiffness
-``/hydroplant/motors/<name>``           angle, speed, port pressures, torque
-``/hydroplant/valves/<name>``           command and spool
-``/hydroplant/pumps/<name>``            speed, flow, outlet pressure, power
-``/hydroplant/nodes``                   every node's pressure
-``/hydroplant/flows``                   every branch's flow
-``/hydroplant/energy``                  energy terms and the balance residual
-``/hydroplant/solver``                  Newton iterations, residual, coupling θ
-``/tf``, ``/hydroplant/scene``          body poses and geometry for Foxglove's 3D panel
-``/hydroplant/events``                  foxglove.Log: divergence and other events
+``/hydroplant/joint_states``       ``foxglove_msgs/msg/JointStates`` of the scalar joints
+``/hydroplant/cylinders/<name>``   ``hydroplant_msgs/msg/CylinderState``: stroke, speed, pressures, forces, stiffness
+``/hydroplant/motors/<name>``      ``hydroplant_msgs/msg/MotorState``: angle, speed, port pressures, torque
+``/hydroplant/valves/<name>``      ``hydroplant_msgs/msg/ValveState``: command and spool
+``/hydroplant/pumps/<name>``       ``hydroplant_msgs/msg/PumpState``: speed, flow, outlet pressure, power
+``/hydroplant/nodes``              ``hydroplant_msgs/msg/NodePressures``: ``pressure_pa.<node>`` of every node
+``/hydroplant/flows``              ``hydroplant_msgs/msg/BranchFlows``: ``flow_m3ps.<branch>`` of every branch
+``/hydroplant/energy``             ``hydroplant_msgs/msg/Energy``: energy terms and the balance residual
+``/hydroplant/solver``             ``hydroplant_msgs/msg/Solver``: Newton iterations, residual, coupling θ
+``/tf``                            ``foxglove_msgs/msg/FrameTransforms``: body poses for Foxglove's 3D panel
+``/hydroplant/scene``              ``foxglove.SceneUpdate`` (JSON): the bodies' geometry, once
+``/hydroplant/events``             ``foxglove.Log`` (JSON): divergence and other events
+
+Node and branch names become ROS 2 field names with :func:`field_name`
+(``"boom_valve.P-A"`` -> ``boom_valve_p_a``).
 """
 
 from __future__ import annotations
@@ -100,7 +107,7 @@ PUMP_STATE = flat_schema("hydroplant_msgs/msg/PumpState", PUMP_FIELDS)
 ENERGY = flat_schema("hydroplant_msgs/msg/Energy", ENERGY_FIELDS)
 SOLVER = flat_schema("hydroplant_msgs/msg/Solver", SOLVER_FIELDS)
 
-RING_SIZE = 128  # samples captured before their fields are derived and written, as one batch
+RING_SIZE = 512  # samples captured before their fields are derived and written, as one batch (the runner also derives at every periodic flush of the log)
 
 
 class RunRecorder:
