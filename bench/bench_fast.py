@@ -15,6 +15,8 @@ median is reported:
 * ``linear/10``, ``linear/1000``: the same with coupling ``implicit-linear``
   (linearly implicit finish, no second Newton solve; plant constructor
   argument ``coupling``);
+* ``rosen/10``, ``rosen/1000``: coupling ``rosenbrock`` (also the linearisation is
+  one Newton step: no nonlinear solve unless a step leaves the trust region);
 * ``python``: the Python-orchestrated :class:`MujocoPlant` (first 0.2 s only).
 
 Prints µs/step, the ratio to bare, the real-time factor (simulated/wall time)
@@ -63,16 +65,17 @@ def bench(name, path, reps, window, python_window=0.2):
     start = mujoco.MjData(m)
     mujoco.mj_copyData(start, m, probe.data)
     start.ctrl[:] = held  # the bare loop's constant controls
-    times = {"bare": [], "fast/10": [], "fast/1000": [], "linear/10": [], "linear/1000": [], "python": []}
-    newton = {"implicit": 0, "implicit-linear": 0}
+    variants = ((10, "fast/10", "implicit"), (1000, "fast/1000", "implicit"), (10, "linear/10", "implicit-linear"),
+                (1000, "linear/1000", "implicit-linear"), (10, "rosen/10", "rosenbrock"), (1000, "rosen/1000", "rosenbrock"))
+    times = {"bare": [], **{key: [] for _, key, _ in variants}, "python": []}
+    newton = {coupling: 0 for _, _, coupling in variants}
     for _ in range(reps):
         bare = mujoco.MjData(m)
         mujoco.mj_copyData(bare, m, start)
         t = time.perf_counter()
         mujoco.mj_step(m, bare, nstep=steps)
         times["bare"].append((time.perf_counter() - t) / steps)
-        for block, key, coupling in ((10, "fast/10", "implicit"), (1000, "fast/1000", "implicit"),
-                                     (10, "linear/10", "implicit-linear"), (1000, "linear/1000", "implicit-linear")):
+        for block, key, coupling in variants:
             fast = MujocoPlantFast(load_scene(scenario), coupling=coupling)
             assert fast.fast
             blocks = steps // block
@@ -91,9 +94,9 @@ def bench(name, path, reps, window, python_window=0.2):
     med = {k: statistics.median(v) * 1e6 for k, v in times.items()}
     cells = "  ".join(f"{k} {med[k]:7.2f} µs {med[k] / med['bare']:5.2f}× RTF {DT * 1e6 / med[k]:6.1f}" for k in med)
     # Newton iterations of the finish, sampled at the last step of each block of 10
-    sampled = {k: v / (reps * (steps // 10)) for k, v in newton.items()}
+    sampled = ", ".join(f"{k} {v / (reps * (steps // 10)):.2f}" for k, v in newton.items())
     print(f"{name:10s} {window:4.1f} s  {cells}  peak RSS {peak_rss_mib():.0f} MiB  finish Newton it/step "
-          f"(sampled) implicit {sampled['implicit']:.2f}, implicit-linear {sampled['implicit-linear']:.2f}", flush=True)
+          f"(sampled) {sampled}", flush=True)
     return med
 
 

@@ -13,7 +13,7 @@
    the bucket cap pressure by ~4.7 bar (README: halving table); see ``--full-dig``.
 2b. ``--full-dig``: the excavator comparison over the whole 20 s dig instead: reference proven on
    0.1 s moving averages (:data:`FULL_DIG_TOLERANCE`, ladder from :data:`FULL_DIG_START_DT`),
-   runs :data:`FULL_DIG_RUNS` (MuJoCo implicit / implicit-linear / explicit at 1 ms, PBD at
+   runs :data:`FULL_DIG_RUNS` (MuJoCo implicit / implicit-linear / rosenbrock / explicit at 1 ms, PBD at
    60 Hz × 10 and × 40 substeps and 1 kHz × 20, ``incompressible`` at 1/30 s in both modes).
 3. The tradeoff sweep of both (``--full``: every setting of :func:`sim.tradeoff.sweep_settings`,
    3 timed runs each, fidelity levels included (``incompressible`` at a frame-rate step, ``lines``);
@@ -54,6 +54,7 @@ FULL_DIG_MAX_STEPS = 6_000_000
 FULL_DIG_RUNS = {  # label -> (mode, coupling, overrides)
     "mujoco-implicit-1ms": ("mujoco", "implicit", {"dt": 1e-3}),
     "mujoco-implicit-linear-1ms": ("mujoco", "implicit-linear", {"dt": 1e-3}),
+    "mujoco-rosenbrock-1ms": ("mujoco", "rosenbrock", {"dt": 1e-3}),
     "mujoco-explicit-1ms": ("mujoco", "explicit", {"dt": 1e-3}),
     "pbd-60Hz-x10": ("pbd", "implicit", {"dt": 1 / 60, "pbd_substeps": 10}),
     "pbd-60Hz-x40": ("pbd", "implicit", {"dt": 1 / 60, "pbd_substeps": 40}),

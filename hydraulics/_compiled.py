@@ -499,10 +499,18 @@ def _invert_wall_node(geometric, rigid, wall, pref, beta, tol, max_iterations):
     """_invert_node for a pure-oil node whose only compliance is its wall (scalars only: the hot case).
 
     ln(V·φ/m) = ln(1 + w·(p − p_ref)/V_g) + (p − rigid)/β with rigid = p_ref + β·ln(m/V_g);
-    same safeguarded Newton as _invert_node.
+    same safeguarded Newton as _invert_node, started from the root of the series of the log to second order
+    in a·u (a = w/V_g, u = p − p_ref): u₁ = u_r/(1 + a·β), u₂ = u₁ + β·a²·u₁²/(2·(1 + a·β)), whose residual is
+    O((a·u)³), so the tolerance is met in one or two iterations instead of up to eight from ``rigid``
+    (the same root to the tolerance; the pure path starts from ``rigid``).
     """
     inv_geometric, inv_beta = 1.0 / geometric, 1.0 / beta  # (multiplications instead of divisions in the loop)
-    p = rigid
+    au = wall * inv_geometric
+    ab = 1.0 + au * beta
+    u1 = (rigid - pref) / ab
+    p = pref + u1 + beta * au * au * u1 * u1 / (2.0 * ab)
+    if not (math.isfinite(p) and 1.0 + au * (p - pref) > 0.0):
+        p = rigid
     extra = wall * (p - pref)
     value = math.log1p(extra * inv_geometric) + (p - rigid) * inv_beta
     slope = wall / (geometric + extra) + inv_beta
