@@ -149,8 +149,9 @@ class PbdPlant(PlantBase):
     mode = "pbd"
 
     def __init__(self, scene: Scene, *, naive: bool = False, fast_hydraulics: bool | None = None,
-                 frame: bool | None = None):
+                 frame: bool | None = None, block: bool = True):
         self.scene = scene
+        self.block = bool(block)  # advance(n) in compiled blocks where the compiled frame applies (see ``fast``)
         scenario = scene.scenario
         self.incompressible = scene.network.fidelity == "incompressible"
         self.rigid = bool(np.any(scene.network.actuator_rigid))  # some actuators incompressible (CouplingMixed)
@@ -229,6 +230,8 @@ class PbdPlant(PlantBase):
         self._x, self._v = x, v
         self.start_network(x, v)
         self._mechanical = sum(self.mechanical_energy())
+        self.node_pressure_max = self.net_state.node_pressure.copy()  # running extremes [Pa] of every successful step
+        self.node_pressure_min = self.net_state.node_pressure.copy()
 
     def _actuator_motion(self, qpos, qvel, ell_rate):
         """Cylinder extensions [m] / motor angles [rad] and their rates at the current state."""
@@ -318,14 +321,169 @@ class PbdPlant(PlantBase):
             self.net_state, self._report = fast.store(self.energy)
         return self._end_step()
 
+    @property
+    def fast(self) -> bool:
+        """Whether :meth:`advance` runs whole blocks of steps in one compiled call (``sim/xpbd/block_nb.py``):
+        the compiled-frame path on a tree of hinges and slides with hinge motors, and ``block`` not switched off.
+        The runner then drives this plant in blocks (``sim.runner._Loop.blocks``)."""
+        return bool(self.block and self.frame_compiled and self.solver.compiled and self._tree and len(self.cylinders)
+                    and GRAVITY_ARTICULATED and all(self._hinge[self.motor_joint]))
+
     def advance(self, n: int):
-        """``n`` steps (stops at the first failed one); returns the last step's report (MujocoPlantFast's interface)."""
+        """``n`` steps (stops at the first failed one); returns the last step's report (MujocoPlantFast's interface).
+
+        With :attr:`fast`, in blocks of one compiled call (:meth:`_advance_block`); a step the
+        compiled frame does not cover (singular mass matrix, a contact that is not soft and
+        pyramidal) is taken by :meth:`step`.  Otherwise one :meth:`step` at a time.
+        """
+        n = int(n)
         report = None
-        for _ in range(int(n)):
-            report = self.step()
-            if not report.success:
-                break
+        while n > 0:
+            done = 0
+            if self.fast:
+                done, report = self._advance_block(n)
+                n -= done
+                if done and not report.success:
+                    break
+            if n > 0 and (not done or report.success):
+                report = self.step()
+                n -= 1
+                if not report.success:
+                    break
         return report
+
+    def _advance_block(self, n: int):
+        """Up to ``n`` steps in one compiled call (``block_nb``); returns (steps done, last step's report or None).
+
+        Same results as ``n`` calls of :meth:`step` to round-off (``tests/test_pbd_block.py``).
+        """
+        ctx = self._block_context()
+        fc = ctx["frame"]
+        solver, st, fast, e = self.solver, self.state, self._fast, self.energy
+        nsub = solver.substeps
+        h = self.dt / nsub
+        cmd, speed = self._block_inputs(ctx, n, h)
+        fast.load(self.net_state, e)
+        fc["x"][:], fc["v"][:], fc["ell"][:] = self._x, self._v, self._ell
+        clock = ctx["clock"]
+        clock[:] = (st.time, fast._time, e.dissipated_mechanical, self._mechanical)
+        hint = ctx["hint"]
+        hint[:] = st.qpos_hint
+        pmax, pmin = ctx["pmax"], ctx["pmin"]
+        pmax[:], pmin[:] = self.node_pressure_max, self.node_pressure_min
+        done, status = ctx["kernel"](n, float(self.dt), float(h), nsub, solver.iterations, solver.symmetric, cmd, speed,
+                                     fast._F, fast._I, fast._W, fast._S, fast._istats, fast._ledger, fast._quad, fast.oil,
+                                     fast.pressure, fast.spool, fast.position, fast.velocity, fast.flow,
+                                     st.x, st.q, st.v, st.w, hint, clock, pmax, pmin, *ctx["args"])
+        if status == 1:  # block_nb.BLOCK_SINGULAR
+            raise np.linalg.LinAlgError("Matrix is singular.")
+        if done == 0:
+            return 0, None
+        last = done * nsub - 1  # the controls of the last substep taken (as after the per-frame path)
+        self.control.valve_command[:] = cmd[last]
+        self.control.pump_speed[:] = speed[last]
+        fast._time = float(clock[1])
+        self.net_state, self._report = fast.store(e)
+        self.last_report = self._report
+        e.dissipated_mechanical, self._mechanical = float(clock[2]), float(clock[3])
+        self._x, self._v, self._ell = fc["x"].copy(), fc["v"].copy(), fc["ell"].copy()
+        self.effort = fc["effort"].copy()
+        self._motor_effort = fc["motor_effort"].copy()
+        self.node_pressure_max, self.node_pressure_min = pmax.copy(), pmin.copy()
+        st.time = float(clock[0])
+        st.qpos_hint = hint.copy()
+        solver.last_forces = []
+        solver.compiled_steps += done
+        self.frame_steps += done
+        self.step_index += done
+        return done, self._report
+
+    def _block_inputs(self, ctx, n, h):
+        """Rows of valve commands and pump speeds for every substep of the next ``n`` steps (step k, substep s:
+        row k·substeps + s, at time (step_index + k)·dt + s·h, as ``apply_inputs`` + :meth:`_sample_inputs`)."""
+        nsub = self.solver.substeps
+        rows = n * nsub
+        if rows > len(ctx["cmd"]):
+            size = max(rows, 2 * len(ctx["cmd"]))
+            ctx["cmd"] = np.zeros((size, len(self.network.valve_names)))
+            ctx["speed"] = np.zeros((size, len(self.network.pump_names)))
+        cmd, speed = ctx["cmd"][:rows], ctx["speed"][:rows]
+        cmd[:] = self.control.valve_command
+        speed[:] = self.control.pump_speed
+        plan = self._frame_context()["inputs"]
+        if plan:
+            frames = (np.arange(n) + self.step_index) * self.dt  # = self.time of each step
+            times = (frames[:, None] + np.arange(nsub)[None, :] * h).reshape(-1)
+            sample_inputs(plan, times, cmd, speed)
+        return cmd, speed
+
+    def _block_context(self):
+        """Buffers and constant arguments of the compiled block (made once; see ``sim/xpbd/block_nb.py``)."""
+        ctx = getattr(self, "_block_ctx", None)
+        if ctx is not None:
+            return ctx
+        from .xpbd.block_nb import block
+
+        fc = self._frame_context()
+        a = fc["articulated"]
+        solver, xm = self.solver, self.xmodel
+        fm, nb = solver._flat, xm._nb_arrays()
+        ng, nq = xm.ngroup, len(nb["qpos0"])
+        c = solver._contact_arrays() if len(xm.contact_group) else None
+        nc = 0 if c is None else len(c["group"])
+        i64 = lambda v: np.ascontiguousarray(v, dtype=np.int64)  # noqa: E731
+        if c is None:
+            c = dict(group=np.zeros(0, np.int64), plane=np.zeros(0, np.int64), plane_group=np.zeros(0, np.int64),
+                     local=np.zeros((0, 3)), radius=np.zeros(0), plane_origin=np.zeros((0, 3)), plane_normal=np.zeros((0, 3)),
+                     out=np.zeros(0, np.int64))
+        pyramid = "cg" in c and solver.soft_contacts and solver.pyramid_friction and int(xm.contact_cone) == 0
+        eligible = np.ascontiguousarray(c["eligible"] if pyramid else np.zeros(nc, bool), np.bool_)
+        rows = [c["cg"], c["cvec"], c["crad"], c["mu"], c["solref"], c["solimp"], c["condim"], c["tran"]] if pyramid else [
+            np.zeros((nc, 2), np.int64), np.zeros((nc, 4, 3)), np.zeros(nc), np.zeros(nc), np.zeros((nc, 2)),
+            np.zeros((nc, 5)), np.zeros(nc, np.int64), np.zeros(nc)]
+        rows = [np.ascontiguousarray(r) for r in rows]
+        buffers = [np.zeros_like(r) for r in rows]
+        rg, rvec = fc["rg"], fc["rvec"]
+        args = (
+            nb["root"], nb["from_root_quat"], nb["from_root_pos"], np.zeros((ng, 3)), np.zeros((ng, 4)), np.zeros((ng, 3)),
+            np.zeros((ng, 3)),
+            fm["IM"], fm["II"], fm["GI"], fm["gravity"], fm["jt"], fm["jg"], fm["jvec"], fm["jqoff"], fm["jlim"], fm["jlo"],
+            fm["jhi"], fm["jdamp"], fm["et"], fm["eg"], fm["evec"], fm["eqoff"], rg, rvec,
+            i64(c["group"]), i64(c["plane"]), i64(c["plane_group"]), _c64(c["local"]), _c64(c["radius"]),
+            _c64(c["plane_origin"]), _c64(c["plane_normal"]), float(solver.contact_margin), np.zeros(nc, np.int64), eligible,
+            *rows, *buffers, int(xm.contact_cone), float(xm.contact_impratio), solver.linear_damping, solver.angular_damping,
+            fm["body_group"], fm["in_group_quat"], fm["in_group_pos"],
+            a["iquat"], a["ipos"], a["jnt_body"], a["jnt_axis"], a["jnt_pos"], a["hinge"], a["subtree"], a["body_mass"],
+            a["inertia"], a["site_body"], a["site_pos"], a["row_sites"], a["mot_dof"], a["group_mass"], a["group_root"],
+            a["group_dynamic"], np.zeros_like(a["mobility"]), np.zeros_like(a["group_gravity"]),
+            np.zeros_like(a["motor_response"]), np.zeros_like(a["motor_inverse_inertia"]), np.zeros_like(a["effective_mass"]),
+            nb["group_inertia"], nb["parent"], nb["body_quat"], nb["body_pos"], nb["jnt_type"], nb["jnt_qposadr"],
+            nb["jnt_dofadr"], nb["qpos0"], np.zeros((xm.nbody, 3)), np.zeros((xm.nbody, 4)), np.zeros(nq), np.zeros(xm.nv),
+            fc["cyl"], fc["closed"], fc["mot"], fc["gear"], fc["mbody"], fc["mparent"], fc["maxis"], fc["x"], fc["v"],
+            fc["ell"], fc["const"], fc["slope"], fc["effort"], fc["motor_effort"], np.zeros(2),
+        )
+        ctx = dict(kernel=block(solver.transport_response, solver.articulated_contacts), frame=fc, args=args,
+                   cmd=np.zeros((0, len(self.network.valve_names))), speed=np.zeros((0, len(self.network.pump_names))),
+                   clock=np.zeros(4), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
+                   pmin=np.zeros(self.network.node_count))
+        self._block_ctx = ctx
+        return ctx
+
+    def snapshot(self):
+        """What :meth:`advance` changes besides what the runner's ``_Snapshot`` keeps (step index, network state,
+        ledger, controls, efforts, extremes): the body state, the actuator motion and the mechanical-energy
+        baseline; for :meth:`restore`."""
+        st = self.state
+        return (st.x.copy(), st.q.copy(), st.v.copy(), st.w.copy(), st.qpos_hint.copy(), st.time, self._x, self._v,
+                self._ell, self._mechanical, self.frame_steps)
+
+    def restore(self, snap) -> None:
+        """Back to a :meth:`snapshot` (the runner restores the step index, network state and ledger)."""
+        st = self.state
+        x, q, v, w, hint, st.time, self._x, self._v, self._ell, self._mechanical, self.frame_steps = snap
+        st.x[:], st.q[:], st.v[:], st.w[:] = x, q, v, w
+        st.qpos_hint = hint.copy()
+        self.__dict__.pop("_observation_memo", None)
 
     def _end_step(self):
         self.theta = getattr(self.coupling, "last_theta", self.theta)
@@ -333,6 +491,10 @@ class PbdPlant(PlantBase):
         mechanical = sum(self.mechanical_energy())
         self.energy.dissipated_mechanical += self._work - (mechanical - self._mechanical)
         self._mechanical = mechanical
+        if self._report.success:  # running extremes of every successful step (new arrays: the runner keeps references)
+            p = self.net_state.node_pressure
+            self.node_pressure_max = np.maximum(self.node_pressure_max, p)
+            self.node_pressure_min = np.minimum(self.node_pressure_min, p)
         self.step_index += 1
         return self._report
 
@@ -659,12 +821,13 @@ def _c64(a):
     return a if a.flags.writeable else a.copy()
 
 
-def make_pbd_plant(scene: Scene) -> PbdPlant:
-    """The plant for modes "pbd" (the scenario's coupling, default implicit) and "pbd-naive" (explicit, the seed's scheme)."""
+def make_pbd_plant(scene: Scene, *, block: bool = True) -> PbdPlant:
+    """The plant for modes "pbd" (the scenario's coupling, default implicit) and "pbd-naive" (explicit, the seed's
+    scheme); ``block=False`` keeps :meth:`PbdPlant.advance` (and so the runner) one step at a time."""
     mode = scene.scenario.mode
     if mode not in ("pbd", "pbd-naive"):
         raise ValueError(f"make_pbd_plant: mode {mode!r} is not a PBD mode")
-    return PbdPlant(scene, naive=mode == "pbd-naive")
+    return PbdPlant(scene, naive=mode == "pbd-naive", block=block)
 
 
 __all__ = ["PbdPlant", "make_pbd_plant"]
