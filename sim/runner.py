@@ -85,7 +85,7 @@ def make_plant(scene, *, fast: bool = True):
         return MujocoPlant(scene)
     from .plant_pbd import make_pbd_plant  # noqa: PLC0415 - optional until the PBD mode exists
 
-    return make_pbd_plant(scene)
+    return make_pbd_plant(scene, block=fast)  # fast=False: the PBD plant steps one step at a time too
 
 
 class _Snapshot:
@@ -101,14 +101,19 @@ class _Snapshot:
     LEDGER = ("pump_work", "motor_work", "dissipated_hydraulic", "dissipated_friction", "dissipated_mechanical")
 
     def __init__(self, plant):
-        self.buffer = np.empty(mujoco.mj_stateSize(plant.model, self.SPEC))
+        # a plant with its own snapshot()/restore() (PbdPlant) keeps its body state itself; else MjData's
+        self.own = callable(getattr(plant, "snapshot", None)) and callable(getattr(plant, "restore", None))
+        self.buffer = None if self.own else np.empty(mujoco.mj_stateSize(plant.model, self.SPEC))
         self.extreme_names = tuple(name for name in _PLANT_EXTREMES if hasattr(plant, name))
         self.valve_command = np.empty_like(plant.control.valve_command)
         self.pump_speed = np.empty_like(plant.control.pump_speed)
         self.take(plant)
 
     def take(self, plant) -> None:
-        mujoco.mj_getState(plant.model, plant.data, self.buffer, self.SPEC)
+        if self.own:
+            self.plant_state = plant.snapshot()
+        else:
+            mujoco.mj_getState(plant.model, plant.data, self.buffer, self.SPEC)
         self.step_index = plant.step_index
         self.net_state, self.effort, self.theta, self.last_report = plant.net_state, plant.effort, plant.theta, plant.last_report
         e = plant.energy
@@ -119,7 +124,10 @@ class _Snapshot:
         self.extremes = [getattr(plant, name) for name in self.extreme_names]
 
     def restore(self, plant) -> None:
-        mujoco.mj_setState(plant.model, plant.data, self.buffer, self.SPEC)
+        if self.own:
+            plant.restore(self.plant_state)
+        else:
+            mujoco.mj_setState(plant.model, plant.data, self.buffer, self.SPEC)
         plant.step_index = self.step_index
         plant.net_state, plant.effort, plant.theta, plant.last_report = self.net_state, self.effort, self.theta, self.last_report
         for name, value in zip(self.LEDGER, self.ledger):
