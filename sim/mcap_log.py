@@ -223,7 +223,10 @@ def to_json_bytes(message: Mapping[str, Any]) -> bytes:
     bytes
         UTF-8 JSON with NaN/±inf written as ``null``.
     """
-    return json.dumps(_strict(message), allow_nan=False, separators=(",", ":")).encode()
+    try:  # finite plain data (e.g. the scene update, 12 kB) encodes in one pass; numpy goes through _strict
+        return json.dumps(message, allow_nan=False, separators=(",", ":"), default=_strict).encode()
+    except ValueError:  # a non-finite float: copy with null in its place
+        return json.dumps(_strict(message), allow_nan=False, separators=(",", ":")).encode()
 
 
 def _reject_constant(name: str) -> None:
@@ -539,6 +542,13 @@ class MsgType:
 
     name: str
     fields: tuple[MsgField, ...]
+
+    def __hash__(self) -> int:  # computed once (the types are cache keys of every channel of every run)
+        try:
+            return self._hash  # type: ignore[has-type]
+        except AttributeError:
+            object.__setattr__(self, "_hash", hash((self.name, self.fields)))
+            return self._hash
 
     def __post_init__(self) -> None:
         if not _ROS_TYPE_NAME.fullmatch(self.name) or "/msg/" not in self.name:
