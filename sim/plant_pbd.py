@@ -125,6 +125,7 @@ from hydraulics.steppers import StepReport
 
 from ._coupling_nb import input_plan, sample_inputs
 from .plant_base import PlantBase
+from .plant_mujoco_fast import MujocoPlantFast
 from .scenario import ScenarioError
 from .scene import Scene, initial_qpos_qvel
 from .xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel
@@ -217,6 +218,8 @@ class PbdPlant(PlantBase):
         self._fast = FastHydraulics(self) if fast_hydraulics and fast_eligible(self) else None
         # whole steps in one compiled call (sim/xpbd/frame_nb.py) where they apply; else the hooks below
         self.frame_steps = 0  # steps that ran as one compiled frame
+        self._record_next = None  # (rows, every) for the next advance() (record_next)
+        self.recorded, self.recorded_finite, self.end_finite = 0, True, True
         self.frame_compiled = self._fast is not None if frame is None else bool(frame) and self._fast is not None
         self.reset()
 
@@ -337,11 +340,15 @@ class PbdPlant(PlantBase):
         pyramidal) is taken by :meth:`step`.  Otherwise one :meth:`step` at a time.
         """
         n = int(n)
+        record, every = self._record_next if self._record_next is not None else (None, 1)
+        self._record_next = None
+        self.recorded, self.recorded_finite = 0, True
         report = None
         while n > 0:
             done = 0
             if self.fast:
-                done, report = self._advance_block(n)
+                done, report = self._advance_block(n, record, every)
+                record = None  # a later block does not record: the runner sees too few rows and replays step by step
                 n -= done
                 if done and not report.success:
                     break
@@ -350,14 +357,49 @@ class PbdPlant(PlantBase):
                 n -= 1
                 if not report.success:
                     break
+        self.end_finite = self.finite()
         return report
 
-    def _advance_block(self, n: int):
+    # ------------------------------------------------------------------ record
+    record_rows = staticmethod(MujocoPlantFast.record_rows)  # the same rows as MujocoPlantFast.advance records
+
+    @property
+    def record_width(self) -> int:
+        """Floats per recorded row: ``RunRecorder.capture``'s raw layout for a plant with ``joint_state`` (node
+        pressures and oil, scalar-joint positions and rates, 4 per actuator, 2 per valve, 1 per pump and branch,
+        2 solver and 6 energy terms, 7 per body)."""
+        net = self.network
+        n, na = net.node_count, net.actuator_count
+        return (2 * n + 2 * len(self.scalar_joints) + 4 * na + 2 * len(net.valve_names) + len(net.pump_names)
+                + len(net.branch_names) + 8 + 7 * self.xmodel.nbody)
+
+    def record_next(self, record: np.ndarray, every: int = 1) -> None:
+        """Make the next :meth:`advance` record the samples after every step whose index becomes a multiple of
+        ``every`` (all but its last step; :meth:`record_rows` rows) into the rows of ``record``, from the compiled
+        block, as the runner's recorder would capture them (as ``MujocoPlantFast.record_next``).  ``recorded``
+        then holds the rows written (fewer when the block stopped early: the caller replays), ``recorded_finite``
+        whether their pressures and joints were finite, ``end_finite`` :meth:`finite` after the call."""
+        width = self.record_width
+        flags = getattr(record, "flags", None)
+        if not (isinstance(record, np.ndarray) and record.dtype == np.float64 and record.ndim == 2 and flags.c_contiguous
+                and flags.writeable and record.shape[1] == width):
+            raise ValueError(f"`record` must be a writable C-contiguous float64 array of shape (rows, {width})")
+        if int(every) < 1:
+            raise ValueError(f"`every` must be >= 1, got {every!r}")
+        self._record_next = (record, int(every))
+
+    def _advance_block(self, n: int, record=None, every: int = 1):
         """Up to ``n`` steps in one compiled call (``block_nb``); returns (steps done, last step's report or None).
 
-        Same results as ``n`` calls of :meth:`step` to round-off (``tests/test_pbd_block.py``).
+        Same results as ``n`` calls of :meth:`step` to round-off (``tests/test_pbd_block.py``); with ``record``
+        the samples of :meth:`record_next`.
         """
         ctx = self._block_context()
+        rec = ctx["rec"]
+        rows = self.record_rows(self.step_index, n, every) if record is not None else 0
+        if rows > (0 if record is None else len(record)):
+            raise ValueError(f"`record` has {len(record)} rows, {rows} needed")
+        rec[:] = (rows, every, self.step_index, 0, 0)
         fc = ctx["frame"]
         solver, st, fast, e = self.solver, self.state, self._fast, self.energy
         nsub = solver.substeps
@@ -374,7 +416,9 @@ class PbdPlant(PlantBase):
         done, status = ctx["kernel"](n, float(self.dt), float(h), nsub, solver.iterations, solver.symmetric, cmd, speed,
                                      fast._F, fast._I, fast._W, fast._S, fast._istats, fast._ledger, fast._quad, fast.oil,
                                      fast.pressure, fast.spool, fast.position, fast.velocity, fast.flow,
-                                     st.x, st.q, st.v, st.w, hint, clock, pmax, pmin, *ctx["args"])
+                                     st.x, st.q, st.v, st.w, hint, clock, pmax, pmin, *ctx["args"],
+                                     ctx["no_record"] if record is None else record, rec, ctx["rq"], ctx["rd"], _c64(self.theta))
+        self.recorded, self.recorded_finite = int(rec[3]), not rec[4]
         if status == 1:  # block_nb.BLOCK_SINGULAR
             raise np.linalg.LinAlgError("Matrix is singular.")
         if done == 0:
@@ -465,7 +509,9 @@ class PbdPlant(PlantBase):
         ctx = dict(kernel=block(solver.transport_response, solver.articulated_contacts), frame=fc, args=args,
                    cmd=np.zeros((0, len(self.network.valve_names))), speed=np.zeros((0, len(self.network.pump_names))),
                    clock=np.zeros(4), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
-                   pmin=np.zeros(self.network.node_count))
+                   pmin=np.zeros(self.network.node_count), rec=np.zeros(5, np.int64),
+                   no_record=np.zeros((0, self.record_width)), rq=i64(xm.jnt_qposadr[self.scalar_joints]),
+                   rd=i64(xm.jnt_dofadr[self.scalar_joints]))
         self._block_ctx = ctx
         return ctx
 

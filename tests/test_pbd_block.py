@@ -6,7 +6,8 @@ against its per-frame path (``step()``: one compiled frame per step, the referen
   the hinge hint and the per-step pressure extremes equal the per-frame path's to round-off (1e-9 of the
   largest magnitude, as ``tests/test_pbd_fast.py``), for blocks of several lengths.
 * ``snapshot``/``restore`` (the runner's replay of a failed block) give back the same trajectory.
-* The runner logs the same values through blocks as step by step (``tests/test_runner_fast.py``'s comparison).
+* The runner logs the same values through blocks (samples recorded inside them) as step by step
+  (``tests/test_runner_fast.py``'s comparison).
 """
 
 from __future__ import annotations
@@ -102,9 +103,14 @@ def test_snapshot_restore_replays_the_same_steps():
     (BOOM, {"duration": 1.5, "dt": 1 / 60, "pbd_substeps": 10}),  # logged every step (60 Hz frames, 100 Hz log)
     (SEED, {"duration": 0.05}),                                     # 1200 Hz, logged every 12th step
 ], ids=["boom", "seed"])
-def test_runner_blocks_log_the_same_values_as_per_step(tmp_path, path, overrides):
+def test_runner_blocks_log_the_same_values_as_per_step(tmp_path, path, overrides, monkeypatch):
     overrides = dict(overrides, mode="pbd")
+    recorded = []
+    record_next = PbdPlant.record_next
+    monkeypatch.setattr(PbdPlant, "record_next", lambda self, record, every=1: (recorded.append(len(record)),
+                                                                                record_next(self, record, every)))
     fast = run(path, out=tmp_path / "blocks.mcap", overrides=overrides)
+    assert sum(recorded) > 0  # the samples inside the blocks were recorded by the compiled block
     slow = run(path, out=tmp_path / "steps.mcap", overrides=overrides, fast=False)
     assert fast.status == slow.status == "complete" and fast.steps == slow.steps
     a, b = assert_logs_agree(fast.log_path, slow.log_path)

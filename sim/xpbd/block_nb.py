@@ -20,6 +20,12 @@ failed step), and before a frame the compiled frame does not cover (singular mas
 contact that is not soft and pyramidal: the plant steps that frame on its per-frame path).
 Results equal the per-frame path to round-off (``tests/test_pbd_block.py``).
 
+Recording (as ``MujocoPlantFast.advance(n, record, every)``): after every step but the block's
+last whose step index becomes a multiple of ``rec[1]`` (``rec[2]``: the step index at the block's
+start), the next of ``rec[0]`` rows of ``record`` receives the raw sample the runner's recorder
+would capture after that step (``_record_row``); ``rec[3]`` counts the rows written, ``rec[4]``
+is 1 when one of them had a non-finite pressure or joint.
+
 ``clock`` (float64, 4): body time [s], network time [s], dissipated mechanical energy [J],
 kinetic + potential energy [J] at the start of the block; updated in place.
 Returns (frames done, status): ``BLOCK_OK`` (all frames, or stopped after a failed hydraulic
@@ -36,6 +42,7 @@ from __future__ import annotations
 import hashlib
 
 import numpy as np
+from numba import njit
 
 from . import compiled as XC
 from . import frame_nb as FN
@@ -58,7 +65,10 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
            mobility, group_gravity, motor_response, minv, effective_mass,
            group_inertia, parent, body_quat, body_pos, jnt_type, jnt_qposadr, jnt_dofadr, qpos0, xb, qb, qpos, qvel,
            cyl, closed, mot, gear, mbody, mparent, maxis, x, v, ell0, const, slope, effort, motor_effort, fout,
-           transport, art_contacts):
+           record, rec, rq, rd, theta, transport, art_contacts):
+    rows, every, first_step = rec[0], rec[1], rec[2]
+    rec[3] = 0  # rows recorded
+    rec[4] = 0  # a recorded row was not finite
     for k in range(nframe):
         if not FN._articulated_jit(
                 bx, bq, iquat, ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, gravity,
@@ -107,7 +117,65 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
         for i in range(pres.size):
             pmax[i] = max(pmax[i], pres[i])
             pmin[i] = min(pmin[i], pres[i])
+        if rec[3] < rows and k < nframe - 1 and (first_step + k + 1) % every == 0:
+            last = (k + 1) * substeps - 1
+            if not _record_row(record[rec[3]], pres, qpos, qvel, rq, rd, oil, pos, vel, effort, theta, cmd[last], spool,
+                               speed[last], flow, istats[H.I_NEWTON], ledger[H.L_RESIDUAL], kin, pot, ledger, clock[2],
+                               xb, qb):
+                rec[4] = 1
+            rec[3] += 1
     return nframe, BLOCK_OK
+
+
+@njit(cache=True)
+def _put(row, o, values):
+    for i in range(values.size):
+        row[o + i] = values[i]
+    return o + values.size
+
+
+@njit(cache=True)
+def _record_row(row, pres, qpos, qvel, rq, rd, oil, pos, vel, effort, theta, cmd, spool, speed, flow, newton, residual,
+                kinetic, potential, ledger, dissipated_mechanical, xb, qb):
+    """One raw sample in the layout of ``RunRecorder.capture`` for a plant with ``joint_state``: node pressures [Pa],
+    scalar-joint positions and rates, node oil, actuator positions, velocities, efforts, θ, valve commands, spools,
+    pump speeds, branch flows, Newton iterations and residual [Pa], kinetic, potential energy, pump work, hydraulic,
+    friction and mechanical dissipation [J], body-frame positions [m] and quaternions; returns whether the node
+    pressures and joints are finite (``RunRecorder.captured_finite``)."""
+    o = _put(row, 0, pres)
+    for i in range(rq.size):
+        row[o + i] = qpos[rq[i]]
+    o += rq.size
+    for i in range(rd.size):
+        row[o + i] = qvel[rd[i]]
+    o += rd.size
+    finite = True
+    for i in range(o):
+        if not np.isfinite(row[i]):
+            finite = False
+    o = _put(row, o, oil)
+    o = _put(row, o, pos)
+    o = _put(row, o, vel)
+    o = _put(row, o, effort)
+    o = _put(row, o, theta)
+    o = _put(row, o, cmd)
+    o = _put(row, o, spool)
+    o = _put(row, o, speed)
+    o = _put(row, o, flow)
+    row[o], row[o + 1] = newton, residual
+    row[o + 2], row[o + 3] = kinetic, potential
+    row[o + 4], row[o + 5], row[o + 6] = ledger[H.L_PUMP], ledger[H.L_DISS_H], ledger[H.L_DISS_F]
+    row[o + 7] = dissipated_mechanical
+    o += 8
+    for b in range(xb.shape[0]):
+        for c in range(3):
+            row[o] = xb[b, c]
+            o += 1
+    for b in range(qb.shape[0]):
+        for c in range(4):
+            row[o] = qb[b, c]
+            o += 1
+    return finite
 
 
 def _fingerprint() -> str:
