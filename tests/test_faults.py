@@ -209,11 +209,13 @@ def test_log_info_of_an_incomplete_log(tmp_path, capsys):
 
         def step_then_fail():
             if plant.step_index >= 20:
+                failed_at.append(plant.step_index)
                 raise Boom("injected fault")
             return step()
 
-        def advance_then_fail(n):  # the runner's block path (MujocoPlantFast)
+        def advance_then_fail(n):  # the runner's block path (MujocoPlantFast): the first block call from step 20 on
             if plant.step_index >= 20:
+                failed_at.append(plant.step_index)
                 raise Boom("injected fault")
             return advance(n)
 
@@ -222,6 +224,7 @@ def test_log_info_of_an_incomplete_log(tmp_path, capsys):
             plant.advance = advance_then_fail
         return plant
 
+    failed_at = []
     runner.make_plant = failing_plant
     try:
         with pytest.raises(Boom):
@@ -232,7 +235,9 @@ def test_log_info_of_an_incomplete_log(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "status: incomplete" in text and "Boom: injected fault" in text and "scene: boom" in text
     log = read_log(tmp_path / "broken.mcap")
-    assert log.topic("/hydroplant/joint_states").log_time[-1] == 20 * 5_000_000  # samples every 2 steps up to step 20
+    # samples every 2 steps, each one simulated before the fault (step 20, or the end of the block that passed it)
+    assert len(failed_at) == 1 and failed_at[0] >= 20
+    assert log.topic("/hydroplant/joint_states").log_time[-1] == (failed_at[0] // 2) * 2 * 5_000_000
 
 
 @pytest.mark.parametrize("fast", [False, True])
