@@ -956,6 +956,12 @@ class _LayoutKey:
         return isinstance(other, _LayoutKey) and other.key == self.key
 
 
+@functools.lru_cache(maxsize=1024)
+def _fields_template(t: MsgType, fields: tuple[str, ...]) -> _CdrTemplate:
+    """The :class:`_CdrTemplate` of a flat channel (cached on the field names: no layout to print)."""
+    return _CdrTemplate(t, _fields_layout(fields))
+
+
 @functools.lru_cache(maxsize=256)
 def _definition_bytes(t: MsgType) -> bytes:
     """UTF-8 ``ros2msg`` schema text of a type (cached: every run registers the same types)."""
@@ -1898,8 +1904,9 @@ class LogWriter:
         if (fields is None) == (layout is None):
             raise ValueError(f"{topic}: give either `fields` or `layout`")
         if fields is not None:
-            layout = _fields_layout(tuple(fields))
-        template = _cdr_template(msg_type, _LayoutKey(layout))
+            template = _fields_template(msg_type, tuple(fields))
+        else:
+            template = _cdr_template(msg_type, _LayoutKey(layout))
         return self._add_channel(Channel, topic, msg_type.name, "ros2msg", _definition_bytes(msg_type), "cdr",
                                  msg_type, template, metadata)
 
