@@ -2,8 +2,8 @@
 
 For each scene: the real-time factor (simulated s per wall s, logging included, as
 ``hydroplant run`` reports it) and the largest cylinder stroke error against a
-reference, for PBD mode at a 60 Hz frame (1200 Hz for the seed) with 5–40 XPBD
-substeps and for MuJoCo mode at several steps, both with the Python-orchestrated
+reference, for PBD mode at a 60 Hz frame (1200 Hz for the seed) with 1–160 XPBD
+substeps (and a few finer frames) and for MuJoCo mode at several steps, both with the Python-orchestrated
 plant (``mujoco``: :class:`sim.plant_mujoco.MujocoPlant`) and with the coupled step
 inside MuJoCo's control callback (``mujoco-fast``:
 :class:`sim.plant_mujoco_fast.MujocoPlantFast`), so PBD's speed can be read at
@@ -19,7 +19,8 @@ stroke at every substep count); the excavator's contacts are MuJoCo's soft
 pyramidal law in both modes.  Every mode is run once briefly before timing, so
 numba's cache loading is not timed.
 
-The excavator also runs PBD at fine settings (60 Hz × 320 substeps; 1 kHz frames × 10 and
+The boom also runs PBD at 500 Hz × 8 and 1 kHz × 4 / × 8 (the articulated data fresh every
+frame), the excavator at fine settings (60 Hz × 320 substeps; 1 kHz frames × 2, × 10 and
 × 20 substeps: at 60 Hz the articulated responses computed once per frame limit the
 pressures, ``SolverXPBD.transport_response``) and,
 when the converged full-dig reference of ``bench/bench_tradeoff.py --full-dig`` is on
@@ -55,12 +56,12 @@ from sim.scene import load_scene  # noqa: E402
 
 SCENES = {
     "seed_cylinder": dict(path=ROOT / "models/seed_cylinder/closed.scenario.toml", duration=0.1, pbd_dt=1 / 1200,
-                          pbd_substeps=(10, 20, 40, 80, 160), mujoco_dt=(1 / 1200, 1e-4, 1e-5), reference="scipy"),
-    "boom": dict(path=ROOT / "models/boom/lift.scenario.toml", duration=6.0, pbd_dt=1 / 60,
-                 mujoco_dt=(2e-3, 1e-3, 5e-4), reference=2.5e-4, early=2.4),
+                          pbd_substeps=(1, 2, 5, 10, 20, 40, 80, 160), mujoco_dt=(1 / 1200, 1e-4, 1e-5), reference="scipy"),
+    "boom": dict(path=ROOT / "models/boom/lift.scenario.toml", duration=6.0, pbd_dt=1 / 60, pbd_substeps=(5, 10, 20, 40, 80),
+                 mujoco_dt=(2e-3, 1e-3, 5e-4), reference=2.5e-4, early=2.4, fine=((2e-3, 8, 1), (1e-3, 4, 1), (1e-3, 8, 1))),
     "excavator": dict(path=ROOT / "models/excavator/dig.scenario.toml", duration=20.0, pbd_dt=1 / 60,
                       mujoco_dt=(1e-3, 5e-4), reference=2.5e-4, early=1.5,
-                      fine=((1 / 60, 320, 1), (1e-3, 10, 1), (1e-3, 20, 1)), full_dig=True),
+                      fine=((1 / 60, 320, 1), (1e-3, 2, 1), (1e-3, 10, 1), (1e-3, 20, 1)), full_dig=True),
 }
 # Pressure errors of the excavator rows against the converged full-dig reference (bench/bench_tradeoff.py
 # --full-dig): 0.1 s centred moving averages and point-wise, % of the highest relief setting, per phase.
