@@ -79,8 +79,16 @@ fidelity (PBD mode's default):
 
 Both give the Python hooks' results to round-off (``tests/test_pbd_fast.py``);
 the constructor's ``fast_hydraulics`` / ``frame`` (default: on where they apply)
-select the paths for tests.  :meth:`advance` steps n times (the
-:class:`~sim.plant_mujoco_fast.MujocoPlantFast` interface).
+select the paths for tests.
+
+:meth:`advance` (n) steps n times with the :class:`~sim.plant_mujoco_fast.MujocoPlantFast`
+interface.  Where the compiled frame applies (:attr:`fast`), whole blocks of steps run in one
+compiled call (``sim/xpbd/block_nb.py``: per step the articulated data, contacts, the frame,
+the clocks, the mechanical ledger and the pressure extremes; operator inputs sampled for every
+substep of the block beforehand), and the log samples inside a block are recorded from it into
+the runner's ring (:meth:`record_next`), so the runner drives this plant in blocks like the
+fast MuJoCo plant.  :meth:`step` stays the per-frame path the blocks are tested against
+(``tests/test_pbd_block.py``); ``block=False`` (``run(..., fast=False)``) keeps ``advance`` per step.
 
 ``pbd-naive`` (the seed report's scheme)
 ----------------------------------------
