@@ -616,6 +616,7 @@ def _pressure(net, oil, x, geo, p, dpdm):
         k = net.compliant[j]
         p[k] = _invert_node(net, k, oil[k], geo[k], p[k])
     floor = sc[S_FLOOR]
+    pure = sc[S_AIR] == 0.0
     for k in range(n):
         if fixed[k]:
             p[k] = net.node[k, NODE_FIXED_P]
@@ -626,6 +627,11 @@ def _pressure(net, oil, x, geo, p, dpdm):
             dpdm[k] = 0.0
             continue
         extra, dvdp = _node_extra(net, k, p[k])
+        if pure:  # φ = m/V at the root (to the inversion tolerance): no exp; dφ/dp = φ/β
+            volume = geo[k] + extra
+            phi = oil[k] / volume
+            dpdm[k] = 1.0 / (phi * (dvdp + volume / beta))
+            continue
         phi, dphi = _fill(net, p[k])
         dpdm[k] = 1.0 / (dvdp * phi + (geo[k] + extra) * dphi)
 
@@ -1041,9 +1047,11 @@ def _newton_matrix_of(net, jq, dpdm, h, jac):
 
 
 @_kernel
-def _position_pressure_gradient(net, x, p, dpdm, dt, dvdx, dpdx_dt):
+def _position_pressure_gradient(net, x, geo, p, dpdm, dt, dvdx, dpdx_dt):
     """dt·∂p/∂x at fixed oil, −dt·φ(p)·(∂V/∂x)·∂p/∂m [Pa·s/m or Pa·s/rad], into ``dpdx_dt`` (n × na) at actuator
-    positions ``x`` and node pressures ``p`` with their ∂p/∂m ``dpdm``; ``dvdx`` (n × na) receives ∂V/∂x [m²]."""
+    positions ``x`` (geometric node volumes ``geo`` [m³]) and node pressures ``p`` with their ∂p/∂m ``dpdm``;
+    ``dvdx`` (n × na) receives ∂V/∂x [m²].
+    For pure oil φ·∂p/∂m = 1/(∂V/∂p + V/β) (φ cancels: no exp)."""
     dvdx[:, :] = 0.0
     cyl, ci = net.cyl, net.cyl_i
     for c in range(cyl.shape[0]):
@@ -1055,9 +1063,14 @@ def _position_pressure_gradient(net, x, p, dpdm, dt, dvdx, dpdx_dt):
                                           cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
         dvdx[ci[c, CI_ROD], ci[c, CI_ACT]] += dvr
     na = x.size
+    pure = net.sc[S_AIR] == 0.0
     for k in range(p.size):
-        phi, _ = _fill(net, p[k])
-        w = -(dpdm[k] * phi)
+        if pure and dpdm[k] != 0.0:
+            extra, dvdp = _node_extra(net, k, p[k])
+            w = -1.0 / (dvdp + (geo[k] + extra) / net.sc[S_BETA])
+        else:
+            phi, _ = _fill(net, p[k])
+            w = -(dpdm[k] * phi)
         for a in range(na):
             dpdx_dt[k, a] = dt * (w * dvdx[k, a])
 
@@ -1164,7 +1177,7 @@ def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil,
     t, o = _take(W, o, na * n)
     epg = t.reshape((na, n))
     slope, o = _take(W, o, na)
-    _position_pressure_gradient(net, x, p, dpdm, dt, dvdx, dpdx_dt)
+    _position_pressure_gradient(net, x, geo, p, dpdm, dt, dvdx, dpdx_dt)
     _valve_areas(net, spool, area)
     _branch_flows(net, p, area, speed, velocity, flow2, dfrom, dto)
     _flow_jacobian(net, dfrom, dto, jq)
@@ -1193,11 +1206,13 @@ def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity,
     """StepperImplicitEuler.linearize(…, newton=False): the Rosenbrock–Euler (W-method) twin of
     :func:`_linearize_core`, with the same arguments and outputs.
 
-    One Newton step of the backward-Euler residual from the start oil, with the Jacobian at
-    (``oil0``, x = x0 + dt·velocity) and no iteration: m_lin = oil0 + Δ, (I − dt·(∂Q/∂p)·∂p/∂m)·[Δ | ∂m/∂v]
-    = [dt·ΣQ | −∂r/∂v] in one elimination; ``p`` = p_first + (∂p/∂m)·Δ (linearised, no second pressure
-    inversion), ``flow`` the flows at (``oil0``, x), ``effort`` and ``gradient`` at that linear prediction.
-    Counters: one residual and one Jacobian evaluation, one Newton step.
+    One Newton step of the backward-Euler residual at x = x0 + dt·velocity from the start oil, everything
+    linearised about the start of the step (``oil0``, ``x0``), no iteration: with J = I − dt·(∂Q/∂p)·∂p/∂m,
+    J·[Δ | ∂m/∂v] = [dt·ΣQ(p₀, v) + dt·(∂Q/∂p)·(dt·∂p/∂x)·v | −∂r/∂v] in one elimination, m_lin = oil0 + Δ,
+    ``p`` = p₀ + (∂p/∂m)·Δ + (dt·∂p/∂x)·v (no second pressure inversion); ``p_first`` = p₀ = p(``oil0``, ``x0``),
+    the start pressures, ``flow`` the flows there (at ``velocity``), ``effort`` and ``gradient`` at the linear
+    prediction.  Counters: one residual and one Jacobian evaluation, one Newton step
+    (:func:`_one_step_accepted`).
 
     Returns whether the step is accepted: False when Δ leaves the Newton solve's trust region
     (:func:`_trust_step` < 1: a pressure would move by more than max(TRUST_PRESSURE, TRUST_FRACTION·|p|)
@@ -1236,16 +1251,24 @@ def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity,
     epg = t.reshape((na, n))
     slope, o = _take(W, o, na)
     _valve_areas(net, spool, area)
-    _evaluate(net, oil0, oil0, x, velocity, area, speed, dt, geo, p_first, dpdm, flow, dfrom, dto, inflow, residual)
-    _position_pressure_gradient(net, x, p_first, dpdm, dt, dvdx, dpdx_dt)
+    _evaluate(net, oil0, oil0, x0, velocity, area, speed, dt, geo, p_first, dpdm, flow, dfrom, dto, inflow, residual)
+    _position_pressure_gradient(net, x0, geo, p_first, dpdm, dt, dvdx, dpdx_dt)
     _flow_jacobian(net, dfrom, dto, jq)
-    for j in range(nf):
-        rhs[j, 0] = -residual[j]  # dt·ΣQ at the start oil
     _velocity_residual_gradient(net, jq, dpdx_dt, dt, mg, rhs, 1)
+    for j in range(nf):  # dt·ΣQ(p₀, v) (= −residual) + dt·(∂Q/∂p)·(dt·∂p/∂x)·v (= (−∂r/∂v − dt·∂Q_motor/∂v)·v)
+        k = free[j]
+        s = -residual[j]
+        for a in range(na):
+            s += (rhs[j, a + 1] - dt * mg[k, a]) * velocity[a]
+        rhs[j, 0] = s
     _newton_matrix_of(net, jq, dpdm, dt, jac)
     _copy(oil, oil0)
-    _copy(p, p_first)
     _copy(dpdv.reshape(n * na), dpdx_dt.reshape(n * na))
+    for i in range(n):  # p₀ + (dt·∂p/∂x)·v; + (∂p/∂m)·Δ below
+        s = p_first[i]
+        for a in range(na):
+            s += dpdx_dt[i, a] * velocity[a]
+        p[i] = s
     doil[:, :] = 0.0
     istats[IS_STATUS] = _OK
     istats[IS_WORST] = -1
@@ -1267,6 +1290,14 @@ def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity,
                 dpdv[k, a] += dpdm[k] * rhs[j, a + 1]
     _effort_gradient(net, p, velocity, dpdv, effort, gradient, epg, slope)
     return True
+
+
+@_kernel
+def _one_step_accepted(istats):
+    """Whether the counters are those of an accepted :func:`_linearize_one_step_core` (one residual and one
+    Jacobian evaluation; a Newton iteration evaluates the residual at least twice): then its ``p_first``
+    holds the start pressures p(oil0, x0)."""
+    return istats[IS_RHS] == 1 and istats[IS_JAC] == 1
 
 
 @_kernel

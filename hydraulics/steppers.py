@@ -377,10 +377,11 @@ class StepperImplicitEuler(Stepper):
         plus the friction slope).
 
         ``newton=False`` is the **Rosenbrock–Euler (W-method) linearisation**: no Newton
-        iteration, one step of it from the start oil m with the Jacobian at (m, x):
+        iteration, one step of it from the start oil m, the residual at x = x₀ + dt·v linearised
+        about the start of the step (m, x₀), p₀ = p(m, x₀):
 
-            (I − dt·(∂Q/∂p)·diag(∂p/∂m))·[Δ | ∂m/∂v] = [dt·ΣQ(p(m, x), v) | −∂r/∂v],
-            m_lin = m + Δ,   p_lin = p(m, x) + (∂p/∂m)·Δ,
+            J·[Δ | ∂m/∂v] = [dt·ΣQ(p₀, v) + dt·(∂Q/∂p)·(dt·∂p/∂x)·v | −∂r/∂v],   J = I − dt·(∂Q/∂p)·diag(∂p/∂m),
+            m_lin = m + Δ,   p_lin = p₀ + (∂p/∂m)·Δ + (dt·∂p/∂x)·v,
 
         one elimination for the prediction and its velocity gradient; the efforts and
         ∂effort/∂v are those of the linear prediction.  Order 1 like backward Euler
@@ -399,13 +400,15 @@ class StepperImplicitEuler(Stepper):
         position = state.actuator_position + dt * velocity
         spool = self._spool_end(state, control, dt)
         areas = m.valve_areas(spool)
+        # where the Jacobian is taken: the end of the Newton solve, or the start of the step (one step)
+        at = position if newton else state.actuator_position
         if newton:
             oil, _, report = self._solve(state, control, position, velocity, spool, dt)
             pressure, dpdm = m.pressure(oil, position)
             flows = m.branch_flows(pressure, areas, control.pump_speed, velocity)
         else:
             oil = state.node_oil.copy()
-            pressure, dpdm = m.pressure(oil, position)
+            pressure, dpdm = m.pressure(oil, at)
             flows = m.branch_flows(pressure, areas, control.pump_speed, velocity)
             report = StepReport(newton_iterations=1 if len(free) else 0, rhs_evaluations=1, jacobian_evaluations=1,
                                 branch_flow=flows.flow)
@@ -413,14 +416,18 @@ class StepperImplicitEuler(Stepper):
             self.jacobian_count += 1
         phi, _ = m.fluid.fill_ratio(pressure)
         # ∂p/∂x at fixed oil: −φ·∂V/∂x·∂p/∂m
-        dpdx = -(dpdm * phi)[:, None] * m.volume_position_gradient(position)
+        dpdx = -(dpdm * phi)[:, None] * m.volume_position_gradient(at)
         jq = m.flow_jacobian(flows)
         drdv = -dt * (jq @ (dt * dpdx) + m.flow_velocity_gradient(areas))[free]
         jacobian = np.eye(len(free)) - dt * jq[np.ix_(free, free)] * dpdm[free][None, :]
         dpdv = dt * dpdx
         oil_gradient = np.zeros((len(oil), m.actuator_count))
         if len(free):
-            columns = -drdv if newton else np.column_stack([dt * self._net_inflow(flows)[free], -drdv])
+            if newton:
+                columns = -drdv
+            else:  # dt·ΣQ(p₀, v) + dt·(∂Q/∂p)·(dt·∂p/∂x)·v
+                shift = dt * (jq @ (dt * dpdx))[free] @ velocity
+                columns = np.column_stack([dt * self._net_inflow(flows)[free] + shift, -drdv])
             try:
                 solution = scipy.linalg.solve(jacobian, columns, check_finite=False)
             except scipy.linalg.LinAlgError:
@@ -429,10 +436,10 @@ class StepperImplicitEuler(Stepper):
                 return self.linearize(state, control, velocity, dt, newton=True)
             if not newton:
                 delta, solution = solution[:, 0], solution[:, 1:]
-                if self._trust_step(oil, delta, position, pressure) < 1.0:
+                if self._trust_step(oil, delta, at, pressure) < 1.0:
                     return self.linearize(state, control, velocity, dt, newton=True)
                 oil[free] += delta
-                pressure = pressure.copy()
+                pressure = pressure + dt * dpdx @ velocity
                 pressure[free] += dpdm[free] * delta
             dpdv[free] += dpdm[free][:, None] * solution
             oil_gradient[free] = solution

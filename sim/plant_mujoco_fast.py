@@ -509,7 +509,9 @@ def _begin(ctx, net, V):
         ctx[C_FAILED] = k
         return
     C._effort_law_terms(net, guess, lin_p, vs, gradient, fg, fslope_guess, end_const, end_slope, friction, damping)
-    if not held:  # the linearisation's first evaluation was at x + dt·guess ≠ x: the start pressures separately
+    if not held and not C._one_step_accepted(istats):
+        # the linearisation's first evaluation was at x + dt·guess ≠ x: the start pressures separately
+        # (rosenbrock's one step evaluates at x itself)
         C._pressure(net, oil, xs, geo, p0, dpdm)
     C._pressure_effort(net, p0, pressure_start)
     ctrl, bias = V.ctrl, V.bias
