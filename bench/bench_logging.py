@@ -6,8 +6,9 @@ interleaved, medians reported:
 
 ``no log``        load the scene, build :class:`MujocoPlantFast`, check its load-time guards,
                   advance it in blocks of 10 steps (the runner's block size at the default
-                  100 Hz log rate) with a finiteness check per block: everything ``run()``
-                  does except logging;
+                  100 Hz log rate) with a finiteness check per block (``plant.end_finite``, from
+                  the compiled loop, as ``run()`` checks it): everything ``run()`` does except
+                  logging;
 ``default log``   ``sim.runner.run()`` at the scenario's log rate (100 Hz), the same work
                   plus the recorder, the MCAP writer and the divergence/energy checks;
 ``every step``    ``run()`` logging all 1000 samples per second: blocks of 10 steps as at the default
@@ -106,7 +107,7 @@ def no_log(seconds: float, block: int) -> tuple[float, float]:
     steps = scenario.step_count
     while plant.step_index < steps:
         report = plant.advance(min(block, steps - plant.step_index))
-        if not (report.success and plant.finite()):
+        if not (report.success and plant.end_finite):
             raise RuntimeError(report.message)
     return time.perf_counter() - t, time.process_time() - c
 
