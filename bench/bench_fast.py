@@ -9,13 +9,13 @@ median is reported:
   same actuators and integrator) from the same initial state, with constant
   controls (the effort law of the plant's first step held), no callback: the
   mechanical cost alone;
-* ``fast/10``: ``MujocoPlantFast.advance(10)`` — one block per logged sample of
-  a 100 Hz log at 1 kHz (the runner's default);
+* ``fast/100``: ``MujocoPlantFast.advance(100)`` — the runner's block at 1 kHz
+  (``sim.runner.MIN_BLOCK_STEPS``: ten samples of the default 100 Hz log per block);
 * ``fast/1000``: ``advance(1000)``;
-* ``linear/10``, ``linear/1000``: the same with coupling ``implicit-linear``
+* ``linear/100``, ``linear/1000``: the same with coupling ``implicit-linear``
   (linearly implicit finish, no second Newton solve; plant constructor
   argument ``coupling``);
-* ``rosen/10``, ``rosen/1000``: coupling ``rosenbrock`` (also the linearisation is
+* ``rosen/100``, ``rosen/1000``: coupling ``rosenbrock`` (also the linearisation is
   one Newton step: no nonlinear solve unless a step leaves the trust region);
 * ``python``: the Python-orchestrated :class:`MujocoPlant` (first 0.2 s only).
 
@@ -35,6 +35,7 @@ import mujoco
 
 from sim.plant_mujoco import MujocoPlant
 from sim.plant_mujoco_fast import MujocoPlantFast
+from sim.runner import MIN_BLOCK_STEPS
 from sim.scenario import load_scenario
 from sim.scene import load_scene
 
@@ -65,8 +66,9 @@ def bench(name, path, reps, window, python_window=0.2):
     start = mujoco.MjData(m)
     mujoco.mj_copyData(start, m, probe.data)
     start.ctrl[:] = held  # the bare loop's constant controls
-    variants = ((10, "fast/10", "implicit"), (1000, "fast/1000", "implicit"), (10, "linear/10", "implicit-linear"),
-                (1000, "linear/1000", "implicit-linear"), (10, "rosen/10", "rosenbrock"), (1000, "rosen/1000", "rosenbrock"))
+    b = MIN_BLOCK_STEPS
+    variants = ((b, f"fast/{b}", "implicit"), (1000, "fast/1000", "implicit"), (b, f"linear/{b}", "implicit-linear"),
+                (1000, "linear/1000", "implicit-linear"), (b, f"rosen/{b}", "rosenbrock"), (1000, "rosen/1000", "rosenbrock"))
     times = {"bare": [], **{key: [] for _, key, _ in variants}, "python": []}
     newton = {coupling: 0 for _, _, coupling in variants}
     for _ in range(reps):
@@ -82,7 +84,7 @@ def bench(name, path, reps, window, python_window=0.2):
             t = time.perf_counter()
             for _ in range(blocks):
                 report = fast.advance(block)
-                if block == 10:
+                if block == b:
                     newton[coupling] += report.newton_iterations
             times[key].append((time.perf_counter() - t) / (blocks * block))
             assert report.success, report.message
@@ -93,8 +95,8 @@ def bench(name, path, reps, window, python_window=0.2):
         times["python"].append((time.perf_counter() - t) / python_steps)
     med = {k: statistics.median(v) * 1e6 for k, v in times.items()}
     cells = "  ".join(f"{k} {med[k]:7.2f} µs {med[k] / med['bare']:5.2f}× RTF {DT * 1e6 / med[k]:6.1f}" for k in med)
-    # Newton iterations of the finish, sampled at the last step of each block of 10
-    sampled = ", ".join(f"{k} {v / (reps * (steps // 10)):.2f}" for k, v in newton.items())
+    # Newton iterations of the finish, sampled at the last step of each runner-sized block
+    sampled = ", ".join(f"{k} {v / (reps * (steps // b)):.2f}" for k, v in newton.items())
     print(f"{name:10s} {window:4.1f} s  {cells}  peak RSS {peak_rss_mib():.0f} MiB  finish Newton it/step "
           f"(sampled) {sampled}", flush=True)
     return med
