@@ -69,6 +69,7 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 import mcap
+import numba
 import numpy as np
 from mcap.exceptions import EndOfFile, McapError
 from mcap.opcode import Opcode
@@ -1039,42 +1040,66 @@ class _RecordRows:
     def __init__(self, members: Sequence[tuple[int, _CdrTemplate, np.ndarray | slice]]):
         template = bytearray()
         self.channel_ids = np.array([m[0] for m in members], dtype=np.int64)
-        offsets, self.sequence_offsets, self.time_offsets, self.log_time_offsets = [], [], [], []
-        self.runs: list[tuple[int, int, np.ndarray | slice]] = []
+        offsets, sequence_offsets, time_offsets, log_time_offsets, float_offsets, float_columns = [], [], [], [], [], []
         for channel_id, cdr, columns in members:
             start = len(template)
             offsets.append(start)
             template += _MESSAGE_RECORD.pack(0x05, _MESSAGE_RECORD_OVERHEAD - 9 + cdr.size, channel_id, 0, 0, 0)
             template += cdr.template.tobytes()
-            self.sequence_offsets.append(start + 11)
-            self.log_time_offsets += [start + 15, start + 23]  # log time, publish time (= log time)
+            sequence_offsets.append(start + 11)
+            log_time_offsets += [start + 15, start + 23]  # log time, publish time (= log time)
             data = start + _MESSAGE_RECORD_OVERHEAD
-            self.time_offsets += [data + offset for offset in cdr.time_offsets]
+            time_offsets += [data + offset for offset in cdr.time_offsets]
             sample_columns = np.arange(columns.start, columns.stop) if isinstance(columns, slice) else np.asarray(columns)
             for offset, count, run in cdr.runs:
-                self.runs.append((data + offset, count, _as_slice(sample_columns[run])))
+                float_offsets += range(data + offset, data + offset + 8 * count, 8)
+                float_columns += sample_columns[run].tolist()
         self.offsets = np.array(offsets, dtype=np.int64)
         self.template = np.frombuffer(bytes(template), dtype=np.uint8)
         self.size = len(template)
+        self._slots = tuple(np.array(a, dtype=np.int64) for a in (time_offsets, log_time_offsets, sequence_offsets,
+                                                                   float_offsets, float_columns))
 
     def encode(self, values: np.ndarray, log_times: np.ndarray, first_sequences: Sequence[int]) -> np.ndarray:
         """Records of every row of ``values`` (float64 samples) at ``log_times`` (int64 [ns]); member i's
         sequence numbers start at ``first_sequences[i]``. Returns uint8, shape (rows, size)."""
-        n = len(values)
-        out = np.empty((n, self.size), dtype=np.uint8)
-        out[:] = self.template
-        stamps = _stamps(log_times)
-        for offset in self.time_offsets:
-            out[:, offset:offset + 8] = stamps
-        times = log_times.astype("<u8").view(np.uint8).reshape(n, 8)
-        for offset in self.log_time_offsets:
-            out[:, offset:offset + 8] = times
-        counting = np.arange(n, dtype="<u4")
-        for offset, first in zip(self.sequence_offsets, first_sequences):
-            out[:, offset:offset + 4].view("<u4")[:, 0] = counting + np.uint32(first)
-        for offset, count, columns in self.runs:
-            out[:, offset:offset + 8 * count].view("<f8")[:] = values[:, columns]
+        out = np.empty((len(values), self.size), dtype=np.uint8)
+        bits = np.ascontiguousarray(values, dtype=np.float64).view(np.uint64)
+        _fill_records(out, self.template, bits, np.asarray(log_times, dtype=np.int64),
+                      np.asarray(first_sequences, dtype=np.int64), *self._slots)
         return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _put_le(row, offset, value, size):
+    """``value`` (an unsigned integer) as ``size`` little-endian bytes at ``row[offset:]``."""
+    for i in range(size):
+        row[offset + i] = (value >> np.uint64(8 * i)) & np.uint64(0xFF)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_records(out, template, bits, log_times, first_sequences, time_offsets, log_time_offsets, sequence_offsets,
+                  float_offsets, float_columns):
+    """Row r of ``out``: the template with sample r's slots filled (timestamps, log times, sequences, float64 bits).
+
+    One pass per row, the row in cache while its ~200 slots are written (a column-wise numpy
+    fill passes over a second of 1 kHz samples, 2 MB, once per slot run: 5x slower in a run).
+    """
+    for r in range(out.shape[0]):
+        row = out[r]
+        row[:] = template
+        t = np.uint64(log_times[r])
+        sec, nsec = t // np.uint64(1_000_000_000), t % np.uint64(1_000_000_000)
+        for offset in time_offsets:
+            _put_le(row, offset, sec, 4)
+            _put_le(row, offset + 4, nsec, 4)
+        for offset in log_time_offsets:
+            _put_le(row, offset, t, 8)
+        for m in range(sequence_offsets.size):
+            _put_le(row, sequence_offsets[m], np.uint64(first_sequences[m] + r), 4)
+        sample = bits[r]
+        for k in range(float_offsets.size):
+            _put_le(row, float_offsets[k], sample[float_columns[k]], 8)
 
 
 def _as_slice(columns: np.ndarray) -> np.ndarray | slice:
