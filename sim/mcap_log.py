@@ -20,8 +20,8 @@ The writer is built for a stepping loop. Samples are appended into numpy buffers
 hundred ns) and encoded in batches, outside the loop body: the MCAP Message records of one
 sample of every topic of a frame are one constant byte row (record headers, CDR templates
 with their strings and padding) with slots, and a batch of samples is that row repeated and
-its slots (sequence, log time, timestamps, runs of adjacent float64 fields) filled by a few
-numpy assignments (:class:`_RecordRows`). Batches of all channels are merged in log-time
+its slots (sequences, log times, timestamps, float64 fields) filled row by row in one
+compiled pass (:class:`_RecordRows`, numba). Batches of all channels are merged in log-time
 order, sample by sample, and handed whole to the chunks of :class:`mcap.writer.Writer`
 (:meth:`_BulkWriter.add_records`), so every file is globally ordered by ``log_time``. Chunks
 are compressed with zstd at level -1 (:attr:`_BulkWriter.ZSTD_LEVEL`).
@@ -897,9 +897,16 @@ def cdr_decode(t: MsgType, data: bytes) -> dict:
 class _CdrTemplate:
     """A columnar channel's messages as one constant CDR message with float64 and timestamp slots.
 
-    :meth:`encode` fills the slots of every row at once: the template repeated per row, the
-    timestamps copied to every Time slot, and each run of adjacent float64 slots written
-    from its columns as one array assignment.
+    Attributes
+    ----------
+    template : ndarray of uint8
+        The message with zeros in its slots (strings, counts, padding and constants in place).
+    time_offsets : list of int
+        Byte offsets of the ``builtin_interfaces/Time`` slots (the sample's log time).
+    float_slots : list of (int, int)
+        (byte offset, sample column) of every float64 slot, by offset.
+    column_count : int
+        Floats per sample (the largest column + 1).
     """
 
     def __init__(self, t: MsgType, layout: Mapping[str, Any]):
@@ -909,31 +916,8 @@ class _CdrTemplate:
         self.template = np.frombuffer(bytes(out), dtype=np.uint8)
         self.size = len(out)
         self.time_offsets = [s[1] for s in slots if s[0] == "time"]
-        floats = sorted((s[1], s[2]) for s in slots if s[0] == "f8")
-        self.column_count = max((c for _, c in floats), default=-1) + 1
-        self.runs: list[tuple[int, int, np.ndarray | slice]] = []  # (byte offset, float count, columns)
-        i = 0
-        while i < len(floats):
-            j = i + 1
-            while j < len(floats) and floats[j][0] == floats[j - 1][0] + 8:
-                j += 1
-            columns = np.array([c for _, c in floats[i:j]], dtype=np.intp)
-            if np.array_equal(columns, np.arange(columns[0], columns[0] + len(columns))):
-                columns = slice(int(columns[0]), int(columns[0]) + len(columns))  # a view, no gather
-            self.runs.append((floats[i][0], j - i, columns))
-            i = j
-
-    def encode(self, values: np.ndarray, stamps: np.ndarray) -> np.ndarray:
-        """CDR of every row of ``values`` (float64, shape (n, column_count)) at ``stamps``
-        (uint8, shape (n, 8): int32 sec and uint32 nanosec, little-endian); shape (n, size) uint8."""
-        n = len(values)
-        out = np.empty((n, self.size), dtype=np.uint8)
-        out[:] = self.template
-        for offset in self.time_offsets:
-            out[:, offset:offset + 8] = stamps
-        for offset, count, columns in self.runs:
-            out[:, offset:offset + 8 * count].view("<f8")[:] = values[:, columns]
-        return out
+        self.float_slots = sorted((s[1], s[2]) for s in slots if s[0] == "f8")
+        self.column_count = max((c for _, c in self.float_slots), default=-1) + 1
 
 
 @functools.lru_cache(maxsize=1024)
@@ -985,14 +969,6 @@ def _fields_layout(fields: Sequence[str]) -> dict:
             raise ValueError(f"field {field_name!r} is declared twice or conflicts with another field")
         node[parts[-1]] = Column(index)
     return layout
-
-
-def _stamps(log_times: np.ndarray) -> np.ndarray:
-    """``builtin_interfaces/Time`` bytes of log times [ns]: uint8, shape (n, 8) (int32 sec, uint32 nanosec)."""
-    sec, nsec = np.divmod(log_times, NS_PER_S)
-    stamps = np.empty((len(log_times), 2), dtype="<u4")
-    stamps[:, 0], stamps[:, 1] = sec, nsec
-    return stamps.view(np.uint8)
 
 
 # ---------------------------------------------------------------------------------------
@@ -1051,9 +1027,8 @@ class _RecordRows:
             data = start + _MESSAGE_RECORD_OVERHEAD
             time_offsets += [data + offset for offset in cdr.time_offsets]
             sample_columns = np.arange(columns.start, columns.stop) if isinstance(columns, slice) else np.asarray(columns)
-            for offset, count, run in cdr.runs:
-                float_offsets += range(data + offset, data + offset + 8 * count, 8)
-                float_columns += sample_columns[run].tolist()
+            float_offsets += [data + offset for offset, _ in cdr.float_slots]
+            float_columns += [int(sample_columns[column]) for _, column in cdr.float_slots]
         self.offsets = np.array(offsets, dtype=np.int64)
         self.template = np.frombuffer(bytes(template), dtype=np.uint8)
         self.size = len(template)
