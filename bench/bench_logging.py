@@ -5,13 +5,13 @@ from t = 0, the approach and the start of the dig), each configuration repeated 
 interleaved, medians reported:
 
 ``no log``        load the scene, build :class:`MujocoPlantFast`, check its load-time guards,
-                  advance it in blocks of 10 steps (the runner's block size at the default
-                  100 Hz log rate) with a finiteness check per block (``plant.end_finite``, from
-                  the compiled loop, as ``run()`` checks it): everything ``run()`` does except
-                  logging;
+                  advance it in blocks of ``sim.runner.MIN_BLOCK_STEPS`` steps (the runner's
+                  block size at the default 100 Hz log rate) with a finiteness check per block
+                  (``plant.end_finite``, from the compiled loop, as ``run()`` checks it):
+                  everything ``run()`` does except logging;
 ``default log``   ``sim.runner.run()`` at the scenario's log rate (100 Hz), the same work
                   plus the recorder, the MCAP writer and the divergence/energy checks;
-``every step``    ``run()`` logging all 1000 samples per second: blocks of 10 steps as at the default
+``every step``    ``run()`` logging all 1000 samples per second: blocks as long as at the default
                   rate (``sim.runner.MIN_BLOCK_STEPS``), the samples inside a block copied by the
                   plant from its compiled loop (``MujocoPlantFast.advance(n, record, every)``);
 ``per-step path`` for reference, ``run(..., fast=False)`` at 100 Hz: :class:`MujocoPlant`, one
@@ -20,8 +20,9 @@ interleaved, medians reported:
 Overhead = (time / no-log time) − 1.  Targets: default ≤ 10 %, every step ≤ 50 %.
 The per-sample cost is split into the recorder's stages (``capture`` of the raw state per
 sample from Python at a block's end, or ``record`` of a sample inside a block by the plant's
-compiled loop; ``derive`` and ``push`` per batch), CDR encoding (the MCAP Message records of a sample, built as numpy rows) and MCAP writing, by timing
-those parts alone on the same plant.
+compiled loop; ``derive`` and ``push`` per batch), CDR encoding (the MCAP Message records of
+a sample, filled in a compiled pass) and MCAP writing, by timing those parts alone on the same
+plant.
 
 Start-up: ``hydroplant run`` of the dig scenario for one step in a fresh interpreter
 (import, scene load, plant with its compiled callback, first step, log closed), twice:
@@ -211,11 +212,13 @@ def main() -> None:
         out = Path(tmp)
         if not args.no_startup:
             startup(out)
-        no_log(0.02, 10)  # warm: callback compiled, kernels loaded, caches hot
+        from sim.runner import MIN_BLOCK_STEPS
+
+        no_log(0.02, MIN_BLOCK_STEPS)  # warm: callback compiled, kernels loaded, caches hot
         with_log(0.02, 100.0, out / "warm.mcap")
         times = {"no log": [], "default log (100 Hz)": [], "every step (1 kHz)": [], "per-step path, 100 Hz": []}
         for rep in range(args.reps):
-            times["no log"].append(no_log(args.seconds, 10))
+            times["no log"].append(no_log(args.seconds, MIN_BLOCK_STEPS))
             times["default log (100 Hz)"].append(with_log(args.seconds, 100.0, out / f"d{rep}.mcap"))
             times["every step (1 kHz)"].append(with_log(args.seconds, 1000.0, out / f"e{rep}.mcap"))
             times["per-step path, 100 Hz"].append(with_log(args.seconds, 100.0, out / f"p{rep}.mcap", fast=False))
