@@ -1096,14 +1096,15 @@ class _RecordStream:
     """Records of several blocks merged in log-time order, unit (sample) after unit.
 
     Unit u ends at byte ``unit_ends[u]`` of the stream, at ``unit_times[u]`` [ns]; the bytes
-    are ``segments``, each (first unit, uint8 array of consecutive units). ``messages`` maps
-    a channel id to its messages' units (ascending) and byte offsets in the stream.
+    are ``segments``, each (first unit, uint8 array of consecutive units). ``messages`` holds
+    per block the units of its rows (ascending), its channel ids and, for row r and member j,
+    the stream offset of that message: ``(units (n,), channel_ids (m,), offsets (n, m))``.
     """
 
     segments: list[tuple[int, np.ndarray]]
     unit_ends: np.ndarray
     unit_times: np.ndarray
-    messages: dict[int, tuple[np.ndarray, np.ndarray]]
+    messages: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
 
     def write_bytes(self, start_unit: int, stop_unit: int, out: Any) -> None:
         """Write the bytes of units ``start_unit`` to ``stop_unit - 1`` to ``out`` (a binary stream)."""
@@ -1140,19 +1141,8 @@ def _merge_blocks(blocks: Sequence[_RecordBlock]) -> _RecordStream:
         position_of = np.empty(len(perm), dtype=np.int64)
         position_of[perm] = np.arange(len(perm))
         positions = np.split(position_of, np.cumsum(counts)[:-1])
-    parts: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
-    for b, where in zip(blocks, positions):
-        unit_start = unit_ends[where] - b.rows.shape[1]
-        for channel_id, offset in zip(b.channel_ids.tolist(), b.offsets.tolist()):
-            parts.setdefault(channel_id, []).append((where, unit_start + offset))
-    messages = {}
-    for channel_id, pieces in parts.items():
-        units = np.concatenate([u for u, _ in pieces]) if len(pieces) > 1 else pieces[0][0]
-        offsets = np.concatenate([o for _, o in pieces]) if len(pieces) > 1 else pieces[0][1]
-        if len(pieces) > 1:
-            order = np.argsort(units, kind="stable")
-            units, offsets = units[order], offsets[order]
-        messages[channel_id] = (units, offsets)
+    messages = [(where, b.channel_ids, (unit_ends[where] - b.rows.shape[1])[:, None] + b.offsets[None, :])
+                for b, where in zip(blocks, positions)]
     return _RecordStream(segments, unit_ends, unit_times, messages)
 
 
@@ -1160,12 +1150,14 @@ class _MessageIndexArrays(_McapMessageIndex):
     """A chunk's message index of one channel, kept as numpy (log_time, offset) blocks and written in one piece."""
 
     def write(self, stream) -> None:
+        stream.write(self.record_bytes())
+
+    def record_bytes(self) -> bytes:
+        """The whole MessageIndex record (opcode, length, channel id, (log_time, offset) pairs)."""
         blocks = [np.asarray(r, dtype=np.uint64).reshape(-1, 2) for r in self.records]
-        pairs = np.concatenate(blocks) if blocks else np.empty((0, 2), np.uint64)
-        stream.start_record(Opcode.MESSAGE_INDEX)
-        stream.write(struct.pack("<HI", self.channel_id, pairs.size * 8))
-        stream.write(pairs.astype("<u8").tobytes())
-        stream.finish_record()
+        pairs = (np.concatenate(blocks) if len(blocks) > 1 else blocks[0]) if blocks else np.empty((0, 2), np.uint64)
+        data = pairs.astype("<u8").tobytes()
+        return struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 6 + len(data), self.channel_id, len(data)) + data
 
 
 class _BulkWriter(Writer):
@@ -1216,9 +1208,18 @@ class _BulkWriter(Writer):
         self._Writer__flush()  # type: ignore[attr-defined]
         index_start = stream.tell()
         if self._Writer__index_types & IndexType.MESSAGE:  # type: ignore[attr-defined]
+            records, position = [], index_start + builder.count
             for channel_id, index in chunks.message_indices.items():
-                chunk_index.message_index_offsets[channel_id] = index_start + builder.count
-                index.write(builder)
+                if isinstance(index, _MessageIndexArrays):
+                    record = index.record_bytes()
+                else:  # pragma: no cover - filled by add_message
+                    single = type(builder)()
+                    index.write(single)
+                    record = single.end()
+                chunk_index.message_index_offsets[channel_id] = position
+                records.append(record)
+                position += len(record)
+            builder.write(b"".join(records))
         chunk_index.message_index_length = builder.count
         self._Writer__flush()  # type: ignore[attr-defined]
         self._Writer__chunk_indices.append(chunk_index)  # type: ignore[attr-defined]
@@ -1248,9 +1249,10 @@ class _BulkWriter(Writer):
         else:
             stats.message_start_time = min(stats.message_start_time, int(times.min()))
         stats.message_end_time = max(stats.message_end_time, int(times.max()))
-        for channel_id, (units, _) in stream.messages.items():
-            stats.channel_message_counts[channel_id] += len(units)
-            stats.message_count += len(units)
+        for units, channel_ids, _ in stream.messages:
+            for channel_id in channel_ids.tolist():
+                stats.channel_message_counts[channel_id] += len(units)
+            stats.message_count += len(units) * len(channel_ids)
         done = 0
         while done < n:
             base = int(stream.unit_ends[done - 1]) if done else 0
@@ -1263,20 +1265,21 @@ class _BulkWriter(Writer):
                 chunks.message_start_time = min(chunks.message_start_time, int(piece_times.min()))
             chunks.message_end_time = max(chunks.message_end_time, int(piece_times.max()))
             shift = chunks.count - base
-            for channel_id, (units, offsets) in stream.messages.items():
+            for units, channel_ids, offsets in stream.messages:  # a block's rows are in order: one slice per block
                 first, last = np.searchsorted(units, (done, stop))
                 if first == last:
                     continue
-                index = chunks.message_indices.get(channel_id)
-                if index is None:
-                    index = chunks.message_indices[channel_id] = _MessageIndexArrays(channel_id=channel_id, records=[])
-                elif not isinstance(index, _MessageIndexArrays):  # pragma: no cover - filled by add_message before
-                    index = chunks.message_indices[channel_id] = _MessageIndexArrays(channel_id, [list(index.records)])
-                pairs = np.empty((last - first, 2), dtype=np.uint64)
-                pairs[:, 0] = times[units[first:last]]
-                pairs[:, 1] = offsets[first:last] + shift
-                index.records.append(pairs)
-                chunks.num_messages += last - first
+                pairs = np.empty((len(channel_ids), last - first, 2), dtype=np.uint64)
+                pairs[:, :, 0] = times[units[first:last]]
+                pairs[:, :, 1] = (offsets[first:last] + shift).T
+                for j, channel_id in enumerate(channel_ids.tolist()):
+                    index = chunks.message_indices.get(channel_id)
+                    if index is None:
+                        index = chunks.message_indices[channel_id] = _MessageIndexArrays(channel_id=channel_id, records=[])
+                    elif not isinstance(index, _MessageIndexArrays):  # pragma: no cover - filled by add_message before
+                        index = chunks.message_indices[channel_id] = _MessageIndexArrays(channel_id, [list(index.records)])
+                    index.records.append(pairs[j])
+                chunks.num_messages += (last - first) * len(channel_ids)
             stream.write_bytes(done, stop, chunks.record_writer)
             maybe_finalize()
             done = stop
@@ -1285,7 +1288,7 @@ class _BulkWriter(Writer):
         buffer = io.BytesIO()
         stream.write_bytes(0, len(stream.unit_ends), buffer)
         data = buffer.getvalue()
-        offsets = np.sort(np.concatenate([o for _, o in stream.messages.values()]))
+        offsets = np.sort(np.concatenate([o.ravel() for _, _, o in stream.messages]))
         for offset in offsets.tolist():
             _, length, channel_id, sequence, log_time, publish_time = _MESSAGE_RECORD.unpack_from(data, offset)
             self.add_message(channel_id, log_time, data[offset + _MESSAGE_RECORD_OVERHEAD:offset + 9 + length],

@@ -21,6 +21,7 @@ from sim.mcap_log import (
     ros2msg_type,
 )
 from sim.runner import run
+from test_mcap_log import check_message_indexes
 
 # (list field, name field) of the arrays read_log keys by element name
 NAMED = {JOINT_STATES.name: ("joints", "name"), FRAME_TRANSFORMS.name: ("transforms", "child_frame_id")}
@@ -102,6 +103,7 @@ def excavator_log(tmp_path_factory):
 
 
 def test_independent_decoder_reads_the_values_read_log_returns(excavator_log):
+    check_message_indexes(excavator_log)  # the bulk writer's indexes point at the right records
     count = assert_cdr_topics_decode_identically(excavator_log)
     log = read_log(excavator_log)
     assert count == sum(n for topic, n in log.message_counts.items() if topic not in ("/hydroplant/scene", "/hydroplant/events"))

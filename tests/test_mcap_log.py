@@ -81,7 +81,40 @@ def check_mcap(path: Path) -> dict[str, int]:
                 assert all((t.sec, t.nanosec) == (sec, nsec) for t in stamps)
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
         assert sum(counts.values()) == summary.statistics.message_count
+    check_message_indexes(path)
     return counts
+
+
+def check_message_indexes(path: Path) -> None:
+    """Every chunk's message index entries point at a Message record of their channel and log time, in offset
+    order, and together list every message of the chunk once."""
+    import struct
+
+    import zstandard
+    from mcap.records import Chunk, MessageIndex
+    from mcap.stream_reader import StreamReader
+
+    chunks = []  # per chunk: [uncompressed data, messages in it, index entries listed]
+    with open(path, "rb") as stream:
+        for record in StreamReader(stream, emit_chunks=True).records:
+            if isinstance(record, Chunk):
+                data = (zstandard.ZstdDecompressor().decompress(record.data, max_output_size=record.uncompressed_size)
+                        if record.compression == "zstd" else bytes(record.data))
+                messages, position = 0, 0
+                while position < len(data):
+                    opcode, length = struct.unpack_from("<BQ", data, position)
+                    messages += opcode == 0x05
+                    position += 9 + length
+                chunks.append([data, messages, 0])
+            elif isinstance(record, MessageIndex):
+                data = chunks[-1][0]
+                offsets = [offset for _, offset in record.records]
+                assert offsets == sorted(offsets)
+                for log_time, offset in record.records:
+                    opcode, _, channel_id, _, message_time = struct.unpack_from("<BQHIQ", data, offset)
+                    assert (opcode, channel_id, message_time) == (0x05, record.channel_id, log_time)
+                chunks[-1][2] += len(record.records)
+    assert all(messages == listed for _, messages, listed in chunks)
 
 
 def cylinder_sample(step: int) -> tuple[float, ...]:
