@@ -403,6 +403,14 @@ def relief_flow_with_derivative_nb(dp, cracking, gradient, width):
 
 
 @_kernel
+def ramp_piece_nb(z, width):
+    # mirrors laws.ramp_piece
+    if z >= width:
+        return 2
+    return 1 if z > 0.0 else 0
+
+
+@_kernel
 def check_valve_area_with_derivative_nb(dp, cracking, full_open, max_area, leakage_area):
     # mirrors laws.check_valve_area_with_derivative
     span = full_open - cracking
@@ -1217,8 +1225,10 @@ def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity,
     Returns whether the step is accepted: False when Δ leaves the Newton solve's trust region
     (:func:`_trust_step` < 1: a pressure would move by more than max(TRUST_PRESSURE, TRUST_FRACTION·|p|)
     outside a vapour void, e.g. a pump filling a small volume past a relief's cracking pressure in one
-    step) or the matrix is singular; the outputs are then incomplete and the caller solves
-    (:func:`_linearize_any`).
+    step), when the prediction puts a relief, check valve or pump compensator on another piece of its
+    law than the start (:func:`_same_law_pieces`: the start's Jacobian does not see the kink; a cylinder
+    hitting its end stop drives the supply past the relief), or when the matrix is singular; the
+    outputs are then incomplete and the caller solves (:func:`_linearize_any`).
     """
     ic, free = net.ic, net.free
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
@@ -1288,7 +1298,37 @@ def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity,
             for a in range(na):
                 doil[k, a] = rhs[j, a + 1]
                 dpdv[k, a] += dpdm[k] * rhs[j, a + 1]
+    if not _same_law_pieces(net, p_first, p):
+        return False
     _effort_gradient(net, p, velocity, dpdv, effort, gradient, epg, slope)
+    return True
+
+
+@_kernel
+def _same_law_pieces(net, pa, pb):
+    """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no relief, check valve or pump compensator
+    changes the piece of its law between the node pressures ``pa`` and ``pb`` [Pa]."""
+    ic, br = net.ic, net.br
+    rel, chk, pump = net.rel, net.chk, net.pump
+    for b in range(ic[IC_R0], ic[IC_R1]):
+        i = b - ic[IC_R0]
+        za = pa[br[b, 0]] - pa[br[b, 1]] - rel[i, R_CRACK]
+        zb = pb[br[b, 0]] - pb[br[b, 1]] - rel[i, R_CRACK]
+        if ramp_piece_nb(za, rel[i, R_WIDTH]) != ramp_piece_nb(zb, rel[i, R_WIDTH]):
+            return False
+    for b in range(ic[IC_C0], ic[IC_C1]):
+        i = b - ic[IC_C0]
+        span = chk[i, K_FULL] - chk[i, K_CRACK]
+        za = (pa[br[b, 0]] - pa[br[b, 1]] - chk[i, K_CRACK]) / span
+        zb = (pb[br[b, 0]] - pb[br[b, 1]] - chk[i, K_CRACK]) / span
+        if ramp_piece_nb(za, 1.0) != ramp_piece_nb(zb, 1.0):
+            return False
+    for b in range(ic[IC_P0], ic[IC_P1]):
+        i = b - ic[IC_P0]
+        za = (pump[i, P_COMP] + pump[i, P_BAND] - pa[br[b, 1]]) / pump[i, P_BAND]
+        zb = (pump[i, P_COMP] + pump[i, P_BAND] - pb[br[b, 1]]) / pump[i, P_BAND]
+        if ramp_piece_nb(za, 1.0) != ramp_piece_nb(zb, 1.0):
+            return False
     return True
 
 

@@ -41,6 +41,17 @@ def smooth_ramp_with_derivative(z, width):
     return value, slope
 
 
+def ramp_piece(z, width):
+    """Which piece of :func:`smooth_ramp_with_derivative` ``z`` lies on: 0 (z ≤ 0), 1 (0 < z < w), 2 (z ≥ w)."""
+    z = np.asarray(z, dtype=float)
+    return np.where(z >= width, 2, np.where(z > 0.0, 1, 0))
+
+
+def clip_piece(z):
+    """Which piece of :func:`unit_clip_with_derivative` ``z`` lies on: 0 (z ≤ 0), 1 (0 < z < 1), 2 (z ≥ 1)."""
+    return ramp_piece(z, 1.0)
+
+
 def unit_clip_with_derivative(z):
     """Clip to [0, 1] with the derivative (1 inside, 0 outside)."""
     z = np.asarray(z, dtype=float)

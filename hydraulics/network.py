@@ -884,6 +884,21 @@ class NetworkModel:
         s = np.abs(spool[self.rigid_valve])
         return self.rigid_base_area + self.rigid_max_area * laws.metering_opening(s, self.valve_overlap[self.rigid_valve])
 
+    def law_pieces(self, pressure) -> np.ndarray:
+        """Which piece of its piecewise law every switching branch is on at ``pressure`` [Pa] (int array:
+        relief ramps, check-valve openings, pump compensators, in that order; see :func:`laws.ramp_piece`).
+
+        A step whose start and end differ here crosses a kink of the flow laws (a relief cracking, a check
+        valve opening fully, a compensator engaging): one Jacobian of the start does not describe it.
+        """
+        dp = pressure[self.branch_from] - pressure[self.branch_to]
+        sl = self.branch_slices
+        relief = laws.ramp_piece(dp[sl["relief"]] - self.relief_cracking, RELIEF_REGULARISATION * self.relief_cracking)
+        check = laws.clip_piece((dp[sl["check"]] - self.check_cracking) / (self.check_full_open - self.check_cracking))
+        outlet = pressure[self.branch_to[sl["pump"]]]
+        pump = laws.clip_piece((self.pump_compensator + self.pump_band - outlet) / self.pump_band)
+        return np.concatenate([relief, check, pump]).astype(int)
+
     def branch_flows(self, pressure, orifice_area, pump_speed, actuator_velocity) -> BranchFlows:
         """Flow [m³/s] of every branch and its pressure derivatives.
 

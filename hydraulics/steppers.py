@@ -391,7 +391,9 @@ class StepperImplicitEuler(Stepper):
         enters another).  Where Δ leaves the Newton solve's trust region (a pressure would
         move by more than max(TRUST_PRESSURE, TRUST_FRACTION·|p|) outside a vapour void: a
         pump filling a small volume past its relief's cracking pressure in one step, a
-        valve slam) or the matrix is singular, the step is solved by Newton instead
+        valve slam), where the prediction puts a relief, check valve or pump compensator on
+        another piece of its law (:meth:`NetworkModel.law_pieces`: a kink the start's Jacobian
+        does not see), or where the matrix is singular, the step is solved by Newton instead
         (``newton=True``), whose line search handles such a switch.
         """
         m = self.model
@@ -438,9 +440,12 @@ class StepperImplicitEuler(Stepper):
                 delta, solution = solution[:, 0], solution[:, 1:]
                 if self._trust_step(oil, delta, at, pressure) < 1.0:
                     return self.linearize(state, control, velocity, dt, newton=True)
+                start = pressure
                 oil[free] += delta
                 pressure = pressure + dt * dpdx @ velocity
                 pressure[free] += dpdm[free] * delta
+                if not np.array_equal(m.law_pieces(start), m.law_pieces(pressure)):  # a kink of a valve law crossed
+                    return self.linearize(state, control, velocity, dt, newton=True)
             dpdv[free] += dpdm[free][:, None] * solution
             oil_gradient[free] = solution
         effort, friction_slope = m.actuator_effort(pressure, velocity)

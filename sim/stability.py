@@ -104,6 +104,7 @@ STEP_EDGE = 1e-9  # s: width of a one-step input change in a schedule
 METHODS = {
     "mujoco-implicit": ("mujoco", "implicit"),
     "mujoco-explicit": ("mujoco", "explicit"),
+    "mujoco-rosenbrock": ("mujoco", "rosenbrock"),  # (on request: --methods; not in the default maps)
     "pbd": ("pbd", "implicit"),
     "pbd-naive": ("pbd-naive", "implicit"),
 }

@@ -240,3 +240,23 @@ def test_compiled_and_pure_paths_agree_on_scenes(scenario, duration, tmp_path):
         a, b = pure.topic(topic), fast.topic(topic)
         for field in ("position_m", "p_cap_pa", "p_rod_pa", "force_n"):
             np.testing.assert_allclose(b[field], a[field], rtol=1e-7, atol=1e-6 * np.max(np.abs(a[field])))
+
+
+@pytest.mark.parametrize("name", ["excavator", "all_kinds"])
+def test_law_pieces_compiled_matches_pure(name):
+    """_same_law_pieces(pa, pb) ⇔ NetworkModel.law_pieces(pa) == law_pieces(pb), on pressure pairs that move the
+    reliefs, check valves and compensators across their kinks (and pairs that do not)."""
+    from hydraulics._compiled import _same_law_pieces, _unpack, pack_network
+
+    m = model(name)
+    net = _unpack(*pack_network(m))
+    assert len(m.law_pieces(m.state().node_pressure)) > 0
+    rng = np.random.default_rng(3)
+    changed = same = 0
+    for _ in range(400):
+        pa = rng.uniform(1e5, 4e7, m.node_count)
+        pb = pa + rng.choice([0.0, 1.0, 1e3, 1e6, -1e6, 2e7], m.node_count)
+        expected = bool(np.array_equal(m.law_pieces(pa), m.law_pieces(pb)))
+        assert _same_law_pieces(net, pa, pb) == expected
+        changed, same = changed + (not expected), same + expected
+    assert changed > 50 and same > 20  # both outcomes exercised

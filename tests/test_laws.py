@@ -135,3 +135,16 @@ def test_fluid_fill_ratio_inverse_and_derivative(air):
         assert beta == pytest.approx(np.full(4, 1.5e9))
     else:  # entrained air softens the oil at low pressure, dissolves in stiffness at high pressure
         assert beta[0] < 0.01 * 1.5e9 and beta[-1] > 0.5 * 1.5e9
+
+
+def test_law_pieces_are_where_the_laws_change_slope():
+    """ramp_piece / clip_piece name the piece of the C¹ ramp and of the unit clip: slope 0, in between, 1."""
+    z = np.linspace(-2.0, 3.0, 501)
+    _, slope = laws.smooth_ramp_with_derivative(z, 1.5)
+    piece = laws.ramp_piece(z, 1.5)
+    assert set(piece.tolist()) == {0, 1, 2}
+    assert np.all(slope[piece == 0] == 0.0) and np.all(slope[piece == 2] == 1.0)
+    assert np.all((slope[piece == 1] > 0.0) & (slope[piece == 1] < 1.0))
+    _, dclip = laws.unit_clip_with_derivative(z)
+    cpiece = laws.clip_piece(z)
+    assert np.all(dclip[cpiece == 1] == 1.0) and np.all(dclip[cpiece != 1] == 0.0)

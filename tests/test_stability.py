@@ -143,6 +143,18 @@ def test_boom_extreme_implicit_stable_explicit_diverges(name, config, boom_facts
 
 
 @pytest.mark.parametrize("name, config", BOOM_EXTREMES, ids=[e[0] for e in BOOM_EXTREMES])
+def test_boom_extreme_rosenbrock_stable(name, config, boom_facts, tmp_path):
+    """The boom's extremes with the rosenbrock coupling (one Newton step per step unless the step leaves the trust
+    region): stable at 1 ms and at 30 Hz, with the implicit coupling's bounds."""
+    duration = boom_facts.duration
+    for dt in (1e-3, 1.0 / 30.0):
+        row, log = staged(boom_facts, config, tmp_path, coupling="rosenbrock", dt=dt, duration=max(duration, 10 * dt))
+        assert_stable(row, log, boom_facts)
+        if config.event == "cavitation":
+            assert min(row["min_pressure"].values()) == pytest.approx(boom_facts.cavitation_pressure)
+
+
+@pytest.mark.parametrize("name, config", BOOM_EXTREMES, ids=[e[0] for e in BOOM_EXTREMES])
 def test_boom_extreme_pbd_stable_at_30hz(name, config, boom_facts, tmp_path):
     """The other recommended method: PBD mode (implicit hydraulics inside XPBD) at 30 Hz stays physical at every extreme."""
     row, log = staged(boom_facts, config, tmp_path, mode="pbd", coupling="implicit", dt=1.0 / 30.0, duration=10.0 / 30.0)
