@@ -857,6 +857,13 @@ def _take(W, offset, count):
 
 
 @_kernel
+def _take2(W, offset, rows, cols):
+    """``rows`` × ``cols`` entries of the scratch buffer W from ``offset`` as a 2-D view, and the next offset."""
+    flat, offset = _take(W, offset, rows * cols)
+    return flat.reshape((rows, cols)), offset
+
+
+@_kernel
 def _solve_work_size(ic):
     """Scratch entries _solve_core needs (float64)."""
     n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
@@ -1167,23 +1174,15 @@ def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil,
     geo, o = _take(W, o, n)
     norm = _solve_core(net, oil0, x, velocity, spool, speed, dt, oil, flow, dfrom, dto, istats, W, p_first, oil0)
     _pressure(net, oil, x, geo, p, dpdm)
-    t, o = _take(W, o, n * na)
-    dvdx = t.reshape((n, na))
-    t, o = _take(W, o, n * na)
-    dpdx_dt = t.reshape((n, na))  # dt·∂p/∂x
+    dvdx, o = _take2(W, o, n, na)
+    dpdx_dt, o = _take2(W, o, n, na)  # dt·∂p/∂x
     area, o = _take(W, o, ic[IC_O1] - ic[IC_O0])
-    t, o = _take(W, o, n * n)
-    jq = t.reshape((n, n))
-    t, o = _take(W, o, n * na)
-    mg = t.reshape((n, na))
-    t, o = _take(W, o, nf * na)
-    rhs = t.reshape((nf, na))
-    t, o = _take(W, o, nf * nf)
-    jac = t.reshape((nf, nf))
-    t, o = _take(W, o, n * na)
-    dpdv = t.reshape((n, na))
-    t, o = _take(W, o, na * n)
-    epg = t.reshape((na, n))
+    jq, o = _take2(W, o, n, n)
+    mg, o = _take2(W, o, n, na)
+    rhs, o = _take2(W, o, nf, na)
+    jac, o = _take2(W, o, nf, nf)
+    dpdv, o = _take2(W, o, n, na)
+    epg, o = _take2(W, o, na, n)
     slope, o = _take(W, o, na)
     _position_pressure_gradient(net, x, geo, p, dpdm, dt, dvdx, dpdx_dt)
     _valve_areas(net, spool, area)
@@ -1243,22 +1242,14 @@ def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity,
     dfrom, o = _take(W, o, nb)
     dto, o = _take(W, o, nb)
     residual, o = _take(W, o, nf)
-    t, o = _take(W, o, n * na)
-    dvdx = t.reshape((n, na))
-    t, o = _take(W, o, n * na)
-    dpdx_dt = t.reshape((n, na))
-    t, o = _take(W, o, n * na)
-    mg = t.reshape((n, na))
-    t, o = _take(W, o, n * na)
-    dpdv = t.reshape((n, na))
-    t, o = _take(W, o, n * n)
-    jq = t.reshape((n, n))
-    t, o = _take(W, o, nf * (na + 1))
-    rhs = t.reshape((nf, na + 1))
-    t, o = _take(W, o, nf * nf)
-    jac = t.reshape((nf, nf))
-    t, o = _take(W, o, na * n)
-    epg = t.reshape((na, n))
+    dvdx, o = _take2(W, o, n, na)
+    dpdx_dt, o = _take2(W, o, n, na)
+    mg, o = _take2(W, o, n, na)
+    dpdv, o = _take2(W, o, n, na)
+    jq, o = _take2(W, o, n, n)
+    rhs, o = _take2(W, o, nf, na + 1)
+    jac, o = _take2(W, o, nf, nf)
+    epg, o = _take2(W, o, na, n)
     slope, o = _take(W, o, na)
     _valve_areas(net, spool, area)
     _evaluate(net, oil0, oil0, x0, velocity, area, speed, dt, geo, p_first, dpdm, flow, dfrom, dto, inflow, residual)
@@ -1381,8 +1372,8 @@ def _take_linearization(S, o, n, na, nvalve):
     guess, o = _take(S, o, na)
     lin_oil, o = _take(S, o, n)
     lin_spool, o = _take(S, o, nvalve)
-    dflat, o = _take(S, o, n * na)
-    return guess, lin_oil, lin_spool, dflat.reshape((n, na)), o
+    doil, o = _take2(S, o, n, na)
+    return guess, lin_oil, lin_spool, doil, o
 
 
 @_kernel
