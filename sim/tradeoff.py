@@ -102,7 +102,8 @@ def sweep_settings(scenario, *, quick: bool = False, modes=None, fidelities=None
     ``dt0`` is the scenario's step (see :func:`dt_ladder`). Full sweep:
 
     - MuJoCo implicit at dt0·{4, 2, 1, 1/2, …, 1/16} and explicit at dt0·{2, 1, 1/2, …, 1/32}, each with
-      1 and 4 hydraulic substeps;
+      1 and 4 hydraulic substeps; MuJoCo rosenbrock (one hydraulic substep: no Newton solve) at
+      dt0·{4, 2, 1, 1/2, …, 1/16};
     - PBD implicit at dt0·{2, 1, 1/2} × {5, 10, 20} substeps with at most 20 substeps per dt0 (its cost
       grows with the substep rate), 1 iteration, plus 4 iterations at dt0 × 10 substeps; PBD explicit at
       dt0·{1, 1/2} × 20 substeps;
@@ -153,6 +154,7 @@ def sweep_settings(scenario, *, quick: bool = False, modes=None, fidelities=None
             add("mujoco", "explicit", (0, -1, -2, -3))
         else:
             add("mujoco", "implicit", (2, 1, 0, -1, -2, -3, -4), hyd=(1, 4))
+            add("mujoco", "rosenbrock", (2, 1, 0, -1, -2, -3, -4))
             add("mujoco", "explicit", (1, 0, -1, -2, -3, -4, -5), hyd=(1, 4))
     if "pbd" in modes:
         if quick:
@@ -402,7 +404,8 @@ def write_csv(rows: list[dict], path) -> Path:
     return Path(path)
 
 
-MARKERS = {(True, "implicit"): "o", (True, "explicit"): "s", (False, "implicit"): "^", (False, "explicit"): "v"}  # (MuJoCo?, coupling)
+MARKERS = {(True, "implicit"): "o", (True, "explicit"): "s", (True, "rosenbrock"): "D", (False, "implicit"): "^",
+           (False, "explicit"): "v"}  # (MuJoCo?, coupling)
 FIDELITY_MARKERS = {"incompressible": "D", "lines": "P", "compressible": "h"}  # settings at another level than the scenario's
 MODE_COLORS = {"mujoco": "tab:blue", "pbd": "tab:green", "pbd-naive": "tab:red"}
 
