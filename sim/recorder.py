@@ -224,7 +224,7 @@ class RunRecorder:
         self._raw = np.zeros((capacity, int(raw_start[-1])))
         self._raw_steps = np.zeros(capacity, dtype=np.int64)
         self._counting = np.arange(capacity, dtype=np.int64)
-        self._rows = np.full((capacity, int(start[-1])), np.nan)  # joint efforts are never written: logged as null
+        self._rows = np.full((capacity, int(start[-1])), np.nan)  # joint efforts are never written: logged as NaN
         self._pending = self._derived = 0
         self.last: dict = {}
         if self._mj:

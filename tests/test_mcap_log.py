@@ -649,3 +649,30 @@ def test_frame_extend_writes_what_row_appends_write(tmp_path):
             frame.extend([4], np.zeros((1, 1)))
         with pytest.raises(ValueError, match="shape"):
             frame.extend([6], np.zeros((1, 2)))
+
+
+def test_small_chunks_split_merged_batches_anywhere(tmp_path):
+    """Batches of several channels (their own buffers, a frame, irregular messages at the same steps) merged in
+    log-time order and cut into chunks of a few records: every value and index entry in place, global order kept."""
+    path = tmp_path / "small.mcap"
+    steps = 700
+    rng = np.random.default_rng(11)
+    rows = rng.standard_normal((steps, 3))
+    with LogWriter(path, dt=1e-3, chunk_size=1500, batch_size=97, flush_interval=0.25) as log:
+        own = log.cdr_channel("/own", flat_schema("t_msgs/msg/Own", {"u": "u [1]"}), fields=["u"])
+        frame = log.frame(3)
+        frame.channel("/f", flat_schema("t_msgs/msg/F", {"x": "x [1]", "y": "y [1]"}), fields=["x", "y"], columns=[0, 1])
+        frame.channel("/g", flat_schema("t_msgs/msg/G", {"z": "z [1]"}), fields=["z"], columns=[2])
+        events = log.channel("/e", "foxglove.Log", log_schema())
+        for step in range(steps):
+            frame.append(step, rows[step])
+            if step % 3 == 0:
+                own.append(step, (float(step),))
+            if step % 50 == 0:
+                events.write(step, log_message(LogLevel.INFO, f"step {step}"))
+    assert check_mcap(path) == {"/own": (steps + 2) // 3, "/f": steps, "/g": steps, "/e": steps // 50}
+    log = read_log(path)
+    np.testing.assert_array_equal(log.topic("/f")["y"], rows[:, 1])
+    np.testing.assert_array_equal(log.topic("/g")["z"], rows[:, 2])
+    np.testing.assert_array_equal(log.topic("/own")["u"], np.arange(0, steps, 3, dtype=float))
+    assert log.topic("/e").text("message") == [f"step {s}" for s in range(0, steps, 50)]
