@@ -109,7 +109,7 @@ def add_parser(subparsers):
     parser = subparsers.add_parser("inspect", help="print what a scenario builds and its stability verdict")
     parser.add_argument("scenario", type=Path)
     parser.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"))
-    parser.add_argument("--coupling", choices=("implicit", "explicit"))
+    parser.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear", "rosenbrock"))  # sim.scenario.COUPLINGS
     parser.add_argument("--dt", type=float, help="physics step [s]")
     parser.set_defaults(func=main)
 
