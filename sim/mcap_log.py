@@ -1171,9 +1171,10 @@ class _BulkWriter(Writer):
     the bulk path falls back to ``add_message`` per message.
     """
 
-    # zstd's fast level -1, measured on 512 KiB chunks of CDR run logs: 620 MB/s and a ratio of
-    # 2.63, the ratio of level 1 (480 MB/s) and level 3 (280 MB/s, 2.64); -3 gives 775 MB/s at 2.47,
-    # lz4 810 MB/s at 2.18
+    # zstd's fast level -1, measured on the chunks of 20 s dig logs (every step: 512 KiB chunks; at
+    # 100 Hz: 200 kB, one per periodic flush): 690 / 590 MB/s at a ratio of 3.62 / 2.94, level 1's
+    # ratio (3.67 / 2.95) at 1.3x its speed; -3 is 810 / 860 MB/s at 3.25 / 2.78 (files 11 % / 6 %
+    # bigger), -5 910 / 1030 MB/s at 2.75 / 2.47, lz4 950 / 940 MB/s at 2.84 / 2.36
     ZSTD_LEVEL = -1
 
     def _Writer__finalize_chunk(self) -> None:  # noqa: N802 - overrides the base class's private method
