@@ -489,7 +489,7 @@ class PbdPlant(PlantBase):
                      local=np.zeros((0, 3)), radius=np.zeros(0), plane_origin=np.zeros((0, 3)), plane_normal=np.zeros((0, 3)),
                      out=np.zeros(0, np.int64))
         pyramid = "cg" in c and solver.soft_contacts and solver.pyramid_friction and int(xm.contact_cone) == 0
-        eligible = np.ascontiguousarray(c["eligible"] if pyramid else np.zeros(nc, bool), np.bool_)
+        eligible = np.array(c["eligible"] if pyramid else np.zeros(nc, bool), np.bool_)  # the block's own copy
         rows = [c["cg"], c["cvec"], c["crad"], c["mu"], c["solref"], c["solimp"], c["condim"], c["tran"]] if pyramid else [
             np.zeros((nc, 2), np.int64), np.zeros((nc, 4, 3)), np.zeros(nc), np.zeros(nc), np.zeros((nc, 2)),
             np.zeros((nc, 5)), np.zeros(nc, np.int64), np.zeros(nc)]
@@ -514,7 +514,7 @@ class PbdPlant(PlantBase):
             fc["cyl"], fc["closed"], fc["mot"], fc["gear"], fc["mbody"], fc["mparent"], fc["maxis"], fc["x"], fc["v"],
             fc["ell"], fc["const"], fc["slope"], fc["effort"], fc["motor_effort"], np.zeros(2),
         )
-        ctx = dict(kernel=block(solver.transport_response, solver.articulated_contacts), frame=fc, args=args,
+        ctx = dict(kernel=block(solver.transport_response, solver.articulated_contacts), frame=fc, args=args, eligible=eligible,
                    cmd=np.zeros((0, len(self.network.valve_names))), speed=np.zeros((0, len(self.network.pump_names))),
                    clock=np.zeros(4), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
                    pmin=np.zeros(self.network.node_count), rec=np.zeros(5, np.int64),
