@@ -232,9 +232,9 @@ class RunRecorder:
             self._mj_views = (d.qpos, d.qvel, d.xpos.reshape(-1), d.xquat.reshape(-1))
             assert all(np.shares_memory(v, a) for v, a in zip(self._mj_views[2:], plant.body_poses()))
         self._state_end = self._rawcols["joints"].stop  # node pressures, qpos, qvel: what MujocoPlant.finite() checks
-        # A plant that records rows inside its blocks (MujocoPlantFast.advance(n, record, every)) writes this same
-        # raw layout (MujocoPlantFast.record_row), straight into the ring.
-        self.records = self._mj and getattr(plant, "record_width", None) == self._raw.shape[1]
+        # A plant that records rows inside its blocks (MujocoPlantFast.advance(n, record, every), PbdPlant's
+        # record_next) writes this same raw layout (MujocoPlantFast.record_row), straight into the ring.
+        self.records = callable(getattr(plant, "record_next", None)) and getattr(plant, "record_width", None) == self._raw.shape[1]
         assert self._rawcols["p"].start == 0 and self._rawcols["joints"].start == self._rawcols["p"].stop
         log.on_close(self.push_pending)
 

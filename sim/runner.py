@@ -366,7 +366,7 @@ class _Loop:
         self.extremes_every_step = not getattr(plant, "fast", False) or self.per_step_extremes or self.every == 1
         self.stop_step = None  # the step where energy growth was found (the plant may have run past it)
         # blocks of several log samples, recorded by the plant inside its compiled loop (MujocoPlantFast)
-        self.record_blocks = bool(getattr(plant, "fast", False)) and (recorder.records or _plant_records(plant, recorder))
+        self.record_blocks = bool(getattr(plant, "fast", False)) and recorder.records
         self.start = _time.perf_counter()
         self.last_progress = self.start
         self.sample: dict = {}
@@ -535,19 +535,6 @@ class _Loop:
             if now - self.start > PROGRESS_AFTER and now - self.last_progress > 0.5:
                 self.last_progress = now
                 print(f"\r  {self.plant.time:8.3f} / {self.scenario.duration:g} s simulated", end="", file=sys.stderr, flush=True)
-
-
-def _plant_records(plant, recorder: RunRecorder) -> bool:
-    """Let a PBD plant record its block's samples into the recorder's ring (``PbdPlant.record_next``).
-
-    ``RunRecorder.records`` is set for MuJoCo plants only; a PBD plant writes the recorder's raw layout
-    for a plant with ``joint_state`` (``RunRecorder.capture``), so recording is switched on when the
-    plant's row width is the ring's (``tests/test_pbd_block.py`` compares the logs with the per-step path).
-    """
-    if getattr(plant, "mode", None) != "pbd" or not callable(getattr(plant, "record_next", None)):
-        return False
-    recorder.records = plant.record_width == recorder._raw.shape[1]
-    return recorder.records
 
 
 def _failed_component(plant, report) -> str:
