@@ -35,12 +35,19 @@ STARTUP_TIMEOUT = 60.0  # s of wall time for the subprocess to start logging
 MAIN_TOPICS = ("/hydroplant/joint_states", "/hydroplant/cylinders/boom_cyl", "/hydroplant/nodes", "/hydroplant/energy")
 
 
+def _default_sigint():
+    """SIGINT at its default in the child: a suite started in the background by a non-interactive shell
+    inherits it ignored, and Python then installs no KeyboardInterrupt handler."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start_run(out, *extra):
     """``python -m sim.cli run LIFT ...`` in a subprocess (the console script's entry point)."""
     return subprocess.Popen(
         [sys.executable, "-m", "sim.cli", "run", str(LIFT), "--dt", SIGNAL_DT, "--duration", "600", "--no-progress",
          "--out", str(out), *extra],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        preexec_fn=_default_sigint,
     )
 
 

@@ -299,6 +299,8 @@ def test_ctrl_c_during_batch_write_loses_nothing(tmp_path, monkeypatch):
         return original(self, *args, **kwargs)
 
     monkeypatch.setattr(sim.mcap_log._BulkWriter, "add_records", add_records_with_ctrl_c)
+    # Python's own handler, also when the suite inherited SIGINT ignored (started in the background)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     appended = 0
     with pytest.raises(KeyboardInterrupt):
         with LogWriter(path, dt=1e-3, batch_size=100) as log:
@@ -312,6 +314,7 @@ def test_ctrl_c_during_batch_write_loses_nothing(tmp_path, monkeypatch):
     # The interrupt arrived after the batch of steps 100..199 was written, before step 200.
     assert appended == 200
     np.testing.assert_array_equal(log.topic("/s")["a"], np.arange(appended, dtype=float))
+    signal.signal(signal.SIGINT, previous)
 
 
 def test_existing_files_are_not_overwritten(tmp_path):
