@@ -16,7 +16,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from .coupling import make_coupling
 from .network import ACTUATOR_CYLINDER, NetworkModel, NetworkState
@@ -211,6 +210,8 @@ def simulate_reference(
     volume, _ = model.node_volume_at(x_all, state.node_pressure)
     beta = model.effective_bulk_modulus(state.node_pressure, x_all)
     atol = np.concatenate([[1e-12, 1e-12], (1e-3 * volume / beta)[free], np.full(nv, 1e-12)])
+    from scipy.integrate import solve_ivp  # (here: scipy.integrate costs ~0.35 s of every start-up)
+
     sol = solve_ivp(rhs, (0.0, duration), y0, method=method, rtol=rtol, atol=atol, t_eval=sample_times, dense_output=False)
     pressures, efforts, oils = [], [], []
     for t, y in zip(sol.t, sol.y.T):

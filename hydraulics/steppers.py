@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg
-from scipy.integrate import solve_ivp
 
 from . import laws
 from .network import NetworkControl, NetworkModel, NetworkState
@@ -499,6 +498,8 @@ class StepperReference(Stepper):
             volume, _ = m.node_volume_at(x0, state.node_pressure)
             beta = m.effective_bulk_modulus(state.node_pressure, x0)
             atol = (REFERENCE_PRESSURE_ATOL * volume / beta)[free]
+            from scipy.integrate import solve_ivp  # (here: scipy.integrate costs ~0.35 s of every start-up)
+
             sol = solve_ivp(rhs, (0.0, h), state.node_oil[free], method="Radau", jac=jac, rtol=REFERENCE_RTOL, atol=atol)
             if not sol.success:
                 report.status = StepStatus.NEWTON_FAILED
