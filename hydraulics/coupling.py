@@ -62,18 +62,21 @@ coupling can finish the hydraulic step.  Two schemes:
 ``rosenbrock``
     Rosenbrock–Euler (W-method) throughout: ``implicit-linear`` whose
     linearisation takes one Newton step instead of solving backward Euler,
+    the residual at x_g = x + h·v_g linearised about the start of the step
+    (m, x), p₀ = p(m, x):
 
-        (I − h·(∂Q/∂p)·diag(∂p/∂m))·[Δ | ∂m/∂v] = [h·ΣQ(p(m, x_g), v_g) | −∂r/∂v],
-        m_lin = m + Δ,   x_g = x + h·v_g,
+        J·[Δ | ∂m/∂v] = [h·ΣQ(p₀, v_g) + h·(∂Q/∂p)·(h·∂p/∂x)·v_g | −∂r/∂v],
+        J = I − h·(∂Q/∂p)·diag(∂p/∂m),   m_lin = m + Δ;
 
-    with the Jacobian at (m, x_g); the effort law is taken at the linear
-    prediction p_lin = p(m, x_g) + (∂p/∂m)·Δ and the finish is
+    the effort law is taken at the linear prediction
+    p_lin = p₀ + (∂p/∂m)·Δ + (h·∂p/∂x)·v_g and the finish is
     ``implicit-linear``'s.  No nonlinear solve in the step: one Jacobian, one
     elimination (for Δ and ∂m/∂v together) and two pressure evaluations
     (start, end).  Order 1; L-stable on the linear oil column; oil of a
-    closed network conserved to round-off.  It gives up the Newton
-    iterations' trust region and line search: a valve slam or a relief
-    crossing within one step is taken on the start-of-step Jacobian.
+    closed network conserved to round-off.  A step whose update leaves the
+    Newton trust region, or that puts a relief, check valve or pump
+    compensator on another piece of its law (:meth:`NetworkModel.law_pieces`),
+    is solved by Newton instead (:meth:`StepperImplicitEuler.linearize`).
 """
 
 from __future__ import annotations

@@ -160,9 +160,9 @@ except ImportError:  # pragma: no cover
 FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD, FS_GUESS = range(9)  # ledger: C._account's order
 NFS = 9
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
-MODE_STEP, MODE_FINISH = range(2)
+MODE_STEP, MODE_FINISH = range(2)  # C_MODE: a coupled step (from mj_step), or only finish the pending step
 # C_LINEAR: Newton finish (implicit), linear finish (implicit-linear), linear finish of a one-Newton-step linearisation (rosenbrock)
-LINEAR_NONE, LINEAR_FINISH, LINEAR_ROSENBROCK = range(3)  # C_MODE: a coupled step (from mj_step), or only finish the pending step
+LINEAR_NONE, LINEAR_FINISH, LINEAR_ROSENBROCK = range(3)
 
 POTENTIAL_QUADRATURE_POINTS = 16  # must match hydraulics.fluid (entrained air only)
 
