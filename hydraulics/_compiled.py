@@ -1453,6 +1453,24 @@ def _effort_law_terms(net, guess, p_end, v, gradient, fg, fsg, end_const, end_sl
 
 
 @_kernel
+def _blended_law(blend, end_const, end_slope, pressure_start, friction, damping, v, effective_mass, dt, theta, const,
+                 slope):
+    """The effort law c + s·v⁺ of CouplingImplicit.begin from :func:`_effort_law_terms`' terms at θ per actuator:
+    ``blend`` true: θ = blend_factor(end_slope, effective_mass [kg or kg·m²], dt) = clip(1 − 2/w, 0, 1),
+    w = max(−end_slope, 0)·dt/m_eff; false: θ = 1.  ``pressure_start`` [N or N·m]: the pressure effort at the
+    start of the step (finite).
+    c = (1 − θ)·pressure_start + θ·end_const + friction − damping·v, s = θ·end_slope + damping."""
+    for i in range(theta.size):
+        th = 1.0
+        if blend:
+            w = _maximum(-end_slope[i], 0.0) * dt / effective_mass[i]
+            th = _clip(1.0 - 2.0 / w, 0.0, 1.0)
+        theta[i] = th
+        const[i] = (1.0 - th) * pressure_start[i] + th * end_const[i] + friction[i] - damping[i] * v[i]
+        slope[i] = th * end_slope[i] + damping[i]
+
+
+@_kernel
 def _predicted_oil(lin_oil, doil, guess, v_end, dv, out):
     """CouplingImplicit.predicted_oil: out = m_lin + (∂m/∂v)·(v⁺ − v_guess) [kg]; ``dv``: scratch (na)."""
     na = guess.size
@@ -1463,6 +1481,22 @@ def _predicted_oil(lin_oil, doil, guess, v_end, dv, out):
         for a in range(na):
             s += doil[i, a] * dv[a]
         out[i] = lin_oil[i] + s
+
+
+@_kernel
+def _linear_finish(net, W, oil, spool, x, v, speed, p, flow, dflow):
+    """CouplingImplicitLinear.finish after the prediction: end pressures p = p(m⁺, x⁺) [Pa] of the predicted oil
+    ``oil`` (m⁺ [kg]) at the end positions ``x``, and the branch flows ``flow`` [m³/s] at the linearisation's
+    spools ``spool``, pump speeds ``speed`` and end velocities ``v`` (no Newton solve).  ``W``: scratch of at least
+    (orifices + 2·nodes) entries; ``dflow``: scratch (branches)."""
+    n = oil.size
+    o = 0
+    area, o = _take(W, o, net.ic[IC_O1] - net.ic[IC_O0])
+    geo, o = _take(W, o, n)
+    dpdm, o = _take(W, o, n)
+    _pressure(net, oil, x, geo, p, dpdm)
+    _valve_areas(net, spool, area)
+    _branch_flows(net, p, area, speed, v, flow, dflow, dflow)
 
 
 @_kernel

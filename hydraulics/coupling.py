@@ -191,11 +191,18 @@ def _usable(lin) -> bool:
     )
 
 
+# How an implicit coupling linearises and finishes its step (``CouplingImplicit.scheme``; the compiled coupled
+# steps of both plants branch on it): Newton linearisation and Newton finish (implicit), Newton linearisation and
+# linear finish (implicit-linear), one-Newton-step linearisation and linear finish (rosenbrock).
+SCHEME_NEWTON, SCHEME_LINEAR_FINISH, SCHEME_ROSENBROCK = range(3)
+
+
 class CouplingImplicit(Coupling):
     """Linearly implicit coupling through :meth:`StepperImplicitEuler.linearize`."""
 
     name = "implicit"
     newton = True  # the linearisation solves its backward-Euler step by Newton (False: one Newton step, ``rosenbrock``)
+    scheme = SCHEME_NEWTON
 
     def __init__(self, model, stepper):
         super().__init__(model, stepper)
@@ -273,6 +280,7 @@ class CouplingImplicitLinear(CouplingImplicit):
     """``implicit-linear``: the ``implicit`` effort law, finished by m⁺ = m_lin + (∂m/∂v)·(v⁺ − v_guess) (no Newton)."""
 
     name = "implicit-linear"
+    scheme = SCHEME_LINEAR_FINISH
 
     def __init__(self, model, stepper):
         if getattr(stepper, "substeps", 1) != 1:
@@ -313,6 +321,7 @@ class CouplingRosenbrock(CouplingImplicitLinear):
 
     name = "rosenbrock"
     newton = False
+    scheme = SCHEME_ROSENBROCK
 
 
 # Incompressible fidelity: the rod follows its metered flow with this stiffness relative to

@@ -122,7 +122,7 @@ import mujoco
 import numpy as np
 
 from hydraulics import _compiled as C
-from hydraulics.coupling import GUESS_VOLUME_FRACTION, CouplingImplicit, CouplingImplicitLinear, CouplingRosenbrock
+from hydraulics.coupling import GUESS_VOLUME_FRACTION, SCHEME_ROSENBROCK, CouplingImplicit
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepReport, StepStatus
 
@@ -161,8 +161,6 @@ FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD, FS
 NFS = 9
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
 MODE_STEP, MODE_FINISH = range(2)  # C_MODE: a coupled step (from mj_step), or only finish the pending step
-# C_LINEAR: Newton finish (implicit), linear finish (implicit-linear), linear finish of a one-Newton-step linearisation (rosenbrock)
-LINEAR_NONE, LINEAR_FINISH, LINEAR_ROSENBROCK = range(3)
 
 POTENTIAL_QUADRATURE_POINTS = 16  # must match hydraulics.fluid (entrained air only)
 
@@ -331,13 +329,7 @@ def _finish_pending(ctx, net, V):
     if ctx[C_LINEAR]:  # implicit-linear, rosenbrock: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
         substeps = 0
         C._copy(sp2, lin_spool)
-        wo = 0
-        area, wo = C._take(W, wo, net.ic[C.IC_O1] - net.ic[C.IC_O0])
-        geo, wo = C._take(W, wo, n)
-        dpdm, wo = C._take(W, wo, n)
-        C._pressure(net, mpred, x_end, geo, p2, dpdm)
-        C._valve_areas(net, sp2, area)
-        C._branch_flows(net, p2, area, speed, v_end, fl, dfl, dfl)
+        C._linear_finish(net, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfl)
         rhs = 1
         C._copy(flow_out, fl)
         bad = C._commit_if_finite(oil, pres, spool, pos, vel, mpred, p2, sp2, x_end, v_end)
@@ -491,7 +483,7 @@ def _begin(ctx, net, V):
     for a in range(na):
         if guess[a] != 0.0:
             held = False
-    newton = ctx[C_LINEAR] != LINEAR_ROSENBROCK
+    newton = ctx[C_LINEAR] != SCHEME_ROSENBROCK
     norm = C._linearize_any(newton, net, W, oil, spool, cmd, speed, xs, guess, dt, lin_oil, lin_p, lin_spool, lin_x,
                             lin_flow, istats, effort_end, gradient, p0, doil)
     if not held and not _usable(istats, lin_p, gradient):
@@ -515,12 +507,8 @@ def _begin(ctx, net, V):
         C._pressure(net, oil, xs, geo, p0, dpdm)
     C._pressure_effort(net, p0, pressure_start)
     ctrl, bias = V.ctrl, V.bias
+    C._blended_law(True, end_const, end_slope, pressure_start, friction, damping, vs, meff, dt, theta, const, slope)
     for i in range(na):
-        w = C._maximum(-end_slope[i], 0.0) * dt / meff[i]
-        th = C._clip(1.0 - 2.0 / w, 0.0, 1.0)
-        theta[i] = th
-        const[i] = (1.0 - th) * pressure_start[i] + th * end_const[i] + friction[i] - damping[i] * vs[i]
-        slope[i] = th * end_slope[i] + damping[i]
         ctrl[act[i]] = const[i]
         bias[act[i] * ctx[C_NBIAS] + 2] = slope[i]
     C._copy(V.passive_saved, V.passive)
@@ -732,8 +720,7 @@ class MujocoPlantFast(MujocoPlant):
         ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N], ctx[C_NB] = na, nv, m.nu, n, len(net.branch_names)
         ctx[C_NVALVE], ctx[C_NPUMP], ctx[C_NBIAS] = len(net.valve_names), len(net.pump_names), m.actuator_biasprm.shape[1]
         ctx[C_SUBSTEPS], ctx[C_NCYL] = stepper.substeps, len(net.cylinder_actuator)
-        ctx[C_LINEAR] = (LINEAR_ROSENBROCK if isinstance(self.coupling, CouplingRosenbrock)
-                         else LINEAR_FINISH if isinstance(self.coupling, CouplingImplicitLinear) else LINEAR_NONE)
+        ctx[C_LINEAR] = self.coupling.scheme  # hydraulics.coupling.SCHEME_*
         self._record_width = self.record_width
         ctx[C_NQ], ctx[C_NBODY], ctx[C_REC_WIDTH] = m.nq, m.nbody, self._record_width
         ctx[C_NF], ctx[C_NI], ctx[C_NW], ctx[C_NS] = self._F.size, self._I.size, self._work.size, self._scratch.size
