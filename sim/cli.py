@@ -6,6 +6,7 @@ Subcommands::
     hydroplant demo                      the hydraulics-only 1-DOF lift (no MuJoCo)
     hydroplant log info LOG              summary of a log
     hydroplant log recover PARTIAL [OUT] rebuild a valid MCAP from a killed run's partial file
+    hydroplant compile [--jobs N]        fill numba's disk cache with every compiled kernel, in parallel
 
 Bad input (scenario, circuit, MJCF binding, arguments) prints one line naming
 the file, the field and the allowed range, and exits with status 2.
@@ -72,6 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--substeps", type=int_in(1), help="hydraulic substeps per physics step")
     run.add_argument("--pbd-substeps", type=int_in(1), help="XPBD substeps per step (PBD mode)")
     run.add_argument("--iterations", type=int_in(1), help="XPBD iterations per substep (PBD mode)")
+    run.add_argument("--pbd-blend", action="store_true",
+                     help="PBD mode: blend the rows' pressure forces by MuJoCo mode's θ-rule (default θ = 1, backward Euler)")
     run.add_argument("--out", type=Path, help="log file (default: logs/<scene>-<scenario>-<mode>-<coupling>-<time>.mcap)")
     run.add_argument("--no-progress", action="store_true", help="no progress line")
     run.add_argument("--pure", action="store_true", help="pure numpy hydraulics instead of the compiled kernels (same results to round-off)")
@@ -92,7 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Tool subcommands living in their own modules: each module has ``add_parser(subparsers)``,
 # which registers one subcommand whose ``func`` default is ``module.main(args) -> int``.
-TOOL_MODULES = ("sim.inspect_scene", "sim.stability", "sim.compare", "sim.tradeoff")
+TOOL_MODULES = ("sim.inspect_scene", "sim.stability", "sim.compare", "sim.tradeoff", "sim.precompile")
 
 
 def _tool_modules():
@@ -112,6 +115,7 @@ def _run(args) -> int:
         "hydraulic_substeps": args.substeps,
         "pbd_substeps": args.pbd_substeps,
         "pbd_iterations": args.iterations,
+        "pbd_blend": True if args.pbd_blend else None,
         "compiled": False if args.pure else None,
     }
     result = run(args.scenario, out=args.out, overrides=overrides, progress=not args.no_progress)

@@ -179,8 +179,10 @@ class PbdPlant(PlantBase):
             "explicit" if naive else "incompressible" if self.incompressible else scenario.coupling, net,
             stepper="explicit_euler" if naive else scenario.stepper, substeps=1, compiled=scenario.compiled,
         )
+        # θ-rule of MuJoCo mode (scenario pbd_blend) or θ = 1 (backward Euler, the pressure is the row's multiplier)
+        self.blend = bool(scenario.pbd_blend) and not naive
         if self.rigid:
-            self.coupling.blend = False  # XPBD takes the compressible laws with θ = 1; the masses only size the trackers
+            self.coupling.blend = self.blend  # without blend the masses only size the rigid actuators' trackers
         m = self.model
         self.xmodel = xm = XpbdModel.from_mjmodel(m)
         # cylinders: one length row each, in network cylinder order
@@ -425,7 +427,8 @@ class PbdPlant(PlantBase):
                                      fast._F, fast._I, fast._W, fast._S, fast._istats, fast._ledger, fast._quad, fast.oil,
                                      fast.pressure, fast.spool, fast.position, fast.velocity, fast.flow,
                                      st.x, st.q, st.v, st.w, hint, clock, pmax, pmin, *ctx["args"],
-                                     ctx["no_record"] if record is None else record, rec, ctx["rq"], ctx["rd"], _c64(self.theta))
+                                     ctx["no_record"] if record is None else record, rec, ctx["rq"], ctx["rd"], fast.theta,
+                                     fast.scheme, fast.blend)
         self.recorded, self.recorded_finite = int(rec[3]), not rec[4]
         if status == 1:  # block_nb.BLOCK_SINGULAR
             raise np.linalg.LinAlgError("Matrix is singular.")
@@ -441,6 +444,7 @@ class PbdPlant(PlantBase):
         self._x, self._v, self._ell = fc["x"].copy(), fc["v"].copy(), fc["ell"].copy()
         self.effort = fc["effort"].copy()
         self._motor_effort = fc["motor_effort"].copy()
+        self.theta = fast.theta.copy()
         self.node_pressure_max, self.node_pressure_min = pmax.copy(), pmin.copy()
         st.time = float(clock[0])
         st.qpos_hint = hint.copy()
@@ -540,7 +544,7 @@ class PbdPlant(PlantBase):
         self.__dict__.pop("_observation_memo", None)
 
     def _end_step(self):
-        self.theta = getattr(self.coupling, "last_theta", self.theta)
+        self.theta = self._fast.theta.copy() if self._fast is not None else getattr(self.coupling, "last_theta", self.theta)
         self.last_report = self._report
         mechanical = sum(self.mechanical_energy())
         self.energy.dissipated_mechanical += self._work - (mechanical - self._mechanical)
@@ -664,7 +668,7 @@ class PbdPlant(PlantBase):
             fm["body_group"], fm["in_group_quat"], fm["in_group_pos"], ctx["bx"], ctx["bq"], ctx["bv"], ctx["bw"],
             ctx["cyl"], ctx["closed"], ctx["mot"], ctx["gear"], _c64(self._motor_inverse_inertia), ctx["mbody"],
             ctx["mparent"], ctx["maxis"], xs, vs, ell0, ctx["const"], ctx["slope"], ctx["effort"], ctx["motor_effort"],
-            fast.flow, out,
+            fast.flow, out, fast.scheme, fast.blend, _c64(self._effective_mass) if fast.blend else fast.theta, fast.theta,
         )
         if status != 0:
             raise np.linalg.LinAlgError("Matrix is singular.")
@@ -740,11 +744,12 @@ class PbdPlant(PlantBase):
             apply_inputs(self.network, self.control, self.scene.scenario.inputs, self.time + k * h)
         x, v = self._x, self._v
         if self._fast is not None:  # the same law, compiled (θ = 1, no effort bounds)
-            law_constant, law_slope = self._fast.begin(self.control, x, v, h)
+            law_constant, law_slope = self._fast.begin(self.control, x, v, h, self._effective_mass)
             law_lower = law_upper = None
         else:
             law = self.coupling.begin(self.net_state, self.control, x, v, h,
-                                      effective_mass=self._effective_mass if self.incompressible or self.rigid else None)
+                                      effective_mass=self._effective_mass if self.incompressible or self.rigid or self.blend
+                                      else None)
             law_constant, law_slope, law_lower, law_upper = law.constant, law.slope, law.lower, law.upper
         cyl = self.cylinders
         c, s = law_constant[cyl], law_slope[cyl]

@@ -13,7 +13,7 @@ Example::
     circuit = "boom.circuit.toml"
     [run]
     mode = "mujoco"            # mujoco | pbd
-    coupling = "implicit"      # implicit | explicit | implicit-linear | rosenbrock (the last two: MuJoCo mode, one hydraulic substep)
+    coupling = "implicit"      # implicit | explicit | implicit-linear | rosenbrock (the last two: one hydraulic substep; in PBD mode per XPBD substep)
     dt = 0.001                 # s
     duration = 6.0             # s
     [initial]
@@ -50,7 +50,7 @@ from hydraulics.network import FIDELITIES
 
 MODES = ("mujoco", "pbd", "pbd-naive")
 COUPLINGS = ("implicit", "explicit", "implicit-linear", "rosenbrock")
-LINEAR_COUPLINGS = ("implicit-linear", "rosenbrock")  # one linearly implicit step per plant step: MuJoCo mode only
+LINEAR_COUPLINGS = ("implicit-linear", "rosenbrock")  # one linearly implicit step per plant step (PBD: per substep)
 STEPPER_NAMES = ("implicit_euler", "explicit_euler", "reference")
 DEFAULT_BASE_PRESSURE = 1.0e6  # Pa absolute: the low side of a loaded cylinder at t = 0
 
@@ -85,6 +85,7 @@ class Scenario:
     hydraulic_substeps: int = 1
     pbd_substeps: int = 20
     pbd_iterations: int = 1
+    pbd_blend: bool = False  # PBD mode: blend each row's pressure force by θ = blend_factor (as MuJoCo mode); False: θ = 1
     fidelity: str = "compressible"
     actuator_fidelity: dict = field(default_factory=dict)  # actuator name -> level overriding `fidelity`
     compiled: bool = True
@@ -221,8 +222,8 @@ def _validate_run(s: Scenario, where):
         _error(where, f"field 'run.mode': {s.mode!r} is not one of {list(MODES)}")
     if s.coupling not in COUPLINGS:
         _error(where, f"field 'run.coupling': {s.coupling!r} is not one of {list(COUPLINGS)}")
-    if s.coupling in LINEAR_COUPLINGS and (s.mode != "mujoco" or s.hydraulic_substeps != 1):
-        _error(where, f"field 'run.coupling': {s.coupling!r} needs mode = 'mujoco' and hydraulic_substeps = 1 "
+    if s.coupling in LINEAR_COUPLINGS and (s.mode not in ("mujoco", "pbd") or s.hydraulic_substeps != 1):
+        _error(where, f"field 'run.coupling': {s.coupling!r} needs mode = 'mujoco' or 'pbd' and hydraulic_substeps = 1 "
                       f"(got mode {s.mode!r}, hydraulic_substeps {s.hydraulic_substeps})")
     if s.stepper is not None and s.stepper not in STEPPER_NAMES:
         _error(where, f"field 'run.stepper': {s.stepper!r} is not one of {list(STEPPER_NAMES)}")
@@ -281,7 +282,8 @@ def load_scenario(path) -> Scenario:
             _error(where, f"[{name}] must be a table")
     allowed_keys = {
         "scene": {"mjcf", "circuit"},
-        "run": {"mode", "coupling", "stepper", "dt", "duration", "hydraulic_substeps", "pbd_substeps", "pbd_iterations", "fidelity", "compiled"},
+        "run": {"mode", "coupling", "stepper", "dt", "duration", "hydraulic_substeps", "pbd_substeps", "pbd_iterations",
+                "pbd_blend", "fidelity", "compiled"},
         "initial": {"qpos", "qvel", "equilibrium", "base_pressure", "pressures"},
         "log": {"rate_hz"},
     }
@@ -346,6 +348,7 @@ def load_scenario(path) -> Scenario:
         fidelity=fidelity,
         actuator_fidelity=actuator_fidelity,
         compiled=_flag(run, "compiled", w, True),
+        pbd_blend=_flag(run, "pbd_blend", w, False),
         qpos=joint_table("qpos"),
         qvel=joint_table("qvel"),
         equilibrium=equilibrium,

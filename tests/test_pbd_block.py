@@ -58,7 +58,8 @@ def _compare_block(ref, blk, r1, r2, what):
     (SEED, (1, 12, 7, 20), {}),
     (BOOM, (1, 5, 9, 15), dict(dt=1 / 60, pbd_substeps=10)),
     (DIG, (1, 10, 10, 33, 50, 16), dict(dt=1 / 60, pbd_substeps=10)),  # 120 steps: the teeth touch at ≈ 1.6 s
-], ids=["seed", "boom", "excavator"])
+    (DIG, (1, 30, 89), dict(dt=1 / 60, pbd_substeps=10, coupling="rosenbrock", pbd_blend=True)),
+], ids=["seed", "boom", "excavator", "excavator-rosenbrock-blend"])
 def test_block_path_agrees_with_per_frame_path(path, blocks, overrides):
     ref, blk = _plant(path, False, **overrides), _plant(path, True, **overrides)
     assert blk.fast and not ref.fast

@@ -65,7 +65,7 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
            mobility, group_gravity, motor_response, minv, effective_mass,
            group_inertia, parent, body_quat, body_pos, jnt_type, jnt_qposadr, jnt_dofadr, qpos0, xb, qb, qpos, qvel,
            cyl, closed, mot, gear, mbody, mparent, maxis, x, v, ell0, const, slope, effort, motor_effort, fout,
-           record, rec, rq, rd, theta, transport, art_contacts):
+           record, rec, rq, rd, theta, scheme, blend, transport, art_contacts):
     rows, every, first_step = rec[0], rec[1], rec[2]
     rec[3] = 0  # rows recorded
     rec[4] = 0  # a recorded row was not finite
@@ -99,7 +99,8 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
             group_gravity, motor_response, b_cg[:nc], b_cvec[:nc], b_crad[:nc], b_mu[:nc], b_solref[:nc],
             b_solimp[:nc], b_condim[:nc], b_tran[:nc], cone, impratio, lin_damp, ang_damp, body_group,
             in_group_quat, in_group_pos, bx, bq, bv, bw, cyl, closed, mot, gear, minv, mbody, mparent, maxis,
-            x, v, ell0, const, slope, effort, motor_effort, flow, fout, transport, art_contacts)
+            x, v, ell0, const, slope, effort, motor_effort, flow, fout, scheme, blend, effective_mass, theta, transport,
+            art_contacts)
         if status != FN.FRAME_OK:
             return k, BLOCK_SINGULAR
         for _ in range(int(fout[1])):  # network time: + h per successful substep (FastHydraulics.finish)

@@ -5,7 +5,9 @@ Per substep, in the order of :meth:`sim.plant_pbd.PbdPlant.before_substep`,
 :meth:`~sim.plant_pbd.PbdPlant.after_substep`:
 
 1. the effort law c + s·v⁺ of every actuator (``hydraulics_nb._begin_core``:
-   ``CouplingImplicit.begin`` at θ = 1, velocity guess 0);
+   ``CouplingImplicit.begin`` at velocity guess 0; ``scheme``: the coupling's
+   ``hydraulics.coupling.SCHEME_*``; θ = 1, or with ``blend`` from the step's effective masses
+   ``meff``, written to ``theta``);
    With ``frame(transport=True)``, from the second substep on, the step's articulated
    responses (row mobilities, group gravity + motor responses) are carried to the substep's
    pose through joint space (``compiled.transport``, as ``SolverXPBD.transport_response``);
@@ -55,7 +57,7 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
            cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp,
            body_group, in_group_quat, in_group_pos, bx, bq, bv, bw,
            cyl, closed, mot, gear, minv, mbody, mparent, maxis,
-           x, v, ell0, const, slope, effort, motor_effort, flow, out, transport, art_contacts):
+           x, v, ell0, const, slope, effort, motor_effort, flow, out, scheme, blend, meff, theta, transport, art_contacts):
     net = C._unpack(F, I)
     na = x.size
     nr = cyl.size
@@ -89,7 +91,8 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
     Gc = np.zeros((ng, 6, nj))
     Minv = np.zeros((nj, nj))
     for k in range(substeps):
-        if not H._begin_core(net, Wk, S, istats, oil, spool, cmd[k], speed[k], x, v, h, const, slope):
+        if not H._begin_core(net, Wk, S, istats, oil, pres, spool, cmd[k], speed[k], x, v, h, const, slope, scheme, blend,
+                             meff, theta):
             out[0] = work
             return FRAME_SINGULAR
         nact = 0
@@ -168,7 +171,8 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
             a = mot[i]
             v_end[a] = gear[i] * rate_j
             x_end[a] = x[a] + h * v_end[a]
-        H._finish_core(net, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd[k], speed[k], x_end, v_end, h, flow)
+        H._finish_core(net, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd[k], speed[k], x_end, v_end, h, flow,
+                       scheme)
         out[1] += istats[H.I_LAST_OK]
         for a in range(na):
             effort[a] = 0.0

@@ -16,11 +16,14 @@ pieces of the coupled step it shares with :mod:`sim.plant_mujoco_fast`
 equations, same Newton iterations; the results agree with the Python hooks to
 round-off (summation orders of the ledger and of the oil prediction).
 
-Scope: the ``implicit`` coupling (PBD mode's default) at the ``compressible``
-fidelity with the compiled implicit-Euler stepper and one hydraulic substep
-per XPBD substep, where θ = 1 (no effective mass) and the linearisation is at
-the held actuators (velocity guess 0, clipped into the stroke).  Any other
-configuration keeps the Python hooks (:func:`eligible`).
+Scope: the ``implicit`` coupling (PBD mode's default) and its linear variants
+``implicit-linear`` and ``rosenbrock`` (finish m⁺ = m_lin + (∂m/∂v)·(v⁺ − v_guess),
+``_compiled._linear_finish``; rosenbrock also linearises by one Newton step, the
+``scheme`` argument) at the ``compressible`` fidelity with the compiled
+implicit-Euler stepper and one hydraulic substep per XPBD substep, where θ = 1
+(no effective mass) and the linearisation is at the held actuators (velocity
+guess 0, clipped into the stroke).  Any other configuration keeps the Python
+hooks (:func:`eligible`).
 
 Caching: numba caches a function by its own file only, so the two entry points
 carry a sha256 of this file and of ``hydraulics/_compiled.py`` (and the numba
@@ -37,6 +40,7 @@ import os
 import numpy as np
 
 from hydraulics import _compiled as C
+from hydraulics.coupling import SCHEME_NEWTON, SCHEME_ROSENBROCK
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepReport, StepStatus
 
@@ -60,12 +64,13 @@ ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
 
 def eligible(plant) -> bool:
     """True when the plant's coupling is the one :class:`FastHydraulics` reproduces (see module docstring)."""
-    from hydraulics.coupling import CouplingImplicit
+    from hydraulics.coupling import CouplingImplicit, CouplingImplicitLinear, CouplingRosenbrock
 
     coupling = plant.coupling
     stepper = getattr(coupling, "stepper", None)
     return bool(
-        _NUMBA and not plant.naive and not plant.incompressible and type(coupling) is CouplingImplicit
+        _NUMBA and not plant.naive and not plant.incompressible
+        and type(coupling) in (CouplingImplicit, CouplingImplicitLinear, CouplingRosenbrock)
         and isinstance(stepper, C.StepperImplicitEulerCompiled) and stepper.substeps == 1
         and coupling.predictor is stepper
     )
@@ -80,7 +85,7 @@ else:  # pragma: no cover
 
 
 def _begin_temporaries(n, na, nb, nvalve):
-    return na * 6 + 2 * n + na * na + na + nb
+    return na * 7 + 2 * n + na * na + na + nb
 
 
 def keep_size(n, na, nb, nvalve):
@@ -93,8 +98,12 @@ _begin_temporaries_nb = _kernel(_begin_temporaries)
 
 
 @_kernel
-def _begin_core(net, W, S, istats, oil, spool, cmd, speed, x, v, h, const, slope):
-    """CouplingImplicit.begin at θ = 1, velocity guess 0: the effort law (const, slope); returns False if singular."""
+def _begin_core(net, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const, slope, scheme, blend, effective_mass,
+                theta):
+    """CouplingImplicit.begin at velocity guess 0: the effort law (const, slope) and its θ per actuator (``theta``);
+    returns False if singular.  ``scheme``: the coupling's ``hydraulics.coupling.SCHEME_*`` (rosenbrock linearises
+    by one Newton step); ``blend``: θ from ``effective_mass`` [kg or kg·m²] (``blend_factor``, the start force
+    from the state's pressures ``pres`` [Pa], which belong to ``oil`` at ``x``), else θ = 1."""
     ic = net.ic
     n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
     nvalve = spool.size
@@ -105,6 +114,7 @@ def _begin_core(net, W, S, istats, oil, spool, cmd, speed, x, v, h, const, slope
     end_slope, o = C._take(S, o, na)
     friction, o = C._take(S, o, na)
     damping, o = C._take(S, o, na)
+    pressure_start, o = C._take(S, o, na)
     lin_p, o = C._take(S, o, n)
     p_first, o = C._take(S, o, n)
     g, o = C._take(S, o, na * na)
@@ -116,25 +126,26 @@ def _begin_core(net, W, S, istats, oil, spool, cmd, speed, x, v, h, const, slope
     for a in range(na):
         guess[a] = 0.0
     C._clip_to_stroke(net, x, h, guess)
-    C._linearize_core(net, W, oil, spool, cmd, speed, x, guess, h, lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats,
-                      effort_end, gradient, p_first, doil)
+    C._linearize_any(scheme != SCHEME_ROSENBROCK, net, W, oil, spool, cmd, speed, x, guess, h, lin_oil, lin_p, lin_spool,
+                     lin_x, lin_flow, istats, effort_end, gradient, p_first, doil)
     if istats[C.IS_SINGULAR]:
         return False
     C._effort_law_terms(net, guess, lin_p, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
-    for i in range(na):  # θ = 1
-        const[i] = end_const[i] + friction[i] - damping[i] * v[i]
-        slope[i] = end_slope[i] + damping[i]
+    C._pressure_effort(net, pres, pressure_start)
+    C._blended_law(blend, end_const, end_slope, pressure_start, friction, damping, v, effective_mass, h, theta, const,
+                   slope)
     return True
 
 
 @_kernel
-def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow):
-    """CouplingImplicit.finish + PlantBase._account: on success the state arrays (oil, pres, spool, pos, vel)
-    become the end of the substep; counters and failure in ``istats``, ledger terms in ``ledger``."""
+def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow, scheme):
+    """CouplingImplicit.finish (``scheme`` SCHEME_NEWTON) or CouplingImplicitLinear.finish (the linear finishes)
+    + PlantBase._account: on success the state arrays (oil, pres, spool, pos, vel) become the end of the substep;
+    counters and failure in ``istats``, ledger terms in ``ledger``."""
     ic = net.ic
     n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
     nvalve = spool.size
-    guess, lin_oil, _, doil, o = C._take_linearization(S, 0, n, na, nvalve)
+    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, 0, n, na, nvalve)
     o += _begin_temporaries_nb(n, na, nb, nvalve)
     mpred, o = C._take(S, o, n)
     o2, o = C._take(S, o, n)
@@ -147,10 +158,19 @@ def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cm
     fl, o = C._take(S, o, nb)
     sp2, o = C._take(S, o, nvalve)
     C._predicted_oil(lin_oil, doil, guess, v_end, dv, mpred)
-    norm = C._step_core(net, W, oil, spool, cmd, speed, x_end, v_end, h, True, o2, p2, sp2, fl, dfrom, dto, istats, mpred)
-    istats[I_NEWTON] += istats[C.IS_NEWTON]
-    istats[I_RHS] += istats[C.IS_RHS]
-    istats[I_JAC] += istats[C.IS_JAC]
+    if scheme == SCHEME_NEWTON:
+        norm = C._step_core(net, W, oil, spool, cmd, speed, x_end, v_end, h, True, o2, p2, sp2, fl, dfrom, dto, istats,
+                            mpred)
+        istats[I_NEWTON] += istats[C.IS_NEWTON]
+        istats[I_RHS] += istats[C.IS_RHS]
+        istats[I_JAC] += istats[C.IS_JAC]
+    else:  # m⁺ = the prediction, at the linearisation's spools
+        C._copy(o2, mpred)
+        C._copy(sp2, lin_spool)
+        C._linear_finish(net, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfrom)
+        norm = 0.0
+        istats[C.IS_STATUS] = C._OK
+        istats[I_RHS] += 1
     if norm > ledger[L_RESIDUAL]:
         ledger[L_RESIDUAL] = norm
     C._copy(flow, fl)
@@ -184,17 +204,20 @@ def _fingerprint() -> str:
 def _entry_points(fingerprint):
     """The two cached entry points; ``fingerprint`` is a closure variable, hence part of numba's cache key."""
 
-    def begin(F, I, W, S, istats, oil, spool, cmd, speed, x, v, h, const, slope):
+    def begin(F, I, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const, slope, scheme, blend, effective_mass,
+              theta):
         if fingerprint is None:  # never: only makes the fingerprint a closure variable
             return False
         net = C._unpack(F, I)
-        return _begin_core(net, W, S, istats, oil, spool, cmd, speed, x, v, h, const, slope)
+        return _begin_core(net, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const, slope, scheme, blend,
+                           effective_mass, theta)
 
-    def finish(F, I, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow):
+    def finish(F, I, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow, scheme):
         if fingerprint is None:
             return
         net = C._unpack(F, I)
-        _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow)
+        _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow,
+                     scheme)
 
     jit = numba.njit(cache=True, error_model="numpy", nogil=True)
     return jit(begin), jit(finish)
@@ -241,6 +264,9 @@ class FastHydraulics:
         self.position, self.velocity = np.zeros(na), np.zeros(na)
         self.flow = np.zeros(nb)
         self.constant, self.slope = np.zeros(na), np.zeros(na)
+        self.theta = np.ones(na)  # the last begin's θ per actuator
+        self.blend = bool(plant.blend)  # θ from the articulated effective masses (else θ = 1)
+        self.scheme = plant.coupling.scheme  # hydraulics.coupling.SCHEME_*
         self._begin, self._finish = entry_points()
         self._time = 0.0
 
@@ -259,11 +285,14 @@ class FastHydraulics:
         L[L_DISS_H], L[L_DISS_F] = energy.dissipated_hydraulic, energy.dissipated_friction
         L[L_RESIDUAL] = L[L_FAIL_NORM] = 0.0
 
-    def begin(self, control, x, v, h):
-        """The effort law (constant [N or N·m], slope [N·s/m or N·m·s/rad]) of this substep (arrays reused)."""
-        ok = self._begin(self._F, self._I, self._W, self._S, self._istats, self.oil, self.spool,
+    def begin(self, control, x, v, h, effective_mass=None):
+        """The effort law (constant [N or N·m], slope [N·s/m or N·m·s/rad]) of this substep (arrays reused);
+        θ from ``effective_mass`` [kg or kg·m², per actuator] where the plant blends (and it is given)."""
+        blend = self.blend and effective_mass is not None
+        meff = _f64(effective_mass) if blend else self.theta
+        ok = self._begin(self._F, self._I, self._W, self._S, self._istats, self.oil, self.pressure, self.spool,
                          _f64(control.valve_command), _f64(control.pump_speed), _f64(x), _f64(v), float(h),
-                         self.constant, self.slope)
+                         self.constant, self.slope, self.scheme, blend, meff, self.theta)
         if not ok:
             raise np.linalg.LinAlgError("Matrix is singular.")
         return self.constant, self.slope
@@ -272,7 +301,7 @@ class FastHydraulics:
         """Finish the substep with the realised end positions and velocities; ledger included."""
         self._finish(self._F, self._I, self._W, self._S, self._istats, self._ledger, self._quad, self.oil, self.pressure,
                      self.spool, self.position, self.velocity, _f64(control.valve_command), _f64(control.pump_speed),
-                     _f64(x_end), _f64(v_end), float(h), self.flow)
+                     _f64(x_end), _f64(v_end), float(h), self.flow, self.scheme)
         if self._istats[I_LAST_OK]:
             self._time += h
 
