@@ -15,8 +15,11 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/hydroplant run models/excavator/dig.scenario.toml
 
+# The kernels are compiled first, two groups in parallel (sim/precompile.py; a warm cache only loads them),
+# then the suite runs on every core (pytest-xdist).
 test: $(STAMP)
-	$(VENV)/bin/python -m pytest -q
+	$(VENV)/bin/hydroplant compile
+	$(VENV)/bin/python -m pytest -q -n auto
 
 bench: $(STAMP)
 	$(VENV)/bin/python bench/run_all.py

@@ -1,0 +1,108 @@
+"""``hydroplant compile``: build numba's disk cache of every compiled kernel, several processes at a time.
+
+The compiled paths (the MuJoCo coupled step, the PBD block/frame/substep kernels, the compiled
+hydraulic stepper, the log record filling) are compiled on first use and cached on disk
+(``cache=True``); a cold cache costs minutes of single-threaded compilation, which a run, a
+benchmark or the test suite would otherwise pay one kernel after another.  This module compiles
+them in independent groups, each in its own process (``jobs`` at a time), by taking a few real
+steps of the shipped scenes down each path, so the cache holds exactly the signatures the runs
+use.  With a warm cache each group only loads its kernels (about a second).
+
+Groups (each group's kernels depend on each other, so one group is one process):
+
+``mujoco``
+    :class:`~sim.plant_mujoco_fast.MujocoPlantFast` on the excavator (the control callback; the
+    same kernel serves the implicit, implicit-linear and rosenbrock couplings), a logged run
+    (``mcap_log._fill_records``), and the per-step :class:`~sim.plant_mujoco.MujocoPlant` with the
+    compiled stepper (``_compiled._step_kernel``, ``_linearize_kernel``).
+``pbd``
+    :class:`~sim.plant_pbd.PbdPlant` on the excavator: the block path (``xpbd/block_nb``, with the
+    frame and the XPBD substep inside), the per-frame path (``xpbd/frame_nb``, with and without
+    the transported responses), the per-substep hooks (``xpbd/hydraulics_nb``) and the compiled
+    observations.
+
+    hydroplant compile [--jobs N] [--groups mujoco pbd]
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+
+MODELS = Path(__file__).resolve().parents[1] / "models"
+EXCAVATOR = MODELS / "excavator" / "dig.scenario.toml"
+
+
+def _mujoco() -> None:
+    from .plant_mujoco import MujocoPlant
+    from .plant_mujoco_fast import MujocoPlantFast
+    from .runner import run
+    from .scenario import load_scenario
+    from .scene import load_scene
+
+    with tempfile.TemporaryDirectory() as tmp:
+        run(EXCAVATOR, out=Path(tmp) / "compile.mcap", overrides={"duration": 0.02})  # fast plant + log records
+    scene = load_scene(load_scenario(EXCAVATOR))
+    MujocoPlantFast(scene).advance(2)
+    MujocoPlant(scene).step()  # the compiled stepper's own kernels
+
+
+def _pbd() -> None:
+    from .plant_pbd import PbdPlant
+    from .scenario import load_scenario
+    from .scene import load_scene
+    from .xpbd.frame_nb import frame
+
+    scenario = load_scenario(EXCAVATOR).with_overrides(mode="pbd", dt=1 / 60, pbd_substeps=2)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="XpbdModel:")
+        PbdPlant(load_scene(scenario)).advance(2)  # block path
+        plant = PbdPlant(load_scene(scenario))
+        plant.step()  # per-frame path
+        plant.solver.transport_response = True
+        plant._frame_context()["kernel"] = frame(transport=True)
+        plant.step()
+        PbdPlant(load_scene(scenario), frame=False).step()  # per-substep hooks, compiled XPBD substep
+
+
+GROUPS = {"mujoco": _mujoco, "pbd": _pbd}
+
+
+def _compile_group(name: str) -> float:
+    """Run one group's workload in this process; its wall time [s]."""
+    start = time.perf_counter()
+    GROUPS[name]()
+    return time.perf_counter() - start
+
+
+def precompile(groups=tuple(GROUPS), jobs: int | None = None) -> dict[str, float]:
+    """Compile (or load) the kernels of ``groups``, ``jobs`` processes at a time (default: one per group, at most
+    the CPU count); returns {group: wall time [s]}.  Each group runs in a fresh process (``spawn``), so the
+    kernels end up in numba's disk cache, not only in this process."""
+    unknown = sorted(set(groups) - set(GROUPS))
+    if unknown:
+        raise ValueError(f"unknown kernel groups {unknown}; allowed: {sorted(GROUPS)}")
+    jobs = max(1, min(len(groups), jobs or os.cpu_count() or 1))
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+        futures = {name: pool.submit(_compile_group, name) for name in groups}
+        return {name: future.result() for name, future in futures.items()}
+
+
+def add_parser(subparsers) -> None:
+    parser = subparsers.add_parser("compile", help="compile every numba kernel into the disk cache, in parallel")
+    parser.add_argument("--jobs", type=int, default=None, help="processes at a time (default: one per group, ≤ CPUs)")
+    parser.add_argument("--groups", nargs="+", choices=sorted(GROUPS), default=list(GROUPS))
+    parser.set_defaults(func=main)
+
+
+def main(args) -> int:
+    start = time.perf_counter()
+    times = precompile(args.groups, args.jobs)
+    print("kernels ready: " + ", ".join(f"{name} {seconds:.1f} s" for name, seconds in times.items())
+          + f" (wall {time.perf_counter() - start:.1f} s)")
+    return 0
