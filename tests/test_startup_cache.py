@@ -58,3 +58,36 @@ def test_callback_is_loaded_from_the_disk_cache_by_a_second_process():
     for run in (first, second):
         for a, b in zip(run["pressure_fast"], run["pressure_reference"]):
             assert a == pytest.approx(b, rel=1e-9, abs=1e-2)  # Pa
+
+
+
+PBD_PROBE = """
+import json, sys, warnings
+warnings.filterwarnings("ignore")
+from sim.plant_pbd import PbdPlant
+from sim.scenario import load_scenario
+from sim.scene import load_scene
+plant = PbdPlant(load_scene(load_scenario(sys.argv[1]).with_overrides(mode="pbd", dt=1 / 60, pbd_substeps=2)))
+plant.advance(2)
+kernel = plant._block_context()["kernel"]
+print(json.dumps({"blocks": plant.frame_steps, "hits": sum(kernel.stats.cache_hits.values()),
+                  "misses": sum(kernel.stats.cache_misses.values())}))
+"""
+
+
+def test_compile_command_fills_the_cache_for_a_later_process():
+    """``hydroplant compile`` (sim.precompile) runs its groups in their own processes; a fresh process then loads
+    the PBD block kernel from numba's disk cache (a cache hit, no miss: nothing compiled)."""
+    from sim.precompile import precompile
+
+    with pytest.raises(ValueError, match="unknown kernel groups"):
+        precompile(["nope"])
+    done = subprocess.run([sys.executable, "-m", "sim.cli", "compile", "--groups", "pbd", "--jobs", "1"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=1800)
+    assert done.returncode == 0, done.stderr
+    assert "kernels ready: pbd" in done.stdout
+    probe = subprocess.run([sys.executable, "-c", PBD_PROBE, str(MODELS / "excavator" / "dig.scenario.toml")], cwd=ROOT,
+                           capture_output=True, text=True, timeout=1800)
+    assert probe.returncode == 0, probe.stderr
+    out = json.loads(probe.stdout.strip().splitlines()[-1])
+    assert out["blocks"] == 2 and out["hits"] >= 1 and out["misses"] == 0, out
