@@ -17,8 +17,9 @@ MuJoCo's soft limit law in both modes (``SolverXPBD.soft_limits``: the boom's en
 overtravels about 1 mm in both; with rigid XPBD limits PBD's error stayed at 0.244 % of
 stroke at every substep count); the excavator's contacts are MuJoCo's soft
 pyramidal law in both modes.  Every mode is run once briefly before timing, so
-numba's cache loading is not timed; the seed's 0.1 s runs (a few ms of wall time) are timed
-five times each and the best RTF kept.
+numba's cache loading is not timed; the seed runs 1 s (ten times its scenario's 0.1 s, so the
+per-run costs of opening and closing the log do not decide its RTF), each timed three times and the
+best RTF kept.
 
 The boom also runs PBD at 500 Hz × 8 and 1 kHz × 4 / × 8 (the articulated data fresh every
 frame), the excavator at fine settings (60 Hz × 320 substeps; 1 kHz frames × 2, × 10 and
@@ -56,14 +57,26 @@ from sim.scenario import load_scenario  # noqa: E402
 from sim.scene import load_scene  # noqa: E402
 
 SCENES = {
-    "seed_cylinder": dict(path=ROOT / "models/seed_cylinder/closed.scenario.toml", duration=0.1, pbd_dt=1 / 1200,
+    "seed_cylinder": dict(path=ROOT / "models/seed_cylinder/closed.scenario.toml", duration=1.0, pbd_dt=1 / 1200,
                           pbd_substeps=(1, 2, 5, 10, 20, 40, 80, 160), mujoco_dt=(1 / 1200, 1e-4, 1e-5), reference="scipy",
-                          reps=5),
+                          reps=3, blend=tuple((1 / 1200, n) for n in (1, 2, 5, 10, 20, 40, 80, 160)),
+                          theta_one_labels=("pbd",), blend_labels=("pbd-θ",)),  # sealed chamber: rosenbrock = implicit
     "boom": dict(path=ROOT / "models/boom/lift.scenario.toml", duration=6.0, pbd_dt=1 / 60, pbd_substeps=(5, 10, 20, 40, 80),
-                 mujoco_dt=(2e-3, 1e-3, 5e-4), reference=2.5e-4, early=2.4, fine=((2e-3, 8, 1), (1e-3, 4, 1), (1e-3, 8, 1))),
+                 mujoco_dt=(2e-3, 1e-3, 5e-4), reference=2.5e-4, early=2.4, fine=((2e-3, 8, 1), (1e-3, 4, 1), (1e-3, 8, 1)),
+                 blend=((4e-3, 1), (2e-3, 1), (1e-3, 1), (1e-3, 2), (5e-4, 1))),
     "excavator": dict(path=ROOT / "models/excavator/dig.scenario.toml", duration=20.0, pbd_dt=1 / 60,
-                      mujoco_dt=(1e-3, 5e-4), reference=2.5e-4, early=1.5,
-                      fine=((1 / 60, 320, 1), (1e-3, 2, 1), (1e-3, 10, 1), (1e-3, 20, 1)), full_dig=True),
+                      pbd_substeps=(5, 10, 12, 15, 20, 40), mujoco_dt=(1e-3, 5e-4), reference=2.5e-4, early=1.5,
+                      fine=((1 / 60, 320, 1), (1e-3, 2, 1), (1e-3, 10, 1), (1e-3, 20, 1)),
+                      blend=((1 / 60, 10), (1 / 60, 20), (1 / 60, 40), (1e-3, 1), (1e-3, 2)), full_dig=True),
+}
+# Row labels: MuJoCo mode with the Python-orchestrated plant (mujoco) or the coupled step in MuJoCo's callback
+# (mujoco-fast; "-rb": the rosenbrock coupling); PBD mode with the scenario's implicit coupling at θ = 1 (pbd),
+# with MuJoCo mode's θ-rule (pbd-θ: ``pbd_blend``), rosenbrock at θ = 1 / with the θ-rule (pbd-rb, pbd-rb-θ),
+# and the pure-Python XPBD path (pbd-pure).
+VARIANTS = {
+    "mujoco": dict(mode="mujoco"), "mujoco-fast": dict(mode="mujoco"), "mujoco-fast-rb": dict(mode="mujoco", coupling="rosenbrock"),
+    "pbd": dict(mode="pbd"), "pbd-θ": dict(mode="pbd", pbd_blend=True), "pbd-rb": dict(mode="pbd", coupling="rosenbrock"),
+    "pbd-rb-θ": dict(mode="pbd", coupling="rosenbrock", pbd_blend=True), "pbd-pure": dict(mode="pbd", compiled=False),
 }
 # Pressure errors of the excavator rows against the converged full-dig reference (bench/bench_tradeoff.py
 # --full-dig): 0.1 s centred moving averages and point-wise, % of the highest relief setting, per phase.
@@ -177,7 +190,7 @@ def print_full_dig_pressures(path, results):
 
     print(f"  pressures vs {text}: max |Δp| in % of relief, {DEFAULT_FILTER_WINDOW:g} s moving averages "
           f"(point-wise in brackets), per phase")
-    print("  " + f"{'mode':<11} {'dt [ms]':>8} {'substeps':>8} {'RTF':>7}  "
+    print("  " + f"{'mode':<14} {'dt [ms]':>8} {'substeps':>8} {'RTF':>7}  "
           + "  ".join(f"{f'{a:g}-{b:g} s':>15}" for a, b in FULL_DIG_PHASES) + "  worst (filtered)")
     for label, dt, n, rtf, _, log_path, iterations in results:
         if label == "pbd-pure" or not np.isfinite(rtf):
@@ -186,7 +199,7 @@ def print_full_dig_pressures(path, results):
         err = pressure_errors(ref_log, log_path)
         worst = max(err.values())
         cells = "  ".join(f"{f'{err[p][0]:.2f} ({err[p][1]:.1f})':>15}" for p in FULL_DIG_PHASES)
-        print(f"  {label:<11} {dt * 1e3:8.4g} {sub:>8} {rtf:7.3f}  {cells}  "
+        print(f"  {label:<14} {dt * 1e3:8.4g} {sub:>8} {rtf:7.3f}  {cells}  "
               f"{worst[2]} at {worst[3]:.2f} s")
 
 
@@ -216,21 +229,22 @@ def bench_scene(name, spec, substeps, quick, out, pure_substeps=()):
     early = spec.get("early")
     scale_label = "swing" if spec["reference"] == "scipy" else "stroke"
     print(f"\n{name}: {duration:g} s, reference {ref_label}; stroke error = max over cylinders of |x − x_ref| / {scale_label}")
-    head = f"  {'mode':<11} {'dt [ms]':>8} {'substeps':>8} {'h [ms]':>8} {'status':>9} {'RTF':>7} {'stroke err':>11}"
+    head = f"  {'mode':<14} {'dt [ms]':>8} {'substeps':>8} {'h [ms]':>8} {'status':>9} {'RTF':>7} {'stroke err':>11}"
     print(head + (f" {'err t<' + format(early, 'g') + ' s':>11}" if early else ""))
-    rows = [(label, dt, 1, 1) for label in ("mujoco", "mujoco-fast") for dt in spec["mujoco_dt"]]
-    rows += [("pbd", spec["pbd_dt"], n, 1) for n in (spec.get("pbd_substeps") or substeps)]
+    rows = [(label, dt, 1, 1) for label in ("mujoco", "mujoco-fast", "mujoco-fast-rb") for dt in spec["mujoco_dt"]]
+    pbd_substeps = spec.get("pbd_substeps") or substeps
+    rows += [(label, spec["pbd_dt"], n, 1) for label in spec.get("theta_one_labels", ("pbd", "pbd-rb")) for n in pbd_substeps]
     rows += [("pbd", dt, n, it) for dt, n, it in spec.get("fine", ())]  # fine: many substeps, finer frames, iterations
+    rows += [(label, dt, n, 1) for label in spec.get("blend_labels", ("pbd-θ", "pbd-rb-θ"))
+             for dt, n in spec.get("blend", ())]  # the θ-rule
     rows += [("pbd-pure", spec["pbd_dt"], n, 1) for n in pure_substeps]  # the pure-Python XPBD path, for the speed-up
     for label, dt in {(label, dt) for label, dt, _, _ in rows}:  # warm-up (numba cache, first calls)
-        mode = "pbd" if label.startswith("pbd") else "mujoco"
-        run(path, out=out / "warmup.mcap", overrides={"mode": mode, "dt": dt, "duration": 5 * dt, "compiled": label != "pbd-pure"},
-            fast=label != "mujoco")
+        run(path, out=out / "warmup.mcap", overrides={**VARIANTS[label], "dt": dt, "duration": 5 * dt}, fast=label != "mujoco")
     results = []
     for label, dt, n, iterations in rows:
-        mode = "pbd" if label.startswith("pbd") else "mujoco"
-        overrides = {"mode": mode, "dt": dt, "duration": duration, "pbd_substeps": n if mode == "pbd" else None,
-                     "pbd_iterations": iterations if mode == "pbd" else None, "compiled": label != "pbd-pure"}
+        mode = VARIANTS[label]["mode"]
+        overrides = {**VARIANTS[label], "dt": dt, "duration": duration, "pbd_substeps": n if mode == "pbd" else None,
+                     "pbd_iterations": iterations if mode == "pbd" else None}
         result = run(path, out=out / f"{name}-{label}-{n}-{iterations}-{dt:.6g}.mcap", overrides=overrides, fast=label != "mujoco")
         err, err_early = stroke_error(result, reference, scale, early)
         rtf = result.real_time_factor
@@ -239,12 +253,12 @@ def bench_scene(name, spec, substeps, quick, out, pure_substeps=()):
             rtf = max(rtf, again.real_time_factor)
         results.append((label, dt, n, rtf if result.status == "complete" else np.nan, err, result.log_path, iterations))
         sub = f"{n}" + (f"×{iterations}it" if iterations != 1 else "") if mode == "pbd" else "-"
-        line = (f"  {label:<11} {dt * 1e3:8.4g} {sub:>8} {dt / n * 1e3:8.4g} {result.status:>9} "
+        line = (f"  {label:<14} {dt * 1e3:8.4g} {sub:>8} {dt / n * 1e3:8.4g} {result.status:>9} "
                 f"{rtf:7.3f} {err:11.3%}")
         print(line + (f" {err_early:11.3%}" if early else ""), flush=True)
-    pbd_rows = [r for r in results if r[0] == "pbd" and np.isfinite(r[3])]
+    pbd_rows = [r for r in results if r[0].startswith("pbd") and r[0] != "pbd-pure" and np.isfinite(r[3])]
     for label, dt, n, rtf, err, _, _ in results:
-        same = [r for r in pbd_rows if r[2] == n and r[1] == dt and r[6] == 1]
+        same = [r for r in pbd_rows if r[0] == "pbd" and r[2] == n and r[1] == dt and r[6] == 1]
         if label == "pbd-pure" and same and np.isfinite(rtf):
             print(f"  compiled vs pure XPBD at {n} substeps: RTF {same[0][3]:.3f} vs {rtf:.3f} = {same[0][3] / rtf:.2f}× faster")
     for label, dt, _, rtf, err, _, _ in results:
@@ -253,7 +267,7 @@ def bench_scene(name, spec, substeps, quick, out, pure_substeps=()):
         matched = [r for r in pbd_rows if r[4] <= err]
         if matched:
             best = max(matched, key=lambda r: r[3])
-            print(f"  matched accuracy vs {label} dt {dt * 1e3:g} ms (err {err:.3%}, RTF {rtf:.3f}): fastest PBD {best[2]} substeps × {best[6]} iterations at {best[1] * 1e3:.4g} ms "
+            print(f"  matched accuracy vs {label} dt {dt * 1e3:g} ms (err {err:.3%}, RTF {rtf:.3f}): fastest PBD {best[0]} {best[2]} substeps × {best[6]} iterations at {best[1] * 1e3:.4g} ms "
                   f"(err {best[4]:.3%}, RTF {best[3]:.3f}) = {best[3] / rtf:.2f}× its speed")
         else:
             print(f"  matched accuracy vs {label} dt {dt * 1e3:g} ms (err {err:.3%}, RTF {rtf:.3f}): no PBD setting tried is as accurate")
