@@ -500,7 +500,6 @@ class PbdPlant(PlantBase):
         ng, nq = xm.ngroup, len(nb["qpos0"])
         c = solver._contact_arrays() if len(xm.contact_group) else None
         nc = 0 if c is None else len(c["group"])
-        i64 = lambda v: np.ascontiguousarray(v, dtype=np.int64)  # noqa: E731
         if c is None:
             c = dict(group=np.zeros(0, np.int64), plane=np.zeros(0, np.int64), plane_group=np.zeros(0, np.int64),
                      local=np.zeros((0, 3)), radius=np.zeros(0), plane_origin=np.zeros((0, 3)), plane_normal=np.zeros((0, 3)),
@@ -518,7 +517,7 @@ class PbdPlant(PlantBase):
             np.zeros((ng, 3)),
             fm["IM"], fm["II"], fm["GI"], fm["gravity"], fm["jt"], fm["jg"], fm["jvec"], fm["jqoff"], fm["jlim"], fm["jlo"],
             fm["jhi"], fm["jdamp"], fm["et"], fm["eg"], fm["evec"], fm["eqoff"], rg, rvec,
-            i64(c["group"]), i64(c["plane"]), i64(c["plane_group"]), _c64(c["local"]), _c64(c["radius"]),
+            _i64(c["group"]), _i64(c["plane"]), _i64(c["plane_group"]), _c64(c["local"]), _c64(c["radius"]),
             _c64(c["plane_origin"]), _c64(c["plane_normal"]), float(solver.contact_margin), np.zeros(nc, np.int64), eligible,
             *rows, *buffers, int(xm.contact_cone), float(xm.contact_impratio), solver.linear_damping, solver.angular_damping,
             fm["body_group"], fm["in_group_quat"], fm["in_group_pos"],
@@ -535,8 +534,8 @@ class PbdPlant(PlantBase):
                    cmd=np.zeros((0, len(self.network.valve_names))), speed=np.zeros((0, len(self.network.pump_names))),
                    clock=np.zeros(4), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
                    pmin=np.zeros(self.network.node_count), rec=np.zeros(5, np.int64),
-                   no_record=np.zeros((0, self.record_width)), rq=i64(xm.jnt_qposadr[self.scalar_joints]),
-                   rd=i64(xm.jnt_dofadr[self.scalar_joints]))
+                   no_record=np.zeros((0, self.record_width)), rq=_i64(xm.jnt_qposadr[self.scalar_joints]),
+                   rd=_i64(xm.jnt_dofadr[self.scalar_joints]))
         self._block_ctx = ctx
         return ctx
 
@@ -728,7 +727,7 @@ class PbdPlant(PlantBase):
             x=np.zeros(na), v=np.zeros(na), ell=np.zeros(len(self.cylinders)), out=np.zeros(2),
             rg=rg, rvec=_c64(rvec), no_response=np.zeros((0, xm.ngroup, 6)),
             bx=np.zeros((xm.nbody, 3)), bq=np.zeros((xm.nbody, 4)), bv=np.zeros((xm.nbody, 3)), bw=np.zeros((xm.nbody, 3)),
-            cyl=np.asarray(self.cylinders, np.int64), closed=_c64(self.closed_length), mot=np.asarray(self.motors, np.int64),
+            cyl=_i64(self.cylinders), closed=_c64(self.closed_length), mot=_i64(self.motors),
             gear=_c64(self.motor_gear), mbody=mb, mparent=np.array([int(xm.body_parent[b]) for b in mb], np.int64),
             maxis=_c64(np.asarray(self._axis_inertial).reshape(-1, 3)[self.motor_joint].reshape(-1, 3)),
             const=np.zeros(na), slope=np.zeros(na), effort=np.zeros(na), motor_effort=np.zeros(len(self.motors)),
@@ -736,14 +735,14 @@ class PbdPlant(PlantBase):
         ng, nr, nm = xm.ngroup, len(self.cylinders), len(self.motors)
         ctx["articulated_kernel"] = articulated()
         ctx["articulated"] = dict(
-            iquat=_c64(xm.body_iquat), ipos=_c64(xm.body_ipos), jnt_body=np.asarray(xm.jnt_body, np.int64),
+            iquat=_c64(xm.body_iquat), ipos=_c64(xm.body_ipos), jnt_body=_i64(xm.jnt_body),
             jnt_axis=_c64(xm.jnt_axis), jnt_pos=_c64(xm.jnt_pos), hinge=np.ascontiguousarray(self._hinge, np.bool_),
             subtree=np.ascontiguousarray(self._subtree, np.bool_), body_mass=_c64(self._body_mass),
             inertia=_c64(self._body_inertia * (self._body_mass > 0)[:, None]), gravity=_c64(xm.gravity),
-            site_body=np.asarray(xm.site_body, np.int64), site_pos=_c64(xm.site_pos_inertial),
+            site_body=_i64(xm.site_body), site_pos=_c64(xm.site_pos_inertial),
             row_sites=np.ascontiguousarray(self._row_sites, np.int64),
-            mot_dof=np.asarray(xm.jnt_dofadr[self.motor_joint], np.int64), body_group=np.asarray(xm.body_group, np.int64),
-            group_mass=_c64(xm.group_mass), group_root=np.asarray(xm.group_root, np.int64),
+            mot_dof=_i64(xm.jnt_dofadr[self.motor_joint]), body_group=_i64(xm.body_group),
+            group_mass=_c64(xm.group_mass), group_root=_i64(xm.group_root),
             group_dynamic=np.ascontiguousarray(xm.group_dynamic, np.bool_),
             mobility=np.zeros((nr, ng, 6)), group_gravity=np.zeros((ng, 6)), motor_response=np.zeros((nm, ng, 6)),
             motor_inverse_inertia=np.zeros(nm), effective_mass=np.zeros(na),
@@ -890,6 +889,12 @@ class PbdPlant(PlantBase):
 def _c64(a):
     """A C-contiguous, writeable float64 array (one numba signature)."""
     a = np.ascontiguousarray(a, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
+
+
+def _i64(a):
+    """A C-contiguous, writeable int64 array (one numba signature: the model's arrays are read-only)."""
+    a = np.ascontiguousarray(a, dtype=np.int64)
     return a if a.flags.writeable else a.copy()
 
 

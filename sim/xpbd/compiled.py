@@ -1276,35 +1276,35 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
         lam_rows[r] = 0.0
     for _ in range(iterations):
         for sweep in range(2 if symmetric else 1):
-            rev = sweep == 1
+            rev = sweep == 1  # passed as a runtime bool: one compiled signature per solver (a literal True/False is two)
             if not rev:
-                _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, False, jsoft, jlam)
+                _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, rev, jsoft, jlam)
                 if blk:
                     _solve_limits_block(X, Q, IM, jt, jg, jvec, jqoff, jlim, bsoft, tsoft, mu, Gc, Minv)
                 elif tact:
-                    _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, False, Gc, Minv, False)
-                _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, False)
+                    _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, False, Gc, Minv, rev)
+                _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)
                 if act.shape[0]:
                     if use_block:
                         _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob)
                     else:
-                        _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, False)
+                        _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 if nc:
-                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, False, cart, Gc, Minv)
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rev, cart, Gc, Minv)
             else:
                 if nc:
-                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, True, cart, Gc, Minv)
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rev, cart, Gc, Minv)
                 if act.shape[0]:
                     if use_block:
                         _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob)
                     else:
-                        _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, True)
-                _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, True)
+                        _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
+                _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)
                 if blk:
                     _solve_limits_block(X, Q, IM, jt, jg, jvec, jqoff, jlim, bsoft, tsoft, mu, Gc, Minv)
                 elif tact:
-                    _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, False, Gc, Minv, True)
-                _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, True, jsoft, jlam)
+                    _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, False, Gc, Minv, rev)
+                _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, rev, jsoft, jlam)
     # velocity update
     ih = 1.0 / h
     for g in range(1, ng):

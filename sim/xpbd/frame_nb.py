@@ -60,6 +60,9 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
            x, v, ell0, const, slope, effort, motor_effort, flow, out, scheme, blend, meff, theta, transport, art_contacts):
     net = C._unpack(F, I)
     na = x.size
+    # group accelerations on, joint torques off, as runtime bools: compiled.substep then has the one signature
+    # the per-substep path (Python bools) uses too (literal True/False compile a second specialisation)
+    always, never = substeps > 0, substeps < 0
     nr = cyl.size
     nm = mot.size
     ng = Xg.shape[0]
@@ -152,7 +155,7 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
                     Te[ga, c] -= ca[c]
         XC.substep(Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, iterations, symmetric,
                   jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
-                  rg, rvec, act[:nact], tgt, at, lo, hi, nact > 0, mobk, True, gg, Fe, Te, False, tau,
+                  rg, rvec, act[:nact], tgt, at, lo, hi, nact > 0, mobk, always, gg, Fe, Te, never, tau,
                   cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
                   lin_damp, ang_damp, lam, ell, rate, art_contacts, Gc, Minv)
         XC.scatter(Xg, Qg, Vg, Wg, body_group, in_group_quat, in_group_pos, bx, bq, bv, bw)
