@@ -129,3 +129,21 @@ def test_linear_couplings_need_one_hydraulic_substep_and_are_refused_in_pbd_naiv
         load_scenario(BOOM).with_overrides(mode="pbd-naive", coupling="rosenbrock")
     with pytest.raises(ScenarioError, match="hydraulic_substeps"):
         load_scenario(BOOM).with_overrides(mode="pbd", coupling="implicit-linear", hydraulic_substeps=2)
+
+
+def test_cli_pbd_blend_logs_the_rows_theta(tmp_path):
+    """``hydroplant run --mode pbd --pbd-blend`` on the boom at 1 ms: the log's cylinder θ is 0 (the oil column is
+    resolved, ω·h < √2) on every sample after the start (the t = 0 sample precedes any step: θ = 1 there) from the
+    block path; without the flag it is 1 (backward Euler)."""
+    from sim.cli import main
+    from sim.mcap_log import read_log
+
+    thetas = []
+    for flags in (["--pbd-blend"], []):
+        out = tmp_path / f"boom{len(flags)}.mcap"
+        assert main(["run", str(BOOM), "--mode", "pbd", "--dt", "0.001", "--pbd-substeps", "1", "--duration", "0.5",
+                     "--coupling", "rosenbrock", "--no-progress", "--out", str(out), *flags]) == 0
+        thetas.append(read_log(out).topic("/hydroplant/cylinders/boom_cyl")["theta"])
+    blended, backward = thetas
+    assert len(blended) >= 50 and blended[0] == 1.0 and np.all(blended[1:] == 0.0)
+    assert np.all(backward == 1.0)
