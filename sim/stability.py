@@ -102,13 +102,14 @@ END_STOP_HIT = 0.3  # of D: when the end-stop event reaches the stop at full spe
 STEP_EDGE = 1e-9  # s: width of a one-step input change in a schedule
 
 METHODS = {
-    "mujoco-implicit": ("mujoco", "implicit"),
-    "mujoco-explicit": ("mujoco", "explicit"),
-    "mujoco-rosenbrock": ("mujoco", "rosenbrock"),  # (on request: --methods; not in the default maps)
-    "pbd": ("pbd", "implicit"),
-    "pbd-naive": ("pbd-naive", "implicit"),
+    "mujoco-implicit": ("mujoco", "implicit", False),
+    "mujoco-explicit": ("mujoco", "explicit", False),
+    "mujoco-rosenbrock": ("mujoco", "rosenbrock", False),  # (on request: --methods; not in the default maps)
+    "pbd": ("pbd", "implicit", False),
+    "pbd-rosenbrock-blend": ("pbd", "rosenbrock", True),  # (on request)
+    "pbd-naive": ("pbd-naive", "implicit", False),
 }
-"""Method label → (mode, coupling)."""
+"""Method label → (mode, coupling, PBD mode's θ-rule ``pbd_blend``)."""
 REFERENCE_METHOD = "mujoco-implicit"
 EVENTS = ("valve_slam", "pump_start", "end_stop", "cavitation")
 SWEEPS = ("beta", "mass", "dead", "event")
@@ -562,7 +563,8 @@ def run_point(point: dict) -> dict:
     log_path = Path(point["log"])
     log_path.parent.mkdir(parents=True, exist_ok=True)
     overrides = {"mode": point["mode"], "coupling": point["coupling"], "dt": point["dt"], "duration": point["duration"],
-                 "log_rate_hz": point["log_rate_hz"]}
+                 "log_rate_hz": point["log_rate_hz"], "pbd_blend": point.get("pbd_blend") or None,
+                 "pbd_substeps": point.get("pbd_substeps")}  # (None: the scenario's)
     start = _time.perf_counter()
     try:
         result = run(point["scenario"], out=log_path, overrides=overrides, progress=False)
@@ -714,7 +716,7 @@ def build_points(facts: SceneFacts, grid: Grid, out_dir) -> tuple[list, list]:
                    reference=True, truncated=ref_duration < D, log=str(out_dir / "logs" / f"{config.id}-reference.mcap"))
         points.append(ref)
         for label in methods:
-            mode, coupling = METHODS[label]
+            mode, coupling, blend = METHODS[label]
             for dt in grid.dts:
                 steps = int(round(D / dt))
                 duration = D
@@ -724,7 +726,8 @@ def build_points(facts: SceneFacts, grid: Grid, out_dir) -> tuple[list, list]:
                 elif steps < grid.min_steps:
                     duration = grid.min_steps * dt
                 same = label == REFERENCE_METHOD and math.isclose(dt, dt_ref) and math.isclose(duration, ref_duration)
-                points.append(dict(common, method=label, mode=mode, coupling=coupling, dt=float(dt), duration=float(duration),
+                points.append(dict(common, method=label, mode=mode, coupling=coupling, pbd_blend=blend, dt=float(dt),
+                                   duration=float(duration),
                                    reference=False, truncated=duration < D * (1 - 1e-9), same_as_reference=same,
                                    log=str(out_dir / "logs" / f"{config.id}-{label}-{dt:.3g}.mcap")))
     return points, configs

@@ -46,24 +46,25 @@ def boom_facts():
     return st.scene_facts(BOOM, st.QUICK_GRID)
 
 
-def grid_point(facts, config, directory, *, coupling, dt, duration, mode="mujoco", log_rate_hz=None):
+def grid_point(facts, config, directory, *, coupling, dt, duration, mode="mujoco", log_rate_hz=None, pbd_blend=False):
     """The map's point of ``config`` (variant written into ``directory``), logged every step by default."""
     path = st.write_variant(facts, config, directory / config.id)
     info = st.variant_info(path, facts.full_flow)
-    method = f"mujoco-{coupling}" if mode == "mujoco" else mode
+    method = f"mujoco-{coupling}" if mode == "mujoco" else mode if coupling == "implicit" and not pbd_blend else (
+        f"{mode}-{coupling}" + ("-blend" if pbd_blend else ""))
     log = directory / f"{config.id}-{method}-{dt:.3g}.mcap"
     return {
         "config": config.id, "sweep": config.sweep, "value": config.value, "event": config.event, "scenario": str(path),
         "omega_h": info["omega_h"], "actuators": info["actuators"], "log_rate_hz": log_rate_hz or 1.0 / dt,
         "pressure_ceiling": info["pressure_ceiling"], "node_ceilings": info["node_ceilings"],
-        "method": method, "mode": mode, "coupling": coupling, "dt": dt, "duration": duration,
+        "method": method, "mode": mode, "coupling": coupling, "pbd_blend": pbd_blend, "dt": dt, "duration": duration,
         "reference": False, "truncated": False, "log": str(log), "keep_log": True,
     }
 
 
-def staged(facts, config, directory, *, coupling, dt, duration, mode="mujoco"):
+def staged(facts, config, directory, *, coupling, dt, duration, mode="mujoco", pbd_blend=False):
     """Run ``config`` of ``facts``' scene once; returns (classified row, its MCAP log)."""
-    point = grid_point(facts, config, directory, coupling=coupling, dt=dt, duration=duration, mode=mode)
+    point = grid_point(facts, config, directory, coupling=coupling, dt=dt, duration=duration, mode=mode, pbd_blend=pbd_blend)
     return st.classify(st.run_point(point), None, facts, st.QUICK_GRID.tolerance), read_log(point["log"])
 
 
@@ -121,8 +122,13 @@ def test_seed_extreme_implicit_stable_explicit_diverges(name, config, dt, implic
 
 @pytest.mark.parametrize("name, config, dt, implicit_duration, explicit_duration", SEED_EXTREMES, ids=[e[0] for e in SEED_EXTREMES])
 def test_seed_extreme_pbd_stable(name, config, dt, implicit_duration, explicit_duration, seed_facts, tmp_path):
-    """PBD mode on the undamped seed at the same extremes: finite, physical, no energy growth."""
+    """PBD mode on the undamped seed at the same extremes: finite, physical, no energy growth (θ = 1, and rosenbrock with
+    the θ-rule)."""
     row, log = staged(seed_facts, config, tmp_path, mode="pbd", coupling="implicit", dt=dt, duration=implicit_duration)
+    assert_stable(row, log, seed_facts)
+    # and with rosenbrock per substep and MuJoCo mode's θ-rule (explicit pressure forces where ω·h < √2)
+    row, log = staged(seed_facts, config, tmp_path, mode="pbd", coupling="rosenbrock", dt=dt, duration=implicit_duration,
+                      pbd_blend=True)
     assert_stable(row, log, seed_facts)
 
 
@@ -159,6 +165,18 @@ def test_boom_extreme_pbd_stable_at_30hz(name, config, boom_facts, tmp_path):
     """The other recommended method: PBD mode (implicit hydraulics inside XPBD) at 30 Hz stays physical at every extreme."""
     row, log = staged(boom_facts, config, tmp_path, mode="pbd", coupling="implicit", dt=1.0 / 30.0, duration=10.0 / 30.0)
     assert_stable(row, log, boom_facts)
+
+
+@pytest.mark.parametrize("name, config", BOOM_EXTREMES, ids=[e[0] for e in BOOM_EXTREMES])
+def test_boom_extreme_pbd_rosenbrock_blend_stable(name, config, boom_facts, tmp_path):
+    """PBD mode's fastest accurate setting (rosenbrock per substep, MuJoCo mode's θ-rule) at every extreme, at 1 ms × 1
+    substep (θ mostly 0: explicit pressure forces wherever the oil column is resolved) and at 30 Hz × 20: physical."""
+    for dt, substeps in ((1e-3, 1), (1.0 / 30.0, 20)):
+        point = grid_point(boom_facts, config, tmp_path, coupling="rosenbrock", dt=dt, duration=max(boom_facts.duration, 10 * dt),
+                           mode="pbd", pbd_blend=True)
+        point["pbd_substeps"] = substeps
+        row = st.classify(st.run_point(point), None, boom_facts, st.QUICK_GRID.tolerance)
+        assert_stable(row, read_log(point["log"]), boom_facts)
 
 
 def test_boom_explicit_stable_at_default_step(boom_facts, tmp_path):
