@@ -680,7 +680,8 @@ class PbdPlant(PlantBase):
             fm["body_group"], fm["in_group_quat"], fm["in_group_pos"], ctx["bx"], ctx["bq"], ctx["bv"], ctx["bw"],
             ctx["cyl"], ctx["closed"], ctx["mot"], ctx["gear"], _c64(self._motor_inverse_inertia), ctx["mbody"],
             ctx["mparent"], ctx["maxis"], xs, vs, ell0, ctx["const"], ctx["slope"], ctx["effort"], ctx["motor_effort"],
-            fast.flow, out, fast.scheme, fast.blend, _c64(self._effective_mass) if fast.blend else fast.theta, fast.theta,
+            fast.flow, out, fast.scheme, fast.blend,
+            _c64(self._effective_mass) if fast.blend else fast.theta, fast.theta,  # (the masses are not read without blend)
         )
         if status != 0:
             raise np.linalg.LinAlgError("Matrix is singular.")
@@ -755,7 +756,7 @@ class PbdPlant(PlantBase):
         if k:  # the scenario's schedules at the substep's time (step() set them at the frame's start)
             apply_inputs(self.network, self.control, self.scene.scenario.inputs, self.time + k * h)
         x, v = self._x, self._v
-        if self._fast is not None:  # the same law, compiled (θ = 1, no effort bounds)
+        if self._fast is not None:  # the same law, compiled (θ = 1 or the θ-rule, no effort bounds)
             law_constant, law_slope = self._fast.begin(self.control, x, v, h, self._effective_mass)
             law_lower = law_upper = None
         else:

@@ -21,8 +21,9 @@ Scope: the ``implicit`` coupling (PBD mode's default) and its linear variants
 ``_compiled._linear_finish``; rosenbrock also linearises by one Newton step, the
 ``scheme`` argument) at the ``compressible`` fidelity with the compiled
 implicit-Euler stepper and one hydraulic substep per XPBD substep, where θ = 1
-(no effective mass) and the linearisation is at the held actuators (velocity
-guess 0, clipped into the stroke).  Any other configuration keeps the Python
+or, with the plant's ``blend`` (scenario ``pbd_blend``), the θ-rule from the
+articulated effective masses, and the linearisation is at the held actuators
+(velocity guess 0, clipped into the stroke).  Any other configuration keeps the Python
 hooks (:func:`eligible`).
 
 Caching: numba caches a function by its own file only, so the two entry points
@@ -289,7 +290,7 @@ class FastHydraulics:
         """The effort law (constant [N or N·m], slope [N·s/m or N·m·s/rad]) of this substep (arrays reused);
         θ from ``effective_mass`` [kg or kg·m², per actuator] where the plant blends (and it is given)."""
         blend = self.blend and effective_mass is not None
-        meff = _f64(effective_mass) if blend else self.theta
+        meff = _f64(effective_mass) if blend else self.theta  # (not read without blend)
         ok = self._begin(self._F, self._I, self._W, self._S, self._istats, self.oil, self.pressure, self.spool,
                          _f64(control.valve_command), _f64(control.pump_speed), _f64(x), _f64(v), float(h),
                          self.constant, self.slope, self.scheme, blend, meff, self.theta)
