@@ -233,10 +233,9 @@ def bench_scene(name, spec, substeps, quick, out, pure_substeps=()):
     print(head + (f" {'err t<' + format(early, 'g') + ' s':>11}" if early else ""))
     rows = [(label, dt, 1, 1) for label in ("mujoco", "mujoco-fast", "mujoco-fast-rb") for dt in spec["mujoco_dt"]]
     pbd_substeps = spec.get("pbd_substeps") or substeps
-    rows += [(label, spec["pbd_dt"], n, 1) for label in spec.get("theta_one_labels", ("pbd", "pbd-rb")) for n in pbd_substeps]
+    rows += [(label, spec["pbd_dt"], n, 1) for label in ("pbd", "pbd-rb") for n in pbd_substeps]
     rows += [("pbd", dt, n, it) for dt, n, it in spec.get("fine", ())]  # fine: many substeps, finer frames, iterations
-    rows += [(label, dt, n, 1) for label in spec.get("blend_labels", ("pbd-θ", "pbd-rb-θ"))
-             for dt, n in spec.get("blend", ())]  # the θ-rule
+    rows += [(label, dt, n, 1) for label in ("pbd-θ", "pbd-rb-θ") for dt, n in spec.get("blend", ())]  # the θ-rule
     rows += [("pbd-pure", spec["pbd_dt"], n, 1) for n in pure_substeps]  # the pure-Python XPBD path, for the speed-up
     for label, dt in {(label, dt) for label, dt, _, _ in rows}:  # warm-up (numba cache, first calls)
         run(path, out=out / "warmup.mcap", overrides={**VARIANTS[label], "dt": dt, "duration": 5 * dt}, fast=label != "mujoco")

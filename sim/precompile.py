@@ -56,32 +56,31 @@ def _mujoco() -> None:
     MujocoPlant(scene).step()  # the compiled stepper's own kernels
 
 
-def _pbd() -> None:
+def _pbd_plant(**options):
+    """A PBD plant on the excavator, 60 Hz × 2 substeps (``options``: PbdPlant's path switches)."""
     from .plant_pbd import PbdPlant
     from .scenario import load_scenario
     from .scene import load_scene
-    from .xpbd.frame_nb import frame
 
     scenario = load_scenario(EXCAVATOR).with_overrides(mode="pbd", dt=1 / 60, pbd_substeps=2)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="XpbdModel:")
-        PbdPlant(load_scene(scenario)).advance(2)  # block path
-        plant = PbdPlant(load_scene(scenario))
-        plant.step()  # per-frame path
-        plant.solver.transport_response = True
-        plant._frame_context()["kernel"] = frame(transport=True)
-        plant.step()
+        return PbdPlant(load_scene(scenario), **options)
+
+
+def _pbd() -> None:
+    from .xpbd.frame_nb import frame
+
+    _pbd_plant().advance(2)  # block path
+    plant = _pbd_plant()
+    plant.step()  # per-frame path
+    plant.solver.transport_response = True
+    plant._frame_context()["kernel"] = frame(transport=True)
+    plant.step()
 
 
 def _pbd_hooks() -> None:
-    from .plant_pbd import PbdPlant
-    from .scenario import load_scenario
-    from .scene import load_scene
-
-    scenario = load_scenario(EXCAVATOR).with_overrides(mode="pbd", dt=1 / 60, pbd_substeps=2)
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="XpbdModel:")
-        PbdPlant(load_scene(scenario), frame=False).step()
+    _pbd_plant(frame=False).step()
 
 
 GROUPS = {"pbd": _pbd, "mujoco": _mujoco, "pbd-hooks": _pbd_hooks}  # in the order they are started

@@ -50,8 +50,7 @@ def grid_point(facts, config, directory, *, coupling, dt, duration, mode="mujoco
     """The map's point of ``config`` (variant written into ``directory``), logged every step by default."""
     path = st.write_variant(facts, config, directory / config.id)
     info = st.variant_info(path, facts.full_flow)
-    method = f"mujoco-{coupling}" if mode == "mujoco" else mode if coupling == "implicit" and not pbd_blend else (
-        f"{mode}-{coupling}" + ("-blend" if pbd_blend else ""))
+    method = next(label for label, m in st.METHODS.items() if m == (mode, coupling, pbd_blend))
     log = directory / f"{config.id}-{method}-{dt:.3g}.mcap"
     return {
         "config": config.id, "sweep": config.sweep, "value": config.value, "event": config.event, "scenario": str(path),
