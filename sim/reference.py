@@ -31,7 +31,6 @@ check is unchanged and stays the default.
 
 from __future__ import annotations
 
-import importlib.metadata
 import json
 import math
 import shutil
@@ -41,6 +40,7 @@ import time as _time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from . import version
 from .mcap_log import RUN_METADATA, read_log
 from .scenario import Scenario, ScenarioError, load_scenario
 from .sweep import code_hash, content_hash
@@ -374,13 +374,9 @@ def _scenario_state(s: Scenario) -> dict:
 
 def reference_key(scenario: Scenario, settings: ReferenceSettings) -> str:
     """Cache key: SHA-256 of the MJCF, circuit and scenario contents, effective settings and ``settings``."""
-    try:
-        version = importlib.metadata.version("hydroplant")
-    except importlib.metadata.PackageNotFoundError:
-        version = "unknown"
     payload = {
         "version": REFERENCE_VERSION,
-        "hydroplant": version,
+        "hydroplant": version(),
         "files": content_hash(scenario.mjcf, scenario.circuit, scenario.path),
         "code": code_hash(),  # the hydraulics/ and sim/ source: a code change recomputes the reference
         "scenario": _scenario_state(scenario),

@@ -52,6 +52,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from . import version
 from .guards import check_plant
 from .mcap_log import LogLevel, LogWriter
 from .recorder import RunRecorder
@@ -228,8 +229,6 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
     blocks inside ``mj_step``, :class:`~sim.plant_mujoco_fast.MujocoPlantFast`)
     or ``"per-step"``.
     """
-    from importlib.metadata import version
-
     extra = {} if plant is None else {"stepping": "blocks" if getattr(plant, "fast", False) else "per-step"}
     return {
         "scenario": str(scenario.path),
@@ -245,7 +244,7 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
         "fidelity": scenario.fidelity_label,  # the level, with per-actuator overrides
         "compiled": str(scenario.compiled),
         "log_rate_hz": repr(scenario.log_rate_hz),
-        "hydroplant_version": version("hydroplant"),
+        "hydroplant_version": version(),
         "mujoco_version": mujoco.__version__,
         "numpy_version": np.__version__,
         "python_version": platform.python_version(),
