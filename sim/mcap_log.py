@@ -53,7 +53,6 @@ import dataclasses
 import enum
 import functools
 import heapq
-import importlib.metadata
 import io
 import json
 import math
@@ -85,6 +84,8 @@ from mcap.records import Metadata as _McapMetadata
 from mcap.records import Schema as _McapSchema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, IndexType, Writer
+
+from . import version
 
 __all__ = [
     "Attachment",
@@ -128,7 +129,10 @@ RESULT_METADATA = "hydroplant.result"  # metadata record written at close
 PARTIAL_SUFFIX = ".partial"  # suffix of the file while it is being written
 NS_PER_S = 1_000_000_000  # nanoseconds per second
 DEFAULT_CHUNK_SIZE = 512 * 1024  # uncompressed bytes per chunk [B]
-DEFAULT_FLUSH_INTERVAL = 1.0  # sim time between forced chunk ends [s]
+# sim time between forced chunk ends [s]: at the default 100 Hz a sample is ≈ 2 kB, so a 512 KiB chunk fills in ≈ 2.6 s
+# and a 2 s flush ends about one chunk early; each flush costs a batch derive and encode and a chunk end (≈ 1.5 ms
+# on the excavator at 100 Hz), whatever the chunk holds
+DEFAULT_FLUSH_INTERVAL = 2.0
 DEFAULT_BATCH_SIZE = 1024  # buffered samples per channel before a batch encode
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 RECORD_PREFIX = struct.Struct("<BQ")  # opcode (uint8) + record length (uint64)
@@ -238,14 +242,9 @@ def _loads(data: bytes) -> Any:
     return json.loads(data, parse_constant=_reject_constant)
 
 
-@functools.lru_cache(maxsize=1)
 def library_string() -> str:
-    """Header library string ``"hydroplant/<version> mcap-python/<version>"`` (read once per process: ~1 ms)."""
-    try:
-        version = importlib.metadata.version("hydroplant")
-    except importlib.metadata.PackageNotFoundError:
-        version = "unknown"
-    return f"hydroplant/{version} mcap-python/{mcap.__version__}"
+    """Header library string ``"hydroplant/<version> mcap-python/<version>"``."""
+    return f"hydroplant/{version()} mcap-python/{mcap.__version__}"
 
 
 # ---------------------------------------------------------------------------------------

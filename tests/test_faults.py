@@ -30,7 +30,7 @@ from sim.runner import run
 
 LIFT = MODELS / "boom" / "lift.scenario.toml"
 SEED = MODELS / "seed_cylinder" / "closed.scenario.toml"
-SIGNAL_DT = "5e-3"  # s: a coarse but stable implicit step so the subprocess reaches its first flush (1 s) quickly
+SIGNAL_DT = "5e-3"  # s: a coarse but stable implicit step so the subprocess reaches its first flush (2 s) quickly
 STARTUP_TIMEOUT = 60.0  # s of wall time for the subprocess to start logging
 MAIN_TOPICS = ("/hydroplant/joint_states", "/hydroplant/cylinders/boom_cyl", "/hydroplant/nodes", "/hydroplant/energy")
 

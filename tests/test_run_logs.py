@@ -159,7 +159,7 @@ def test_ring_size_does_not_change_the_log(tmp_path, monkeypatch):
     file, byte for byte: the batching changes when values are computed, not what is logged."""
     import sim.recorder
 
-    overrides = {"duration": 2.3, "dt": 5e-3, "log_rate_hz": 200.0}  # 460 samples, periodic flushes every 1 s
+    overrides = {"duration": 2.3, "dt": 5e-3, "log_rate_hz": 200.0}  # 460 samples, a periodic flush at 2 s
     runs = {}
     for ring in (1, 7, sim.recorder.RING_SIZE):
         monkeypatch.setattr(sim.recorder, "RING_SIZE", ring)

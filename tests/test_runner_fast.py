@@ -141,7 +141,7 @@ def test_failed_block_is_replayed_to_the_failing_step(tmp_path, rate_hz):
 
 @pytest.mark.parametrize("path, overrides", [
     (SEED, {"duration": 0.05}),                                           # every step (1200 Hz), one 60-step block
-    (LIFT, {"duration": 1.2, "dt": 2e-3, "log_rate_hz": 250.0}),          # every 2nd step, across a periodic flush
+    (LIFT, {"duration": 2.2, "dt": 2e-3, "log_rate_hz": 250.0}),          # every 2nd step, across a periodic flush
     (LIFT, {"duration": 1.1, "dt": 1e-3}),                                # the default 100 Hz: every 10th step
 ])
 def test_samples_recorded_inside_blocks_give_the_same_log_file(tmp_path, monkeypatch, path, overrides):
