@@ -1,12 +1,13 @@
 """hydroplant simulation layer."""
 
 import functools
-import importlib.metadata
 
 
 @functools.lru_cache(maxsize=1)
 def version() -> str:
     """The installed hydroplant version, or ``"unknown"`` (read once per process: the lookup costs ≈ 1 ms)."""
+    import importlib.metadata
+
     try:
         return importlib.metadata.version("hydroplant")
     except importlib.metadata.PackageNotFoundError:
