@@ -34,6 +34,11 @@ EQ_CONNECT, EQ_WELD = 0, 1
 LIMIT_COLS = 19
 
 
+# Kernels that allocate nothing are compiled without numba's reference counting (``_nrt=False``): each call of
+# a compiled function with array arguments otherwise increments and decrements every argument's reference count,
+# which was a quarter of a PBD step on the excavator.  A function that allocates (or calls one that does) keeps it.
+_leaf = njit(cache=True, _nrt=False)
+
 # ---------------------------------------------------------------------------- algebra on tuples
 
 
@@ -49,19 +54,34 @@ def _cross(a, b):
 
 @njit(cache=True, inline="always")
 def _mat_from_quat(q):
-    """Rotation matrix of the unit quaternion q = (w, x, y, z) (``kernels._mat_from_quat``)."""
+    """Rotation matrix of the unit quaternion q = (w, x, y, z) as three row tuples, ``R[i][j]``
+    (``kernels._mat_from_quat``; tuples, so the per-constraint helpers allocate nothing)."""
     w, x, y, z = q
-    R = np.empty((3, 3))
-    R[0, 0] = 1 - 2 * (y * y + z * z)
-    R[0, 1] = 2 * (x * y - w * z)
-    R[0, 2] = 2 * (x * z + w * y)
-    R[1, 0] = 2 * (x * y + w * z)
-    R[1, 1] = 1 - 2 * (x * x + z * z)
-    R[1, 2] = 2 * (y * z - w * x)
-    R[2, 0] = 2 * (x * z - w * y)
-    R[2, 1] = 2 * (y * z + w * x)
-    R[2, 2] = 1 - 2 * (x * x + y * y)
-    return R
+    return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))
+
+
+@njit(cache=True, inline="always")
+def _sandwich(R, m00, m01, m02, m11, m12, m22):
+    """R M Rᵀ of the symmetric M (entries m..) as three row tuples (rows R[i] of the rotation)."""
+    RM = ((R[0][0] * m00 + R[0][1] * m01 + R[0][2] * m02, R[0][0] * m01 + R[0][1] * m11 + R[0][2] * m12,
+           R[0][0] * m02 + R[0][1] * m12 + R[0][2] * m22),
+          (R[1][0] * m00 + R[1][1] * m01 + R[1][2] * m02, R[1][0] * m01 + R[1][1] * m11 + R[1][2] * m12,
+           R[1][0] * m02 + R[1][1] * m12 + R[1][2] * m22),
+          (R[2][0] * m00 + R[2][1] * m01 + R[2][2] * m02, R[2][0] * m01 + R[2][1] * m11 + R[2][2] * m12,
+           R[2][0] * m02 + R[2][1] * m12 + R[2][2] * m22))
+    return ((_dot(RM[0], R[0]), _dot(RM[0], R[1]), _dot(RM[0], R[2])),
+            (_dot(RM[1], R[0]), _dot(RM[1], R[1]), _dot(RM[1], R[2])),
+            (_dot(RM[2], R[0]), _dot(RM[2], R[1]), _dot(RM[2], R[2])))
+
+
+@njit(cache=True, inline="always")
+def _madd(A, B):
+    """A + B of two 3×3 row-tuple matrices."""
+    return ((A[0][0] + B[0][0], A[0][1] + B[0][1], A[0][2] + B[0][2]),
+            (A[1][0] + B[1][0], A[1][1] + B[1][1], A[1][2] + B[1][2]),
+            (A[2][0] + B[2][0], A[2][1] + B[2][1], A[2][2] + B[2][2]))
 
 
 @njit(cache=True, inline="always")
@@ -135,7 +155,7 @@ def _winv(q, invI, v):
     return _rot(q, (invI[0] * l[0], invI[1] * l[1], invI[2] * l[2]))
 
 
-@njit(cache=True)
+@_leaf
 def _pos_w(invm, invI, q, r, n):
     if invm == 0.0:
         return 0.0
@@ -143,13 +163,13 @@ def _pos_w(invm, invI, q, r, n):
     return invm + invI[0] * c[0] * c[0] + invI[1] * c[1] * c[1] + invI[2] * c[2] * c[2]
 
 
-@njit(cache=True)
+@_leaf
 def _ang_w(invI, q, n):
     c = _rotinv(q, n)
     return invI[0] * c[0] * c[0] + invI[1] * c[1] * c[1] + invI[2] * c[2] * c[2]
 
 
-@njit(cache=True)
+@_leaf
 def _apply_pos(X, Q, IM, II, b, r, p, sign):
     invm = IM[b]
     if invm == 0.0:
@@ -162,7 +182,7 @@ def _apply_pos(X, Q, IM, II, b, r, p, sign):
     _setq(Q, b, _qadd(q, d, sign))
 
 
-@njit(cache=True)
+@_leaf
 def _apply_ang(Q, IM, II, b, p, sign):
     if IM[b] == 0.0:
         return
@@ -171,7 +191,7 @@ def _apply_ang(Q, IM, II, b, p, sign):
     _setq(Q, b, _qadd(q, d, sign))
 
 
-@njit(cache=True)
+@_leaf
 def _apply_vel(V, W, Q, IM, II, b, r, p, sign):
     invm = IM[b]
     if invm == 0.0:
@@ -185,7 +205,7 @@ def _apply_vel(V, W, Q, IM, II, b, r, p, sign):
     W[b, 2] = W[b, 2] + sign * d[2]
 
 
-@njit(cache=True)
+@_leaf
 def _apply_lock_impulse(X, Q, IM, II, g1, g2, r1w, r2w, z):
     """Apply a hinge lock's 6-vector z = (positional P, angular L) to g2 and its opposite to g1."""
     P = (z[0], z[1], z[2])
@@ -196,7 +216,7 @@ def _apply_lock_impulse(X, Q, IM, II, g1, g2, r1w, r2w, z):
     _apply_ang(Q, IM, II, g1, L, -1.0)
 
 
-@njit(cache=True)
+@_leaf
 def _apply_angvel(W, Q, IM, II, b, p, sign):
     if IM[b] == 0.0:
         return
@@ -206,13 +226,13 @@ def _apply_angvel(W, Q, IM, II, b, p, sign):
     W[b, 2] = W[b, 2] + sign * d[2]
 
 
-@njit(cache=True)
+@_leaf
 def _point_vel(V, W, b, r):
     c = _cross(_v3(W, b), r)
     return (V[b, 0] + c[0], V[b, 1] + c[1], V[b, 2] + c[2])
 
 
-@njit(cache=True)
+@_leaf
 def _solve_pos(X, Q, IM, II, b1, b2, r1, r2, n, c, at, lam, lo, hi):
     w = _pos_w(IM[b1], _v3(II, b1), _q4(Q, b1), r1, n) + _pos_w(IM[b2], _v3(II, b2), _q4(Q, b2), r2, n)
     den = w + at
@@ -231,7 +251,7 @@ def _solve_pos(X, Q, IM, II, b1, b2, r1, r2, n, c, at, lam, lo, hi):
     return dlam
 
 
-@njit(cache=True)
+@_leaf
 def _solve_ang(Q, IM, II, b1, b2, n, theta):
     w = 0.0
     if IM[b1] != 0.0:
@@ -247,11 +267,15 @@ def _solve_ang(Q, IM, II, b1, b2, n, theta):
     return dlam
 
 
-@njit(cache=True)
-def _mobility(invm, invI, q, r, K, add):
-    """K (+)= point mobility (1/m) E − [r]× I⁻¹ [r]× (``kernels.point_mobility``); False if static."""
+_ZERO33 = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+
+
+@_leaf
+def _mobility(invm, invI, q, r):
+    """Point mobility (1/m) E − [r]× I⁻¹ [r]× (``kernels.point_mobility``) as three row tuples, and False
+    (with zeros) if the body is static."""
     if invm == 0.0:
-        return False
+        return False, _ZERO33
     x, y, z = _rotinv(q, r)
     a, b, c = invI
     m00 = b * z * z + c * y * y + invm
@@ -260,24 +284,14 @@ def _mobility(invm, invI, q, r, K, add):
     m01 = -c * x * y
     m02 = -b * x * z
     m12 = -a * y * z
-    R = _mat_from_quat(q)
-    RM = np.empty((3, 3))
-    for i in range(3):
-        RM[i, 0] = R[i, 0] * m00 + R[i, 1] * m01 + R[i, 2] * m02
-        RM[i, 1] = R[i, 0] * m01 + R[i, 1] * m11 + R[i, 2] * m12
-        RM[i, 2] = R[i, 0] * m02 + R[i, 1] * m12 + R[i, 2] * m22
-    for i in range(3):
-        for j in range(3):
-            v = RM[i, 0] * R[j, 0] + RM[i, 1] * R[j, 1] + RM[i, 2] * R[j, 2]
-            K[i, j] = K[i, j] + v if add else v
-    return True
+    return True, _sandwich(_mat_from_quat(q), m00, m01, m02, m11, m12, m22)
 
 
-@njit(cache=True)
+@_leaf
 def _solve3(K, b):
-    a00, a01, a02 = K[0, 0], K[0, 1], K[0, 2]
-    a10, a11, a12 = K[1, 0], K[1, 1], K[1, 2]
-    a20, a21, a22 = K[2, 0], K[2, 1], K[2, 2]
+    a00, a01, a02 = K[0]
+    a10, a11, a12 = K[1]
+    a20, a21, a22 = K[2]
     c00 = a11 * a22 - a12 * a21
     c01 = a12 * a20 - a10 * a22
     c02 = a10 * a21 - a11 * a20
@@ -291,12 +305,16 @@ def _solve3(K, b):
                   inv * (c02 * b0 + (a01 * a20 - a00 * a21) * b1 + (a00 * a11 - a01 * a10) * b2))
 
 
-@njit(cache=True)
+@_leaf
 def _pair_mobility(IM, II, Q, b1, b2, r1, r2):
-    K = np.zeros((3, 3))
-    h1 = _mobility(IM[b1], _v3(II, b1), _q4(Q, b1), r1, K, False)
-    h2 = _mobility(IM[b2], _v3(II, b2), _q4(Q, b2), r2, K, h1)
-    return h1 or h2, K
+    """Summed point mobilities of two bodies (row tuples, for ``_solve3``); False if both are static."""
+    h1, K1 = _mobility(IM[b1], _v3(II, b1), _q4(Q, b1), r1)
+    h2, K2 = _mobility(IM[b2], _v3(II, b2), _q4(Q, b2), r2)
+    if not h1:
+        return h2, K2
+    if not h2:
+        return h1, K1
+    return True, _madd(K1, K2)
 
 
 @njit(cache=True)
@@ -339,7 +357,7 @@ def _solve_dense(A, b, x):
 # ---------------------------------------------------------------------------- joints
 
 
-@njit(cache=True)
+@_leaf
 def _attach(X, Q, IM, II, g1, g2, r1, r2):
     r1w = _rot(_q4(Q, g1), r1)
     r2w = _rot(_q4(Q, g2), r2)
@@ -356,7 +374,7 @@ def _attach(X, Q, IM, II, g1, g2, r1, r2):
         _apply_pos(X, Q, IM, II, g1, r1w, p, -1.0)
 
 
-@njit(cache=True)
+@_leaf
 def _align_axes(Q, IM, II, g1, g2, a1, a2):
     a1w = _rot(_q4(Q, g1), a1)
     a2w = _rot(_q4(Q, g2), a2)
@@ -367,7 +385,7 @@ def _align_axes(Q, IM, II, g1, g2, a1, a2):
         _solve_ang(Q, IM, II, g1, g2, (e[0] / s, e[1] / s, e[2] / s), th)
 
 
-@njit(cache=True)
+@_leaf
 def _fix_orientation(Q, IM, II, g1, g2, qoff):
     qe = _qmul(_q4(Q, g2), _qconj(_qmul(_q4(Q, g1), qoff)))
     if qe[0] < 0.0:
@@ -378,25 +396,23 @@ def _fix_orientation(Q, IM, II, g1, g2, qoff):
         _solve_ang(Q, IM, II, g1, g2, (qe[1] / s, qe[2] / s, qe[3] / s), th)
 
 
-@njit(cache=True)
+@_leaf
 def _body_block(K, invm, invI, q, r):
     """K += 6×6 response of body point r to (positional impulse, angular impulse) (``kernels._body_block``)."""
-    R = _mat_from_quat(q)
-    Ii = np.zeros((3, 3))
+    Ii = _sandwich(_mat_from_quat(q), invI[0], 0.0, 0.0, invI[1], 0.0, invI[2])  # R diag(I⁻¹) Rᵀ
+    # S = [r]×: rows (0, −r2, r1), (r2, 0, −r0), (−r1, r0, 0); SI = S·Ii, IS = Ii·S, SIS = SI·S
+    S = ((0.0, -r[2], r[1]), (r[2], 0.0, -r[0]), (-r[1], r[0], 0.0))
     for i in range(3):
         for j in range(3):
-            Ii[i, j] = R[i, 0] * invI[0] * R[j, 0] + R[i, 1] * invI[1] * R[j, 1] + R[i, 2] * invI[2] * R[j, 2]
-    S = np.zeros((3, 3))
-    S[0, 1], S[0, 2], S[1, 0], S[1, 2], S[2, 0], S[2, 1] = -r[2], r[1], r[2], -r[0], -r[1], r[0]
-    SI = S @ Ii
-    SIS = SI @ S
-    IS = Ii @ S
-    for i in range(3):
-        for j in range(3):
-            K[i, j] += (invm if i == j else 0.0) - SIS[i, j]
-            K[i, 3 + j] += -SI[i, j]
-            K[3 + i, j] += IS[i, j]
-            K[3 + i, 3 + j] += Ii[i, j]
+            si = S[i][0] * Ii[0][j] + S[i][1] * Ii[1][j] + S[i][2] * Ii[2][j]
+            is_ = Ii[i][0] * S[0][j] + Ii[i][1] * S[1][j] + Ii[i][2] * S[2][j]
+            sis = 0.0
+            for k in range(3):
+                sis += (S[i][0] * Ii[0][k] + S[i][1] * Ii[1][k] + S[i][2] * Ii[2][k]) * S[k][j]
+            K[i, j] += (invm if i == j else 0.0) - sis
+            K[i, 3 + j] += -si
+            K[3 + i, j] += is_
+            K[3 + i, 3 + j] += Ii[i][j]
 
 
 @njit(cache=True)
@@ -429,7 +445,7 @@ def _hinge_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, lo, hi):
     return True
 
 
-@njit(cache=True)
+@_leaf
 def _slide_axis(X, Q, IM, II, g1, g2, r1, a1, limited, lo, hi):
     q1 = _q4(Q, g1)
     r1w = _rot(q1, r1)
@@ -454,7 +470,7 @@ def _slide_axis(X, Q, IM, II, g1, g2, r1, a1, limited, lo, hi):
                        zero, aw, viol, 0.0, 0.0, -math.inf, math.inf)
 
 
-@njit(cache=True)
+@_leaf
 def _twist(Q, g1, g2, aw, qoff):
     qt = _qmul(_q4(Q, g1), qoff)
     qe = _qmul(_q4(Q, g2), _qconj(qt))
@@ -467,7 +483,7 @@ def _twist(Q, g1, g2, aw, qoff):
     return ang
 
 
-@njit(cache=True)
+@_leaf
 def _limit_targets(X, Q, V, W, jt, jg, jvec, jqoff, jlim, jlo, jhi, h, jsoft):
     """``SolverXPBD._soft_limit_targets``: jsoft[j] = (side ±1 or 0 = inactive, q*, α̃) of each soft limit."""
     for j in range(jt.shape[0]):
@@ -490,7 +506,7 @@ def _limit_targets(X, Q, V, W, jt, jg, jvec, jqoff, jlim, jlo, jhi, h, jsoft):
         _soft_limit_target(jlim[j], qv, qd, jlo[j], jhi[j], h, jsoft[j])
 
 
-@njit(cache=True)
+@_leaf
 def _soft_limit_target(params, value, rate, lo, hi, h, out):
     """A soft limit beyond [``lo``, ``hi``] at ``value`` moving at ``rate``: out = (side ±1, target, α̃) of its
     one-sided compliant row under MuJoCo's law of the limit row ``params`` (solref, solimp, invweight0); ``out``
@@ -509,7 +525,7 @@ def _soft_limit_target(params, value, rate, lo, hi, h, out):
     out[2] = R / (c1 * h * h)
 
 
-@njit(cache=True)
+@_leaf
 def _tendon_geometry(X, Q, jlim, i):
     ga, gb = int(jlim[i, 11]), int(jlim[i, 12])
     raw = _rot(_q4(Q, ga), (jlim[i, 13], jlim[i, 14], jlim[i, 15]))
@@ -521,7 +537,7 @@ def _tendon_geometry(X, Q, jlim, i):
     return ga, gb, raw, rbw, ell, (d[0] / den, d[1] / den, d[2] / den)
 
 
-@njit(cache=True)
+@_leaf
 def _tendon_limit_targets(X, Q, V, W, nj, jlim, h, tsoft):
     """``SolverXPBD._tendon_limit_targets``: tsoft[t] = (side ±1 or 0, ℓ* [m], α̃) of each tendon limit."""
     for t in range(jlim.shape[0] - nj):
@@ -695,7 +711,7 @@ def _solve_limits_block(X, Q, IM, jt, jg, jvec, jqoff, jlim, bsoft, tsoft, mu, G
     _move_groups(X, Q, IM, G, dq)
 
 
-@njit(cache=True)
+@_leaf
 def _axis_basis(a):
     ax, ay, az = abs(a[0]), abs(a[1]), abs(a[2])
     if ax <= ay and ax <= az:
@@ -776,7 +792,7 @@ def _hinge_soft_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, side, target, at, 
     return dl
 
 
-@njit(cache=True)
+@_leaf
 def _slide_soft_limit(X, Q, IM, II, g1, g2, r1, a1, side, target, at, lam):
     """The soft limit row of a slide (``SolverXPBD._slide_axis`` with ``sl``); returns Δλ."""
     q1 = _q4(Q, g1)
@@ -831,7 +847,7 @@ def _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, reverse, js
             _attach(X, Q, IM, II, g1, g2, r1, r2)
 
 
-@njit(cache=True)
+@_leaf
 def _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, reverse):
     ne = et.shape[0]
     for k in range(ne):
@@ -844,7 +860,7 @@ def _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, reverse):
 # ---------------------------------------------------------------------------- length rows
 
 
-@njit(cache=True)
+@_leaf
 def _row_geometry(X, Q, rg, rvec, i):
     ga, gb = rg[i, 0], rg[i, 1]
     raw = _rot(_q4(Q, ga), _v3(rvec[i], 0))
@@ -854,7 +870,7 @@ def _row_geometry(X, Q, rg, rvec, i):
     return ga, gb, raw, rbw, d
 
 
-@njit(cache=True)
+@_leaf
 def _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, reverse):
     n = act.shape[0]
     for k in range(n):
@@ -926,7 +942,7 @@ def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob):
 # ---------------------------------------------------------------------------- soft pyramidal contacts
 
 
-@njit(cache=True)
+@_leaf
 def _impedance(solimp, pos):
     dmin, dmax, width, mid, power = solimp[0], solimp[1], solimp[2], solimp[3], solimp[4]
     dmin, dmax = min(max(dmin, 1e-4), 0.9999), min(max(dmax, 1e-4), 0.9999)
@@ -945,7 +961,7 @@ def _impedance(solimp, pos):
     return dmin + y * (dmax - dmin)
 
 
-@njit(cache=True)
+@_leaf
 def _contact_law(solref, solimp, condim, tran, mu, pos, cone, impratio, timestep):
     """``solver.mujoco_contact_law``: (k·d, b, R)."""
     tc, zeta = solref[0], solref[1]
@@ -967,7 +983,7 @@ def _contact_law(solref, solimp, condim, tran, mu, pos, cone, impratio, timestep
     return k * d, b, R
 
 
-@njit(cache=True)
+@_leaf
 def _contact_targets(X, Q, V, W, cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, h,
                      active, clocal, edge):
     """Soft pyramidal edge rows of every candidate for the substep (``SolverXPBD._soft_contact_targets``).
@@ -1372,7 +1388,7 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
         rate[i] = (vb[0] - va[0]) * n[0] + (vb[1] - va[1]) * n[1] + (vb[2] - va[2]) * n[2]
 
 
-@njit(cache=True)
+@_leaf
 def scatter(X, Q, V, W, body_group, in_group_quat, in_group_pos, x, q, v, w):
     """Group poses/velocities → every body's COM pose and velocity (``SolverXPBD._scatter``), in place."""
     for b in range(body_group.shape[0]):
@@ -1408,7 +1424,7 @@ def _vsub(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-@njit(cache=True)
+@_leaf
 def gather(x, q, v, w, root, from_root_quat, from_root_pos, X, Q, V, W):
     """Rigid-group poses and velocities (centre of mass [m], principal-frame quaternion, [m/s], [rad/s])
     from the body rows of their root bodies (``SolverXPBD._gather``); group 0 is the static world."""
@@ -1433,7 +1449,7 @@ def gather(x, q, v, w, root, from_root_quat, from_root_pos, X, Q, V, W):
     Q[0, 0], Q[0, 1], Q[0, 2], Q[0, 3] = 1.0, 0.0, 0.0, 0.0
 
 
-@njit(cache=True)
+@_leaf
 def contact_candidates(X, Q, V, W, group, plane, plane_group, local, radius, plane_origin, plane_normal,
                           margin0, dt, out):
     """Indices of the contact points whose gap to their plane is below margin0 + 2·dt·|v_rel| [m]
@@ -1460,7 +1476,7 @@ def contact_candidates(X, Q, V, W, group, plane, plane_group, local, radius, pla
     return n
 
 
-@njit(cache=True)
+@_leaf
 def body_frames(x, q, iquat, ipos, xb, qb):
     """World poses of the body frames (xpos [m], xquat) from the inertial-frame state (``body_frames``)."""
     for b in range(x.shape[0]):
@@ -1472,7 +1488,7 @@ def body_frames(x, q, iquat, ipos, xb, qb):
             qb[b, k] = qf[k]
 
 
-@njit(cache=True)
+@_leaf
 def qpos_qvel(x, q, v, w, hint, iquat, ipos, body_parent, body_quat, body_pos, jnt_type, jnt_body,
                  jnt_qposadr, jnt_dofadr, jnt_axis, qpos0, xb, qb, qpos, qvel):
     """MuJoCo generalized coordinates from the body state (``XpbdModel.qpos_qvel``; also fills the body
@@ -1528,7 +1544,7 @@ def qpos_qvel(x, q, v, w, hint, iquat, ipos, body_parent, body_quat, body_pos, j
                 qvel[da + k] = wl[k]
 
 
-@njit(cache=True)
+@_leaf
 def energies(x, q, v, w, root, from_root_quat, from_root_pos, group_mass, group_inertia, gravity):
     """(kinetic Σ ½mv² + ½ωᵀIω, potential −Σ m g·x) over the dynamic groups [J] (``kinetic_energy``,
     ``potential_energy``)."""
@@ -1610,22 +1626,26 @@ def group_jacobian(X, Q, IM, jt, jg, jvec, G):
     return True
 
 
-@njit(cache=True)
+@_leaf
 def _move_groups(X, Q, IM, G, dq):
     """Move every dynamic group by G·dq: the joint-space displacement ``dq`` through the group Jacobian G."""
     nq = len(dq)
     for g in range(X.shape[0]):
         if IM[g] == 0.0:
             continue
-        dx = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
-        for c in range(6):
-            for k in range(nq):
-                dx[c] += G[g, c, k] * dq[k]
-        X[g, 0] += dx[0]
-        X[g, 1] += dx[1]
-        X[g, 2] += dx[2]
-        if dx[3] != 0.0 or dx[4] != 0.0 or dx[5] != 0.0:
-            _setq(Q, g, _qadd(_q4(Q, g), (dx[3], dx[4], dx[5]), 1.0))
+        d0 = d1 = d2 = d3 = d4 = d5 = 0.0
+        for k in range(nq):
+            d0 += G[g, 0, k] * dq[k]
+            d1 += G[g, 1, k] * dq[k]
+            d2 += G[g, 2, k] * dq[k]
+            d3 += G[g, 3, k] * dq[k]
+            d4 += G[g, 4, k] * dq[k]
+            d5 += G[g, 5, k] * dq[k]
+        X[g, 0] += d0
+        X[g, 1] += d1
+        X[g, 2] += d2
+        if d3 != 0.0 or d4 != 0.0 or d5 != 0.0:
+            _setq(Q, g, _qadd(_q4(Q, g), (d3, d4, d5), 1.0))
 
 
 @njit(cache=True)
@@ -1675,7 +1695,7 @@ def _nonnegative_increment(A, rhs, lam, dlam):
     return True
 
 
-@njit(cache=True)
+@_leaf
 def _gauss_jordan(A, n):
     """Reduce the square block A[:, :n] of the augmented matrix A (n, n + k) to the identity in place
     (partial pivoting), so A[:, n:] becomes its inverse times the right-hand sides; False if singular."""
