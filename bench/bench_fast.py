@@ -17,7 +17,12 @@ median is reported:
   argument ``coupling``);
 * ``rosen/100``, ``rosen/1000``: coupling ``rosenbrock`` (also the linearisation is
   one Newton step: no nonlinear solve unless a step leaves the trust region);
-* ``python``: the Python-orchestrated :class:`MujocoPlant` (first 0.2 s only).
+* ``python``: the Python-orchestrated :class:`MujocoPlant` (first 0.2 s only);
+* ``pbd-θ 1ms×1``, ``pbd-rb 60Hz×10``: PBD mode (:class:`sim.plant_pbd.PbdPlant` on the runner's
+  block path, ``advance`` in blocks of ``MIN_BLOCK_STEPS`` frames) at 1 ms frames × 1 substep with
+  the θ-rule (the setting that matches MuJoCo mode's 1 ms accuracy on the excavator, see
+  ``bench_pbd.py``) and at 60 Hz × 10 substeps with the rosenbrock coupling; their µs are per
+  millisecond of simulated time, so the ratio compares them with 1 kHz of bare ``mj_step``.
 
 Prints µs/step, the ratio to bare, the real-time factor (simulated/wall time)
 and the process's peak RSS.  Run: ``.venv/bin/python bench/bench_fast.py``.
@@ -35,7 +40,7 @@ import mujoco
 
 from sim.plant_mujoco import MujocoPlant
 from sim.plant_mujoco_fast import MujocoPlantFast
-from sim.runner import MIN_BLOCK_STEPS
+from sim.runner import MIN_BLOCK_STEPS, make_plant
 from sim.scenario import load_scenario
 from sim.scene import load_scene
 
@@ -46,6 +51,11 @@ SCENES = {
     "excavator": MODELS / "excavator" / "dig.scenario.toml",
 }
 DT = 1e-3  # s
+# PBD mode's rows: label -> scenario overrides
+PBD_VARIANTS = {
+    "pbd-θ 1ms×1": dict(mode="pbd", dt=1e-3, pbd_substeps=1, pbd_blend=True),
+    "pbd-rb 60Hz×10": dict(mode="pbd", dt=1 / 60, pbd_substeps=10, coupling="rosenbrock"),
+}
 
 
 def peak_rss_mib() -> float:
@@ -69,7 +79,10 @@ def bench(name, path, reps, window, python_window=0.2):
     b = MIN_BLOCK_STEPS
     variants = ((b, f"fast/{b}", "implicit"), (1000, "fast/1000", "implicit"), (b, f"linear/{b}", "implicit-linear"),
                 (1000, "linear/1000", "implicit-linear"), (b, f"rosen/{b}", "rosenbrock"), (1000, "rosen/1000", "rosenbrock"))
-    times = {"bare": [], **{key: [] for _, key, _ in variants}, "python": []}
+    times = {"bare": [], **{key: [] for _, key, _ in variants}, "python": [], **{key: [] for key in PBD_VARIANTS}}
+    pbd_scenarios = {key: scenario.with_overrides(**overrides) for key, overrides in PBD_VARIANTS.items()}
+    for key, pbd_scenario in pbd_scenarios.items():  # kernels loaded before timing
+        make_plant(load_scene(pbd_scenario)).advance(2)
     newton = {coupling: 0 for _, _, coupling in variants}
     for _ in range(reps):
         bare = mujoco.MjData(m)
@@ -93,6 +106,14 @@ def bench(name, path, reps, window, python_window=0.2):
         for _ in range(python_steps):
             slow.step()
         times["python"].append((time.perf_counter() - t) / python_steps)
+        for key, pbd_scenario in pbd_scenarios.items():
+            pbd = make_plant(load_scene(pbd_scenario))
+            frames = int(round(window / pbd_scenario.dt))
+            t = time.perf_counter()
+            while pbd.step_index < frames:
+                report = pbd.advance(min(MIN_BLOCK_STEPS, frames - pbd.step_index))
+                assert report is not None and report.success, key
+            times[key].append((time.perf_counter() - t) / (frames * pbd_scenario.dt / DT))  # per 1 ms simulated
     med = {k: statistics.median(v) * 1e6 for k, v in times.items()}
     cells = "  ".join(f"{k} {med[k]:7.2f} µs {med[k] / med['bare']:5.2f}× RTF {DT * 1e6 / med[k]:6.1f}" for k in med)
     # Newton iterations of the finish, sampled at the last step of each runner-sized block
