@@ -887,16 +887,20 @@ class PbdPlant(PlantBase):
                              + float(self.net_state.node_pressure.sum()))
 
 
-def _c64(a):
-    """A C-contiguous, writeable float64 array (one numba signature)."""
-    a = np.ascontiguousarray(a, dtype=np.float64)
+def _writeable(a, dtype):
+    """``a`` as a C-contiguous, writeable array of ``dtype`` (one numba signature: the model's arrays are read-only)."""
+    a = np.ascontiguousarray(a, dtype=dtype)
     return a if a.flags.writeable else a.copy()
+
+
+def _c64(a):
+    """:func:`_writeable` float64."""
+    return _writeable(a, np.float64)
 
 
 def _i64(a):
-    """A C-contiguous, writeable int64 array (one numba signature: the model's arrays are read-only)."""
-    a = np.ascontiguousarray(a, dtype=np.int64)
-    return a if a.flags.writeable else a.copy()
+    """:func:`_writeable` int64."""
+    return _writeable(a, np.int64)
 
 
 def make_pbd_plant(scene: Scene, *, block: bool = True) -> PbdPlant:
