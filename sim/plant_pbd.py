@@ -47,7 +47,10 @@ Articulated response (``articulated``, once per step, trees of hinges and
 slides): the rows are solved together with the response of the whole
 mechanism, Δq = M⁻¹·Jᵀ·Δλ (``SubstepInputs.row_mobility``), and gravity
 enters the prediction as q̈ = M⁻¹·Q_gravity (``SubstepInputs.group_gravity``),
-both from the XPBD model's own kinematics.  With the free-body inverse masses
+both from the XPBD model's own kinematics; explicit row forces (a row whose
+slope is not below ``IMPLICIT_SLOPE_LIMIT``: θ = 0 with a friction slope of zero in
+the seal's Stribeck dip) enter the prediction the same way, q̈ = M⁻¹·Jᵀ·f, like the
+motors' efforts.  With the free-body inverse masses
 of plain XPBD, one Gauss-Seidel iteration leaves a stiff row (oil column, the
 seal-stiction slope of ~10⁶ N·s/m) far below its law, and the free fall of
 every body under uniform gravity leaves load-dependent joint errors that the
@@ -792,11 +795,24 @@ class PbdPlant(PlantBase):
         else:
             jf[self.motor_joint] = self.motor_gear * self._motor_effort
             joint_force = jf if len(mot) else None
+        row_force = force if np.any(force) else None
+        if row_force is not None and self._articulated_rows():
+            # explicit row forces act on the whole mechanism too (q̈ = M⁻¹·Jᵀ·f, the rows' mobilities): as
+            # per-body forces projected by one joint iteration, a row switching between its compliant and
+            # its explicit form (a friction slope crossing zero) kicked the mechanism
+            group_acceleration = group_acceleration + np.einsum("r,rgk->gk", force, self._mobility)
+            row_force = None
         return SubstepInputs(
             target_length=target if len(cyl) else None, compliance=compliance, force_min=lower, force_max=upper,
-            row_force=force if np.any(force) else None, joint_force=joint_force,
+            row_force=row_force, joint_force=joint_force,
             row_mobility=self._mobility, group_gravity=group_acceleration,
         )
+
+    def _articulated_rows(self) -> bool:
+        """Whether explicit cylinder-row forces enter through the articulated response (group accelerations
+        f·M⁻¹·Jᵀ, as the motors' efforts and gravity) rather than as forces on the two rigid groups: whenever the
+        step has the articulated data, except in the seed's ``pbd-naive`` scheme (per-body forces, classic PBD)."""
+        return self._mobility is not None and self._group_gravity is not None and not self.naive
 
     def after_substep(self, k, h, state, forces):
         """XPBD hook: finish the hydraulic step with the realised cylinder lengths and motor speeds."""

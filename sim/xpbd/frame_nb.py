@@ -12,7 +12,8 @@ Per substep, in the order of :meth:`sim.plant_pbd.PbdPlant.before_substep`,
    responses (row mobilities, group gravity + motor responses) are carried to the substep's
    pose through joint space (``compiled.transport``, as ``SolverXPBD.transport_response``);
 2. cylinder rows: compliant rows α = −h/s, ℓ* = ℓ₀ − h·c/s where s < −1e-9,
-   otherwise explicit row forces c + s·v₀ (``SolverXPBD._external``); motors:
+   otherwise explicit row forces c + s·v₀, applied through the articulated response
+   (group accelerations f·mobility, added to gravity's); motors:
    backward Euler on the joint, effort (c + s·v)/(1 + max(−s, 0)·gear²·h·(M⁻¹)ⱼⱼ),
    applied through the articulated response with gravity (group accelerations);
 3. the XPBD substep (``compiled.substep``) and the body write-back
@@ -73,7 +74,7 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
     act = np.empty(nr, np.int64)
     implicit = np.empty(nr, np.bool_)
     rforce = np.zeros(nr)
-    Fe = np.zeros((ng, 3))
+    Fe = np.zeros((ng, 3))  # no per-group forces: explicit row forces go through the articulated response
     Te = np.zeros((ng, 3))
     gg = np.empty((ng, 6))
     tau = np.zeros(jt.shape[0])
@@ -126,6 +127,13 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
                 for i in range(nm):
                     s += motor_effort[i] * mresp[i, g, c]
                 gg[g, c] = gg0[g, c] + s if nm else gg0[g, c]
+        if any_force:  # explicit row forces through the articulated response (PbdPlant.before_substep)
+            for g in range(ng):
+                for c in range(6):
+                    s = 0.0
+                    for r in range(nr):
+                        s += rforce[r] * mob[r, g, c]
+                    gg[g, c] += s
         if carry and k > 0:
             XC.group_jacobian(Xg, Qg, IM, jt, jg, jvec, Gk)
             for r in range(nr):
@@ -133,26 +141,6 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
             XC.transport(Gk, P0, gg, gg)
         else:
             mobk[:, :, :] = mob
-        Fe[:, :] = 0.0
-        Te[:, :] = 0.0
-        if any_force:  # SolverXPBD._external: explicit row forces along the rows
-            for r in range(nr):
-                if rforce[r] == 0.0:
-                    continue
-                ga, gb = rg[r, 0], rg[r, 1]
-                ra = XC._rot(XC._q4(Qg, ga), XC._v3(rvec[r], 0))
-                rb = XC._rot(XC._q4(Qg, gb), XC._v3(rvec[r], 1))
-                d = ((Xg[gb, 0] + rb[0]) - (Xg[ga, 0] + ra[0]), (Xg[gb, 1] + rb[1]) - (Xg[ga, 1] + ra[1]),
-                     (Xg[gb, 2] + rb[2]) - (Xg[ga, 2] + ra[2]))
-                norm = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-                f = (rforce[r] * d[0] / norm, rforce[r] * d[1] / norm, rforce[r] * d[2] / norm)
-                cb = XC._cross(rb, f)
-                ca = XC._cross(ra, f)
-                for c in range(3):
-                    Fe[gb, c] += f[c]
-                    Te[gb, c] += cb[c]
-                    Fe[ga, c] -= f[c]
-                    Te[ga, c] -= ca[c]
         XC.substep(Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, iterations, symmetric,
                   jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
                   rg, rvec, act[:nact], tgt, at, lo, hi, nact > 0, mobk, always, gg, Fe, Te, never, tau,
