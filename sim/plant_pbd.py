@@ -123,8 +123,9 @@ mass under a force held over the substep), minus Δ(kinetic + potential) over
 each step.  XPBD cannot separate joint damping, contact losses and the
 (small, O(h)) energy error of its joint projections, so all three are in this
 term; the oil column's backward-Euler loss stays in the residual.  Not
-modelled by the XPBD solver (see ``sim/xpbd/solver.py``): joint armature (the
-excavator swing's 320 kg·m², 0.1–0.3 % of its inertia: a warning says so),
+modelled by the XPBD solver (see ``sim/xpbd/solver.py``): joint armature except on
+hinges whose parent is static (the excavator swing's 320 kg·m² is modelled: a rotor
+inertia of the upper group, and on the joint-space diagonal; elsewhere a warning says so),
 frictionloss, joint stiffness, contacts other than sphere/capsule/box against
 planes; its joint and two-site tendon limits follow MuJoCo's soft limit law; its contacts are soft in the normal
 direction with MuJoCo's law for the scene's solref/solimp (``sim.xpbd.solver.mujoco_contact_law``),
@@ -317,6 +318,7 @@ class PbdPlant(PlantBase):
         jw_local = np_quat_rotate_inv(st.q[None, :, :], jw)  # in each body's principal frame
         inertia = self._body_inertia * (self._body_mass > 0)[:, None]
         mass = np.einsum("b,ibk,jbk->ij", self._body_mass, jv, jv) + np.einsum("bk,ibk,jbk->ij", inertia, jw_local, jw_local)
+        mass[np.diag_indices(nv)] += xm.jnt_armature  # rotor inertia of the joints (XpbdModel.jnt_armature)
         gravity = np.einsum("b,ibk,k->i", self._body_mass, jv, xm.gravity)
         if len(self.cylinders):
             sites = xm.site_positions(st)
@@ -525,8 +527,8 @@ class PbdPlant(PlantBase):
             *rows, *buffers, int(xm.contact_cone), float(xm.contact_impratio), solver.linear_damping, solver.angular_damping,
             fm["body_group"], fm["in_group_quat"], fm["in_group_pos"],
             a["iquat"], a["ipos"], a["jnt_body"], a["jnt_axis"], a["jnt_pos"], a["hinge"], a["subtree"], a["body_mass"],
-            a["inertia"], a["site_body"], a["site_pos"], a["row_sites"], a["mot_dof"], a["group_mass"], a["group_root"],
-            a["group_dynamic"], np.zeros_like(a["mobility"]), np.zeros_like(a["group_gravity"]),
+            a["inertia"], a["armature"], a["site_body"], a["site_pos"], a["row_sites"], a["mot_dof"], a["group_mass"],
+            a["group_root"], a["group_dynamic"], np.zeros_like(a["mobility"]), np.zeros_like(a["group_gravity"]),
             np.zeros_like(a["motor_response"]), np.zeros_like(a["motor_inverse_inertia"]), np.zeros_like(a["effective_mass"]),
             nb["group_inertia"], nb["parent"], nb["body_quat"], nb["body_pos"], nb["jnt_type"], nb["jnt_qposadr"],
             nb["jnt_dofadr"], nb["qpos0"], np.zeros((xm.nbody, 3)), np.zeros((xm.nbody, 4)), np.zeros(nq), np.zeros(xm.nv),
@@ -589,8 +591,8 @@ class PbdPlant(PlantBase):
         ``self._effective_mass``: 1/(J·M⁻¹·Jᵀ)ᵢᵢ per actuator [kg or kg·m²]
         (the coupling's θ choice / the incompressible law), and
         ``self._motor_inverse_inertia``: (M⁻¹)ⱼⱼ of each motor joint.
-        Computed once per step (the pose changes little within it); joint
-        damping, armature and contacts are not in M.
+        Computed once per step (the pose changes little within it); M holds the
+        armature the XPBD model carries (``XpbdModel.jnt_armature``), not joint damping or contacts.
         """
         self._mobility = self._group_gravity = self._effective_mass = self._motor_response = None
         self._motor_inverse_inertia = np.zeros(len(self.motors))
@@ -628,7 +630,7 @@ class PbdPlant(PlantBase):
         xm, st = self.xmodel, self.state
         ok = ctx["articulated_kernel"](
             _c64(st.x), _c64(st.q), a["iquat"], a["ipos"], a["jnt_body"], a["jnt_axis"], a["jnt_pos"], a["hinge"],
-            a["subtree"], a["body_mass"], a["inertia"], a["gravity"], a["site_body"], a["site_pos"], a["row_sites"],
+            a["subtree"], a["body_mass"], a["inertia"], a["armature"], a["gravity"], a["site_body"], a["site_pos"], a["row_sites"],
             ctx["cyl"], ctx["mot"], a["mot_dof"], ctx["gear"], a["body_group"], a["group_mass"], a["group_root"],
             a["group_dynamic"], a["mobility"], a["group_gravity"], a["motor_response"], a["motor_inverse_inertia"],
             a["effective_mass"])
@@ -742,7 +744,8 @@ class PbdPlant(PlantBase):
             iquat=_c64(xm.body_iquat), ipos=_c64(xm.body_ipos), jnt_body=_i64(xm.jnt_body),
             jnt_axis=_c64(xm.jnt_axis), jnt_pos=_c64(xm.jnt_pos), hinge=np.ascontiguousarray(self._hinge, np.bool_),
             subtree=np.ascontiguousarray(self._subtree, np.bool_), body_mass=_c64(self._body_mass),
-            inertia=_c64(self._body_inertia * (self._body_mass > 0)[:, None]), gravity=_c64(xm.gravity),
+            inertia=_c64(self._body_inertia * (self._body_mass > 0)[:, None]), armature=_c64(xm.jnt_armature),
+            gravity=_c64(xm.gravity),
             site_body=_i64(xm.site_body), site_pos=_c64(xm.site_pos_inertial),
             row_sites=np.ascontiguousarray(self._row_sites, np.int64),
             mot_dof=_i64(xm.jnt_dofadr[self.motor_joint]), body_group=_i64(xm.body_group),

@@ -34,7 +34,7 @@ IN_CONTACT = {"swing": 0.0, "boom": 0.30, "stick": -0.3138, "bucket": 0.30}
 @pytest.fixture(autouse=True)
 def _quiet_xpbd_notes():
     with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="XpbdModel:")  # the swing armature (0.1 % of its inertia)
+        warnings.filterwarnings("ignore", message="XpbdModel:")  # notes on features XPBD does not model (none on the stock scenes)
         yield
 
 

@@ -60,7 +60,7 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
            c_cg, c_cvec, c_crad, c_mu, c_solref, c_solimp, c_condim, c_tran,
            b_cg, b_cvec, b_crad, b_mu, b_solref, b_solimp, b_condim, b_tran,
            cone, impratio, lin_damp, ang_damp, body_group, in_group_quat, in_group_pos,
-           iquat, ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, site_body, site_pos,
+           iquat, ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, armature, site_body, site_pos,
            row_sites, mot_dof, group_mass, group_root, group_dynamic,
            mobility, group_gravity, motor_response, minv, effective_mass,
            group_inertia, parent, body_quat, body_pos, jnt_type, jnt_qposadr, jnt_dofadr, qpos0, xb, qb, qpos, qvel,
@@ -71,7 +71,7 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
     rec[4] = 0  # a recorded row was not finite
     for k in range(nframe):
         if not FN._articulated_jit(
-                bx, bq, iquat, ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, gravity,
+                bx, bq, iquat, ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, armature, gravity,
                 site_body, site_pos, row_sites, cyl, mot, mot_dof, gear, body_group, group_mass, group_root,
                 group_dynamic, mobility, group_gravity, motor_response, minv, effective_mass):
             return k, BLOCK_INELIGIBLE

@@ -241,7 +241,7 @@ def frame(transport: bool = False, articulated_contacts: bool = True):
 # ---------------------------------------------------------------------------- articulated response
 
 
-def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia,
+def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, armature,
                  gravity, site_body, site_pos, row_sites, cyl, mot, mot_dof, gear, body_group, group_mass, group_root,
                  group_dynamic, mobility, group_gravity, motor_response, motor_inverse_inertia, effective_mass):
     """``PbdPlant.articulated`` for trees of hinges and slides (one DOF per joint, joint j = DOF j); returns
@@ -298,7 +298,7 @@ def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge
             for b in range(nb):
                 s += (inertia[b, 0] * jwl[i, b, 0] * jwl[k, b, 0] + inertia[b, 1] * jwl[i, b, 1] * jwl[k, b, 1]
                       + inertia[b, 2] * jwl[i, b, 2] * jwl[k, b, 2])
-            mass[i, k] = s
+            mass[i, k] = s + armature[i] if i == k else s
         s = 0.0
         for b in range(nb):
             s += body_mass[b] * (jv[i, b, 0] * gravity[0] + jv[i, b, 1] * gravity[1] + jv[i, b, 2] * gravity[2])

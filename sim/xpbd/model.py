@@ -230,6 +230,9 @@ class XpbdModel:
     # MuJoCo soft joint limits (``SolverXPBD(soft_limits=True)``): per joint solref/solimp of the limit and
     # MuJoCo's diagonal approximation of its effective inverse inertia (dof_invweight0 [1/(kg·m²)] for a
     # hinge, [1/kg] for a slide); None = rigid limits (a model built without them)
+    # rotor inertia [kg·m²] of each joint as modelled (MuJoCo's dof_armature on hinges whose parent is static, in
+    # their child group's inertia; 0 elsewhere); the plant's joint-space mass matrix adds it to its diagonal
+    jnt_armature: Optional[np.ndarray] = None     # (nj,)
     jnt_solref: Optional[np.ndarray] = None       # (nj, 2) timeconst [s], dampratio [-] (or −stiffness, −damping)
     jnt_solimp: Optional[np.ndarray] = None       # (nj, 5) dmin, dmax, width [rad or m], midpoint, power
     jnt_invweight: Optional[np.ndarray] = None    # (nj,) dof_invweight0 of the joint's (first) dof
@@ -288,6 +291,18 @@ class XpbdModel:
         for b in range(nbody):
             if body_group[b] == 0:
                 T_GB_pos[b], T_GB_quat[b] = xpos0[b], xquat0[b]
+        # joint armature (MuJoCo's rotor inertia on the dof, dof_armature [kg·m²]) on a hinge whose parent is
+        # static: the child group turns about the fixed axis at the joint rate, so the rotor is the rank-one
+        # inertia armature·a·aᵀ of that group (exact); on other joints it is ignored (a note)
+        armature = np.zeros(njnt)
+        rotor = {}  # group root body -> rotor inertia (3×3) [kg·m²] in the root body's frame
+        for j in range(njnt):
+            b, arm = int(m.jnt_bodyid[j]), float(m.dof_armature[m.jnt_dofadr[j]])
+            if arm > 0 and m.jnt_type[j] == JNT_HINGE and body_group[parent[b]] == 0 and body_group[b] != 0 and weld[b] == b:
+                a = np.array(m.jnt_axis[j], dtype=float)
+                a /= np.linalg.norm(a)
+                rotor[b] = rotor.get(b, np.zeros((3, 3))) + arm * np.outer(a, a)
+                armature[j] = arm
         for gi, r in enumerate(roots, start=1):
             members = [b for b in range(nbody) if body_group[b] == gi]
             # body frames relative to the root body frame
@@ -297,7 +312,7 @@ class XpbdModel:
                     continue
                 pp, pq = rel[parent[b]]
                 rel[b] = _compose(pp, pq, m.body_pos[b], m.body_quat[b])
-            if len(members) == 1:
+            if len(members) == 1 and r not in rotor:
                 if m.body_mass[r] <= 0 or np.any(m.body_inertia[r] <= 0):
                     raise ValueError(f"moving body {m.body(r).name!r} has no mass/inertia")
                 Gp, Gq = ipos[r].copy(), iquat[r].copy()
@@ -318,6 +333,7 @@ class XpbdModel:
                     d = coms[b] - c
                     Ifull += rots[b] @ np.diag(m.body_inertia[b]) @ rots[b].T
                     Ifull += m.body_mass[b] * (d @ d * np.eye(3) - np.outer(d, d))
+                Ifull += rotor.get(r, 0.0)
                 evals, evecs = np.linalg.eigh(Ifull)
                 if np.linalg.det(evecs) < 0:
                     evecs[:, 2] *= -1.0
@@ -393,8 +409,8 @@ class XpbdModel:
             for key, val in zip(J, (g1, g2, r1, r2, a1, a2, offq, lo, hi)):
                 J[key].append(val)
             dofs = range(m.jnt_dofadr[j], m.jnt_dofadr[j] + {0: 6, 1: 3, 2: 1, 3: 1}[t])
-            if any(m.dof_armature[d] != 0 for d in dofs):
-                notes.append(f"joint {j}: armature ignored")
+            if any(m.dof_armature[d] != 0 for d in dofs) and armature[j] == 0:
+                notes.append(f"joint {j}: armature ignored (modelled on hinges whose parent is static)")
             if any(m.dof_frictionloss[d] != 0 for d in dofs):
                 notes.append(f"joint {j}: frictionloss ignored")
             if m.jnt_stiffness[j] != 0:
@@ -536,7 +552,7 @@ class XpbdModel:
             jnt_a1=arr(J["a1"], (nj, 3)), jnt_a2=arr(J["a2"], (nj, 3)),
             jnt_qoff=arr(J["qoff"], (nj, 4)), jnt_limited=_frozen(limited, bool),
             jnt_lo=arr(J["lo"], (nj,)), jnt_hi=arr(J["hi"], (nj,)),
-            jnt_range=_frozen(m.jnt_range), jnt_damping=_frozen(damping),
+            jnt_range=_frozen(m.jnt_range), jnt_damping=_frozen(damping), jnt_armature=_frozen(armature),
             jnt_qposadr=_frozen(m.jnt_qposadr, int), jnt_dofadr=_frozen(m.jnt_dofadr, int),
             jnt_pos=_frozen(m.jnt_pos), jnt_axis=_frozen(m.jnt_axis), qpos0=_frozen(qpos0),
             eq_type=arr(E["type"], (ne,), int), eq_g1=arr(E["g1"], (ne,), int),

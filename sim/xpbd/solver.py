@@ -243,7 +243,7 @@ class SolverXPBD:
     MuJoCo and an impact has the same time constant.  Friction stays Coulomb (static and
     dynamic, [RB] Sec. 3.5–3.6), not MuJoCo's soft pyramid.  ``soft_contacts=False`` gives
     the rigid contacts of [RB].
-    Not modelled: armature, frictionloss, joint stiffness, gravcomp, actuators, contacts
+    Not modelled: armature (except on hinges whose parent is static: ``XpbdModel.jnt_armature``), frictionloss, joint stiffness, gravcomp, actuators, contacts
     other than sphere/capsule/box vs plane, soft equalities (rigid), limits of tendons that are not
     straight two-site spatial tendons between different rigid groups.
     """
