@@ -84,6 +84,29 @@ def compiled_available() -> bool:
     return _NUMBA
 
 
+def source_sha256(*paths) -> str:
+    """sha256 of the source files ``paths`` and of numba's version.
+
+    numba keys a cached function by its own file only, so an entry point that compiles in functions of other files
+    carries this digest as a closure variable (part of numba's cache key).  The modules take it when they are
+    imported: a process that imported one version of the sources keeps that version's key even if a file changes on
+    disk before its first compilation (a key read at compile time would file the old code under the new sources).
+    A file that cannot be read makes the digest unique to this process (never reuse a cache entry across versions).
+    """
+    import hashlib
+    import os
+
+    digest = hashlib.sha256()
+    for path in paths:
+        try:
+            with open(path, "rb") as f:
+                digest.update(f.read())
+        except OSError:  # pragma: no cover
+            digest.update(repr((path, os.getpid())).encode())
+    digest.update(_numba.__version__.encode() if _NUMBA else b"")
+    return digest.hexdigest()
+
+
 def _jit(function):
     """``numba.njit`` with the disk cache and numpy's floating-point error model (x/0 → inf/nan, no exception)."""
     if not _NUMBA:  # pragma: no cover

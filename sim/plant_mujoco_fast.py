@@ -113,7 +113,6 @@ allowed, :meth:`advance` continues from the assigned values); module-level
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import os
 import threading
 from collections import namedtuple
@@ -606,17 +605,8 @@ def _callback_function(fingerprint):
     return coupled_step_c
 
 
-def _source_fingerprint() -> str:
-    """sha256 of this file and of hydraulics/_compiled.py (everything the callback compiles in, apart from numba)."""
-    digest = hashlib.sha256()
-    for path in (__file__, C.__file__):
-        try:
-            with open(path, "rb") as f:
-                digest.update(f.read())
-        except OSError:  # pragma: no cover - no sources: never reuse a cache entry across versions
-            digest.update(repr((path, os.getpid())).encode())
-    digest.update(numba.__version__.encode())
-    return digest.hexdigest()
+# this file and hydraulics/_compiled.py (everything the callback compiles in), taken at import: part of the cache key
+SOURCE_SHA256 = C.source_sha256(__file__, C.__file__)
 
 
 # ----------------------------------------------------------------------------
@@ -650,7 +640,7 @@ def callback():
         llvm_binding.add_symbol(CTX_SYMBOL, int(_CTX.ctypes.data))
         llvm_binding.add_symbol(SOLVEM_SYMBOL, _mj_solveM_address())
         _CALLBACK = numba.cfunc(types.void(types.voidptr, types.voidptr), error_model="numpy", cache=True)(
-            _callback_function(_source_fingerprint()))
+            _callback_function(SOURCE_SHA256))
         _CALLBACK_POINTER = _CALLBACK.ctypes
     return _CALLBACK
 

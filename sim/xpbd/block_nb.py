@@ -39,10 +39,10 @@ Caching as :mod:`sim.xpbd.frame_nb`: the entry point carries the sources' sha256
 
 from __future__ import annotations
 
-import hashlib
-
 import numpy as np
 from numba import njit
+
+from hydraulics import _compiled as C
 
 from . import compiled as XC
 from . import frame_nb as FN
@@ -179,12 +179,8 @@ def _record_row(row, pres, qpos, qvel, rq, rd, oil, pos, vel, effort, theta, cmd
     return finite
 
 
-def _fingerprint() -> str:
-    """sha256 of this file and of everything ``frame_nb`` fingerprints (part of the cache key)."""
-    digest = hashlib.sha256(FN._fingerprint().encode())
-    with open(__file__, "rb") as f:
-        digest.update(f.read())
-    return digest.hexdigest()
+# this file and everything frame_nb compiles in, taken at import: part of the cache key
+SOURCE_SHA256 = C.source_sha256(__file__, FN.__file__, H.__file__, XC.__file__, C.__file__)
 
 
 _BLOCK = {}
@@ -203,7 +199,7 @@ def block(transport: bool = False, articulated_contacts: bool = True):
         FN.articulated()
         if _block_jit is None:
             _block_jit = numba.njit(error_model="numpy")(_block)
-        fingerprint = _fingerprint()
+        fingerprint = SOURCE_SHA256
         transport_, contacts_ = key
 
         def block_entry(*args):

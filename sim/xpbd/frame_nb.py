@@ -35,9 +35,6 @@ this file, ``hydraulics_nb.py``, ``compiled.py`` and
 
 from __future__ import annotations
 
-import hashlib
-import os
-
 import numpy as np
 
 from hydraulics import _compiled as C
@@ -187,20 +184,9 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
     return FRAME_OK
 
 
-def _fingerprint() -> str:
-    """sha256 of every source compiled into the frame (this file, hydraulics_nb.py, compiled.py,
-    hydraulics/_compiled.py) and numba's version: part of the cache key."""
-    digest = hashlib.sha256()
-    for path in (__file__, H.__file__, XC.__file__, C.__file__):
-        try:
-            with open(path, "rb") as f:
-                digest.update(f.read())
-        except OSError:  # pragma: no cover
-            digest.update(repr((path, os.getpid())).encode())
-    import numba
-
-    digest.update(numba.__version__.encode())
-    return digest.hexdigest()
+# every source compiled into the frame (this file, hydraulics_nb.py, compiled.py, hydraulics/_compiled.py), taken at
+# import: part of the cache key
+SOURCE_SHA256 = C.source_sha256(__file__, H.__file__, XC.__file__, C.__file__)
 
 
 def _entry(fingerprint, transport, articulated_contacts):
@@ -234,7 +220,7 @@ def frame(transport: bool = False, articulated_contacts: bool = True):
 
         if _frame_jit is None:
             _frame_jit = numba.njit(error_model="numpy")(_frame)  # not cached on its own: only inside the entry
-        _FRAME[key] = _entry(_fingerprint(), *key)
+        _FRAME[key] = _entry(SOURCE_SHA256, *key)
     return _FRAME[key]
 
 
@@ -417,5 +403,5 @@ def articulated():
         import numba
 
         _articulated_jit = numba.njit(error_model="numpy")(_articulated)
-        _ARTICULATED = _articulated_entry(_fingerprint())
+        _ARTICULATED = _articulated_entry(SOURCE_SHA256)
     return _ARTICULATED

@@ -35,9 +35,6 @@ own and exist only inside the entry points.  One signature each.
 
 from __future__ import annotations
 
-import hashlib
-import os
-
 import numpy as np
 
 from hydraulics import _compiled as C
@@ -189,17 +186,9 @@ def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cm
     C._account(net, ledger, L_PUMP, h, pres, flow, v_end, quad, mu, fric, dv)
 
 
-def _fingerprint() -> str:
-    """sha256 of this file and of hydraulics/_compiled.py (everything compiled into the entry points) and numba's version."""
-    digest = hashlib.sha256()
-    for path in (__file__, C.__file__):
-        try:
-            with open(path, "rb") as f:
-                digest.update(f.read())
-        except OSError:  # pragma: no cover - no sources: never reuse a cache entry across versions
-            digest.update(repr((path, os.getpid())).encode())
-    digest.update(numba.__version__.encode() if _NUMBA else b"")
-    return digest.hexdigest()
+# this file and hydraulics/_compiled.py (everything compiled into the entry points), taken at import: part of the
+# cache key
+SOURCE_SHA256 = C.source_sha256(__file__, C.__file__)
 
 
 def _entry_points(fingerprint):
@@ -231,7 +220,7 @@ def entry_points():
     """(begin, finish), compiled or loaded from numba's disk cache on first use."""
     global _ENTRIES
     if _ENTRIES is None:
-        _ENTRIES = _entry_points(_fingerprint())
+        _ENTRIES = _entry_points(SOURCE_SHA256)
     return _ENTRIES
 
 
