@@ -63,6 +63,7 @@ from collections import namedtuple
 import numpy as np
 import scipy.linalg
 
+from . import coupling as _coupling
 from . import fluid as _fluid
 from . import laws
 from . import network as _network
@@ -149,8 +150,8 @@ _Net = namedtuple("_Net", _FLOAT_FIELDS + _INT_FIELDS)
 
 # sc: float scalars
 (S_PREF, S_BETA, S_AIR, S_NPOLY, S_FLOOR, S_PHI_FLOOR, S_NEWTON_PTOL, S_NEWTON_RTOL, S_SUFFICIENT, S_TRUST_P, S_TRUST_F,
- S_PINV_TOL, S_FILL_TOL, S_VREG) = range(14)
-_NSC = 14
+ S_PINV_TOL, S_FILL_TOL, S_VREG, S_GUESS) = range(15)
+_NSC = 15
 # ic: int scalars
 (IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_NPUMP, IC_O0, IC_O1, IC_L0, IC_L1, IC_R0, IC_R1, IC_C0,
  IC_C1, IC_P0, IC_P1, IC_M0, IC_M1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX, IC_FILL_MAX) = range(25)
@@ -199,6 +200,7 @@ def pack_network(model: NetworkModel):
     sc[S_PINV_TOL] = _network.PRESSURE_INVERSION_TOLERANCE
     sc[S_FILL_TOL] = _fluid.FILL_INVERSION_TOLERANCE
     sc[S_VREG] = laws.FRICTION_REGULARISATION_VELOCITY
+    sc[S_GUESS] = _coupling.GUESS_VOLUME_FRACTION
     ic = np.zeros(_NIC, np.int64)
     ic[IC_N] = n
     ic[IC_NF] = len(free)
@@ -1452,6 +1454,67 @@ def _clip_to_stroke(net, x, h, v):
     for c in range(cyl.shape[0]):
         a = ci[c, CI_ACT]
         v[a] = _minimum(_maximum(v[a], -x[a] / h), (cyl[c, CYL_STROKE] - x[a]) / h)
+
+
+@_kernel
+def _linearization_usable(istats, p, gradient):
+    """coupling._usable: the linearisation converged to finite pressures ``p`` and gradients (and was not singular)."""
+    if istats[IS_STATUS] != _OK or istats[IS_SINGULAR]:
+        return False
+    for i in range(p.size):
+        if not np.isfinite(p[i]):
+            return False
+    for i in range(gradient.shape[0]):
+        for j in range(gradient.shape[1]):
+            if not np.isfinite(gradient[i, j]):
+                return False
+    return True
+
+
+@_kernel
+def _start_velocity_guess(net, x, v, dt, guess):
+    """coupling.start_velocity_guess, clipped into the stroke as CouplingImplicit.begin does: ``guess`` = the start
+    velocities ``v`` [m/s or rad/s], 0 for a cylinder whose chord dt·|v| would change a chamber volume by more than
+    GUESS_VOLUME_FRACTION (``S_GUESS``); returns whether every actuator is held (guess 0)."""
+    for a in range(v.size):
+        guess[a] = v[a]
+    cyl, ci = net.cyl, net.cyl_i
+    fraction = net.sc[S_GUESS]
+    for c in range(cyl.shape[0]):
+        a = ci[c, CI_ACT]
+        vcap, vrod, _, _ = chamber_volumes_nb(x[a], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
+                                              cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
+        swept = dt * abs(guess[a])
+        if not (swept * cyl[c, CYL_CAP_AREA] <= fraction * vcap and swept * cyl[c, CYL_ROD_AREA] <= fraction * vrod):
+            guess[a] = 0.0
+    _clip_to_stroke(net, x, dt, guess)
+    for a in range(guess.size):
+        if guess[a] != 0.0:
+            return False
+    return True
+
+
+@_kernel
+def _linearize_at_start_velocity(newton, net, W, oil0, spool0, command, speed, x0, v, dt, guess, oil, p, spool, x, flow,
+                                 istats, effort, gradient, p_first, doil):
+    """CouplingImplicit.begin's linearisation (:func:`_linearize_any`) at :func:`_start_velocity_guess` of the start
+    velocities ``v``, written to ``guess``; where that guess is not held and its linearisation is not usable (an
+    unresolved oscillation: x + dt·v can empty a chamber), again at the held actuators.  Returns whether the
+    linearisation is at the held actuators; ``istats[IS_SINGULAR]`` tells a singular one."""
+    held = _start_velocity_guess(net, x0, v, dt, guess)
+    _linearize_any(newton, net, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats, effort,
+                   gradient, p_first, doil)
+    if not held and not _linearization_usable(istats, p, gradient):
+        for a in range(guess.size):
+            guess[a] = 0.0
+        _clip_to_stroke(net, x0, dt, guess)
+        held = True
+        for a in range(guess.size):
+            if guess[a] != 0.0:
+                held = False
+        _linearize_any(newton, net, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats,
+                       effort, gradient, p_first, doil)
+    return held
 
 
 @_kernel

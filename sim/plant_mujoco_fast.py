@@ -121,7 +121,7 @@ import mujoco
 import numpy as np
 
 from hydraulics import _compiled as C
-from hydraulics.coupling import GUESS_VOLUME_FRACTION, SCHEME_ROSENBROCK, CouplingImplicit
+from hydraulics.coupling import SCHEME_ROSENBROCK, CouplingImplicit
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepReport, StepStatus
 
@@ -156,8 +156,8 @@ except ImportError:  # pragma: no cover
 ) = range(80)
 
 # float scalars (P_FS): step, residual of the last step, ledger terms
-FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD, FS_GUESS = range(9)  # ledger: C._account's order
-NFS = 9
+FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD = range(8)  # ledger: C._account's order
+NFS = 8
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
 MODE_STEP, MODE_FINISH = range(2)  # C_MODE: a coupled step (from mj_step), or only finish the pending step
 
@@ -401,21 +401,6 @@ def _prepare(ctx, V):
 
 
 @_kernel
-def _usable(istats, p, gradient):
-    """coupling._usable: the linearisation converged to finite pressures and gradients (and was not singular)."""
-    if istats[C.IS_STATUS] != C._OK or istats[C.IS_SINGULAR]:
-        return False
-    for i in range(p.size):
-        if not np.isfinite(p[i]):
-            return False
-    for i in range(gradient.shape[0]):
-        for j in range(gradient.shape[1]):
-            if not np.isfinite(gradient[i, j]):
-                return False
-    return True
-
-
-@_kernel
 def _begin(ctx, net, V):
     """After M⁻¹·Jᵀ: the effort law of CouplingImplicit.begin, written to ctrl and biasprm."""
     k = ctx[C_K]
@@ -466,35 +451,10 @@ def _begin(ctx, net, V):
     speed = V.speed[k]
     oil, spool = V.oil, V.spool
     # predicted end velocities: the start velocities where their chord is short (coupling.start_velocity_guess),
-    # clipped so the cylinders stay inside their stroke
-    C._copy(guess, vs)
-    cyl, ci = net.cyl, net.cyl_i
-    fraction = fs[FS_GUESS]
-    for c in range(cyl.shape[0]):
-        a = ci[c, C.CI_ACT]
-        vcap, vrod, _, _ = C.chamber_volumes_nb(xs[a], cyl[c, C.CYL_STROKE], cyl[c, C.CYL_CAP_AREA], cyl[c, C.CYL_ROD_AREA],
-                                                cyl[c, C.CYL_DEAD_CAP], cyl[c, C.CYL_DEAD_ROD])
-        swept = dt * abs(guess[a])
-        if not (swept * cyl[c, C.CYL_CAP_AREA] <= fraction * vcap and swept * cyl[c, C.CYL_ROD_AREA] <= fraction * vrod):
-            guess[a] = 0.0
-    C._clip_to_stroke(net, xs, dt, guess)
-    held = True
-    for a in range(na):
-        if guess[a] != 0.0:
-            held = False
-    newton = ctx[C_LINEAR] != SCHEME_ROSENBROCK
-    norm = C._linearize_any(newton, net, W, oil, spool, cmd, speed, xs, guess, dt, lin_oil, lin_p, lin_spool, lin_x,
-                            lin_flow, istats, effort_end, gradient, p0, doil)
-    if not held and not _usable(istats, lin_p, gradient):
-        # CouplingImplicit.begin: a useless guess (unresolved oscillation) → linearise at the held actuators
-        guess[:] = 0.0
-        C._clip_to_stroke(net, xs, dt, guess)
-        held = True
-        for a in range(na):
-            if guess[a] != 0.0:
-                held = False
-        norm = C._linearize_any(newton, net, W, oil, spool, cmd, speed, xs, guess, dt, lin_oil, lin_p, lin_spool, lin_x,
-                                lin_flow, istats, effort_end, gradient, p0, doil)
+    # clipped so the cylinders stay inside their stroke; the held actuators where that linearisation is useless
+    held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, net, W, oil, spool, cmd, speed, xs, vs, dt,
+                                          guess, lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient,
+                                          p0, doil)
     if istats[C.IS_SINGULAR]:
         ctx[C_STATUS] = ST_SINGULAR
         ctx[C_FAILED] = k
@@ -697,7 +657,6 @@ class MujocoPlantFast(MujocoPlant):
         self._pmax, self._pmin = np.zeros(n), np.zeros(n)
         self._fs = np.zeros(NFS)
         self._fs[FS_DT] = self.dt
-        self._fs[FS_GUESS] = GUESS_VOLUME_FRACTION
         quad_nodes, quad_weights = np.polynomial.legendre.leggauss(POTENTIAL_QUADRATURE_POINTS)
         self._quad = np.concatenate([quad_nodes, quad_weights])
         self._capacity = 0

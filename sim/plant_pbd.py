@@ -143,7 +143,7 @@ import math
 
 import numpy as np
 
-from hydraulics.coupling import make_coupling
+from hydraulics.coupling import make_coupling, start_velocity_guess
 from hydraulics.load import apply_inputs
 from hydraulics.network import ACTUATOR_CYLINDER
 from hydraulics.steppers import StepReport
@@ -768,7 +768,7 @@ class PbdPlant(PlantBase):
         else:
             law = self.coupling.begin(self.net_state, self.control, x, v, h,
                                       effective_mass=self._effective_mass if self.incompressible or self.rigid or self.blend
-                                      else None)
+                                      else None, velocity_guess=start_velocity_guess(self.network, x, v, h))
             law_constant, law_slope, law_lower, law_upper = law.constant, law.slope, law.lower, law.upper
         cyl = self.cylinders
         c, s = law_constant[cyl], law_slope[cyl]

@@ -5,7 +5,7 @@ Per substep, in the order of :meth:`sim.plant_pbd.PbdPlant.before_substep`,
 :meth:`~sim.plant_pbd.PbdPlant.after_substep`:
 
 1. the effort law c + s·v⁺ of every actuator (``hydraulics_nb._begin_core``:
-   ``CouplingImplicit.begin`` at velocity guess 0; ``scheme``: the coupling's
+   ``CouplingImplicit.begin`` at the start-velocity guess; ``scheme``: the coupling's
    ``hydraulics.coupling.SCHEME_*``; θ = 1, or with ``blend`` from the step's effective masses
    ``meff``, written to ``theta``);
    With ``frame(transport=True)``, from the second substep on, the step's articulated

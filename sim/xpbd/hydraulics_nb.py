@@ -22,8 +22,9 @@ Scope: the ``implicit`` coupling (PBD mode's default) and its linear variants
 ``scheme`` argument) at the ``compressible`` fidelity with the compiled
 implicit-Euler stepper and one hydraulic substep per XPBD substep, where θ = 1
 or, with the plant's ``blend`` (scenario ``pbd_blend``), the θ-rule from the
-articulated effective masses, and the linearisation is at the held actuators
-(velocity guess 0, clipped into the stroke).  Any other configuration keeps the Python
+articulated effective masses, and the linearisation is at the substep's start velocities
+where their chord is short (``coupling.start_velocity_guess``, as MuJoCo mode; else at the
+held actuators), clipped into the stroke.  Any other configuration keeps the Python
 hooks (:func:`eligible`).
 
 Caching: numba caches a function by its own file only, so the two entry points
@@ -98,7 +99,8 @@ _begin_temporaries_nb = _kernel(_begin_temporaries)
 @_kernel
 def _begin_core(net, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const, slope, scheme, blend, effective_mass,
                 theta):
-    """CouplingImplicit.begin at velocity guess 0: the effort law (const, slope) and its θ per actuator (``theta``);
+    """CouplingImplicit.begin at the start velocities ``v`` as the velocity guess (``start_velocity_guess``): the effort
+    law (const, slope) and its θ per actuator (``theta``);
     returns False if singular.  ``scheme``: the coupling's ``hydraulics.coupling.SCHEME_*`` (rosenbrock linearises
     by one Newton step); ``blend``: θ from ``effective_mass`` [kg or kg·m²] (``blend_factor``, the start force
     from the state's pressures ``pres`` [Pa], which belong to ``oil`` at ``x``), else θ = 1."""
@@ -120,12 +122,10 @@ def _begin_core(net, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const,
     lin_x, o = C._take(S, o, na)
     lin_flow, o = C._take(S, o, nb)
     effort_end = fg  # overwritten by the guess's friction below
-    # velocity guess 0, kept inside the stroke
-    for a in range(na):
-        guess[a] = 0.0
-    C._clip_to_stroke(net, x, h, guess)
-    C._linearize_any(scheme != SCHEME_ROSENBROCK, net, W, oil, spool, cmd, speed, x, guess, h, lin_oil, lin_p, lin_spool,
-                     lin_x, lin_flow, istats, effort_end, gradient, p_first, doil)
+    # linearised at the start velocities where their chord is short (coupling.start_velocity_guess), kept inside the
+    # stroke, else at the held actuators
+    C._linearize_at_start_velocity(scheme != SCHEME_ROSENBROCK, net, W, oil, spool, cmd, speed, x, v, h, guess, lin_oil,
+                                   lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient, p_first, doil)
     if istats[C.IS_SINGULAR]:
         return False
     C._effort_law_terms(net, guess, lin_p, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
