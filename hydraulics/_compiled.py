@@ -1487,6 +1487,13 @@ def _start_velocity_guess(net, x, v, dt, guess):
         swept = dt * abs(guess[a])
         if not (swept * cyl[c, CYL_CAP_AREA] <= fraction * vcap and swept * cyl[c, CYL_ROD_AREA] <= fraction * vrod):
             guess[a] = 0.0
+    return _clipped_guess_is_held(net, x, dt, guess)
+
+
+@_kernel
+def _clipped_guess_is_held(net, x, dt, guess):
+    """Clip ``guess`` into the stroke (:func:`_clip_to_stroke`); whether every actuator is then held (guess 0: a
+    cylinder already past an end keeps the velocity that brings it back)."""
     _clip_to_stroke(net, x, dt, guess)
     for a in range(guess.size):
         if guess[a] != 0.0:
@@ -1507,11 +1514,7 @@ def _linearize_at_start_velocity(newton, net, W, oil0, spool0, command, speed, x
     if not held and not _linearization_usable(istats, p, gradient):
         for a in range(guess.size):
             guess[a] = 0.0
-        _clip_to_stroke(net, x0, dt, guess)
-        held = True
-        for a in range(guess.size):
-            if guess[a] != 0.0:
-                held = False
+        held = _clipped_guess_is_held(net, x0, dt, guess)
         _linearize_any(newton, net, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats,
                        effort, gradient, p_first, doil)
     return held

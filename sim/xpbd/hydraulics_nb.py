@@ -11,7 +11,7 @@ cost ≈ 300 µs per substep, most of it Python and numpy call overhead.
 substep with buffers allocated once, calling the allocation-free cores of
 :mod:`hydraulics._compiled` (``_linearize_core``, ``_step_core``) and the
 pieces of the coupled step it shares with :mod:`sim.plant_mujoco_fast`
-(``_take_linearization``, ``_clip_to_stroke``, ``_effort_law_terms``,
+(``_take_linearization``, ``_linearize_at_start_velocity``, ``_effort_law_terms``,
 ``_predicted_oil``, ``_commit_if_finite``, ``_account``).  Same
 equations, same Newton iterations; the results agree with the Python hooks to
 round-off (summation orders of the ledger and of the oil prediction).
