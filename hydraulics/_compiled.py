@@ -129,6 +129,41 @@ def _kernel(function):
     return _numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=False)(function)
 
 
+if _NUMBA:
+    from numba.core import cgutils as _cgutils
+    from numba.extending import intrinsic as _intrinsic
+
+    @_intrinsic
+    def borrowed(typingctx, args):
+        """The tuple ``args`` with every array replaced by a view that owns no reference (a null meminfo).
+
+        For a reference-counted entry point that passes its (caller-owned) arrays to many compiled callees:
+        numba's ``NRT_incref``/``NRT_decref`` return at once on a null meminfo, so the callees' reference
+        counting costs a compare per call instead of an atomic add.  Safe while the arrays of ``args`` stay
+        alive, i.e. for the duration of the call that received them; a borrowed view must not be returned
+        or stored.  Other members of the tuple are passed through unchanged.
+        """
+        if not isinstance(args, _numba.types.BaseTuple):
+            return None
+
+        def codegen(context, builder, signature, llargs):
+            (value,) = llargs
+            out = value
+            for i, member in enumerate(args.types):
+                if isinstance(member, _numba.types.Array):
+                    item = builder.extract_value(value, i)
+                    view = context.make_array(member)(context, builder, value=item)
+                    view.meminfo = _cgutils.get_null_value(view.meminfo.type)
+                    view.parent = _cgutils.get_null_value(view.parent.type)
+                    out = builder.insert_value(out, view._getvalue(), i)
+            return out
+
+        return args(args), codegen
+else:  # pragma: no cover
+    def borrowed(args):
+        return args
+
+
 def _inline(function):
     """:func:`_kernel`, inlined into its callers at numba IR level (small helpers that take ``net``:
     LLVM does not inline them, and each call passes ~170 machine words)."""

@@ -260,3 +260,22 @@ def test_law_pieces_compiled_matches_pure(name):
         assert _same_law_pieces(net, pa, pb) == expected
         changed, same = changed + (not expected), same + expected
     assert changed > 50 and same > 20  # both outcomes exercised
+
+
+def test_borrowed_views_alias_their_arrays():
+    """``borrowed`` passes arrays through as views of the same memory (writes reach the caller's array), other
+    members unchanged."""
+    import numba
+
+    from hydraulics._compiled import borrowed
+
+    @numba.njit
+    def scale_first(*args):
+        a, k, b = borrowed(args)
+        for i in range(a.size):
+            a[i] *= k
+        return b[1, 0] + k
+
+    a, b = np.arange(4.0), np.eye(2) + 1.0
+    assert scale_first(a, 3.0, b) == 4.0
+    np.testing.assert_array_equal(a, [0.0, 3.0, 6.0, 9.0])

@@ -205,7 +205,9 @@ def block(transport: bool = False, articulated_contacts: bool = True):
         def block_entry(*args):
             if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
                 return -1, -1
-            return _block_jit(*args, transport_, contacts_)
+            # the block's arrays are owned by the caller for the whole call: its callees borrow them
+            # (no atomic reference counting per call; see hydraulics._compiled.borrowed)
+            return _block_jit(*C.borrowed(args), transport_, contacts_)
 
         _BLOCK[key] = numba.njit(cache=True, error_model="numpy")(block_entry)
     return _BLOCK[key]
