@@ -159,9 +159,36 @@ if _NUMBA:
             return out
 
         return args(args), codegen
+
+    @_intrinsic
+    def _matrix(typingctx, a, rows, cols):
+        """The 1-D C-contiguous array ``a`` (``rows·cols`` entries) as a C-contiguous ``rows`` × ``cols`` view:
+        ``a.reshape((rows, cols))`` without numba's run-time reshape helper and its checks, which cost more than
+        the kernels' small loops (``_unpack`` makes 13 such views per call)."""
+        if not (isinstance(a, _numba.types.Array) and a.ndim == 1 and a.layout == "C"
+                and isinstance(rows, _numba.types.Integer) and isinstance(cols, _numba.types.Integer)):
+            return None
+        matrix = a.copy(ndim=2, layout="C")
+
+        def codegen(context, builder, signature, llargs):
+            from numba.core.imputils import impl_ret_borrowed
+
+            flat = context.make_array(a)(context, builder, value=llargs[0])
+            nrow = context.cast(builder, llargs[1], signature.args[1], _numba.types.intp)
+            ncol = context.cast(builder, llargs[2], signature.args[2], _numba.types.intp)
+            out = context.make_array(matrix)(context, builder)
+            context.populate_array(out, data=flat.data, shape=_cgutils.pack_array(builder, [nrow, ncol]),
+                                   strides=_cgutils.pack_array(builder, [builder.mul(ncol, flat.itemsize), flat.itemsize]),
+                                   itemsize=flat.itemsize, meminfo=flat.meminfo, parent=flat.parent)
+            return impl_ret_borrowed(context, builder, matrix, out._getvalue())
+
+        return matrix(a, rows, cols), codegen
 else:  # pragma: no cover
     def borrowed(args):
         return args
+
+    def _matrix(a, rows, cols):
+        return a.reshape((rows, cols))
 
 
 def _inline(function):
@@ -313,25 +340,25 @@ def _unpack(F, I):
     nor, nrel, nchk, npump = ic[IC_O1] - ic[IC_O0], ic[IC_R1] - ic[IC_R0], ic[IC_C1] - ic[IC_C0], ic[IC_P1] - ic[IC_P0]
     return _Net(
         F[I[0]:I[1]],
-        F[I[1]:I[2]].reshape((n, 3)),
-        F[I[2]:I[3]].reshape((nacc, 3)),
-        F[I[3]:I[4]].reshape((ncyl, 9)),
+        _matrix(F[I[1]:I[2]], n, 3),
+        _matrix(F[I[2]:I[3]], nacc, 3),
+        _matrix(F[I[3]:I[4]], ncyl, 9),
         F[I[4]:I[5]],
-        F[I[5]:I[6]].reshape((nv, 2)),
-        F[I[6]:I[7]].reshape((nor, 6)),
+        _matrix(F[I[5]:I[6]], nv, 2),
+        _matrix(F[I[6]:I[7]], nor, 6),
         F[I[7]:I[8]],
-        F[I[8]:I[9]].reshape((nrel, 3)),
-        F[I[9]:I[10]].reshape((nchk, 6)),
-        F[I[10]:I[11]].reshape((npump, 4)),
+        _matrix(F[I[8]:I[9]], nrel, 3),
+        _matrix(F[I[9]:I[10]], nchk, 6),
+        _matrix(F[I[10]:I[11]], npump, 4),
         ic,
         I[I[o + 1]:I[o + 2]],
         I[I[o + 2]:I[o + 3]],
         I[I[o + 3]:I[o + 4]],
         I[I[o + 4]:I[o + 5]],
         I[I[o + 5]:I[o + 6]],
-        I[I[o + 6]:I[o + 7]].reshape((ncyl, 3)),
-        I[I[o + 7]:I[o + 8]].reshape((nmot, 3)),
-        I[I[o + 8]:I[o + 9]].reshape((nb, 2)),
+        _matrix(I[I[o + 6]:I[o + 7]], ncyl, 3),
+        _matrix(I[I[o + 7]:I[o + 8]], nmot, 3),
+        _matrix(I[I[o + 8]:I[o + 9]], nb, 2),
         I[I[o + 9]:I[o + 10]],
         I[I[o + 10]:I[o + 11]],
     )
@@ -911,6 +938,14 @@ def _copy(dst, src):
 
 
 @_kernel
+def _copy2(dst, src):
+    """dst[:, :] = src for 2-D arrays of one shape."""
+    for i in range(dst.shape[0]):
+        for j in range(dst.shape[1]):
+            dst[i, j] = src[i, j]
+
+
+@_kernel
 def _take(W, offset, count):
     """``count`` entries of the scratch buffer W from ``offset``, and the next offset (a view: no allocation)."""
     return W[offset:offset + count], offset + count
@@ -920,7 +955,7 @@ def _take(W, offset, count):
 def _take2(W, offset, rows, cols):
     """``rows`` × ``cols`` entries of the scratch buffer W from ``offset`` as a 2-D view, and the next offset."""
     flat, offset = _take(W, offset, rows * cols)
-    return flat.reshape((rows, cols)), offset
+    return _matrix(flat, rows, cols), offset
 
 
 @_kernel
@@ -984,8 +1019,8 @@ def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, 
     scale, o = _take(W, o, nf)
     delta_flat, o = _take(W, o, nf)
     jac_flat, o = _take(W, o, nf * nf)
-    delta = delta_flat.reshape((nf, 1))
-    jac = jac_flat.reshape((nf, nf))
+    delta = _matrix(delta_flat, nf, 1)
+    jac = _matrix(jac_flat, nf, nf)
     _valve_areas(net, spool, area)
     _copy(oil, oil_init)
     rhs = 0
@@ -1250,7 +1285,7 @@ def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil,
     _flow_jacobian(net, dfrom, dto, jq)
     _velocity_residual_gradient(net, jq, dpdx_dt, dt, mg, rhs, 0)
     _newton_matrix_of(net, jq, dpdm, dt, jac)
-    _copy(dpdv.reshape(n * na), dpdx_dt.reshape(n * na))
+    _copy2(dpdv, dpdx_dt)
     singular = False
     doil[:, :] = 0.0
     if nf:
@@ -1324,7 +1359,7 @@ def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity,
         rhs[j, 0] = s
     _newton_matrix_of(net, jq, dpdm, dt, jac)
     _copy(oil, oil0)
-    _copy(dpdv.reshape(n * na), dpdx_dt.reshape(n * na))
+    _copy2(dpdv, dpdx_dt)
     for i in range(n):  # p₀ + (dt·∂p/∂x)·v; + (∂p/∂m)·Δ below
         s = p_first[i]
         for a in range(na):

@@ -437,7 +437,7 @@ def _begin(ctx, net, V):
     dpdm, o = C._take(S, o, n)
     lin_p, o = C._take(S, o, n)
     g, o = C._take(S, o, na * na)
-    gradient = g.reshape((na, na))
+    gradient = C._matrix(g, na, na)
     lin_x, o = C._take(S, o, na)
     lin_flow, o = C._take(S, o, nb)
     for i in range(na):

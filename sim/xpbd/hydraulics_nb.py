@@ -118,7 +118,7 @@ def _begin_core(net, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const,
     lin_p, o = C._take(S, o, n)
     p_first, o = C._take(S, o, n)
     g, o = C._take(S, o, na * na)
-    gradient = g.reshape((na, na))
+    gradient = C._matrix(g, na, na)
     lin_x, o = C._take(S, o, na)
     lin_flow, o = C._take(S, o, nb)
     effort_end = fg  # overwritten by the guess's friction below
