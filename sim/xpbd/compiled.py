@@ -519,11 +519,10 @@ def _soft_limit_target(params, value, rate, lo, hi, h, out):
     else:
         return
     kd, b, R = _contact_law(params[1:3], params[3:8], 1, params[8], 0.0, r, 0, 1.0, h)
-    c1 = 1.0 / (h * h) + b / h + kd
-    rs = ((1.0 / (h * h) + b / h) * r + rd / h) / c1
+    rs = r + h * rd - h * h * (b * rd + kd * r)  # MuJoCo's semi-implicit step (solver.mujoco_step_target)
     out[0] = side
     out[1] = hi - rs if side > 0.0 else lo + rs
-    out[2] = R / (c1 * h * h)
+    out[2] = R
 
 
 @_leaf
