@@ -135,7 +135,8 @@ if _NUMBA:
 
     @_intrinsic
     def borrowed(typingctx, args):
-        """The tuple ``args`` with every array replaced by a view that owns no reference (a null meminfo).
+        """The tuple ``args`` with every array (also in nested tuples) replaced by a view that owns no reference (a
+        null meminfo).
 
         For a reference-counted entry point that passes its (caller-owned) arrays to many compiled callees:
         numba's ``NRT_incref``/``NRT_decref`` return at once on a null meminfo, so the callees' reference
@@ -146,17 +147,21 @@ if _NUMBA:
         if not isinstance(args, _numba.types.BaseTuple):
             return None
 
+        def borrow(context, builder, member, value):
+            if isinstance(member, _numba.types.Array):
+                view = context.make_array(member)(context, builder, value=value)
+                view.meminfo = _cgutils.get_null_value(view.meminfo.type)
+                view.parent = _cgutils.get_null_value(view.parent.type)
+                return view._getvalue()
+            if isinstance(member, _numba.types.BaseTuple):
+                out = value
+                for i, inner in enumerate(member.types):
+                    out = builder.insert_value(out, borrow(context, builder, inner, builder.extract_value(value, i)), i)
+                return out
+            return value
+
         def codegen(context, builder, signature, llargs):
-            (value,) = llargs
-            out = value
-            for i, member in enumerate(args.types):
-                if isinstance(member, _numba.types.Array):
-                    item = builder.extract_value(value, i)
-                    view = context.make_array(member)(context, builder, value=item)
-                    view.meminfo = _cgutils.get_null_value(view.meminfo.type)
-                    view.parent = _cgutils.get_null_value(view.parent.type)
-                    out = builder.insert_value(out, view._getvalue(), i)
-            return out
+            return borrow(context, builder, args, llargs[0])
 
         return args(args), codegen
 

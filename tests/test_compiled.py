@@ -271,11 +271,13 @@ def test_borrowed_views_alias_their_arrays():
 
     @numba.njit
     def scale_first(*args):
-        a, k, b = borrowed(args)
+        a, k, (b, c) = borrowed(args)
         for i in range(a.size):
             a[i] *= k
+        c[0] = -1
         return b[1, 0] + k
 
-    a, b = np.arange(4.0), np.eye(2) + 1.0
-    assert scale_first(a, 3.0, b) == 4.0
+    a, b, c = np.arange(4.0), np.eye(2) + 1.0, np.zeros(2, np.int64)
+    assert scale_first(a, 3.0, (b, c)) == 4.0
     np.testing.assert_array_equal(a, [0.0, 3.0, 6.0, 9.0])
+    np.testing.assert_array_equal(c, [-1, 0])  # arrays in a nested tuple are borrowed too

@@ -69,6 +69,9 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
     rows, every, first_step = rec[0], rec[1], rec[2]
     rec[3] = 0  # rows recorded
     rec[4] = 0  # a recorded row was not finite
+    # the frames' work arrays, made once for the block (room for every contact candidate)
+    work = FN._frame_work_jit(cyl.size, x.size, Xg.shape[0], jt.shape[0], mobility.shape, jlim.shape[0] - jt.shape[0],
+                              b_cg.shape[0])
     for k in range(nframe):
         if not FN._articulated_jit(
                 bx, bq, iquat, ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, armature, gravity,
@@ -92,7 +95,7 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
         istats[H.I_WORST] = -1
         ledger[H.L_RESIDUAL] = 0.0
         ledger[H.L_FAIL_NORM] = 0.0
-        status = FN._frame_jit(
+        status = FN._frame_core_jit(
             F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd[k * substeps:(k + 1) * substeps],
             speed[k * substeps:(k + 1) * substeps], Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, substeps, iterations,
             symmetric, jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff, rg, rvec, mobility,
@@ -100,7 +103,7 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
             b_solimp[:nc], b_condim[:nc], b_tran[:nc], cone, impratio, lin_damp, ang_damp, body_group,
             in_group_quat, in_group_pos, bx, bq, bv, bw, cyl, closed, mot, gear, minv, mbody, mparent, maxis,
             x, v, ell0, const, slope, effort, motor_effort, flow, fout, scheme, blend, effective_mass, theta, transport,
-            art_contacts)
+            art_contacts, C.borrowed(work))
         if status != FN.FRAME_OK:
             return k, BLOCK_SINGULAR
         for _ in range(int(fout[1])):  # network time: + h per successful substep (FastHydraulics.finish)
@@ -195,7 +198,7 @@ def block(transport: bool = False, articulated_contacts: bool = True):
     if key not in _BLOCK:
         import numba
 
-        FN.frame(*key)  # makes frame_nb's compiled helpers (_frame_jit, _articulated_jit) exist
+        FN.frame(*key)  # makes frame_nb's compiled helpers (_frame_core_jit, _frame_work_jit, _articulated_jit) exist
         FN.articulated()
         if _block_jit is None:
             _block_jit = numba.njit(error_model="numpy")(_block)

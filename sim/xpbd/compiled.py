@@ -26,6 +26,8 @@ import math
 import numpy as np
 from numba import njit
 
+from hydraulics._compiled import _matrix  # 2-D views of flat work buffers (an intrinsic: compiled into its callers)
+
 _EPS = 1e-14
 JNT_FREE, JNT_BALL, JNT_SLIDE, JNT_HINGE = 0, 1, 2, 3
 EQ_CONNECT, EQ_WELD = 0, 1
@@ -322,7 +324,13 @@ def _pair_mobility(IM, II, Q, b1, b2, r1, r2):
 def _solve_dense(A, b, x):
     """A x = b by Gaussian elimination with partial pivoting (``solver._solve_dense``); False if singular."""
     n = b.shape[0]
-    M = np.empty((n, n + 1))
+    return _solve_dense_in(A, b, x, np.empty((n, n + 1)))
+
+
+@_leaf
+def _solve_dense_in(A, b, x, M):
+    """``_solve_dense`` with the augmented matrix M (n, n + 1) given as work space."""
+    n = b.shape[0]
     for i in range(n):
         for j in range(n):
             M[i, j] = A[i, j]
@@ -883,12 +891,28 @@ def _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, reverse):
                              at[i], lam[i], lo[i], hi[i])
 
 
+@_leaf
+def rows_block_work_size(nr):
+    """Length of ``_solve_rows_block``'s float64 work buffer for up to ``nr`` active rows."""
+    return nr * (2 * nr + 4)
+
+
 @njit(cache=True)
-def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob):
+def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob, work):
+    """The active cylinder rows as one block through their articulated mobility ``mob``; ``work``: float64
+    scratch of at least ``rows_block_work_size(len(act))`` entries."""
     k = act.shape[0]
-    A = np.zeros((k, k))
-    rhs = np.zeros(k)
-    live = np.zeros(k, np.bool_)
+    A = _matrix(work[:k * k], k, k)
+    rhs = work[k * k:k * k + k]
+    live = work[k * k + k:k * k + 2 * k]  # 1.0 for a row with a usable direction
+    dlam = work[k * k + 2 * k:k * k + 3 * k]
+    M = _matrix(work[k * k + 3 * k:2 * k * k + 4 * k], k, k + 1)
+    for m in range(k):
+        rhs[m] = 0.0
+        live[m] = 0.0
+        dlam[m] = 0.0
+        for j in range(k):
+            A[m, j] = 0.0
     anylive = False
     for m in range(k):
         i = act[m]
@@ -907,17 +931,16 @@ def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob):
                        + n[2] * (mob[jj, gb, 2] + cb[2] - mob[jj, ga, 2] - ca[2]))
         A[m, m] += at[i]
         rhs[m] = -(ell - tgt[i]) - at[i] * lam[i]
-        live[m] = True
+        live[m] = 1.0
         anylive = True
     if not anylive:
         return
-    dlam = np.zeros(k)
-    if not _solve_dense(A, rhs, dlam):
+    if not _solve_dense_in(A, rhs, dlam, M):
         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, False)
         return
     for m in range(k):
         i = act[m]
-        if live[m]:
+        if live[m] != 0.0:
             new = min(max(lam[i] + dlam[m], lo[i]), hi[i])
         else:
             new = lam[i]
@@ -926,17 +949,22 @@ def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob):
     for g in range(1, X.shape[0]):
         if IM[g] == 0.0:
             continue
-        mv = np.zeros(6)
+        m0 = m1 = m2 = m3 = m4 = m5 = 0.0
         for j in range(k):
             dl = dlam[j]
             if dl != 0.0:
-                for c in range(6):
-                    mv[c] += dl * mob[act[j], g, c]
-        X[g, 0] = X[g, 0] + mv[0]
-        X[g, 1] = X[g, 1] + mv[1]
-        X[g, 2] = X[g, 2] + mv[2]
-        if mv[3] != 0.0 or mv[4] != 0.0 or mv[5] != 0.0:
-            _setq(Q, g, _qadd(_q4(Q, g), (mv[3], mv[4], mv[5]), 1.0))
+                r = act[j]
+                m0 += dl * mob[r, g, 0]
+                m1 += dl * mob[r, g, 1]
+                m2 += dl * mob[r, g, 2]
+                m3 += dl * mob[r, g, 3]
+                m4 += dl * mob[r, g, 4]
+                m5 += dl * mob[r, g, 5]
+        X[g, 0] = X[g, 0] + m0
+        X[g, 1] = X[g, 1] + m1
+        X[g, 2] = X[g, 2] + m2
+        if m3 != 0.0 or m4 != 0.0 or m5 != 0.0:
+            _setq(Q, g, _qadd(_q4(Q, g), (m3, m4, m5), 1.0))
 
 
 # ---------------------------------------------------------------------------- soft pyramidal contacts
@@ -1180,6 +1208,15 @@ def _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rever
 
 
 @njit(cache=True)
+def substep_work(ng, nj, ntl, ncap, nr):
+    """The work arrays of ``substep_core`` for ``ng`` groups, ``nj`` joints, ``ntl`` tendon limits, up to ``ncap``
+    contact candidates and ``nr`` length rows (made once by a caller that runs many substeps)."""
+    return (np.zeros((nj, 3)), np.zeros(nj), np.zeros((ntl, 3)), np.zeros(ntl), np.zeros(ncap, np.int64),
+            np.zeros((ncap, 2, 3)), np.zeros((ncap, 4, 6)), np.zeros((ncap, 4)), np.zeros((ng, 3)), np.zeros((ng, 4)),
+            np.zeros((nj, 3)), np.zeros(nj + ntl), np.zeros(rows_block_work_size(nr)))
+
+
+@njit(cache=True)
 def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
             jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp,
             et, eg, evec, eqoff,
@@ -1187,6 +1224,22 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
             use_gg, gg, F, T, use_tau, tau,
             cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
             lin_damp, ang_damp, lam_rows, ell, rate, art_contacts, Gc, Minv):
+    """``substep_core`` with its work arrays made for this call."""
+    work = substep_work(X.shape[0], jt.shape[0], jlim.shape[0] - jt.shape[0], cg.shape[0], rg.shape[0])
+    substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric, jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp,
+                 et, eg, evec, eqoff, rg, rvec, act, tgt, at, lo, hi, use_block, mob, use_gg, gg, F, T, use_tau, tau,
+                 cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp, lam_rows,
+                 ell, rate, art_contacts, Gc, Minv, work)
+
+
+@njit(cache=True)
+def substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
+                 jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp,
+                 et, eg, evec, eqoff,
+                 rg, rvec, act, tgt, at, lo, hi, use_block, mob,
+                 use_gg, gg, F, T, use_tau, tau,
+                 cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
+                 lin_damp, ang_damp, lam_rows, ell, rate, art_contacts, Gc, Minv, work):
     """One XPBD substep of length h [s] in place on the group arrays X, Q, V, W (see module docstring).
 
     Rows: ``act`` the active row indices, tgt/at/lo/hi per row (ℓ* [m], α̃ = α/h², bounds on λ [N·s²]),
@@ -1200,18 +1253,20 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
     ``art_contacts``: the contact pyramids are solved with the articulated response of a hinge/slide tree
     (``articulated_inverse`` at the predicted pose, into the work arrays Gc (ngroup, 6, njnt) and Minv
     (njnt, njnt)); otherwise (or for other joints) with the free-body response of the touching groups.
+    ``work``: the tuple of ``substep_work`` (for at least this substep's contacts and rows), overwritten.
     """
     ng = X.shape[0]
     nr = rg.shape[0]
     nc = cg.shape[0]
     # soft joint limit rows of the substep, from the state at its start (before the torque impulses)
     nj = jt.shape[0]
-    jsoft = np.zeros((nj, 3))
-    jlam = np.zeros(nj)
-    _limit_targets(X, Q, V, W, jt, jg, jvec, jqoff, jlim, jlo, jhi, h, jsoft)
     ntl = jlim.shape[0] - nj
-    tsoft = np.zeros((ntl, 3))
-    tlam = np.zeros(ntl)
+    jsoft, jlam, tsoft, tlam, active_w, clocal_w, edge_w, lam_e_w, Xp, Qp, bsoft, mu, rwork = work
+    jsoft[:, :] = 0.0
+    jlam[:] = 0.0
+    tsoft[:, :] = 0.0
+    tlam[:] = 0.0
+    _limit_targets(X, Q, V, W, jt, jg, jvec, jqoff, jlim, jlo, jhi, h, jsoft)
     _tendon_limit_targets(X, Q, V, W, nj, jlim, h, tsoft)
     tact = False
     for t in range(ntl):
@@ -1244,15 +1299,19 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
             _apply_vel(V, W, Q, IM, II, g2, r2, P, 1.0)
             _apply_vel(V, W, Q, IM, II, g1, r1, P, -1.0)
     # soft contact rows of the substep
-    active = np.zeros(nc, np.int64)
-    clocal = np.zeros((nc, 2, 3))
-    edge = np.zeros((nc, 4, 6))
-    lam_e = np.zeros((nc, 4))
+    active, clocal, edge, lam_e = active_w[:nc], clocal_w[:nc], edge_w[:nc], lam_e_w[:nc]
+    active[:] = 0
+    clocal[:, :, :] = 0.0
+    edge[:, :, :] = 0.0
+    lam_e[:, :] = 0.0
     if nc:
         _contact_targets(X, Q, V, W, cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, h,
                          active, clocal, edge)
-    Xp = X.copy()
-    Qp = Q.copy()
+    for g in range(ng):
+        for c in range(3):
+            Xp[g, c] = X[g, c]
+        for c in range(4):
+            Qp[g, c] = Q[g, c]
     # predict
     for g in range(1, ng):
         q = _q4(Q, g)
@@ -1281,8 +1340,8 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
         art = articulated_inverse(X, Q, IM, GI, jt, jg, jvec, Gc, Minv)
     cart = art and art_contacts
     blk = tact and art  # every active soft limit in one articulated block (joint rows out of the joint pass)
-    bsoft = np.zeros((nj, 3))
-    mu = np.zeros(nj + ntl)
+    bsoft[:, :] = 0.0
+    mu[:] = 0.0
     if blk:
         for j in range(nj):
             for c in range(3):
@@ -1302,7 +1361,7 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)
                 if act.shape[0]:
                     if use_block:
-                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob)
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, rwork)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 if nc:
@@ -1312,7 +1371,7 @@ def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
                     _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rev, cart, Gc, Minv)
                 if act.shape[0]:
                     if use_block:
-                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob)
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, rwork)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)

@@ -56,6 +56,42 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
            body_group, in_group_quat, in_group_pos, bx, bq, bv, bw,
            cyl, closed, mot, gear, minv, mbody, mparent, maxis,
            x, v, ell0, const, slope, effort, motor_effort, flow, out, scheme, blend, meff, theta, transport, art_contacts):
+    """One frame (see the module docstring) with its work arrays made for this call (``_frame_core``)."""
+    frame_work = _frame_work_jit(cyl.size, x.size, Xg.shape[0], jt.shape[0], mob.shape, jlim.shape[0] - jt.shape[0],
+                                 cg.shape[0])
+    return _frame_core_jit(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed,
+                           Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, substeps, iterations, symmetric,
+                           jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
+                           rg, rvec, mob, gg0, mresp,
+                           cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp,
+                           body_group, in_group_quat, in_group_pos, bx, bq, bv, bw,
+                           cyl, closed, mot, gear, minv, mbody, mparent, maxis,
+                           x, v, ell0, const, slope, effort, motor_effort, flow, out, scheme, blend, meff, theta, transport,
+                           art_contacts, frame_work)
+
+
+def _frame_work(nr, na, ng, nj, mob_shape, ntl, ncap):
+    """The work arrays of ``_frame_core`` (made once per block by ``block_nb``): per-row targets, compliances,
+    bounds, active rows, implicit flags, explicit forces; zero group forces/torques and joint torques; group
+    accelerations; row multipliers, lengths, rates; actuator end states; the transport and articulated-contact
+    matrices; the substep's work (``compiled.substep_work``)."""
+    return (np.empty(nr), np.empty(nr), np.full(nr, -np.inf), np.full(nr, np.inf), np.empty(nr, np.int64),
+            np.empty(nr, np.bool_), np.zeros(nr), np.zeros((ng, 3)), np.zeros((ng, 3)), np.empty((ng, 6)), np.zeros(nj),
+            np.empty(nr), np.empty(nr), np.empty(nr), np.empty(na), np.empty(na), np.zeros((ng, 6, nj)),
+            np.zeros((nj, ng * 6)), np.empty(mob_shape), np.zeros((ng, 6, nj)), np.zeros((nj, nj)),
+            XC.substep_work(ng, nj, ntl, ncap, nr))
+
+
+def _frame_core(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed,
+                Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, substeps, iterations, symmetric,
+                jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
+                rg, rvec, mob, gg0, mresp,
+                cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp,
+                body_group, in_group_quat, in_group_pos, bx, bq, bv, bw,
+                cyl, closed, mot, gear, minv, mbody, mparent, maxis,
+                x, v, ell0, const, slope, effort, motor_effort, flow, out, scheme, blend, meff, theta, transport, art_contacts,
+                frame_work):
+    """``_frame`` on the work arrays ``frame_work`` (``_frame_work``, for at least this frame's contacts)."""
     net = C._unpack(F, I)
     na = x.size
     # group accelerations on, joint torques off, as runtime bools: compiled.substep then has the one signature
@@ -64,33 +100,24 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
     nr = cyl.size
     nm = mot.size
     ng = Xg.shape[0]
-    tgt = np.empty(nr)
-    at = np.empty(nr)
-    lo = np.full(nr, -np.inf)
-    hi = np.full(nr, np.inf)
-    act = np.empty(nr, np.int64)
-    implicit = np.empty(nr, np.bool_)
-    rforce = np.zeros(nr)
-    Fe = np.zeros((ng, 3))  # no per-group forces: explicit row forces go through the articulated response
-    Te = np.zeros((ng, 3))
-    gg = np.empty((ng, 6))
-    tau = np.zeros(jt.shape[0])
-    lam = np.empty(nr)
-    ell = np.empty(nr)
-    rate = np.empty(nr)
-    x_end = np.empty(na)
-    v_end = np.empty(na)
+    # Fe, Te: no per-group forces (explicit row forces go through the articulated response); tau: no joint torques
+    (tgt, at, lo, hi, act, implicit, rforce, Fe, Te, gg, tau, lam, ell, rate, x_end, v_end, Gk, P0, mobk, Gc, Minv,
+     swork) = frame_work
+    for r in range(nr):
+        lo[r], hi[r], rforce[r] = -np.inf, np.inf, 0.0
+    Fe[:, :] = 0.0
+    Te[:, :] = 0.0
+    tau[:] = 0.0
+    Gk[:, :, :] = 0.0
+    P0[:, :] = 0.0
+    Gc[:, :, :] = 0.0
+    Minv[:, :] = 0.0
     hh = h * h
     work = 0.0
     out[1] = 0.0
     # articulated responses carried to each substep's pose (SolverXPBD.transport_response, default on)
     nj = jt.shape[0]
-    Gk = np.zeros((ng, 6, nj))
-    P0 = np.zeros((nj, ng * 6))
     carry = transport and nj > 0 and substeps > 1 and XC.group_jacobian(Xg, Qg, IM, jt, jg, jvec, Gk) and XC.jacobian_pinv(Gk, P0)
-    mobk = np.empty_like(mob)
-    Gc = np.zeros((ng, 6, nj))
-    Minv = np.zeros((nj, nj))
     for k in range(substeps):
         if not H._begin_core(net, Wk, S, istats, oil, pres, spool, cmd[k], speed[k], x, v, h, const, slope, scheme, blend,
                              meff, theta):
@@ -138,11 +165,11 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
             XC.transport(Gk, P0, gg, gg)
         else:
             mobk[:, :, :] = mob
-        XC.substep(Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, iterations, symmetric,
+        XC.substep_core(Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, iterations, symmetric,
                   jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
                   rg, rvec, act[:nact], tgt, at, lo, hi, nact > 0, mobk, always, gg, Fe, Te, never, tau,
                   cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
-                  lin_damp, ang_damp, lam, ell, rate, art_contacts, Gc, Minv)
+                  lin_damp, ang_damp, lam, ell, rate, art_contacts, Gc, Minv, swork)
         XC.scatter(Xg, Qg, Vg, Wg, body_group, in_group_quat, in_group_pos, bx, bq, bv, bw)
         # end of the substep: realised motion (PbdPlant.after_substep)
         for a in range(na):
@@ -201,7 +228,7 @@ def _entry(fingerprint, transport, articulated_contacts):
 
 
 _FRAME = {}
-_frame_jit = None
+_frame_jit = _frame_core_jit = _frame_work_jit = None
 
 
 def frame(transport: bool = False, articulated_contacts: bool = True):
@@ -213,13 +240,15 @@ def frame(transport: bool = False, articulated_contacts: bool = True):
     contact pyramids with the mechanism's articulated response (default True, as the solver);
     ``transport`` defaults to False (see ``SolverXPBD``).
     """
-    global _frame_jit
+    global _frame_jit, _frame_core_jit, _frame_work_jit
     key = (bool(transport), bool(articulated_contacts))
     if key not in _FRAME:
         import numba
 
-        if _frame_jit is None:
-            _frame_jit = numba.njit(error_model="numpy")(_frame)  # not cached on its own: only inside the entry
+        if _frame_jit is None:  # not cached on their own: only inside the entries (this one's, block_nb's)
+            _frame_core_jit = numba.njit(error_model="numpy")(_frame_core)
+            _frame_work_jit = numba.njit(error_model="numpy")(_frame_work)
+            _frame_jit = numba.njit(error_model="numpy")(_frame)
         _FRAME[key] = _entry(SOURCE_SHA256, *key)
     return _FRAME[key]
 
