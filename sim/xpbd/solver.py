@@ -201,7 +201,7 @@ class SolverXPBD:
       which Gauss-Seidel over the two nearly parallel rows does not reproduce (13 % too deep statically).
       A boom pressed into its end stop then rests at MuJoCo's penetration (within 0.01 %) and an impact
       overtravels as in MuJoCo (``tests/test_xpbd_soft_limit.py``); the boom lift's stroke error against
-      MuJoCo mode at 0.25 ms falls with the substeps after the end stop (0.064 → 0.020 % of stroke from
+      MuJoCo mode at 0.25 ms falls with the substeps after the end stop (0.179 → 0.030 % of stroke from
       × 5 to × 40 at 60 Hz) instead of staying at 0.244 % with rigid limits.  ``soft_limits=False``: the
       rigid projection — a hinge beyond its limit as one 6-row block (pin + axis + clamped angle), since
       an angular correction about the COM is otherwise undone by the pin; tendon limits ignored.
