@@ -1,6 +1,6 @@
 """Compiled (numba ``nopython``) XPBD substep: the same equations as ``solver.py``/``kernels.py``.
 
-``substep`` advances the rigid groups by one substep h in place, on flat arrays:
+``substep_core`` advances the rigid groups by one substep h in place, on flat arrays:
 prediction (gravity or given group accelerations, external forces, gyroscopic term,
 hinge torque impulses), ``iterations`` position passes (symmetric Gauss-Seidel by default:
 joints with limits (MuJoCo's soft limit law: a 6-row block with the angle compliant at a hinge limit, a
@@ -1214,22 +1214,6 @@ def substep_work(ng, nj, ntl, ncap, nr):
     return (np.zeros((nj, 3)), np.zeros(nj), np.zeros((ntl, 3)), np.zeros(ntl), np.zeros(ncap, np.int64),
             np.zeros((ncap, 2, 3)), np.zeros((ncap, 4, 6)), np.zeros((ncap, 4)), np.zeros((ng, 3)), np.zeros((ng, 4)),
             np.zeros((nj, 3)), np.zeros(nj + ntl), np.zeros(rows_block_work_size(nr)))
-
-
-@njit(cache=True)
-def substep(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
-            jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp,
-            et, eg, evec, eqoff,
-            rg, rvec, act, tgt, at, lo, hi, use_block, mob,
-            use_gg, gg, F, T, use_tau, tau,
-            cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
-            lin_damp, ang_damp, lam_rows, ell, rate, art_contacts, Gc, Minv):
-    """``substep_core`` with its work arrays made for this call."""
-    work = substep_work(X.shape[0], jt.shape[0], jlim.shape[0] - jt.shape[0], cg.shape[0], rg.shape[0])
-    substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric, jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp,
-                 et, eg, evec, eqoff, rg, rvec, act, tgt, at, lo, hi, use_block, mob, use_gg, gg, F, T, use_tau, tau,
-                 cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp, lam_rows,
-                 ell, rate, art_contacts, Gc, Minv, work)
 
 
 @njit(cache=True)

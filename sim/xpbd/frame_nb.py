@@ -16,7 +16,7 @@ Per substep, in the order of :meth:`sim.plant_pbd.PbdPlant.before_substep`,
    (group accelerations f·mobility, added to gravity's); motors:
    backward Euler on the joint, effort (c + s·v)/(1 + max(−s, 0)·gear²·h·(M⁻¹)ⱼⱼ),
    applied through the articulated response with gravity (group accelerations);
-3. the XPBD substep (``compiled.substep``) and the body write-back
+3. the XPBD substep (``compiled.substep_core``) and the body write-back
    (``compiled.scatter``);
 4. realised ℓ, v⁺ = (ℓ − ℓ₀)/h and motor joint rates finish the network step
    and the energy ledger (``hydraulics_nb._finish_core``); the actuator
@@ -94,7 +94,7 @@ def _frame_core(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, c
     """``_frame`` on the work arrays ``frame_work`` (``_frame_work``, for at least this frame's contacts)."""
     net = C._unpack(F, I)
     na = x.size
-    # group accelerations on, joint torques off, as runtime bools: compiled.substep then has the one signature
+    # group accelerations on, joint torques off, as runtime bools: compiled.substep_core then has the one signature
     # the per-substep path (Python bools) uses too (literal True/False compile a second specialisation)
     always, never = substeps > 0, substeps < 0
     nr = cyl.size

@@ -238,7 +238,7 @@ class SolverXPBD:
       numerical damping (swing phase 14 % / 4.6 % with them, 24 % / 7.7 % without), so the
       coarse settings' errors grow while the fine ones' shrink; the plant's compiled frame
       selects the same behaviour with ``frame_nb.frame(transport=...)``.
-    * ``compiled`` (default True): every substep runs in ``compiled.substep`` (numba,
+    * ``compiled`` (default True): every substep runs in ``compiled.substep_core`` (numba,
       ``cache=True``, one signature), a port of this class's substep on flat arrays with the
       same operations in the same order; the hooks are still called per substep.  This
       pure-Python path stays the reference (``compiled=False``; agreement to round-off in
@@ -340,14 +340,14 @@ class SolverXPBD:
         self._tsoft = None  # per substep: (side, ℓ* [m], α̃) of each tendon limit, or None
         self._tlam: list = []
         self.last_forces: list[SubstepForces] = []
-        # compiled path (numba, ``compiled.substep``): same equations on flat arrays; the pure
+        # compiled path (numba, ``compiled.substep_core``): same equations on flat arrays; the pure
         # path above stays the reference (``tests/test_pbd_compiled.py``)
         self.compiled = bool(compiled) and self.block_attach
         self._flat = self._flat_model() if self.compiled else None
         self.compiled_steps = 0  # steps taken by the compiled path (the others fell back to the pure one)
 
     def _flat_model(self):
-        """Writable contiguous copies of the model for ``compiled.substep`` (one numba signature)."""
+        """Writable contiguous copies of the model for ``compiled.substep_core`` (one numba signature)."""
         m = self.model
         f64 = lambda a, shape: np.ascontiguousarray(np.array(a, dtype=np.float64).reshape(shape))  # noqa: E731
         nj, ne = m.njnt, len(m.eq_type)
@@ -373,7 +373,7 @@ class SolverXPBD:
         )
 
     def _limit_table(self):
-        """The limits as one float array for ``compiled.substep`` (``jlim``, shape (njnt + ntendonlimits,
+        """The limits as one float array for ``compiled.substep_core`` (``jlim``, shape (njnt + ntendonlimits,
         LIMIT_COLS)): per joint [limited (1/0), solref (2), solimp (5), dof_invweight0], invweight 0 = rigid
         projection; then per soft tendon limit the same and [lo, hi [m], group a, group b, ra (3), rb (3)]."""
         from .compiled import LIMIT_COLS
@@ -443,7 +443,7 @@ class SolverXPBD:
         return c
 
     def _flat_contacts(self, cands):
-        """The step's contact candidates as arrays for ``compiled.substep``, or None when one of them is
+        """The step's contact candidates as arrays for ``compiled.substep_core``, or None when one of them is
         not a soft pyramidal contact (the pure path handles those)."""
         m = self.model
         nc = len(cands)
@@ -1648,8 +1648,8 @@ class SolverXPBD:
         return state
 
     def _step_compiled(self, state, dt, hooks, inputs, x, q, v, w, contacts):
-        """``step`` with every substep in ``compiled.substep`` (same order of operations as the pure loop)."""
-        from .compiled import substep as _substep
+        """``step`` with every substep in ``compiled.substep_core`` (same order of operations as the pure loop)."""
+        from .compiled import substep_core as _substep, substep_work
 
         m = self.model
         fm = self._flat
@@ -1672,6 +1672,7 @@ class SolverXPBD:
         cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran = contacts
         cone, impratio = int(m.contact_cone), float(m.contact_impratio)
         Gc, Minv = np.zeros((ng, 6, nj)), np.zeros((nj, nj))  # work arrays of articulated contacts
+        work = substep_work(ng, nj, len(fm["jlim"]) - nj, len(cg), nr)  # the substeps' other work arrays
         Gk = P0 = None
         if self.transport_response and nj:  # compiled.group_jacobian / jacobian_pinv / transport
             from .compiled import group_jacobian, jacobian_pinv, transport
@@ -1726,7 +1727,8 @@ class SolverXPBD:
                      fm["et"], fm["eg"], fm["evec"], fm["eqoff"],
                      rg, rvec, act, tgt, at, lo, hi, use_block, mob, use_gg, gg, F, T, use_tau, tau,
                      cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
-                     self.linear_damping, self.angular_damping, lam, ell, rate, self.articulated_contacts, Gc, Minv)
+                     self.linear_damping, self.angular_damping, lam, ell, rate, self.articulated_contacts, Gc, Minv,
+                     work)
             if after is not None or nr:
                 active = np.zeros(nr, dtype=bool)
                 active[act] = True
@@ -1764,7 +1766,7 @@ _NO_CONTACTS = tuple(np.zeros(shape, dtype) for shape, dtype in (  # ``_flat_con
 
 
 def _f64(a):
-    """A C-contiguous, writeable float64 array: the one array type ``compiled.substep`` is compiled for."""
+    """A C-contiguous, writeable float64 array: the one array type ``compiled.substep_core`` is compiled for."""
     a = np.ascontiguousarray(a, dtype=np.float64)
     return a if a.flags.writeable else a.copy()
 
