@@ -673,6 +673,12 @@ class PbdPlant(PlantBase):
         xs, vs, ell0 = ctx["x"], ctx["v"], ctx["ell"]
         xs[:], vs[:], ell0[:] = self._x, self._v, self._ell
         out = ctx["out"]
+        if ctx["work_contacts"] < len(cg):  # the frame's work arrays, made again only for more contact candidates
+            from .xpbd.frame_nb import frame_work
+
+            ctx["work"] = frame_work(len(self.cylinders), len(xs), Xg.shape[0], len(fm["jt"]), self._mobility.shape,
+                                     len(fm["jlim"]) - len(fm["jt"]), len(cg))
+            ctx["work_contacts"] = len(cg)
         status = ctx["kernel"](
             fast._F, fast._I, fast._W, fast._S, fast._istats, fast._ledger, fast._quad, fast.oil, fast.pressure,
             fast.spool, fast.position, fast.velocity, cmd, speed,
@@ -687,6 +693,7 @@ class PbdPlant(PlantBase):
             ctx["mparent"], ctx["maxis"], xs, vs, ell0, ctx["const"], ctx["slope"], ctx["effort"], ctx["motor_effort"],
             fast.flow, out, fast.scheme, fast.blend,
             _c64(self._effective_mass) if fast.blend else fast.theta, fast.theta,  # (the masses are not read without blend)
+            ctx["work"],
         )
         if status != 0:
             raise np.linalg.LinAlgError("Matrix is singular.")
@@ -737,6 +744,7 @@ class PbdPlant(PlantBase):
             gear=_c64(self.motor_gear), mbody=mb, mparent=np.array([int(xm.body_parent[b]) for b in mb], np.int64),
             maxis=_c64(np.asarray(self._axis_inertial).reshape(-1, 3)[self.motor_joint].reshape(-1, 3)),
             const=np.zeros(na), slope=np.zeros(na), effort=np.zeros(na), motor_effort=np.zeros(len(self.motors)),
+            work=None, work_contacts=-1,
         )
         ng, nr, nm = xm.ngroup, len(self.cylinders), len(self.motors)
         ctx["articulated_kernel"] = articulated()

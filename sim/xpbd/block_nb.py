@@ -95,15 +95,15 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
         istats[H.I_WORST] = -1
         ledger[H.L_RESIDUAL] = 0.0
         ledger[H.L_FAIL_NORM] = 0.0
-        status = FN._frame_core_jit(
+        status = FN._frame_jit(
             F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd[k * substeps:(k + 1) * substeps],
             speed[k * substeps:(k + 1) * substeps], Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, substeps, iterations,
             symmetric, jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff, rg, rvec, mobility,
             group_gravity, motor_response, b_cg[:nc], b_cvec[:nc], b_crad[:nc], b_mu[:nc], b_solref[:nc],
             b_solimp[:nc], b_condim[:nc], b_tran[:nc], cone, impratio, lin_damp, ang_damp, body_group,
             in_group_quat, in_group_pos, bx, bq, bv, bw, cyl, closed, mot, gear, minv, mbody, mparent, maxis,
-            x, v, ell0, const, slope, effort, motor_effort, flow, fout, scheme, blend, effective_mass, theta, transport,
-            art_contacts, C.borrowed(work))
+            x, v, ell0, const, slope, effort, motor_effort, flow, fout, scheme, blend, effective_mass, theta,
+            C.borrowed(work), transport, art_contacts)
         if status != FN.FRAME_OK:
             return k, BLOCK_SINGULAR
         for _ in range(int(fout[1])):  # network time: + h per successful substep (FastHydraulics.finish)
@@ -198,7 +198,7 @@ def block(transport: bool = False, articulated_contacts: bool = True):
     if key not in _BLOCK:
         import numba
 
-        FN.frame(*key)  # makes frame_nb's compiled helpers (_frame_core_jit, _frame_work_jit, _articulated_jit) exist
+        FN.frame(*key)  # makes frame_nb's compiled helpers (_frame_jit, _frame_work_jit, _articulated_jit) exist
         FN.articulated()
         if _block_jit is None:
             _block_jit = numba.njit(error_model="numpy")(_block)

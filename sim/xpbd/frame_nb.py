@@ -48,30 +48,10 @@ IMPLICIT_SLOPE_LIMIT = -1e-9  # must match sim.plant_pbd.IMPLICIT_SLOPE_LIMIT
 FRAME_OK, FRAME_SINGULAR = 0, 1
 
 
-def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed,
-           Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, substeps, iterations, symmetric,
-           jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
-           rg, rvec, mob, gg0, mresp,
-           cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp,
-           body_group, in_group_quat, in_group_pos, bx, bq, bv, bw,
-           cyl, closed, mot, gear, minv, mbody, mparent, maxis,
-           x, v, ell0, const, slope, effort, motor_effort, flow, out, scheme, blend, meff, theta, transport, art_contacts):
-    """One frame (see the module docstring) with its work arrays made for this call (``_frame_core``)."""
-    frame_work = _frame_work_jit(cyl.size, x.size, Xg.shape[0], jt.shape[0], mob.shape, jlim.shape[0] - jt.shape[0],
-                                 cg.shape[0])
-    return _frame_core_jit(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed,
-                           Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, substeps, iterations, symmetric,
-                           jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
-                           rg, rvec, mob, gg0, mresp,
-                           cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp,
-                           body_group, in_group_quat, in_group_pos, bx, bq, bv, bw,
-                           cyl, closed, mot, gear, minv, mbody, mparent, maxis,
-                           x, v, ell0, const, slope, effort, motor_effort, flow, out, scheme, blend, meff, theta, transport,
-                           art_contacts, frame_work)
-
-
-def _frame_work(nr, na, ng, nj, mob_shape, ntl, ncap):
-    """The work arrays of ``_frame_core`` (made once per block by ``block_nb``): per-row targets, compliances,
+def frame_work(nr, na, ng, nj, mob_shape, ntl, ncap):
+    """The work arrays of ``_frame`` (made once per block by ``block_nb``, once per plant by the per-frame path) for
+    ``nr`` length rows, ``na`` actuators, ``ng`` groups, ``nj`` joints, the row mobility's shape, ``ntl`` tendon
+    limits and up to ``ncap`` contact candidates: per-row targets, compliances,
     bounds, active rows, implicit flags, explicit forces; zero group forces/torques and joint torques; group
     accelerations; row multipliers, lengths, rates; actuator end states; the transport and articulated-contact
     matrices; the substep's work (``compiled.substep_work``)."""
@@ -82,16 +62,17 @@ def _frame_work(nr, na, ng, nj, mob_shape, ntl, ncap):
             XC.substep_work(ng, nj, ntl, ncap, nr))
 
 
-def _frame_core(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed,
-                Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, substeps, iterations, symmetric,
-                jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
-                rg, rvec, mob, gg0, mresp,
-                cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp,
-                body_group, in_group_quat, in_group_pos, bx, bq, bv, bw,
-                cyl, closed, mot, gear, minv, mbody, mparent, maxis,
-                x, v, ell0, const, slope, effort, motor_effort, flow, out, scheme, blend, meff, theta, transport, art_contacts,
-                frame_work):
-    """``_frame`` on the work arrays ``frame_work`` (``_frame_work``, for at least this frame's contacts)."""
+def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed,
+           Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, substeps, iterations, symmetric,
+           jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
+           rg, rvec, mob, gg0, mresp,
+           cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp,
+           body_group, in_group_quat, in_group_pos, bx, bq, bv, bw,
+           cyl, closed, mot, gear, minv, mbody, mparent, maxis,
+           x, v, ell0, const, slope, effort, motor_effort, flow, out, scheme, blend, meff, theta, fwork,
+           transport, art_contacts):
+    """One frame (see the module docstring) on the work arrays ``fwork`` (:func:`frame_work`, for at least this
+    frame's contacts; overwritten)."""
     net = C._unpack(F, I)
     na = x.size
     # group accelerations on, joint torques off, as runtime bools: compiled.substep_core then has the one signature
@@ -102,7 +83,7 @@ def _frame_core(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, c
     ng = Xg.shape[0]
     # Fe, Te: no per-group forces (explicit row forces go through the articulated response); tau: no joint torques
     (tgt, at, lo, hi, act, implicit, rforce, Fe, Te, gg, tau, lam, ell, rate, x_end, v_end, Gk, P0, mobk, Gc, Minv,
-     swork) = frame_work
+     swork) = fwork
     for r in range(nr):
         lo[r], hi[r], rforce[r] = -np.inf, np.inf, 0.0
     Fe[:, :] = 0.0
@@ -228,7 +209,7 @@ def _entry(fingerprint, transport, articulated_contacts):
 
 
 _FRAME = {}
-_frame_jit = _frame_core_jit = _frame_work_jit = None
+_frame_jit = _frame_work_jit = None
 
 
 def frame(transport: bool = False, articulated_contacts: bool = True):
@@ -240,15 +221,14 @@ def frame(transport: bool = False, articulated_contacts: bool = True):
     contact pyramids with the mechanism's articulated response (default True, as the solver);
     ``transport`` defaults to False (see ``SolverXPBD``).
     """
-    global _frame_jit, _frame_core_jit, _frame_work_jit
+    global _frame_jit, _frame_work_jit
     key = (bool(transport), bool(articulated_contacts))
     if key not in _FRAME:
         import numba
 
         if _frame_jit is None:  # not cached on their own: only inside the entries (this one's, block_nb's)
-            _frame_core_jit = numba.njit(error_model="numpy")(_frame_core)
-            _frame_work_jit = numba.njit(error_model="numpy")(_frame_work)
             _frame_jit = numba.njit(error_model="numpy")(_frame)
+            _frame_work_jit = numba.njit(error_model="numpy")(frame_work)
         _FRAME[key] = _entry(SOURCE_SHA256, *key)
     return _FRAME[key]
 
