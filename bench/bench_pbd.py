@@ -15,10 +15,14 @@ soil contact and moves non-monotonically with the step (MuJoCo mode at 0.8 / 0.9
 the rows run minutes apart and this machine's speed drifts by ±15 % (and more) in that time, each pair
 matched against ``mujoco-fast`` is then timed again, alternately, ``--pair-reps`` times; the median of the
 paired ratios is the figure to read.  References: the seed's own
-equations solved by scipy (seed cylinder); MuJoCo mode at dt = 0.25 ms (boom,
-excavator).  The excavator runs its full 20 s dig cycle.  The second error column
-stops before the first contact: the boom cylinder reaching its end stop (2.45 s)
-and the excavator's teeth reaching the ground (1.6 s).  Joint and tendon limits follow
+equations solved by scipy (seed cylinder); MuJoCo mode at dt = 0.25 ms, logged every step (boom,
+excavator; a reference logged at 100 Hz, interpolated between its 10 ms samples, had doubled the
+pre-contact errors of the rows whose samples fall between them).  The excavator runs its full 20 s
+dig cycle.  The second error column stops before the first contact (the boom cylinder reaching its
+end stop at 2.45 s, the excavator's teeth reaching the ground at 1.6 s) and is measured against a
+converged reference: the Richardson extrapolation 2·x(dt/2) − x(dt) of MuJoCo mode at 62.5 / 31.25 µs
+(both first order in dt to 1 % there), so that MuJoCo mode's rows are not measured against their own
+scheme's error.  Joint and tendon limits follow
 MuJoCo's soft limit law in both modes (``SolverXPBD.soft_limits``: the boom's end stop
 overtravels about 1 mm in both; with rigid XPBD limits PBD's error stayed at 0.244 % of
 stroke at every substep count); the excavator's contacts are MuJoCo's soft
@@ -73,7 +77,8 @@ SCENES = {
     "excavator": dict(path=ROOT / "models/excavator/dig.scenario.toml", duration=20.0, pbd_dt=1 / 60,
                       pbd_substeps=(5, 10, 12, 15, 20, 40), mujoco_dt=(1e-3, 5e-4), reference=2.5e-4, early=1.5,
                       fine=((1 / 60, 320, 1), (1e-3, 2, 1), (1e-3, 10, 1), (1e-3, 20, 1)),
-                      blend=((1 / 60, 10), (1 / 60, 20), (1 / 60, 40), (1 / 100, 10), (4e-3, 4), (1e-3, 1), (1e-3, 2)),
+                      blend=((1 / 60, 10), (1 / 60, 18), (1 / 60, 20), (1 / 60, 40), (1 / 100, 10), (1 / 100, 11), (4e-3, 4),
+                             (1e-3, 1), (1e-3, 2)),
                       full_dig=True),
 }
 # Row labels: MuJoCo mode with the Python-orchestrated plant (mujoco) or the coupled step in MuJoCo's callback
@@ -104,18 +109,52 @@ def strokes(result):
     return out
 
 
-def stroke_error(result, reference, scale, early=None):
-    """Largest |x − x_ref| / scale over the cylinders [-], over the whole run and over t < ``early``."""
+def stroke_error(result, reference, scale, early=None, early_reference=None):
+    """Largest |x − x_ref| / scale over the cylinders [-], over the whole run and over t < ``early``
+    (against ``early_reference`` there when given)."""
     if result.status != "complete":
         return np.nan, np.nan
     errors, early_errors = [], []
     for name, (t, x) in strokes(result).items():
-        x_ref = reference(name, t)
-        e = np.abs(x - x_ref) / scale[name]
-        errors.append(np.max(e))
+        errors.append(np.max(np.abs(x - reference(name, t)) / scale[name]))
         if early is not None:
-            early_errors.append(np.max(e[t < early]))
+            before = t < early
+            ref = early_reference or reference
+            early_errors.append(np.max(np.abs(x[before] - ref(name, t[before])) / scale[name]))
     return max(errors), (max(early_errors) if early_errors else np.nan)
+
+
+def dense_strokes(path, dt, duration, out):
+    """{cylinder: (t, x)} of MuJoCo mode at ``dt``, logged every step, and the run's status.
+
+    Logged every step so that interpolating it at another run's sample times adds only ≈ dt²/8·|ẍ|.  At the
+    default 100 Hz log, the linear interpolant between 10 ms samples doubled the excavator's pre-contact errors
+    of the rows whose samples fall between them (PBD 4 ms × 4: 4.4e-5 of stroke, 2.2e-5 against a dense log).
+    """
+    result = run(path, out=out, overrides={"mode": "mujoco", "dt": dt, "duration": duration, "log_rate_hz": 1.0 / dt})
+    return strokes(result), result.status
+
+
+def interpolant(table):
+    """reference(cylinder, t) by linear interpolation in ``table`` ({cylinder: (t, x)})."""
+    def reference(cylinder, t):
+        t_ref, x_ref = table[cylinder]
+        return np.interp(t, t_ref, x_ref)
+    return reference
+
+
+def richardson_strokes(path, dt, duration, out):
+    """{cylinder: (t, x)}: 2·x(dt/2) − x(dt) of MuJoCo mode (first order in dt: the extrapolation removes the
+    leading error term), the largest |x(dt/2) − extrapolation| [m] per cylinder (the scale of the dt/2 run's own
+    error) and the run's status."""
+    coarse, _ = dense_strokes(path, dt, duration, out / "richardson-coarse.mcap")
+    fine, status = dense_strokes(path, dt / 2, duration, out / "richardson-fine.mcap")
+    table, spread = {}, {}
+    for name, (t, x) in fine.items():
+        xr = 2.0 * x - np.interp(t, *coarse[name])
+        table[name] = (t, xr)
+        spread[name] = float(np.max(np.abs(x - xr)))
+    return table, spread, status
 
 
 def full_dig_reference(scenario_path):
@@ -239,15 +278,18 @@ def bench_scene(name, spec, substeps, quick, out, pure_substeps=(), pair_reps=0)
         scale = {k: swing for k in scale}  # error relative to the swing (1 → 4.9 m), not the 10 m bookkeeping stroke
         ref_label = "scipy (seed equations)"
     else:
-        ref_run = run(path, out=out / f"{name}-ref.mcap", overrides={"mode": "mujoco", "dt": spec["reference"], "duration": duration})
-        ref_strokes = strokes(ref_run)
-
-        def reference(cylinder, t):
-            t_ref, x_ref = ref_strokes[cylinder]
-            return np.interp(t, t_ref, x_ref)
-
-        ref_label = f"MuJoCo mode dt {spec['reference'] * 1e3:g} ms ({ref_run.status})"
+        ref_strokes, status = dense_strokes(path, spec["reference"], duration, out / f"{name}-ref.mcap")
+        reference = interpolant(ref_strokes)
+        ref_label = f"MuJoCo mode dt {spec['reference'] * 1e3:g} ms ({status}, logged every step)"
     early = spec.get("early")
+    early_reference = None
+    if early and spec["reference"] != "scipy":  # before the first contact the error converges: rank on a converged reference
+        h = spec["reference"] / 4
+        table, spread, status = richardson_strokes(path, h, early, out)
+        early_reference = interpolant(table)
+        own = max(spread[k] / scale[k] for k in spread)
+        print(f"  t < {early:g} s: reference 2·x({h / 2 * 1e3:g} ms) − x({h * 1e3:g} ms) of MuJoCo mode ({status}); "
+              f"the {h / 2 * 1e3:g} ms run is {own:.2e} of stroke from it")
     scale_label = "swing" if spec["reference"] == "scipy" else "stroke"
     print(f"\n{name}: {duration:g} s, reference {ref_label}; stroke error = max over cylinders of |x − x_ref| / {scale_label}")
     head = f"  {'mode':<14} {'dt [ms]':>8} {'substeps':>8} {'h [ms]':>8} {'status':>9} {'RTF':>7} {'stroke err':>11}"
@@ -266,7 +308,7 @@ def bench_scene(name, spec, substeps, quick, out, pure_substeps=(), pair_reps=0)
         overrides = {**VARIANTS[label], "dt": dt, "duration": duration, "pbd_substeps": n if mode == "pbd" else None,
                      "pbd_iterations": iterations if mode == "pbd" else None}
         result = run(path, out=out / f"{name}-{label}-{n}-{iterations}-{dt:.6g}.mcap", overrides=overrides, fast=label != "mujoco")
-        err, err_early = stroke_error(result, reference, scale, early)
+        err, err_early = stroke_error(result, reference, scale, early, early_reference)
         rtf = result.real_time_factor
         for _ in range(spec.get("reps", 1) - 1):  # short runs: the best of a few (deterministic, only the wall time varies)
             again = run(path, out=out / "rep.mcap", overrides=overrides, fast=label != "mujoco")

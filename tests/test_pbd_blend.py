@@ -182,6 +182,45 @@ def test_blend_follows_mujoco_mode_when_a_friction_row_turns_explicit():
     assert error < 2e-6
 
 
+def test_excavator_approach_converges_at_first_order_in_the_substep_whatever_the_frame():
+    """Excavator 0–1.5 s (the valves open at 1.0 s; the teeth reach the soil at 1.6 s) against a converged
+    reference, the Richardson extrapolation 2·x(h/2) − x(h) of MuJoCo mode at h = 62.5 µs (MuJoCo mode is
+    first order there: its 31.25 µs run is 6.5e-7 of stroke from the extrapolation, its 1 ms run 2.1e-5).
+    PBD mode (rosenbrock, θ-rule) converges at first order in its substep (60 Hz frames × 20 → × 40: error
+    ratio 0.5 ± 0.1); at a 1 ms substep its error does not depend on the frame the substeps share (1 ms × 1
+    and 10 ms × 10 within 5 %) and is within 5 % of MuJoCo mode's at 1 ms; at 60 Hz × 18 (h = 0.93 ms) it is
+    at least as accurate as MuJoCo mode at 1 ms, the setting ``bench/bench_pbd.py`` times against it."""
+    duration = 1.5
+    stroke = load_scene(load_scenario(EXCAVATOR)).network.cylinder_stroke
+
+    def run(mode, dt, **overrides):
+        x = _excavator_strokes(mode, dt, duration, **overrides)
+        return dt * np.arange(1, len(x) + 1), x
+
+    def at(run_, times):
+        t, x = run_
+        return np.column_stack([np.interp(times, t, x[:, c]) for c in range(x.shape[1])])
+
+    t, fine = run("mujoco", 3.125e-5)
+    reference = 2.0 * fine - at(run("mujoco", 6.25e-5), t)
+
+    def error(run_):
+        return float(np.max(np.abs(run_[1] - at((t, reference), run_[0])) / stroke))
+
+    def pbd(dt, n):
+        return error(run("pbd", dt, pbd_substeps=n, pbd_blend=True, coupling="rosenbrock"))
+
+    mujoco = error(run("mujoco", 1e-3))
+    errors = {(1e-3, 1): pbd(1e-3, 1), (1e-2, 10): pbd(1e-2, 10), (1 / 60, 18): pbd(1 / 60, 18),
+              (1 / 60, 20): pbd(1 / 60, 20), (1 / 60, 40): pbd(1 / 60, 40)}
+    print(f"\nexcavator 0–{duration} s, stroke error / stroke against the Richardson reference: MuJoCo mode 1 ms "
+          f"{mujoco:.3e}; PBD rosenbrock θ-rule " + ", ".join(f"{1e3 * dt:.3g} ms × {n} {e:.3e}" for (dt, n), e in errors.items()))
+    assert 0.4 < errors[(1 / 60, 40)] / errors[(1 / 60, 20)] < 0.6
+    assert errors[(1e-2, 10)] == pytest.approx(errors[(1e-3, 1)], rel=0.05)
+    assert errors[(1e-3, 1)] == pytest.approx(mujoco, rel=0.05)
+    assert errors[(1 / 60, 18)] <= mujoco
+
+
 def test_rosenbrock_linearises_a_turning_swing_motor_at_its_speed():
     """Excavator swing braking (the swing valve closes 8.75–9.05 s with the motor at ≈ 18 rad/s): PBD mode with
     ``rosenbrock`` at 1 ms × 1 substep follows MuJoCo mode's rosenbrock at 1 ms within 5 bar on the motor's A port.  Its one Newton step is
