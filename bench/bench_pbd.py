@@ -63,6 +63,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+from sim.compare import richardson_first_order  # noqa: E402
 from sim.mcap_log import read_log  # noqa: E402
 from sim.runner import run  # noqa: E402
 from sim.scenario import load_scenario  # noqa: E402
@@ -117,12 +118,12 @@ def stroke_error(result, reference, scale, early=None, early_reference=None):
     if result.status != "complete":
         return np.nan, np.nan
     errors, early_errors = [], []
+    before_contact = early_reference or reference
     for name, (t, x) in strokes(result).items():
         errors.append(np.max(np.abs(x - reference(name, t)) / scale[name]))
         if early is not None:
             before = t < early
-            ref = early_reference or reference
-            early_errors.append(np.max(np.abs(x[before] - ref(name, t[before])) / scale[name]))
+            early_errors.append(np.max(np.abs(x[before] - before_contact(name, t[before])) / scale[name]))
     return max(errors), (max(early_errors) if early_errors else np.nan)
 
 
@@ -153,7 +154,7 @@ def richardson_strokes(path, dt, duration, out):
     fine, status = dense_strokes(path, dt / 2, duration, out / "richardson-fine.mcap")
     table, spread = {}, {}
     for name, (t, x) in fine.items():
-        xr = 2.0 * x - np.interp(t, *coarse[name])
+        xr = richardson_first_order(t, x, *coarse[name])
         table[name] = (t, xr)
         spread[name] = float(np.max(np.abs(x - xr)))
     return table, spread, status

@@ -9,7 +9,7 @@ import pytest
 from conftest import MODELS
 from hydraulics.components import CircuitError
 from sim import compare
-from sim.compare import align, compare_logs, error_series, error_stats, log_signals
+from sim.compare import align, compare_logs, error_series, error_stats, log_signals, richardson_first_order
 from sim.mcap_log import LogWriter, flat_schema, read_log
 from sim.recorder import CYLINDER_FIELDS
 from sim.reference import NotConvergedError, Tolerance, check_convergence, compute_reference, require_converged
@@ -310,3 +310,19 @@ def test_compare_logs_reports_filtered_errors_and_percent_of_stroke(tmp_path):
     assert "0.2 (stroke c)" in table  # 1 mm of a 0.5 m stroke
     result = compare.compare_existing([ref, run], tmp_path / "out", filter_window=0.1)
     assert "averaged over a centred 0.1 s moving window" in result.report_path.read_text()
+
+
+def test_richardson_first_order_removes_an_error_proportional_to_the_step():
+    """Runs at h and h/2 off the exact solution by C·h·g(t) (first order) on different grids: the extrapolation
+    2·y(h/2) − y(h) returns the exact solution to interpolation error, the h/2 run alone is C·h/2·g off."""
+    def exact(t):
+        return np.sin(3.0 * t)
+
+    def run(h, t):
+        return exact(t) + 0.4 * h * np.cos(t)
+
+    t_fine, t_coarse = np.linspace(0.0, 2.0, 4001), np.linspace(0.0, 2.0, 2001)
+    h = 1e-2
+    result = richardson_first_order(t_fine, run(h / 2, t_fine), t_coarse, run(h, t_coarse))
+    assert np.max(np.abs(run(h / 2, t_fine) - exact(t_fine))) > 1e-3
+    assert np.max(np.abs(result - exact(t_fine))) < 1e-5
