@@ -4,7 +4,7 @@ Per frame, in the order of :meth:`~sim.plant_pbd.PbdPlant.step` on its compiled-
 (``articulated`` → ``_step_frame`` → ``_end_step``), each piece the same compiled function
 the per-frame path calls from Python:
 
-1. the articulated data at the frame's pose (``frame_nb._articulated``);
+1. the articulated data at the frame's pose (``frame_nb._articulated_into``, on work arrays made once per block);
 2. the rigid-group state (``compiled.gather``) and the frame's contact candidates
    (``compiled.contact_candidates``), their rows copied from the per-contact arrays
    (``SolverXPBD._contact_arrays``, as ``SolverXPBD._flat_contacts``);
@@ -72,9 +72,10 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
     # the frames' work arrays, made once for the block (room for every contact candidate)
     work = FN._frame_work_jit(cyl.size, x.size, Xg.shape[0], jt.shape[0], mobility.shape, jlim.shape[0] - jt.shape[0],
                               b_cg.shape[0])
+    awork = FN._articulated_work_jit(bx.shape[0], jnt_body.shape[0], effective_mass.size, group_mass.size)
     for k in range(nframe):
-        if not FN._articulated_jit(
-                bx, bq, iquat, ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, armature, gravity,
+        if not FN._articulated_into_jit(
+                C.borrowed(awork), bx, bq, iquat, ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, armature, gravity,
                 site_body, site_pos, row_sites, cyl, mot, mot_dof, gear, body_group, group_mass, group_root,
                 group_dynamic, mobility, group_gravity, motor_response, minv, effective_mass):
             return k, BLOCK_INELIGIBLE
@@ -198,7 +199,7 @@ def block(transport: bool = False, articulated_contacts: bool = True):
     if key not in _BLOCK:
         import numba
 
-        FN.frame(*key)  # makes frame_nb's compiled helpers (_frame_jit, _frame_work_jit, _articulated_jit) exist
+        FN.frame(*key)  # makes frame_nb's compiled helpers (_frame_jit, _frame_work_jit, _articulated_*_jit) exist
         FN.articulated()
         if _block_jit is None:
             _block_jit = numba.njit(error_model="numpy")(_block)

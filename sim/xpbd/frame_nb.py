@@ -236,19 +236,39 @@ def frame(transport: bool = False, articulated_contacts: bool = True):
 # ---------------------------------------------------------------------------- articulated response
 
 
+def articulated_work(nb, nj, na, ng):
+    """The work arrays of ``_articulated_into`` for ``nb`` bodies, ``nj`` joints, ``na`` actuators and ``ng`` groups
+    (made once per block by ``block_nb``): body frames, joint axes and anchors, joint-to-body Jacobians, mass
+    matrix, right-hand sides, moment arms, the eliminated matrix and the group Jacobians."""
+    return (np.empty((nb, 3)), np.empty((nb, 4)), np.empty((nj, 3)), np.empty((nj, 3)), np.empty((nj, nb, 3)),
+            np.empty((nj, nb, 3)), np.empty((nj, nj)), np.empty((nj, na + 1)), np.empty((na, nj)), np.empty((nj, nj)),
+            np.empty((nj, ng, 3)))
+
+
 def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, armature,
                  gravity, site_body, site_pos, row_sites, cyl, mot, mot_dof, gear, body_group, group_mass, group_root,
                  group_dynamic, mobility, group_gravity, motor_response, motor_inverse_inertia, effective_mass):
     """``PbdPlant.articulated`` for trees of hinges and slides (one DOF per joint, joint j = DOF j); returns
-    False when the mass matrix is singular (outputs untouched)."""
+    False when the mass matrix is singular (outputs untouched).  ``_articulated_into`` on fresh work arrays."""
+    work = _articulated_work_jit(x.shape[0], jnt_body.shape[0], effective_mass.size, group_mass.size)
+    return _articulated_into_jit(work, x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree,
+                                 body_mass, inertia, armature, gravity, site_body, site_pos, row_sites, cyl, mot, mot_dof,
+                                 gear, body_group, group_mass, group_root, group_dynamic, mobility, group_gravity,
+                                 motor_response, motor_inverse_inertia, effective_mass)
+
+
+def _articulated_into(work, x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia,
+                      armature, gravity, site_body, site_pos, row_sites, cyl, mot, mot_dof, gear, body_group, group_mass,
+                      group_root, group_dynamic, mobility, group_gravity, motor_response, motor_inverse_inertia,
+                      effective_mass):
+    """``_articulated`` on the work arrays ``work`` (:func:`articulated_work`; overwritten): no allocation."""
     nb = x.shape[0]
     nj = jnt_body.shape[0]
     na = effective_mass.size
     nr = cyl.size
     nm = mot.size
     ng = group_mass.size
-    xb = np.empty((nb, 3))
-    qb = np.empty((nb, 4))
+    xb, qb, axis, anchor, jv, jwl, mass, rhs, moment, M, gjv = work
     for b in range(nb):
         qc = (body_iquat[b, 0], -body_iquat[b, 1], -body_iquat[b, 2], -body_iquat[b, 3])
         qq = XC._qmul(XC._q4(q, b), qc)
@@ -256,8 +276,6 @@ def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge
         r = XC._rot(qq, XC._v3(body_ipos, b))
         for c in range(3):
             xb[b, c] = x[b, c] - r[c]
-    axis = np.empty((nj, 3))
-    anchor = np.empty((nj, 3))
     for j in range(nj):
         jb = jnt_body[j]
         qq = XC._q4(qb, jb)
@@ -266,8 +284,8 @@ def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge
         for c in range(3):
             axis[j, c] = a[c]
             anchor[j, c] = xb[jb, c] + p[c]
-    jv = np.zeros((nj, nb, 3))
-    jwl = np.zeros((nj, nb, 3))
+    jv[:, :, :] = 0.0
+    jwl[:, :, :] = 0.0
     for j in range(nj):
         aj = XC._v3(axis, j)
         for b in range(nb):
@@ -283,9 +301,7 @@ def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge
             else:
                 for c in range(3):
                     jv[j, b, c] = aj[c]
-    mass = np.zeros((nj, nj))
-    rhs = np.zeros((nj, na + 1))
-    for i in range(nj):
+    for i in range(nj):  # (every entry of mass and rhs is written below)
         for k in range(nj):
             s = 0.0
             for b in range(nb):
@@ -298,7 +314,7 @@ def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge
         for b in range(nb):
             s += body_mass[b] * (jv[i, b, 0] * gravity[0] + jv[i, b, 1] * gravity[1] + jv[i, b, 2] * gravity[2])
         rhs[i, na] = s
-    moment = np.zeros((na, nj))
+    moment[:, :] = 0.0
     for i in range(nm):
         moment[mot[i], mot_dof[i]] = gear[i]
     for r in range(nr):
@@ -324,7 +340,7 @@ def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge
         for i in range(nj):
             rhs[i, a] = moment[a, i]
     # dq = M⁻¹·[Jᵀ, Q_gravity]: Gaussian elimination with partial pivoting
-    M = mass.copy()
+    M[:, :] = mass
     for col in range(nj):
         piv = col
         for r in range(col + 1, nj):
@@ -358,7 +374,7 @@ def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge
         effective_mass[a] = 1.0 / s if s != 0.0 else np.inf
     for i in range(nm):
         motor_inverse_inertia[i] = dq[mot_dof[i], mot[i]] / gear[i]
-    gjv = np.zeros((nj, ng, 3))
+    gjv[:, :, :] = 0.0
     for i in range(nj):
         for b in range(nb):
             g = body_group[b]
@@ -391,7 +407,7 @@ def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge
 
 
 _ARTICULATED = None
-_articulated_jit = None
+_articulated_jit = _articulated_into_jit = _articulated_work_jit = None
 
 
 def _articulated_entry(fingerprint):
@@ -407,10 +423,12 @@ def _articulated_entry(fingerprint):
 
 def articulated():
     """The compiled ``_articulated`` (numba's disk cache; the key includes the sources' fingerprint)."""
-    global _ARTICULATED, _articulated_jit
+    global _ARTICULATED, _articulated_jit, _articulated_into_jit, _articulated_work_jit
     if _ARTICULATED is None:
         import numba
 
+        _articulated_into_jit = numba.njit(error_model="numpy")(_articulated_into)
+        _articulated_work_jit = numba.njit(error_model="numpy")(articulated_work)
         _articulated_jit = numba.njit(error_model="numpy")(_articulated)
         _ARTICULATED = _articulated_entry(SOURCE_SHA256)
     return _ARTICULATED
