@@ -9,18 +9,18 @@ median is reported:
   same actuators and integrator) from the same initial state, with constant
   controls (the effort law of the plant's first step held), no callback: the
   mechanical cost alone;
-* ``fast/100``: ``MujocoPlantFast.advance(100)`` — the runner's block at 1 kHz
-  (``sim.runner.MIN_BLOCK_STEPS``: ten samples of the default 100 Hz log per block);
+* ``fast/500``: ``MujocoPlantFast.advance(500)`` — the runner's block at 1 kHz
+  (``sim.runner.block_steps``: 0.5 s, fifty samples of the default 100 Hz log per block);
 * ``fast/1000``: ``advance(1000)``;
-* ``linear/100``, ``linear/1000``: the same with coupling ``implicit-linear``
+* ``linear/500``, ``linear/1000``: the same with coupling ``implicit-linear``
   (linearly implicit finish, no second Newton solve; plant constructor
   argument ``coupling``);
-* ``rosen/100``, ``rosen/1000``: coupling ``rosenbrock`` (also the linearisation is
+* ``rosen/500``, ``rosen/1000``: coupling ``rosenbrock`` (also the linearisation is
   one Newton step: no nonlinear solve unless a step leaves the trust region);
 * ``python``: the Python-orchestrated :class:`MujocoPlant` (first 0.2 s only);
 * ``pbd-θ 1ms×1``, ``pbd-rb-θ 60Hz×18``, ``pbd-rb-θ 100Hz×11``: PBD mode
-  (:class:`sim.plant_pbd.PbdPlant` on the runner's block path, ``advance`` in blocks of
-  ``MIN_BLOCK_STEPS`` frames) at MuJoCo mode's step (1 ms frames × 1 substep, θ-rule) and at the two
+  (:class:`sim.plant_pbd.PbdPlant` on the runner's block path, ``advance`` in the runner's blocks,
+  ``block_steps(dt)`` frames) at MuJoCo mode's step (1 ms frames × 1 substep, θ-rule) and at the two
   settings ``bench_pbd.py`` finds at least as accurate as MuJoCo mode at 1 ms on the excavator
   (rosenbrock, θ-rule): 60 Hz × 18 substeps on the strokes before contact, 100 Hz × 11 on those and on
   every phase's pressures too.  Their µs are per millisecond of simulated time, so the ratio compares
@@ -42,7 +42,7 @@ import mujoco
 
 from sim.plant_mujoco import MujocoPlant
 from sim.plant_mujoco_fast import MujocoPlantFast
-from sim.runner import MIN_BLOCK_STEPS, make_plant
+from sim.runner import block_steps, make_plant
 from sim.scenario import load_scenario
 from sim.scene import load_scene
 
@@ -79,7 +79,7 @@ def bench(name, path, reps, window, python_window=0.2):
     start = mujoco.MjData(m)
     mujoco.mj_copyData(start, m, probe.data)
     start.ctrl[:] = held  # the bare loop's constant controls
-    b = MIN_BLOCK_STEPS
+    b = block_steps(DT)  # the runner's block at 1 kHz
     variants = ((b, f"fast/{b}", "implicit"), (1000, "fast/1000", "implicit"), (b, f"linear/{b}", "implicit-linear"),
                 (1000, "linear/1000", "implicit-linear"), (b, f"rosen/{b}", "rosenbrock"), (1000, "rosen/1000", "rosenbrock"))
     times = {"bare": [], **{key: [] for _, key, _ in variants}, "python": [], **{key: [] for key in PBD_VARIANTS}}
@@ -114,7 +114,7 @@ def bench(name, path, reps, window, python_window=0.2):
             frames = int(round(window / pbd_scenario.dt))
             t = time.perf_counter()
             while pbd.step_index < frames:
-                report = pbd.advance(min(MIN_BLOCK_STEPS, frames - pbd.step_index))
+                report = pbd.advance(min(block_steps(pbd_scenario.dt), frames - pbd.step_index))
                 assert report is not None and report.success, key
             times[key].append((time.perf_counter() - t) / (frames * pbd_scenario.dt / DT))  # per 1 ms simulated
     med = {k: statistics.median(v) * 1e6 for k, v in times.items()}

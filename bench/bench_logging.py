@@ -5,14 +5,14 @@ from t = 0, the approach and the start of the dig), each configuration repeated 
 interleaved, medians reported:
 
 ``no log``        load the scene, build :class:`MujocoPlantFast`, check its load-time guards,
-                  advance it in blocks of ``sim.runner.MIN_BLOCK_STEPS`` steps (the runner's
+                  advance it in blocks of ``sim.runner.block_steps(dt)`` steps (the runner's
                   block size at the default 100 Hz log rate) with a finiteness check per block
                   (``plant.end_finite``, from the compiled loop, as ``run()`` checks it):
                   everything ``run()`` does except logging;
 ``default log``   ``sim.runner.run()`` at the scenario's log rate (100 Hz), the same work
                   plus the recorder, the MCAP writer and the divergence/energy checks;
 ``every step``    ``run()`` logging all 1000 samples per second: blocks as long as at the default
-                  rate (``sim.runner.MIN_BLOCK_STEPS``), the samples inside a block copied by the
+                  rate (``sim.runner.block_steps``), the samples inside a block copied by the
                   plant from its compiled loop (``MujocoPlantFast.advance(n, record, every)``);
 ``per-step path`` for reference, ``run(..., fast=False)`` at 100 Hz: :class:`MujocoPlant`, one
                   Python-orchestrated step at a time (what ``run()`` did before the block path).
@@ -217,13 +217,14 @@ def main() -> None:
         out = Path(tmp)
         if not args.no_startup:
             startup(out)
-        from sim.runner import MIN_BLOCK_STEPS
+        from sim.runner import block_steps
 
-        no_log(0.02, MIN_BLOCK_STEPS)  # warm: callback compiled, kernels loaded, caches hot
+        block = block_steps(1e-3)
+        no_log(0.02, block)  # warm: callback compiled, kernels loaded, caches hot
         with_log(0.02, 100.0, out / "warm.mcap")
         times = {"no log": [], "default log (100 Hz)": [], "every step (1 kHz)": [], "per-step path, 100 Hz": []}
         for rep in range(args.reps):
-            times["no log"].append(no_log(args.seconds, MIN_BLOCK_STEPS))
+            times["no log"].append(no_log(args.seconds, block))
             times["default log (100 Hz)"].append(with_log(args.seconds, 100.0, out / f"d{rep}.mcap"))
             times["every step (1 kHz)"].append(with_log(args.seconds, 1000.0, out / f"e{rep}.mcap"))
             if rep < args.per_step_reps:

@@ -9,9 +9,9 @@ Library use::
 MuJoCo mode with the implicit coupling and the compiled kernels (the
 defaults) advances :class:`~sim.plant_mujoco_fast.MujocoPlantFast` in blocks
 of one ``mj_step(m, d, nstep=n)``: one log interval (``scenario.log_every``
-steps), or as many whole intervals as fit in ``MIN_BLOCK_STEPS`` = 100 steps
-(the default 100 Hz log at 1 kHz: blocks of 10 intervals; every step: blocks of
-100, the same).  The plant records the log samples inside a block from its
+steps), or as many whole intervals as fit in :func:`block_steps` (100 steps, or
+0.5 s of simulated time when that is more: the default 100 Hz log at 1 kHz, blocks
+of 50 intervals; every step: blocks of 500, bounded by the recorder's ring).  The plant records the log samples inside a block from its
 compiled loop straight into the recorder's ring
 (``MujocoPlantFast.advance(n, record, every)``), so a block runs one step past
 its last sample; a sample that ends a block (every-step logging, the run's
@@ -144,10 +144,21 @@ class _Snapshot:
 SNAPSHOT_STEPS = 100
 
 # Shortest block of the block path [steps] when the log interval is shorter: whole log intervals up to
-# this many steps go into one ``advance`` (one block per sample cost ≈ 18 µs per step of Python around
+# ``block_steps(dt)`` steps go into one ``advance`` (one block per sample cost ≈ 18 µs per step of Python around
 # ``mj_step`` at the default 100 Hz log of a 1 kHz run; 100 steps amortise it to < 2 µs).  The default
 # log interval and every-step logging then step the plant in the same blocks.
 MIN_BLOCK_STEPS = 100
+# Simulated time a block spans at least [s] when that is more than MIN_BLOCK_STEPS steps: what is left per block
+# (the compiled call's dispatch, ~150 arguments for PBD mode, the snapshot, committing the recorded samples) was
+# still 0.1–0.4 ms, i.e. 4–12 % of a 100-step block of the excavator at 1 kHz (paired runs, 3 s: implicit
+# 34.6 → 30.6 µs per step with 500-step blocks).
+BLOCK_SECONDS = 0.5
+
+
+def block_steps(dt: float) -> int:
+    """Steps per block of the block path at step ``dt`` [s]: MIN_BLOCK_STEPS, or BLOCK_SECONDS of simulated time
+    when that is more (1 kHz: 500; 1200 Hz: 600; 60 Hz frames: 100)."""
+    return max(MIN_BLOCK_STEPS, int(round(BLOCK_SECONDS / dt)))
 
 
 class _NonFinite:
@@ -358,6 +369,7 @@ class _Loop:
         self.plant, self.recorder, self.log, self.scenario, self.progress = plant, recorder, log, scenario, progress
         self.steps = scenario.step_count
         self.every = scenario.log_every
+        self.block_steps = block_steps(scenario.dt)
         self.status, self.message = "complete", ""
         self.peak = np.array(plant.net_state.node_pressure)
         self.low = self.peak.copy()
@@ -386,14 +398,14 @@ class _Loop:
         step after the block's last sample, so that the plant records every sample of the block
         from its compiled loop (a block's last step can only be captured from Python; at every-step
         logging, or at the end of the run, the block ends on that sample and it is captured).  A
-        block holds one log interval, or as many whole intervals as fit in ``MIN_BLOCK_STEPS``, within
+        block holds one log interval, or as many whole intervals as fit in :func:`block_steps`, within
         the room left in the recorder's ring, and never a sample past the first one at or after the
         log's next periodic flush (so that the flush still writes every sample before it when due).
         """
         steps, every = self.steps, self.every
         end = min(k + every - k % every, steps)  # the next sample
         if self.record_blocks:
-            last = end + (max(1, min(self.recorder.room, MIN_BLOCK_STEPS // every)) - 1) * every
+            last = end + (max(1, min(self.recorder.room, self.block_steps // every)) - 1) * every
             flush = self.log._next_flush_step
             if flush < math.inf:
                 last = min(last, max(end, -(-int(flush) // every) * every))  # the first sample at or after the flush

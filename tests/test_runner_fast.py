@@ -147,7 +147,7 @@ def test_failed_block_is_replayed_to_the_failing_step(tmp_path, rate_hz):
 def test_samples_recorded_inside_blocks_give_the_same_log_file(tmp_path, monkeypatch, path, overrides):
     """The plant records the samples inside each block from its compiled loop (MujocoPlantFast.advance(n, record,
     every); blocks run one step past their last sample, or hold several samples when the log interval is shorter than
-    MIN_BLOCK_STEPS): the log file is byte for byte the one written with one block per sample, each captured by the
+    runner.block_steps(dt)): the log file is byte for byte the one written with one block per sample, each captured by the
     recorder from Python, and so is the summary."""
     from sim import runner
 
@@ -164,7 +164,7 @@ def test_samples_recorded_inside_blocks_give_the_same_log_file(tmp_path, monkeyp
     scenario = load_scenario(path).with_overrides(**overrides)
     every = scenario.log_every
     # blocks with samples recorded inside, as long as the run allows
-    assert max(lengths) > every and max(lengths) >= min(runner.MIN_BLOCK_STEPS, scenario.step_count)
+    assert max(lengths) > every and max(lengths) >= min(runner.block_steps(scenario.dt), scenario.step_count)
     calls = []
 
     def one_sample_per_block(self, k):
@@ -203,3 +203,13 @@ def test_replay_from_an_older_snapshot_gives_the_same_log(tmp_path, monkeypatch)
     assert older.message == every_block.message
     assert (tmp_path / "older.mcap").read_bytes() == (tmp_path / "every_block.mcap").read_bytes()
     assert repr((older.energy, older.final_joints)) == repr((every_block.energy, every_block.final_joints))  # NaNs
+
+
+def test_blocks_span_half_a_second_or_a_hundred_steps():
+    """The block path's block length: 0.5 s of simulated time at fine steps, never fewer than MIN_BLOCK_STEPS."""
+    from sim import runner
+
+    assert runner.block_steps(1e-3) == 500
+    assert runner.block_steps(1 / 1200) == 600
+    assert runner.block_steps(1 / 60) == runner.MIN_BLOCK_STEPS == 100
+    assert runner.block_steps(1e-5) == 50_000
