@@ -30,7 +30,10 @@ allocation.  Every function that allocates nothing is compiled with
 Such functions may not create arrays (numba refuses), only views of arrays
 passed in; ``_unpack`` and the two Python entry points :func:`_step_kernel` and
 :func:`_linearize_kernel` (which allocate their outputs and scratch) keep the
-reference counting.
+reference counting.  The kernels take ``net`` by reference: the entry points
+make it once per call (``net = _unpack(F, I)``) and pass ``pnet = _ref(net)``,
+one machine word, where the tuple itself was ~170 copied onto the stack per
+call; each kernel reads it through ``net = _deref(pnet)``.
 
 **Newton start and ∂m⁺/∂v.**  :func:`_solve_core` / :func:`_step_core` take
 the Newton start ``oil_init`` (the pure path's ``oil_guess``; the implicit
@@ -188,9 +191,45 @@ if _NUMBA:
             return impl_ret_borrowed(context, builder, matrix, out._getvalue())
 
         return matrix(a, rows, cols), codegen
+    @_intrinsic
+    def _ref(typingctx, value):
+        """A pointer to ``value`` in the calling function's stack frame (valid until that function returns; never to
+        be stored or returned).
+
+        Numba passes a tuple argument by value, field by field: the packed network ``net`` (22 arrays, ~170 machine
+        words) was copied onto the stack at every call of every kernel that takes it, which under ``perf`` was the
+        largest single cost of a small network's step.  The kernels take this pointer (``pnet``) instead and read
+        the fields they use through :func:`_deref`."""
+        def codegen(context, builder, signature, llargs):
+            return _cgutils.alloca_once_value(builder, llargs[0])
+
+        return _numba.types.CPointer(value)(value), codegen
+
+    @_intrinsic
+    def _deref(typingctx, ref):
+        """The value behind a :func:`_ref` pointer; any other value passes through unchanged (a kernel called from
+        Python with the tuple itself)."""
+        from numba.core.imputils import impl_ret_borrowed
+
+        if isinstance(ref, _numba.types.CPointer):
+            def load(context, builder, signature, llargs):
+                return impl_ret_borrowed(context, builder, signature.return_type, builder.load(llargs[0]))
+
+            return ref.dtype(ref), load
+
+        def same(context, builder, signature, llargs):
+            return impl_ret_borrowed(context, builder, signature.return_type, llargs[0])
+
+        return ref(ref), same
 else:  # pragma: no cover
     def borrowed(args):
         return args
+
+    def _ref(value):
+        return value
+
+    def _deref(ref):
+        return ref
 
     def _matrix(a, rows, cols):
         return a.reshape((rows, cols))
@@ -558,8 +597,9 @@ def friction_force_with_derivative_nb(v, coulomb, static, stribeck_velocity, vis
 # Node relations (mirror NetworkModel)
 # ----------------------------------------------------------------------------
 @_inline
-def _geometric_volume(net, x, geo):
+def _geometric_volume(pnet, x, geo):
     # NetworkModel.geometric_volume
+    net = _deref(pnet)
     for k in range(geo.size):
         geo[k] = net.node[k, NODE_VOLUME]
     cyl, ci = net.cyl, net.cyl_i
@@ -574,8 +614,9 @@ def _geometric_volume(net, x, geo):
 
 
 @_inline
-def _node_extra(net, k, p):
+def _node_extra(pnet, k, p):
     # NetworkModel.extra_volume for node k at pressure p: wall expansion + accumulator liquid, and d/dp
+    net = _deref(pnet)
     wall = net.node[k, NODE_WALL]
     extra = wall * (p - net.sc[S_PREF])
     dextra = wall
@@ -589,7 +630,8 @@ def _node_extra(net, k, p):
 
 
 @_inline
-def _fill(net, p):
+def _fill(pnet, p):
+    net = _deref(pnet)
     sc = net.sc
     return fill_ratio_nb(p, sc[S_PREF], sc[S_BETA], sc[S_AIR], sc[S_NPOLY])
 
@@ -636,22 +678,24 @@ def _invert_wall_node(geometric, rigid, wall, pref, beta, tol, max_iterations):
 
 
 @_inline
-def _content_residual(net, k, p, geometric, rigid, log_oil, pure, beta):
+def _content_residual(pnet, k, p, geometric, rigid, log_oil, pure, beta):
     # ln(V(p)·φ(p)/m) of node k and its p-derivative (see _invert_node)
-    extra, dextra = _node_extra(net, k, p)
+    net = _deref(pnet)
+    extra, dextra = _node_extra(pnet, k, p)
     volume = geometric + extra
     if pure:
         return math.log1p(extra / geometric) + (p - rigid) / beta, dextra / volume + 1.0 / beta
-    phi, dphi = _fill(net, p)
+    phi, dphi = _fill(pnet, p)
     return math.log(volume * phi) - log_oil, dextra / volume + dphi / phi
 
 
 @_inline
-def _invert_node(net, k, oil, geometric, rigid):
+def _invert_node(pnet, k, oil, geometric, rigid):
     # NetworkModel._invert_compliant for one node (nodes are independent and frozen once converged)
     # Pure oil (no entrained air): ln φ = (p − p_ref)/β and ``rigid`` = p_ref + β·ln(m/V_g), so
     # ln(V·φ/m) = ln(1 + V_extra/V_g) + (p − rigid)/β — the same function without its exp and
     # two of its logs (round-off differences only).
+    net = _deref(pnet)
     tol = net.sc[S_PINV_TOL]
     pure = net.sc[S_AIR] == 0.0
     beta = net.sc[S_BETA]
@@ -664,7 +708,7 @@ def _invert_node(net, k, oil, geometric, rigid):
             return _invert_wall_node(geometric, rigid, net.node[k, NODE_WALL], net.sc[S_PREF], beta, tol, net.ic[IC_PINV_MAX])
     log_oil = 0.0 if pure else math.log(oil)
     p = rigid
-    value, slope = _content_residual(net, k, p, geometric, rigid, log_oil, pure, beta)
+    value, slope = _content_residual(pnet, k, p, geometric, rigid, log_oil, pure, beta)
     lo = p if value <= 0 else -math.inf
     hi = p if value > 0 else math.inf
     for _ in range(net.ic[IC_PINV_MAX]):
@@ -676,7 +720,7 @@ def _invert_node(net, k, oil, geometric, rigid):
         bracketed = math.isfinite(lo) and math.isfinite(hi)
         outside = newton <= lo or newton >= hi
         p = 0.5 * (lo + hi) if (bracketed and outside) else newton
-        value, slope = _content_residual(net, k, p, geometric, rigid, log_oil, pure, beta)
+        value, slope = _content_residual(pnet, k, p, geometric, rigid, log_oil, pure, beta)
         if value <= 0:
             lo = _maximum(lo, p)
         if value > 0:
@@ -685,13 +729,14 @@ def _invert_node(net, k, oil, geometric, rigid):
 
 
 @_kernel
-def _pressure(net, oil, x, geo, p, dpdm):
+def _pressure(pnet, oil, x, geo, p, dpdm):
     # NetworkModel.pressure: fills geo (geometric volumes), p and dp/dm
+    net = _deref(pnet)
     sc = net.sc
     fixed = net.fixed
     n = geo.size
     pref, beta = sc[S_PREF], sc[S_BETA]
-    _geometric_volume(net, x, geo)
+    _geometric_volume(pnet, x, geo)
     for k in range(n):
         r = 1.0 if fixed[k] else oil[k] / geo[k]
         p[k] = pref + beta * math.log(r)
@@ -705,7 +750,7 @@ def _pressure(net, oil, x, geo, p, dpdm):
         for _ in range(net.ic[IC_FILL_MAX]):
             converged = True
             for k in range(n):
-                phi, dphi = _fill(net, p[k])
+                phi, dphi = _fill(pnet, p[k])
                 residual = math.log(phi) - target[k]
                 p[k] = _maximum(p[k] - residual * phi / dphi, 0.5 * p[k])
                 if not abs(residual) < tol:
@@ -714,7 +759,7 @@ def _pressure(net, oil, x, geo, p, dpdm):
                 break
     for j in range(net.compliant.size):
         k = net.compliant[j]
-        p[k] = _invert_node(net, k, oil[k], geo[k], p[k])
+        p[k] = _invert_node(pnet, k, oil[k], geo[k], p[k])
     floor = sc[S_FLOOR]
     pure = sc[S_AIR] == 0.0
     for k in range(n):
@@ -726,19 +771,20 @@ def _pressure(net, oil, x, geo, p, dpdm):
             p[k] = floor
             dpdm[k] = 0.0
             continue
-        extra, dvdp = _node_extra(net, k, p[k])
+        extra, dvdp = _node_extra(pnet, k, p[k])
         if pure:  # φ = m/V at the root (to the inversion tolerance): no exp; dφ/dp = φ/β
             volume = geo[k] + extra
             phi = oil[k] / volume
             dpdm[k] = 1.0 / (phi * (dvdp + volume / beta))
             continue
-        phi, dphi = _fill(net, p[k])
+        phi, dphi = _fill(pnet, p[k])
         dpdm[k] = 1.0 / (dvdp * phi + (geo[k] + extra) * dphi)
 
 
 @_kernel
-def _valve_areas(net, spool, area):
+def _valve_areas(pnet, spool, area):
     # NetworkModel.valve_areas
+    net = _deref(pnet)
     ori, ov = net.ori, net.or_valve
     has_valves = net.ic[IC_NV] > 0
     for i in range(area.size):
@@ -753,8 +799,9 @@ def _valve_areas(net, spool, area):
 
 
 @_kernel
-def _branch_flows(net, p, area, speed, velocity, flow, dfrom, dto):
+def _branch_flows(pnet, p, area, speed, velocity, flow, dfrom, dto):
     # NetworkModel.branch_flows
+    net = _deref(pnet)
     ic, br = net.ic, net.br
     for b in range(ic[IC_NB]):
         dfrom[b] = 0.0
@@ -791,8 +838,9 @@ def _branch_flows(net, p, area, speed, velocity, flow, dfrom, dto):
 
 
 @_kernel
-def _net_inflow(net, flow, inflow):
+def _net_inflow(pnet, flow, inflow):
     # incidence @ flow
+    net = _deref(pnet)
     inflow[:] = 0.0
     br = net.br
     for b in range(flow.size):
@@ -803,8 +851,9 @@ def _net_inflow(net, flow, inflow):
 
 
 @_kernel
-def _flow_jacobian(net, dfrom, dto, jq):
+def _flow_jacobian(pnet, dfrom, dto, jq):
     # NetworkModel.flow_jacobian (full, node × node)
+    net = _deref(pnet)
     jq[:, :] = 0.0
     br = net.br
     for b in range(dfrom.size):
@@ -817,8 +866,9 @@ def _flow_jacobian(net, dfrom, dto, jq):
 
 
 @_kernel
-def _newton_matrix(net, dfrom, dto, dpdm, h, jac):
+def _newton_matrix(pnet, dfrom, dto, dpdm, h, jac):
     # I − h·(∂Q/∂p)[free, free]·diag(∂p/∂m[free])
+    net = _deref(pnet)
     jac[:, :] = 0.0
     br, fi, free = net.br, net.free_index, net.free
     for b in range(dfrom.size):
@@ -880,11 +930,12 @@ def _lu_solve(a, b):
 
 
 @_kernel
-def _evaluate(net, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, dto, inflow, residual):
+def _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, dto, inflow, residual):
     # StepperImplicitEuler._solve.evaluate
-    _pressure(net, oil, x, geo, p, dpdm)
-    _branch_flows(net, p, area, speed, v, flow, dfrom, dto)
-    _net_inflow(net, flow, inflow)
+    net = _deref(pnet)
+    _pressure(pnet, oil, x, geo, p, dpdm)
+    _branch_flows(pnet, p, area, speed, v, flow, dfrom, dto)
+    _net_inflow(pnet, flow, inflow)
     free = net.free
     for j in range(free.size):
         k = free[j]
@@ -892,25 +943,27 @@ def _evaluate(net, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, d
 
 
 @_inline
-def _volume_and_modulus(net, k, geometric, p):
+def _volume_and_modulus(pnet, k, geometric, p):
     # NetworkModel.node_volume_at and .effective_bulk_modulus of a free node
-    extra, dvdp = _node_extra(net, k, p)
+    net = _deref(pnet)
+    extra, dvdp = _node_extra(pnet, k, p)
     volume = geometric + extra
     if net.sc[S_AIR] == 0.0:  # φ'/φ = 1/β: φ cancels (round-off only)
         return volume, volume / (dvdp + volume / net.sc[S_BETA])
-    phi, dphi = _fill(net, p)
+    phi, dphi = _fill(pnet, p)
     return volume, volume * phi / (dvdp * phi + volume * dphi)
 
 
 @_kernel
-def _trust_step(net, oil, delta, geo, p):
+def _trust_step(pnet, oil, delta, geo, p):
     # StepperImplicitEuler._trust_step
+    net = _deref(pnet)
     sc = net.sc
     free = net.free
     smallest = math.inf
     for j in range(free.size):
         k = free[j]
-        volume, beta = _volume_and_modulus(net, k, geo[k], p[k])
+        volume, beta = _volume_and_modulus(pnet, k, geo[k], p[k])
         void = _maximum(volume * sc[S_PHI_FLOOR] - oil[k], 0.0)
         allowed = void + volume * _maximum(sc[S_TRUST_P], sc[S_TRUST_F] * abs(p[k])) / beta
         ratio = allowed / abs(delta[j]) if abs(delta[j]) > 0 else math.inf
@@ -927,7 +980,8 @@ def _scaled_norm(residual, scale):
 
 
 @_inline
-def _tolerance(net, p):
+def _tolerance(pnet, p):
+    net = _deref(pnet)
     big = 0.0
     free = net.free
     for j in range(free.size):
@@ -992,7 +1046,7 @@ def work_size(F, I) -> int:
 
 
 @_kernel
-def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, dto_out, istats, W, p_first, oil_init):
+def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, dto_out, istats, W, p_first, oil_init):
     """StepperImplicitEuler._solve; returns the scaled residual norm, counters in ``istats``.
 
     ``W`` is scratch (at least ``_solve_work_size``); ``p_first`` receives the
@@ -1000,6 +1054,7 @@ def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, 
     from ``oil_init`` (``oil0`` for a cold start); the residual is always
     m − oil0 − h·ΣQ(m).
     """
+    net = _deref(pnet)
     ic, sc, free = net.ic, net.sc, net.free
     n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
     halvings = ic[IC_HALVINGS]
@@ -1026,37 +1081,37 @@ def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, 
     jac_flat, o = _take(W, o, nf * nf)
     delta = _matrix(delta_flat, nf, 1)
     jac = _matrix(jac_flat, nf, nf)
-    _valve_areas(net, spool, area)
+    _valve_areas(pnet, spool, area)
     _copy(oil, oil_init)
     rhs = 0
     jacobians = 0
     iterations = 0
-    _evaluate(net, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, dto, inflow, residual)
+    _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, dto, inflow, residual)
     _copy(p_first, p)
     rhs += 1
     for j in range(nf):
         k = free[j]
-        volume, beta = _volume_and_modulus(net, k, geo[k], p[k])
+        volume, beta = _volume_and_modulus(pnet, k, geo[k], p[k])
         scale[j] = beta / volume
     norm = _scaled_norm(residual, scale)
-    converged = nf == 0 or norm < _tolerance(net, p)
+    converged = nf == 0 or norm < _tolerance(pnet, p)
     for _ in range(ic[IC_NEWTON_MAX]):
         if converged:
             break
-        _newton_matrix(net, dfrom, dto, dpdm, h, jac)
+        _newton_matrix(pnet, dfrom, dto, dpdm, h, jac)
         jacobians += 1
         for j in range(nf):
             delta[j, 0] = -residual[j]
         if not _lu_solve(jac, delta):
             break
         iterations += 1
-        step = _trust_step(net, oil, delta_flat, geo, p)
+        step = _trust_step(pnet, oil, delta_flat, geo, p)
         t_norm = 0.0
         for halving in range(halvings):
             _copy(t_oil, oil)
             for j in range(nf):
                 t_oil[free[j]] = oil[free[j]] + step * delta[j, 0]
-            _evaluate(net, t_oil, oil0, x, v, area, speed, h, geo, t_p, t_dpdm, t_flow, t_dfrom, t_dto, inflow, t_residual)
+            _evaluate(pnet, t_oil, oil0, x, v, area, speed, h, geo, t_p, t_dpdm, t_flow, t_dfrom, t_dto, inflow, t_residual)
             rhs += 1
             t_norm = _scaled_norm(t_residual, scale)
             if math.isfinite(t_norm) and (t_norm <= (1.0 - sc[S_SUFFICIENT] * step) * norm or halving == halvings - 1):
@@ -1074,7 +1129,7 @@ def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, 
         dto, t_dto = t_dto, dto
         residual, t_residual = t_residual, residual
         norm = t_norm
-        tol = _tolerance(net, p)
+        tol = _tolerance(pnet, p)
         converged = norm < tol or (change < tol and full)
     istats[IS_STATUS] = _OK
     istats[IS_WORST] = -1
@@ -1095,7 +1150,7 @@ def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, 
     istats[IS_RHS] = rhs
     istats[IS_JAC] = jacobians
     # oil moves only by the converged flows: exact conservation
-    _net_inflow(net, flow, inflow)
+    _net_inflow(pnet, flow, inflow)
     _copy(oil_out, oil0)
     for j in range(nf):
         k = free[j]
@@ -1107,8 +1162,9 @@ def _solve_core(net, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, 
 
 
 @_kernel
-def _spool_end(net, spool0, command, h, spool):
+def _spool_end(pnet, spool0, command, h, spool):
     # Stepper._spool_end
+    net = _deref(pnet)
     for i in range(spool.size):
         spool[i] = spool_step_nb(spool0[i], _clip(command[i], -1.0, 1.0), net.valve[i, V_TAU], h)
 
@@ -1117,21 +1173,22 @@ def _spool_end(net, spool0, command, h, spool):
 # Cores (no allocation: outputs and scratch passed in) and entry points (called from Python)
 # ----------------------------------------------------------------------------
 @_kernel
-def _step_core(net, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats,
+def _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats,
                oil_init):
     """One backward-Euler substep into the given outputs: spool update (or ``spool0`` as given), Newton solve
     started from ``oil_init``, end-of-step pressures; returns the residual norm.  ``W``: scratch of
     ``_step_work_size`` entries."""
+    net = _deref(pnet)
     n = net.ic[IC_N]
     if update_spool:
-        _spool_end(net, spool0, command, h, spool)
+        _spool_end(pnet, spool0, command, h, spool)
     else:
         _copy(spool, spool0)
     s = _solve_work_size(net.ic)
     dpdm, o = _take(W, s, n)
     geo, o = _take(W, o, n)
-    norm = _solve_core(net, oil0, x, v, spool, speed, h, oil, flow, dfrom, dto, istats, W, p, oil_init)
-    _pressure(net, oil, x, geo, p, dpdm)
+    norm = _solve_core(pnet, oil0, x, v, spool, speed, h, oil, flow, dfrom, dto, istats, W, p, oil_init)
+    _pressure(pnet, oil, x, geo, p, dpdm)
     return norm
 
 
@@ -1140,20 +1197,22 @@ def _step_kernel(F, I, oil0, spool0, command, speed, x, v, h, update_spool, oil_
     """One backward-Euler substep: spool update (or ``spool0`` as given), Newton solve from ``oil_init``,
     end-of-step pressures."""
     net = _unpack(F, I)
+    pnet = _ref(net)
     n, nb = net.ic[IC_N], net.ic[IC_NB]
     W = np.empty(_step_work_size(net.ic))
     spool = np.empty(spool0.size)
     oil, p, flow, dfrom, dto = np.empty(n), np.empty(n), np.empty(nb), np.empty(nb), np.empty(nb)
     istats = np.zeros(6, np.int64)
-    norm = _step_core(net, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats,
+    norm = _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats,
                       oil_init)
     return oil, p, spool, flow, dfrom, dto, istats, norm
 
 
 @_kernel
-def _newton_matrix_of(net, jq, dpdm, h, jac):
+def _newton_matrix_of(pnet, jq, dpdm, h, jac):
     """I − h·jq[free, free]·diag(∂p/∂m[free]) from the node × node flow Jacobian ``jq`` (:func:`_newton_matrix`'s
     matrix, for callers that have ``jq`` already)."""
+    net = _deref(pnet)
     free = net.free
     nf = free.size
     for i in range(nf):
@@ -1162,11 +1221,12 @@ def _newton_matrix_of(net, jq, dpdm, h, jac):
 
 
 @_kernel
-def _position_pressure_gradient(net, x, geo, p, dpdm, dt, dvdx, dpdx_dt):
+def _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt):
     """dt·∂p/∂x at fixed oil, −dt·φ(p)·(∂V/∂x)·∂p/∂m [Pa·s/m or Pa·s/rad], into ``dpdx_dt`` (n × na) at actuator
     positions ``x`` (geometric node volumes ``geo`` [m³]) and node pressures ``p`` with their ∂p/∂m ``dpdm``;
     ``dvdx`` (n × na) receives ∂V/∂x [m²].
     For pure oil φ·∂p/∂m = 1/(∂V/∂p + V/β) (φ cancels: no exp)."""
+    net = _deref(pnet)
     dvdx[:, :] = 0.0
     cyl, ci = net.cyl, net.cyl_i
     for c in range(cyl.shape[0]):
@@ -1181,20 +1241,21 @@ def _position_pressure_gradient(net, x, geo, p, dpdm, dt, dvdx, dpdx_dt):
     pure = net.sc[S_AIR] == 0.0
     for k in range(p.size):
         if pure and dpdm[k] != 0.0:
-            extra, dvdp = _node_extra(net, k, p[k])
+            extra, dvdp = _node_extra(pnet, k, p[k])
             w = -1.0 / (dvdp + (geo[k] + extra) / net.sc[S_BETA])
         else:
-            phi, _ = _fill(net, p[k])
+            phi, _ = _fill(pnet, p[k])
             w = -(dpdm[k] * phi)
         for a in range(na):
             dpdx_dt[k, a] = dt * (w * dvdx[k, a])
 
 
 @_kernel
-def _velocity_residual_gradient(net, jq, dpdx_dt, dt, mg, rhs, col):
+def _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, col):
     """−∂r/∂v of the backward-Euler residual r = m⁺ − m − dt·ΣQ(p(m⁺, x + dt·v), v) on the free nodes,
     dt·((∂Q/∂p)·dt·∂p/∂x + ∂Q/∂v) [kg·s/m ...], into columns ``col`` … ``col + na − 1`` of ``rhs`` (nf rows);
     ``jq``: the node × node flow Jacobian ∂(net inflow)/∂p, ``mg`` (n × na): scratch (the motors' ∂Q/∂v)."""
+    net = _deref(pnet)
     ic, free = net.ic, net.free
     na = mg.shape[1]
     mg[:, :] = 0.0  # motor_flow_velocity_gradient
@@ -1214,10 +1275,11 @@ def _velocity_residual_gradient(net, jq, dpdx_dt, dt, mg, rhs, col):
 
 
 @_kernel
-def _effort_gradient(net, p, velocity, dpdv, effort, gradient, epg, slope):
+def _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope):
     """NetworkModel.actuator_effort at pressures ``p`` [Pa] and velocities ``velocity`` into ``effort`` [N or N·m],
     and ∂effort/∂v⁺ = (∂f/∂p)·(∂p/∂v⁺) + diag(friction slope) into ``gradient`` (na × na) from ``dpdv`` (n × na);
     ``epg`` (na × n), ``slope`` (na): scratch."""
+    net = _deref(pnet)
     sc = net.sc
     cyl, ci, mi = net.cyl, net.cyl_i, net.mot_i
     na = effort.size
@@ -1253,7 +1315,7 @@ def _effort_gradient(net, p, velocity, dpdv, effort, gradient, epg, slope):
 
 
 @_kernel
-def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort, gradient,
+def _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort, gradient,
                     p_first, doil):
     """StepperImplicitEuler.linearize into the given outputs; returns the residual norm.
 
@@ -1261,19 +1323,20 @@ def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil,
     the pressures at (``oil0``, x0 + dt·velocity), the Newton solve's first evaluation;
     ``doil`` (n × na) receives ∂m⁺/∂v (``Linearization.oil_velocity_gradient``; zero rows for fixed nodes).
     """
+    net = _deref(pnet)
     ic, free = net.ic, net.free
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
     for a in range(na):
         x[a] = x0[a] + dt * velocity[a]
-    _spool_end(net, spool0, command, dt, spool)
+    _spool_end(pnet, spool0, command, dt, spool)
     o = _solve_work_size(ic)
     dfrom, o = _take(W, o, nb)
     dto, o = _take(W, o, nb)
     flow2, o = _take(W, o, nb)
     dpdm, o = _take(W, o, n)
     geo, o = _take(W, o, n)
-    norm = _solve_core(net, oil0, x, velocity, spool, speed, dt, oil, flow, dfrom, dto, istats, W, p_first, oil0)
-    _pressure(net, oil, x, geo, p, dpdm)
+    norm = _solve_core(pnet, oil0, x, velocity, spool, speed, dt, oil, flow, dfrom, dto, istats, W, p_first, oil0)
+    _pressure(pnet, oil, x, geo, p, dpdm)
     dvdx, o = _take2(W, o, n, na)
     dpdx_dt, o = _take2(W, o, n, na)  # dt·∂p/∂x
     area, o = _take(W, o, ic[IC_O1] - ic[IC_O0])
@@ -1284,12 +1347,12 @@ def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil,
     dpdv, o = _take2(W, o, n, na)
     epg, o = _take2(W, o, na, n)
     slope, o = _take(W, o, na)
-    _position_pressure_gradient(net, x, geo, p, dpdm, dt, dvdx, dpdx_dt)
-    _valve_areas(net, spool, area)
-    _branch_flows(net, p, area, speed, velocity, flow2, dfrom, dto)
-    _flow_jacobian(net, dfrom, dto, jq)
-    _velocity_residual_gradient(net, jq, dpdx_dt, dt, mg, rhs, 0)
-    _newton_matrix_of(net, jq, dpdm, dt, jac)
+    _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt)
+    _valve_areas(pnet, spool, area)
+    _branch_flows(pnet, p, area, speed, velocity, flow2, dfrom, dto)
+    _flow_jacobian(pnet, dfrom, dto, jq)
+    _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, 0)
+    _newton_matrix_of(pnet, jq, dpdm, dt, jac)
     _copy2(dpdv, dpdx_dt)
     singular = False
     doil[:, :] = 0.0
@@ -1303,12 +1366,12 @@ def _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil,
         else:
             singular = True
     istats[IS_SINGULAR] = 1 if singular else 0
-    _effort_gradient(net, p, velocity, dpdv, effort, gradient, epg, slope)
+    _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope)
     return norm
 
 
 @_kernel
-def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
+def _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
                              gradient, p_first, doil):
     """StepperImplicitEuler.linearize(…, newton=False): the Rosenbrock–Euler (W-method) twin of
     :func:`_linearize_core`, with the same arguments and outputs.
@@ -1329,11 +1392,12 @@ def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity,
     hitting its end stop drives the supply past the relief), or when the matrix is singular; the
     outputs are then incomplete and the caller solves (:func:`_linearize_any`).
     """
+    net = _deref(pnet)
     ic, free = net.ic, net.free
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
     for a in range(na):
         x[a] = x0[a] + dt * velocity[a]
-    _spool_end(net, spool0, command, dt, spool)
+    _spool_end(pnet, spool0, command, dt, spool)
     o = 0
     area, o = _take(W, o, ic[IC_O1] - ic[IC_O0])
     geo, o = _take(W, o, n)
@@ -1351,18 +1415,18 @@ def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity,
     jac, o = _take2(W, o, nf, nf)
     epg, o = _take2(W, o, na, n)
     slope, o = _take(W, o, na)
-    _valve_areas(net, spool, area)
-    _evaluate(net, oil0, oil0, x0, velocity, area, speed, dt, geo, p_first, dpdm, flow, dfrom, dto, inflow, residual)
-    _position_pressure_gradient(net, x0, geo, p_first, dpdm, dt, dvdx, dpdx_dt)
-    _flow_jacobian(net, dfrom, dto, jq)
-    _velocity_residual_gradient(net, jq, dpdx_dt, dt, mg, rhs, 1)
+    _valve_areas(pnet, spool, area)
+    _evaluate(pnet, oil0, oil0, x0, velocity, area, speed, dt, geo, p_first, dpdm, flow, dfrom, dto, inflow, residual)
+    _position_pressure_gradient(pnet, x0, geo, p_first, dpdm, dt, dvdx, dpdx_dt)
+    _flow_jacobian(pnet, dfrom, dto, jq)
+    _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, 1)
     for j in range(nf):  # dt·ΣQ(p₀, v) (= −residual) + dt·(∂Q/∂p)·(dt·∂p/∂x)·v (= (−∂r/∂v − dt·∂Q_motor/∂v)·v)
         k = free[j]
         s = -residual[j]
         for a in range(na):
             s += (rhs[j, a + 1] - dt * mg[k, a]) * velocity[a]
         rhs[j, 0] = s
-    _newton_matrix_of(net, jq, dpdm, dt, jac)
+    _newton_matrix_of(pnet, jq, dpdm, dt, jac)
     _copy(oil, oil0)
     _copy2(dpdv, dpdx_dt)
     for i in range(n):  # p₀ + (dt·∂p/∂x)·v; + (∂p/∂m)·Δ below
@@ -1380,7 +1444,7 @@ def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity,
     if nf:
         if not _lu_solve(jac, rhs):
             return False
-        if _trust_step(net, oil0, rhs[:, 0], geo, p_first) < 1.0:
+        if _trust_step(pnet, oil0, rhs[:, 0], geo, p_first) < 1.0:
             return False
         for j in range(nf):
             k = free[j]
@@ -1389,16 +1453,17 @@ def _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity,
             for a in range(na):
                 doil[k, a] = rhs[j, a + 1]
                 dpdv[k, a] += dpdm[k] * rhs[j, a + 1]
-    if not _same_law_pieces(net, p_first, p):
+    if not _same_law_pieces(pnet, p_first, p):
         return False
-    _effort_gradient(net, p, velocity, dpdv, effort, gradient, epg, slope)
+    _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope)
     return True
 
 
 @_kernel
-def _same_law_pieces(net, pa, pb):
+def _same_law_pieces(pnet, pa, pb):
     """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no relief, check valve or pump compensator
     changes the piece of its law between the node pressures ``pa`` and ``pb`` [Pa]."""
+    net = _deref(pnet)
     ic, br = net.ic, net.br
     rel, chk, pump = net.rel, net.chk, net.pump
     for b in range(ic[IC_R0], ic[IC_R1]):
@@ -1432,15 +1497,16 @@ def _one_step_accepted(istats):
 
 
 @_kernel
-def _linearize_any(newton, net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
+def _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
                    gradient, p_first, doil):
     """:func:`_linearize_core` (``newton``: backward Euler solved by Newton), or :func:`_linearize_one_step_core`
     (Rosenbrock–Euler, one Newton step) where it accepts its step and :func:`_linearize_core` where it does not;
     same arguments and outputs; returns the residual norm (0 for an accepted one-step linearisation)."""
-    if not newton and _linearize_one_step_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x,
+    net = _deref(pnet)
+    if not newton and _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x,
                                                flow, istats, effort, gradient, p_first, doil):
         return 0.0
-    return _linearize_core(net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
+    return _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
                            effort, gradient, p_first, doil)
 
 
@@ -1448,13 +1514,14 @@ def _linearize_any(newton, net, W, oil0, spool0, command, speed, x0, velocity, d
 def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt, newton):
     """StepperImplicitEuler.linearize (``newton`` False: its Rosenbrock–Euler variant)."""
     net = _unpack(F, I)
+    pnet = _ref(net)
     ic = net.ic
     n, na, nb = ic[IC_N], ic[IC_NA], ic[IC_NB]
     W = np.empty(_linearize_work_size(ic))
     oil, p, spool, x, flow = np.empty(n), np.empty(n), np.empty(spool0.size), np.empty(na), np.empty(nb)
     istats = np.zeros(6, np.int64)
     effort, gradient, p_first, doil = np.empty(na), np.empty((na, na)), np.empty(n), np.empty((n, na))
-    norm = _linearize_any(newton, net, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
+    norm = _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
                           effort, gradient, p_first, doil)
     return oil, p, spool, x, flow, istats, norm, effort, gradient, doil
 
@@ -1477,8 +1544,9 @@ def _take_linearization(S, o, n, na, nvalve):
 
 
 @_kernel
-def _pressure_effort(net, p, out):
+def _pressure_effort(pnet, p, out):
     """NetworkModel.pressure_effort: actuator efforts [N or N·m] of the node pressures ``p`` [Pa] into ``out``."""
+    net = _deref(pnet)
     out[:] = 0.0
     cyl, ci, mi = net.cyl, net.cyl_i, net.mot_i
     pref = net.sc[S_PREF]
@@ -1490,9 +1558,10 @@ def _pressure_effort(net, p, out):
 
 
 @_kernel
-def _friction_effort(net, v, effort, slope):
+def _friction_effort(pnet, v, effort, slope):
     """NetworkModel.friction_effort: cylinder friction efforts [N] at velocities ``v`` [m/s] and their slopes
     ∂effort/∂v [N·s/m] (zero for motors)."""
+    net = _deref(pnet)
     effort[:] = 0.0
     slope[:] = 0.0
     cyl, ci = net.cyl, net.cyl_i
@@ -1505,9 +1574,10 @@ def _friction_effort(net, v, effort, slope):
 
 
 @_kernel
-def _potential(net, p, quad):
+def _potential(pnet, p, quad):
     """Fluid.pressure_potential μ(p) [Pa] (flow work per unit oil content) at one pressure ``p`` [Pa]; ``quad``
     holds the Gauss–Legendre nodes then weights (used only with entrained air)."""
+    net = _deref(pnet)
     sc = net.sc
     pref, beta = sc[S_PREF], sc[S_BETA]
     if sc[S_AIR] == 0.0:
@@ -1517,14 +1587,15 @@ def _potential(net, p, quad):
     mid = 0.5 * (p + pref)
     s = 0.0
     for j in range(nq):
-        phi, _ = _fill(net, mid + half * quad[j])
+        phi, _ = _fill(pnet, mid + half * quad[j])
         s += quad[nq + j] / phi
     return half * s
 
 
 @_kernel
-def _clip_to_stroke(net, x, h, v):
+def _clip_to_stroke(pnet, x, h, v):
     """Clip the cylinders' velocities ``v`` [m/s] in place so that x + h·v stays inside [0, stroke] (coupling's guess)."""
+    net = _deref(pnet)
     cyl, ci = net.cyl, net.cyl_i
     for c in range(cyl.shape[0]):
         a = ci[c, CI_ACT]
@@ -1547,10 +1618,11 @@ def _linearization_usable(istats, p, gradient):
 
 
 @_kernel
-def _start_velocity_guess(net, x, v, dt, guess):
+def _start_velocity_guess(pnet, x, v, dt, guess):
     """coupling.start_velocity_guess, clipped into the stroke as CouplingImplicit.begin does: ``guess`` = the start
     velocities ``v`` [m/s or rad/s], 0 for a cylinder whose chord dt·|v| would change a chamber volume by more than
     GUESS_VOLUME_FRACTION (``S_GUESS``); returns whether every actuator is held (guess 0)."""
+    net = _deref(pnet)
     for a in range(v.size):
         guess[a] = v[a]
     cyl, ci = net.cyl, net.cyl_i
@@ -1562,14 +1634,15 @@ def _start_velocity_guess(net, x, v, dt, guess):
         swept = dt * abs(guess[a])
         if not (swept * cyl[c, CYL_CAP_AREA] <= fraction * vcap and swept * cyl[c, CYL_ROD_AREA] <= fraction * vrod):
             guess[a] = 0.0
-    return _clipped_guess_is_held(net, x, dt, guess)
+    return _clipped_guess_is_held(pnet, x, dt, guess)
 
 
 @_kernel
-def _clipped_guess_is_held(net, x, dt, guess):
+def _clipped_guess_is_held(pnet, x, dt, guess):
     """Clip ``guess`` into the stroke (:func:`_clip_to_stroke`); whether every actuator is then held (guess 0: a
     cylinder already past an end keeps the velocity that brings it back)."""
-    _clip_to_stroke(net, x, dt, guess)
+    net = _deref(pnet)
+    _clip_to_stroke(pnet, x, dt, guess)
     for a in range(guess.size):
         if guess[a] != 0.0:
             return False
@@ -1577,26 +1650,27 @@ def _clipped_guess_is_held(net, x, dt, guess):
 
 
 @_kernel
-def _linearize_at_start_velocity(newton, net, W, oil0, spool0, command, speed, x0, v, dt, guess, oil, p, spool, x, flow,
+def _linearize_at_start_velocity(newton, pnet, W, oil0, spool0, command, speed, x0, v, dt, guess, oil, p, spool, x, flow,
                                  istats, effort, gradient, p_first, doil):
     """CouplingImplicit.begin's linearisation (:func:`_linearize_any`) at :func:`_start_velocity_guess` of the start
     velocities ``v``, written to ``guess``; where that guess is not held and its linearisation is not usable (an
     unresolved oscillation: x + dt·v can empty a chamber), again at the held actuators.  Returns whether the
     linearisation is at the held actuators; ``istats[IS_SINGULAR]`` tells a singular one."""
-    held = _start_velocity_guess(net, x0, v, dt, guess)
-    _linearize_any(newton, net, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats, effort,
+    net = _deref(pnet)
+    held = _start_velocity_guess(pnet, x0, v, dt, guess)
+    _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats, effort,
                    gradient, p_first, doil)
     if not held and not _linearization_usable(istats, p, gradient):
         for a in range(guess.size):
             guess[a] = 0.0
-        held = _clipped_guess_is_held(net, x0, dt, guess)
-        _linearize_any(newton, net, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats,
+        held = _clipped_guess_is_held(pnet, x0, dt, guess)
+        _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats,
                        effort, gradient, p_first, doil)
     return held
 
 
 @_kernel
-def _effort_law_terms(net, guess, p_end, v, gradient, fg, fsg, end_const, end_slope, friction, damping):
+def _effort_law_terms(pnet, guess, p_end, v, gradient, fg, fsg, end_const, end_slope, friction, damping):
     """The terms of CouplingImplicit.begin's effort law c + s·v⁺ from a linearisation at velocities ``guess``
     (end pressures ``p_end`` [Pa], effort gradient ``gradient`` ∂f/∂v⁺) and the start velocities ``v``:
 
@@ -1606,9 +1680,10 @@ def _effort_law_terms(net, guess, p_end, v, gradient, fg, fsg, end_const, end_sl
     The law at blend θ: c = (1 − θ)·f_pressure(start) + θ·end_const + friction − damping·v, s = θ·end_slope + damping.
     ``fg``, ``fsg``: scratch (friction effort and slope at the guess).
     """
-    _friction_effort(net, guess, fg, fsg)
-    _pressure_effort(net, p_end, end_const)
-    _friction_effort(net, v, friction, damping)
+    net = _deref(pnet)
+    _friction_effort(pnet, guess, fg, fsg)
+    _pressure_effort(pnet, p_end, end_const)
+    _friction_effort(pnet, v, friction, damping)
     for i in range(guess.size):
         pslope = gradient[i, i] - fsg[i]
         end_const[i] = end_const[i] - pslope * guess[i]
@@ -1648,19 +1723,20 @@ def _predicted_oil(lin_oil, doil, guess, v_end, dv, out):
 
 
 @_kernel
-def _linear_finish(net, W, oil, spool, x, v, speed, p, flow, dflow):
+def _linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow):
     """CouplingImplicitLinear.finish after the prediction: end pressures p = p(m⁺, x⁺) [Pa] of the predicted oil
     ``oil`` (m⁺ [kg]) at the end positions ``x``, and the branch flows ``flow`` [m³/s] at the linearisation's
     spools ``spool``, pump speeds ``speed`` and end velocities ``v`` (no Newton solve).  ``W``: scratch of at least
     (orifices + 2·nodes) entries; ``dflow``: scratch (branches)."""
+    net = _deref(pnet)
     n = oil.size
     o = 0
     area, o = _take(W, o, net.ic[IC_O1] - net.ic[IC_O0])
     geo, o = _take(W, o, n)
     dpdm, o = _take(W, o, n)
-    _pressure(net, oil, x, geo, p, dpdm)
-    _valve_areas(net, spool, area)
-    _branch_flows(net, p, area, speed, v, flow, dflow, dflow)
+    _pressure(pnet, oil, x, geo, p, dpdm)
+    _valve_areas(pnet, spool, area)
+    _branch_flows(pnet, p, area, speed, v, flow, dflow, dflow)
 
 
 @_kernel
@@ -1679,12 +1755,13 @@ def _commit_if_finite(oil, pres, spool, pos, vel, oil_new, p_new, spool_new, x_n
 
 
 @_kernel
-def _account(net, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
+def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     """PlantBase._account over a step ``h`` [s]: adds pump work, motor work, hydraulic and friction dissipation [J]
     to ``ledger[at]``, ``ledger[at + 1]``, ``ledger[at + 2]``, ``ledger[at + 3]`` (energy.branch_powers at the
     pressures ``pres``, branch flows ``flow``, actuator velocities ``v``); ``mu``, ``friction``, ``fslope``: scratch."""
+    net = _deref(pnet)
     for i in range(pres.size):
-        mu[i] = _potential(net, pres[i], quad)
+        mu[i] = _potential(pnet, pres[i], quad)
     ic, br = net.ic, net.br
     pump = 0.0
     for b in range(ic[IC_P0], ic[IC_P1]):
@@ -1698,7 +1775,7 @@ def _account(net, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     ledger[at] += h * -pump
     ledger[at + 1] += h * motor
     ledger[at + 2] += h * dissipated
-    _friction_effort(net, v, friction, fslope)
+    _friction_effort(pnet, v, friction, fslope)
     fw = 0.0
     for i in range(v.size):
         fw += friction[i] * v[i]

@@ -272,8 +272,9 @@ def _views(ctx):
 
 
 @_kernel
-def _finish_pending(ctx, net, V):
+def _finish_pending(ctx, pnet, V):
     """Finish the pending step with the realised velocities J_prev·q̇ (MujocoPlant.step after mj_step2)."""
+    net = C._deref(pnet)
     if ctx[C_PENDING] == 0:
         return
     ctx[C_PENDING] = 0
@@ -328,7 +329,7 @@ def _finish_pending(ctx, net, V):
     if ctx[C_LINEAR]:  # implicit-linear, rosenbrock: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
         substeps = 0
         C._copy(sp2, lin_spool)
-        C._linear_finish(net, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfl)
+        C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfl)
         rhs = 1
         C._copy(flow_out, fl)
         bad = C._commit_if_finite(oil, pres, spool, pos, vel, mpred, p2, sp2, x_end, v_end)
@@ -346,7 +347,7 @@ def _finish_pending(ctx, net, V):
             C._copy(xe, x_end)
             C._copy(ve, v_end)
             C._copy(minit, mpred)
-        norm = C._step_core(net, W, oil, spool, cmd, speed, xe, ve, h, True, o2, p2, sp2, fl, dfl, dfl, istats, minit)
+        norm = C._step_core(pnet, W, oil, spool, cmd, speed, xe, ve, h, True, o2, p2, sp2, fl, dfl, dfl, istats, minit)
         newton += istats[C.IS_NEWTON]
         rhs += istats[C.IS_RHS]
         jac += istats[C.IS_JAC]
@@ -377,7 +378,7 @@ def _finish_pending(ctx, net, V):
     for i in range(na):
         effort[i] = const[i] + slope[i] * v_end[i]
     # energy ledger (PlantBase._account, MujocoPlant._account); xe, ve are free again
-    C._account(net, fs, FS_PUMP, dt, pres, flow_out, v_end, V.quad, mu, xe, ve)
+    C._account(pnet, fs, FS_PUMP, dt, pres, flow_out, v_end, V.quad, mu, xe, ve)
     passive, constraint = V.passive_saved, V.constraint
     mw = 0.0
     for j in range(nv):
@@ -401,8 +402,9 @@ def _prepare(ctx, V):
 
 
 @_kernel
-def _begin(ctx, net, V):
+def _begin(ctx, pnet, V):
     """After M⁻¹·Jᵀ: the effort law of CouplingImplicit.begin, written to ctrl and biasprm."""
+    net = C._deref(pnet)
     k = ctx[C_K]
     ctx[C_K] = k + 1
     if ctx[C_FAILED] >= 0:
@@ -452,19 +454,19 @@ def _begin(ctx, net, V):
     oil, spool = V.oil, V.spool
     # predicted end velocities: the start velocities where their chord is short (coupling.start_velocity_guess),
     # clipped so the cylinders stay inside their stroke; the held actuators where that linearisation is useless
-    held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, net, W, oil, spool, cmd, speed, xs, vs, dt,
+    held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, pnet, W, oil, spool, cmd, speed, xs, vs, dt,
                                           guess, lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient,
                                           p0, doil)
     if istats[C.IS_SINGULAR]:
         ctx[C_STATUS] = ST_SINGULAR
         ctx[C_FAILED] = k
         return
-    C._effort_law_terms(net, guess, lin_p, vs, gradient, fg, fslope_guess, end_const, end_slope, friction, damping)
+    C._effort_law_terms(pnet, guess, lin_p, vs, gradient, fg, fslope_guess, end_const, end_slope, friction, damping)
     if not held and not C._one_step_accepted(istats):
         # the linearisation's first evaluation was at x + dt·guess ≠ x: the start pressures separately
         # (rosenbrock's one step evaluates at x itself)
-        C._pressure(net, oil, xs, geo, p0, dpdm)
-    C._pressure_effort(net, p0, pressure_start)
+        C._pressure(pnet, oil, xs, geo, p0, dpdm)
+    C._pressure_effort(pnet, p0, pressure_start)
     ctrl, bias = V.ctrl, V.bias
     C._blended_law(True, end_const, end_slope, pressure_start, friction, damping, vs, meff, dt, theta, const, slope)
     for i in range(na):
@@ -541,8 +543,9 @@ def _coupled_step(address, m, d):
     F = carray(_pf64(ctx[P_F]), (ctx[C_NF],))
     I = carray(_pi64(ctx[P_I]), (ctx[C_NI],))
     net = C._unpack(F, I)
+    pnet = C._ref(net)
     V = _views(ctx)
-    _finish_pending(ctx, net, V)
+    _finish_pending(ctx, pnet, V)
     if ctx[C_MODE] == MODE_FINISH:  # called from Python after the block: finish its last step only
         ctx[C_END_FINITE] = _state_finite(ctx, V)
         return
@@ -550,7 +553,7 @@ def _coupled_step(address, m, d):
         _record(ctx, V)
     _prepare(ctx, V)
     _mj_solveM_nb(m, d, _pvoid(ctx[P_MINVJ]), _pvoid(ctx[P_J]), np.int32(ctx[C_NA]))
-    _begin(ctx, net, V)
+    _begin(ctx, pnet, V)
 
 
 def _callback_function(fingerprint):

@@ -74,6 +74,7 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
     """One frame (see the module docstring) on the work arrays ``fwork`` (:func:`frame_work`, for at least this
     frame's contacts; overwritten)."""
     net = C._unpack(F, I)
+    pnet = C._ref(net)
     na = x.size
     # group accelerations on, joint torques off, as runtime bools: compiled.substep_core then has the one signature
     # the per-substep path (Python bools) uses too (literal True/False compile a second specialisation)
@@ -100,7 +101,7 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
     nj = jt.shape[0]
     carry = transport and nj > 0 and substeps > 1 and XC.group_jacobian(Xg, Qg, IM, jt, jg, jvec, Gk) and XC.jacobian_pinv(Gk, P0)
     for k in range(substeps):
-        if not H._begin_core(net, Wk, S, istats, oil, pres, spool, cmd[k], speed[k], x, v, h, const, slope, scheme, blend,
+        if not H._begin_core(pnet, Wk, S, istats, oil, pres, spool, cmd[k], speed[k], x, v, h, const, slope, scheme, blend,
                              meff, theta):
             out[0] = work
             return FRAME_SINGULAR
@@ -167,7 +168,7 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
             a = mot[i]
             v_end[a] = gear[i] * rate_j
             x_end[a] = x[a] + h * v_end[a]
-        H._finish_core(net, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd[k], speed[k], x_end, v_end, h, flow,
+        H._finish_core(pnet, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd[k], speed[k], x_end, v_end, h, flow,
                        scheme)
         out[1] += istats[H.I_LAST_OK]
         for a in range(na):

@@ -97,13 +97,14 @@ _begin_temporaries_nb = _kernel(_begin_temporaries)
 
 
 @_kernel
-def _begin_core(net, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const, slope, scheme, blend, effective_mass,
+def _begin_core(pnet, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const, slope, scheme, blend, effective_mass,
                 theta):
     """CouplingImplicit.begin at the start velocities ``v`` as the velocity guess (``start_velocity_guess``): the effort
     law (const, slope) and its θ per actuator (``theta``);
     returns False if singular.  ``scheme``: the coupling's ``hydraulics.coupling.SCHEME_*`` (rosenbrock linearises
     by one Newton step); ``blend``: θ from ``effective_mass`` [kg or kg·m²] (``blend_factor``, the start force
     from the state's pressures ``pres`` [Pa], which belong to ``oil`` at ``x``), else θ = 1."""
+    net = C._deref(pnet)
     ic = net.ic
     n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
     nvalve = spool.size
@@ -124,22 +125,23 @@ def _begin_core(net, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const,
     effort_end = fg  # overwritten by the guess's friction below
     # linearised at the start velocities where their chord is short (coupling.start_velocity_guess), kept inside the
     # stroke, else at the held actuators
-    C._linearize_at_start_velocity(scheme != SCHEME_ROSENBROCK, net, W, oil, spool, cmd, speed, x, v, h, guess, lin_oil,
+    C._linearize_at_start_velocity(scheme != SCHEME_ROSENBROCK, pnet, W, oil, spool, cmd, speed, x, v, h, guess, lin_oil,
                                    lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient, p_first, doil)
     if istats[C.IS_SINGULAR]:
         return False
-    C._effort_law_terms(net, guess, lin_p, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
-    C._pressure_effort(net, pres, pressure_start)
+    C._effort_law_terms(pnet, guess, lin_p, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
+    C._pressure_effort(pnet, pres, pressure_start)
     C._blended_law(blend, end_const, end_slope, pressure_start, friction, damping, v, effective_mass, h, theta, const,
                    slope)
     return True
 
 
 @_kernel
-def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow, scheme):
+def _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow, scheme):
     """CouplingImplicit.finish (``scheme`` SCHEME_NEWTON) or CouplingImplicitLinear.finish (the linear finishes)
     + PlantBase._account: on success the state arrays (oil, pres, spool, pos, vel) become the end of the substep;
     counters and failure in ``istats``, ledger terms in ``ledger``."""
+    net = C._deref(pnet)
     ic = net.ic
     n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
     nvalve = spool.size
@@ -157,7 +159,7 @@ def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cm
     sp2, o = C._take(S, o, nvalve)
     C._predicted_oil(lin_oil, doil, guess, v_end, dv, mpred)
     if scheme == SCHEME_NEWTON:
-        norm = C._step_core(net, W, oil, spool, cmd, speed, x_end, v_end, h, True, o2, p2, sp2, fl, dfrom, dto, istats,
+        norm = C._step_core(pnet, W, oil, spool, cmd, speed, x_end, v_end, h, True, o2, p2, sp2, fl, dfrom, dto, istats,
                             mpred)
         istats[I_NEWTON] += istats[C.IS_NEWTON]
         istats[I_RHS] += istats[C.IS_RHS]
@@ -165,7 +167,7 @@ def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cm
     else:  # m⁺ = the prediction, at the linearisation's spools
         C._copy(o2, mpred)
         C._copy(sp2, lin_spool)
-        C._linear_finish(net, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfrom)
+        C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfrom)
         norm = 0.0
         istats[C.IS_STATUS] = C._OK
         istats[I_RHS] += 1
@@ -183,7 +185,7 @@ def _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cm
         else:
             istats[I_LAST_OK] = 1
     # energy ledger (PlantBase._account, energy.branch_powers) at the state's pressures
-    C._account(net, ledger, L_PUMP, h, pres, flow, v_end, quad, mu, fric, dv)
+    C._account(pnet, ledger, L_PUMP, h, pres, flow, v_end, quad, mu, fric, dv)
 
 
 # this file and hydraulics/_compiled.py (everything compiled into the entry points), taken at import: part of the
@@ -199,14 +201,18 @@ def _entry_points(fingerprint):
         if fingerprint is None:  # never: only makes the fingerprint a closure variable
             return False
         net = C._unpack(F, I)
-        return _begin_core(net, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const, slope, scheme, blend,
+        pnet = C._ref(net)
+        pnet = C._ref(net)
+        return _begin_core(pnet, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const, slope, scheme, blend,
                            effective_mass, theta)
 
     def finish(F, I, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow, scheme):
         if fingerprint is None:
             return
         net = C._unpack(F, I)
-        _finish_core(net, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow,
+        pnet = C._ref(net)
+        pnet = C._ref(net)
+        _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow,
                      scheme)
 
     jit = numba.njit(cache=True, error_model="numpy", nogil=True)
