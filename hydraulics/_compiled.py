@@ -64,7 +64,6 @@ import math
 from collections import namedtuple
 
 import numpy as np
-import scipy.linalg
 
 from . import coupling as _coupling
 from . import fluid as _fluid
@@ -1865,6 +1864,6 @@ class StepperImplicitEulerCompiled(StepperImplicitEuler):
         )
         report = self._make_report(istats, norm, flow)
         if istats[IS_SINGULAR]:
-            raise scipy.linalg.LinAlgError("Matrix is singular.")
+            raise np.linalg.LinAlgError("Matrix is singular.")
         predicted = NetworkState(oil, pressure, spool, position, velocity.copy(), state.time + dt)
         return Linearization(velocity.copy(), effort, gradient, predicted, report, doil)

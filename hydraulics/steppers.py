@@ -31,7 +31,6 @@ import enum
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg
 
 from . import laws
 from .network import NetworkControl, NetworkModel, NetworkState
@@ -309,8 +308,8 @@ class StepperImplicitEuler(Stepper):
             jacobian = np.eye(len(free)) - h * jq * dpdm[free][None, :]
             report.jacobian_evaluations += 1
             try:
-                delta = scipy.linalg.solve(jacobian, -residual, check_finite=False)
-            except (scipy.linalg.LinAlgError, ValueError):
+                delta = np.linalg.solve(jacobian, -residual)
+            except (np.linalg.LinAlgError, ValueError):
                 break
             report.newton_iterations += 1
             step = self._trust_step(oil, delta, position, pressure)
@@ -430,8 +429,8 @@ class StepperImplicitEuler(Stepper):
                 shift = dt * (jq @ (dt * dpdx))[free] @ velocity
                 columns = np.column_stack([dt * self._net_inflow(flows)[free] + shift, -drdv])
             try:
-                solution = scipy.linalg.solve(jacobian, columns, check_finite=False)
-            except scipy.linalg.LinAlgError:
+                solution = np.linalg.solve(jacobian, columns)
+            except np.linalg.LinAlgError:
                 if newton:
                     raise
                 return self.linearize(state, control, velocity, dt, newton=True)
