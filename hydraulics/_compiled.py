@@ -190,6 +190,7 @@ if _NUMBA:
             return impl_ret_borrowed(context, builder, matrix, out._getvalue())
 
         return matrix(a, rows, cols), codegen
+
     @_intrinsic
     def _ref(typingctx, value):
         """A pointer to ``value`` in the calling function's stack frame (valid until that function returns; never to
@@ -679,7 +680,6 @@ def _invert_wall_node(geometric, rigid, wall, pref, beta, tol, max_iterations):
 @_inline
 def _content_residual(pnet, k, p, geometric, rigid, log_oil, pure, beta):
     # ln(V(p)·φ(p)/m) of node k and its p-derivative (see _invert_node)
-    net = _deref(pnet)
     extra, dextra = _node_extra(pnet, k, p)
     volume = geometric + extra
     if pure:
@@ -1501,7 +1501,6 @@ def _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, velocity, 
     """:func:`_linearize_core` (``newton``: backward Euler solved by Newton), or :func:`_linearize_one_step_core`
     (Rosenbrock–Euler, one Newton step) where it accepts its step and :func:`_linearize_core` where it does not;
     same arguments and outputs; returns the residual norm (0 for an accepted one-step linearisation)."""
-    net = _deref(pnet)
     if not newton and _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x,
                                                flow, istats, effort, gradient, p_first, doil):
         return 0.0
@@ -1640,7 +1639,6 @@ def _start_velocity_guess(pnet, x, v, dt, guess):
 def _clipped_guess_is_held(pnet, x, dt, guess):
     """Clip ``guess`` into the stroke (:func:`_clip_to_stroke`); whether every actuator is then held (guess 0: a
     cylinder already past an end keeps the velocity that brings it back)."""
-    net = _deref(pnet)
     _clip_to_stroke(pnet, x, dt, guess)
     for a in range(guess.size):
         if guess[a] != 0.0:
@@ -1655,7 +1653,6 @@ def _linearize_at_start_velocity(newton, pnet, W, oil0, spool0, command, speed, 
     velocities ``v``, written to ``guess``; where that guess is not held and its linearisation is not usable (an
     unresolved oscillation: x + dt·v can empty a chamber), again at the held actuators.  Returns whether the
     linearisation is at the held actuators; ``istats[IS_SINGULAR]`` tells a singular one."""
-    net = _deref(pnet)
     held = _start_velocity_guess(pnet, x0, v, dt, guess)
     _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats, effort,
                    gradient, p_first, doil)
@@ -1679,7 +1676,6 @@ def _effort_law_terms(pnet, guess, p_end, v, gradient, fg, fsg, end_const, end_s
     The law at blend θ: c = (1 − θ)·f_pressure(start) + θ·end_const + friction − damping·v, s = θ·end_slope + damping.
     ``fg``, ``fsg``: scratch (friction effort and slope at the guess).
     """
-    net = _deref(pnet)
     _friction_effort(pnet, guess, fg, fsg)
     _pressure_effort(pnet, p_end, end_const)
     _friction_effort(pnet, v, friction, damping)

@@ -274,7 +274,6 @@ def _views(ctx):
 @_kernel
 def _finish_pending(ctx, pnet, V):
     """Finish the pending step with the realised velocities J_prev·q̇ (MujocoPlant.step after mj_step2)."""
-    net = C._deref(pnet)
     if ctx[C_PENDING] == 0:
         return
     ctx[C_PENDING] = 0
@@ -404,7 +403,6 @@ def _prepare(ctx, V):
 @_kernel
 def _begin(ctx, pnet, V):
     """After M⁻¹·Jᵀ: the effort law of CouplingImplicit.begin, written to ctrl and biasprm."""
-    net = C._deref(pnet)
     k = ctx[C_K]
     ctx[C_K] = k + 1
     if ctx[C_FAILED] >= 0:
