@@ -1,0 +1,147 @@
+"""The floor of an implicit coupled step: the network's building blocks against bare ``mj_step``, in one run.
+
+Any implicit coupling of the hydraulics with MuJoCo (``implicit``, ``implicit-linear``,
+``rosenbrock``) does, per step, at least: one evaluation of the network at the
+step's end (every node's pressure from its oil content, every branch law's flow
+and slopes, the nodes' net inflows), one factorisation of the Newton matrix
+I − h·∂Q/∂m with its solve for the coupling's right-hand sides (the oil increment
+and its sensitivity to each actuator's velocity).  This bench times those pieces of the
+compiled kernels (``hydraulics._compiled``) in a compiled loop, with no Python
+and no MuJoCo between calls, at the network states of the scene's own scenario
+every ``--every`` seconds of its first ``--window`` seconds at 1 kHz (their mean),
+and in the same run a bare ``mj_step`` loop over that window on the scene's MJCF
+at the constant controls of ``bench_fast.py``'s ``bare`` (the effort law of the
+plant's first step held), in alternation, ``--reps``
+times (medians).
+
+It prints each piece in µs and as a fraction of the bare step, and the floor
+ratio (bare + evaluation + factorisation) / bare: what the coupled step would
+cost if everything else (moments, M⁻¹·Jᵀ, effort law, energy ledger, Newton
+iterations beyond the first) were free and the end-of-step pressures were the
+next step's start evaluation; and the same with the end pressures inverted
+separately, as every coupling scheme here does (the next step starts at
+MuJoCo's integrated positions, not at the linearisation's).  Run: ``.venv/bin/python bench/bench_floor.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import mujoco
+import numba
+import numpy as np
+
+import hydraulics._compiled as C
+from sim.plant_mujoco_fast import MujocoPlantFast
+from sim.scenario import load_scenario
+from sim.scene import load_scene
+
+MODELS = Path(__file__).resolve().parents[1] / "models"
+SCENES = {
+    "seed": MODELS / "seed_cylinder" / "closed.scenario.toml",
+    "boom": MODELS / "boom" / "lift.scenario.toml",
+    "excavator": MODELS / "excavator" / "dig.scenario.toml",
+}
+DT = 1e-3  # s
+PIECES = ("pressures", "flows", "evaluation", "factorisation")
+PRESSURES, FLOWS, EVALUATION, FACTORISATION = range(4)
+
+
+@numba.njit(cache=True)
+def _time_piece(F, I, oil, x, v, spool, speed, piece, reps):
+    """Run one building block ``reps`` times on the packed network (F, I) at (oil, x, v, spool, speed); returns a
+    checksum of its outputs (so that nothing is optimised away)."""
+    net = C._unpack(F, I)
+    pnet = C._ref(net)
+    n, nb, nf, na = net.ic[C.IC_N], net.ic[C.IC_NB], net.ic[C.IC_NF], x.size
+    area = np.empty(net.ic[C.IC_O1] - net.ic[C.IC_O0])
+    geo, p, dpdm, inflow = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    flow, dfrom, dto = np.empty(nb), np.empty(nb), np.empty(nb)
+    residual = np.empty(nf)
+    jac = np.empty((nf, nf))
+    rhs = np.empty((nf, 1 + na))
+    C._valve_areas(pnet, spool, area)
+    C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dfrom, dto, inflow, residual)
+    check = 0.0
+    for r in range(reps):
+        if piece == PRESSURES:
+            C._pressure(pnet, oil, x, geo, p, dpdm)
+            check += p[n - 1]
+        elif piece == FLOWS:
+            C._branch_flows(pnet, p, area, speed, v, flow, dfrom, dto)
+            C._net_inflow(pnet, flow, inflow)
+            check += inflow[n - 1]
+        elif piece == EVALUATION:
+            C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dfrom, dto, inflow, residual)
+            check += residual[nf - 1] if nf else 0.0
+        else:
+            C._newton_matrix(pnet, dfrom, dto, dpdm, DT, jac)
+            for i in range(nf):
+                for j in range(1 + na):
+                    rhs[i, j] = residual[i] * (1.0 + j)
+            C._lu_solve(jac, rhs)
+            check += rhs[nf - 1, 0] if nf else 0.0
+    return check
+
+
+def bench(name, path, reps, window, every, calls):
+    scenario = load_scenario(path).with_overrides(dt=DT)
+    plant = MujocoPlantFast(load_scene(scenario))
+    assert plant.fast
+    m = plant.model
+    plant.advance(1)  # ctrl and biasprm hold the first step's effort law: the bare loop's constant controls
+    held = plant.data.ctrl.copy()
+    plant.reset()  # back to the initial state; biasprm (in the model) keeps the first law
+    start = mujoco.MjData(m)
+    mujoco.mj_copyData(start, m, plant.data)
+    start.ctrl[:] = held
+    states = []  # the network's state every ``every`` seconds of the window
+    stride = int(round(every / DT))
+    while plant.step_index + stride <= int(round(window / DT)):
+        report = plant.advance(stride)
+        assert report.success, report.message
+        states.append((plant._F, plant._I, plant._oil.copy(), plant._x.copy(), plant._v.copy(), plant._spool.copy(),
+                       plant._speed[stride - 1].copy()))
+    for args in states[:1]:
+        for piece in range(len(PIECES)):
+            _time_piece(*args, piece, 10)  # compiled (or loaded) before timing
+    steps = int(round(window / DT))
+    times = {key: [] for key in ("bare", *PIECES)}
+    for _ in range(reps):
+        bare = mujoco.MjData(m)
+        mujoco.mj_copyData(bare, m, start)
+        t = time.perf_counter()
+        mujoco.mj_step(m, bare, nstep=steps)
+        times["bare"].append((time.perf_counter() - t) / steps)
+        for piece, key in enumerate(PIECES):
+            t = time.perf_counter()
+            for args in states:
+                _time_piece(*args, piece, calls)
+            times[key].append((time.perf_counter() - t) / (calls * len(states)))
+    med = {k: statistics.median(v) * 1e6 for k, v in times.items()}
+    floor = med["evaluation"] + med["factorisation"]
+    n, nf = plant.network.node_count, len(plant.network.free_nodes)
+    cells = "  ".join(f"{k} {med[k]:6.3f} µs ({med[k] / med['bare']:4.2f})" for k in PIECES)
+    print(f"{name:10s} {n:2d} nodes ({nf} free), {len(plant.network.branch_names):2d} branches, first {window:.1f} s "
+          f"({len(states)} states):  bare mj_step {med['bare']:6.3f} µs  {cells}  "
+          f"floor {(med['bare'] + floor) / med['bare']:4.2f}× bare "
+          f"({(med['bare'] + floor + med['pressures']) / med['bare']:4.2f}× with separate end pressures)", flush=True)
+    return med
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--reps", type=int, default=7)
+    parser.add_argument("--window", type=float, default=6.0, help="simulated seconds from the scenario's start [s]")
+    parser.add_argument("--every", type=float, default=0.5, help="interval of the network states timed [s]")
+    parser.add_argument("--calls", type=int, default=2000, help="calls of each piece per state and repetition")
+    args = parser.parse_args()
+    for name, path in SCENES.items():
+        bench(name, path, args.reps, args.window, args.every, args.calls)
+
+
+if __name__ == "__main__":
+    main()
