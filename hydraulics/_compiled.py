@@ -280,6 +280,27 @@ _OK, _NEWTON_FAILED = 0, 1
 (IS_STATUS, IS_NEWTON, IS_RHS, IS_JAC, IS_WORST, IS_SINGULAR) = range(6)
 
 
+def elimination_order(model: NetworkModel) -> np.ndarray:
+    """The free nodes in the order the kernels number their unknowns: fewest free neighbours first (a stable sort
+    of the model's order).
+
+    The Newton matrix I − h·(∂Q/∂p)·∂p/∂m has the pattern of the circuit's graph.  A pump's supply gallery
+    joins every valve's work ports, so the matrix is an arrowhead: eliminated first, the hub fills the whole
+    matrix in (Gaussian elimination then costs n³/3); eliminated last, nothing fills in and :func:`_lu_solve`,
+    which skips zero multipliers and zero entries, costs O(n) per right-hand side.
+    """
+    free = np.asarray(model.free_nodes, np.int64)
+    is_free = np.zeros(model.node_count, bool)
+    is_free[free] = True
+    neighbours = [set() for _ in range(model.node_count)]
+    for f, t in zip(model.branch_from, model.branch_to):
+        if f != t and is_free[f] and is_free[t]:
+            neighbours[f].add(t)
+            neighbours[t].add(f)
+    degree = np.array([len(neighbours[k]) for k in free], np.int64)
+    return free[np.argsort(degree, kind="stable")]
+
+
 def pack_network(model: NetworkModel):
     """Flat float64 / int64 arrays (F, I) holding everything the kernels need from ``model``."""
     if np.any(model.actuator_rigid):
@@ -288,7 +309,7 @@ def pack_network(model: NetworkModel):
     fl = model.fluid
     n = model.node_count
     sl = model.branch_slices
-    free = model.free_nodes
+    free = elimination_order(model)
     free_index = np.full(n, -1, np.int64)
     free_index[free] = np.arange(len(free))
     sc = np.zeros(_NSC)
@@ -919,12 +940,14 @@ def _lu_solve(a, b):
                     a[i, j] -= l * a[k, j]
                 for j in range(m):
                     b[i, j] -= l * b[k, j]
-    for k in range(n - 1, -1, -1):
+    for k in range(n - 1, -1, -1):  # (the same operations, in the same order, as Σ over i for each column; zeros skipped)
+        for i in range(k + 1, n):
+            u = a[k, i]
+            if u != 0.0:
+                for j in range(m):
+                    b[k, j] -= u * b[i, j]
         for j in range(m):
-            s = b[k, j]
-            for i in range(k + 1, n):
-                s -= a[k, i] * b[i, j]
-            b[k, j] = s / a[k, k]
+            b[k, j] = b[k, j] / a[k, k]
     return True
 
 
@@ -1134,9 +1157,12 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
     istats[IS_WORST] = -1
     if not converged:
         istats[IS_STATUS] = _NEWTON_FAILED
-        # np.argmax: first maximum, first NaN wins
+        # np.argmax over the free nodes in the model's (ascending) order: first maximum, first NaN wins
         worst, big = 0, -math.inf
-        for j in range(nf):
+        for k in range(n):
+            j = net.free_index[k]
+            if j < 0:
+                continue
             value = abs(residual[j] * scale[j])
             if value != value:
                 worst = j

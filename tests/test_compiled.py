@@ -1,12 +1,10 @@
 """The compiled backward-Euler stepper agrees with the pure numpy one to round-off, step by step."""
 
-import time
-
 import numpy as np
 import pytest
 
 from conftest import MODELS, network_from_toml
-from hydraulics._compiled import StepperImplicitEulerCompiled, compiled_available
+from hydraulics._compiled import StepperImplicitEulerCompiled, compiled_available, elimination_order
 from hydraulics.circuit import load_circuit
 from hydraulics.network import NetworkModel
 from hydraulics import steppers
@@ -190,35 +188,38 @@ def test_newton_failure_reported_alike(monkeypatch):
     assert sb is state and sa is state  # a failed step returns the last good state
 
 
-def test_timing_excavator():
-    """Print (not assert) the cost of one step of each stepper on the excavator circuit."""
-    m = model("excavator")
-    steps = 200
-    motions = []
-    for n in range(steps):
-        x0, v0 = motion_at(m, n * DT, 0.05)
-        x1, v1 = motion_at(m, (n + 1) * DT, 0.05)
-        motions.append(ActuatorMotion(x0, x1, v0, v1))
-    commands = [0.8 * np.sin(2 * np.pi * 0.5 * n * DT + np.arange(len(m.valve_names))) for n in range(steps)]
-    results = {}
-    for cls, repeats in ((StepperImplicitEuler, 1), (StepperImplicitEulerCompiled, 5)):
-        stepper = cls(m)
-        control = m.control()
-        stepper.step(start_state(m), control, ActuatorMotion.held(motions[0].position_start), DT)  # compile / warm up
-        best = np.inf
-        for _ in range(repeats):
-            state = start_state(m)
-            newton = 0
-            start = time.perf_counter()
-            for n in range(steps):
-                control.valve_command[:] = commands[n]
-                state, report = stepper.step(state, control, motions[n], DT)
-                newton += report.newton_iterations
-            best = min(best, (time.perf_counter() - start) / steps * 1e6)
-        results[cls.name] = (best, newton / steps)
-    pure, fast = results["implicit_euler"], results["implicit_euler_compiled"]
-    print(f"\nexcavator, dt = {DT} s: implicit_euler {pure[0]:.1f} us/step ({pure[1]:.2f} Newton it/step), "
-          f"implicit_euler_compiled {fast[0]:.1f} us/step ({fast[1]:.2f} Newton it/step), speed-up {pure[0] / fast[0]:.1f}x")
+def _fill_in(pattern: np.ndarray) -> int:
+    """Entries Gaussian elimination in the given order turns from zero to non-zero (symbolic, no pivoting)."""
+    p = pattern.copy()
+    fills = 0
+    for k in range(len(p)):
+        rows, cols = np.flatnonzero(p[k + 1:, k]) + k + 1, np.flatnonzero(p[k, k + 1:]) + k + 1
+        block = p[np.ix_(rows, cols)]
+        fills += int((~block).sum())
+        p[np.ix_(rows, cols)] = True
+    return fills
+
+
+@pytest.mark.parametrize("name", ["boom", "excavator", "all_kinds"])
+def test_elimination_order_makes_no_fill_in(name):
+    """The kernels number the free nodes hub last (``elimination_order``): the Newton matrix of the excavator's
+    circuit (an arrowhead: the supply joins every work port) then factors without fill-in, where the model's own
+    order fills it in; the order is a permutation of the free nodes."""
+    m = model(name)
+    order = elimination_order(m)
+    assert sorted(order) == sorted(m.free_nodes)
+    index = np.full(m.node_count, -1)
+    pattern = np.eye(len(order), dtype=bool)
+    for numbering in (order, m.free_nodes):
+        index[numbering] = np.arange(len(numbering))
+        pattern[:] = np.eye(len(order), dtype=bool)
+        for f, t in zip(m.branch_from, m.branch_to):
+            if index[f] >= 0 and index[t] >= 0:
+                pattern[index[f], index[t]] = pattern[index[t], index[f]] = True
+        if numbering is order:
+            assert _fill_in(pattern) == 0
+        elif name == "excavator":
+            assert _fill_in(pattern) > 0  # the supply is node 1, eliminated first in the model's order
 
 
 @pytest.mark.parametrize(
