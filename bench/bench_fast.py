@@ -65,6 +65,18 @@ def peak_rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def bare_start(plant: MujocoPlantFast) -> mujoco.MjData:
+    """The bare loop's start: ``plant``'s initial state with the effort law of its first step held as constant
+    controls (``plant`` is left reset, at that state; biasprm, in the model, keeps the first law)."""
+    plant.advance(1)  # callback loaded/compiled; ctrl and biasprm hold the first step's effort law
+    held = plant.data.ctrl.copy()
+    plant.reset()
+    start = mujoco.MjData(plant.model)
+    mujoco.mj_copyData(start, plant.model, plant.data)
+    start.ctrl[:] = held
+    return start
+
+
 def bench(name, path, reps, window, python_window=0.2):
     scenario = load_scenario(path).with_overrides(dt=DT)
     steps = int(round(window / DT))
@@ -72,13 +84,8 @@ def bench(name, path, reps, window, python_window=0.2):
     scene = load_scene(scenario)
     probe = MujocoPlantFast(scene)
     assert probe.fast
-    probe.advance(1)  # callback loaded/compiled; ctrl and biasprm hold the first step's effort law
     m = probe.model
-    held = probe.data.ctrl.copy()
-    probe.reset()  # back to the initial state; biasprm (in the model) keeps the first law
-    start = mujoco.MjData(m)
-    mujoco.mj_copyData(start, m, probe.data)
-    start.ctrl[:] = held  # the bare loop's constant controls
+    start = bare_start(probe)
     b = block_steps(DT)  # the runner's block at 1 kHz
     variants = ((b, f"fast/{b}", "implicit"), (1000, "fast/1000", "implicit"), (b, f"linear/{b}", "implicit-linear"),
                 (1000, "linear/1000", "implicit-linear"), (b, f"rosen/{b}", "rosenbrock"), (1000, "rosen/1000", "rosenbrock"))

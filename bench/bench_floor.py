@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from pathlib import Path
 
 import mujoco
 import numba
@@ -39,13 +38,8 @@ from sim.plant_mujoco_fast import MujocoPlantFast
 from sim.scenario import load_scenario
 from sim.scene import load_scene
 
-MODELS = Path(__file__).resolve().parents[1] / "models"
-SCENES = {
-    "seed": MODELS / "seed_cylinder" / "closed.scenario.toml",
-    "boom": MODELS / "boom" / "lift.scenario.toml",
-    "excavator": MODELS / "excavator" / "dig.scenario.toml",
-}
-DT = 1e-3  # s
+from bench_fast import DT, SCENES, bare_start  # the same scenes, step and bare loop as bench_fast.py
+
 PIECES = ("pressures", "flows", "evaluation", "factorisation")
 PRESSURES, FLOWS, EVALUATION, FACTORISATION = range(4)
 
@@ -92,12 +86,7 @@ def bench(name, path, reps, window, every, calls):
     plant = MujocoPlantFast(load_scene(scenario))
     assert plant.fast
     m = plant.model
-    plant.advance(1)  # ctrl and biasprm hold the first step's effort law: the bare loop's constant controls
-    held = plant.data.ctrl.copy()
-    plant.reset()  # back to the initial state; biasprm (in the model) keeps the first law
-    start = mujoco.MjData(m)
-    mujoco.mj_copyData(start, m, plant.data)
-    start.ctrl[:] = held
+    start = bare_start(plant)
     states = []  # the network's state every ``every`` seconds of the window
     stride = int(round(every / DT))
     while plant.step_index + stride <= int(round(window / DT)):
