@@ -290,15 +290,10 @@ def elimination_order(model: NetworkModel) -> np.ndarray:
     which skips zero multipliers and zero entries, costs O(n) per right-hand side.
     """
     free = np.asarray(model.free_nodes, np.int64)
-    is_free = np.zeros(model.node_count, bool)
-    is_free[free] = True
-    neighbours = [set() for _ in range(model.node_count)]
-    for f, t in zip(model.branch_from, model.branch_to):
-        if f != t and is_free[f] and is_free[t]:
-            neighbours[f].add(t)
-            neighbours[t].add(f)
-    degree = np.array([len(neighbours[k]) for k in free], np.int64)
-    return free[np.argsort(degree, kind="stable")]
+    ends = (model.incidence[free] != 0).astype(np.int64)  # free node × branch (a branch from a node to itself: none)
+    joined = ends @ ends.T != 0  # free nodes that share a branch
+    np.fill_diagonal(joined, False)
+    return free[np.argsort(joined.sum(axis=1), kind="stable")]
 
 
 def pack_network(model: NetworkModel):
