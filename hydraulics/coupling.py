@@ -39,8 +39,13 @@ coupling can finish the hydraulic step.  Two schemes:
     changes only the iterations (same equations and tolerance), typically
     saving one of about two and a half.  Plants pass the start-of-step
     velocity as ``velocity_guess`` (MuJoCo plant; the 1-DOF load passes its
-    own prediction), which makes the linearisation's own Newton solve start
-    near its root too.
+    own prediction).  The linearisation's own Newton solve starts from the
+    secant prediction m + (m − m_prev) of the state's last oil change
+    (``NetworkState.node_oil_change``, :func:`secant_oil_guess`; error O(h²)
+    where the oil moves smoothly, against O(h) for m itself) wherever the
+    velocity guess moves an actuator; again only the iterations change.  Over
+    the first 2 s at 1 ms it cuts them from 2.17 to 0.92 per step on the boom
+    and from 1.79 to 0.90 on the excavator (``tests/test_warm_start.py``).
 ``implicit-linear``
     Linearly implicit Euler (Rosenbrock–Euler / one Newton step) for the
     oil: the effort law is the one of ``implicit``, but the network is
@@ -184,6 +189,13 @@ def start_velocity_guess(model: NetworkModel, position, velocity, dt: float) -> 
     return guess
 
 
+def secant_oil_guess(state: NetworkState):
+    """Where the implicit couplings start a step's linearisation Newton solve [m³]: the secant prediction
+    m + (m − m_prev) = ``node_oil + node_oil_change`` (error O(h²) where the oil moves smoothly, against O(h) for
+    the start oil itself), or None (start from the start oil) for a state without a last step."""
+    return None if state.node_oil_change is None else state.node_oil + state.node_oil_change
+
+
 def _usable(lin) -> bool:
     """A linearisation whose Newton solve converged to finite pressures and gradients."""
     return bool(
@@ -219,8 +231,11 @@ class CouplingImplicit(Coupling):
         c = model.cylinder_actuator
         velocity[c] = np.clip(velocity[c], -position[c] / dt, (model.cylinder_stroke - position[c]) / dt)
         start = NetworkState(state.node_oil, state.node_pressure, state.valve_spool, position, velocity, state.time)
+        # Newton starts from the secant prediction where the guess moves the actuators (held actuators keep the start
+        # oil: the compiled steps take the start pressures from that first evaluation)
+        warm = secant_oil_guess(state) if np.any(velocity) else None
         try:
-            lin = self.predictor.linearize(start, control, velocity, dt, newton=self.newton)
+            lin = self.predictor.linearize(start, control, velocity, dt, newton=self.newton, oil_guess=warm)
         except np.linalg.LinAlgError:
             if not np.any(velocity):
                 raise
@@ -258,7 +273,7 @@ class CouplingImplicit(Coupling):
         return EffortLaw(constant, theta * pressure_slope + friction_slope)
 
     def predicted_oil(self, state, velocity_end, dt):
-        """m_lin + (∂m/∂v)·(v⁺ − v_guess) [kg] from the linearisation of this step, or None if there is none."""
+        """m_lin + (∂m/∂v)·(v⁺ − v_guess) [m³] from the linearisation of this step, or None if there is none."""
         lin = self.last_linearization
         begun = getattr(self, "_begun", None)
         if lin is None or lin.oil_velocity_gradient is None or begun is None or begun[0] is not state or begun[1] != dt:
@@ -308,7 +323,8 @@ class CouplingImplicitLinear(CouplingImplicit):
             report.status = StepStatus.NONFINITE
             report.message = f"pressure of node '{bad}' is not finite: {StepStatus.NONFINITE.value}"
             return state, report
-        return NetworkState(oil, pressure, spool.copy(), position_end, velocity_end, state.time + dt), report
+        return NetworkState(oil, pressure, spool.copy(), position_end, velocity_end, state.time + dt,
+                            oil - state.node_oil), report
 
 
 class CouplingRosenbrock(CouplingImplicitLinear):

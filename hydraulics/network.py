@@ -186,6 +186,13 @@ class NetworkState:
         Cylinder rod speed [m/s] or motor shaft speed [rad/s].
     time : float
         Simulation time [s].
+    node_oil_change : ndarray, shape (node_count,), or None
+        Oil change of the step that ended in this state [m³ at reference density]
+        (None: unknown, e.g. an initial state).  A warm start, like MuJoCo's
+        ``qacc_warmstart``: the implicit couplings start the next step's Newton
+        solve at the secant prediction ``node_oil + node_oil_change``
+        (:func:`hydraulics.coupling.secant_oil_guess`), which changes the
+        iterations only, not the equations or the tolerance.
     """
 
     node_oil: np.ndarray
@@ -194,6 +201,7 @@ class NetworkState:
     actuator_position: np.ndarray
     actuator_velocity: np.ndarray
     time: float = 0.0
+    node_oil_change: np.ndarray | None = None
 
     def copy(self) -> "NetworkState":
         """Deep copy."""
@@ -204,6 +212,7 @@ class NetworkState:
             self.actuator_position.copy(),
             self.actuator_velocity.copy(),
             self.time,
+            None if self.node_oil_change is None else self.node_oil_change.copy(),
         )
 
 

@@ -184,7 +184,7 @@ class Stepper:
     def step(self, state: NetworkState, control: NetworkControl, motion: ActuatorMotion, dt: float, *, oil_guess=None):
         """Advance ``state`` by ``dt`` [s]; ``state`` is not modified.
 
-        ``oil_guess`` (optional, shape (node_count,) [kg]) is a prediction of
+        ``oil_guess`` (optional, shape (node_count,) [m³]) is a prediction of
         the end-of-step oil contents; implicit steppers start Newton's method
         from it (substep k of S from m + (k+1)/S·(guess − m)).  It changes
         only the iterations, not the equations or the tolerance.
@@ -192,7 +192,8 @@ class Stepper:
         Returns
         -------
         state : NetworkState
-            The state at the end of the step.
+            The state at the end of the step, with the step's oil change as its
+            ``node_oil_change`` (the next step's warm start).
         report : StepReport
             Status and counters; on failure the returned state is the last good
             substep's and ``report.message`` says what to change.
@@ -222,6 +223,7 @@ class Stepper:
                 report.message = f"pressure of node '{bad}' is not finite: {StepStatus.NONFINITE.value}"
                 return current, report
             current = new
+        current.node_oil_change = current.node_oil - state.node_oil
         return current, report
 
     def _spool_end(self, state, control, h):
@@ -366,7 +368,7 @@ class StepperImplicitEuler(Stepper):
         return self._finish(state, oil, spool_end, motion, h, flows), report
 
     def linearize(self, state: NetworkState, control: NetworkControl, velocity, dt: float, *,
-                  newton: bool = True) -> Linearization:
+                  newton: bool = True, oil_guess=None) -> Linearization:
         """Predict one backward-Euler step with end velocities ``velocity`` and differentiate the efforts.
 
         The actuators are assumed to end at x = x_state + dt·v.  Returns the
@@ -393,6 +395,9 @@ class StepperImplicitEuler(Stepper):
         another piece of its law (:meth:`NetworkModel.law_pieces`: a kink the start's Jacobian
         does not see), or where the matrix is singular, the step is solved by Newton instead
         (``newton=True``), whose line search handles such a switch.
+
+        ``oil_guess`` (shape (node_count,) [m³]) is where the Newton solve starts (default: the
+        start oil); like :meth:`step`'s, it changes only the iterations.
         """
         m = self.model
         free = self.free
@@ -403,7 +408,7 @@ class StepperImplicitEuler(Stepper):
         # where the Jacobian is taken: the end of the Newton solve, or the start of the step (one step)
         at = position if newton else state.actuator_position
         if newton:
-            oil, _, report = self._solve(state, control, position, velocity, spool, dt)
+            oil, _, report = self._solve(state, control, position, velocity, spool, dt, oil_guess)
             pressure, dpdm = m.pressure(oil, position)
             flows = m.branch_flows(pressure, areas, control.pump_speed, velocity)
         else:
@@ -433,17 +438,17 @@ class StepperImplicitEuler(Stepper):
             except np.linalg.LinAlgError:
                 if newton:
                     raise
-                return self.linearize(state, control, velocity, dt, newton=True)
+                return self.linearize(state, control, velocity, dt, newton=True, oil_guess=oil_guess)
             if not newton:
                 delta, solution = solution[:, 0], solution[:, 1:]
                 if self._trust_step(oil, delta, at, pressure) < 1.0:
-                    return self.linearize(state, control, velocity, dt, newton=True)
+                    return self.linearize(state, control, velocity, dt, newton=True, oil_guess=oil_guess)
                 start = pressure
                 oil[free] += delta
                 pressure = pressure + dt * dpdx @ velocity
                 pressure[free] += dpdm[free] * delta
                 if not np.array_equal(m.law_pieces(start), m.law_pieces(pressure)):  # a kink of a valve law crossed
-                    return self.linearize(state, control, velocity, dt, newton=True)
+                    return self.linearize(state, control, velocity, dt, newton=True, oil_guess=oil_guess)
             dpdv[free] += dpdm[free][:, None] * solution
             oil_gradient[free] = solution
         effort, friction_slope = m.actuator_effort(pressure, velocity)
