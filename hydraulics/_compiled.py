@@ -1336,11 +1336,12 @@ def _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope):
 
 @_kernel
 def _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort, gradient,
-                    p_first, doil):
-    """StepperImplicitEuler.linearize into the given outputs; returns the residual norm.
+                    p_first, doil, oil_init):
+    """StepperImplicitEuler.linearize into the given outputs, its Newton solve started from ``oil_init`` (the pure
+    ``oil_guess``; ``oil0`` for a cold start); returns the residual norm.
 
     ``W``: scratch of ``_linearize_work_size`` entries; ``p_first`` receives
-    the pressures at (``oil0``, x0 + dt·velocity), the Newton solve's first evaluation;
+    the pressures at (``oil_init``, x0 + dt·velocity), the Newton solve's first evaluation;
     ``doil`` (n × na) receives ∂m⁺/∂v (``Linearization.oil_velocity_gradient``; zero rows for fixed nodes).
     """
     net = _deref(pnet)
@@ -1355,7 +1356,7 @@ def _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil
     flow2, o = _take(W, o, nb)
     dpdm, o = _take(W, o, n)
     geo, o = _take(W, o, n)
-    norm = _solve_core(pnet, oil0, x, velocity, spool, speed, dt, oil, flow, dfrom, dto, istats, W, p_first, oil0)
+    norm = _solve_core(pnet, oil0, x, velocity, spool, speed, dt, oil, flow, dfrom, dto, istats, W, p_first, oil_init)
     _pressure(pnet, oil, x, geo, p, dpdm)
     dvdx, o = _take2(W, o, n, na)
     dpdx_dt, o = _take2(W, o, n, na)  # dt·∂p/∂x
@@ -1518,20 +1519,21 @@ def _one_step_accepted(istats):
 
 @_kernel
 def _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
-                   gradient, p_first, doil):
-    """:func:`_linearize_core` (``newton``: backward Euler solved by Newton), or :func:`_linearize_one_step_core`
-    (Rosenbrock–Euler, one Newton step) where it accepts its step and :func:`_linearize_core` where it does not;
-    same arguments and outputs; returns the residual norm (0 for an accepted one-step linearisation)."""
+                   gradient, p_first, doil, oil_init):
+    """:func:`_linearize_core` (``newton``: backward Euler solved by Newton from ``oil_init``), or
+    :func:`_linearize_one_step_core` (Rosenbrock–Euler, one Newton step from ``oil0``) where it accepts its step and
+    :func:`_linearize_core` where it does not; same arguments and outputs; returns the residual norm (0 for an
+    accepted one-step linearisation)."""
     if not newton and _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x,
                                                flow, istats, effort, gradient, p_first, doil):
         return 0.0
     return _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
-                           effort, gradient, p_first, doil)
+                           effort, gradient, p_first, doil, oil_init)
 
 
 @_jit
-def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt, newton):
-    """StepperImplicitEuler.linearize (``newton`` False: its Rosenbrock–Euler variant)."""
+def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt, newton, oil_init):
+    """StepperImplicitEuler.linearize (``newton`` False: its Rosenbrock–Euler variant), Newton from ``oil_init``."""
     net = _unpack(F, I)
     pnet = _ref(net)
     ic = net.ic
@@ -1541,7 +1543,7 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt, newt
     istats = np.zeros(6, np.int64)
     effort, gradient, p_first, doil = np.empty(na), np.empty((na, na)), np.empty(n), np.empty((n, na))
     norm = _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
-                          effort, gradient, p_first, doil)
+                          effort, gradient, p_first, doil, oil_init)
     return oil, p, spool, x, flow, istats, norm, effort, gradient, doil
 
 
@@ -1669,20 +1671,22 @@ def _clipped_guess_is_held(pnet, x, dt, guess):
 
 @_kernel
 def _linearize_at_start_velocity(newton, pnet, W, oil0, spool0, command, speed, x0, v, dt, guess, oil, p, spool, x, flow,
-                                 istats, effort, gradient, p_first, doil):
+                                 istats, effort, gradient, p_first, doil, oil_warm):
     """CouplingImplicit.begin's linearisation (:func:`_linearize_any`) at :func:`_start_velocity_guess` of the start
     velocities ``v``, written to ``guess``; where that guess is not held and its linearisation is not usable (an
     unresolved oscillation: x + dt·v can empty a chamber), again at the held actuators.  Returns whether the
-    linearisation is at the held actuators; ``istats[IS_SINGULAR]`` tells a singular one."""
+    linearisation is at the held actuators (its first evaluation, ``p_first``, is then at the start oil and
+    positions).  Where the guess is not held, Newton starts from ``oil_warm`` (coupling.secant_oil_guess; ``oil0``
+    when there is none), else from ``oil0``; ``istats[IS_SINGULAR]`` tells a singular linearisation."""
     held = _start_velocity_guess(pnet, x0, v, dt, guess)
     _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats, effort,
-                   gradient, p_first, doil)
+                   gradient, p_first, doil, oil0 if held else oil_warm)
     if not held and not _linearization_usable(istats, p, gradient):
         for a in range(guess.size):
             guess[a] = 0.0
         held = _clipped_guess_is_held(pnet, x0, dt, guess)
         _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats,
-                       effort, gradient, p_first, doil)
+                       effort, gradient, p_first, doil, oil0)
     return held
 
 
@@ -1871,13 +1875,16 @@ class StepperImplicitEulerCompiled(StepperImplicitEuler):
         )
         return oil, BranchFlows(flow, dfrom, dto), self._make_report(istats, norm, flow)
 
-    def linearize(self, state: NetworkState, control, velocity, dt: float, *, newton: bool = True) -> Linearization:
+    def linearize(self, state: NetworkState, control, velocity, dt: float, *, newton: bool = True,
+                  oil_guess=None) -> Linearization:
         if not _NUMBA:  # pragma: no cover
-            return super().linearize(state, control, velocity, dt, newton=newton)
+            return super().linearize(state, control, velocity, dt, newton=newton, oil_guess=oil_guess)
         velocity = _f64(np.asarray(velocity, float).reshape(self.model.actuator_count))
+        oil0 = _f64(state.node_oil)
         oil, pressure, spool, position, flow, istats, norm, effort, gradient, doil = _linearize_kernel(
-            self._F, self._I, _f64(state.node_oil), _f64(state.valve_spool), _f64(control.valve_command),
+            self._F, self._I, oil0, _f64(state.valve_spool), _f64(control.valve_command),
             _f64(control.pump_speed), _f64(state.actuator_position), velocity, float(dt), bool(newton),
+            oil0 if oil_guess is None else _f64(oil_guess),
         )
         report = self._make_report(istats, norm, flow)
         if istats[IS_SINGULAR]:

@@ -151,9 +151,9 @@ except ImportError:  # pragma: no cover
     P_XSTART, P_VSTART, P_CONST, P_SLOPE, P_THETA, P_MEFF, P_EFFORT, P_FLOW, P_PASSIVE_SAVED, P_FS, P_QUAD,
     P_WORK, P_SCRATCH, P_ISTATS, P_PMAX, P_PMIN, C_LINEAR,
     C_NQ, C_NBODY, C_REC_ROWS, C_REC_EVERY, C_REC_FIRST, C_REC_COUNT, C_REC_BAD, C_END_FINITE, C_REC_WIDTH,
-    P_QPOS, P_BXPOS, P_BXQUAT, P_ENERGY, P_REC,
+    P_QPOS, P_BXPOS, P_BXQUAT, P_ENERGY, P_REC, P_OIL_CHANGE,
     NCTX,
-) = range(80)
+) = range(81)
 
 # float scalars (P_FS): step, residual of the last step, ledger terms
 FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD = range(8)  # ledger: C._account's order
@@ -177,7 +177,7 @@ def _finish_scratch(na, n, nb, nvalve):
 def scratch_size(na, n, nb, nvalve):
     """Length of the plant's float64 scratch (P_SCRATCH): _finish_pending's part, then _begin's (whose first
     part — velocity guess, predicted oil and spool, ∂m⁺/∂v — persists until the step is finished)."""
-    return _finish_scratch(na, n, nb, nvalve) + 9 * na + 4 * n + na * na + n + nvalve + na + nb + n * na
+    return _finish_scratch(na, n, nb, nvalve) + 9 * na + 5 * n + na * na + n + nvalve + na + nb + n * na
 
 
 if _NUMBA:
@@ -255,7 +255,7 @@ def _vi64(ctx, slot, n):
     return carray(_pi64(ctx[slot]), (n,))
 
 
-_Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W', 'istats', 'cmd', 'speed', 'oil', 'pres', 'spool', 'pos', 'vel', 'flow', 'const', 'slope', 'effort', 'quad', 'passive_saved', 'constraint', 'passive', 'act', 'closed', 'length', 'avel', 'meff', 'theta', 'ctrl', 'bias', 'rowadr', 'rownnz', 'colind', 'moment', 'pmax', 'pmin'))
+_Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W', 'istats', 'cmd', 'speed', 'oil', 'pres', 'spool', 'pos', 'vel', 'flow', 'const', 'slope', 'effort', 'quad', 'passive_saved', 'constraint', 'passive', 'act', 'closed', 'length', 'avel', 'meff', 'theta', 'ctrl', 'bias', 'rowadr', 'rownnz', 'colind', 'moment', 'pmax', 'pmin', 'oil_change'))
 
 
 @_jit
@@ -268,7 +268,7 @@ def _views(ctx):
     nnz = 0
     for a in range(nu):
         nnz = max(nnz, rowadr[a] + rownnz[a])
-    return _Views(_vf(ctx, P_FS, NFS), _mf(ctx, P_J, na, nv), _mf(ctx, P_MINVJ, na, nv), _vf(ctx, P_QVEL, nv), _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na), _vf(ctx, P_SCRATCH, ctx[C_NS]), _vf(ctx, P_WORK, ctx[C_NW]), _vi64(ctx, P_ISTATS, 6), _mf(ctx, P_CMD, ctx[C_ROWS], nvalve), _mf(ctx, P_SPEED, ctx[C_ROWS], npump), _vf(ctx, P_OIL, n), _vf(ctx, P_PRESSURE, n), _vf(ctx, P_SPOOL, nvalve), _vf(ctx, P_XPOS, na), _vf(ctx, P_XVEL, na), _vf(ctx, P_FLOW, nb), _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na), _vf(ctx, P_EFFORT, na), _vf(ctx, P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, P_PASSIVE_SAVED, nv), _vf(ctx, P_CONSTRAINT, nv), _vf(ctx, P_PASSIVE, nv), _vi64(ctx, P_ACT, na), _vf(ctx, P_CLOSED, na), _vf(ctx, P_LENGTH, nu), _vf(ctx, P_AVEL, nu), _vf(ctx, P_MEFF, na), _vf(ctx, P_THETA, na), _vf(ctx, P_CTRL, nu), _vf(ctx, P_BIASPRM, nu * ctx[C_NBIAS]), _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu), _vi32(ctx, P_COLIND, nnz), _vf(ctx, P_MOMENT, nnz), _vf(ctx, P_PMAX, n), _vf(ctx, P_PMIN, n))
+    return _Views(_vf(ctx, P_FS, NFS), _mf(ctx, P_J, na, nv), _mf(ctx, P_MINVJ, na, nv), _vf(ctx, P_QVEL, nv), _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na), _vf(ctx, P_SCRATCH, ctx[C_NS]), _vf(ctx, P_WORK, ctx[C_NW]), _vi64(ctx, P_ISTATS, 6), _mf(ctx, P_CMD, ctx[C_ROWS], nvalve), _mf(ctx, P_SPEED, ctx[C_ROWS], npump), _vf(ctx, P_OIL, n), _vf(ctx, P_PRESSURE, n), _vf(ctx, P_SPOOL, nvalve), _vf(ctx, P_XPOS, na), _vf(ctx, P_XVEL, na), _vf(ctx, P_FLOW, nb), _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na), _vf(ctx, P_EFFORT, na), _vf(ctx, P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, P_PASSIVE_SAVED, nv), _vf(ctx, P_CONSTRAINT, nv), _vf(ctx, P_PASSIVE, nv), _vi64(ctx, P_ACT, na), _vf(ctx, P_CLOSED, na), _vf(ctx, P_LENGTH, nu), _vf(ctx, P_AVEL, nu), _vf(ctx, P_MEFF, na), _vf(ctx, P_THETA, na), _vf(ctx, P_CTRL, nu), _vf(ctx, P_BIASPRM, nu * ctx[C_NBIAS]), _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu), _vi32(ctx, P_COLIND, nnz), _vf(ctx, P_MOMENT, nnz), _vf(ctx, P_PMAX, n), _vf(ctx, P_PMIN, n), _vf(ctx, P_OIL_CHANGE, n))
 
 
 @_kernel
@@ -365,7 +365,10 @@ def _finish_pending(ctx, pnet, V):
     fs[FS_NORM] = residual
     if status != ST_OK:
         ctx[C_FAILED] = k
-    else:  # running extremes of the end-of-step pressures
+    else:  # the step's oil change (NetworkState.node_oil_change), running extremes of the end-of-step pressures
+        oil_change = V.oil_change
+        for i in range(n):
+            oil_change[i] = oil[i] - mstart[i]
         pmax, pmin = V.pmax, V.pmin
         for i in range(n):
             if pres[i] > pmax[i]:
@@ -440,6 +443,7 @@ def _begin(ctx, pnet, V):
     gradient = C._matrix(g, na, na)
     lin_x, o = C._take(S, o, na)
     lin_flow, o = C._take(S, o, nb)
+    oil_warm, o = C._take(S, o, n)
     for i in range(na):
         xs[i] = length[act[i]] - closed[i]
         vs[i] = avel[act[i]]
@@ -450,11 +454,14 @@ def _begin(ctx, pnet, V):
     cmd = V.cmd[k]
     speed = V.speed[k]
     oil, spool = V.oil, V.spool
+    oil_change = V.oil_change
+    for i in range(n):  # coupling.secant_oil_guess (a zero oil change: none known, the start oil)
+        oil_warm[i] = oil[i] + oil_change[i]
     # predicted end velocities: the start velocities where their chord is short (coupling.start_velocity_guess),
     # clipped so the cylinders stay inside their stroke; the held actuators where that linearisation is useless
     held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, pnet, W, oil, spool, cmd, speed, xs, vs, dt,
                                           guess, lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient,
-                                          p0, doil)
+                                          p0, doil, oil_warm)
     if istats[C.IS_SINGULAR]:
         ctx[C_STATUS] = ST_SINGULAR
         ctx[C_FAILED] = k
@@ -645,7 +652,7 @@ class MujocoPlantFast(MujocoPlant):
         self._J = np.zeros((na, nv))
         self._MinvJ = np.zeros((na, nv))
         n = net.node_count
-        self._oil, self._p = np.zeros(n), np.zeros(n)
+        self._oil, self._p, self._oil_change = np.zeros(n), np.zeros(n), np.zeros(n)
         self._spool = np.zeros(len(net.valve_names))
         self._x, self._v = np.zeros(na), np.zeros(na)
         self._xs, self._vs = np.zeros(na), np.zeros(na)
@@ -683,7 +690,7 @@ class MujocoPlantFast(MujocoPlant):
             P_XSTART: self._xs, P_VSTART: self._vs, P_CONST: self._const, P_SLOPE: self._slope, P_THETA: self._theta,
             P_MEFF: self._meff, P_EFFORT: self._effort, P_FLOW: self._flow, P_PASSIVE_SAVED: self._passive, P_FS: self._fs,
             P_QUAD: self._quad, P_WORK: self._work, P_SCRATCH: self._scratch, P_ISTATS: self._istats,
-            P_PMAX: self._pmax, P_PMIN: self._pmin, P_QPOS: d.qpos, P_BXPOS: d.xpos, P_BXQUAT: d.xquat, P_ENERGY: d.energy,
+            P_PMAX: self._pmax, P_PMIN: self._pmin, P_OIL_CHANGE: self._oil_change, P_QPOS: d.qpos, P_BXPOS: d.xpos, P_BXQUAT: d.xquat, P_ENERGY: d.energy,
         }
         for a in (d.qpos, d.xpos, d.xquat, d.energy):
             assert a.flags.c_contiguous and a.dtype == np.float64
@@ -825,6 +832,7 @@ class MujocoPlantFast(MujocoPlant):
             return report
         state = self.net_state
         self._oil[:] = state.node_oil
+        self._oil_change[:] = 0.0 if state.node_oil_change is None else state.node_oil_change
         self._p[:] = state.node_pressure
         self._spool[:] = state.valve_spool
         self._x[:] = state.actuator_position
@@ -867,7 +875,7 @@ class MujocoPlantFast(MujocoPlant):
         self.control.pump_speed[:] = speed[last]
         self.step_index += steps
         self.net_state = NetworkState(self._oil.copy(), self._p.copy(), self._spool.copy(), self._x.copy(), self._v.copy(),
-                                      state.time + steps * self.dt)
+                                      state.time + steps * self.dt, self._oil_change.copy())
         e.pump_work, e.motor_work, e.dissipated_hydraulic = float(fs[FS_PUMP]), float(fs[FS_MOTOR]), float(fs[FS_DISS_H])
         e.dissipated_friction, e.dissipated_mechanical = float(fs[FS_DISS_F]), float(fs[FS_DISS_M])
         self.effort = self._effort.copy()

@@ -68,6 +68,12 @@ def assert_same(reference, fast):
     np.testing.assert_allclose(b.net_state.actuator_position, a.net_state.actuator_position, rtol=0, atol=STROKE_ATOL)
     np.testing.assert_allclose(b.net_state.node_pressure, a.net_state.node_pressure, rtol=PRESSURE_RTOL, atol=PRESSURE_ATOL)
     np.testing.assert_allclose(b.net_state.valve_spool, a.net_state.valve_spool, rtol=0, atol=1e-12)
+    # the warm start of the next linearisation (NetworkState.node_oil_change) is carried across blocks
+    # (a difference of two oils: its round-off is the oils', ~1e-16·|m|)
+    free = np.isfinite(a.net_state.node_oil)
+    change, oil = a.net_state.node_oil_change[free], a.net_state.node_oil[free]
+    np.testing.assert_allclose(b.net_state.node_oil_change[free], change, rtol=0,
+                               atol=1e-8 * np.abs(change).max() + 1e-14 * np.abs(oil).max())
     np.testing.assert_allclose(b.control.valve_command, a.control.valve_command, rtol=0, atol=0)
     np.testing.assert_allclose(b.theta, a.theta, rtol=0, atol=1e-9)
     scale = np.abs(a.effort).max() + 1.0

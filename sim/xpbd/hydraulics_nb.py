@@ -84,13 +84,14 @@ else:  # pragma: no cover
 
 
 def _begin_temporaries(n, na, nb, nvalve):
-    return na * 7 + 2 * n + na * na + na + nb
+    return na * 7 + 3 * n + na * na + na + nb
 
 
 def keep_size(n, na, nb, nvalve):
-    """Length of the float64 buffer S: what begin leaves for finish (``C._take_linearization``), then begin's and
-    finish's temporaries."""
-    return (na + n + nvalve + n * na) + _begin_temporaries(n, na, nb, nvalve) + (4 * n + 2 * na + 3 * nb + nvalve)
+    """Length of the float64 buffer S: the last substep's oil change [m³] (``NetworkState.node_oil_change``, the
+    next substep's warm start, which persists across substeps and steps; :meth:`FastHydraulics.load` / ``store``
+    move it), what begin leaves for finish (``C._take_linearization``), then begin's and finish's temporaries."""
+    return n + (na + n + nvalve + n * na) + _begin_temporaries(n, na, nb, nvalve) + (5 * n + 2 * na + 3 * nb + nvalve)
 
 
 _begin_temporaries_nb = _kernel(_begin_temporaries)
@@ -108,7 +109,8 @@ def _begin_core(pnet, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const
     ic = net.ic
     n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
     nvalve = spool.size
-    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, 0, n, na, nvalve)
+    oil_change, o = C._take(S, 0, n)
+    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, nvalve)
     fg, o = C._take(S, o, na)
     fsg, o = C._take(S, o, na)
     end_const, o = C._take(S, o, na)
@@ -122,11 +124,15 @@ def _begin_core(pnet, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const
     gradient = C._matrix(g, na, na)
     lin_x, o = C._take(S, o, na)
     lin_flow, o = C._take(S, o, nb)
+    oil_warm, o = C._take(S, o, n)
+    for i in range(n):  # coupling.secant_oil_guess (a zero oil change: none known, the start oil)
+        oil_warm[i] = oil[i] + oil_change[i]
     effort_end = fg  # overwritten by the guess's friction below
     # linearised at the start velocities where their chord is short (coupling.start_velocity_guess), kept inside the
     # stroke, else at the held actuators
     C._linearize_at_start_velocity(scheme != SCHEME_ROSENBROCK, pnet, W, oil, spool, cmd, speed, x, v, h, guess, lin_oil,
-                                   lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient, p_first, doil)
+                                   lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient, p_first, doil,
+                                   oil_warm)
     if istats[C.IS_SINGULAR]:
         return False
     C._effort_law_terms(pnet, guess, lin_p, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
@@ -145,7 +151,8 @@ def _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, c
     ic = net.ic
     n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
     nvalve = spool.size
-    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, 0, n, na, nvalve)
+    oil_change, o = C._take(S, 0, n)
+    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, nvalve)
     o += _begin_temporaries_nb(n, na, nb, nvalve)
     mpred, o = C._take(S, o, n)
     o2, o = C._take(S, o, n)
@@ -157,6 +164,7 @@ def _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, c
     dto, o = C._take(S, o, nb)
     fl, o = C._take(S, o, nb)
     sp2, o = C._take(S, o, nvalve)
+    change, o = C._take(S, o, n)
     C._predicted_oil(lin_oil, doil, guess, v_end, dv, mpred)
     if scheme == SCHEME_NEWTON:
         norm = C._step_core(pnet, W, oil, spool, cmd, speed, x_end, v_end, h, True, o2, p2, sp2, fl, dfrom, dto, istats,
@@ -179,11 +187,14 @@ def _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, c
         istats[I_STATUS], istats[I_WORST] = ST_NEWTON, istats[C.IS_WORST]
         ledger[L_FAIL_NORM] = norm
     else:
+        for i in range(n):
+            change[i] = o2[i] - oil[i]
         bad = C._commit_if_finite(oil, pres, spool, pos, vel, o2, p2, sp2, x_end, v_end)
         if bad >= 0:
             istats[I_STATUS], istats[I_WORST] = ST_NONFINITE, bad
         else:
             istats[I_LAST_OK] = 1
+            C._copy(oil_change, change)
     # energy ledger (PlantBase._account, energy.branch_powers) at the state's pressures
     C._account(pnet, ledger, L_PUMP, h, pres, flow, v_end, quad, mu, fric, dv)
 
@@ -273,6 +284,7 @@ class FastHydraulics:
         self.spool[:] = state.valve_spool
         self.position[:] = state.actuator_position
         self.velocity[:] = state.actuator_velocity
+        self._oil_change()[:] = 0.0 if state.node_oil_change is None else state.node_oil_change
         self._time = float(state.time)
         self._istats[:] = 0
         self._istats[I_WORST] = -1
@@ -318,5 +330,9 @@ class FastHydraulics:
             report.status = StepStatus.NONFINITE
             report.message = f"pressure of node '{names[int(s[I_WORST])]}' is not finite: {StepStatus.NONFINITE.value}"
         state = NetworkState(self.oil.copy(), self.pressure.copy(), self.spool.copy(), self.position.copy(),
-                             self.velocity.copy(), self._time)
+                             self.velocity.copy(), self._time, self._oil_change().copy())
         return state, report
+
+    def _oil_change(self) -> np.ndarray:
+        """The view of S holding the last substep's oil change [m³] (see :func:`keep_size`)."""
+        return self._S[:self.network.node_count]
