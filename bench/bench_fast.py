@@ -53,6 +53,7 @@ SCENES = {
     "excavator": MODELS / "excavator" / "dig.scenario.toml",
 }
 DT = 1e-3  # s
+LONGEST_BLOCK = 1000  # steps: the long-block variants (fast/1000 etc.) advance this many steps per call
 # PBD mode's rows: label -> scenario overrides
 PBD_VARIANTS = {
     "pbd-θ 1ms×1": dict(mode="pbd", dt=1e-3, pbd_substeps=1, pbd_blend=True),
@@ -87,8 +88,8 @@ def bench(name, path, reps, window, python_window=0.2):
     m = probe.model
     start = bare_start(probe)
     b = block_steps(DT)  # the runner's block at 1 kHz
-    variants = ((b, f"fast/{b}", "implicit"), (1000, "fast/1000", "implicit"), (b, f"linear/{b}", "implicit-linear"),
-                (1000, "linear/1000", "implicit-linear"), (b, f"rosen/{b}", "rosenbrock"), (1000, "rosen/1000", "rosenbrock"))
+    variants = ((b, f"fast/{b}", "implicit"), (LONGEST_BLOCK, "fast/1000", "implicit"), (b, f"linear/{b}", "implicit-linear"),
+                (LONGEST_BLOCK, "linear/1000", "implicit-linear"), (b, f"rosen/{b}", "rosenbrock"), (LONGEST_BLOCK, "rosen/1000", "rosenbrock"))
     times = {"bare": [], **{key: [] for _, key, _ in variants}, "python": [], **{key: [] for key in PBD_VARIANTS}}
     pbd_scenarios = {key: scenario.with_overrides(**overrides) for key, overrides in PBD_VARIANTS.items()}
     for key, pbd_scenario in pbd_scenarios.items():  # kernels loaded before timing
@@ -138,6 +139,9 @@ def main():
     parser.add_argument("--reps", type=int, default=5)
     parser.add_argument("--window", type=float, default=6.0, help="simulated seconds per variant and repetition")
     args = parser.parse_args()
+    if args.window < LONGEST_BLOCK * DT:  # every variant must time at least one whole block
+        parser.error(f"--window {args.window} s: must be at least {LONGEST_BLOCK * DT:g} s "
+                     f"(one block of {LONGEST_BLOCK} steps at {DT * 1e3:g} ms)")
     for name, path in SCENES.items():
         bench(name, path, args.reps, args.window)
 
