@@ -31,6 +31,12 @@ FILL_INVERSION_TOLERANCE = 1e-12  # on ln φ, i.e. ≈ β·1e-12 Pa
 POTENTIAL_QUADRATURE_POINTS = 24  # Gauss–Legendre points for μ(p) with entrained air
 
 
+def potential_quadrature() -> np.ndarray:
+    """The Gauss–Legendre rule on [−1, 1] of :meth:`Fluid.pressure_potential` with entrained air: its
+    ``POTENTIAL_QUADRATURE_POINTS`` nodes, then their weights (one flat array, as the compiled kernels take it)."""
+    return np.concatenate(np.polynomial.legendre.leggauss(POTENTIAL_QUADRATURE_POINTS))
+
+
 @dataclass(frozen=True, kw_only=True)
 class Fluid:
     """Hydraulic oil properties (SI)."""
@@ -116,7 +122,7 @@ class Fluid:
         p = np.asarray(pressure, dtype=float)
         if self.air_fraction == 0.0:
             return self.bulk_modulus * -np.expm1(-(p - self.reference_pressure) / self.bulk_modulus)
-        nodes, weights = np.polynomial.legendre.leggauss(POTENTIAL_QUADRATURE_POINTS)
+        nodes, weights = np.split(potential_quadrature(), 2)
         half = 0.5 * (p - self.reference_pressure)
         mid = 0.5 * (p + self.reference_pressure)
         samples = mid[..., None] + half[..., None] * nodes

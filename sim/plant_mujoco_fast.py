@@ -122,6 +122,7 @@ import numpy as np
 
 from hydraulics import _compiled as C
 from hydraulics.coupling import SCHEME_ROSENBROCK, CouplingImplicit
+from hydraulics.fluid import POTENTIAL_QUADRATURE_POINTS, potential_quadrature
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepReport, StepStatus
 
@@ -160,8 +161,6 @@ FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD = r
 NFS = 8
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
 MODE_STEP, MODE_FINISH = range(2)  # C_MODE: a coupled step (from mj_step), or only finish the pending step
-
-POTENTIAL_QUADRATURE_POINTS = 16  # must match hydraulics.fluid (entrained air only)
 
 # Symbols the cached callback resolves when it is loaded (registered below with llvmlite):
 # the pointer table and MuJoCo's mj_solveM.  Nothing process-specific is baked into the
@@ -665,8 +664,7 @@ class MujocoPlantFast(MujocoPlant):
         self._pmax, self._pmin = np.zeros(n), np.zeros(n)
         self._fs = np.zeros(NFS)
         self._fs[FS_DT] = self.dt
-        quad_nodes, quad_weights = np.polynomial.legendre.leggauss(POTENTIAL_QUADRATURE_POINTS)
-        self._quad = np.concatenate([quad_nodes, quad_weights])
+        self._quad = potential_quadrature()
         self._capacity = 0
         self._cmd = self._speed = None
         self._inputs = input_plan(net, self.control, scenario.inputs)

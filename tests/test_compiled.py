@@ -285,3 +285,30 @@ def test_borrowed_views_alias_their_arrays():
     assert scale_first(a, 3.0, (b, c)) == 4.0
     np.testing.assert_array_equal(a, [0.0, 3.0, 6.0, 9.0])
     np.testing.assert_array_equal(c, [-1, 0])  # arrays in a nested tuple are borrowed too
+
+
+def test_pressure_potential_compiled_matches_pure_with_entrained_air():
+    """_compiled._potential (the energy ledger's μ(p) of the compiled plants) equals Fluid.pressure_potential, on a
+    fluid with entrained air (the Gauss–Legendre branch), from the cavitation floor to 35 MPa; both take their rule
+    from fluid.potential_quadrature, and a coarser rule is visibly different there."""
+    import numba
+
+    from hydraulics import _compiled as C
+    from hydraulics.fluid import potential_quadrature
+
+    @numba.njit
+    def potentials(F, I, p, quad):
+        pnet = C._ref(C._unpack(F, I))
+        out = np.empty(p.size)
+        for i in range(p.size):
+            out[i] = C._potential(pnet, p[i], quad)
+        return out
+
+    m = model("all_kinds")
+    assert m.fluid.air_fraction > 0
+    F, I = C.pack_network(m)
+    p = np.geomspace(m.fluid.cavitation_pressure, 3.5e7, 41)
+    pure = m.fluid.pressure_potential(p)
+    np.testing.assert_allclose(potentials(F, I, p, potential_quadrature()), pure, rtol=1e-12, atol=1e-9)
+    coarse = np.concatenate(np.polynomial.legendre.leggauss(4))
+    assert np.max(np.abs(potentials(F, I, p, coarse) - pure)) > 1e-6 * np.max(np.abs(pure))  # the rule matters here

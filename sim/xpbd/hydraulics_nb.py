@@ -40,6 +40,7 @@ import numpy as np
 
 from hydraulics import _compiled as C
 from hydraulics.coupling import SCHEME_NEWTON, SCHEME_ROSENBROCK
+from hydraulics.fluid import potential_quadrature
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepReport, StepStatus
 
@@ -49,8 +50,6 @@ try:  # pragma: no branch
     _NUMBA = C.compiled_available()
 except ImportError:  # pragma: no cover
     _NUMBA = False
-
-POTENTIAL_QUADRATURE_POINTS = 16  # must match hydraulics.fluid (entrained air only)
 
 # int counters (istats of the frame): _compiled's 6 per-call slots, then the step's totals and failure
 (I_NEWTON, I_RHS, I_JAC, I_STATUS, I_WORST, I_LAST_OK) = range(6, 12)
@@ -265,8 +264,7 @@ class FastHydraulics:
         self._S = np.zeros(keep_size(n, na, nb, nvalve))
         self._istats = np.zeros(NI, np.int64)
         self._ledger = np.zeros(NL)
-        nodes, weights = np.polynomial.legendre.leggauss(POTENTIAL_QUADRATURE_POINTS)
-        self._quad = np.concatenate([nodes, weights])
+        self._quad = potential_quadrature()
         self.oil, self.pressure, self.spool = np.zeros(n), np.zeros(n), np.zeros(nvalve)
         self.position, self.velocity = np.zeros(na), np.zeros(na)
         self.flow = np.zeros(nb)
