@@ -27,7 +27,8 @@ median is reported:
   them with 1 kHz of bare ``mj_step``.
 
 Prints µs/step, the ratio to bare, the real-time factor (simulated/wall time)
-and the process's peak RSS.  Run: ``.venv/bin/python bench/bench_fast.py``.
+and the process's peak RSS; ``--markdown`` also prints these as README's table
+(one row per scene).  Run: ``.venv/bin/python bench/bench_fast.py [--markdown]``.
 """
 
 from __future__ import annotations
@@ -131,19 +132,49 @@ def bench(name, path, reps, window, python_window=0.2):
     sampled = ", ".join(f"{k} {v / (reps * (steps // b)):.2f}" for k, v in newton.items())
     print(f"{name:10s} {window:4.1f} s  {cells}  peak RSS {peak_rss_mib():.0f} MiB  finish Newton it/step "
           f"(sampled) {sampled}", flush=True)
-    return med
+    return med, peak_rss_mib()
+
+
+# README's table: column heading -> the bench's variant keys in that cell (MuJoCo mode at the runner's block / 1000)
+TABLE_COLUMNS = {
+    "implicit, blocks of 500 / 1000": ("fast/500", "fast/1000"),
+    "implicit-linear, 500 / 1000": ("linear/500", "linear/1000"),
+    "rosenbrock, 500 / 1000": ("rosen/500", "rosen/1000"),
+    "Python-orchestrated plant": ("python",),
+    **{f"PBD {key[4:]}": (key,) for key in PBD_VARIANTS},
+}
+
+
+def markdown_table(results: dict) -> str:
+    """README's table from ``{scene: (medians [µs per 1 ms simulated], peak RSS [MiB])}``: each cell µs, ratio to
+    bare and real-time factor; the bare column µs and RTF; the process's peak RSS after the scene."""
+    us = lambda x: f"{x:.0f}" if x >= 100 else f"{x:.1f}" if x >= 10 else f"{x:.2f}"  # noqa: E731 - µs, ~3 figures
+    ratio = lambda x: f"{x:.0f}" if x >= 10 else f"{x:.2f}"  # noqa: E731
+    head = ["scene", "bare `mj_step`", *TABLE_COLUMNS, "peak RSS"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, (med, rss) in results.items():
+        bare = med["bare"]
+        cells = [name, f"{us(bare)} µs (RTF {DT * 1e6 / bare:.0f})"]
+        for keys in TABLE_COLUMNS.values():
+            cells.append(" / ".join(f"{us(med[k])} µs {ratio(med[k] / bare)}×" for k in keys)
+                         + f" (RTF {DT * 1e6 / med[keys[0]]:.0f})")
+        cells.append(f"{rss:.0f} MiB")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reps", type=int, default=5)
     parser.add_argument("--window", type=float, default=6.0, help="simulated seconds per variant and repetition")
+    parser.add_argument("--markdown", action="store_true", help="also print README's table")
     args = parser.parse_args()
     if args.window < LONGEST_BLOCK * DT:  # every variant must time at least one whole block
         parser.error(f"--window {args.window} s: must be at least {LONGEST_BLOCK * DT:g} s "
                      f"(one block of {LONGEST_BLOCK} steps at {DT * 1e3:g} ms)")
-    for name, path in SCENES.items():
-        bench(name, path, args.reps, args.window)
+    results = {name: bench(name, path, args.reps, args.window) for name, path in SCENES.items()}
+    if args.markdown:
+        print(markdown_table(results))
 
 
 if __name__ == "__main__":
