@@ -55,6 +55,11 @@ SCENES = {
 }
 DT = 1e-3  # s
 LONGEST_BLOCK = 1000  # steps: the long-block variants (fast/1000 etc.) advance this many steps per call
+RUNNER_BLOCK = block_steps(DT)  # steps: the runner's block at 1 kHz
+# MuJoCo mode's variants: (steps per advance, label, coupling)
+MUJOCO_VARIANTS = tuple((block, f"{label}/{block}", coupling)
+                        for label, coupling in (("fast", "implicit"), ("linear", "implicit-linear"), ("rosen", "rosenbrock"))
+                        for block in (RUNNER_BLOCK, LONGEST_BLOCK))
 # PBD mode's rows: label -> scenario overrides
 PBD_VARIANTS = {
     "pbd-θ 1ms×1": dict(mode="pbd", dt=1e-3, pbd_substeps=1, pbd_blend=True),
@@ -88,9 +93,8 @@ def bench(name, path, reps, window, python_window=0.2):
     assert probe.fast
     m = probe.model
     start = bare_start(probe)
-    b = block_steps(DT)  # the runner's block at 1 kHz
-    variants = ((b, f"fast/{b}", "implicit"), (LONGEST_BLOCK, "fast/1000", "implicit"), (b, f"linear/{b}", "implicit-linear"),
-                (LONGEST_BLOCK, "linear/1000", "implicit-linear"), (b, f"rosen/{b}", "rosenbrock"), (LONGEST_BLOCK, "rosen/1000", "rosenbrock"))
+    b = RUNNER_BLOCK
+    variants = MUJOCO_VARIANTS
     times = {"bare": [], **{key: [] for _, key, _ in variants}, "python": [], **{key: [] for key in PBD_VARIANTS}}
     pbd_scenarios = {key: scenario.with_overrides(**overrides) for key, overrides in PBD_VARIANTS.items()}
     for key, pbd_scenario in pbd_scenarios.items():  # kernels loaded before timing
@@ -135,11 +139,11 @@ def bench(name, path, reps, window, python_window=0.2):
     return med, peak_rss_mib()
 
 
-# README's table: column heading -> the bench's variant keys in that cell (MuJoCo mode at the runner's block / 1000)
+# README's table: column heading -> the bench's variant keys in that cell (MuJoCo mode: the runner's block, then the
+# longest)
 TABLE_COLUMNS = {
-    "implicit, blocks of 500 / 1000": ("fast/500", "fast/1000"),
-    "implicit-linear, 500 / 1000": ("linear/500", "linear/1000"),
-    "rosenbrock, 500 / 1000": ("rosen/500", "rosen/1000"),
+    **{f"{coupling}, blocks of {RUNNER_BLOCK} / {LONGEST_BLOCK}": tuple(key for _, key, c in MUJOCO_VARIANTS if c == coupling)
+       for coupling in dict.fromkeys(c for _, _, c in MUJOCO_VARIANTS)},
     "Python-orchestrated plant": ("python",),
     **{f"PBD {key[4:]}": (key,) for key in PBD_VARIANTS},
 }
