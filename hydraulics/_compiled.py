@@ -1273,7 +1273,7 @@ def _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt):
 @_kernel
 def _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, col):
     """−∂r/∂v of the backward-Euler residual r = m⁺ − m − dt·ΣQ(p(m⁺, x + dt·v), v) on the free nodes,
-    dt·((∂Q/∂p)·dt·∂p/∂x + ∂Q/∂v) [kg·s/m ...], into columns ``col`` … ``col + na − 1`` of ``rhs`` (nf rows);
+    dt·((∂Q/∂p)·dt·∂p/∂x + ∂Q/∂v) [m³·s/m or m³·s/rad], into columns ``col`` … ``col + na − 1`` of ``rhs`` (nf rows);
     ``jq``: the node × node flow Jacobian ∂(net inflow)/∂p, ``mg`` (n × na): scratch (the motors' ∂Q/∂v)."""
     net = _deref(pnet)
     ic, free = net.ic, net.free
@@ -1555,7 +1555,7 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt, newt
 @_kernel
 def _take_linearization(S, o, n, na, nvalve):
     """Views of what the coupling's begin keeps for its finish, carved from ``S`` at offset ``o``
-    (na + n + nvalve + n·na entries): velocity guess [m/s or rad/s] (na), predicted oil m_lin [kg] (n),
+    (na + n + nvalve + n·na entries): velocity guess [m/s or rad/s] (na), predicted oil m_lin [m³] (n),
     predicted spools [-] (nvalve), ∂m⁺/∂v (n × na); returns them and the offset after them."""
     guess, o = _take(S, o, na)
     lin_oil, o = _take(S, o, n)
@@ -1677,10 +1677,14 @@ def _linearize_at_start_velocity(newton, pnet, W, oil0, spool0, command, speed, 
     unresolved oscillation: x + dt·v can empty a chamber), again at the held actuators.  Returns whether the
     linearisation is at the held actuators (its first evaluation, ``p_first``, is then at the start oil and
     positions).  Where the guess is not held, Newton starts from ``oil_warm`` (coupling.secant_oil_guess; ``oil0``
-    when there is none), else from ``oil0``; ``istats[IS_SINGULAR]`` tells a singular linearisation."""
+    when there is none), and again from ``oil0`` if that linearisation is not usable; else from ``oil0``;
+    ``istats[IS_SINGULAR]`` tells a singular linearisation."""
     held = _start_velocity_guess(pnet, x0, v, dt, guess)
     _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats, effort,
                    gradient, p_first, doil, oil0 if held else oil_warm)
+    if not held and not _linearization_usable(istats, p, gradient):  # the warm start changes iterations only
+        _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats,
+                       effort, gradient, p_first, doil, oil0)
     if not held and not _linearization_usable(istats, p, gradient):
         for a in range(guess.size):
             guess[a] = 0.0
@@ -1730,8 +1734,16 @@ def _blended_law(blend, end_const, end_slope, pressure_start, friction, damping,
 
 
 @_kernel
+def _secant_oil_guess(oil, oil_change, out):
+    """coupling.secant_oil_guess in the compiled steps' flat form: out = m + Δm [m³] (a zero change, the flat form
+    of "none known", gives the start oil)."""
+    for i in range(oil.size):
+        out[i] = oil[i] + oil_change[i]
+
+
+@_kernel
 def _predicted_oil(lin_oil, doil, guess, v_end, dv, out):
-    """CouplingImplicit.predicted_oil: out = m_lin + (∂m/∂v)·(v⁺ − v_guess) [kg]; ``dv``: scratch (na)."""
+    """CouplingImplicit.predicted_oil: out = m_lin + (∂m/∂v)·(v⁺ − v_guess) [m³]; ``dv``: scratch (na)."""
     na = guess.size
     for a in range(na):
         dv[a] = v_end[a] - guess[a]
@@ -1745,7 +1757,7 @@ def _predicted_oil(lin_oil, doil, guess, v_end, dv, out):
 @_kernel
 def _linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow):
     """CouplingImplicitLinear.finish after the prediction: end pressures p = p(m⁺, x⁺) [Pa] of the predicted oil
-    ``oil`` (m⁺ [kg]) at the end positions ``x``, and the branch flows ``flow`` [m³/s] at the linearisation's
+    ``oil`` (m⁺ [m³]) at the end positions ``x``, and the branch flows ``flow`` [m³/s] at the linearisation's
     spools ``spool``, pump speeds ``speed`` and end velocities ``v`` (no Newton solve).  ``W``: scratch of at least
     (orifices + 2·nodes) entries; ``dflow``: scratch (branches)."""
     net = _deref(pnet)

@@ -192,13 +192,14 @@ def start_velocity_guess(model: NetworkModel, position, velocity, dt: float) -> 
 def secant_oil_guess(state: NetworkState):
     """Where the implicit couplings start a step's linearisation Newton solve [m³]: the secant prediction
     m + (m − m_prev) = ``node_oil + node_oil_change`` (error O(h²) where the oil moves smoothly, against O(h) for
-    the start oil itself), or None (start from the start oil) for a state without a last step."""
+    the start oil itself), or None (start from the start oil) for a state without a last step.  The compiled steps'
+    form: ``_compiled._secant_oil_guess`` on :meth:`NetworkState.flat_oil_change`."""
     return None if state.node_oil_change is None else state.node_oil + state.node_oil_change
 
 
 def _usable(lin) -> bool:
-    """A linearisation whose Newton solve converged to finite pressures and gradients."""
-    return bool(
+    """A linearisation (not None) whose Newton solve converged to finite pressures and gradients."""
+    return lin is not None and bool(
         lin.report.success and np.all(np.isfinite(lin.state.node_pressure)) and np.all(np.isfinite(lin.effort_velocity_gradient))
     )
 
@@ -234,13 +235,10 @@ class CouplingImplicit(Coupling):
         # Newton starts from the secant prediction where the guess moves the actuators (held actuators keep the start
         # oil: the compiled steps take the start pressures from that first evaluation)
         warm = secant_oil_guess(state) if np.any(velocity) else None
-        try:
-            lin = self.predictor.linearize(start, control, velocity, dt, newton=self.newton, oil_guess=warm)
-        except np.linalg.LinAlgError:
-            if not np.any(velocity):
-                raise
-            lin = None
-        if np.any(velocity) and (lin is None or not _usable(lin)):
+        lin = self._linearize_or_none(start, control, velocity, dt, warm)
+        if warm is not None and not _usable(lin):  # the warm start changes iterations only: else from the start oil
+            lin = self._linearize_or_none(start, control, velocity, dt, None)
+        if np.any(velocity) and not _usable(lin):
             # an unresolved oscillation can make the guess useless (e.g. the seed at 1200 Hz reverses ~1900 m/s
             # each step, so x + h·v_guess empties a chamber): linearise at the held actuators instead
             velocity = np.zeros_like(velocity)
@@ -271,6 +269,16 @@ class CouplingImplicit(Coupling):
             + friction - friction_slope * start_velocity
         )
         return EffortLaw(constant, theta * pressure_slope + friction_slope)
+
+    def _linearize_or_none(self, start, control, velocity, dt, oil_guess):
+        """The predictor's linearisation at ``velocity``, or None where it is singular and the actuators move (the
+        caller then linearises at the held actuators); a singular one at the held actuators raises."""
+        try:
+            return self.predictor.linearize(start, control, velocity, dt, newton=self.newton, oil_guess=oil_guess)
+        except np.linalg.LinAlgError:
+            if not np.any(velocity):
+                raise
+            return None
 
     def predicted_oil(self, state, velocity_end, dt):
         """m_lin + (∂m/∂v)·(v⁺ − v_guess) [m³] from the linearisation of this step, or None if there is none."""

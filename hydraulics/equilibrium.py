@@ -76,6 +76,7 @@ def steady_state(model: NetworkModel, control: NetworkControl, state: NetworkSta
         if change < STEADY_TOLERANCE:
             break
     state.time = 0.0
+    state.node_oil_change = None  # an initial state: no last step (the pseudo-time steps and the pins are not one)
     return state
 
 

@@ -187,8 +187,8 @@ class NetworkState:
     time : float
         Simulation time [s].
     node_oil_change : ndarray, shape (node_count,), or None
-        Oil change of the step that ended in this state [m³ at reference density]
-        (None: unknown, e.g. an initial state).  A warm start, like MuJoCo's
+        Oil change of the step that ended in this state [m³ at reference density];
+        NaN for fixed nodes (None: unknown, e.g. an initial state).  A warm start, like MuJoCo's
         ``qacc_warmstart``: the implicit couplings start the next step's Newton
         solve at the secant prediction ``node_oil + node_oil_change``
         (:func:`hydraulics.coupling.secant_oil_guess`), which changes the
@@ -214,6 +214,11 @@ class NetworkState:
             self.time,
             None if self.node_oil_change is None else self.node_oil_change.copy(),
         )
+
+    def flat_oil_change(self):
+        """``node_oil_change`` [m³] as the compiled steps keep it: zeros where none is known (a zero change starts
+        the next Newton solve from the start oil, as None does)."""
+        return 0.0 if self.node_oil_change is None else self.node_oil_change
 
 
 @dataclass

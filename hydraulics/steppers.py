@@ -151,7 +151,7 @@ class Linearization:
     effort_velocity_gradient: np.ndarray  # (actuator_count, actuator_count) [N·s/m ...]
     state: NetworkState  # the predicted end-of-step state at ``velocity``
     report: StepReport
-    # (node_count, actuator_count) [kg·s/m ...]: ∂m⁺/∂v of the backward-Euler step (zero rows for fixed nodes);
+    # (node_count, actuator_count) [m³·s/m or m³·s/rad]: ∂m⁺/∂v of the backward-Euler step (zero rows for fixed nodes);
     # the columns of a closed network sum to zero (the flows' linearisation is conservative)
     oil_velocity_gradient: np.ndarray | None = None
 
@@ -196,7 +196,8 @@ class Stepper:
             ``node_oil_change`` (the next step's warm start).
         report : StepReport
             Status and counters; on failure the returned state is the last good
-            substep's and ``report.message`` says what to change.
+            substep's, keeping ``state``'s ``node_oil_change``, and
+            ``report.message`` says what to change.
         """
         if not dt > 0:
             raise ValueError(f"`dt` must be positive, got {dt!r}")
@@ -215,12 +216,12 @@ class Stepper:
             new, sub_report = self._substep(current, control, sub, h) if guess is None else self._substep(
                 current, control, sub, h, guess)
             report.absorb(sub_report)
-            if not sub_report.success:
-                return current, report
-            if not np.all(np.isfinite(new.node_pressure)):
+            if sub_report.success and not np.all(np.isfinite(new.node_pressure)):
                 bad = self.model.node_names[int(np.flatnonzero(~np.isfinite(new.node_pressure))[0])]
                 report.status = StepStatus.NONFINITE
                 report.message = f"pressure of node '{bad}' is not finite: {StepStatus.NONFINITE.value}"
+            if not report.success:  # the last good substep, with the start's warm start (as the compiled steps keep it)
+                current.node_oil_change = state.node_oil_change
                 return current, report
             current = new
         current.node_oil_change = current.node_oil - state.node_oil

@@ -453,9 +453,7 @@ def _begin(ctx, pnet, V):
     cmd = V.cmd[k]
     speed = V.speed[k]
     oil, spool = V.oil, V.spool
-    oil_change = V.oil_change
-    for i in range(n):  # coupling.secant_oil_guess (a zero oil change: none known, the start oil)
-        oil_warm[i] = oil[i] + oil_change[i]
+    C._secant_oil_guess(oil, V.oil_change, oil_warm)
     # predicted end velocities: the start velocities where their chord is short (coupling.start_velocity_guess),
     # clipped so the cylinders stay inside their stroke; the held actuators where that linearisation is useless
     held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, pnet, W, oil, spool, cmd, speed, xs, vs, dt,
@@ -830,7 +828,7 @@ class MujocoPlantFast(MujocoPlant):
             return report
         state = self.net_state
         self._oil[:] = state.node_oil
-        self._oil_change[:] = 0.0 if state.node_oil_change is None else state.node_oil_change
+        self._oil_change[:] = state.flat_oil_change()
         self._p[:] = state.node_pressure
         self._spool[:] = state.valve_spool
         self._x[:] = state.actuator_position

@@ -124,8 +124,7 @@ def _begin_core(pnet, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const
     lin_x, o = C._take(S, o, na)
     lin_flow, o = C._take(S, o, nb)
     oil_warm, o = C._take(S, o, n)
-    for i in range(n):  # coupling.secant_oil_guess (a zero oil change: none known, the start oil)
-        oil_warm[i] = oil[i] + oil_change[i]
+    C._secant_oil_guess(oil, oil_change, oil_warm)
     effort_end = fg  # overwritten by the guess's friction below
     # linearised at the start velocities where their chord is short (coupling.start_velocity_guess), kept inside the
     # stroke, else at the held actuators
@@ -282,7 +281,7 @@ class FastHydraulics:
         self.spool[:] = state.valve_spool
         self.position[:] = state.actuator_position
         self.velocity[:] = state.actuator_velocity
-        self._oil_change()[:] = 0.0 if state.node_oil_change is None else state.node_oil_change
+        self._oil_change()[:] = state.flat_oil_change()
         self._time = float(state.time)
         self._istats[:] = 0
         self._istats[I_WORST] = -1
