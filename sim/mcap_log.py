@@ -1034,15 +1034,20 @@ class _RecordRows:
         self._slots = tuple(np.array(a, dtype=np.int64) for a in (time_offsets, log_time_offsets, sequence_offsets,
                                                                    float_offsets, float_columns))
 
-    def encode(self, values: np.ndarray, log_times: np.ndarray, first_sequences: Sequence[int]) -> np.ndarray:
+    def encode(self, values: np.ndarray, log_times: np.ndarray, sequences: np.ndarray) -> np.ndarray:
         """Records of every row of ``values`` (float64 samples) at ``log_times`` (int64 [ns]); member i's
-        sequence numbers start at ``first_sequences[i]``. Returns uint8, shape (rows, size)."""
+        record of row r has sequence number ``sequences[r, i]``. Returns uint8, shape (rows, size)."""
         out = np.empty((len(values), self.size), dtype=np.uint8)
         out[:] = self.template  # (numpy's broadcast copy: a byte loop in the compiled pass was half its time)
         bits = np.ascontiguousarray(values, dtype=np.float64).view(np.uint64)
         _fill_records(out, bits, np.asarray(log_times, dtype=np.int64),
-                      np.asarray(first_sequences, dtype=np.int64), *self._slots)
+                      np.ascontiguousarray(sequences, dtype=np.int64), *self._slots)
         return out
+
+
+def _consecutive(first: Sequence[int], rows: int) -> np.ndarray:
+    """Sequence numbers of ``rows`` consecutive samples of members starting at ``first``: shape (rows, members)."""
+    return np.asarray(first, dtype=np.int64)[None, :] + np.arange(rows, dtype=np.int64)[:, None]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1053,7 +1058,7 @@ def _put_le(row, offset, value, size):
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill_records(out, bits, log_times, first_sequences, time_offsets, log_time_offsets, sequence_offsets,
+def _fill_records(out, bits, log_times, sequences, time_offsets, log_time_offsets, sequence_offsets,
                   float_offsets, float_columns):
     """Row r of ``out`` (a copy of the template): sample r's slots filled (timestamps, log times, sequences, float64
     bits).
@@ -1071,7 +1076,7 @@ def _fill_records(out, bits, log_times, first_sequences, time_offsets, log_time_
         for offset in log_time_offsets:
             _put_le(row, offset, t, 8)
         for m in range(sequence_offsets.size):
-            _put_le(row, sequence_offsets[m], np.uint64(first_sequences[m] + r), 4)
+            _put_le(row, sequence_offsets[m], np.uint64(sequences[r, m]), 4)
         sample = bits[r]
         for k in range(float_offsets.size):
             _put_le(row, float_offsets[k], sample[float_columns[k]], 8)
@@ -1095,13 +1100,13 @@ def _message_record(channel_id: int, sequence: int, log_time: int, data: bytes) 
 class _RecordStream:
     """Records of several blocks merged in log-time order, unit (sample) after unit.
 
-    Unit u ends at byte ``unit_ends[u]`` of the stream, at ``unit_times[u]`` [ns]; the bytes
-    are ``segments``, each (first unit, uint8 array of consecutive units). ``messages`` holds
+    Unit u ends at byte ``unit_ends[u]`` of ``data`` (uint8, the units one after the other), at
+    ``unit_times[u]`` [ns]. ``messages`` holds
     per block the units of its rows (ascending), its channel ids and, for row r and member j,
     the stream offset of that message: ``(units (n,), channel_ids (m,), offsets (n, m))``.
     """
 
-    segments: list[tuple[int, np.ndarray]]
+    data: np.ndarray
     unit_ends: np.ndarray
     unit_times: np.ndarray
     messages: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -1109,12 +1114,7 @@ class _RecordStream:
     def write_bytes(self, start_unit: int, stop_unit: int, out: Any) -> None:
         """Write the bytes of units ``start_unit`` to ``stop_unit - 1`` to ``out`` (a binary stream)."""
         first = int(self.unit_ends[start_unit - 1]) if start_unit else 0
-        last = int(self.unit_ends[stop_unit - 1])
-        for k, (unit, data) in enumerate(self.segments):
-            begin = int(self.unit_ends[unit - 1]) if unit else 0
-            end = begin + data.size
-            if end > first and begin < last:
-                out.write(data[max(first, begin) - begin:min(last, end) - begin].data)
+        out.write(self.data[first:int(self.unit_ends[stop_unit - 1])].data)
 
 
 def _merge_blocks(blocks: Sequence[_RecordBlock]) -> _RecordStream:
@@ -1122,7 +1122,7 @@ def _merge_blocks(blocks: Sequence[_RecordBlock]) -> _RecordStream:
     counts = [len(b.log_times) for b in blocks]
     if len(blocks) == 1:  # (the usual drain: one frame's samples) already in order
         rows = blocks[0].rows
-        segments, unit_times = [(0, rows.reshape(-1))], blocks[0].log_times
+        data, unit_times = rows.reshape(-1), blocks[0].log_times
         unit_ends = np.arange(1, counts[0] + 1, dtype=np.int64) * rows.shape[1]
         positions = [np.arange(counts[0], dtype=np.int64)]
     else:
@@ -1134,8 +1134,12 @@ def _merge_blocks(blocks: Sequence[_RecordBlock]) -> _RecordStream:
         block_sorted, row_sorted = block_of[perm], row[perm]
         breaks = np.flatnonzero((np.diff(block_sorted) != 0) | (np.diff(row_sorted) != 1)) + 1
         runs = zip(np.concatenate(([0], breaks)).tolist(), np.concatenate((breaks, [len(perm)])).tolist())
-        segments = [(s, blocks[int(block_sorted[s])].rows[row_sorted[s]:row_sorted[e - 1] + 1].reshape(-1))
-                    for s, e in runs]
+        rows_of, first_row = [b.rows for b in blocks], row_sorted.tolist()
+        block_list = block_sorted.tolist()
+        pieces = [rows_of[block_list[s]][first_row[s]:first_row[e - 1] + 1].reshape(-1) for s, e in runs]
+        # one contiguous copy (interleaved blocks, e.g. a frame's /tf every 10th sample, make a run per sample: one
+        # memcpy is cheaper than a write per run)
+        data = np.concatenate(pieces) if len(pieces) > 1 else pieces[0]
         unit_ends = np.cumsum(np.array([b.rows.shape[1] for b in blocks], dtype=np.int64)[block_sorted])
         unit_times = times[perm]
         position_of = np.empty(len(perm), dtype=np.int64)
@@ -1143,7 +1147,7 @@ def _merge_blocks(blocks: Sequence[_RecordBlock]) -> _RecordStream:
         positions = np.split(position_of, np.cumsum(counts)[:-1])
     messages = [(where, b.channel_ids, (unit_ends[where] - b.rows.shape[1])[:, None] + b.offsets[None, :])
                 for b, where in zip(blocks, positions)]
-    return _RecordStream(segments, unit_ends, unit_times, messages)
+    return _RecordStream(data, unit_ends, unit_times, messages)
 
 
 class _MessageIndexArrays(_McapMessageIndex):
@@ -1530,7 +1534,7 @@ class Channel:
         log_times = _step_log_times(self._steps[:n], self._writer.dt)
         if self._records is None:
             self._records = _RecordRows([(self._channel_id, self._template, slice(0, self.column_count))])
-        rows = self._records.encode(self._values[:n], log_times, [self._sequence + 1])
+        rows = self._records.encode(self._values[:n], log_times, _consecutive([self._sequence + 1], n))
         self._sequence += n
         self._encoded.append(_RecordBlock(log_times, rows, self._records.channel_ids, self._records.offsets, self._order,
                                           self._writer._next_serial()))
@@ -1580,6 +1584,11 @@ class JointStatesChannel(Channel):
         self.commit()
 
 
+def _check_every(topic: str, every: Any) -> None:
+    if isinstance(every, bool) or not isinstance(every, (int, np.integer)) or every < 1:
+        raise ValueError(f"{topic}: `every` must be an integer >= 1 (steps), got {every!r}")
+
+
 class Frame:
     """One row of floats per sample that feeds several columnar channels; create it with :meth:`LogWriter.frame`.
 
@@ -1588,7 +1597,10 @@ class Frame:
     the frame columns its fields come from (:meth:`channel`, :meth:`joint_states_channel`);
     in the log they are ordinary channels, encoded from the frame's rows in the same
     batches.  Columns no channel reads, and columns never written, cost nothing; the rows
-    start as NaN, so a column that is never written is logged as NaN.
+    start as NaN, so a column that is never written is logged as NaN.  A channel joined
+    with ``every=k`` takes only the rows whose step index is a multiple of ``k`` (e.g.
+    Foxglove's ``/tf`` at a display rate while the data topics take every sample); a row
+    is still committed whole, so an interrupt never splits a sample.
 
     Attributes
     ----------
@@ -1606,8 +1618,8 @@ class Frame:
         self._steps = np.empty(capacity, dtype=np.int64)
         self._count = 0
         self._last_step = -1
-        self._members: list[tuple[Channel, np.ndarray | slice]] = []
-        self._records: _RecordRows | None = None  # the members' records of one sample, built at the first encode
+        self._members: list[tuple[Channel, np.ndarray | slice, int]] = []  # (channel, columns, every)
+        self._records: dict[int, _RecordRows] = {}  # per `every`, its members' records of one sample
         self._encoded: list[_RecordBlock] = []
 
     def _columns(self, columns: Sequence[int] | np.ndarray, count: int, topic: str) -> np.ndarray:
@@ -1620,34 +1632,39 @@ class Frame:
 
     def channel(self, topic: str, msg_type: MsgType, *, columns: Sequence[int] | np.ndarray,
                 fields: Sequence[str] | None = None, layout: Mapping[str, Any] | None = None,
-                metadata: Mapping[str, str] | None = None) -> Channel:
-        """Register a CDR channel (as :meth:`LogWriter.cdr_channel`) whose column i is frame column ``columns[i]``."""
+                metadata: Mapping[str, str] | None = None, every: int = 1) -> Channel:
+        """Register a CDR channel (as :meth:`LogWriter.cdr_channel`) whose column i is frame column ``columns[i]``,
+        fed the rows at step indexes that are multiples of ``every``."""
+        _check_every(topic, every)
         channel = self._writer.cdr_channel(topic, msg_type, fields=fields, layout=layout, metadata=metadata)
-        self._adopt(channel, columns)
+        self._adopt(channel, columns, every)
         return channel
 
     def joint_states_channel(self, topic: str, joint_names: Sequence[str], *, columns: Sequence[int] | np.ndarray,
-                             metadata: Mapping[str, str] | None = None) -> JointStatesChannel:
+                             metadata: Mapping[str, str] | None = None, every: int = 1) -> JointStatesChannel:
         """A ``foxglove_msgs/msg/JointStates`` channel (as :meth:`LogWriter.joint_states_channel`) from frame ``columns``:
-        positions, then velocities, then efforts (3 × joint count)."""
+        positions, then velocities, then efforts (3 × joint count); ``every`` as in :meth:`channel`."""
+        _check_every(topic, every)
         channel = self._writer.joint_states_channel(topic, joint_names, metadata=metadata)
-        self._adopt(channel, columns)
+        self._adopt(channel, columns, every)
         return channel
 
-    def adopt(self, channel: Channel, columns: Sequence[int] | np.ndarray) -> None:
-        """Make an existing columnar channel of this writer (with no samples yet) take its samples from ``columns``."""
+    def adopt(self, channel: Channel, columns: Sequence[int] | np.ndarray, *, every: int = 1) -> None:
+        """Make an existing columnar channel of this writer (with no samples yet) take its samples from ``columns``,
+        at the rows whose step index is a multiple of ``every`` (≥ 1)."""
         if channel._writer is not self._writer or channel._template is None or channel._count or channel._encoded:
             raise ValueError(f"{channel.topic}: only an empty columnar channel of the same log can join a frame")
-        self._adopt(channel, columns)
+        _check_every(channel.topic, every)
+        self._adopt(channel, columns, every)
 
-    def _adopt(self, channel: Channel, columns: Sequence[int] | np.ndarray) -> None:
+    def _adopt(self, channel: Channel, columns: Sequence[int] | np.ndarray, every: int) -> None:
         channel._frame = self
         channel._capacity = 0  # its own append() now always reaches _prepare(), which refuses
         columns = self._columns(columns, channel.column_count, channel.topic)
         if self._count:
             self._encode()  # rows buffered so far belong to the members they were buffered for
-        self._members.append((channel, _as_slice(columns)))
-        self._records = None
+        self._members.append((channel, _as_slice(columns), int(every)))
+        self._records = {}
 
     def append(self, step_index: int, values: Sequence[float] | np.ndarray) -> None:
         """Buffer one row (``column_count`` floats, SI units) for step ``step_index`` (non-decreasing)."""
@@ -1715,22 +1732,31 @@ class Frame:
                 i = j
 
     def _encode(self) -> None:
-        """Encode the buffered rows into one block of records: per row, one message of every member."""
+        """Encode the buffered rows into record blocks, one per ``every`` of the members: its members' messages
+        of the rows at multiples of it (each channel in one block, its messages in log-time order)."""
         n = self._count
         if n == 0 or not self._members:
             self._count = 0
             return
-        if self._records is None:
-            self._records = _RecordRows([(c._channel_id, c._template, columns) for c, columns in self._members])
         steps = self._steps[:n]
         log_times = _step_log_times(steps, self._writer.dt)
-        rows = self._records.encode(self._values[:n], log_times, [c._sequence + 1 for c, _ in self._members])
-        last = int(steps[-1])
-        for channel, _ in self._members:
-            channel._sequence += n
-            channel._last_step = last
-        self._encoded.append(_RecordBlock(log_times, rows, self._records.channel_ids, self._records.offsets,
-                                          min(c._order for c, _ in self._members), self._writer._next_serial()))
+        for every in sorted({k for _, _, k in self._members}):
+            members = [(c, columns) for c, columns, k in self._members if k == every]
+            rows = slice(None) if every == 1 else np.flatnonzero(steps % every == 0)
+            times = log_times[rows]
+            if len(times) == 0:
+                continue
+            records = self._records.get(every)
+            if records is None:
+                records = self._records[every] = _RecordRows([(c._channel_id, c._template, columns) for c, columns in members])
+            encoded = records.encode(self._values[:n][rows], times, _consecutive([c._sequence + 1 for c, _ in members],
+                                                                                 len(times)))
+            last = int(steps[rows][-1])
+            for channel, _ in members:
+                channel._sequence += len(times)
+                channel._last_step = last
+            self._encoded.append(_RecordBlock(times, encoded, records.channel_ids, records.offsets,
+                                              min(c._order for c, _ in members), self._writer._next_serial()))
         self._count = 0
 
     def _take_encoded(self) -> list[_RecordBlock]:

@@ -16,7 +16,9 @@ scene are JSON:
 ``/hydroplant/flows``              ``hydroplant_msgs/msg/BranchFlows``: ``flow_m3ps.<branch>`` of every branch
 ``/hydroplant/energy``             ``hydroplant_msgs/msg/Energy``: energy terms and the balance residual
 ``/hydroplant/solver``             ``hydroplant_msgs/msg/Solver``: Newton iterations, residual, coupling θ
-``/tf``                            ``foxglove_msgs/msg/FrameTransforms``: body poses for Foxglove's 3D panel
+``/tf``                            ``foxglove_msgs/msg/FrameTransforms``: body poses for Foxglove's 3D panel, at the
+                                   samples whose step is a multiple of ``tf_every`` (a display rate, see
+                                   :attr:`sim.scenario.Scenario.tf_every`); the joints they follow are on every sample
 ``/hydroplant/scene``              ``foxglove.SceneUpdate`` (JSON): the bodies' geometry, once
 ``/hydroplant/events``             ``foxglove.Log`` (JSON): divergence and other events
 
@@ -127,9 +129,12 @@ class RunRecorder:
     Values equal the per-sample ones to round-off.  Pending samples are
     pushed when the log closes (:meth:`LogWriter.on_close`), so an interrupted
     run keeps every sample it captured.
+
+    ``tf_every`` [steps, ≥ 1]: ``/tf`` is written for the samples whose step index is a
+    multiple of it (1: every sample); every other topic takes every sample.
     """
 
-    def __init__(self, log: LogWriter, plant, *, ring_size: int | None = None):
+    def __init__(self, log: LogWriter, plant, *, ring_size: int | None = None, tf_every: int = 1):
         self.log = log
         self.plant = plant
         net = plant.network
@@ -138,7 +143,8 @@ class RunRecorder:
         node_fields = _named_fields("pressure_pa", net.node_names, "Absolute pressure of node {} [Pa]")
         flow_fields = _named_fields("flow_m3ps", net.branch_names, "Flow of branch {}, positive from its first port [m^3/s]")
         # One frame row per sample holds every columnar topic, /tf included (its channel reads xpos.ravel() then
-        # xquat.ravel(), see FrameTransformsChannel): one commit per sample, so an interrupt never splits a sample.
+        # xquat.ravel(), see FrameTransformsChannel, on the rows at multiples of tf_every): one commit per sample,
+        # so an interrupt never splits a sample.
         nj, ncyl, nmot = len(plant.joint_names), len(net.cylinder_actuator), len(net.motor_actuator)
         nvalve, npump, nnode, nflow = len(net.valve_names), len(net.pump_names), len(node_fields), len(flow_fields)
         nbody = plant.model.nbody
@@ -189,7 +195,7 @@ class RunRecorder:
                                     columns=columns("solver", 0, len(SOLVER_FIELDS)), metadata=si)
         self.events = log.channel("/hydroplant/events", "foxglove.Log", log_schema())
         self.tf = FrameTransformsChannel(log, plant.model)
-        frame.adopt(self.tf.channel, np.arange(block["xpos"].start, block["xquat"].stop))
+        frame.adopt(self.tf.channel, np.arange(block["xpos"].start, block["xquat"].stop), every=tf_every)
         log_scene(log, plant.model)
         # index arrays of the samples (one numpy gather per topic family, no per-field Python)
         self._cyl = np.asarray(net.cylinder_actuator, dtype=np.intp)

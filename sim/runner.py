@@ -255,6 +255,7 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
         "fidelity": scenario.fidelity_label,  # the level, with per-actuator overrides
         "compiled": str(scenario.compiled),
         "log_rate_hz": repr(scenario.log_rate_hz),
+        "tf_rate_hz": repr(scenario.tf_rate_hz),
         "hydroplant_version": version(),
         "mujoco_version": mujoco.__version__,
         "numpy_version": np.__version__,
@@ -292,7 +293,7 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     ]
     net = plant.network
     with LogWriter(log_path, dt=scenario.dt, run_metadata=run_metadata(scenario, plant), attachments=attachments, overwrite=overwrite) as log:
-        recorder = RunRecorder(log, plant)
+        recorder = RunRecorder(log, plant, tf_every=scenario.tf_every)
         for text in guard.warnings:
             recorder.event(0, LogLevel.WARNING, "stability guard: " + text)
         loop = _Loop(plant, recorder, log, scenario, progress)

@@ -96,6 +96,7 @@ class Scenario:
     pressures: dict = field(default_factory=dict)
     inputs: dict = field(default_factory=dict)
     log_rate_hz: float = 100.0
+    tf_rate_hz: float = 100.0  # [log] tf_rate_hz: /tf (Foxglove's 3D view) at most this often [Hz]
     log_dir: Path | None = None
 
     @property
@@ -123,6 +124,13 @@ class Scenario:
     def log_every(self) -> int:
         """Physics steps between logged samples (≥ 1)."""
         return max(1, int(round(1.0 / (self.log_rate_hz * self.dt))))
+
+    @property
+    def tf_every(self) -> int:
+        """Physics steps between ``/tf`` samples: the multiple of :attr:`log_every` nearest to one period of
+        ``tf_rate_hz``, at least ``log_every`` (``/tf`` is a view of the joints, which take every sample; a 3D
+        panel redraws at ≈ 60 Hz, so ``/tf`` at 1 kHz would be a quarter of an every-step log's bytes for nothing)."""
+        return self.log_every * max(1, int(round(1.0 / (self.tf_rate_hz * self.dt * self.log_every))))
 
     def with_overrides(self, **changes) -> "Scenario":
         """A copy with some run settings replaced (None values are ignored) and re-validated."""
@@ -244,6 +252,8 @@ def _validate_run(s: Scenario, where):
             _error(where, f"field 'fidelity.{name}': {level!r} is not one of {list(FIDELITIES)}")
     if not (math.isfinite(s.log_rate_hz) and s.log_rate_hz > 0):
         _error(where, f"field 'log.rate_hz': {s.log_rate_hz!r} is not in (0, inf) Hz")
+    if not (math.isfinite(s.tf_rate_hz) and s.tf_rate_hz > 0):
+        _error(where, f"field 'log.tf_rate_hz': {s.tf_rate_hz!r} is not in (0, inf) Hz")
 
 
 def as_scenario(scenario, *, duration: float | None = None) -> Scenario:
@@ -285,7 +295,7 @@ def load_scenario(path) -> Scenario:
         "run": {"mode", "coupling", "stepper", "dt", "duration", "hydraulic_substeps", "pbd_substeps", "pbd_iterations",
                 "pbd_blend", "fidelity", "compiled"},
         "initial": {"qpos", "qvel", "equilibrium", "base_pressure", "pressures"},
-        "log": {"rate_hz"},
+        "log": {"rate_hz", "tf_rate_hz"},
     }
     for name, table in (("scene", scene), ("run", run), ("initial", initial), ("log", log)):
         unknown = sorted(set(table) - allowed_keys[name])
@@ -356,6 +366,7 @@ def load_scenario(path) -> Scenario:
         pressures={k: float(v) for k, v in pressures.items()},
         inputs=inputs,
         log_rate_hz=_number(log, "rate_hz", f"{where}, [log]", low=0.0, high=1e7, default=100.0),
+        tf_rate_hz=_number(log, "tf_rate_hz", f"{where}, [log]", low=0.0, high=1e7, default=100.0),
     )
     _validate_run(scenario, where)
     return scenario

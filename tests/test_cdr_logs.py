@@ -3,6 +3,7 @@ message of real run logs to exactly (bit for bit) the values ``read_log`` return
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pytest
 from mcap.reader import make_reader
@@ -110,7 +111,47 @@ def test_independent_decoder_reads_the_values_read_log_returns(excavator_log):
     joints = log.topic("/hydroplant/joint_states")
     assert np.isnan(joints["effort/boom"]).all() and np.isfinite(joints["position/boom"]).all()
     np.testing.assert_array_equal(log.topic("/hydroplant/cylinders/boom_cyl").log_time, np.arange(401) * 1_000_000)
-    assert log.topic("/tf").text("parent_frame_id/boom") == ["world"] * 401
+    tf = log.topic("/tf")  # at the scenario's tf_rate_hz (100 Hz): every 10th sample, step 0 first
+    np.testing.assert_array_equal(tf.log_time, np.arange(0, 401, 10) * 1_000_000)
+    assert tf.text("parent_frame_id/boom") == ["world"] * 41
+
+
+@pytest.mark.parametrize("tf_rate_hz, stride", [(100.0, 10), (1000.0, 1), (30.0, 33)])
+def test_tf_at_its_rate_holds_the_poses_of_the_joints_logged_at_the_same_time(tmp_path, tf_rate_hz, stride):
+    """/tf is a view of the joints: at each of its log times (every ``stride``-th step of a run logged every step),
+    the body poses MuJoCo's kinematics gives for the joint positions logged at that time (the decimated rows
+    are the right rows, and the joints and the hydraulics stay on every sample)."""
+    scenario = MODELS / "boom" / "lift.scenario.toml"
+    result = run(scenario, out=tmp_path / "lift.mcap",
+                 overrides={"duration": 1.6, "log_rate_hz": 1000.0, "tf_rate_hz": tf_rate_hz})
+    assert result.status == "complete"
+    log = read_log(result.log_path)
+    joints, tf = log.topic("/hydroplant/joint_states"), log.topic("/tf")
+    assert len(log.topic("/hydroplant/cylinders/boom_cyl").log_time) == len(joints.log_time) == 1601
+    np.testing.assert_array_equal(tf.log_time, np.arange(0, 1601, stride) * 1_000_000)
+    check_message_indexes(result.log_path)
+    with open(result.log_path, "rb") as stream:  # in file order: each channel's own count, in log-time order
+        sequences = {}
+        for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+            sequences.setdefault(channel.topic, []).append(message.sequence)
+    assert sequences["/tf"] == list(range(1, len(tf.log_time) + 1))
+    assert sequences["/hydroplant/cylinders/boom_cyl"] == list(range(1, 1602))
+    model = mujoco.MjModel.from_xml_path(str(MODELS / "boom" / "boom.xml"))
+    data = mujoco.MjData(model)
+    rows = np.searchsorted(joints.log_time, tf.log_time)
+    start = None
+    for k, row in enumerate(rows):
+        for j in range(model.njnt):
+            data.qpos[model.jnt_qposadr[j]] = joints[f"position/{model.joint(j).name}"][row]
+        mujoco.mj_kinematics(model, data)
+        for body in range(1, model.nbody):
+            name = model.body(body).name
+            logged = [tf[f"translation.{axis}/{name}"][k] for axis in "xyz"]
+            np.testing.assert_allclose(logged, data.xpos[body], rtol=0, atol=1e-12)
+            quat = [tf[f"rotation.{axis}/{name}"][k] for axis in "wxyz"]
+            assert abs(abs(np.dot(quat, data.xquat[body])) - 1.0) < 1e-12
+        start = data.xpos.copy() if start is None else start
+    assert np.abs(data.xpos - start).max() > 1e-2  # the boom rose: moving poses were compared, not one frozen pose
 
 
 def test_merged_and_recovered_logs_decode_identically(excavator_log, tmp_path):

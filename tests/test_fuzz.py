@@ -119,6 +119,8 @@ def test_wrong_type_in_circuit(tmp_path, capsys, old, new, field, allowed):
     ("dt = 0.0008333333333333334", 'dt = "fast"', "dt", "expected a number"),
     ("equilibrium = false", 'equilibrium = "no"', "initial.equilibrium", "true or false"),
     ("rate_hz = 1200", "rate_hz = [1200]", "rate_hz", "expected a number"),
+    ("rate_hz = 1200", "rate_hz = 1200\ntf_rate_hz = 0", "[log]: field 'tf_rate_hz'", "(0.0, 10000000.0]"),
+    ("rate_hz = 1200", 'rate_hz = 1200\ntf_rate_hz = "60"', "[log]: field 'tf_rate_hz'", "expected a number"),
 ])
 def test_wrong_type_in_scenario(tmp_path, capsys, old, new, field, allowed):
     err = one_edit_error(tmp_path, capsys, "seed_cylinder", "closed.scenario.toml", old, new)

@@ -654,6 +654,57 @@ def test_frame_extend_writes_what_row_appends_write(tmp_path):
             frame.extend([6], np.zeros((1, 2)))
 
 
+def test_frame_channels_at_their_own_every_log_what_separate_channels_log(tmp_path):
+    """Frame channels fed every k-th step (``every``, as /tf at a display rate) write the messages, sequence numbers
+    and message indexes that separate channels appending at those steps write, across batch, chunk and periodic-flush
+    boundaries and with steps that skip; ``every`` must be an integer >= 1."""
+    steps = np.concatenate([np.arange(0, 900), np.arange(905, 1400, 2)])  # a gap, then every other step
+    rng = np.random.default_rng(17)
+    rows = rng.standard_normal((len(steps), 3)) * 1e4
+    fields = {"x": "x [m]"}
+    every = {"/a": 1, "/b": 3, "/c": 7}
+
+    def write(path, framed):
+        with LogWriter(path, dt=1e-3, chunk_size=4000, batch_size=130, flush_interval=0.35) as log:
+            if framed:
+                frame = log.frame(3)
+                for column, (topic, k) in enumerate(every.items()):
+                    frame.channel(topic, flat_schema("t_msgs/msg/A", fields), fields=["x"], columns=[column], every=k)
+                frame.extend(steps[:500], rows[:500])
+                for step, row in zip(steps[500:700], rows[500:700]):
+                    frame.append(int(step), row)
+                frame.extend(steps[700:], rows[700:])
+            else:
+                channels = {topic: log.cdr_channel(topic, flat_schema("t_msgs/msg/A", fields), fields=["x"])
+                            for topic in every}
+                for step, row in zip(steps, rows):
+                    for column, (topic, k) in enumerate(every.items()):
+                        if step % k == 0:
+                            channels[topic].append(int(step), row[[column]])
+        return path
+
+    framed, separate = write(tmp_path / "frame.mcap", True), write(tmp_path / "separate.mcap", False)
+    expected = {topic: int(np.sum(steps % k == 0)) for topic, k in every.items()}
+    assert check_mcap(framed) == check_mcap(separate) == expected
+    check_message_indexes(framed)
+    la, lb = read_log(framed), read_log(separate)
+    for column, (topic, k) in enumerate(every.items()):
+        assert la.topic(topic).messages == lb.topic(topic).messages
+        np.testing.assert_array_equal(la.topic(topic).log_time, steps[steps % k == 0] * 1_000_000)
+        np.testing.assert_array_equal(la.topic(topic)["x"], rows[steps % k == 0, column])
+    for path in (framed, separate):
+        with open(path, "rb") as stream:
+            sequences: dict[str, list[int]] = {}
+            for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
+                sequences.setdefault(channel.topic, []).append(message.sequence)
+        assert sequences == {topic: list(range(1, n + 1)) for topic, n in expected.items()}
+    with LogWriter(tmp_path / "bad.mcap", dt=1e-3) as log:
+        frame = log.frame(1)
+        for bad in (0, -2, 1.5, True):
+            with pytest.raises(ValueError, match="`every` must be an integer >= 1"):
+                frame.channel(f"/bad{bad}", flat_schema("t_msgs/msg/A", fields), fields=["x"], columns=[0], every=bad)
+
+
 def test_small_chunks_split_merged_batches_anywhere(tmp_path):
     """Batches of several channels (their own buffers, a frame, irregular messages at the same steps) merged in
     log-time order and cut into chunks of a few records: every value and index entry in place, global order kept."""
