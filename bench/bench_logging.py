@@ -129,7 +129,7 @@ def with_log(seconds: float, rate_hz: float, out: Path, fast: bool = True) -> tu
 
 
 def sample_parts(samples: int, out: Path) -> dict:
-    """µs per sample of the recorder's stages, on a plant at the dig's start.
+    """µs per sample of the recorder's stages, on a plant at the dig's start, logging every step.
 
     capture (raw state into the ring, per sample), derive (the logged fields of a
     whole ring, vectorised, per sample), push (rows into the log's frame), encode
@@ -146,7 +146,8 @@ def sample_parts(samples: int, out: Path) -> dict:
     plant = make_plant(load_scene(scenario))
     plant.advance(10)
     with LogWriter(out, dt=scenario.dt, overwrite=True, flush_interval=float("inf"), batch_size=samples + 1) as log:
-        recorder = RunRecorder(log, plant)
+        # consecutive steps, as run() logs every step: /tf on the steps at multiples of the scenario's tf_every
+        recorder = RunRecorder(log, plant, tf_every=scenario.with_overrides(log_rate_hz=1.0 / scenario.dt).tf_every)
         first = plant.step_index
         capture = derive = push = 0.0
         for i in range(samples):
@@ -249,7 +250,7 @@ def main() -> None:
                          f"{'met' if quartiles[1] <= targets[name] else 'NOT met'})")
             print(line, flush=True)
         parts = sample_parts(2000, out / "parts.mcap")
-        print(f"  one sample: {parts['messages']:.0f} messages, {parts['bytes']:.0f} B of Message records (CDR); capture {parts['capture']:.1f} µs "
+        print(f"  one sample (every step): {parts['messages']:.1f} messages, {parts['bytes']:.0f} B of Message records (CDR); capture {parts['capture']:.1f} µs "
               f"(of which mechanical energy {parts['mechanics']:.1f} µs) at a block's end, or record {parts['record']:.2f} µs "
               f"inside a block (median difference, noisy), derive {parts['derive']:.1f} µs and push "
               f"{parts['push']:.1f} µs (per sample, in batches of {parts['ring']}), encode {parts['encode']:.1f} µs, "

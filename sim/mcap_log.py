@@ -1619,7 +1619,7 @@ class Frame:
         self._count = 0
         self._last_step = -1
         self._members: list[tuple[Channel, np.ndarray | slice, int]] = []  # (channel, columns, every)
-        self._records: dict[int, _RecordRows] = {}  # per `every`, its members' records of one sample
+        self._records: dict[tuple[int, ...], _RecordRows] = {}  # per set of members fed together, their records
         self._encoded: list[_RecordBlock] = []
 
     def _columns(self, columns: Sequence[int] | np.ndarray, count: int, topic: str) -> np.ndarray:
@@ -1732,23 +1732,32 @@ class Frame:
                 i = j
 
     def _encode(self) -> None:
-        """Encode the buffered rows into record blocks, one per ``every`` of the members: its members' messages
-        of the rows at multiples of it (each channel in one block, its messages in log-time order)."""
+        """Encode the buffered rows into record blocks: one of the members fed by every buffered row (those with
+        ``every`` 1 or dividing every row's step, as /tf at the log rate) and one per other ``every``, of its
+        members' messages at the rows at multiples of it; each channel is in one block, in log-time order."""
         n = self._count
         if n == 0 or not self._members:
             self._count = 0
             return
         steps = self._steps[:n]
         log_times = _step_log_times(steps, self._writer.dt)
+        every_row: list[int] = []
+        groups: list[tuple[tuple[int, ...], Any]] = []
         for every in sorted({k for _, _, k in self._members}):
-            members = [(c, columns) for c, columns, k in self._members if k == every]
-            rows = slice(None) if every == 1 else np.flatnonzero(steps % every == 0)
-            times = log_times[rows]
-            if len(times) == 0:
-                continue
-            records = self._records.get(every)
+            fed = [m for m, (_, _, k) in enumerate(self._members) if k == every]
+            rows = np.flatnonzero(steps % every == 0) if every > 1 else None
+            if rows is None or len(rows) == n:
+                every_row += fed
+            elif len(rows):
+                groups.append((tuple(fed), rows))
+        if every_row:
+            groups.insert(0, (tuple(sorted(every_row)), slice(None)))
+        for group, rows in groups:
+            members = [self._members[m][:2] for m in group]
+            records = self._records.get(group)
             if records is None:
-                records = self._records[every] = _RecordRows([(c._channel_id, c._template, columns) for c, columns in members])
+                records = self._records[group] = _RecordRows([(c._channel_id, c._template, columns) for c, columns in members])
+            times = log_times[rows]
             encoded = records.encode(self._values[:n][rows], times, _consecutive([c._sequence + 1 for c, _ in members],
                                                                                  len(times)))
             last = int(steps[rows][-1])

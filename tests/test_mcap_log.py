@@ -698,6 +698,16 @@ def test_frame_channels_at_their_own_every_log_what_separate_channels_log(tmp_pa
             for _, channel, message in make_reader(stream).iter_messages(log_time_order=False):
                 sequences.setdefault(channel.topic, []).append(message.sequence)
         assert sequences == {topic: list(range(1, n + 1)) for topic, n in expected.items()}
+
+    def on_a_grid(path, every_b):  # rows every 10 steps: a channel at every=10 is fed by every row
+        with LogWriter(path, dt=1e-3, chunk_size=4000, batch_size=130, flush_interval=0.35) as log:
+            frame = log.frame(3)
+            frame.channel("/a", flat_schema("t_msgs/msg/A", fields), fields=["x"], columns=[0])
+            frame.channel("/b", flat_schema("t_msgs/msg/A", fields), fields=["x"], columns=[1], every=every_b)
+            frame.extend(np.arange(0, 5000, 10), rows[:500])
+        return path.read_bytes()
+
+    assert on_a_grid(tmp_path / "grid10.mcap", 10) == on_a_grid(tmp_path / "grid1.mcap", 1)
     with LogWriter(tmp_path / "bad.mcap", dt=1e-3) as log:
         frame = log.frame(1)
         for bad in (0, -2, 1.5, True):
