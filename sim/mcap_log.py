@@ -24,7 +24,7 @@ its slots (sequences, log times, timestamps, float64 fields) filled row by row i
 compiled pass (:class:`_RecordRows`, numba). Batches of all channels are merged in log-time
 order, sample by sample, and handed whole to the chunks of :class:`mcap.writer.Writer`
 (:meth:`_BulkWriter.add_records`), so every file is globally ordered by ``log_time``. Chunks
-are compressed with zstd at level -1 (:attr:`_BulkWriter.ZSTD_LEVEL`).
+are compressed with zstd at level -2 (:attr:`_BulkWriter.ZSTD_LEVEL`).
 
 :func:`read_log` reads both kinds back as numpy columns with the field names of the
 messages (``"p_cap_pa"``, ``"pressure_pa.supply"``, ``"position/<joint>"``,
@@ -1175,11 +1175,11 @@ class _BulkWriter(Writer):
     the bulk path falls back to ``add_message`` per message.
     """
 
-    # zstd's fast level -1, measured on the chunks of 20 s dig logs (every step: 512 KiB chunks; at
-    # 100 Hz: 200 kB, one per periodic flush): 690 / 590 MB/s at a ratio of 3.62 / 2.94, level 1's
-    # ratio (3.67 / 2.95) at 1.3x its speed; -3 is 810 / 860 MB/s at 3.25 / 2.78 (files 11 % / 6 %
-    # bigger), -5 910 / 1030 MB/s at 2.75 / 2.47, lz4 950 / 940 MB/s at 2.84 / 2.36
-    ZSTD_LEVEL = -1
+    # zstd's fast level -2, measured on the 512 KiB chunks of a 20 s dig logged every step with /tf at
+    # 100 Hz (session 14): 957 MB/s at a ratio of 2.75 against level -1's 778 MB/s at 2.84 and level 1's
+    # 591 MB/s at 2.89; -3 998 MB/s at 2.71, -5 1149 MB/s at 2.40, lz4 1160 MB/s at 2.33. Whole 20 s
+    # logs, every step / 100 Hz: 17.00 / 2.13 MB at -2, 16.68 / 2.08 MB at -1 (2 % for 23 % less time)
+    ZSTD_LEVEL = -2
 
     def _Writer__finalize_chunk(self) -> None:  # noqa: N802 - overrides the base class's private method
         """The base class's chunk finalisation, with a reused zstd compressor at :attr:`ZSTD_LEVEL`."""
