@@ -1034,20 +1034,15 @@ class _RecordRows:
         self._slots = tuple(np.array(a, dtype=np.int64) for a in (time_offsets, log_time_offsets, sequence_offsets,
                                                                    float_offsets, float_columns))
 
-    def encode(self, values: np.ndarray, log_times: np.ndarray, sequences: np.ndarray) -> np.ndarray:
+    def encode(self, values: np.ndarray, log_times: np.ndarray, first_sequences: Sequence[int]) -> np.ndarray:
         """Records of every row of ``values`` (float64 samples) at ``log_times`` (int64 [ns]); member i's
-        record of row r has sequence number ``sequences[r, i]``. Returns uint8, shape (rows, size)."""
+        sequence numbers start at ``first_sequences[i]``. Returns uint8, shape (rows, size)."""
         out = np.empty((len(values), self.size), dtype=np.uint8)
         out[:] = self.template  # (numpy's broadcast copy: a byte loop in the compiled pass was half its time)
         bits = np.ascontiguousarray(values, dtype=np.float64).view(np.uint64)
         _fill_records(out, bits, np.asarray(log_times, dtype=np.int64),
-                      np.ascontiguousarray(sequences, dtype=np.int64), *self._slots)
+                      np.asarray(first_sequences, dtype=np.int64), *self._slots)
         return out
-
-
-def _consecutive(first: Sequence[int], rows: int) -> np.ndarray:
-    """Sequence numbers of ``rows`` consecutive samples of members starting at ``first``: shape (rows, members)."""
-    return np.asarray(first, dtype=np.int64)[None, :] + np.arange(rows, dtype=np.int64)[:, None]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1058,7 +1053,7 @@ def _put_le(row, offset, value, size):
 
 
 @numba.njit(cache=True, nogil=True)
-def _fill_records(out, bits, log_times, sequences, time_offsets, log_time_offsets, sequence_offsets,
+def _fill_records(out, bits, log_times, first_sequences, time_offsets, log_time_offsets, sequence_offsets,
                   float_offsets, float_columns):
     """Row r of ``out`` (a copy of the template): sample r's slots filled (timestamps, log times, sequences, float64
     bits).
@@ -1076,7 +1071,7 @@ def _fill_records(out, bits, log_times, sequences, time_offsets, log_time_offset
         for offset in log_time_offsets:
             _put_le(row, offset, t, 8)
         for m in range(sequence_offsets.size):
-            _put_le(row, sequence_offsets[m], np.uint64(sequences[r, m]), 4)
+            _put_le(row, sequence_offsets[m], np.uint64(first_sequences[m] + r), 4)
         sample = bits[r]
         for k in range(float_offsets.size):
             _put_le(row, float_offsets[k], sample[float_columns[k]], 8)
@@ -1534,7 +1529,7 @@ class Channel:
         log_times = _step_log_times(self._steps[:n], self._writer.dt)
         if self._records is None:
             self._records = _RecordRows([(self._channel_id, self._template, slice(0, self.column_count))])
-        rows = self._records.encode(self._values[:n], log_times, _consecutive([self._sequence + 1], n))
+        rows = self._records.encode(self._values[:n], log_times, [self._sequence + 1])
         self._sequence += n
         self._encoded.append(_RecordBlock(log_times, rows, self._records.channel_ids, self._records.offsets, self._order,
                                           self._writer._next_serial()))
@@ -1758,8 +1753,7 @@ class Frame:
             if records is None:
                 records = self._records[group] = _RecordRows([(c._channel_id, c._template, columns) for c, columns in members])
             times = log_times[rows]
-            encoded = records.encode(self._values[:n][rows], times, _consecutive([c._sequence + 1 for c, _ in members],
-                                                                                 len(times)))
+            encoded = records.encode(self._values[:n][rows], times, [c._sequence + 1 for c, _ in members])
             last = int(steps[rows][-1])
             for channel, _ in members:
                 channel._sequence += len(times)
