@@ -24,7 +24,8 @@ its slots (sequences, log times, timestamps, float64 fields) filled row by row i
 compiled pass (:class:`_RecordRows`, numba). Batches of all channels are merged in log-time
 order, sample by sample, and handed whole to the chunks of :class:`mcap.writer.Writer`
 (:meth:`_BulkWriter.add_records`), so every file is globally ordered by ``log_time``. Chunks
-are compressed with zstd at level -2 (:attr:`_BulkWriter.ZSTD_LEVEL`).
+are compressed with zstd at level -2 (:attr:`_BulkWriter.ZSTD_LEVEL`) and written, in order, by
+one background thread (``chunk_thread``), while the caller goes on stepping.
 
 :func:`read_log` reads both kinds back as numpy columns with the field names of the
 messages (``"p_cap_pa"``, ``"pressure_pa.supply"``, ``"position/<joint>"``,
@@ -49,6 +50,8 @@ channels.
 
 from __future__ import annotations
 
+import collections
+import concurrent.futures
 import dataclasses
 import enum
 import functools
@@ -70,6 +73,7 @@ from typing import Any, BinaryIO
 import mcap
 import numba
 import numpy as np
+from mcap.data_stream import RecordBuilder
 from mcap.exceptions import EndOfFile, McapError
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
@@ -1176,54 +1180,151 @@ class _BulkWriter(Writer):
     # logs, every step / 100 Hz: 17.00 / 2.13 MB at -2, 16.68 / 2.08 MB at -1 (2 % for 23 % less time)
     ZSTD_LEVEL = -2
 
+    MAX_PENDING_CHUNKS = 4  # chunks handed to the chunk thread and not yet written (≤ 4 × chunk_size of memory)
+
+    def __init__(self, *args: Any, chunk_thread: bool = True, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        self._chunk_thread = chunk_thread
+        self._pool: concurrent.futures.ThreadPoolExecutor | None = None  # started by the first chunk
+        self._pending: collections.deque[concurrent.futures.Future] = collections.deque()
+        self._failure: BaseException | None = None
+
+    # -- the chunk thread ------------------------------------------------------------
+    # One worker compresses finished chunks (zstd and crc32 release the GIL, as do the file writes and MuJoCo's
+    # mj_step) and writes them with their message indexes, in the order they were finished. While it has work, it
+    # is the only writer of the stream: every base-class method that writes the stream itself waits for it first
+    # (settle), so the file is byte for byte the one an inline writer makes.
+
+    def _submit(self, job: Callable[..., None], *args: Any) -> None:
+        """Run ``job(*args)`` on the chunk thread (inline without one), after every job submitted before it."""
+        if not self._chunk_thread:
+            job(*args)
+            return
+        self._raise_failure()
+        if self._pool is None:
+            self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="mcap-chunks")
+        while len(self._pending) >= self.MAX_PENDING_CHUNKS:
+            self._wait_one()
+        self._pending.append(self._pool.submit(self._guarded, job, args))
+
+    def _guarded(self, job: Callable[..., None], args: tuple) -> None:
+        if self._failure is not None:  # after a failed write the stream's offsets are unknown: write nothing more
+            return
+        try:
+            job(*args)
+        except BaseException as error:
+            self._failure = error
+            raise
+
+    def _wait_one(self) -> None:
+        try:
+            self._pending.popleft().result()
+        except BaseException as error:  # noqa: BLE001 - kept, and raised by _raise_failure
+            self._failure = self._failure or error
+
+    def _raise_failure(self) -> None:
+        if self._failure is not None:
+            raise self._failure
+
+    def settle(self) -> None:
+        """Wait until the chunk thread has written everything handed to it; raise the error of a failed write."""
+        while self._pending:
+            self._wait_one()
+        self._raise_failure()
+
+    def stop_thread(self) -> None:
+        """Settle and end the chunk thread (idempotent; later chunks are written inline)."""
+        self._chunk_thread = False
+        try:
+            self.settle()
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+                self._pool = None
+
+    # -- base-class methods that write the stream: settle first ------------------------
+
+    def add_attachment(self, *args: Any, **kwargs: Any) -> None:
+        self.settle()
+        super().add_attachment(*args, **kwargs)
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        self.settle()
+        super().add_metadata(name, data)
+
+    def flush(self, wait: bool = True) -> None:
+        """End the chunk in progress and flush the stream; ``wait=False`` leaves both to the chunk thread."""
+        self._Writer__finalize_chunk()
+        if wait or not self._chunk_thread:
+            self.settle()
+            super().flush()
+        else:
+            self._submit(self._Writer__stream.flush)  # type: ignore[attr-defined]
+
+    def flush_stream(self) -> None:
+        """Flush the stream's buffer to the OS after the chunks handed over so far (on the chunk thread)."""
+        self._submit(self._Writer__stream.flush)  # type: ignore[attr-defined]
+
+    def finish(self) -> None:
+        self._Writer__finalize_chunk()
+        self.stop_thread()
+        super().finish()
+
+    # -- chunks ----------------------------------------------------------------------
+
     def _Writer__finalize_chunk(self) -> None:  # noqa: N802 - overrides the base class's private method
-        """The base class's chunk finalisation, with a reused zstd compressor at :attr:`ZSTD_LEVEL`."""
+        """The base class's chunk finalisation, with a reused zstd compressor at :attr:`ZSTD_LEVEL`, on the chunk
+        thread: the chunk's bytes and indexes are taken here and :meth:`_write_chunk` compresses and writes them."""
         try:
             chunks = self._Writer__chunk_builder  # type: ignore[attr-defined]
             zstd = self._Writer__compression == CompressionType.ZSTD  # type: ignore[attr-defined]
+            plain_stream = not self._Writer__enable_data_crcs  # type: ignore[attr-defined]
         except AttributeError:  # pragma: no cover - other mcap versions
-            chunks, zstd = None, False
-        if not zstd or chunks is None or chunks.num_messages == 0 or not hasattr(self, "_Writer__chunk_indices"):
+            chunks, zstd, plain_stream = None, False, False
+        if (not zstd or not plain_stream or chunks is None or chunks.num_messages == 0
+                or not hasattr(self, "_Writer__chunk_indices")):
+            self.settle()
             return Writer._Writer__finalize_chunk(self)  # type: ignore[attr-defined]
+        self._Writer__statistics.chunk_count += 1  # type: ignore[attr-defined]
+        job = (chunks.end(), chunks.message_start_time, chunks.message_end_time, list(chunks.message_indices.items()))
+        chunks.reset()
+        self._submit(self._write_chunk, *job)
+
+    def _write_chunk(self, chunk_data: bytes, start_time: int, end_time: int, indexes: list[tuple[int, Any]]) -> None:
+        """Compress one chunk and write it and its message indexes at the end of the stream; index it."""
         if not hasattr(self, "_zstd"):
             import zstandard
 
             self._zstd = zstandard.ZstdCompressor(level=self.ZSTD_LEVEL)
-        stats, builder = self._Writer__statistics, self._Writer__record_builder  # type: ignore[attr-defined]
-        stats.chunk_count += 1
-        chunk_data = chunks.end()
         compressed = self._zstd.compress(chunk_data)
-        chunk = _McapChunk(compression="zstd", data=compressed, message_start_time=chunks.message_start_time,
-                           message_end_time=chunks.message_end_time,
+        chunk = _McapChunk(compression="zstd", data=compressed, message_start_time=start_time, message_end_time=end_time,
                            uncompressed_crc=zlib.crc32(chunk_data) if self._Writer__enable_crcs else 0,  # type: ignore[attr-defined]
                            uncompressed_size=len(chunk_data))
-        self._Writer__flush()  # type: ignore[attr-defined]
+        builder = RecordBuilder()  # the chunk thread's own: the base class's builder belongs to the caller's thread
+        chunk.write(builder)
         stream = self._Writer__stream  # type: ignore[attr-defined]
         chunk_start = stream.tell()
-        chunk.write(builder)
-        chunk_index = _McapChunkIndex(message_start_time=chunk.message_start_time, message_end_time=chunk.message_end_time,
-                                      chunk_start_offset=chunk_start, chunk_length=builder.count, message_index_offsets={},
+        chunk_length = builder.count
+        chunk_index = _McapChunkIndex(message_start_time=start_time, message_end_time=end_time,
+                                      chunk_start_offset=chunk_start, chunk_length=chunk_length, message_index_offsets={},
                                       message_index_length=0, compression=chunk.compression, compressed_size=len(compressed),
                                       uncompressed_size=chunk.uncompressed_size)
-        self._Writer__flush()  # type: ignore[attr-defined]
-        index_start = stream.tell()
+        records = [builder.end()]
         if self._Writer__index_types & IndexType.MESSAGE:  # type: ignore[attr-defined]
-            records, position = [], index_start + builder.count
-            for channel_id, index in chunks.message_indices.items():
+            position = chunk_start + chunk_length
+            for channel_id, index in indexes:
                 if isinstance(index, _MessageIndexArrays):
                     record = index.record_bytes()
                 else:  # pragma: no cover - filled by add_message
-                    single = type(builder)()
+                    single = RecordBuilder()
                     index.write(single)
                     record = single.end()
                 chunk_index.message_index_offsets[channel_id] = position
                 records.append(record)
                 position += len(record)
-            builder.write(b"".join(records))
-        chunk_index.message_index_length = builder.count
-        self._Writer__flush()  # type: ignore[attr-defined]
+            chunk_index.message_index_length = position - chunk_start - chunk_length
+        stream.write(b"".join(records))
         self._Writer__chunk_indices.append(chunk_index)  # type: ignore[attr-defined]
-        chunks.reset()
 
     def _bulk_parts(self):
         try:
@@ -1795,12 +1896,22 @@ class LogWriter:
         Chunk compression.
     overwrite : bool, optional
         Replace an existing ``path`` or ``path.partial``; otherwise ``FileExistsError``.
+    chunk_thread : bool, optional
+        Compress and write finished zstd chunks on a background thread (zstd, crc32, the
+        file writes and MuJoCo's ``mj_step`` all release the GIL, so they overlap the
+        stepping on a second core). The file is byte for byte the same either way;
+        ``False`` does all the work in the caller's thread.
 
     Notes
     -----
     What a SIGKILL can lose is bounded by the larger of ``flush_interval`` of simulation
-    time and ``chunk_size`` bytes of messages plus ``batch_size`` samples per channel;
-    everything before is in complete chunks on disk and comes back with :func:`recover`.
+    time and ``chunk_size`` bytes of messages plus ``batch_size`` samples per channel,
+    plus, with the chunk thread, the chunks handed to it and not yet written (at most
+    ``_BulkWriter.MAX_PENDING_CHUNKS``; a periodic flush does not wait for them, an
+    explicit :meth:`flush` does); everything before is in complete chunks on disk and
+    comes back with :func:`recover`. A write that fails on the chunk thread is raised by
+    the next call that hands it work or waits for it (at the latest :meth:`close`, which
+    then leaves the ``.partial``).
     Use the writer as a context manager: on an exception (``KeyboardInterrupt``
     included) the file is still finished, with ``status="incomplete"`` and the reason in
     the ``hydroplant.result`` record, and the exception propagates. A SIGINT arriving while
@@ -1812,7 +1923,8 @@ class LogWriter:
     def __init__(self, path: str | os.PathLike, *, dt: float, run_metadata: Mapping[str, str] | None = None,
                  attachments: Iterable[Attachment | tuple[str, str, bytes]] = (),
                  chunk_size: int = DEFAULT_CHUNK_SIZE, flush_interval: float = DEFAULT_FLUSH_INTERVAL,
-                 batch_size: int = DEFAULT_BATCH_SIZE, compression: str = "zstd", overwrite: bool = False):
+                 batch_size: int = DEFAULT_BATCH_SIZE, compression: str = "zstd", overwrite: bool = False,
+                 chunk_thread: bool = True):
         dt = float(dt)
         if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"`dt` must be positive and finite, got {dt!r} s")
@@ -1862,7 +1974,7 @@ class LogWriter:
         self._file: BinaryIO = open(self.partial_path, "wb")
         try:
             self._writer = _BulkWriter(self._file, chunk_size=int(chunk_size), compression=compressions[compression],
-                                  index_types=IndexType.ALL)
+                                       index_types=IndexType.ALL, chunk_thread=chunk_thread)
             self._writer.start(profile="", library=library_string())
             self._writer.add_metadata(RUN_METADATA, metadata)
             for attachment in files:
@@ -2042,29 +2154,29 @@ class LogWriter:
         return self._status
 
     def flush(self) -> None:
-        """Encode all buffered samples, end the current chunk and flush the file."""
+        """Encode all buffered samples, end the current chunk and flush the file (on return, all is in the file)."""
         self._check_open()
         self._drain(end_chunk=True)
 
     def _periodic_flush(self, step_index: int) -> None:
-        self._drain(end_chunk=True)
+        self._drain(end_chunk=True, wait=False)  # the chunk thread compresses and writes it while the run goes on
         steps = self._flush_steps
         self._next_flush_step = (step_index // steps + 1) * steps
 
-    def _drain(self, *, end_chunk: bool) -> None:
+    def _drain(self, *, end_chunk: bool, wait: bool = True) -> None:
         with _DeferredSigint():
-            self._drain_now(end_chunk=end_chunk)
+            self._drain_now(end_chunk=end_chunk, wait=wait)
 
-    def _drain_now(self, *, end_chunk: bool) -> None:
+    def _drain_now(self, *, end_chunk: bool, wait: bool = True) -> None:
         blocks = [block for frame in self._frames for block in frame._take_encoded()]
         blocks += [block for channel in self._channels for block in channel._take_encoded()]
         if blocks:
             self._writer.add_records(_merge_blocks(blocks))
             self._last_step = max(self._last_step, max(c._last_step for c in self._channels))
         if end_chunk:
-            self._writer.flush()
+            self._writer.flush(wait=wait)
         else:
-            self._file.flush()
+            self._writer.flush_stream()
 
     def _next_serial(self) -> int:
         """A new block serial number (creation order, the last tie-break of the log-time merge)."""
@@ -2103,7 +2215,10 @@ class LogWriter:
                 self._writer.add_metadata(RESULT_METADATA, result)
                 self._writer.finish()
             finally:
-                self._file.close()
+                try:
+                    self._writer.stop_thread()  # (done by finish(); here for a close that failed before it)
+                finally:
+                    self._file.close()
             os.replace(self.partial_path, self.path)
 
     def __enter__(self) -> LogWriter:

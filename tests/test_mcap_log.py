@@ -356,6 +356,7 @@ def test_periodic_flush_bounds_loss(tmp_path):
         channel = log.cdr_channel("/c", flat_schema("t_msgs/msg/C", CYLINDER_FIELDS), fields=fields)
         for step in range(551):
             channel.append(step, cylinder_sample(step))
+        log._writer.settle()  # the chunk thread has written what the flushes handed it (a few ms after each)
         snapshot.write_bytes(log.partial_path.read_bytes())  # what a SIGKILL would leave
     report = recover(snapshot, tmp_path / "recovered.mcap")
     # Flushes happen when steps 100, 200, ..., 500 arrive: steps 0..499 are on disk.
@@ -713,6 +714,79 @@ def test_frame_channels_at_their_own_every_log_what_separate_channels_log(tmp_pa
         for bad in (0, -2, 1.5, True):
             with pytest.raises(ValueError, match="`every` must be an integer >= 1"):
                 frame.channel(f"/bad{bad}", flat_schema("t_msgs/msg/A", fields), fields=["x"], columns=[0], every=bad)
+
+
+def _write_mixed_run(path: Path, steps: int, **writer_kwargs) -> None:
+    """A run with every kind of record: attachments, a frame, an own-buffer channel, JSON events, marks, explicit
+    and periodic flushes, and chunks small enough that most batches span several."""
+    rows = np.random.default_rng(5).standard_normal((steps, 3))
+    with LogWriter(path, dt=1e-3, chunk_size=3000, batch_size=97, flush_interval=0.25,
+                   attachments=[("a.txt", "text/plain", b"attached")], **writer_kwargs) as log:
+        own = log.cdr_channel("/own", flat_schema("t_msgs/msg/Own", {"u": "u [1]"}), fields=["u"])
+        frame = log.frame(3)
+        frame.channel("/f", flat_schema("t_msgs/msg/F", {"x": "x [1]", "y": "y [1]"}), fields=["x", "y"], columns=[0, 1])
+        frame.channel("/g", flat_schema("t_msgs/msg/G", {"z": "z [1]"}), fields=["z"], columns=[2], every=4)
+        events = log.channel("/e", "foxglove.Log", log_schema())
+        for step in range(steps):
+            frame.append(step, rows[step])
+            if step % 3 == 0:
+                own.append(step, (float(step),))
+            if step % 50 == 0:
+                events.write(step, log_message(LogLevel.INFO, f"step {step}"))
+            if step == steps // 2:
+                log.flush()
+        log.mark("diverged", time_s=steps * 1e-3, component="unit")
+
+
+def test_chunk_thread_writes_the_inline_file(tmp_path, monkeypatch):
+    """Chunks compressed and written on the chunk thread make the same file, byte for byte, as the caller's thread."""
+    import threading
+
+    import sim.mcap_log as mcap_log
+
+    writers = []
+    write_chunk = mcap_log._BulkWriter._write_chunk
+
+    def spy(self, *args):
+        writers.append(threading.current_thread().name)
+        write_chunk(self, *args)
+
+    monkeypatch.setattr(mcap_log._BulkWriter, "_write_chunk", spy)
+    _write_mixed_run(tmp_path / "inline.mcap", 900, chunk_thread=False)
+    inline = len(writers)
+    _write_mixed_run(tmp_path / "thread.mcap", 900)
+    assert set(writers[:inline]) == {threading.current_thread().name}
+    assert inline > 20 and all(name.startswith("mcap-chunks") for name in writers[inline:])
+    assert len(writers) == 2 * inline
+    assert (tmp_path / "thread.mcap").read_bytes() == (tmp_path / "inline.mcap").read_bytes()
+    assert check_mcap(tmp_path / "thread.mcap") == {"/own": 300, "/f": 900, "/g": 225, "/e": 18}
+    assert not any(t.name.startswith("mcap-chunks") for t in threading.enumerate())  # close() ended the thread
+
+
+def test_chunk_thread_failure_is_raised_and_the_partial_kept(tmp_path, monkeypatch):
+    """A chunk write failing on the chunk thread stops the run with that error; the chunks before it come back."""
+    import sim.mcap_log as mcap_log
+
+    calls = []
+    write_chunk = mcap_log._BulkWriter._write_chunk
+
+    def failing(self, *args):
+        calls.append(len(calls))
+        if len(calls) == 4:
+            raise OSError(28, "No space left on device")
+        write_chunk(self, *args)
+
+    monkeypatch.setattr(mcap_log._BulkWriter, "_write_chunk", failing)
+    path = tmp_path / "full.mcap"
+    with pytest.raises(OSError, match="No space left"):
+        write_run(path, 5000, chunk_size=4000)
+    assert len(calls) == 4  # nothing more was written after the failed chunk
+    assert not path.exists()
+    report = recover(tmp_path / "full.mcap.partial", tmp_path / "recovered.mcap")
+    assert report.chunk_count == 3
+    data = read_log(tmp_path / "recovered.mcap").topic("/hydroplant/cylinders/boom")
+    expected = np.array([cylinder_sample(step) for step in range(report.message_count)])
+    np.testing.assert_array_equal(data["p_cap_pa"], expected[:, 2])
 
 
 def test_small_chunks_split_merged_batches_anywhere(tmp_path):
