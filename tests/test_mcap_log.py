@@ -722,20 +722,27 @@ def _write_mixed_run(path: Path, steps: int, **writer_kwargs) -> None:
     rows = np.random.default_rng(5).standard_normal((steps, 3))
     with LogWriter(path, dt=1e-3, chunk_size=3000, batch_size=97, flush_interval=0.25,
                    attachments=[("a.txt", "text/plain", b"attached")], **writer_kwargs) as log:
-        own = log.cdr_channel("/own", flat_schema("t_msgs/msg/Own", {"u": "u [1]"}), fields=["u"])
-        frame = log.frame(3)
-        frame.channel("/f", flat_schema("t_msgs/msg/F", {"x": "x [1]", "y": "y [1]"}), fields=["x", "y"], columns=[0, 1])
-        frame.channel("/g", flat_schema("t_msgs/msg/G", {"z": "z [1]"}), fields=["z"], columns=[2], every=4)
-        events = log.channel("/e", "foxglove.Log", log_schema())
-        for step in range(steps):
-            frame.append(step, rows[step])
-            if step % 3 == 0:
-                own.append(step, (float(step),))
-            if step % 50 == 0:
-                events.write(step, log_message(LogLevel.INFO, f"step {step}"))
-            if step == steps // 2:
-                log.flush()
+        _write_mixed_channels(log, rows, g_every=4, flush_at=steps // 2)
         log.mark("diverged", time_s=steps * 1e-3, component="unit")
+
+
+def _write_mixed_channels(log: LogWriter, rows: np.ndarray, g_every: int = 1, flush_at: int | None = None) -> None:
+    """One sample per row of ``rows`` (steps, 3): a frame's ``/f`` (columns 0, 1) and ``/g`` (column 2, every
+    ``g_every`` steps), an own-buffer channel ``/own`` (the step, every 3rd), a JSON event on ``/e`` every 50th;
+    an explicit flush after step ``flush_at``."""
+    own = log.cdr_channel("/own", flat_schema("t_msgs/msg/Own", {"u": "u [1]"}), fields=["u"])
+    frame = log.frame(3)
+    frame.channel("/f", flat_schema("t_msgs/msg/F", {"x": "x [1]", "y": "y [1]"}), fields=["x", "y"], columns=[0, 1])
+    frame.channel("/g", flat_schema("t_msgs/msg/G", {"z": "z [1]"}), fields=["z"], columns=[2], every=g_every)
+    events = log.channel("/e", "foxglove.Log", log_schema())
+    for step in range(len(rows)):
+        frame.append(step, rows[step])
+        if step % 3 == 0:
+            own.append(step, (float(step),))
+        if step % 50 == 0:
+            events.write(step, log_message(LogLevel.INFO, f"step {step}"))
+        if step == flush_at:
+            log.flush()
 
 
 def test_chunk_thread_writes_the_inline_file(tmp_path, monkeypatch):
@@ -797,17 +804,7 @@ def test_small_chunks_split_merged_batches_anywhere(tmp_path):
     rng = np.random.default_rng(11)
     rows = rng.standard_normal((steps, 3))
     with LogWriter(path, dt=1e-3, chunk_size=1500, batch_size=97, flush_interval=0.25) as log:
-        own = log.cdr_channel("/own", flat_schema("t_msgs/msg/Own", {"u": "u [1]"}), fields=["u"])
-        frame = log.frame(3)
-        frame.channel("/f", flat_schema("t_msgs/msg/F", {"x": "x [1]", "y": "y [1]"}), fields=["x", "y"], columns=[0, 1])
-        frame.channel("/g", flat_schema("t_msgs/msg/G", {"z": "z [1]"}), fields=["z"], columns=[2])
-        events = log.channel("/e", "foxglove.Log", log_schema())
-        for step in range(steps):
-            frame.append(step, rows[step])
-            if step % 3 == 0:
-                own.append(step, (float(step),))
-            if step % 50 == 0:
-                events.write(step, log_message(LogLevel.INFO, f"step {step}"))
+        _write_mixed_channels(log, rows)
     assert check_mcap(path) == {"/own": (steps + 2) // 3, "/f": steps, "/g": steps, "/e": steps // 50}
     log = read_log(path)
     np.testing.assert_array_equal(log.topic("/f")["y"], rows[:, 1])
