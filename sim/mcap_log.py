@@ -1208,19 +1208,16 @@ class _BulkWriter(Writer):
         self._pending.append(self._pool.submit(self._guarded, job, args))
 
     def _guarded(self, job: Callable[..., None], args: tuple) -> None:
+        """Run a job on the chunk thread; its error is kept in ``_failure`` for the caller's thread to raise."""
         if self._failure is not None:  # after a failed write the stream's offsets are unknown: write nothing more
             return
         try:
             job(*args)
-        except BaseException as error:
+        except BaseException as error:  # noqa: BLE001 - raised in the caller's thread by _raise_failure
             self._failure = error
-            raise
 
     def _wait_one(self) -> None:
-        try:
-            self._pending.popleft().result()
-        except BaseException as error:  # noqa: BLE001 - kept, and raised by _raise_failure
-            self._failure = self._failure or error
+        self._pending.popleft().result()
 
     def _raise_failure(self) -> None:
         if self._failure is not None:
@@ -1259,7 +1256,7 @@ class _BulkWriter(Writer):
             self.settle()
             super().flush()
         else:
-            self._submit(self._Writer__stream.flush)  # type: ignore[attr-defined]
+            self.flush_stream()
 
     def flush_stream(self) -> None:
         """Flush the stream's buffer to the OS after the chunks handed over so far (on the chunk thread)."""
