@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 run: $(STAMP)
 	$(VENV)/bin/hydroplant run models/excavator/dig.scenario.toml
 
-# The kernels are compiled first, two groups in parallel (sim/precompile.py; a warm cache only loads them),
+# The kernels are compiled first, two groups in parallel (sim/run/precompile.py; a warm cache only loads them),
 # then the suite runs on every core (pytest-xdist).
 test: $(STAMP)
 	$(VENV)/bin/hydroplant compile

@@ -10,7 +10,7 @@ median is reported:
   controls (the effort law of the plant's first step held), no callback: the
   mechanical cost alone;
 * ``fast/500``: ``MujocoPlantFast.advance(500)`` — the runner's block at 1 kHz
-  (``sim.runner.block_steps``: 0.5 s, fifty samples of the default 100 Hz log per block);
+  (``sim.run.runner.block_steps``: 0.5 s, fifty samples of the default 100 Hz log per block);
 * ``fast/1000``: ``advance(1000)``;
 * ``linear/500``, ``linear/1000``: the same with coupling ``implicit-linear``
   (linearly implicit finish, no second Newton solve; plant constructor
@@ -19,7 +19,7 @@ median is reported:
   one Newton step: no nonlinear solve unless a step leaves the trust region);
 * ``python``: the Python-orchestrated :class:`MujocoPlant` (first 0.2 s only);
 * ``pbd-θ 1ms×1``, ``pbd-rb-θ 60Hz×18``, ``pbd-rb-θ 100Hz×11``: PBD mode
-  (:class:`sim.plant_pbd.PbdPlant` on the runner's block path, ``advance`` in the runner's blocks,
+  (:class:`sim.plants.pbd.PbdPlant` on the runner's block path, ``advance`` in the runner's blocks,
   ``block_steps(dt)`` frames) at MuJoCo mode's step (1 ms frames × 1 substep, θ-rule) and at the two
   settings ``bench_pbd.py`` finds at least as accurate as MuJoCo mode at 1 ms on the excavator
   (rosenbrock, θ-rule): 60 Hz × 18 substeps on the strokes before contact, 100 Hz × 11 on those and on
@@ -41,11 +41,11 @@ from pathlib import Path
 
 import mujoco
 
-from sim.plant_mujoco import MujocoPlant
-from sim.plant_mujoco_fast import MujocoPlantFast
-from sim.runner import block_steps, make_plant
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.plants.mujoco import MujocoPlant
+from sim.plants.mujoco_fast import MujocoPlantFast
+from sim.run.runner import block_steps, make_plant
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
 SCENES = {

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.mcap_log import read_log
-from sim.runner import run
+from sim.io.mcap_log import read_log
+from sim.run.runner import run
 
 DIG = Path(__file__).resolve().parents[1] / "models/excavator/dig.scenario.toml"
 CYLINDERS = ("boom_cyl", "stick_cyl", "bucket_cyl")

@@ -34,9 +34,9 @@ import numba
 import numpy as np
 
 import hydraulics._compiled as C
-from sim.plant_mujoco_fast import MujocoPlantFast
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.plants.mujoco_fast import MujocoPlantFast
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 
 from bench_fast import DT, SCENES, bare_start  # the same scenes, step and bare loop as bench_fast.py
 

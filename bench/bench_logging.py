@@ -5,14 +5,14 @@ from t = 0, the approach and the start of the dig), each configuration repeated 
 interleaved, medians reported:
 
 ``no log``        load the scene, build :class:`MujocoPlantFast`, check its load-time guards,
-                  advance it in blocks of ``sim.runner.block_steps(dt)`` steps (the runner's
+                  advance it in blocks of ``sim.run.runner.block_steps(dt)`` steps (the runner's
                   block size at the default 100 Hz log rate) with a finiteness check per block
                   (``plant.end_finite``, from the compiled loop, as ``run()`` checks it):
                   everything ``run()`` does except logging;
-``default log``   ``sim.runner.run()`` at the scenario's log rate (100 Hz), the same work
+``default log``   ``sim.run.runner.run()`` at the scenario's log rate (100 Hz), the same work
                   plus the recorder, the MCAP writer and the divergence/energy checks;
 ``every step``    ``run()`` logging all 1000 samples per second: blocks as long as at the default
-                  rate (``sim.runner.block_steps``), the samples inside a block copied by the
+                  rate (``sim.run.runner.block_steps``), the samples inside a block copied by the
                   plant from its compiled loop (``MujocoPlantFast.advance(n, record, every)``);
 ``per-step path`` for reference, ``run(..., fast=False)`` at 100 Hz: :class:`MujocoPlant`, one
                   Python-orchestrated step at a time (what ``run()`` did before the block path).
@@ -54,9 +54,9 @@ DIG = ROOT / "models" / "excavator" / "dig.scenario.toml"
 STARTUP_SCRIPT = r"""
 import json, sys, time
 t0 = time.perf_counter()
-from sim.runner import run, make_plant
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.run.runner import run, make_plant
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 t_import = time.perf_counter()
 scenario = load_scenario(sys.argv[1]).with_overrides(duration=float(sys.argv[3]))
 scene = load_scene(scenario)
@@ -98,10 +98,10 @@ def startup(out_dir: Path) -> None:
 
 def no_log(seconds: float, block: int) -> tuple[float, float]:
     """Wall and CPU time of everything run() does except logging (see module docstring) [s]."""
-    from sim.guards import check_plant
-    from sim.runner import make_plant
-    from sim.scenario import load_scenario
-    from sim.scene import load_scene
+    from sim.run.guards import check_plant
+    from sim.run.runner import make_plant
+    from sim.io.scenario import load_scenario
+    from sim.io.scene import load_scene
 
     t, c = time.perf_counter(), time.process_time()
     scenario = load_scenario(DIG).with_overrides(duration=seconds)
@@ -118,8 +118,8 @@ def no_log(seconds: float, block: int) -> tuple[float, float]:
 
 def with_log(seconds: float, rate_hz: float, out: Path, fast: bool = True) -> tuple[float, float]:
     """Wall and CPU time of ``run()`` at ``rate_hz`` [s] (``fast=False``: the per-step path)."""
-    from sim.runner import run
-    from sim.scenario import load_scenario
+    from sim.run.runner import run
+    from sim.io.scenario import load_scenario
 
     t, c = time.perf_counter(), time.process_time()
     result = run(load_scenario(DIG).with_overrides(duration=seconds, log_rate_hz=rate_hz), out=out, fast=fast)
@@ -136,11 +136,11 @@ def sample_parts(samples: int, out: Path) -> dict:
     (CDR Message records), write (merge, chunks, message indexes, zstd); plus, for comparison, the
     per-sample numpy hydraulic terms the recorder used to compute for every sample.
     """
-    from sim.mcap_log import LogWriter
-    from sim.recorder import RunRecorder
-    from sim.runner import make_plant
-    from sim.scenario import load_scenario
-    from sim.scene import load_scene
+    from sim.io.mcap_log import LogWriter
+    from sim.run.recorder import RunRecorder
+    from sim.run.runner import make_plant
+    from sim.io.scenario import load_scenario
+    from sim.io.scene import load_scene
 
     scenario = load_scenario(DIG)
     plant = make_plant(load_scene(scenario))
@@ -218,7 +218,7 @@ def main() -> None:
         out = Path(tmp)
         if not args.no_startup:
             startup(out)
-        from sim.runner import block_steps
+        from sim.run.runner import block_steps
 
         block = block_steps(1e-3)
         no_log(0.02, block)  # warm: callback compiled, kernels loaded, caches hot

@@ -25,7 +25,7 @@ DIG = ROOT / "models" / "excavator" / "dig.scenario.toml"
 
 PROBE = r"""
 import json, os, resource, sys, threading, time
-from sim.runner import run
+from sim.run.runner import run
 
 page = os.sysconf("SC_PAGE_SIZE")
 samples, stop = [], threading.Event()

@@ -18,9 +18,9 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from sim.plant_mujoco import MujocoPlant
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.plants.mujoco import MujocoPlant
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = {

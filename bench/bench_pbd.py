@@ -4,9 +4,9 @@ For each scene: the real-time factor (simulated s per wall s, logging included, 
 ``hydroplant run`` reports it) and the largest cylinder stroke error against a
 reference, for PBD mode at a 60 Hz frame (1200 Hz for the seed) with 1–160 XPBD
 substeps (and a few finer or coarser frames) and for MuJoCo mode at several steps, both with the Python-orchestrated
-plant (``mujoco``: :class:`sim.plant_mujoco.MujocoPlant`) and with the coupled step
+plant (``mujoco``: :class:`sim.plants.mujoco.MujocoPlant`) and with the coupled step
 inside MuJoCo's control callback (``mujoco-fast``:
-:class:`sim.plant_mujoco_fast.MujocoPlantFast`), so PBD's speed can be read at
+:class:`sim.plants.mujoco_fast.MujocoPlantFast`), so PBD's speed can be read at
 matched accuracy (PBD mode on the runner's block path, ``PbdPlant.advance``): the last lines name, for each MuJoCo-mode row, the fastest PBD
 setting at least as accurate and the speed ratio, judged on the whole run and again before the
 first contact (the second error column): over the excavator's whole dig the error is set by the
@@ -45,7 +45,7 @@ when the converged full-dig reference of ``bench/bench_tradeoff.py --full-dig`` 
 disk (cache or its log copy; never recomputed here), prints every excavator row's
 largest pressure error in % of the relief setting per phase (0–1.6 s hold/approach,
 1.6–7 s dig, 7–20 s lift/swing/dump/hold), on 0.1 s centred moving averages
-(``sim.compare.filtered_error_stats``' metric) and point-wise, beside its RTF; without
+(``sim.tools.compare.filtered_error_stats``' metric) and point-wise, beside its RTF; without
 that reference the table is skipped with a message.  With it, a third matching asks for both at once: the
 fastest PBD setting at least as accurate before the contact *and* in every phase's filtered pressure
 error, so that the speed ratio is not bought with the pressures a hydraulic engineer reads.
@@ -69,11 +69,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from sim.compare import richardson_first_order  # noqa: E402
-from sim.mcap_log import read_log  # noqa: E402
-from sim.runner import run  # noqa: E402
-from sim.scenario import load_scenario  # noqa: E402
-from sim.scene import load_scene  # noqa: E402
+from sim.tools.compare import richardson_first_order  # noqa: E402
+from sim.io.mcap_log import read_log  # noqa: E402
+from sim.run.runner import run  # noqa: E402
+from sim.io.scenario import load_scenario  # noqa: E402
+from sim.io.scene import load_scene  # noqa: E402
 
 SCENES = {
     "seed_cylinder": dict(path=ROOT / "models/seed_cylinder/closed.scenario.toml", duration=1.0, pbd_dt=1 / 1200,
@@ -170,14 +170,14 @@ def richardson_strokes(path, dt, duration, out):
 def full_dig_reference(scenario_path):
     """(log path, description) of the converged full-dig reference of the excavator, or (None, reason).
 
-    Never computes it (4–5 min): the cache entry of the current code (``sim.reference`` key of
+    Never computes it (4–5 min): the cache entry of the current code (``sim.tools.reference`` key of
     bench_tradeoff's ``--full-dig`` settings), else the newest cached full-dig entry of an earlier
     code version, else the copy bench_tradeoff wrote to ``logs/bench-tradeoff/excavator-compare-full``.
     """
     import importlib.util
     import json
 
-    from sim.reference import DEFAULT_CACHE_DIR, ReferenceSettings, reference_key
+    from sim.tools.reference import DEFAULT_CACHE_DIR, ReferenceSettings, reference_key
 
     spec = importlib.util.spec_from_file_location("bench_tradeoff", ROOT / "bench/bench_tradeoff.py")
     tradeoff = importlib.util.module_from_spec(spec)
@@ -209,8 +209,8 @@ def full_dig_reference(scenario_path):
 def pressure_errors(ref_log, log_path, phases=FULL_DIG_PHASES, window=None):
     """{(t0, t1): (filtered %, point-wise %, worst signal, time)} of the largest pressure error per phase,
     in % of the circuit's highest relief setting; filtered = centred moving averages over ``window``
-    (default ``sim.compare.DEFAULT_FILTER_WINDOW``), as ``compare --filter-window``."""
-    from sim.compare import DEFAULT_FILTER_WINDOW, align, circuit_scales, log_signals, moving_average
+    (default ``sim.tools.compare.DEFAULT_FILTER_WINDOW``), as ``compare --filter-window``."""
+    from sim.tools.compare import DEFAULT_FILTER_WINDOW, align, circuit_scales, log_signals, moving_average
 
     window = DEFAULT_FILTER_WINDOW if window is None else window
     relief = circuit_scales(ref_log)["relief_pa"]
@@ -245,7 +245,7 @@ def print_full_dig_pressures(path, results):
         print(f"  pressures vs the full-dig reference: skipped, {text}")
         return None
     ref_log = read_log(ref_path)
-    from sim.compare import DEFAULT_FILTER_WINDOW
+    from sim.tools.compare import DEFAULT_FILTER_WINDOW
 
     print(f"  pressures vs {text}: max |Δp| in % of relief, {DEFAULT_FILTER_WINDOW:g} s moving averages "
           f"(point-wise in brackets), per phase")

@@ -36,7 +36,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from sim import stability as st  # noqa: E402
+from sim.tools import stability as st  # noqa: E402
 
 PNG_LIMIT = 150_000  # B
 SCENES = {

@@ -24,9 +24,9 @@ SCENARIO = ROOT / "models" / "excavator" / "dig.scenario.toml"
 PROBE = """
 import json, sys, time
 t0 = time.perf_counter()
-from sim.plant_mujoco_fast import MujocoPlantFast, callback
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.plants.mujoco_fast import MujocoPlantFast, callback
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 t1 = time.perf_counter()
 plant = MujocoPlantFast(load_scene(load_scenario(sys.argv[1])))
 t2 = time.perf_counter()

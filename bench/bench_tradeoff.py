@@ -15,7 +15,7 @@
    0.1 s moving averages (:data:`FULL_DIG_TOLERANCE`, ladder from :data:`FULL_DIG_START_DT`),
    runs :data:`FULL_DIG_RUNS` (MuJoCo implicit / implicit-linear / rosenbrock / explicit at 1 ms, PBD at
    60 Hz × 10 and × 40 substeps and 1 kHz × 20, ``incompressible`` at 1/30 s in both modes).
-3. The tradeoff sweep of both (``--full``: every setting of :func:`sim.tradeoff.sweep_settings`,
+3. The tradeoff sweep of both (``--full``: every setting of :func:`sim.tools.tradeoff.sweep_settings`,
    3 timed runs each, fidelity levels included (``incompressible`` at a frame-rate step, ``lines``);
    default: the quick sweep, with ``incompressible`` at dt0 and ≈ 1/30 s).
 
@@ -37,9 +37,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from sim.compare import RunSpec, compare_runs, default_modes, parse_runs, summary_table  # noqa: E402
-from sim.reference import Tolerance  # noqa: E402
-from sim.tradeoff import pareto_table, stability_statements, tradeoff  # noqa: E402
+from sim.tools.compare import RunSpec, compare_runs, default_modes, parse_runs, summary_table  # noqa: E402
+from sim.tools.reference import Tolerance  # noqa: E402
+from sim.tools.tradeoff import pareto_table, stability_statements, tradeoff  # noqa: E402
 
 SEED = ROOT / "models/seed_cylinder/closed.scenario.toml"
 DIG = ROOT / "models/excavator/dig.scenario.toml"

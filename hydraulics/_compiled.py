@@ -22,7 +22,7 @@ cache.
 functions (:func:`_step_core`, :func:`_linearize_core`, :func:`_solve_core`)
 write into output arrays and carve their temporaries out of one float64
 scratch buffer ``W`` (:func:`work_size` entries) passed in by the caller, so a
-caller that keeps its buffers (``sim.plant_mujoco_fast``) steps without any
+caller that keeps its buffers (``sim.plants.mujoco_fast``) steps without any
 allocation.  Every function that allocates nothing is compiled with
 ``_nrt=False`` (:func:`_kernel`): each read of a field of the packed network
 ``net`` (a tuple of 22 arrays) otherwise costs a pair of ``NRT_incref`` /
@@ -45,8 +45,8 @@ coupling's finish passes its linearised prediction), and
 **Pieces of the implicit coupling's step** (:func:`_effort_law_terms`,
 :func:`_predicted_oil`, :func:`_commit_if_finite`, :func:`_account`, …) are
 here too, allocation-free on the packed network: the two compiled coupled
-steps (``sim.plant_mujoco_fast``'s control callback and
-``sim.xpbd.hydraulics_nb``'s PBD hooks) both call them.  Both fingerprint this
+steps (``sim.plants.mujoco_fast``'s control callback and
+``sim.plants.pbd_hydraulics``'s PBD hooks) both call them.  Both fingerprint this
 file into their cached entry points, so a change here recompiles them.
 
 **Round-off-level differences from the pure path** (same iterations, same
@@ -1549,7 +1549,7 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt, newt
 
 # ----------------------------------------------------------------------------
 # Pieces of the implicit coupling's step shared by the two compiled coupled steps
-# (sim.plant_mujoco_fast: MuJoCo's control callback; sim.xpbd.hydraulics_nb: the PBD plant's hooks).
+# (sim.plants.mujoco_fast: MuJoCo's control callback; sim.plants.pbd_hydraulics: the PBD plant's hooks).
 # Pure hydraulics on the packed network; allocation-free.
 # ----------------------------------------------------------------------------
 @_kernel

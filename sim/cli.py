@@ -2,7 +2,8 @@
 
 Subcommands::
 
-    hydroplant run SCENARIO [--mode M] [--coupling C] [--dt S] [--duration S] [--substeps N] [--out PATH]
+    hydroplant run SCENARIO | --example NAME [--mode M] [--coupling C] [--dt S] [--duration S] [--substeps N] [--out PATH]
+    hydroplant examples                  the shipped example scenes (names for ``run --example``)
     hydroplant demo                      the hydraulics-only 1-DOF lift (no MuJoCo)
     hydroplant log info LOG              summary of a log
     hydroplant log recover PARTIAL [OUT] rebuild a valid MCAP from a killed run's partial file
@@ -19,6 +20,9 @@ import sys
 from pathlib import Path
 
 from hydraulics.components import CircuitError
+
+from sim import version
+from sim.io.examples import example_path, examples
 
 EXIT_BAD_INPUT = 2
 EXIT_DIVERGED = 3
@@ -62,12 +66,14 @@ def int_in(low: int, high: int | None = None):
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="hydroplant", description="Hydraulic heavy-equipment simulator (SI units throughout).")
+    parser.add_argument("--version", action="version", version=f"hydroplant {version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     run = sub.add_parser("run", help="run a scenario and write an MCAP log")
-    run.add_argument("scenario", type=Path, help="scenario TOML file")
+    run.add_argument("scenario", type=Path, nargs="?", help="scenario TOML file")
+    run.add_argument("--example", metavar="NAME", help="a shipped example instead of a file, e.g. excavator/dig (see 'hydroplant examples')")
     run.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"))
-    run.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear", "rosenbrock"))  # sim.scenario.COUPLINGS
+    run.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear", "rosenbrock"))  # sim.io.scenario.COUPLINGS
     run.add_argument("--dt", type=positive_float, help="physics step [s]")
     run.add_argument("--duration", type=positive_float, help="simulated time [s]")
     run.add_argument("--substeps", type=int_in(1), help="hydraulic substeps per physics step")
@@ -79,6 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-progress", action="store_true", help="no progress line")
     run.add_argument("--pure", action="store_true", help="pure numpy hydraulics instead of the compiled kernels (same results to round-off)")
 
+    sub.add_parser("examples", help="list the shipped example scenes")
     sub.add_parser("demo", help="hydraulics-only demo: pump, valve and cylinder lifting a 1-DOF mass")
 
     log = sub.add_parser("log", help="inspect or repair logs")
@@ -95,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Tool subcommands living in their own modules: each module has ``add_parser(subparsers)``,
 # which registers one subcommand whose ``func`` default is ``module.main(args) -> int``.
-TOOL_MODULES = ("sim.inspect_scene", "sim.stability", "sim.compare", "sim.tradeoff", "sim.precompile")
+TOOL_MODULES = ("sim.tools.inspect", "sim.tools.stability", "sim.tools.compare", "sim.tools.tradeoff", "sim.run.precompile")
 
 
 def _tool_modules():
@@ -105,7 +112,7 @@ def _tool_modules():
 
 
 def _run(args) -> int:
-    from .runner import run
+    from sim.run.runner import run
 
     overrides = {
         "mode": args.mode,
@@ -118,7 +125,10 @@ def _run(args) -> int:
         "pbd_blend": True if args.pbd_blend else None,
         "compiled": False if args.pure else None,
     }
-    result = run(args.scenario, out=args.out, overrides=overrides, progress=not args.no_progress)
+    if (args.scenario is None) == (args.example is None):
+        raise CircuitError("run: give either a SCENARIO file or --example NAME (see 'hydroplant examples')")
+    scenario = example_path(args.example) if args.example else args.scenario
+    result = run(scenario, out=args.out, overrides=overrides, progress=not args.no_progress)
     print(result.summary_text())
     return 0 if result.status == "complete" else EXIT_DIVERGED
 
@@ -126,7 +136,7 @@ def _run(args) -> int:
 def _log(args) -> int:
     from mcap.exceptions import McapError
 
-    from .mcap_log import log_info, recover
+    from sim.io.mcap_log import log_info, recover
 
     path = args.log if args.log_command == "info" else args.partial
     if not path.is_file():
@@ -149,8 +159,12 @@ def main(argv=None) -> int:
     try:
         if args.command == "run":
             return _run(args)
+        if args.command == "examples":
+            for name, summary in examples():
+                print(f"{name:24} {summary}")
+            return 0
         if args.command == "demo":
-            from hydraulics.demo import main as demo
+            from sim.tools.demo import main as demo
 
             return demo()
         if args.command == "log":

@@ -10,7 +10,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from conftest import MODELS
-from sim.mcap_log import (
+from sim.io.mcap_log import (
     FRAME_TRANSFORMS,
     JOINT_STATES,
     cdr_decode,
@@ -21,7 +21,7 @@ from sim.mcap_log import (
     recover,
     ros2msg_type,
 )
-from sim.runner import run
+from sim.run.runner import run
 from test_mcap_log import check_message_indexes
 
 # (list field, name field) of the arrays read_log keys by element name

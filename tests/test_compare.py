@@ -8,11 +8,11 @@ import pytest
 
 from conftest import MODELS
 from hydraulics.components import CircuitError
-from sim import compare
-from sim.compare import align, compare_logs, error_series, error_stats, log_signals, richardson_first_order
-from sim.mcap_log import LogWriter, flat_schema, read_log
-from sim.recorder import CYLINDER_FIELDS
-from sim.reference import NotConvergedError, Tolerance, check_convergence, compute_reference, require_converged
+from sim.tools import compare
+from sim.tools.compare import align, compare_logs, error_series, error_stats, log_signals, richardson_first_order
+from sim.io.mcap_log import LogWriter, flat_schema, read_log
+from sim.run.recorder import CYLINDER_FIELDS
+from sim.tools.reference import NotConvergedError, Tolerance, check_convergence, compute_reference, require_converged
 
 SEED = MODELS / "seed_cylinder" / "closed.scenario.toml"
 OMEGA = 2 * math.pi * 2.0  # rad/s of the synthetic signals
@@ -196,7 +196,7 @@ def test_convergence_check_rejects_a_diverged_run_and_a_wrong_step_ratio(tmp_pat
 
 def test_seed_at_the_seeds_own_step_is_not_a_converged_reference(tmp_path):
     """Real runs of the seed cylinder at 1200 Hz and 2400 Hz: rejected, naming the stroke and the pressure."""
-    from sim.runner import run
+    from sim.run.runner import run
 
     h = 1 / 1200
     a = run(SEED, out=tmp_path / "h.mcap", overrides={"dt": h, "duration": 0.03})
@@ -207,7 +207,7 @@ def test_seed_at_the_seeds_own_step_is_not_a_converged_reference(tmp_path):
 
 def test_reference_is_computed_then_cached(tmp_path):
     """A loose-tolerance reference of 10 ms of the seed: converges within a few halvings, and comes back from the cache."""
-    from sim.scenario import load_scenario
+    from sim.io.scenario import load_scenario
 
     scenario = load_scenario(SEED).with_overrides(duration=0.01)
     tol = Tolerance(relative=0.02)
@@ -227,7 +227,7 @@ def test_cli_bad_input_exits_2_through_the_hydroplant_command(tmp_path, monkeypa
     """Registered like the other tool modules, compare and tradeoff report bad input in one line with exit status 2."""
     import sim.cli
 
-    assert {"sim.compare", "sim.tradeoff"} <= set(sim.cli.TOOL_MODULES)
+    assert {"sim.tools.compare", "sim.tools.tradeoff"} <= set(sim.cli.TOOL_MODULES)
     ref = write_log(tmp_path / "ref.mcap", 1e-3, 0.1, stroke=sine)
     assert sim.cli.main(["compare", str(ref)]) == 2
     assert "needs a reference log and at least one more log" in capsys.readouterr().err

@@ -231,8 +231,8 @@ def test_elimination_order_makes_no_fill_in(name):
 )
 def test_compiled_and_pure_paths_agree_on_scenes(scenario, duration, tmp_path):
     """MuJoCo mode with the compiled kernels and with the pure numpy path: same trajectories to round-off."""
-    from sim.mcap_log import read_log
-    from sim.runner import run
+    from sim.io.mcap_log import read_log
+    from sim.run.runner import run
 
     path = MODELS / scenario
     pure = read_log(run(path, out=tmp_path / "pure.mcap", overrides={"duration": duration, "compiled": False}).log_path)

@@ -5,8 +5,8 @@ import pytest
 
 from conftest import MODELS
 from hydraulics.circuit import load_circuit
-from sim.mcap_log import read_log
-from sim.runner import run
+from sim.io.mcap_log import read_log
+from sim.run.runner import run
 
 DIG = MODELS / "excavator" / "dig.scenario.toml"
 

@@ -6,9 +6,9 @@ import pytest
 
 from conftest import MODELS
 from hydraulics._compiled import compiled_available
-from sim.plant_mujoco import MujocoPlant
-from sim.scenario import Schedule, load_scenario
-from sim.scene import load_scene
+from sim.plants.mujoco import MujocoPlant
+from sim.io.scenario import Schedule, load_scenario
+from sim.io.scene import load_scene
 
 pytestmark = pytest.mark.skipif(not compiled_available(), reason="numba is not installed")
 
@@ -45,7 +45,7 @@ COUPLING = {name: name.split("/")[1] for name in CASES if name.endswith(("/impli
 
 
 def plants(case):
-    from sim.plant_mujoco_fast import MujocoPlantFast
+    from sim.plants.mujoco_fast import MujocoPlantFast
 
     path, inputs, steps = CASES[case]
     scenario = load_scenario(path)
@@ -135,7 +135,7 @@ def test_newton_failure_reported_at_the_same_step(monkeypatch):
     """With the Newton limit cut to 1 (packed at construction) a valve slam fails in the same step and with the same
     message in both plants; the fast plant's network state, time and step index point at that step."""
     from hydraulics import steppers
-    from sim.plant_mujoco_fast import MujocoPlantFast
+    from sim.plants.mujoco_fast import MujocoPlantFast
 
     monkeypatch.setattr(steppers, "NEWTON_MAX_ITERATIONS", 1)
     scenario = load_scenario(MODELS / "boom" / "lift.scenario.toml")

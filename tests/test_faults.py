@@ -25,8 +25,8 @@ from mcap.reader import make_reader
 
 from conftest import MODELS, ROOT
 from sim.cli import main
-from sim.mcap_log import read_log
-from sim.runner import run
+from sim.io.mcap_log import read_log
+from sim.run.runner import run
 
 LIFT = MODELS / "boom" / "lift.scenario.toml"
 SEED = MODELS / "seed_cylinder" / "closed.scenario.toml"
@@ -53,7 +53,7 @@ def start_run(out, *extra):
 
 def wait_for_chunk(partial, process):
     """Wait until the .partial file holds at least one complete chunk of messages (a snapshot of it recovers some)."""
-    from sim.mcap_log import recover
+    from sim.io.mcap_log import recover
 
     deadline = time.monotonic() + STARTUP_TIMEOUT
     snapshot = partial.with_name("snapshot.mcap.partial")
@@ -202,7 +202,7 @@ def test_log_info_prints_scene_mode_duration_topics_counts_completeness(logs, ki
 
 def test_log_info_of_an_incomplete_log(tmp_path, capsys):
     """An exception inside the loop (here: a plant that raises) finishes the log as incomplete with the reason."""
-    from sim import runner
+    from sim.run import runner
 
     class Boom(RuntimeError):
         pass
@@ -251,10 +251,10 @@ def test_log_info_of_an_incomplete_log(tmp_path, capsys):
 def test_a_mujoco_reset_is_a_divergence_not_a_fresh_start(fast):
     """MuJoCo resets the bodies to the reference pose when qvel is huge (> mjMAXVAL = 1e10) and only counts a
     warning; the plant reports that step as non-finite instead of stepping on from the reset pose."""
-    from sim.plant_mujoco import MujocoPlant
-    from sim.plant_mujoco_fast import MujocoPlantFast
-    from sim.scenario import load_scenario
-    from sim.scene import load_scene
+    from sim.plants.mujoco import MujocoPlant
+    from sim.plants.mujoco_fast import MujocoPlantFast
+    from sim.io.scenario import load_scenario
+    from sim.io.scene import load_scene
 
     scene = load_scene(load_scenario(MODELS / "boom" / "hold.scenario.toml"))
     plant = MujocoPlantFast(scene) if fast else MujocoPlant(scene)

@@ -7,10 +7,10 @@ import pytest
 from conftest import MODELS, network_from_toml, scene_copy
 from hydraulics.circuit import load_circuit
 from hydraulics.network import NetworkModel
-from sim.mcap_log import read_log
-from sim.runner import run
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.io.mcap_log import read_log
+from sim.run.runner import run
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 
 EXTRA = """
 [[component]]

@@ -11,9 +11,9 @@ from conftest import MODELS, scene_copy
 from hydraulics.circuit import load_circuit
 from hydraulics.components import CircuitError
 from hydraulics.network import NetworkModel
-from sim.runner import run
-from sim.scenario import ScenarioError, load_scenario
-from sim.scene import load_scene
+from sim.run.runner import run
+from sim.io.scenario import ScenarioError, load_scenario
+from sim.io.scene import load_scene
 
 EXCAVATOR = MODELS / "excavator" / "excavator.circuit.toml"
 FOUR_ACTUATORS = ("boom_cyl", "stick_cyl", "bucket_cyl", "swing_motor")

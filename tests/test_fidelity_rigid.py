@@ -11,12 +11,12 @@ from conftest import MODELS, scene_copy
 from hydraulics.circuit import load_circuit
 from hydraulics.components import CircuitError
 from hydraulics.network import NetworkModel
-from sim.mcap_log import read_log
-from sim.runner import run
-from sim.scenario import ScenarioError, load_scenario
-from sim.guards import check_scenario
-from sim.inspect_scene import describe
-from sim.scene import load_scene
+from sim.io.mcap_log import read_log
+from sim.run.runner import run
+from sim.io.scenario import ScenarioError, load_scenario
+from sim.run.guards import check_scenario
+from sim.tools.inspect import describe
+from sim.io.scene import load_scene
 
 EXCAVATOR = MODELS / "excavator" / "excavator.circuit.toml"
 RIGID_FRONT = {"stick_cyl": "incompressible", "bucket_cyl": "incompressible", "swing_motor": "incompressible"}
@@ -173,7 +173,7 @@ def test_all_incompressible_hands_out_no_more_than_the_pump_delivers(tmp_path, c
     ("pbd", 1 / 60, set())])
 def test_guard_names_the_step_a_rigid_supply_column_needs(mode, dt, warned):
     """A rigid actuator's column is the supply net: ω = √(β_eff·A_cap²/(V_P·m_eff)); the guard warns where ω·h > 0.5
-    (the measured limit, sim/guards.py), with the dt that resolves it."""
+    (the measured limit, sim/run/guards.py), with the dt that resolves it."""
     scenario = load_scenario(MODELS / "excavator" / "dig.scenario.toml").with_overrides(
         mode=mode, dt=dt, actuator_fidelity=RIGID_FRONT, pbd_substeps=10)
     report = check_scenario(scenario)

@@ -1,4 +1,4 @@
-"""Tests of sim.foxglove_scene: scene geometry and per-step body transforms."""
+"""Tests of sim.io.foxglove_scene: scene geometry and per-step body transforms."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from sim.foxglove_scene import FrameTransformsChannel, body_frame_ids, log_scene, scene_update_message
-from sim.mcap_log import LogWriter, read_log
+from sim.io.foxglove_scene import FrameTransformsChannel, body_frame_ids, log_scene, scene_update_message
+from sim.io.mcap_log import LogWriter, read_log
 
 MJCF = """
 <mujoco>

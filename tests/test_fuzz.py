@@ -29,11 +29,11 @@ from hydraulics.circuit import load_circuit, parse_circuit
 from hydraulics.components import CircuitError
 from hydraulics.network import NetworkModel
 from sim import cli
-from sim.scenario import load_scenario
-from sim.plant_mujoco import MujocoPlant
-from sim.guards import check_plant
-from sim.scene import load_scene
-from sim.stability import dump_toml
+from sim.io.scenario import load_scenario
+from sim.plants.mujoco import MujocoPlant
+from sim.run.guards import check_plant
+from sim.io.scene import load_scene
+from sim.tools.stability import dump_toml
 
 FUZZ = settings(deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow], database=None)
 TRACEBACK = "Traceback (most recent call last)"
@@ -522,7 +522,7 @@ CLI_WORDS = ["run", "log", "info", "recover", "demo", "stability", "inspect", "-
 @pytest.fixture
 def quiet_cli(monkeypatch, tmp_path):
     """The CLI with stepping stubbed out: scenarios are loaded, overridden and bound, but never run."""
-    from sim import runner
+    from sim.run import runner
 
     def fake_run(scenario, *, out=None, overrides=None, progress=False, overwrite=True):
         scenario = load_scenario(scenario)
@@ -532,12 +532,12 @@ def quiet_cli(monkeypatch, tmp_path):
         raise SystemExit(0)
 
     monkeypatch.setattr(runner, "run", fake_run)
-    if "sim.stability" not in cli.TOOL_MODULES:
-        monkeypatch.setattr(cli, "TOOL_MODULES", (*cli.TOOL_MODULES, "sim.stability"))
-    import sim.stability as stability
+    if "sim.tools.stability" not in cli.TOOL_MODULES:
+        monkeypatch.setattr(cli, "TOOL_MODULES", (*cli.TOOL_MODULES, "sim.tools.stability"))
+    import sim.tools.stability as stability
 
     monkeypatch.setattr(stability, "stability_map", lambda *a, **k: (_ for _ in ()).throw(SystemExit(0)))
-    monkeypatch.setattr("hydraulics.demo.main", lambda: 0, raising=False)
+    monkeypatch.setattr("sim.tools.demo.main", lambda: 0, raising=False)
     monkeypatch.chdir(tmp_path)
     return cli.main
 
@@ -624,8 +624,8 @@ def test_backstop_refuses_a_non_finite_initial_state():
     """Causes the loaders miss are still refused before the first step, naming the node (exit 2, not a NaN run)."""
     import numpy as np
 
-    from sim.guards import check_plant
-    from sim.scenario import ScenarioError
+    from sim.run.guards import check_plant
+    from sim.io.scenario import ScenarioError
 
     plant = MujocoPlant(load_scene(load_scenario(MODELS / "boom" / "hold.scenario.toml")))
     check_plant(plant)  # the shipped scene starts finite

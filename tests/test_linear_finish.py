@@ -83,9 +83,9 @@ def test_boom_lift_agrees_with_newton_finish_within_1_percent_of_stroke(linear):
     """MuJoCo boom lift (valve opens at 1 s, end stop at ≈ 2.6 s), 3.5 s at 1 kHz: the linearly implicit finish and
     the Newton finish give the same stroke within 1 % of the stroke and the same relief pressure at the end stop."""
     pytest.importorskip("mujoco")
-    from sim.plant_mujoco_fast import MujocoPlantFast
-    from sim.scenario import load_scenario
-    from sim.scene import load_scene
+    from sim.plants.mujoco_fast import MujocoPlantFast
+    from sim.io.scenario import load_scenario
+    from sim.io.scene import load_scene
 
     scenario = load_scenario(MODELS / "boom" / "lift.scenario.toml")
     newton = MujocoPlantFast(load_scene(scenario))

@@ -1,4 +1,4 @@
-"""Tests of sim.mcap_log: round trip, CDR and strict JSON, crash safety, recovery and merging."""
+"""Tests of sim.io.mcap_log: round trip, CDR and strict JSON, crash safety, recovery and merging."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from sim.mcap_log import (
+from sim.io.mcap_log import (
     _step_log_times,
     FRAME_TRANSFORMS,
     Column,
@@ -286,10 +286,10 @@ def test_keyboard_interrupt_is_recorded(tmp_path):
 
 def test_ctrl_c_during_batch_write_loses_nothing(tmp_path, monkeypatch):
     """A SIGINT landing inside the MCAP writer is held until the batch is written."""
-    import sim.mcap_log
+    import sim.io.mcap_log
 
     path = tmp_path / "sigint.mcap"
-    original = sim.mcap_log._BulkWriter.add_records
+    original = sim.io.mcap_log._BulkWriter.add_records
     calls = {"n": 0}
 
     def add_records_with_ctrl_c(self, *args, **kwargs):
@@ -298,7 +298,7 @@ def test_ctrl_c_during_batch_write_loses_nothing(tmp_path, monkeypatch):
             signal.raise_signal(signal.SIGINT)  # handler runs at the next bytecode boundary
         return original(self, *args, **kwargs)
 
-    monkeypatch.setattr(sim.mcap_log._BulkWriter, "add_records", add_records_with_ctrl_c)
+    monkeypatch.setattr(sim.io.mcap_log._BulkWriter, "add_records", add_records_with_ctrl_c)
     # Python's own handler, also when the suite inherited SIGINT ignored (started in the background)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     appended = 0
@@ -371,7 +371,7 @@ WRITER_SCRIPT = textwrap.dedent("""
     import sys
     sys.path.insert(0, sys.argv[2])
     from tests.test_mcap_log import CYLINDER_FIELDS, cylinder_sample
-    from sim.mcap_log import LogWriter, flat_schema
+    from sim.io.mcap_log import LogWriter, flat_schema
     with LogWriter(sys.argv[1], dt=1e-3, run_metadata={"scene": "unit", "mode": "test"},
                    attachments=[("note.txt", "text/plain", b"kill me")],
                    flush_interval=0.02, batch_size=50, chunk_size=32 * 1024) as log:
@@ -749,7 +749,7 @@ def test_chunk_thread_writes_the_inline_file(tmp_path, monkeypatch):
     """Chunks compressed and written on the chunk thread make the same file, byte for byte, as the caller's thread."""
     import threading
 
-    import sim.mcap_log as mcap_log
+    import sim.io.mcap_log as mcap_log
 
     writers = []
     write_chunk = mcap_log._BulkWriter._write_chunk
@@ -772,7 +772,7 @@ def test_chunk_thread_writes_the_inline_file(tmp_path, monkeypatch):
 
 def test_chunk_thread_failure_is_raised_and_the_partial_kept(tmp_path, monkeypatch):
     """A chunk write failing on the chunk thread stops the run with that error; the chunks before it come back."""
-    import sim.mcap_log as mcap_log
+    import sim.io.mcap_log as mcap_log
 
     calls = []
     write_chunk = mcap_log._BulkWriter._write_chunk

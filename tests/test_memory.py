@@ -7,7 +7,7 @@ from conftest import MODELS, ROOT
 
 PROBE = """
 import resource, sys
-from sim.runner import run
+from sim.run.runner import run
 result = run(sys.argv[1], out=sys.argv[2], overrides={"duration": float(sys.argv[3]), "dt": 2e-3})
 assert result.status == "complete", result.message
 print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)

@@ -8,10 +8,10 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from conftest import MODELS, scene_copy
-from sim.mcap_log import read_log
-from sim.runner import run
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.io.mcap_log import read_log
+from sim.run.runner import run
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 
 SEED = MODELS / "seed_cylinder" / "closed.scenario.toml"
 BETA, AREA, MASS = 2.2e9, 0.03**2, 1.0  # the seed report's Figure 3 numbers

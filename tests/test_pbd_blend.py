@@ -19,11 +19,11 @@ import pytest
 from scipy.optimize import curve_fit
 
 from conftest import MODELS, scene_copy
-from sim.compare import richardson_first_order
-from sim.plant_mujoco_fast import MujocoPlantFast
-from sim.plant_pbd import PbdPlant
-from sim.scenario import ScenarioError, load_scenario
-from sim.scene import load_scene
+from sim.tools.compare import richardson_first_order
+from sim.plants.mujoco_fast import MujocoPlantFast
+from sim.plants.pbd import PbdPlant
+from sim.io.scenario import ScenarioError, load_scenario
+from sim.io.scene import load_scene
 from test_mujoco_plant import AREA, BETA, MASS
 
 BOOM = MODELS / "boom" / "lift.scenario.toml"
@@ -137,7 +137,7 @@ def test_cli_pbd_blend_logs_the_rows_theta(tmp_path):
     resolved, ω·h < √2) on every sample after the start (the t = 0 sample precedes any step: θ = 1 there) from the
     block path; without the flag it is 1 (backward Euler)."""
     from sim.cli import main
-    from sim.mcap_log import read_log
+    from sim.io.mcap_log import read_log
 
     thetas = []
     for flags in (["--pbd-blend"], []):

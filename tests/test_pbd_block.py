@@ -1,4 +1,4 @@
-"""The PBD plant's block path (``PbdPlant.advance``: many steps in one compiled call, ``sim/xpbd/block_nb.py``)
+"""The PBD plant's block path (``PbdPlant.advance``: many steps in one compiled call, ``sim/plants/pbd_block.py``)
 against its per-frame path (``step()``: one compiled frame per step, the reference), and the runner driving it.
 
 * Seed, boom lift and excavator dig (through the teeth's first ground contact): after every block, body
@@ -22,10 +22,10 @@ import pytest
 from test_pbd_compiled import BOOM, DIG, SEED, assert_close
 from test_pbd_fast import _compare
 from test_runner_fast import assert_logs_agree
-from sim.plant_pbd import PbdPlant
-from sim.runner import run
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.plants.pbd import PbdPlant
+from sim.run.runner import run
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 
 
 @pytest.fixture(autouse=True)

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 from conftest import MODELS
-from sim.plant_pbd import PbdPlant
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.plants.pbd import PbdPlant
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs
 from test_xpbd_rigid import BOX, EXC_Q0, EXC_V0, EXCAVATOR, FOURBAR, PENDULUM, SLIDER, G, build
 

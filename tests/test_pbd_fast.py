@@ -1,4 +1,4 @@
-"""The PBD plant's compiled hydraulic hooks (``sim/xpbd/hydraulics_nb.py``) against the Python hooks.
+"""The PBD plant's compiled hydraulic hooks (``sim/plants/pbd_hydraulics.py``) against the Python hooks.
 
 Both run the compiled XPBD substep; only the coupling (effort law, network finish, energy ledger) differs:
 ``FastHydraulics`` (the default on the compiled path) or ``CouplingImplicit.begin/finish`` + ``PlantBase._account``
@@ -21,9 +21,9 @@ import pytest
 
 from test_pbd_compiled import BOOM, DIG, SEED, assert_close, assert_states_close
 from hydraulics.coupling import SCHEME_NEWTON
-from sim.plant_pbd import PbdPlant
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.plants.pbd import PbdPlant
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 
 FLOW_FLOOR = 1e-4  # m³/s (6 L/min, the circuits' flow scale): near-closed valves' tiny flows carry the pressures' round-off
 # A linear finish (implicit-linear, rosenbrock) has no Newton solve that smooths the round-off of the predicted oil:
@@ -73,7 +73,7 @@ def test_fast_hooks_agree_with_python_hooks(path, steps, overrides):
     (DIG, 30, dict(dt=1 / 60, pbd_substeps=10, coupling="rosenbrock", pbd_blend=True)),
 ], ids=["seed", "boom", "excavator", "excavator-rosenbrock-blend"])
 def test_compiled_frame_agrees_with_python_hooks(path, steps, overrides):
-    """The whole step in one compiled call (``sim/xpbd/frame_nb.py``) against the Python hooks."""
+    """The whole step in one compiled call (``sim/plants/pbd_frame.py``) against the Python hooks."""
     ref = _plant(path, False, **overrides)
     scenario = load_scenario(path).with_overrides(mode="pbd", compiled=True, **overrides)
     fast = PbdPlant(load_scene(scenario), frame=True)

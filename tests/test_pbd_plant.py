@@ -15,11 +15,11 @@ from scipy.optimize import curve_fit
 
 from conftest import MODELS, scene_copy
 from sim.cli import main
-from sim.mcap_log import read_log
-from sim.plant_pbd import PbdPlant, make_pbd_plant
-from sim.runner import run
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.io.mcap_log import read_log
+from sim.plants.pbd import PbdPlant, make_pbd_plant
+from sim.run.runner import run
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 from sim.xpbd import SubstepInputs
 from test_excavator import pressure_bounds
 from test_mujoco_plant import AREA, BETA, MASS, NO_LEAK, SEED, seed_reference
@@ -262,7 +262,7 @@ def test_start_pressures_equal_mujoco_mode(scenario):
     """Equilibrium start: the same holding efforts and chamber pressures as MuJoCo mode at t = 0, and after the first
     steps (t = 0+, 10 ms at 1 kHz) every chamber within 1 % of MuJoCo mode's (no sag into the oil columns)."""
     sc = load_scenario(scenario)
-    from sim.plant_mujoco import MujocoPlant
+    from sim.plants.mujoco import MujocoPlant
 
     mj = MujocoPlant(load_scene(sc))
     pbd = PbdPlant(load_scene(sc.with_overrides(mode="pbd", dt=1e-3, pbd_substeps=4)))

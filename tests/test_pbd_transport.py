@@ -1,5 +1,5 @@
 """Articulated responses carried to every substep's pose (``SolverXPBD(transport_response=True)``,
-``sim.xpbd.frame_nb.frame(transport=True)``, ``sim.xpbd.compiled.transport``).
+``sim.plants.pbd_frame.frame(transport=True)``, ``sim.xpbd.compiled.transport``).
 
 The PBD plant computes the articulated response of the mechanism (row mobilities, group gravity,
 motor responses: the group motions of Δq = M⁻¹·Jᵀ, world frame) once per step.  With transport,
@@ -25,11 +25,11 @@ import pytest
 
 from test_pbd_compiled import DIG, assert_states_close
 from test_pbd_fast import _compare
-from sim.plant_pbd import PbdPlant
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.plants.pbd import PbdPlant
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 from sim.xpbd import compiled as XC
-from sim.xpbd.frame_nb import frame
+from sim.plants.pbd_frame import frame
 
 SWING = {"swing": 0.5}  # rad/s: the dig's swing speed (≈ 90° in ~3 s)
 

@@ -10,9 +10,9 @@ from mcap_ros2.decoder import DecoderFactory
 
 from conftest import MODELS
 from sim.cli import main
-from sim.mcap_log import read_log
-from sim.recorder import CYLINDER_FIELDS, ENERGY_FIELDS, PUMP_FIELDS, SOLVER_FIELDS, VALVE_FIELDS
-from sim.runner import run
+from sim.io.mcap_log import read_log
+from sim.run.recorder import CYLINDER_FIELDS, ENERGY_FIELDS, PUMP_FIELDS, SOLVER_FIELDS, VALVE_FIELDS
+from sim.run.runner import run
 
 
 @pytest.fixture(scope="module")
@@ -157,12 +157,12 @@ def _messages(path):
 def test_ring_size_does_not_change_the_log(tmp_path, monkeypatch):
     """Samples derived one at a time (ring of 1) or in batches that straddle the periodic flushes give the same
     file, byte for byte: the batching changes when values are computed, not what is logged."""
-    import sim.recorder
+    import sim.run.recorder
 
     overrides = {"duration": 2.3, "dt": 5e-3, "log_rate_hz": 200.0}  # 460 samples, a periodic flush at 2 s
     runs = {}
-    for ring in (1, 7, sim.recorder.RING_SIZE):
-        monkeypatch.setattr(sim.recorder, "RING_SIZE", ring)
+    for ring in (1, 7, sim.run.recorder.RING_SIZE):
+        monkeypatch.setattr(sim.run.recorder, "RING_SIZE", ring)
         result = run(MODELS / "boom" / "lift.scenario.toml", out=tmp_path / f"ring{ring}.mcap", overrides=overrides)
         assert result.status == "complete"
         runs[ring] = result
@@ -172,21 +172,21 @@ def test_ring_size_does_not_change_the_log(tmp_path, monkeypatch):
         if blob != first:  # differ only in stamps they should not have: show where
             assert _messages(runs[ring].log_path) == _messages(runs[1].log_path), ring
             pytest.fail(f"ring {ring}: same messages, different bytes")
-    assert runs[1].energy == runs[sim.recorder.RING_SIZE].energy
-    assert runs[1].final_strokes == runs[sim.recorder.RING_SIZE].final_strokes
+    assert runs[1].energy == runs[sim.run.recorder.RING_SIZE].energy
+    assert runs[1].final_strokes == runs[sim.run.recorder.RING_SIZE].final_strokes
 
 
 def test_energy_growth_is_found_at_the_first_offending_sample_of_a_batch(tmp_path, monkeypatch):
     """Energy growth checked per batch stops the run at the same sample, time and log as a check after every
     sample (ring of 1): the seed cylinder with the explicit coupling."""
-    import sim.recorder
+    import sim.run.recorder
 
     results = {}
-    for ring in (1, sim.recorder.RING_SIZE):
-        monkeypatch.setattr(sim.recorder, "RING_SIZE", ring)
+    for ring in (1, sim.run.recorder.RING_SIZE):
+        monkeypatch.setattr(sim.run.recorder, "RING_SIZE", ring)
         results[ring] = run(MODELS / "seed_cylinder" / "closed.scenario.toml", out=tmp_path / f"seed{ring}.mcap",
                             overrides={"coupling": "explicit"})
-    one, batch = results[1], results[sim.recorder.RING_SIZE]
+    one, batch = results[1], results[sim.run.recorder.RING_SIZE]
     assert one.status == batch.status == "diverged" and "energy growth" in batch.message
     assert batch.message == one.message and batch.steps == one.steps and batch.simulated_time == one.simulated_time
     assert batch.energy == one.energy and batch.final_strokes == one.final_strokes

@@ -16,9 +16,9 @@ import pytest
 
 from conftest import MODELS
 from hydraulics._compiled import compiled_available
-from sim.mcap_log import read_log
-from sim.runner import run
-from sim.scenario import load_scenario
+from sim.io.mcap_log import read_log
+from sim.run.runner import run
+from sim.io.scenario import load_scenario
 
 pytestmark = pytest.mark.skipif(not compiled_available(), reason="numba is not installed")
 
@@ -91,9 +91,9 @@ def test_pressure_extremes_of_the_block_path(tmp_path):
     overrides = {"duration": 1.6, "dt": 2e-3}
     fast = run(LIFT, out=tmp_path / "blocks.mcap", overrides=overrides)
     slow = run(LIFT, out=tmp_path / "steps.mcap", overrides=overrides, fast=False)
-    from sim.plant_mujoco_fast import MujocoPlantFast  # noqa: F401  (attribute names below)
-    from sim.runner import _PLANT_EXTREMES
-    from sim.scene import load_scene
+    from sim.plants.mujoco_fast import MujocoPlantFast  # noqa: F401  (attribute names below)
+    from sim.run.runner import _PLANT_EXTREMES
+    from sim.io.scene import load_scene
 
     per_step = all(hasattr(MujocoPlantFast(load_scene(load_scenario(LIFT))), name) for name in _PLANT_EXTREMES)
     assert slow.extremes_every_step and fast.extremes_every_step == per_step
@@ -149,7 +149,7 @@ def test_samples_recorded_inside_blocks_give_the_same_log_file(tmp_path, monkeyp
     every); blocks run one step past their last sample, or hold several samples when the log interval is shorter than
     runner.block_steps(dt)): the log file is byte for byte the one written with one block per sample, each captured by the
     recorder from Python, and so is the summary."""
-    from sim import runner
+    from sim.run import runner
 
     original = runner._Loop.block_end
     lengths = []
@@ -186,7 +186,7 @@ def test_replay_from_an_older_snapshot_gives_the_same_log(tmp_path, monkeypatch)
     """A failed block is replayed from the last snapshot (taken every SNAPSHOT_STEPS steps): the steps from the
     snapshot to the block's start are advanced again, unlogged.  The diverged run's log file and summary are byte
     for byte those of a snapshot at every block start (the same arithmetic either way)."""
-    from sim import runner
+    from sim.run import runner
 
     scenario = load_scenario(LIFT).with_overrides(duration=0.5, dt=2e-3, log_rate_hz=500.0)
     base = scenario.inputs["boom_valve"]
@@ -207,7 +207,7 @@ def test_replay_from_an_older_snapshot_gives_the_same_log(tmp_path, monkeypatch)
 
 def test_blocks_span_half_a_second_or_a_hundred_steps():
     """The block path's block length: 0.5 s of simulated time at fine steps, never fewer than MIN_BLOCK_STEPS."""
-    from sim import runner
+    from sim.run import runner
 
     assert runner.block_steps(1e-3) == 500
     assert runner.block_steps(1 / 1200) == 600

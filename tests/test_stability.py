@@ -2,7 +2,7 @@
 
 Every extreme of the stability map (bulk modulus, step size, load mass, dead
 volume, valve slam, pump start against a closed centre, end-stop impact,
-cavitation) is staged with :func:`sim.stability.write_variant` and run briefly
+cavitation) is staged with :func:`sim.tools.stability.write_variant` and run briefly
 (fractions of a second, coarse dt where the extreme is about dt).  The
 recommended setting (implicit coupling) must finish with finite states,
 pressures inside [cavitation floor, relief + override (+ the spike of a trapped
@@ -22,12 +22,12 @@ import pytest
 
 from conftest import MODELS
 from sim import cli
-from sim import stability as st
-from sim.guards import EXPLICIT_OMEGA_DT_LIMIT, check, check_scenario, expected_stable
-from sim.mcap_log import read_log
-from sim.plant_mujoco import MujocoPlant
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.tools import stability as st
+from sim.run.guards import EXPLICIT_OMEGA_DT_LIMIT, check, check_scenario, expected_stable
+from sim.io.mcap_log import read_log
+from sim.plants.mujoco import MujocoPlant
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 
 SEED = MODELS / "seed_cylinder" / "closed.scenario.toml"
 BOOM = MODELS / "boom" / "lift.scenario.toml"
@@ -295,8 +295,8 @@ def test_seed_bulk_modulus_variant_keeps_the_compression(seed_facts, tmp_path):
 # ------------------------------------------------------------------------------------ CLI
 @pytest.fixture
 def stability_cli(monkeypatch):
-    if "sim.stability" not in cli.TOOL_MODULES:
-        monkeypatch.setattr(cli, "TOOL_MODULES", (*cli.TOOL_MODULES, "sim.stability"))
+    if "sim.tools.stability" not in cli.TOOL_MODULES:
+        monkeypatch.setattr(cli, "TOOL_MODULES", (*cli.TOOL_MODULES, "sim.tools.stability"))
     return cli.main
 
 
@@ -371,7 +371,7 @@ def test_map_classifies_on_per_step_extremes_not_logged_samples(boom_facts, tmp_
     """
     import dataclasses
 
-    from sim.runner import run
+    from sim.run.runner import run
 
     point = grid_point(boom_facts, st.Config("nominal", None, "valve_slam"), tmp_path, coupling="implicit", dt=1e-4,
                        duration=0.1, log_rate_hz=20.0)
@@ -395,9 +395,9 @@ def test_map_classifies_on_per_step_extremes_not_logged_samples(boom_facts, tmp_
 
 def test_run_point_repeats_a_run_without_per_step_extremes(boom_facts, tmp_path, monkeypatch):
     """A run whose extremes cover only the logged samples is repeated with ``fast=False`` (per-step checks)."""
-    import sim.runner
+    import sim.run.runner
 
-    real_run, calls = sim.runner.run, []
+    real_run, calls = sim.run.runner.run, []
 
     def sampled_only(*args, fast=True, **kwargs):  # a plant without node_pressure_max/min
         calls.append(fast)
@@ -407,7 +407,7 @@ def test_run_point_repeats_a_run_without_per_step_extremes(boom_facts, tmp_path,
             result.min_pressure = {k: v + 1e5 for k, v in result.min_pressure.items()}  # what the samples would say
         return result
 
-    monkeypatch.setattr(sim.runner, "run", sampled_only)
+    monkeypatch.setattr(sim.run.runner, "run", sampled_only)
     point = grid_point(boom_facts, st.Config("event", "cavitation", "cavitation"), tmp_path, coupling="implicit", dt=1e-3,
                        duration=0.1, log_rate_hz=100.0)
     result = st.run_point(point)

@@ -22,10 +22,10 @@ pytestmark = pytest.mark.skipif(not compiled_available(), reason="numba is not i
 PROBE = """
 import json, sys
 import numpy as np
-from sim import plant_mujoco_fast as fast_module
-from sim.plant_mujoco import MujocoPlant
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.plants import mujoco_fast as fast_module
+from sim.plants.mujoco import MujocoPlant
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 scenario = load_scenario(sys.argv[1])
 fast = fast_module.MujocoPlantFast(load_scene(scenario))
 reference = MujocoPlant(load_scene(scenario))
@@ -51,7 +51,7 @@ def probe():
 def test_callback_is_loaded_from_the_disk_cache_by_a_second_process():
     first = probe()  # compiles and writes the cache if it is cold (once per change of the source)
     assert first["fast"] and first["success"]
-    index = list(Path(first["cache_dir"]).glob("plant_mujoco_fast._callback_function.locals.coupled_step_c-*.nbi"))
+    index = list(Path(first["cache_dir"]).glob("mujoco_fast._callback_function.locals.coupled_step_c-*.nbi"))
     assert index, f"no cache index of the callback in {first['cache_dir']}"
     second = probe()
     assert second["cache_hits"] >= 1, "the second process compiled the callback instead of loading it"
@@ -64,9 +64,9 @@ def test_callback_is_loaded_from_the_disk_cache_by_a_second_process():
 PBD_PROBE = """
 import json, sys, warnings
 warnings.filterwarnings("ignore")
-from sim.plant_pbd import PbdPlant
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.plants.pbd import PbdPlant
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 plant = PbdPlant(load_scene(load_scenario(sys.argv[1]).with_overrides(mode="pbd", dt=1 / 60, pbd_substeps=2)))
 plant.advance(2)
 kernel = plant._block_context()["kernel"]
@@ -76,9 +76,9 @@ print(json.dumps({"blocks": plant.frame_steps, "hits": sum(kernel.stats.cache_hi
 
 
 def test_compile_command_fills_the_cache_for_a_later_process():
-    """``hydroplant compile`` (sim.precompile) runs its groups in their own processes; a fresh process then loads
+    """``hydroplant compile`` (sim.run.precompile) runs its groups in their own processes; a fresh process then loads
     the PBD block kernel from numba's disk cache (a cache hit, no miss: nothing compiled)."""
-    from sim.precompile import precompile
+    from sim.run.precompile import precompile
 
     with pytest.raises(ValueError, match="unknown kernel groups"):
         precompile(["nope"])

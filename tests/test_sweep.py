@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from conftest import MODELS
-from sim.sweep import SweepError, content_hash, point_key, run_sweep
+from sim.tools.sweep import SweepError, content_hash, point_key, run_sweep
 
 SEED = MODELS / "seed_cylinder" / "closed.scenario.toml"
 
@@ -65,9 +65,9 @@ def test_seed_sweep_gives_the_same_error_table_on_a_process_pool_and_on_dask(tmp
     error (not on timings)."""
     from dask.distributed import LocalCluster
 
-    from sim.runner import run
-    from sim.scenario import load_scenario
-    from sim.tradeoff import error_table, evaluate
+    from sim.run.runner import run
+    from sim.io.scenario import load_scenario
+    from sim.tools.tradeoff import error_table, evaluate
 
     scenario = load_scenario(SEED).with_overrides(duration=0.02)
     fine = run(scenario, out=tmp_path / "fine.mcap", overrides={"dt": 1 / 9600}).log_path
@@ -85,7 +85,7 @@ def test_seed_sweep_gives_the_same_error_table_on_a_process_pool_and_on_dask(tmp
 
 def test_code_hash_follows_the_simulation_source_only(tmp_path):
     """A cached result keyed on the code is invalid after a change to the simulation code, not after a tool's."""
-    from sim.sweep import code_hash
+    from sim.tools.sweep import code_hash
 
     for package in ("hydraulics", "sim"):
         (tmp_path / package).mkdir()
@@ -101,8 +101,8 @@ def test_code_hash_follows_the_simulation_source_only(tmp_path):
 
 
 def test_reference_key_includes_the_code_and_the_fidelity(monkeypatch):
-    import sim.reference as reference
-    from sim.scenario import load_scenario
+    import sim.tools.reference as reference
+    from sim.io.scenario import load_scenario
 
     scenario = load_scenario(MODELS / "boom" / "lift.scenario.toml")
     settings = reference.ReferenceSettings()
@@ -113,8 +113,8 @@ def test_reference_key_includes_the_code_and_the_fidelity(monkeypatch):
 
 
 def test_fidelity_is_a_sweep_dimension():
-    from sim.scenario import load_scenario
-    from sim.tradeoff import setting_label, sweep_settings
+    from sim.io.scenario import load_scenario
+    from sim.tools.tradeoff import setting_label, sweep_settings
 
     scenario = load_scenario(MODELS / "excavator" / "dig.scenario.toml")
     quick = sweep_settings(scenario, quick=True, modes=["mujoco"])
@@ -133,9 +133,9 @@ def test_tradeoff_rows_show_when_incompressible_is_good_enough(tmp_path):
     """Boom lift (valve opened at 1.0–1.3 s), 2 s against a fine compressible run: the incompressible model
     lifts at Q/A like the oil-column model (stroke within 1 cm at 2 ms) but has no chamber pressures to
     speak of (error > 50 bar), and the lines model is as good as the lumped one."""
-    from sim.runner import run
-    from sim.scenario import load_scenario
-    from sim.tradeoff import evaluate
+    from sim.run.runner import run
+    from sim.io.scenario import load_scenario
+    from sim.tools.tradeoff import evaluate
 
     scenario = load_scenario(MODELS / "boom" / "lift.scenario.toml").with_overrides(duration=2.0)
     fine = run(scenario, out=tmp_path / "fine.mcap", overrides={"dt": 2.5e-4}).log_path
@@ -159,9 +159,9 @@ def test_tradeoff_errors_on_filtered_signals_see_through_chatter():
     """error_rows with a filter window: a run that chatters ±5 mm at 50 Hz around a 1 mm offset of the reference
     has a point-wise stroke error of 6 mm and a 0.1 s-averaged one of the offset alone (1 mm: the window holds
     whole chatter periods)."""
-    from sim.compare import Signal
-    from sim.scenario import load_scenario
-    from sim.tradeoff import error_rows, sweep_points
+    from sim.tools.compare import Signal
+    from sim.io.scenario import load_scenario
+    from sim.tools.tradeoff import error_rows, sweep_points
 
     scenario = load_scenario(MODELS / "boom" / "lift.scenario.toml")
     setting = {"mode": "mujoco", "coupling": "implicit", "dt": 1e-3, "hydraulic_substeps": 1, "pbd_substeps": 20,

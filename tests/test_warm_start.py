@@ -11,9 +11,9 @@ import pytest
 import hydraulics.coupling as coupling
 from conftest import MODELS
 from hydraulics.steppers import NEWTON_PRESSURE_TOLERANCE
-from sim.plant_mujoco import MujocoPlant
-from sim.scenario import load_scenario
-from sim.scene import load_scene
+from sim.plants.mujoco import MujocoPlant
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 
 SECONDS = 2.0  # s of each scenario from its start (the excavator: approach and the start of the dig)
 SCENES = {"boom": MODELS / "boom" / "lift.scenario.toml", "excavator": MODELS / "excavator" / "dig.scenario.toml"}
@@ -65,7 +65,7 @@ def test_an_unusable_warm_start_falls_back_to_the_start_oil(fast, monkeypatch):
     """A warm start whose linearisation is unusable (here NaN, the worst case) is retried from the start oil before
     the coupling gives up the velocity guess: the run is then the cold run, bit for bit, in the pure coupling and in
     the compiled step alike (the warm start changes the iterations only, never the law)."""
-    from sim.plant_mujoco_fast import MujocoPlantFast
+    from sim.plants.mujoco_fast import MujocoPlantFast
 
     make = (lambda s: MujocoPlantFast(s)) if fast else (lambda s: MujocoPlant(s))
     scenario = load_scenario(SCENES["excavator"])

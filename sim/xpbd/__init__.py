@@ -4,8 +4,8 @@ Scenes are read from a compiled ``mujoco.MjModel`` (``XpbdModel.from_mjmodel``);
 never used for dynamics.  See ``solver.py`` for sign conventions of the length rows.
 """
 
-from .model import XpbdModel, XpbdState
-from .solver import LengthConstraint, SolverXPBD, SubstepForces, SubstepHooks, SubstepInputs
+from sim.xpbd.model import XpbdModel, XpbdState
+from sim.xpbd.solver import LengthConstraint, SolverXPBD, SubstepForces, SubstepHooks, SubstepInputs
 
 __all__ = [
     "XpbdModel",

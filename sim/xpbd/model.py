@@ -34,7 +34,7 @@ from typing import Optional
 import mujoco
 import numpy as np
 
-from .kernels import (
+from sim.xpbd.kernels import (
     np_cross,
     np_quat_conj,
     np_quat_mul,
@@ -683,7 +683,7 @@ class XpbdModel:
         """Contiguous int64/float64 copies of the model arrays the compiled observations read (made once)."""
         a = self.__dict__.get("_nb")
         if a is None:
-            from . import compiled
+            from sim.xpbd import compiled
 
             f = lambda v, *shape: np.ascontiguousarray(np.array(v, dtype=np.float64).reshape(*shape))  # noqa: E731
             i = lambda v: np.ascontiguousarray(np.array(v, dtype=np.int64).reshape(-1))  # noqa: E731

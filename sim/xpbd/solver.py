@@ -24,8 +24,8 @@ from typing import Optional, Protocol, Sequence
 
 import numpy as np
 
-from . import kernels as K
-from .kernels import (
+from sim.xpbd import kernels as K
+from sim.xpbd.kernels import (
     angular_inverse_mass,
     apply_angular_velocity_impulse,
     apply_velocity_impulse,
@@ -45,7 +45,7 @@ from .kernels import (
     twist_angle,
     update_velocity_body,
 )
-from .model import EQ_WELD, JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE, XpbdModel, XpbdState
+from sim.xpbd.model import EQ_WELD, JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE, XpbdModel, XpbdState
 
 __all__ = ["LengthConstraint", "SubstepInputs", "SubstepForces", "SubstepHooks", "SolverXPBD",
            "mujoco_contact_law", "mujoco_impedance", "mujoco_limit_law"]
@@ -376,7 +376,7 @@ class SolverXPBD:
         """The limits as one float array for ``compiled.substep_core`` (``jlim``, shape (njnt + ntendonlimits,
         LIMIT_COLS)): per joint [limited (1/0), solref (2), solimp (5), dof_invweight0], invweight 0 = rigid
         projection; then per soft tendon limit the same and [lo, hi [m], group a, group b, ra (3), rb (3)]."""
-        from .compiled import LIMIT_COLS
+        from sim.xpbd.compiled import LIMIT_COLS
 
         m = self.model
         nj = m.njnt
@@ -393,7 +393,7 @@ class SolverXPBD:
         return tab
 
     def _scatter_compiled(self, X, Q, V, W, state):
-        from .compiled import scatter
+        from sim.xpbd.compiled import scatter
 
         fm = self._flat
         out = (state.x, state.q, state.v, state.w)
@@ -504,7 +504,7 @@ class SolverXPBD:
     # ------------------------------------------------------------------ gather / scatter
     def _gather(self, state):
         if self.compiled:  # one compiled pass (compiled.gather, same equations)
-            from .compiled import gather
+            from sim.xpbd.compiled import gather
 
             m, a = self.model, self.model._nb_arrays()
             ng = len(a["root"])
@@ -539,7 +539,7 @@ class SolverXPBD:
         if len(m.contact_group) == 0:
             return []
         if self.compiled:  # the candidate test in one compiled pass (compiled.contact_candidates)
-            from .compiled import contact_candidates
+            from sim.xpbd.compiled import contact_candidates
 
             c = self._contact_arrays()
             n = contact_candidates(_f64(x), _f64(q), _f64(v), _f64(w), c["group"], c["plane"], c["plane_group"],
@@ -1649,7 +1649,7 @@ class SolverXPBD:
 
     def _step_compiled(self, state, dt, hooks, inputs, x, q, v, w, contacts):
         """``step`` with every substep in ``compiled.substep_core`` (same order of operations as the pure loop)."""
-        from .compiled import substep_core as _substep, substep_work
+        from sim.xpbd.compiled import substep_core as _substep, substep_work
 
         m = self.model
         fm = self._flat
@@ -1675,7 +1675,7 @@ class SolverXPBD:
         work = substep_work(ng, nj, len(fm["jlim"]) - nj, len(cg), nr)  # the substeps' other work arrays
         Gk = P0 = None
         if self.transport_response and nj:  # compiled.group_jacobian / jacobian_pinv / transport
-            from .compiled import group_jacobian, jacobian_pinv, transport
+            from sim.xpbd.compiled import group_jacobian, jacobian_pinv, transport
 
             Gk = np.zeros((ng, 6, nj))
             P0 = np.zeros((nj, ng * 6))

@@ -44,7 +44,7 @@ Conventions (see ``/work/shared/notes/mcap-logging.md``):
   also when the ``with`` block raises. A file cut by SIGKILL can be rebuilt with
   :func:`recover`.
 
-This module does not import MuJoCo; see :mod:`sim.foxglove_scene` for the model-specific
+This module does not import MuJoCo; see :mod:`sim.io.foxglove_scene` for the model-specific
 channels.
 """
 
@@ -89,7 +89,7 @@ from mcap.records import Schema as _McapSchema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, IndexType, Writer
 
-from . import version
+from sim import version
 
 __all__ = [
     "Attachment",
@@ -2083,7 +2083,7 @@ class LogWriter:
     def on_close(self, hook: Callable[[], None]) -> None:
         """Call ``hook()`` when the log closes, before its last samples are written.
 
-        For callers that buffer samples themselves (e.g. :class:`sim.recorder.RunRecorder`):
+        For callers that buffer samples themselves (e.g. :class:`sim.run.recorder.RunRecorder`):
         the hook hands them over, so an exception or Ctrl-C that closes the log keeps
         them.  An exception in a hook is recorded in ``hydroplant.result``
         (``close_hook_error``) and the log is still finished.

@@ -14,7 +14,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from sim.mcap_log import (
+from sim.io.mcap_log import (
     FRAME_TRANSFORMS,
     TIMESTAMP,
     Channel,

@@ -7,13 +7,13 @@
 Sweeps the step ``dt``, the hydraulic substeps (MuJoCo mode), the XPBD substeps and
 iterations (PBD modes, when the PBD plant is importable), both couplings and the fidelity
 level (``incompressible`` / ``compressible`` / ``lines``, :data:`hydraulics.network.FIDELITIES`)
-(:func:`sweep_settings`), runs every setting through :func:`sim.sweep.run_sweep` (a local
+(:func:`sweep_settings`), runs every setting through :func:`sim.tools.sweep.run_sweep` (a local
 process pool, or a Dask cluster with ``--scheduler``), and measures per setting
 
 * the cost: wall-clock seconds per simulated second, the median of ``repeats`` runs
   (timings depend on the machine and on what else runs; the errors do not), and
-* the errors against the converged reference (:mod:`sim.reference`): the largest and RMS
-  error of joint positions, strokes and pressures (:mod:`sim.compare`), plus the energy
+* the errors against the converged reference (:mod:`sim.tools.reference`): the largest and RMS
+  error of joint positions, strokes and pressures (:mod:`sim.tools.compare`), plus the energy
   drift and whether the run diverged.
 
 Writes ``tradeoff.csv`` (one row per setting), ``pareto.png`` (error against cost,
@@ -41,7 +41,7 @@ import numpy as np
 
 from hydraulics.components import CircuitError
 
-from .sweep import content_hash, run_sweep
+from sim.tools.sweep import content_hash, run_sweep
 
 __all__ = [
     "ERROR_COLUMNS",
@@ -71,8 +71,8 @@ COST_COLUMNS = ("wall_per_sim_s", "wall_per_sim_s_runs")
 
 
 def code_hash() -> str:
-    """Content hash of the simulation code (``hydraulics/`` and ``sim/`` minus the analysis tools), see :func:`sim.sweep.code_hash`."""
-    from .sweep import code_hash as simulation_code_hash
+    """Content hash of the simulation code (``hydraulics/`` and ``sim/`` minus the analysis tools), see :func:`sim.tools.sweep.code_hash`."""
+    from sim.tools.sweep import code_hash as simulation_code_hash
 
     return simulation_code_hash()
 
@@ -83,7 +83,7 @@ def dt_ladder(scenario, exponents) -> list[float]:
     ``dt0`` is the scenario's dt rounded down to ``period / n``. Coarser steps are rounded to
     ``period / round(n / 2**k)`` (or ``period · round(2**k / n)`` beyond the period).
     """
-    from .reference import start_step
+    from sim.tools.reference import start_step
 
     period = 1.0 / scenario.log_rate_hz
     n0 = round(period / start_step(scenario))
@@ -120,7 +120,7 @@ def sweep_settings(scenario, *, quick: bool = False, modes=None, fidelities=None
     - ``compressible`` / ``lines`` at dt0·{2, 1, 1/2}; quick: dt0 (not when the circuit has no hoses:
       the two levels then build the same network).
     """
-    from .compare import pbd_available
+    from sim.tools.compare import pbd_available
 
     from hydraulics.network import FIDELITIES
 
@@ -219,12 +219,12 @@ def run_point(point: dict) -> dict:
     -------
     dict
         ``status``, ``diverged_at_s``, ``message``, ``wall_per_sim_s`` (median), ``wall_per_sim_s_runs``,
-        ``energy`` (:func:`sim.compare.energy_drift`) and ``signals`` ``{name: {"kind", "t", "y"}}``
+        ``energy`` (:func:`sim.tools.compare.energy_drift`) and ``signals`` ``{name: {"kind", "t", "y"}}``
         (NaN where not finite). A run that raises gives ``status = "error"`` and the message.
     """
-    from .compare import energy_drift, log_signals, log_status
-    from .mcap_log import read_log
-    from .runner import run
+    from sim.tools.compare import energy_drift, log_signals, log_status
+    from sim.io.mcap_log import read_log
+    from sim.run.runner import run
 
     overrides = {k: point[k] for k in ("mode", "coupling", "dt", "hydraulic_substeps", "pbd_substeps", "pbd_iterations",
                                        "duration")}
@@ -256,7 +256,7 @@ _WARM: set = set()  # (scenario, mode, coupling) already run in this worker proc
 def _warm_up(point: dict, overrides: dict, tmp: Path) -> None:
     """One short untimed run per scenario, mode and coupling in each worker process, so that one-time costs
     (imports, compilation, caches) are not charged to the first timed setting."""
-    from .runner import run
+    from sim.run.runner import run
 
     key = (point["scenario"], point["mode"], point["coupling"], point.get("fidelity"))
     if key in _WARM:
@@ -270,9 +270,9 @@ def error_rows(points: list[dict], results: list[dict], ref_signals: dict, filte
     """One row per point: settings, cost and errors against the reference signals (SI units).
 
     ``filter_window`` [s]: errors of the signals averaged over a centred moving window
-    (:func:`sim.compare.filtered_error_stats`) instead of point-wise.
+    (:func:`sim.tools.compare.filtered_error_stats`) instead of point-wise.
     """
-    from .compare import error_stats, filtered_error_stats
+    from sim.tools.compare import error_stats, filtered_error_stats
 
     rows = []
     for p, r in zip(points, results):
@@ -412,7 +412,7 @@ MODE_COLORS = {"mujoco": "tab:blue", "pbd": "tab:green", "pbd-naive": "tab:red"}
 
 def pareto_figure(rows: list[dict], path, *, title: str = "", kinds=("stroke", "pressure")) -> Path:
     """Log-log error against cost per kind; diverged settings on the top edge; the Pareto front as a step line."""
-    from .compare import _pyplot
+    from sim.tools.compare import _pyplot
 
     plt = _pyplot()
     from matplotlib import ticker
@@ -482,10 +482,10 @@ class TradeoffResult:
 
 def evaluate(scenario, settings: list[dict], reference_log, *, repeats: int = DEFAULT_REPEATS, scheduler=None,
              workers=None, cache_dir=None, progress=None, filter_window: float | None = None) -> list[dict]:
-    """Run the settings through :func:`sim.sweep.run_sweep` and return the error rows against ``reference_log``
+    """Run the settings through :func:`sim.tools.sweep.run_sweep` and return the error rows against ``reference_log``
     (``filter_window``: see :func:`error_rows`)."""
-    from .compare import log_signals
-    from .mcap_log import read_log
+    from sim.tools.compare import log_signals
+    from sim.io.mcap_log import read_log
 
     points = sweep_points(scenario, settings, repeats=repeats)
     # The reference is not in the points: the workers return signals, the errors are computed here.
@@ -505,8 +505,8 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
     errors alike (for runs whose point-wise signals never converge, e.g. the whole excavator dig with
     the teeth's stick-slip in the soil).
     """
-    from .reference import DEFAULT_CACHE_DIR, compute_reference
-    from .scenario import as_scenario
+    from sim.tools.reference import DEFAULT_CACHE_DIR, compute_reference
+    from sim.io.scenario import as_scenario
 
     scenario = as_scenario(scenario, duration=duration)
     out_dir = Path(out_dir)
@@ -594,8 +594,8 @@ def add_parser(subparsers):
 
 def main(args) -> int:
     """``hydroplant tradeoff``; returns the exit code."""
-    from .reference import Tolerance
-    from .scenario import MODES
+    from sim.tools.reference import Tolerance
+    from sim.io.scenario import MODES
 
     for name in ("duration", "tolerance", "filter_window"):
         value = getattr(args, name)
@@ -623,7 +623,7 @@ def main(args) -> int:
             raise CircuitError(f"--fidelities: {bad or args.fidelities!r} not in {list(FIDELITIES)}")
     if args.reference_fidelity is not None and args.reference_fidelity not in FIDELITIES:
         raise CircuitError(f"--reference-fidelity: {args.reference_fidelity!r} is not one of {list(FIDELITIES)}")
-    from .scenario import load_scenario
+    from sim.io.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
     out = args.out or Path("logs") / f"tradeoff-{scenario.scene_name}-{scenario.name}"

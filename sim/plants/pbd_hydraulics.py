@@ -1,6 +1,6 @@
 """Compiled hydraulic hooks of the PBD plant: the implicit coupling's begin/finish and the energy ledger per substep.
 
-:class:`sim.plant_pbd.PbdPlant` calls, per XPBD substep,
+:class:`sim.plants.pbd.PbdPlant` calls, per XPBD substep,
 ``CouplingImplicit.begin`` (the effort law c + s·v⁺ of every actuator),
 ``CouplingImplicit.finish`` (one backward-Euler step of the network with the
 realised motion, Newton started from the linearisation's predicted oil) and
@@ -10,7 +10,7 @@ cost ≈ 300 µs per substep, most of it Python and numpy call overhead.
 :class:`FastHydraulics` does the same arithmetic in two numba calls per
 substep with buffers allocated once, calling the allocation-free cores of
 :mod:`hydraulics._compiled` (``_linearize_core``, ``_step_core``) and the
-pieces of the coupled step it shares with :mod:`sim.plant_mujoco_fast`
+pieces of the coupled step it shares with :mod:`sim.plants.mujoco_fast`
 (``_take_linearization``, ``_linearize_at_start_velocity``, ``_effort_law_terms``,
 ``_predicted_oil``, ``_commit_if_finite``, ``_account``).  Same
 equations, same Newton iterations; the results agree with the Python hooks to
@@ -30,7 +30,7 @@ hooks (:func:`eligible`).
 Caching: numba caches a function by its own file only, so the two entry points
 carry a sha256 of this file and of ``hydraulics/_compiled.py`` (and the numba
 version) as a closure variable, which is part of numba's cache key (as
-:mod:`sim.plant_mujoco_fast` does); the helpers below are not cached on their
+:mod:`sim.plants.mujoco_fast` does); the helpers below are not cached on their
 own and exist only inside the entry points.  One signature each.
 """
 

@@ -85,10 +85,10 @@ stepper.  On top of that, for the implicit couplings (``implicit``, PBD mode's d
 
 * the hooks' coupling law, network finish and energy ledger run in two
   compiled calls per substep with preallocated buffers
-  (``sim/xpbd/hydraulics_nb.py``: ``_compiled._linearize_core`` / ``_step_core``);
+  (``sim/plants/pbd_hydraulics.py``: ``_compiled._linearize_core`` / ``_step_core``);
 * on trees of hinges and slides with hinge motors and soft pyramidal contacts
   (the seed, boom and excavator scenes), the whole step is one compiled call
-  (``sim/xpbd/frame_nb.py``: all substeps with the coupling, the XPBD substep
+  (``sim/plants/pbd_frame.py``: all substeps with the coupling, the XPBD substep
   and the ledger; operator inputs sampled for the substeps beforehand) and
   ``articulated`` is compiled too.  ``frame_steps`` counts these steps;
   ``solver.last_forces`` is then left empty (the hooks are not called).
@@ -97,9 +97,9 @@ Both give the Python hooks' results to round-off (``tests/test_pbd_fast.py``);
 the constructor's ``fast_hydraulics`` / ``frame`` (default: on where they apply)
 select the paths for tests.
 
-:meth:`advance` (n) steps n times with the :class:`~sim.plant_mujoco_fast.MujocoPlantFast`
+:meth:`advance` (n) steps n times with the :class:`~sim.plants.mujoco_fast.MujocoPlantFast`
 interface.  Where the compiled frame applies (:attr:`fast`), whole blocks of steps run in one
-compiled call (``sim/xpbd/block_nb.py``: per step the articulated data, contacts, the frame,
+compiled call (``sim/plants/pbd_block.py``: per step the articulated data, contacts, the frame,
 the clocks, the mechanical ledger and the pressure extremes; operator inputs sampled for every
 substep of the block beforehand), and the log samples inside a block are recorded from it into
 the runner's ring (:meth:`record_next`), so the runner drives this plant in blocks like the
@@ -148,16 +148,16 @@ from hydraulics.load import apply_inputs
 from hydraulics.network import ACTUATOR_CYLINDER
 from hydraulics.steppers import StepReport
 
-from ._coupling_nb import input_plan, sample_inputs
-from .plant_base import PlantBase
-from .plant_mujoco_fast import MujocoPlantFast
-from .scenario import ScenarioError
-from .scene import Scene, initial_qpos_qvel
-from .xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel
-from .xpbd.hydraulics_nb import FastHydraulics
-from .xpbd.hydraulics_nb import eligible as fast_eligible
-from .xpbd.kernels import np_cross, np_quat_rotate, np_quat_rotate_inv, quat_rotate
-from .xpbd.model import JNT_HINGE, JNT_SLIDE
+from sim.plants.inputs import input_plan, sample_inputs
+from sim.plants.base import PlantBase
+from sim.plants.mujoco_fast import MujocoPlantFast
+from sim.io.scenario import ScenarioError
+from sim.io.scene import Scene, initial_qpos_qvel
+from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel
+from sim.plants.pbd_hydraulics import FastHydraulics
+from sim.plants.pbd_hydraulics import eligible as fast_eligible
+from sim.xpbd.kernels import np_cross, np_quat_rotate, np_quat_rotate_inv, quat_rotate
+from sim.xpbd.model import JNT_HINGE, JNT_SLIDE
 
 # MuJoCo joint types whose coordinate is one scalar (logged as joint states).
 SCALAR_JOINTS = (JNT_HINGE, JNT_SLIDE)
@@ -239,11 +239,11 @@ class PbdPlant(PlantBase):
         iquat_conj = np.asarray(xm.body_iquat) * np.array([1.0, -1.0, -1.0, -1.0])
         self._axis_inertial = np_quat_rotate(iquat_conj[xm.jnt_body], np.asarray(xm.jnt_axis))
         self._origin_inertial = np_quat_rotate(iquat_conj, -np.asarray(xm.body_ipos))
-        # compiled coupling hooks (sim/xpbd/hydraulics_nb.py): default on the compiled path where they apply
+        # compiled coupling hooks (sim/plants/pbd_hydraulics.py): default on the compiled path where they apply
         if fast_hydraulics is None:
             fast_hydraulics = bool(scenario.compiled)
         self._fast = FastHydraulics(self) if fast_hydraulics and fast_eligible(self) else None
-        # whole steps in one compiled call (sim/xpbd/frame_nb.py) where they apply; else the hooks below
+        # whole steps in one compiled call (sim/plants/pbd_frame.py) where they apply; else the hooks below
         self.frame_steps = 0  # steps that ran as one compiled frame
         self._record_next = None  # (rows, every) for the next advance() (record_next)
         self.recorded, self.recorded_finite, self.end_finite = 0, True, True
@@ -354,9 +354,9 @@ class PbdPlant(PlantBase):
 
     @property
     def fast(self) -> bool:
-        """Whether :meth:`advance` runs whole blocks of steps in one compiled call (``sim/xpbd/block_nb.py``):
+        """Whether :meth:`advance` runs whole blocks of steps in one compiled call (``sim/plants/pbd_block.py``):
         the compiled-frame path on a tree of hinges and slides with hinge motors, and ``block`` not switched off.
-        The runner then drives this plant in blocks (``sim.runner._Loop.blocks``)."""
+        The runner then drives this plant in blocks (``sim.run.runner._Loop.blocks``)."""
         return bool(self.block and self.frame_compiled and self.solver.compiled and self._tree and len(self.cylinders)
                     and GRAVITY_ARTICULATED and all(self._hinge[self.motor_joint]))
 
@@ -492,11 +492,11 @@ class PbdPlant(PlantBase):
         return cmd, speed
 
     def _block_context(self):
-        """Buffers and constant arguments of the compiled block (made once; see ``sim/xpbd/block_nb.py``)."""
+        """Buffers and constant arguments of the compiled block (made once; see ``sim/plants/pbd_block.py``)."""
         ctx = getattr(self, "_block_ctx", None)
         if ctx is not None:
             return ctx
-        from .xpbd.block_nb import block
+        from sim.plants.pbd_block import block
 
         fc = self._frame_context()
         a = fc["articulated"]
@@ -644,7 +644,7 @@ class PbdPlant(PlantBase):
         return True
 
     def _frame_ready(self) -> bool:
-        """True when this step can run as one compiled frame (``sim/xpbd/frame_nb.py``)."""
+        """True when this step can run as one compiled frame (``sim/plants/pbd_frame.py``)."""
         return bool(
             self._fast is not None and self.solver.compiled and len(self.cylinders) and self._mobility is not None
             and self._group_gravity is not None and (self._motor_response is not None or not len(self.motors))
@@ -674,7 +674,7 @@ class PbdPlant(PlantBase):
         xs[:], vs[:], ell0[:] = self._x, self._v, self._ell
         out = ctx["out"]
         if ctx["work_contacts"] < len(cg):  # the frame's work arrays, made again only for more contact candidates
-            from .xpbd.frame_nb import frame_work
+            from sim.plants.pbd_frame import frame_work
 
             ctx["work"] = frame_work(len(self.cylinders), len(xs), Xg.shape[0], len(fm["jt"]), self._mobility.shape,
                                      len(fm["jlim"]) - len(fm["jt"]), len(cg))
@@ -729,7 +729,7 @@ class PbdPlant(PlantBase):
         ctx = getattr(self, "_frame_ctx", None)
         if ctx is not None:
             return ctx
-        from .xpbd.frame_nb import articulated, frame
+        from sim.plants.pbd_frame import articulated, frame
 
         xm, net = self.xmodel, self.network
         na, nsub = net.actuator_count, self.solver.substeps

@@ -6,7 +6,7 @@
     hydroplant compare REFERENCE.mcap RUN.mcap [RUN2.mcap ...] [--out DIR]
 
 The first form computes (or takes from the cache) the converged MuJoCo-mode reference of
-the scenario (:mod:`sim.reference`), runs each mode (``mode`` or ``mode:coupling``), and
+the scenario (:mod:`sim.tools.reference`), runs each mode (``mode`` or ``mode:coupling``), and
 writes into ``--out``: one MCAP log per run, ``reference.mcap``, ``merged.mcap`` (topics
 prefixed ``/reference/...``, ``/mujoco/...``, ``/pbd/...``; open it in Foxglove), and
 ``report.md`` with a table per run and PNG figures.  The second form does the same for
@@ -40,7 +40,7 @@ import numpy as np
 
 from hydraulics.components import CircuitError
 
-from .mcap_log import RESULT_METADATA, RUN_METADATA, merge_logs, read_log
+from sim.io.mcap_log import RESULT_METADATA, RUN_METADATA, merge_logs, read_log
 
 __all__ = [
     "ErrorStats",
@@ -100,7 +100,7 @@ class Signal:
 
 
 def log_signals(log) -> dict[str, Signal]:
-    """The compared signals of a run log (a path or a :class:`sim.mcap_log.RunLog`)."""
+    """The compared signals of a run log (a path or a :class:`sim.io.mcap_log.RunLog`)."""
     if not hasattr(log, "topic"):
         log = read_log(log)
     out: dict[str, Signal] = {}
@@ -533,7 +533,7 @@ class RunSpec:
 def pbd_available() -> tuple[bool, str]:
     """Whether the PBD modes can run here, and why not."""
     try:
-        from .plant_pbd import make_pbd_plant  # noqa: F401
+        from sim.plants.pbd import make_pbd_plant  # noqa: F401
     except ImportError as exc:
         return False, f"the PBD plant is not available ({exc})"
     return True, ""
@@ -550,7 +550,7 @@ def parse_runs(text: str, default_coupling: str = "implicit") -> list[RunSpec]:
     Each item is ``mode`` or ``mode:coupling`` (a bare mode uses ``default_coupling``). The
     label is the mode when that mode appears once, else ``mode-coupling``.
     """
-    from .scenario import COUPLINGS, MODES
+    from sim.io.scenario import COUPLINGS, MODES
 
     items = [item.strip() for item in text.split(",") if item.strip()]
     if not items:
@@ -590,15 +590,15 @@ def compare_runs(scenario, specs: list[RunSpec], out_dir, *, dt: float | None = 
     """Reference + one run per spec of a scenario; logs, merged log, report and figures in ``out_dir``.
 
     ``filter_window`` [s]: the reference's convergence is checked on the signals averaged over
-    that window (:func:`sim.reference.check_convergence`), and the report adds the errors of the
+    that window (:func:`sim.tools.reference.check_convergence`), and the report adds the errors of the
     averaged signals. ``reference_options``: more keyword arguments of
-    :func:`sim.reference.compute_reference` (``start_dt``, ``max_steps`` …). ``run_overrides``:
+    :func:`sim.tools.reference.compute_reference` (``start_dt``, ``max_steps`` …). ``run_overrides``:
     label -> scenario overrides for that run (e.g. ``{"pbd-40": {"pbd_substeps": 40}}``).
     ``figure_runs``: labels of the runs drawn in the figures (default all; the tables list all).
     """
-    from .reference import DEFAULT_CACHE_DIR, compute_reference
-    from .runner import run
-    from .scenario import as_scenario
+    from sim.tools.reference import DEFAULT_CACHE_DIR, compute_reference
+    from sim.run.runner import run
+    from sim.io.scenario import as_scenario
 
     scenario = as_scenario(scenario, duration=duration)
     out_dir = Path(out_dir)
@@ -630,7 +630,7 @@ def compare_runs(scenario, specs: list[RunSpec], out_dir, *, dt: float | None = 
     ref_text = f"{reference.settings_text()} ({'cached' if reference.cached else f'computed in {reference.wall_time:.0f} s'})"
     convergence_text = reference.report.text()
     if filter_window:  # the same pair point-wise, for the record
-        from .reference import check_convergence
+        from sim.tools.reference import check_convergence
 
         pointwise = check_convergence(reference.coarse_log_path, reference.log_path, reference.settings.tolerance)
         worst = sorted(pointwise.checks, key=lambda c: -(c.change / c.allowed if c.allowed > 0 else math.inf))[:3]
@@ -912,8 +912,8 @@ def main(args) -> int:
         out = args.out or Path("logs") / f"compare-{inputs[0].stem}"
         result = compare_existing(inputs, out, filter_window=getattr(args, "filter_window", None))
     elif len(inputs) == 1:
-        from .reference import Tolerance
-        from .scenario import load_scenario
+        from sim.tools.reference import Tolerance
+        from sim.io.scenario import load_scenario
 
         scenario = load_scenario(inputs[0])
         for name in ("dt", "duration", "tolerance", "filter_window"):

@@ -218,7 +218,7 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
 
     Parameters
     ----------
-    scene : sim.scene.Scene
+    scene : sim.io.scene.Scene
         The loaded scene (its MjModel gives the inertia).
     net_state : hydraulics.network.NetworkState
         Network state whose pressures and positions set the chamber stiffness.
@@ -227,7 +227,7 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
     mode, coupling, dt, fidelity : optional
         Override the scenario's run settings.
     """
-    from .scene import initial_qpos_qvel
+    from sim.io.scene import initial_qpos_qvel
 
     scenario = scene.scenario
     mode = mode or scenario.mode
@@ -345,13 +345,13 @@ def relief_limits(network, net_state) -> list:
 
 
 def check_initial_state(plant) -> None:
-    """Raise :class:`~sim.scenario.ScenarioError` when a freshly built plant's state is not finite at t = 0.
+    """Raise :class:`~sim.io.scenario.ScenarioError` when a freshly built plant's state is not finite at t = 0.
 
     The loaders reject the known causes with their own field (joint range, chamber
     volume at the start pose, fluid and component ranges); this is the backstop for the
     rest, naming the first non-finite node or joint and the files to look at.
     """
-    from .scenario import ScenarioError
+    from sim.io.scenario import ScenarioError
 
     scenario, net = plant.scene.scenario, plant.network
     p = np.asarray(plant.net_state.node_pressure, float)
@@ -381,7 +381,7 @@ def check_initial_state(plant) -> None:
 def check_plant(plant) -> GuardReport:
     """Guard report of a freshly built plant (MuJoCo or PBD) at its initial state.
 
-    Raises :class:`~sim.scenario.ScenarioError` (bad input, exit status 2) when that state
+    Raises :class:`~sim.io.scenario.ScenarioError` (bad input, exit status 2) when that state
     is not finite (:func:`check_initial_state`); otherwise it only warns.
     """
     check_initial_state(plant)
@@ -394,9 +394,9 @@ def check_scenario(scenario, *, overrides: dict | None = None) -> GuardReport:
     The initial network state comes from a MuJoCo plant of the same scene
     (the pose, inertia and equilibrium pressures do not depend on the mode).
     """
-    from .plant_mujoco import MujocoPlant
-    from .scenario import Scenario, load_scenario
-    from .scene import load_scene
+    from sim.plants.mujoco import MujocoPlant
+    from sim.io.scenario import Scenario, load_scenario
+    from sim.io.scene import load_scene
 
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)

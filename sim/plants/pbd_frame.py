@@ -1,8 +1,8 @@
 """One whole PBD frame (all XPBD substeps of one plant step, with the hydraulic coupling) in one compiled call.
 
-Per substep, in the order of :meth:`sim.plant_pbd.PbdPlant.before_substep`,
+Per substep, in the order of :meth:`sim.plants.pbd.PbdPlant.before_substep`,
 :meth:`sim.xpbd.SolverXPBD._step_compiled` and
-:meth:`~sim.plant_pbd.PbdPlant.after_substep`:
+:meth:`~sim.plants.pbd.PbdPlant.after_substep`:
 
 1. the effort law c + s·v⁺ of every actuator (``hydraulics_nb._begin_core``:
    ``CouplingImplicit.begin`` at the start-velocity guess; ``scheme``: the coupling's
@@ -24,11 +24,11 @@ Per substep, in the order of :meth:`sim.plant_pbd.PbdPlant.before_substep`,
 
 The operator inputs are sampled for every substep beforehand (rows of
 ``cmd``/``speed``).  Only the case the plant's frame path checks is covered
-(:meth:`sim.plant_pbd.PbdPlant._frame_ready`): fast hydraulics, a tree of
+(:meth:`sim.plants.pbd.PbdPlant._frame_ready`): fast hydraulics, a tree of
 hinges/slides with the articulated response, hinge motors, soft pyramidal
 contacts.  Results equal the per-substep hooks to round-off.
 
-Caching as :mod:`sim.xpbd.hydraulics_nb`: the entry point carries a sha256 of
+Caching as :mod:`sim.plants.pbd_hydraulics`: the entry point carries a sha256 of
 this file, ``hydraulics_nb.py``, ``compiled.py`` and
 ``hydraulics/_compiled.py`` (and numba's version) as a closure variable.
 """
@@ -39,10 +39,10 @@ import numpy as np
 
 from hydraulics import _compiled as C
 
-from . import compiled as XC
-from . import hydraulics_nb as H
+from sim.xpbd import compiled as XC
+from sim.plants import pbd_hydraulics as H
 
-IMPLICIT_SLOPE_LIMIT = -1e-9  # must match sim.plant_pbd.IMPLICIT_SLOPE_LIMIT
+IMPLICIT_SLOPE_LIMIT = -1e-9  # must match sim.plants.pbd.IMPLICIT_SLOPE_LIMIT
 
 # frame status
 FRAME_OK, FRAME_SINGULAR = 0, 1

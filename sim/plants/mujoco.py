@@ -33,8 +33,8 @@ import numpy as np
 from hydraulics.coupling import make_coupling, start_velocity_guess
 from hydraulics.steppers import StepStatus
 
-from .plant_base import PlantBase
-from .scene import Scene, initial_qpos_qvel
+from sim.plants.base import PlantBase
+from sim.io.scene import Scene, initial_qpos_qvel
 
 # MuJoCo joint types whose coordinate is one scalar (logged as joint states).
 SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))

@@ -2,7 +2,7 @@
 
 ``hydroplant stability SCENARIO [--quick] [--out DIR] [--scheduler ADDR] ...`` builds a
 grid of *configurations* (scenario variants) × step sizes × methods, runs every
-point through :func:`sim.runner.run`, and classifies each run as
+point through :func:`sim.run.runner.run`, and classifies each run as
 
 ``stable-accurate``
     finished, pressures inside the physical bounds, and within ``tolerance``
@@ -37,7 +37,7 @@ scenario files into ``OUT/variants/<id>/``; ``models/`` is never touched):
 The parameter configurations use the valve slam as their excitation when the
 scene has valves (the scenario's own inputs otherwise).  D, the configuration
 duration, is ``PERIODS`` periods of the fastest oil column of the nominal scene
-(:mod:`sim.guards`), clipped to [``duration_min``, ``duration_max``]; a run is cut at
+(:mod:`sim.run.guards`), clipped to [``duration_min``, ``duration_max``]; a run is cut at
 ``max_steps`` steps (``pbd_max_steps`` in the PBD modes; flagged ``truncated``) and
 lengthened to ``min_steps`` steps.
 Runs go through the block-stepping runner; the pressure bounds are checked on the
@@ -53,7 +53,7 @@ run with fewer than ``MIN_COMPARED_SAMPLES`` steps in that window is inaccurate.
 
 Outputs in ``OUT``: ``stability.csv`` (one row per run), ``stability-<method>.png``
 (heat maps of dt against each swept quantity), ``summary.txt`` (the stability
-boundary per method).  The runs go through :func:`sim.sweep.run_sweep` (process
+boundary per method).  The runs go through :func:`sim.tools.sweep.run_sweep` (process
 pool, or Dask with ``--scheduler``), cached in ``OUT/cache`` (keyed on the point, the hash of the hydraulics/ and sim/ source and
 the contents of the variant files) so an interrupted map resumes.
 """
@@ -77,8 +77,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli import int_in, positive_float
-from .scenario import ScenarioError, load_scenario
+from sim.cli import int_in, positive_float
+from sim.io.scenario import ScenarioError, load_scenario
 
 # --------------------------------------------------------------------------- constants
 CLASS_ACCURATE = "stable-accurate"
@@ -266,9 +266,9 @@ def relief_ceiling(network) -> float:
 
 def scene_facts(scenario_path, grid: Grid = DEFAULT_GRID) -> SceneFacts:
     """Load the base scenario once and collect what the variants need."""
-    from .guards import check
-    from .plant_mujoco import MujocoPlant
-    from .scene import load_scene
+    from sim.run.guards import check
+    from sim.plants.mujoco import MujocoPlant
+    from sim.io.scene import load_scene
 
     scenario = load_scenario(scenario_path)
     probe = scenario.with_overrides(mode="mujoco", coupling="implicit")
@@ -445,8 +445,8 @@ def end_stop_pose(scene, facts: SceneFacts, gap_time: float):
     """qpos, qvel (dicts by joint name) that put every limited cylinder v_full·gap_time short of its extended stop, moving at v_full."""
     import mujoco
 
-    from .guards import actuator_moments
-    from .scene import initial_qpos_qvel
+    from sim.run.guards import actuator_moments
+    from sim.io.scene import initial_qpos_qvel
 
     m = scene.mjmodel
     net = scene.network
@@ -531,7 +531,7 @@ def write_variant(facts: SceneFacts, config: Config, directory) -> Path:
         scenario.pop("inputs_csv", None)
     scenario["inputs"] = inputs
     if config.event == "end_stop":
-        from .scene import load_scene
+        from sim.io.scene import load_scene
 
         probe = directory / "probe.scenario.toml"
         probe.write_text(dump_toml(scenario))
@@ -556,8 +556,8 @@ def run_point(point: dict) -> dict:
     Top-level and picklable for process pools and Dask.  Never raises for a
     diverging run; an exception inside the run is reported as ``error``.
     """
-    from .mcap_log import read_log
-    from .runner import run
+    from sim.io.mcap_log import read_log
+    from sim.run.runner import run
 
     out = dict(point)
     log_path = Path(point["log"])
@@ -617,7 +617,7 @@ def _numeric_fields(topic) -> list:
 
 # --------------------------------------------------------------------------- the grid
 def method_labels(grid: Grid) -> tuple:
-    """Methods to map: the grid's, or every available one (PBD when sim.plant_pbd imports)."""
+    """Methods to map: the grid's, or every available one (PBD when sim.plants.pbd imports)."""
     if grid.methods:
         unknown = [m for m in grid.methods if m not in METHODS]
         if unknown:
@@ -631,7 +631,7 @@ def method_labels(grid: Grid) -> tuple:
 
 def pbd_available() -> bool:
     try:
-        importlib.import_module("sim.plant_pbd")
+        importlib.import_module("sim.plants.pbd")
     except Exception:
         return False
     return True
@@ -651,9 +651,9 @@ def variant_info(scenario_path, full_flow: float) -> dict:
     the kinetic energy of the actuator's inertia at the speed the full pump
     flow gives through its smaller area (a moving load stopped by a closing valve).
     """
-    from .guards import check
-    from .plant_mujoco import MujocoPlant
-    from .scene import load_scene
+    from sim.run.guards import check
+    from sim.plants.mujoco import MujocoPlant
+    from sim.io.scene import load_scene
 
     scenario = load_scenario(scenario_path).with_overrides(mode="mujoco", coupling="implicit")
     scene = load_scene(scenario)
@@ -695,7 +695,7 @@ def build_points(facts: SceneFacts, grid: Grid, out_dir) -> tuple[list, list]:
     points, configs = [], []
     D = facts.duration
     rate = SAMPLES_PER_RUN / D
-    from .sweep import code_hash, content_hash
+    from sim.tools.sweep import code_hash, content_hash
 
     code = code_hash()  # cached runs are reused only with the same hydraulics/ and sim/ source
     for config in grid_configs(facts, grid):
@@ -756,7 +756,7 @@ def relative_error(result: dict, reference: dict, facts: SceneFacts, ceiling: fl
         floor = POSITION_ERROR_FLOOR * facts.stroke[name] if kind == "cylinder" else MOTOR_ANGLE_FLOOR
         scale = max(float(np.nanmax(x_ref) - np.nanmin(x_ref)), floor)
         ex = max(ex, _deviation(x, np.interp(t, t_ref, x_ref)) / scale)
-    from .recorder import field_name
+    from sim.run.recorder import field_name
 
     for node in reference.get("peak_pressure") or {}:  # free nodes only: tanks hold their pressure
         p, p_ref = _series(a, "p", field_name(node)), _series(r, "p", field_name(node))
@@ -846,7 +846,7 @@ def classify(result: dict, reference: dict | None, facts: SceneFacts, tolerance:
 
 
 def _first_exceedance(result, node, low, high):
-    from .recorder import field_name
+    from sim.run.recorder import field_name
 
     samples = result.get("samples")
     if not samples or field_name(node) not in samples["p"]:
@@ -1050,7 +1050,7 @@ def stability_map(scenario, *, grid: Grid = DEFAULT_GRID, out_dir=None, schedule
               f"{len(method_labels(grid))} methods + references) into {out_dir}", file=sys.stderr)
     start = _time.perf_counter()
     todo = [p for p in points if not p.get("same_as_reference")]
-    from .sweep import run_sweep
+    from sim.tools.sweep import run_sweep
 
     report = _progress_printer(len(todo)) if progress else None
     results = run_sweep(run_point, todo, scheduler=scheduler, workers=workers, cache_dir=out_dir / "cache", progress=report)
@@ -1123,7 +1123,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def main(args) -> int:
     """``hydroplant stability``; returns the exit status (user errors raise ScenarioError → 2)."""
     if args.check:
-        from .guards import check_scenario
+        from sim.run.guards import check_scenario
 
         print(check_scenario(args.scenario).table())
         return 0

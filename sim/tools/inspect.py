@@ -4,7 +4,7 @@ Prints the bodies and joints, the circuit at its fidelity (hydraulic state
 count, what was pruned), each cylinder's bore, rod and stroke with its
 hydraulic frequency ω_h at mid-stroke and at 5 % stroke (the stiffest
 position of a typical working range), ω_h·dt and the stability verdict of the
-chosen mode and coupling (:mod:`sim.guards`), and the largest dt that method
+chosen mode and coupling (:mod:`sim.run.guards`), and the largest dt that method
 keeps stable.
 """
 
@@ -18,10 +18,10 @@ import numpy as np
 
 from hydraulics.network import ACTUATOR_CYLINDER
 
-from . import guards
-from .plant_mujoco import MujocoPlant
-from .scenario import load_scenario
-from .scene import load_scene
+from sim.run import guards
+from sim.plants.mujoco import MujocoPlant
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
 
 NEAR_END = 0.05  # fraction of stroke of the "near the end" position
 
@@ -109,7 +109,7 @@ def add_parser(subparsers):
     parser = subparsers.add_parser("inspect", help="print what a scenario builds and its stability verdict")
     parser.add_argument("scenario", type=Path)
     parser.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"))
-    parser.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear", "rosenbrock"))  # sim.scenario.COUPLINGS
+    parser.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear", "rosenbrock"))  # sim.io.scenario.COUPLINGS
     parser.add_argument("--dt", type=float, help="physics step [s]")
     parser.set_defaults(func=main)
 

@@ -1,7 +1,7 @@
 """Operator inputs for the two plants whose coupled step is one compiled call per block of steps.
 
-:class:`sim.plant_mujoco_fast.MujocoPlantFast` (n MuJoCo steps per ``mj_step``)
-and :class:`sim.plant_pbd.PbdPlant`'s compiled frame (all XPBD substeps of a
+:class:`sim.plants.mujoco_fast.MujocoPlantFast` (n MuJoCo steps per ``mj_step``)
+and :class:`sim.plants.pbd.PbdPlant`'s compiled frame (all XPBD substeps of a
 step) sample the scenario's input schedules for every (sub)step of the block
 beforehand, into rows of valve-command and pump-speed buffers, as
 :func:`hydraulics.load.apply_inputs` would set them one step at a time.
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scenario import Schedule
+from sim.io.scenario import Schedule
 
 
 def input_plan(network, control, inputs):

@@ -1,6 +1,6 @@
 """MuJoCo plant whose coupled step runs entirely inside ``mj_step``: :class:`MujocoPlantFast`.
 
-Same physics as :class:`~sim.plant_mujoco.MujocoPlant` with the implicit
+Same physics as :class:`~sim.plants.mujoco.MujocoPlant` with the implicit
 coupling and the compiled backward-Euler stepper, but the per-step Python
 orchestration is replaced by a numba ``cfunc`` installed as MuJoCo's control
 callback, so ``mj_step(m, d, nstep=N)`` advances N coupled steps in C.
@@ -58,7 +58,7 @@ vectorised, callables called per step).
 
 The effort-law terms, the oil prediction, the commit of a finite step and
 the energy ledger are the kernels of :mod:`hydraulics._compiled` that
-:mod:`sim.xpbd.hydraulics_nb` (the PBD plant's compiled coupling) calls too
+:mod:`sim.plants.pbd_hydraulics` (the PBD plant's compiled coupling) calls too
 (``_effort_law_terms``, ``_predicted_oil``, ``_commit_if_finite``,
 ``_account``; see there).
 
@@ -126,8 +126,8 @@ from hydraulics.fluid import POTENTIAL_QUADRATURE_POINTS, potential_quadrature
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepReport, StepStatus
 
-from ._coupling_nb import input_plan, sample_inputs
-from .plant_mujoco import MujocoPlant, mark_reset, mujoco_resets
+from sim.plants.inputs import input_plan, sample_inputs
+from sim.plants.mujoco import MujocoPlant, mark_reset, mujoco_resets
 
 try:  # pragma: no branch
     import llvmlite.binding as llvm_binding

@@ -2,12 +2,12 @@
 
 Library use::
 
-    from sim.runner import run
+    from sim.run.runner import run
     result = run("models/boom/lift.scenario.toml", out="logs/lift.mcap")
     print(result.summary_text())
 
 MuJoCo mode with the implicit coupling and the compiled kernels (the
-defaults) advances :class:`~sim.plant_mujoco_fast.MujocoPlantFast` in blocks
+defaults) advances :class:`~sim.plants.mujoco_fast.MujocoPlantFast` in blocks
 of one ``mj_step(m, d, nstep=n)``: one log interval (``scenario.log_every``
 steps), or as many whole intervals as fit in :func:`block_steps` (100 steps, or
 0.5 s of simulated time when that is more: the default 100 Hz log at 1 kHz, blocks
@@ -22,7 +22,7 @@ values to round-off (``tests/test_runner_fast.py``), and recorded and
 captured samples are bit-identical.
 
 Log samples are kept raw in the recorder's ring and their fields
-derived and written per batch of up to ``sim.recorder.RING_SIZE`` samples,
+derived and written per batch of up to ``sim.run.recorder.RING_SIZE`` samples,
 and at every periodic flush of the log; the energy-growth check runs on each
 batch and stops the run at the first offending sample: the log ends there,
 marked ``diverged`` at that sample's time, and the result's time, steps,
@@ -52,12 +52,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from . import version
-from .guards import check_plant
-from .mcap_log import LogLevel, LogWriter
-from .recorder import RunRecorder
-from .scenario import Scenario, load_scenario
-from .scene import load_scene
+from sim import version
+from sim.run.guards import check_plant
+from sim.io.mcap_log import LogLevel, LogWriter
+from sim.run.recorder import RunRecorder
+from sim.io.scenario import Scenario, load_scenario
+from sim.io.scene import load_scene
 
 DEFAULT_LOG_DIR = Path("logs")
 PROGRESS_AFTER = 3.0  # s of wall time before a progress line is shown
@@ -69,22 +69,22 @@ ENERGY_GROWTH_FLOOR = 1.0  # J, so that machines starting at zero energy are not
 def make_plant(scene, *, fast: bool = True):
     """The plant for the scenario's mode.
 
-    MuJoCo mode uses :class:`~sim.plant_mujoco_fast.MujocoPlantFast` when ``fast``
+    MuJoCo mode uses :class:`~sim.plants.mujoco_fast.MujocoPlantFast` when ``fast``
     (the default): with the implicit coupling and the compiled kernels it steps
     whole blocks inside ``mj_step``, otherwise it falls back to the per-step
-    :class:`~sim.plant_mujoco.MujocoPlant` path (its ``fast`` attribute is then
+    :class:`~sim.plants.mujoco.MujocoPlant` path (its ``fast`` attribute is then
     False).  ``fast=False`` forces :class:`MujocoPlant`.
     """
     mode = scene.scenario.mode
     if mode == "mujoco":
         if fast:
-            from .plant_mujoco_fast import MujocoPlantFast
+            from sim.plants.mujoco_fast import MujocoPlantFast
 
             return MujocoPlantFast(scene)
-        from .plant_mujoco import MujocoPlant
+        from sim.plants.mujoco import MujocoPlant
 
         return MujocoPlant(scene)
-    from .plant_pbd import make_pbd_plant  # noqa: PLC0415 - optional until the PBD mode exists
+    from sim.plants.pbd import make_pbd_plant  # noqa: PLC0415 - optional until the PBD mode exists
 
     return make_pbd_plant(scene, block=fast)  # fast=False: the PBD plant steps one step at a time too
 
@@ -237,7 +237,7 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
     """The hydroplant.run metadata record (all strings).
 
     With ``plant``, ``stepping`` says how it is advanced: ``"blocks"`` (whole
-    blocks inside ``mj_step``, :class:`~sim.plant_mujoco_fast.MujocoPlantFast`)
+    blocks inside ``mj_step``, :class:`~sim.plants.mujoco_fast.MujocoPlantFast`)
     or ``"per-step"``.
     """
     extra = {} if plant is None else {"stepping": "blocks" if getattr(plant, "fast", False) else "per-step"}
@@ -268,7 +268,7 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
         fast: bool = True) -> RunResult:
     """Run a scenario (path or :class:`Scenario`) and write its MCAP log; see the module docstring.
 
-    ``fast=False`` forces the per-step path (:class:`~sim.plant_mujoco.MujocoPlant`
+    ``fast=False`` forces the per-step path (:class:`~sim.plants.mujoco.MujocoPlant`
     in MuJoCo mode); the scenario's ``compiled = false`` (``hydroplant run --pure``)
     also selects it, with the numpy hydraulics.
     """
@@ -350,7 +350,7 @@ class _Loop:
         one ``plant.step()`` at a time (MuJoCo per-step path, PBD modes);
         divergence, peak and minimum pressures are checked after every step.
     :meth:`blocks`
-        ``plant.advance(n)`` of a :class:`~sim.plant_mujoco_fast.MujocoPlantFast`
+        ``plant.advance(n)`` of a :class:`~sim.plants.mujoco_fast.MujocoPlantFast`
         in blocks chosen by :meth:`block_end`, the samples inside a block
         recorded by the plant (:meth:`RunRecorder.record_target`,
         :meth:`RunRecorder.commit_recorded`).  The plant's state is kept every

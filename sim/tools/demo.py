@@ -8,16 +8,17 @@ reaches its end stop and the relief valve takes the pump flow.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
-from .circuit import load_circuit
-from .equilibrium import equilibrium_state
-from .load import MassLoad, simulate
-from .network import NetworkModel
+from hydraulics.circuit import load_circuit
+from hydraulics.equilibrium import equilibrium_state
+from hydraulics.load import MassLoad, simulate
+from hydraulics.network import NetworkModel
 
-CIRCUIT = Path(__file__).resolve().parents[1] / "models" / "lift_1dof" / "lift.circuit.toml"
+from sim.io.examples import example_file
+
+CIRCUIT = example_file("lift_1dof/lift.circuit.toml")
 MASS = 200.0  # kg
 GRAVITY = 9.81  # m/s²
 BASE_PRESSURE = 1e6  # Pa absolute, rod side at rest

@@ -2,7 +2,7 @@
 
 ::
 
-    from sim.sweep import run_sweep, content_hash
+    from sim.tools.sweep import run_sweep, content_hash
 
     def simulate(point: dict) -> dict:          # top level, so that it pickles
         ...
@@ -79,7 +79,7 @@ def content_hash(*items) -> str:
 
 CODE_PACKAGES = ("hydraulics", "sim")
 """Packages whose source code a simulation result depends on (see :func:`code_hash`)."""
-ANALYSIS_FILES = frozenset({"compare.py", "tradeoff.py", "sweep.py", "reference.py", "cli.py", "inspect_scene.py", "demo.py"})
+ANALYSIS_FILES = frozenset({"compare.py", "tradeoff.py", "sweep.py", "reference.py", "cli.py", "inspect.py", "demo.py"})
 """Files of those packages that analyse or launch runs but do not change a run's result."""
 
 
@@ -90,7 +90,7 @@ def code_hash(root=None, packages=CODE_PACKAGES, exclude=ANALYSIS_FILES) -> str:
     after the code that computed it has changed.  ``root`` defaults to the directory
     holding this package (the project root).
     """
-    root = Path(root) if root is not None else Path(__file__).resolve().parents[1]
+    root = Path(root) if root is not None else Path(__file__).resolve().parents[2]
     files = sorted(p for package in packages for p in (root / package).rglob("*.py")
                    if p.name not in exclude and "__pycache__" not in p.parts)
     return content_hash(*(p.relative_to(root).as_posix().encode() for p in files), *files)

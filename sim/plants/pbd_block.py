@@ -1,6 +1,6 @@
-"""Many PBD frames (plant steps) in one compiled call: :meth:`sim.plant_pbd.PbdPlant.advance`'s block path.
+"""Many PBD frames (plant steps) in one compiled call: :meth:`sim.plants.pbd.PbdPlant.advance`'s block path.
 
-Per frame, in the order of :meth:`~sim.plant_pbd.PbdPlant.step` on its compiled-frame path
+Per frame, in the order of :meth:`~sim.plants.pbd.PbdPlant.step` on its compiled-frame path
 (``articulated`` → ``_step_frame`` → ``_end_step``), each piece the same compiled function
 the per-frame path calls from Python:
 
@@ -33,7 +33,7 @@ step: the plant reads the status from ``istats``), ``BLOCK_SINGULAR`` (the coupl
 linearisation was singular), ``BLOCK_INELIGIBLE`` (stopped before a frame the compiled frame
 does not cover).
 
-Caching as :mod:`sim.xpbd.frame_nb`: the entry point carries the sources' sha256 (this file,
+Caching as :mod:`sim.plants.pbd_frame`: the entry point carries the sources' sha256 (this file,
 ``frame_nb.py`` and what that covers) as a closure variable.
 """
 
@@ -44,9 +44,9 @@ from numba import njit
 
 from hydraulics import _compiled as C
 
-from . import compiled as XC
-from . import frame_nb as FN
-from . import hydraulics_nb as H
+from sim.xpbd import compiled as XC
+from sim.plants import pbd_frame as FN
+from sim.plants import pbd_hydraulics as H
 
 BLOCK_OK, BLOCK_SINGULAR, BLOCK_INELIGIBLE = 0, 1, 2
 
@@ -193,7 +193,7 @@ _block_jit = None
 
 def block(transport: bool = False, articulated_contacts: bool = True):
     """The compiled block (numba's disk cache, or compiled on first use; one signature per variant),
-    ``transport``/``articulated_contacts`` as :func:`sim.xpbd.frame_nb.frame`."""
+    ``transport``/``articulated_contacts`` as :func:`sim.plants.pbd_frame.frame`."""
     global _block_jit
     key = (bool(transport), bool(articulated_contacts))
     if key not in _BLOCK:

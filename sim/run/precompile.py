@@ -11,12 +11,12 @@ use.  With a warm cache each group only loads its kernels (about a second).
 Groups (each group's kernels depend on each other, so one group is one process):
 
 ``mujoco``
-    :class:`~sim.plant_mujoco_fast.MujocoPlantFast` on the excavator (the control callback; the
+    :class:`~sim.plants.mujoco_fast.MujocoPlantFast` on the excavator (the control callback; the
     same kernel serves the implicit, implicit-linear and rosenbrock couplings), a logged run
-    (``mcap_log._fill_records``), and the per-step :class:`~sim.plant_mujoco.MujocoPlant` with the
+    (``mcap_log._fill_records``), and the per-step :class:`~sim.plants.mujoco.MujocoPlant` with the
     compiled stepper (``_compiled._step_kernel``, ``_linearize_kernel``).
 ``pbd``
-    :class:`~sim.plant_pbd.PbdPlant` on the excavator: the block path (``xpbd/block_nb``, with the
+    :class:`~sim.plants.pbd.PbdPlant` on the excavator: the block path (``xpbd/block_nb``, with the
     frame and the XPBD substep inside), the per-frame path (``xpbd/frame_nb``, with and without
     the transported responses) and the compiled observations: the longest group (one chain of
     callers and callees), so it is started first.
@@ -38,16 +38,17 @@ from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
 
-MODELS = Path(__file__).resolve().parents[1] / "models"
-EXCAVATOR = MODELS / "excavator" / "dig.scenario.toml"
+from sim.io.examples import example_path
+
+EXCAVATOR = example_path("excavator/dig")
 
 
 def _mujoco() -> None:
-    from .plant_mujoco import MujocoPlant
-    from .plant_mujoco_fast import MujocoPlantFast
-    from .runner import run
-    from .scenario import load_scenario
-    from .scene import load_scene
+    from sim.plants.mujoco import MujocoPlant
+    from sim.plants.mujoco_fast import MujocoPlantFast
+    from sim.run.runner import run
+    from sim.io.scenario import load_scenario
+    from sim.io.scene import load_scene
 
     with tempfile.TemporaryDirectory() as tmp:
         run(EXCAVATOR, out=Path(tmp) / "compile.mcap", overrides={"duration": 0.02})  # fast plant + log records
@@ -58,9 +59,9 @@ def _mujoco() -> None:
 
 def _pbd_plant(**options):
     """A PBD plant on the excavator, 60 Hz × 2 substeps (``options``: PbdPlant's path switches)."""
-    from .plant_pbd import PbdPlant
-    from .scenario import load_scenario
-    from .scene import load_scene
+    from sim.plants.pbd import PbdPlant
+    from sim.io.scenario import load_scenario
+    from sim.io.scene import load_scene
 
     scenario = load_scenario(EXCAVATOR).with_overrides(mode="pbd", dt=1 / 60, pbd_substeps=2)
     with warnings.catch_warnings():
@@ -69,7 +70,7 @@ def _pbd_plant(**options):
 
 
 def _pbd() -> None:
-    from .xpbd.frame_nb import frame
+    from sim.plants.pbd_frame import frame
 
     _pbd_plant().advance(2)  # block path
     plant = _pbd_plant()

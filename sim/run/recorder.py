@@ -2,7 +2,7 @@
 
 The same topics are written by every plant (MuJoCo or PBD), so two logs of a
 scenario compare field by field.  Every numeric topic is a ROS 2 message in CDR
-(schema encoding ``ros2msg``, see :mod:`sim.mcap_log`) with a
+(schema encoding ``ros2msg``, see :mod:`sim.io.mcap_log`) with a
 ``builtin_interfaces/Time timestamp`` and SI-suffixed float64 fields (units in each
 field's comment in the schema and in the channel metadata); the events and the
 scene are JSON:
@@ -18,7 +18,7 @@ scene are JSON:
 ``/hydroplant/solver``             ``hydroplant_msgs/msg/Solver``: Newton iterations, residual, coupling θ
 ``/tf``                            ``foxglove_msgs/msg/FrameTransforms``: body poses for Foxglove's 3D panel, at the
                                    samples whose step is a multiple of ``tf_every`` (a display rate, see
-                                   :attr:`sim.scenario.Scenario.tf_every`); the joints they follow are on every sample
+                                   :attr:`sim.io.scenario.Scenario.tf_every`); the joints they follow are on every sample
 ``/hydroplant/scene``              ``foxglove.SceneUpdate`` (JSON): the bodies' geometry, once
 ``/hydroplant/events``             ``foxglove.Log`` (JSON): divergence and other events
 
@@ -36,8 +36,8 @@ import numpy as np
 from hydraulics.energy import stored_energy_at
 from hydraulics.laws import cylinder_pressure_force
 
-from .foxglove_scene import FrameTransformsChannel, log_scene
-from .mcap_log import LogLevel, LogWriter, flat_schema, log_message, log_schema
+from sim.io.foxglove_scene import FrameTransformsChannel, log_scene
+from sim.io.mcap_log import LogLevel, LogWriter, flat_schema, log_message, log_schema
 
 
 _sum = np.add.reduce
@@ -118,14 +118,14 @@ class RunRecorder:
     Per sample, :meth:`capture` copies only the plant's raw state (pressures, oil,
     actuator motion, efforts, controls, flows, energy ledger, joints, body poses)
     into a ring of ``ring_size`` rows; a plant that records samples inside its
-    blocks (:class:`~sim.plant_mujoco_fast.MujocoPlantFast`, same row layout:
+    blocks (:class:`~sim.plants.mujoco_fast.MujocoPlantFast`, same row layout:
     ``record_row``) writes them straight into the ring instead
     (:meth:`record_target`, then :meth:`commit_recorded`).  :meth:`derive` computes the logged fields
     of all pending samples at once (chamber volumes, stiffness, stored oil energy,
     pressure forces, pump powers, energy residual) with the same functions a
     single sample uses: the node relations of :class:`~hydraulics.network.NetworkModel`,
     :func:`hydraulics.energy.stored_energy_at` and :mod:`hydraulics.laws` broadcast
-    over the rows.  :meth:`push` hands the rows to the log's :class:`~sim.mcap_log.Frame`.
+    over the rows.  :meth:`push` hands the rows to the log's :class:`~sim.io.mcap_log.Frame`.
     Values equal the per-sample ones to round-off.  Pending samples are
     pushed when the log closes (:meth:`LogWriter.on_close`), so an interrupted
     run keeps every sample it captured.
@@ -216,7 +216,7 @@ class RunRecorder:
                      "effort": net.actuator_count, "theta": net.actuator_count, "cmd": nvalve, "spool": nvalve,
                      "speed": npump, "flow": nflow, "solver": 2, "energy": 6, "poses": 7 * nbody}
         # A MuJoCo plant's joints are read as the whole qpos/qvel (two plain copies) and selected per batch
-        from .plant_mujoco import MujocoPlant
+        from sim.plants.mujoco import MujocoPlant
 
         self._mj = getattr(type(plant), "joint_state", None) is MujocoPlant.joint_state
         if self._mj:

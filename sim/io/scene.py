@@ -6,7 +6,7 @@ name: each cylinder of the circuit is an MJCF ``<spatial>`` tendon and a
 the fully retracted pin-to-pin length, and range width must equal the
 circuit's stroke); each motor is an actuator of the same name on a joint
 (``gear`` = motor shaft angle per joint angle).  :func:`load_scene` checks all
-of this and raises :class:`~sim.scenario.ScenarioError` naming both files.
+of this and raises :class:`~sim.io.scenario.ScenarioError` naming both files.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from hydraulics.circuit import load_circuit
 from hydraulics.components import CircuitError
 from hydraulics.network import ACTUATOR_CYLINDER, NetworkModel
 
-from .scenario import Scenario, ScenarioError
+from sim.io.scenario import Scenario, ScenarioError
 
 STROKE_TOLERANCE = 1e-3  # m: MJCF tendon range width vs circuit stroke
 
