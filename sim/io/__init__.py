@@ -1,0 +1,1 @@
+"""Files in and out: scenario and scene loading, the shipped examples, MCAP logs and the Foxglove scene."""

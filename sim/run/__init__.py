@@ -1,0 +1,1 @@
+"""Running a scenario: the runner's stepping loop, the recorder of log samples, load-time guards, kernel compilation."""

@@ -1,0 +1,1 @@
+"""Analysis commands: inspect, reference, compare, trade-off, stability, sweeps and the hydraulics-only demo."""
