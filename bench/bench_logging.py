@@ -1,4 +1,4 @@
-"""Cost of logging and of start-up, as ratios measured in one run (issue #8).
+"""Cost of logging and of start-up, as ratios measured in one run.
 
 Logging: the excavator dig cycle at 1 kHz for a few simulated seconds (default 3 s,
 from t = 0, the approach and the start of the dig), each configuration repeated and

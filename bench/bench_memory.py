@@ -1,4 +1,4 @@
-"""Memory of long runs (issue #8): a 10-minute excavator run at 1 kHz stays flat.
+"""Memory of long runs: a 10-minute excavator run at 1 kHz stays flat.
 
 Runs the excavator dig scenario at 1 kHz with default logging (100 Hz) in fresh
 interpreters for ``--durations`` simulated seconds (default 10 s and 600 s; past the

@@ -5,7 +5,7 @@ element-wise on numpy arrays.  Functions named ``*_with_derivative`` return the
 value and its analytic derivative with respect to the pressure (difference) they
 depend on, so that the implicit steppers can build exact Jacobians.
 
-Where an equation comes from the seed report (``../shared/seed``) the docstring
+Where an equation comes from the seed report (*hydraulic-pbd-report*) the docstring
 says so; this module is the one place where those equations live.
 """
 

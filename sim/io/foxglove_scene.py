@@ -1,6 +1,6 @@
 """Foxglove 3D view of a MuJoCo model: static scene geometry and per-step body transforms.
 
-The pattern (see ``/work/shared/notes/mcap-logging.md`` §3.2): one ``foxglove.SceneUpdate``
+The pattern: one ``foxglove.SceneUpdate``
 (JSON) at t = 0 with an entity per body (``frame_locked``, infinite lifetime, primitives in
 the body frame), then a ``foxglove_msgs/msg/FrameTransforms`` message (ROS 2, CDR) per
 logged step giving every body's pose in ``world``.

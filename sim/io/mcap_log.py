@@ -32,7 +32,7 @@ messages (``"p_cap_pa"``, ``"pressure_pa.supply"``, ``"position/<joint>"``,
 ``"translation.x/<frame>"``, ``"timestamp.nanosec"``); a CDR topic whose messages share
 one layout is read as strided views of the message bytes (bit-exact floats).
 
-Conventions (see ``/work/shared/notes/mcap-logging.md``):
+Conventions:
 
 - ``log_time = publish_time`` is *simulation* time in integer nanoseconds computed from
   the integer step index, never from an accumulated float time (:func:`step_log_time`).
@@ -1175,7 +1175,7 @@ class _BulkWriter(Writer):
     """
 
     # zstd's fast level -2, measured on the 512 KiB chunks of a 20 s dig logged every step with /tf at
-    # 100 Hz (session 14): 957 MB/s at a ratio of 2.75 against level -1's 778 MB/s at 2.84 and level 1's
+    # 100 Hz: 957 MB/s at a ratio of 2.75 against level -1's 778 MB/s at 2.84 and level 1's
     # 591 MB/s at 2.89; -3 998 MB/s at 2.71, -5 1149 MB/s at 2.40, lz4 1160 MB/s at 2.33. Whole 20 s
     # logs, every step / 100 Hz: 17.00 / 2.13 MB at -2, 16.68 / 2.08 MB at -1 (2 % for 23 % less time)
     ZSTD_LEVEL = -2

@@ -5,8 +5,7 @@ References
 * [XPBD]  Macklin, Müller, Chentanez, "XPBD: Position-Based Simulation of Compliant
   Constrained Dynamics", MIG 2016.
 * [RB]    Müller, Macklin, Chentanez, Jeschke, Kim, "Detailed Rigid Body Simulation with
-  Extended Position Based Dynamics", SCA/CGF 2020 (equation numbers as in
-  /work/shared/notes/xpbd-and-mujoco-coupling.md §3).
+  Extended Position Based Dynamics", SCA/CGF 2020 (equation numbers as in the paper).
 
 Conventions
 -----------
