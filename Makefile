@@ -24,5 +24,6 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(VENV)/bin/python bench/run_all.py
 
+# Removes what the build made; the logs in logs/ are the user's and stay.
 clean:
-	rm -rf $(VENV) logs/*.mcap logs/*.partial
+	rm -rf $(VENV) build *.egg-info
