@@ -21,6 +21,7 @@ test: $(STAMP)
 	$(VENV)/bin/hydroplant compile
 	$(VENV)/bin/python -m pytest -q -n auto
 
+# Every benchmark in bench/; their figures rewrite docs/benchmarks.md (about an hour on 2 cores).
 bench: $(STAMP)
 	$(VENV)/bin/python bench/run_all.py
 

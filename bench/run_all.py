@@ -1,11 +1,212 @@
-"""Run every benchmark in bench/ and print their figures (``make bench``)."""
+"""Run the benchmarks and write their figures to ``docs/benchmarks.md`` (``make bench``).
 
-import runpy
+Each benchmark runs in its own process with the arguments listed in :data:`BENCHES`; its
+printed output is echoed and becomes the figures of its section in the page: lines of a
+Markdown table (``|`` first) stay tables, everything else goes into a text block.  The page's
+header names the machine, the library versions, the date and the commit measured.  A section
+is delimited by ``<!-- bench: NAME -->`` and ``<!-- /bench -->`` and replaced as soon as its
+benchmark has run; the sections of benchmarks not run (``--only``) stay as they are.
+
+    .venv/bin/python bench/run_all.py                       # every benchmark (about an hour on 2 cores)
+    .venv/bin/python bench/run_all.py --only bench_fast     # one section
+    .venv/bin/python bench/run_all.py --list
+
+Exit status 1 if a benchmark failed (its section then says so, with the end of its error output).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import re
+import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-for script in sorted(HERE.glob("bench_*.py")):
-    print(f"\n=== {script.name}")
-    sys.argv = [str(script)]
-    runpy.run_path(str(script), run_name="__main__")
+ROOT = Path(__file__).resolve().parents[1]
+PAGE = ROOT / "docs" / "benchmarks.md"
+
+
+@dataclass(frozen=True)
+class Bench:
+    """One benchmark script of ``bench/`` and what its section of the page says about it."""
+
+    name: str
+    args: tuple
+    title: str
+    about: str
+
+
+BENCHES = (
+    Bench("bench_fast", ("--reps", "5", "--markdown"), "Coupled step against bare MuJoCo",
+          "µs per step at 1 kHz over the first 6 s of each scene's scenario, its ratio to a bare `mj_step` loop on "
+          "the same MJCF with the actuators at constant controls, and the real-time factor; PBD cells are µs per "
+          "millisecond of simulated time. Blocks of 500 / 1000 steps are the block-stepping `MujocoPlantFast`; the "
+          "Python-orchestrated plant is the per-step `MujocoPlant`. Last column: the process's peak RSS. "
+          "Target T1: MuJoCo mode within 1.3× bare `mj_step` on the excavator (see the floor below)."),
+    Bench("bench_floor", (), "The floor of an implicit step",
+          "The least any implicit coupling does per step (one network evaluation, one factorisation of the Newton "
+          "matrix with its solve), timed in a compiled loop at the scenario's network states, against bare `mj_step` "
+          "(see [numerics.md](numerics.md#the-cost-floor-of-an-implicit-step))."),
+    Bench("bench_pbd", ("--scenes", "excavator", "--pair-reps", "7"), "PBD mode at matched accuracy",
+          "PBD mode across frames and substeps beside MuJoCo mode on the excavator dig; for each MuJoCo-mode row the "
+          "fastest PBD setting at least as accurate (whole run; before contact against a converged reference), "
+          "timed again in 7 alternating pairs; the paired median ratio is the figure. Target T2: PBD at matched "
+          "accuracy at least as fast as MuJoCo mode."),
+    Bench("bench_logging", ("--seconds", "20", "--reps", "11"), "Logging and start-up",
+          "The 20 s excavator dig at 1 kHz, 11 interleaved runs per configuration; each logged run against the no-log "
+          "run just before it (paired median and quartiles). Targets T3: logging ≤ 10 % at the default 100 Hz, "
+          "≤ 50 % logging every step; T4: `hydroplant run` of one step in a fresh process < 2 s."),
+    Bench("bench_startup", (), "Start-up in fresh processes",
+          "Import, scene load with the plant (cached kernels) and first step, in fresh interpreters."),
+    Bench("bench_memory", (), "Memory of long runs",
+          "The excavator dig at 1 kHz with default logging for 10 s and 600 s in fresh processes: peak RSS, RSS "
+          "over the run, log size. Target T5: memory flat over a 10-minute run."),
+    Bench("bench_network", (), "The network alone",
+          "One 1 ms step of the excavator circuit called from Python, per stepper (no MuJoCo)."),
+    Bench("bench_mujoco", (), "MuJoCo mode per step",
+          "µs per coupled step of the per-step plant against bare `mj_step`, per scene and coupling."),
+    Bench("bench_fidelity", (), "Fidelity levels",
+          "The excavator dig (20 s) at each fidelity level against the `lines` level at 1 kHz: cost and max errors "
+          "(see [fidelity.md](fidelity.md))."),
+    Bench("bench_tradeoff", (), "Accuracy against cost",
+          "The seed cylinder and the excavator approach: converged reference, every mode against it, the trade-off "
+          "sweep (see [validation.md](validation.md))."),
+    Bench("bench_stability", (), "Stability maps",
+          "Rewrites the maps, CSVs and summaries of [stability/](stability/README.md)."),
+)
+"""Every benchmark, in the order of the page."""
+
+HEADER = """# Benchmarks
+
+Written by `make bench` (`bench/run_all.py`) from the benchmarks' printed figures; regenerate one section
+with `.venv/bin/python bench/run_all.py --only NAME`. Speed is measured as ratios within one run: shared
+machines move by ±15–20 % from one run to the next, so read ±10 % into any one figure. How the figures
+are produced is in each script's docstring; what they mean in [numerics.md](numerics.md),
+[pbd.md](pbd.md) and [validation.md](validation.md).
+"""
+
+_SECTION = re.compile(r"<!-- bench: (?P<name>\S+) -->\n.*?<!-- /bench -->\n", re.S)
+
+
+def machine() -> str:
+    """One line naming the CPU, the core count and the versions measured with."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    versions = [f"CPython {platform.python_version()}"]
+    for module in ("mujoco", "numba", "numpy"):
+        try:
+            versions.append(f"{module} {__import__(module).__version__}")
+        except ImportError:
+            pass
+    return f"{cpu}, {os.cpu_count()} cores, {', '.join(versions)}"
+
+
+def commit() -> str:
+    """The checkout's commit (with ``+`` if files differ from it), or ``unknown``."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+" if dirty else "")
+
+
+def figures(output: str) -> str:
+    """A benchmark's printed output as Markdown: its table lines as tables, the rest as text blocks."""
+    blocks, kind, lines = [], None, []
+    for line in output.rstrip().splitlines():
+        this = "table" if line.lstrip().startswith("|") else "text"
+        if this != kind and lines:
+            blocks.append((kind, lines))
+            lines = []
+        kind = this
+        lines.append(line.strip() if this == "table" else line)
+    if lines:
+        blocks.append((kind, lines))
+    parts = []
+    for kind, lines in blocks:
+        if kind == "text":
+            while lines and not lines[-1].strip():
+                lines.pop()
+            while lines and not lines[0].strip():
+                lines.pop(0)
+            if lines:
+                parts.append("```text\n" + "\n".join(lines) + "\n```")
+        else:
+            parts.append("\n".join(lines))
+    return "\n\n".join(parts)
+
+
+def section(bench: Bench, body: str, stamp: str) -> str:
+    """The delimited section of one benchmark."""
+    command = " ".join(["python", f"bench/{bench.name}.py", *bench.args])
+    return (f"<!-- bench: {bench.name} -->\n## {bench.title}\n\n{bench.about}\n\n`{command}`, {stamp}:\n\n"
+            f"{body}\n<!-- /bench -->\n")
+
+
+def run_bench(bench: Bench) -> tuple[bool, str]:
+    """Run one benchmark, echoing its output; (succeeded, Markdown of its figures)."""
+    print(f"\n=== {bench.name} {' '.join(bench.args)}", flush=True)
+    process = subprocess.Popen([sys.executable, str(ROOT / "bench" / f"{bench.name}.py"), *bench.args], cwd=ROOT,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    output = []
+    for line in process.stdout:
+        print(line, end="", flush=True)
+        output.append(line)
+    error = process.stderr.read()
+    status = process.wait()
+    if status:
+        print(error, file=sys.stderr)
+        tail = "\n".join(error.rstrip().splitlines()[-15:])
+        return False, f"**Failed** with exit status {status}:\n\n```text\n{tail}\n```"
+    return True, figures("".join(output))
+
+
+def page(sections: dict[str, str]) -> str:
+    """The whole page: header, then the sections in the order of :data:`BENCHES`."""
+    body = "".join(sections[b.name] + "\n" for b in BENCHES if b.name in sections)
+    return f"{HEADER}\n{body}".rstrip() + "\n"
+
+
+def main(argv=None) -> int:
+    names = [b.name for b in BENCHES]
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", nargs="+", choices=names, metavar="NAME", help="run these; keep the page's other sections")
+    parser.add_argument("--out", type=Path, default=PAGE, help="the page to write (default docs/benchmarks.md)")
+    parser.add_argument("--list", action="store_true", help="list the benchmarks and their arguments")
+    args = parser.parse_args(argv)
+    if args.list:
+        for b in BENCHES:
+            print(f"{b.name:16} {' '.join(b.args)}")
+        return 0
+    chosen = [b for b in BENCHES if args.only is None or b.name in args.only]
+    sections = {}
+    if args.out.is_file():
+        sections = {m["name"]: m.group(0) for m in _SECTION.finditer(args.out.read_text(encoding="utf-8"))}
+    where = f"commit {commit()}, {machine()}"
+    failed = []
+    for bench in chosen:
+        ok, body = run_bench(bench)
+        stamp = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        sections[bench.name] = section(bench, body, f"{stamp}, {where}")
+        if not ok:
+            failed.append(bench.name)
+        args.out.write_text(page(sections), encoding="utf-8")  # after each benchmark, so a later failure keeps it
+    print(f"\nwrote {args.out}" + (f"; failed: {', '.join(failed)}" if failed else ""))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
