@@ -11,7 +11,10 @@ of this and raises :class:`~sim.io.scenario.ScenarioError` naming both files.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+import math
+import os
+import xml.etree.ElementTree as ElementTree
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import mujoco
@@ -19,9 +22,10 @@ import numpy as np
 
 from hydraulics.circuit import load_circuit
 from hydraulics.components import CircuitError
+from hydraulics.files import read_bytes, read_text, resolve
 from hydraulics.network import ACTUATOR_CYLINDER, NetworkModel
 
-from sim.io.scenario import Scenario, ScenarioError
+from sim.io.scenario import Scenario, ScenarioError, check_input_ranges
 
 STROKE_TOLERANCE = 1e-3  # m: MJCF tendon range width vs circuit stroke
 
@@ -44,19 +48,101 @@ class Scene:
     network: NetworkModel
     binding: Binding
     joint_names: tuple
+    model_files: tuple = field(default_factory=tuple)  # (path, bytes) of the MJCF, then its includes and assets
 
     def mjcf_text(self) -> bytes:
-        return Path(self.scenario.mjcf).read_bytes()
+        return read_bytes(self.scenario.mjcf, "MJCF", ScenarioError)
 
 
-def check_masses(path: Path) -> None:
-    """Reject negative masses and inertias in the MJCF text (MuJoCo's compiler silently zeroes some)."""
-    import xml.etree.ElementTree as ElementTree
+MAX_INCLUDE_DEPTH = 32  # nested <include> levels
+ASSET_FILE_ATTRIBUTES = {  # MJCF elements that read a file, their file attributes and the <compiler> folder they use
+    "mesh": (("file",), "meshdir"),
+    "skin": (("file",), "meshdir"),
+    "hfield": (("file",), "texturedir"),
+    "texture": (("file", "fileright", "fileleft", "fileup", "filedown", "filefront", "fileback"), "texturedir"),
+}
 
-    try:
-        root = ElementTree.parse(path).getroot()
-    except (ElementTree.ParseError, OSError):
-        return  # MuJoCo's compiler reports it with its own message
+
+@dataclass(frozen=True, eq=False)
+class MjcfFile:
+    """One file an MJCF model is built from: its resolved path, its bytes and what it is."""
+
+    path: Path
+    data: bytes
+    kind: str  # "mjcf", "include" or "asset"
+    root: object = None  # the parsed XML root (mjcf and include), for checks on the text
+
+
+def mjcf_files(path) -> list[MjcfFile]:
+    """The MJCF at ``path``, then every file it includes (``<include file>``, nested) and every asset file it
+    names (mesh, skin, hfield, texture), each read once through :func:`hydraulics.files.read_bytes`.
+
+    Paths resolve as MuJoCo resolves them: relative to the folder of the top-level MJCF (includes
+    too, at any depth), assets below ``<compiler assetdir | meshdir | texturedir>`` when set;
+    folders outside the scene's are allowed.  Every file must be a regular file of bounded size;
+    the XML files UTF-8 text.  An include cycle, or includes nested deeper than
+    :data:`MAX_INCLUDE_DEPTH`, raise :class:`ScenarioError`.  XML that does not parse is returned
+    without its includes (MuJoCo's compiler names the error).
+    """
+    main = resolve(path, "MJCF", ScenarioError)
+    base = main.parent
+    files: list[MjcfFile] = []
+    seen: set[Path] = set()
+
+    def xml_file(file: Path, kind: str, chain: tuple):
+        if file in chain:
+            raise ScenarioError(f"{file}: MJCF include cycle: {' -> '.join(str(p) for p in (*chain, file))}")
+        if len(chain) > MAX_INCLUDE_DEPTH:
+            raise ScenarioError(f"{file}: MJCF includes nested deeper than {MAX_INCLUDE_DEPTH} levels")
+        text = read_text(file, "MJCF" if kind == "mjcf" else f"MJCF include (of {chain[-1]})", ScenarioError)
+        try:
+            root = ElementTree.fromstring(text)
+        except (ElementTree.ParseError, ValueError, RecursionError):
+            root = None
+        if file not in seen:
+            seen.add(file)
+            files.append(MjcfFile(file, text.encode("utf-8"), kind, root))
+        if root is None:
+            return
+        for element in root.iter("include"):
+            name = element.get("file")
+            if name:
+                xml_file(resolve(base / name, f"MJCF include (of {file})", ScenarioError), "include", (*chain, file))
+
+    xml_file(main, "mjcf", ())
+    folders = {}
+    for f in files:
+        if f.root is not None:
+            for compiler in f.root.iter("compiler"):
+                folders.update({k: v for k, v in compiler.attrib.items() if k in ("assetdir", "meshdir", "texturedir")})
+    for f in list(files):
+        if f.root is None:
+            continue
+        for tag, (attributes, folder_key) in ASSET_FILE_ATTRIBUTES.items():
+            folder = base / folders.get(folder_key, folders.get("assetdir", ""))
+            for element in f.root.iter(tag):
+                for attribute in attributes:
+                    name = element.get(attribute)
+                    if not name:
+                        continue
+                    what = f"MJCF asset <{tag} {attribute}> (of {f.path})"
+                    asset = resolve(name if os.path.isabs(name) else folder / name, what, ScenarioError)
+                    if asset not in seen:
+                        seen.add(asset)
+                        files.append(MjcfFile(asset, read_bytes(asset, what, ScenarioError), "asset"))
+    return files
+
+
+def check_masses(path: Path, root=None) -> None:
+    """Reject negative, NaN or infinite masses and inertias in the MJCF text (MuJoCo's compiler silently zeroes some).
+
+    ``root``: the parsed XML of ``path`` (read from ``path`` when None).
+    """
+    if root is None:
+        try:
+            root = ElementTree.fromstring(read_text(path, "MJCF", ScenarioError))
+        except (ElementTree.ParseError, ValueError, RecursionError):
+            return  # MuJoCo's compiler reports it with its own message
     for body in root.iter("body"):
         for element in [body, *body.findall("inertial"), *body.findall("geom")]:
             for attribute in ("mass", "diaginertia"):
@@ -65,19 +151,37 @@ def check_masses(path: Path) -> None:
                     values = [float(v) for v in text.split()] if text else []
                 except ValueError:
                     continue
-                if any(v < 0 for v in values):
+                if any(not (math.isfinite(v) and v >= 0) for v in values):
                     raise ScenarioError(
-                        f"{path}: body '{body.get('name', '?')}', <{element.tag}> {attribute}=\"{text}\": must be >= 0 (kg, kg*m^2)"
+                        f"{path}: body '{body.get('name', '?')}', <{element.tag}> {attribute}=\"{text}\": "
+                        "must be finite and >= 0 (kg, kg*m^2)"
                     )
 
 
-def load_mjmodel(path: Path) -> mujoco.MjModel:
-    """Compile an MJCF, turning MuJoCo's errors into a ScenarioError naming the file."""
-    check_masses(path)
+def load_mjmodel(path: Path, files: list[MjcfFile] | None = None) -> mujoco.MjModel:
+    """Compile an MJCF, turning MuJoCo's errors into a ScenarioError naming the file.
+
+    ``files``: the model's files from :func:`mjcf_files` (read now when None): each is checked
+    (regular file, bounded size, masses) before MuJoCo reads any of them, so that a FIFO or a
+    device among the includes is refused instead of blocking the compiler.  The compiled
+    model's body masses and inertias must be finite.
+    """
+    files = mjcf_files(path) if files is None else files
+    for f in files:
+        if f.root is not None:
+            check_masses(f.path, f.root)
     try:
-        return mujoco.MjModel.from_xml_path(str(path))
+        model = mujoco.MjModel.from_xml_path(str(path))
     except Exception as exc:  # mujoco raises ValueError with the parser's message
-        raise ScenarioError(f"{path}: MuJoCo cannot compile this MJCF: {exc}") from None
+        message = " ".join(str(exc).split())  # one line
+        raise ScenarioError(f"{path}: MuJoCo cannot compile this MJCF: {message}") from None
+    for name, values in (("mass", model.body_mass), ("inertia", model.body_inertia)):
+        bad = np.flatnonzero(~np.isfinite(values).reshape(len(values), -1).all(axis=1))
+        if len(bad):
+            body = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(bad[0])) or f"body {int(bad[0])}"
+            raise ScenarioError(f"{path}: body '{body}' has a non-finite {name} after compilation; "
+                                "masses [kg] and inertias [kg*m^2] must be finite")
+    return model
 
 
 def bind(network: NetworkModel, mjmodel: mujoco.MjModel, circuit_path, mjcf_path) -> Binding:
@@ -139,8 +243,10 @@ def has_contact_pairs(mjmodel: mujoco.MjModel) -> bool:
 
 
 def build_network(scenario: Scenario) -> NetworkModel:
-    """The scenario's circuit at its fidelity (default level + per-actuator ``[fidelity]`` overrides)."""
+    """The scenario's circuit at its fidelity (default level + per-actuator ``[fidelity]`` overrides);
+    the scenario's input schedules are range-checked against it (:func:`sim.io.scenario.check_input_ranges`)."""
     circuit = load_circuit(scenario.circuit)
+    check_input_ranges(scenario, circuit)
     names = [c.name for c in circuit.by_kind("cylinder", "motor")]
     for name in scenario.actuator_fidelity:
         if name not in names:
@@ -158,7 +264,8 @@ def build_network(scenario: Scenario) -> NetworkModel:
 
 def load_scene(scenario: Scenario) -> Scene:
     """Compile the MJCF, build the network and bind them; MJCF timestep set to the scenario's dt."""
-    mjmodel = load_mjmodel(scenario.mjcf)
+    files = mjcf_files(scenario.mjcf)
+    mjmodel = load_mjmodel(scenario.mjcf, files)
     network = build_network(scenario)
     if network.fidelity == "incompressible" and scenario.fidelity != "incompressible":
         scenario = replace(scenario, fidelity="incompressible")  # every actuator overridden: the plants' switch
@@ -185,7 +292,7 @@ def load_scene(scenario: Scenario) -> Scene:
     for net in scenario.pressures:
         if net not in network.net_node:
             raise ScenarioError(f"{scenario.path}, field 'initial.pressures.{net}': no net '{net}' in {scenario.circuit}")
-    scene = Scene(scenario, mjmodel, network, binding, joints)
+    scene = Scene(scenario, mjmodel, network, binding, joints, tuple(files))
     check_initial_joints(scene)
     check_start_pose(scene)
     return scene
@@ -262,8 +369,15 @@ def check_start_pose(scene: Scene) -> None:
                 )
 
 
-def initial_qpos_qvel(scene: Scene):
-    """qpos, qvel arrays from the model defaults and the scenario's [initial] joint values."""
+def initial_qpos_qvel(scene: Scene, *, project: bool = True):
+    """qpos, qvel arrays from the model defaults and the scenario's [initial] joint values.
+
+    With ``project`` (default) a pose that violates the MJCF's equality
+    constraints (loop closures) is moved onto them by the joints the scenario
+    does not set, and qvel onto their tangent space
+    (:func:`sim.plants.constraints.project_pose`); a pose they cannot close is
+    refused naming the equality.
+    """
     m = scene.mjmodel
     qpos = m.qpos0.copy()
     qvel = np.zeros(m.nv)
@@ -273,4 +387,9 @@ def initial_qpos_qvel(scene: Scene):
     for name, value in scene.scenario.qvel.items():
         j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
         qvel[m.jnt_dofadr[j]] = value
+    if project and m.neq:
+        from sim.plants.constraints import held_dofs, project_pose
+
+        held = held_dofs(m, list(scene.scenario.qpos) + list(scene.scenario.qvel))
+        qpos, qvel, _ = project_pose(m, qpos, qvel, held, where=f"{scene.scenario.path}, [initial]: ")
     return qpos, qvel

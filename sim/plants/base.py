@@ -46,6 +46,7 @@ class PlantBase:
         self.step_index = 0
         self.control = self.network.control()
         apply_inputs(self.network, self.control, scenario.inputs, 0.0)
+        self.holding_residual = None  # relative residual of the static balance (set by holding_efforts)
         if scenario.equilibrium:
             self.net_state = equilibrium_state(
                 self.network, self.control, position, self.holding_efforts(),
@@ -63,6 +64,17 @@ class PlantBase:
         self.energy = EnergyLedger()
         kinetic, potential = self.mechanical_energy()
         self.energy.initial_total = kinetic + potential + stored_energy(self.network, self.net_state)
+
+    def reset_extremes(self) -> None:
+        """Start the running per-step extremes from the current state: node pressures [Pa]
+        (``node_pressure_max``/``node_pressure_min``) and actuator coordinates [m | rad]
+        (``actuator_position_max``/``actuator_position_min``); plants that step in compiled blocks keep them
+        over every successful step, for the runner's peaks and its plausibility monitor."""
+        state = self.net_state
+        self.node_pressure_max = state.node_pressure.copy()
+        self.node_pressure_min = state.node_pressure.copy()
+        self.actuator_position_max = np.array(state.actuator_position, float)
+        self.actuator_position_min = np.array(state.actuator_position, float)
 
     @property
     def time(self) -> float:

@@ -93,16 +93,12 @@ class MujocoPlant(PlantBase):
         self.start_network(*self.actuator_motion())
 
     def holding_efforts(self) -> np.ndarray:
-        """Actuator efforts [N or N·m] that hold the current pose at rest (least squares over the DOFs)."""
-        m, d = self.model, self.data
-        saved = d.qvel.copy()
-        d.qvel[:] = 0.0
-        d.qacc[:] = 0.0
-        mujoco.mj_inverse(m, d)
-        moment = self.moments()
-        effort, *_ = np.linalg.lstsq(moment.T, d.qfrc_inverse.copy(), rcond=None)
-        d.qvel[:] = saved
-        mujoco.mj_forward(m, d)
+        """Actuator efforts [N or N·m] that hold the current pose at rest, the MJCF's loop closures carrying their
+        share (:func:`sim.plants.constraints.holding_efforts`; relative residual in ``holding_residual``)."""
+        from sim.plants.constraints import actuator_moments, holding_efforts
+
+        ids = self.binding.actuator_id
+        effort, self.holding_residual = holding_efforts(self.model, self.data.qpos, lambda d: actuator_moments(self.model, d, ids))
         return effort
 
     # -------------------------------------------------------------- kinematics

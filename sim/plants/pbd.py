@@ -100,7 +100,7 @@ select the paths for tests.
 :meth:`advance` (n) steps n times with the :class:`~sim.plants.mujoco_fast.MujocoPlantFast`
 interface.  Where the compiled frame applies (:attr:`fast`), whole blocks of steps run in one
 compiled call (``sim/plants/pbd_block.py``: per step the articulated data, contacts, the frame,
-the clocks, the mechanical ledger and the pressure extremes; operator inputs sampled for every
+the clocks, the mechanical ledger and the pressure and actuator-coordinate extremes; operator inputs sampled for every
 substep of the block beforehand), and the log samples inside a block are recorded from it into
 the runner's ring (:meth:`record_next`), so the runner drives this plant in blocks like the
 fast MuJoCo plant.  :meth:`step` stays the per-frame path the blocks are tested against
@@ -260,8 +260,7 @@ class PbdPlant(PlantBase):
         self._x, self._v = x, v
         self.start_network(x, v)
         self._mechanical = sum(self.mechanical_energy())
-        self.node_pressure_max = self.net_state.node_pressure.copy()  # running extremes [Pa] of every successful step
-        self.node_pressure_min = self.net_state.node_pressure.copy()
+        self.reset_extremes()  # running extremes of pressures and actuator coordinates over every successful step
 
     def _actuator_motion(self, qpos, qvel, ell_rate):
         """Cylinder extensions [m] / motor angles [rad] and their rates at the current state."""
@@ -330,9 +329,20 @@ class PbdPlant(PlantBase):
         return (mass, gravity, moment, jv, jw) if bodies else (mass, gravity, moment)
 
     def holding_efforts(self) -> np.ndarray:
-        """Actuator efforts [N or N·m] that hold the current pose at rest (least squares over the DOFs)."""
+        """Actuator efforts [N or N·m] that hold the current pose at rest, the MJCF's loop closures carrying their share.
+
+        Jᵀ·F + Gᵀ·λ = −Q_gravity by least squares (:func:`hydraulics.equilibrium.holding_efforts`) with G the
+        equality Jacobian from the XPBD kinematics (:func:`sim.plants.constraints.frame_equality_jacobian`);
+        relative residual in ``holding_residual``.
+        """
+        from hydraulics.equilibrium import holding_efforts
+        from sim.plants.constraints import frame_equality_jacobian
+
         _, gravity, moment = self.joint_space()
-        effort, *_ = np.linalg.lstsq(moment.T, -gravity, rcond=None)
+        xm = self.xmodel
+        qpos, _ = xm.qpos_qvel(self.state)
+        G = frame_equality_jacobian(self.model, lambda q: xm.body_frames(xm.state_from_qpos(q)), qpos) if self.model.neq else None
+        effort, _, self.holding_residual = holding_efforts(moment, -gravity, G)
         return effort
 
     # -------------------------------------------------------------------- step
@@ -439,12 +449,13 @@ class PbdPlant(PlantBase):
         clock[:] = (st.time, fast._time, e.dissipated_mechanical, self._mechanical)
         hint = ctx["hint"]
         hint[:] = st.qpos_hint
-        pmax, pmin = ctx["pmax"], ctx["pmin"]
+        pmax, pmin, xmax, xmin = ctx["pmax"], ctx["pmin"], ctx["xmax"], ctx["xmin"]
         pmax[:], pmin[:] = self.node_pressure_max, self.node_pressure_min
+        xmax[:], xmin[:] = self.actuator_position_max, self.actuator_position_min
         done, status = ctx["kernel"](n, float(self.dt), float(h), nsub, solver.iterations, solver.symmetric, cmd, speed,
                                      fast._F, fast._I, fast._W, fast._S, fast._istats, fast._ledger, fast._quad, fast.oil,
                                      fast.pressure, fast.spool, fast.position, fast.velocity, fast.flow,
-                                     st.x, st.q, st.v, st.w, hint, clock, pmax, pmin, *ctx["args"],
+                                     st.x, st.q, st.v, st.w, hint, clock, pmax, pmin, xmax, xmin, *ctx["args"],
                                      ctx["no_record"] if record is None else record, rec, ctx["rq"], ctx["rd"], fast.theta,
                                      fast.scheme, fast.blend)
         self.recorded, self.recorded_finite = int(rec[3]), not rec[4]
@@ -464,6 +475,7 @@ class PbdPlant(PlantBase):
         self._motor_effort = fc["motor_effort"].copy()
         self.theta = fast.theta.copy()
         self.node_pressure_max, self.node_pressure_min = pmax.copy(), pmin.copy()
+        self.actuator_position_max, self.actuator_position_min = xmax.copy(), xmin.copy()
         st.time = float(clock[0])
         st.qpos_hint = hint.copy()
         solver.last_forces = []
@@ -538,7 +550,8 @@ class PbdPlant(PlantBase):
         ctx = dict(kernel=block(solver.transport_response, solver.articulated_contacts), frame=fc, args=args, eligible=eligible,
                    cmd=np.zeros((0, len(self.network.valve_names))), speed=np.zeros((0, len(self.network.pump_names))),
                    clock=np.zeros(4), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
-                   pmin=np.zeros(self.network.node_count), rec=np.zeros(5, np.int64),
+                   pmin=np.zeros(self.network.node_count), xmax=np.zeros(self.network.actuator_count),
+                   xmin=np.zeros(self.network.actuator_count), rec=np.zeros(5, np.int64),
                    no_record=np.zeros((0, self.record_width)), rq=_i64(xm.jnt_qposadr[self.scalar_joints]),
                    rd=_i64(xm.jnt_dofadr[self.scalar_joints]))
         self._block_ctx = ctx
@@ -567,9 +580,11 @@ class PbdPlant(PlantBase):
         self.energy.dissipated_mechanical += self._work - (mechanical - self._mechanical)
         self._mechanical = mechanical
         if self._report.success:  # running extremes of every successful step (new arrays: the runner keeps references)
-            p = self.net_state.node_pressure
+            p, x = self.net_state.node_pressure, self.net_state.actuator_position
             self.node_pressure_max = np.maximum(self.node_pressure_max, p)
             self.node_pressure_min = np.minimum(self.node_pressure_min, p)
+            self.actuator_position_max = np.maximum(self.actuator_position_max, x)
+            self.actuator_position_min = np.minimum(self.actuator_position_min, x)
         self.step_index += 1
         return self._report
 

@@ -2,8 +2,9 @@
 
 Each cylinder (and motor) sees its chambers as springs, k = Σ β_eff·A²/V over
 its non-tank chambers (motors: A → D/2π), acting on the inertia the actuator
-sees, m_eff = 1/(J·M⁻¹·Jᵀ) from MuJoCo's mass matrix at the initial pose (the
-same number the implicit coupling uses for its θ).  Merritt's hydraulic
+sees, m_eff = 1/(J·M⁻¹·Jᵀ) from MuJoCo's mass matrix at the initial pose, taken
+through the MJCF's equality constraints (loop closures: the inertia of the
+constrained system, :func:`inertia_seen`).  Merritt's hydraulic
 frequency is then ω_h = √(k/m_eff), see
 :func:`hydraulics.laws.hydraulic_natural_frequency`, and the two numbers that
 decide whether a step size is stable are ω_h·dt and k·dt²/m_eff = (ω_h·dt)².
@@ -54,6 +55,8 @@ import numpy as np
 from hydraulics import laws
 from hydraulics.network import ACTUATOR_CYLINDER
 
+from sim.plants.constraints import actuator_moments, inverse_inertia
+
 # Practical explicit limit on ω_h·dt with typical physical damping (seal friction, valve
 # flow gain); measured on the boom and excavator maps (docs/stability/), 0.1–0.2 in the literature.
 EXPLICIT_OMEGA_DT_LIMIT = 0.1  # [-]
@@ -64,6 +67,11 @@ UNDAMPED_RATIO = 1e-3  # [-]
 IMPLICIT_RESOLVED_OMEGA_DT = math.sqrt(2.0)  # [-]
 # ω·h up to which a rigid actuator's supply column was measured stable (see module docstring).
 RIGID_SUPPLY_OMEGA_DT = 0.5  # [-]
+# ω_local·dt above which a cylinder's own rod body, held by MuJoCo's soft loop-closure equality, rings unstably
+# (tests/scenes/loop_arm.xml with a 10 kg rod: ω_local·dt = 1.52 holds, 1.77 and 2.53 diverge; the θ-rule's √2).
+LOCAL_MODE_OMEGA_DT = math.sqrt(2.0)  # [-]
+# The pins' own bodies count as a separate local mode when their inertia is below this fraction of the constrained one.
+LOCAL_MASS_RATIO = 0.5  # [-]
 # Methods (mode or coupling names) that step the oil column with forward Euler.
 EXPLICIT_METHODS = ("explicit", "pbd-naive")
 
@@ -158,33 +166,21 @@ def expected_stable(method: str, row_omega_h_dt: float, damping_ratio: float) ->
 
 
 # ----------------------------------------------------------------------------- numbers
-def actuator_moments(mjmodel, data, actuator_id) -> np.ndarray:
-    """Dense moments J (actuator_count × nv) of the given MuJoCo actuators (after ``mj_forward``)."""
-    J = np.zeros((len(actuator_id), mjmodel.nv))
-    for i, aid in enumerate(actuator_id):
-        adr, nnz = data.moment_rowadr[aid], data.moment_rownnz[aid]
-        J[i, data.moment_colind[adr : adr + nnz]] = data.actuator_moment[adr : adr + nnz]
-    return J
-
-
-def inertia_seen(mjmodel, qpos, actuator_id):
-    """Effective inertia 1/(J·M⁻¹·Jᵀ)ᵢᵢ and joint damping seen by each actuator at ``qpos``.
+def inertia_seen(mjmodel, qpos, actuator_id, *, constrained: bool = True):
+    """Effective inertia and joint damping seen by each actuator at ``qpos``, through the constrained system.
 
     Returns ``(effective_mass, joint_damping)``, each shape (actuator_count,).
-    The joint damping is m_eff²·Σ_j d_j·(M⁻¹Jᵢᵀ)_j², the dissipation of the
-    velocity field a unit actuator speed induces.
+    The effective mass is 1/(j·N·(Nᵀ·M·N)⁻¹·Nᵀ·jᵀ) with N the null space of the
+    MJCF's equality constraints (:func:`hydraulics.equilibrium.constrained_inverse_inertia`):
+    a cylinder whose pins sit on its own barrel and rod bodies, closed onto the
+    links by ``connect`` equalities, sees the links' inertia, as with pins on the links.
+    The joint damping is m_eff²·Σ_j d_j·u_j², u the velocity field a unit actuator
+    impulse induces.  ``constrained=False``: the equalities ignored (the pins' own bodies only).
     """
-    data = mujoco.MjData(mjmodel)
-    data.qpos[:] = qpos
-    mujoco.mj_forward(mjmodel, data)
-    J = actuator_moments(mjmodel, data, actuator_id)
-    solved = np.zeros_like(J)
-    if J.size:
-        mujoco.mj_solveM(mjmodel, data, solved, J)
-    inverse = np.einsum("ij,ij->i", J, solved)
+    inverse, velocity = inverse_inertia(mjmodel, qpos, lambda d: actuator_moments(mjmodel, d, actuator_id), constrained=constrained)
     with np.errstate(divide="ignore"):
         mass = np.where(inverse > 0, 1.0 / np.where(inverse > 0, inverse, 1.0), np.inf)
-    damping = np.where(np.isfinite(mass), mass**2 * (solved**2 @ mjmodel.dof_damping), 0.0)
+    damping = np.where(np.isfinite(mass), mass**2 * (velocity.T**2 @ mjmodel.dof_damping), 0.0)
     return mass, damping
 
 
@@ -308,6 +304,8 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
                 f"{where}: stable, but the oil-column oscillation is not resolved (numerically damped); "
                 f"dt <= {0.2 / omega:.3g} s resolves it"
             )
+    if mode == "mujoco" and scene.mjmodel.neq and rows:
+        warnings += local_mode_warnings(scene, qpos, k, mass, dt)
     limits = relief_limits(network, net_state)
     explicit_stepper = (mode == "pbd-naive") or (coupling == "explicit" and (scenario.stepper or "explicit_euler") == "explicit_euler")
     if explicit_stepper:
@@ -320,6 +318,32 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
                     + f", or dt < {limit * substeps:.3g} s"
                 )
     return GuardReport(mode, coupling, dt, tuple(rows), tuple(warnings), tuple(notes), tuple(limits))
+
+
+def local_mode_warnings(scene, qpos, stiffness, mass, dt) -> list:
+    """Warnings for cylinders whose pins sit on light bodies held by MuJoCo's soft equalities (see ``LOCAL_MODE_OMEGA_DT``).
+
+    With the barrel and rod modelled as bodies closed onto the links by ``connect``
+    equalities, the oil column also acts on the rod body alone, held by the soft
+    equality: a local mode of frequency ω_local = √(k/m_local), m_local the inertia
+    the pins see with the equalities ignored.  MuJoCo mode keeps it stable while
+    ω_local·dt ≤ ``LOCAL_MODE_OMEGA_DT``.
+    """
+    local, _ = inertia_seen(scene.mjmodel, qpos, scene.binding.actuator_id, constrained=False)
+    out = []
+    for a, name in enumerate(scene.network.actuator_names):
+        m_local, k = float(local[a]), float(stiffness[a])
+        if not (k > 0 and 0 < m_local < LOCAL_MASS_RATIO * float(mass[a])):
+            continue
+        omega = math.sqrt(k / m_local)
+        if omega * dt > LOCAL_MODE_OMEGA_DT:
+            out.append(
+                f"{name}: its pins sit on bodies of {m_local:.4g} kg closed onto the links by equality constraints; the oil "
+                f"column rings them against MuJoCo's soft equality at {omega / (2 * math.pi):.4g} Hz, omega*dt = {omega * dt:.3g} "
+                f"> {LOCAL_MODE_OMEGA_DT:.3g}, which diverges in MuJoCo mode; use dt <= {LOCAL_MODE_OMEGA_DT / omega:.3g} s, "
+                "give the rod body its real mass, or put the tendon's sites on the links"
+            )
+    return out
 
 
 def relief_limits(network, net_state) -> list:

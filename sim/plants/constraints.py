@@ -1,0 +1,261 @@
+"""The MJCF's equality constraints (loop closures) at a pose: their Jacobian, violation, and a pose on them.
+
+Outside models close their kinematic loops with ``<equality><connect>`` (a
+cylinder's rod body pinned to the link it pushes, the second bar of an H-link)
+and weld a free base to the world with ``<weld>``.  Statics and the inertia an
+actuator sees must include them (:mod:`hydraulics.equilibrium`), and a start
+pose must satisfy them, or the pins carry no load and the first steps snap the
+loop shut.  Everything here uses MuJoCo's kinematics (``mj_forward`` fills the
+constraint rows; no step is taken).
+
+* :func:`equality_rows`: G (rows × nv), violation r [m or rad] and the
+  equality's MJCF name per row, from MuJoCo's constraint rows
+  (``efc_type == mjCNSTR_EQUALITY``; ``efc_pos`` is the violation).
+* :func:`limit_rows`: the active joint- and tendon-limit rows (the limits that can carry load).
+* :func:`project_pose`: Gauss–Newton on r(q) = 0 moving only the joints the
+  user did not set, Δq = −G_free⁺·r (least-norm); a pose it cannot close
+  raises :class:`~sim.io.scenario.ScenarioError` naming the equality.
+* :func:`holding_efforts` / :func:`inverse_inertia`: the MuJoCo-side inputs of
+  :func:`hydraulics.equilibrium.holding_efforts` and
+  :func:`hydraulics.equilibrium.constrained_inverse_inertia`.
+
+Example::
+
+    d = mujoco.MjData(m); d.qpos[:] = q; mujoco.mj_forward(m, d)
+    G, r, names = equality_rows(m, d)
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from hydraulics.equilibrium import constrained_inverse_inertia
+from hydraulics.equilibrium import holding_efforts as solve_holding
+
+EQUALITY_TOLERANCE = 1e-9  # m (connect) or rad (weld): a start pose closer than this to the constraints is on them
+PROJECTION_ITERATIONS = 50  # Gauss-Newton iterations of project_pose
+HOLDING_RESIDUAL_WARN = 1e-6  # relative residual of the static balance above which the start is not in equilibrium
+
+_EQUALITY = int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
+_LIMITS = (int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT), int(mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON))
+
+
+def _dense_efc(m, d) -> np.ndarray:
+    """MuJoCo's constraint Jacobian efc_J as a dense (nefc × nv) array (sparse or dense storage)."""
+    nefc = int(d.nefc)
+    if not nefc:
+        return np.zeros((0, m.nv))
+    if mujoco.mj_isSparse(m):
+        dense = np.zeros((nefc, m.nv))
+        mujoco.mju_sparse2dense(dense, d.efc_J, d.efc_J_rownnz[:nefc], d.efc_J_rowadr[:nefc], d.efc_J_colind)
+        return dense
+    return np.array(d.efc_J[: nefc * m.nv]).reshape(nefc, m.nv)
+
+
+def actuator_moments(m, d, actuator_id) -> np.ndarray:
+    """Dense moments J (len(actuator_id) × nv) of the given MuJoCo actuators (after ``mj_forward``): v = J·q̇."""
+    J = np.zeros((len(actuator_id), m.nv))
+    for i, aid in enumerate(actuator_id):
+        adr, nnz = d.moment_rowadr[aid], d.moment_rownnz[aid]
+        J[i, d.moment_colind[adr : adr + nnz]] = d.actuator_moment[adr : adr + nnz]
+    return J
+
+
+def equality_name(m, e: int) -> str:
+    """The MJCF name of equality ``e``, or a description by type and objects when it has none."""
+    name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_EQUALITY, e)
+    if name:
+        return name
+    kind = mujoco.mjtEq(int(m.eq_type[e])).name.removeprefix("mjEQ_").lower()
+    obj = mujoco.mjtObj(int(m.eq_objtype[e]))
+    names = [mujoco.mj_id2name(m, obj, int(i)) or str(int(i)) for i in (m.eq_obj1id[e], m.eq_obj2id[e])]
+    return f"{kind} {names[0]}-{names[1]}"
+
+
+def equality_rows(m, d):
+    """(G (rows × nv), violation r (rows,) [m or rad], equality name per row) of the active equalities (after mj_forward)."""
+    rows = np.flatnonzero(np.asarray(d.efc_type[: d.nefc]) == _EQUALITY)
+    if not len(rows):
+        return np.zeros((0, m.nv)), np.zeros(0), ()
+    G = _dense_efc(m, d)[rows]
+    names = tuple(equality_name(m, int(e)) for e in d.efc_id[rows])
+    return G, np.array(d.efc_pos[rows]), names
+
+
+def limit_rows(m, d):
+    """(G (rows × nv), violation (rows,)) of the joint and tendon limits MuJoCo holds active at this pose."""
+    rows = np.flatnonzero(np.isin(np.asarray(d.efc_type[: d.nefc]), _LIMITS))
+    if not len(rows):
+        return np.zeros((0, m.nv)), np.zeros(0)
+    return _dense_efc(m, d)[rows], np.array(d.efc_pos[rows])
+
+
+def _forward(m, d, qpos, qvel=None):
+    d.qpos[:] = qpos
+    d.qvel[:] = 0.0 if qvel is None else qvel
+    mujoco.mj_forward(m, d)
+
+
+def held_dofs(m, joint_names) -> np.ndarray:
+    """Boolean mask (nv,) of the DOFs of the named joints (the ones the user set: the projection keeps them)."""
+    held = np.zeros(m.nv, bool)
+    for name in joint_names:
+        j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if j >= 0:
+            held[m.jnt_dofadr[j]] = True
+    return held
+
+
+def project_pose(m, qpos, qvel, held, *, where: str = ""):
+    """qpos, qvel on the equality constraints, moving only DOFs not in ``held`` (least-norm Gauss–Newton).
+
+    Returns ``(qpos, qvel, moved)`` with ``moved`` the largest |Δq| of any DOF.
+    Raises :class:`~sim.io.scenario.ScenarioError` (prefixed by ``where``) naming
+    the worst equality when the free DOFs cannot close it (the set joints
+    contradict the loop, or it cannot be closed at all).
+    """
+    from sim.io.scenario import ScenarioError
+
+    if not m.neq:
+        return qpos, qvel, 0.0
+    d = mujoco.MjData(m)
+    q = np.array(qpos, float)
+    free = ~np.asarray(held, bool)
+    names = ()
+    r = np.zeros(0)
+    for _ in range(PROJECTION_ITERATIONS):
+        _forward(m, d, q)
+        G, r, names = equality_rows(m, d)
+        if not len(r) or np.max(np.abs(r)) < EQUALITY_TOLERANCE:
+            break
+        step = np.zeros(m.nv)
+        step[free] = -np.linalg.lstsq(G[:, free], r, rcond=None)[0]
+        if not np.any(step):
+            break
+        mujoco.mj_integratePos(m, q, step, 1.0)
+    else:
+        _forward(m, d, q)
+        G, r, names = equality_rows(m, d)
+    if len(r) and np.max(np.abs(r)) >= EQUALITY_TOLERANCE:
+        worst = int(np.argmax(np.abs(r)))
+        set_joints = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, int(m.dof_jntid[i])) for i in np.flatnonzero(~free)]
+        raise ScenarioError(
+            f"{where}equality '{names[worst]}' is violated by {abs(r[worst]):.3g} (m or rad) at the start pose and the joints "
+            f"not set in [initial] cannot close it" + (f" with {set_joints} held" if set_joints else "")
+            + "; set fewer joints of that loop, or values that close it"
+        )
+    moved = np.zeros(m.nv)
+    mujoco.mj_differentiatePos(m, moved, 1.0, np.asarray(qpos, float), q)
+    v = np.array(qvel, float)
+    _forward(m, d, q)
+    G, _, _ = equality_rows(m, d)
+    if len(G) and np.any(G @ v):
+        fix = np.zeros(m.nv)
+        fix[free] = -np.linalg.lstsq(G[:, free], G @ v, rcond=None)[0]
+        v = v + fix
+    return q, v, float(np.max(np.abs(moved), initial=0.0))
+
+
+def static_load(m, d) -> np.ndarray:
+    """Generalized load Q [N or N·m] the actuators and equalities must hold at rest (after mj_forward with qvel = 0).
+
+    MuJoCo's inverse dynamics with q̈ = 0 (``qfrc_inverse``): gravity and bias minus
+    passive forces, minus what the soft contacts and limits already carry at their
+    penetration; the equality rows carry nothing there (at rest on the constraint
+    their reference acceleration is 0), so their share is solved for.
+    """
+    d.qacc[:] = 0.0
+    mujoco.mj_inverse(m, d)
+    return np.array(d.qfrc_inverse)
+
+
+def holding_efforts(m, qpos, moment_of):
+    """Actuator efforts [N or N·m] that hold ``qpos`` at rest with the equalities (and, if needed, the limits) carrying load.
+
+    ``moment_of(d)`` returns the dense moments J (actuators × nv) after mj_forward.
+    Returns ``(effort, relative_residual)`` (:func:`hydraulics.equilibrium.holding_efforts`).
+    The active joint and tendon limits join the balance only when the actuators
+    and equalities alone cannot hold the pose (a mechanism resting on its stop).
+    """
+    d = mujoco.MjData(m)
+    _forward(m, d, qpos)
+    J = moment_of(d)
+    G, _, _ = equality_rows(m, d)
+    load = static_load(m, d)
+    effort, _, residual = solve_holding(J, load, G)
+    if residual > HOLDING_RESIDUAL_WARN:
+        L, _ = limit_rows(m, d)
+        if len(L):
+            effort, _, residual = solve_holding(J, load, np.vstack([G, L]))
+    return effort, residual
+
+
+def inverse_inertia(m, qpos, moment_of, *, constrained: bool = True):
+    """(1/m_eff (actuators,), velocity field (nv, actuators)) through the equality-constrained system at ``qpos``.
+
+    ``constrained=False`` ignores the equalities: the inertia of the bodies the pins sit on alone
+    (the rod body of a cylinder modelled with barrel and rod bodies), the mass of its local mode.
+    """
+    d = mujoco.MjData(m)
+    _forward(m, d, qpos)
+    mass = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, mass)
+    G, _, _ = equality_rows(m, d) if constrained else (None, None, None)
+    return constrained_inverse_inertia(mass, moment_of(d), G)
+
+
+# ------------------------------------------------------------------- PBD mode: the XPBD model's own kinematics
+def _rotate(quat, vec) -> np.ndarray:
+    out = np.zeros(3)
+    mujoco.mju_rotVecQuat(out, np.asarray(vec, float), np.asarray(quat, float))
+    return out
+
+
+def frame_equality_residual(m, xpos, xquat) -> np.ndarray:
+    """Residual of the active connect and weld equalities from world body-frame poses (PBD mode's kinematics).
+
+    connect: anchor on body 1 − anchor on body 2 [m] (3 rows); weld: the same for
+    body 2's anchor and its image in body 1's relative pose, and the orientation
+    error 2·vec(q₂⁻¹·q₁·q_rel) [rad] (6 rows).  Zero on the same manifold as MuJoCo's rows,
+    with the same row space, which is all the statics and the constrained inertia need.
+    """
+    rows = []
+    site = int(mujoco.mjtObj.mjOBJ_SITE)
+    for e in range(m.neq):
+        if not m.eq_active0[e]:
+            continue
+        kind, data = int(m.eq_type[e]), np.asarray(m.eq_data[e], float)
+        o1, o2 = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
+        if kind == int(mujoco.mjtEq.mjEQ_CONNECT):
+            if int(m.eq_objtype[e]) == site:
+                b1, b2, a1, a2 = int(m.site_bodyid[o1]), int(m.site_bodyid[o2]), m.site_pos[o1], m.site_pos[o2]
+            else:
+                b1, b2, a1, a2 = o1, o2, data[0:3], data[3:6]
+            rows.append(xpos[b1] + _rotate(xquat[b1], a1) - xpos[b2] - _rotate(xquat[b2], a2))
+        elif kind == int(mujoco.mjtEq.mjEQ_WELD) and int(m.eq_objtype[e]) != site:
+            b1, b2 = o1, o2
+            anchor2 = xpos[b2] + _rotate(xquat[b2], data[0:3])
+            image1 = xpos[b1] + _rotate(xquat[b1], data[3:6] + _rotate(data[6:10] / np.linalg.norm(data[6:10]), data[0:3]))
+            q1rel = np.zeros(4)
+            mujoco.mju_mulQuat(q1rel, np.asarray(xquat[b1], float), data[6:10] / np.linalg.norm(data[6:10]))
+            conj2, err = np.zeros(4), np.zeros(4)
+            mujoco.mju_negQuat(conj2, np.asarray(xquat[b2], float))
+            mujoco.mju_mulQuat(err, conj2, q1rel)
+            rows.append(np.r_[image1 - anchor2, 2.0 * np.sign(err[0] or 1.0) * err[1:]])
+    return np.concatenate(rows) if rows else np.zeros(0)
+
+
+def frame_equality_jacobian(m, frames_of, qpos, step: float = 1e-6) -> np.ndarray:
+    """G (rows × nv) of :func:`frame_equality_residual` by central differences of ``frames_of(qpos) -> (xpos, xquat)``."""
+    G = []
+    for i in range(m.nv):
+        sides = []
+        for sign in (1.0, -1.0):
+            q = np.array(qpos, float)
+            dv = np.zeros(m.nv)
+            dv[i] = sign * step
+            mujoco.mj_integratePos(m, q, dv, 1.0)
+            sides.append(frame_equality_residual(m, *frames_of(q)))
+        G.append((sides[0] - sides[1]) / (2.0 * step))
+    return np.array(G).T.reshape(-1, m.nv) if G else np.zeros((0, m.nv))
