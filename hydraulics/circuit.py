@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .components import COMPONENT_TYPES, CircuitError, build_component, check_number, param
+from .files import read_text
 from .fluid import Fluid
 
 FLUID_FIELDS = {
@@ -150,21 +151,17 @@ def read_toml(path: Path, what: str, error: type[CircuitError] = CircuitError) -
     """The document of a UTF-8 TOML file, or ``error`` naming the file.
 
     ``what`` names the kind of file in the messages ("circuit", "scenario");
-    ``error`` is the :class:`CircuitError` subclass raised (missing or unreadable
-    file, not UTF-8, not valid TOML).
+    ``error`` is the :class:`CircuitError` subclass raised (missing file, not a
+    regular file, over :data:`hydraulics.files.MAX_INPUT_BYTES`, a NUL byte, not
+    UTF-8, not valid TOML; see :func:`hydraulics.files.read_text`).
     """
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise error(f"{path}: {what} file not found") from None
-    except UnicodeDecodeError:
-        raise error(f"{path}: not a UTF-8 text file (a {what} is TOML)") from None
-    except OSError as exc:
-        raise error(f"{path}: cannot read {what} file ({exc.strerror})") from None
+    text = read_text(path, what, error)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise error(f"{path}: not valid TOML: {exc}") from None
+    except RecursionError:  # thousands of nested arrays or inline tables
+        raise error(f"{path}: not valid TOML: nested too deeply") from None
 
 
 def load_circuit(path) -> Circuit:

@@ -9,30 +9,84 @@ Subcommands::
     hydroplant log recover PARTIAL [OUT] rebuild a valid MCAP from a killed run's partial file
     hydroplant compile [--jobs N]        fill numba's disk cache with every compiled kernel, in parallel
 
-Bad input (scenario, circuit, MJCF binding, arguments) prints one line naming
-the file, the field and the allowed range, and exits with status 2.
+Bad input (scenario, circuit, MJCF binding, arguments, an output file that may not be
+written) prints one line naming the file, the field and the allowed range, and exits with
+status 2.  ``run --out`` never replaces an existing file unless ``--overwrite`` is given, and
+never the run's inputs or anything that is not a regular file (:func:`sim.io.files.check_output`).
+
+Signals: Ctrl-C (SIGINT), SIGTERM and SIGHUP all stop a command the same way: a run's log is
+finished and marked incomplete, one line on stderr names it, and the exit status is 128 + the
+signal number (130, 143, 129).  SIGTERM and SIGHUP are routed to the SIGINT handler in force
+(:func:`_forward_signal`), so the log writer's deferral of Ctrl-C while a record is half written
+holds for all three.  A signal before any log is open (start-up, imports) exits quietly.
 """
 
 from __future__ import annotations
 
-import argparse
+import signal
 import sys
-from pathlib import Path
-
-from hydraulics.components import CircuitError
-
-from sim import version
-from sim.io.examples import example_path, examples
 
 EXIT_BAD_INPUT = 2
 EXIT_DIVERGED = 3
-EXIT_INTERRUPTED = 130
+EXIT_INTERRUPTED = 130  # 128 + SIGINT; SIGTERM gives 143, SIGHUP 129
+
+try:  # Ctrl-C while the modules load: a quiet exit, no traceback
+    import argparse
+    from pathlib import Path
+
+    from hydraulics.components import CircuitError
+
+    from sim import version
+    from sim.io.examples import example_path, examples
+except KeyboardInterrupt:
+    raise SystemExit(EXIT_INTERRUPTED) from None
+
+FORWARDED_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
+_received: list[int] = []  # the signals received during main(), first first
+
+
+def _forward_signal(signum, frame):
+    """SIGTERM / SIGHUP handler: remember the signal, then do what SIGINT does now.
+
+    The SIGINT handler in force is Python's (raises :class:`KeyboardInterrupt`) or, while the log
+    writer is mid-record, its deferring one (the interrupt is raised when the record is complete).
+    """
+    _received.append(signum)
+    handler = signal.getsignal(signal.SIGINT)
+    if callable(handler):
+        handler(signum, frame)
+    else:  # SIGINT ignored or default (a background job): SIGTERM still stops the command cleanly
+        raise KeyboardInterrupt
+
+
+def _install_signals() -> dict:
+    """Route SIGTERM and SIGHUP to :func:`_forward_signal` (main thread only); the previous handlers."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    previous = {}
+    for signum in FORWARDED_SIGNALS:
+        if signal.getsignal(signum) == signal.SIG_IGN:
+            continue  # ignored by whoever started us (nohup): left ignored
+        previous[signum] = signal.signal(signum, _forward_signal)
+    return previous
+
+
+def _interrupted(exc: KeyboardInterrupt) -> int:
+    """One line when a log was being written (named), nothing before; the exit status 128 + signal."""
+    signum = _received[0] if _received else signal.SIGINT
+    log_path = getattr(exc, "log_path", None)
+    if log_path is not None:
+        name = signal.Signals(signum).name
+        print(f"\nhydroplant: interrupted ({name}); the log written so far is finished and marked incomplete: {log_path}",
+              file=sys.stderr)
+    return 128 + int(signum)
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # argparse's own errors also exit 2, with our one-line style
-        self.print_usage(sys.stderr)
-        print(f"hydroplant: error: {message}", file=sys.stderr)
+    def error(self, message):  # argparse's own errors also exit 2, on one line
+        print(f"hydroplant: error: {message} (see '{self.prog} --help')", file=sys.stderr)
         raise SystemExit(EXIT_BAD_INPUT)
 
 
@@ -64,6 +118,15 @@ def int_in(low: int, high: int | None = None):
     return parse
 
 
+def out_path(text):
+    """argparse type: a non-empty path without NUL bytes (the rest is checked by :func:`sim.io.files.check_output`)."""
+    if not text:
+        raise argparse.ArgumentTypeError("an empty file name; name the log file, e.g. logs/run.mcap")
+    if "\0" in text:
+        raise argparse.ArgumentTypeError(f"{text!r}: a file name may not hold a NUL byte")
+    return Path(text)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="hydroplant", description="Hydraulic heavy-equipment simulator (SI units throughout).")
     parser.add_argument("--version", action="version", version=f"hydroplant {version()}")
@@ -81,8 +144,14 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--iterations", type=int_in(1), help="XPBD iterations per substep (PBD mode)")
     run.add_argument("--pbd-blend", action="store_true",
                      help="PBD mode: blend the rows' pressure forces by MuJoCo mode's θ-rule (default θ = 1, backward Euler)")
-    run.add_argument("--out", type=Path, help="log file (default: logs/<scene>-<scenario>-<mode>-<coupling>-<time>.mcap)")
+    run.add_argument("--out", type=out_path, help="log file (default: logs/<scene>-<scenario>-<mode>-<coupling>-<time>.mcap); "
+                     "an existing file is refused unless --overwrite")
+    run.add_argument("--overwrite", action="store_true",
+                     help="replace an existing --out file (never the run's inputs, nor anything but a regular file)")
     run.add_argument("--no-progress", action="store_true", help="no progress line")
+    run.add_argument("--no-monitor", action="store_true",
+                     help="a state beyond the plausibility bounds (stroke, pressure, energy residual, loop closures, joint "
+                          "ranges) is logged as a warning and the run goes on, instead of stopping it with exit status 3")
     run.add_argument("--pure", action="store_true", help="pure numpy hydraulics instead of the compiled kernels (same results to round-off)")
 
     sub.add_parser("examples", help="list the shipped example scenes")
@@ -124,11 +193,12 @@ def _run(args) -> int:
         "pbd_iterations": args.iterations,
         "pbd_blend": True if args.pbd_blend else None,
         "compiled": False if args.pure else None,
+        "monitor": False if args.no_monitor else None,
     }
     if (args.scenario is None) == (args.example is None):
         raise CircuitError("run: give either a SCENARIO file or --example NAME (see 'hydroplant examples')")
     scenario = example_path(args.example) if args.example else args.scenario
-    result = run(scenario, out=args.out, overrides=overrides, progress=not args.no_progress)
+    result = run(scenario, out=args.out, overrides=overrides, progress=not args.no_progress, overwrite=args.overwrite)
     print(result.summary_text())
     return 0 if result.status == "complete" else EXIT_DIVERGED
 
@@ -155,6 +225,18 @@ def _log(args) -> int:
 
 
 def main(argv=None) -> int:
+    _received.clear()
+    previous = _install_signals()
+    try:
+        return _main(argv)
+    except KeyboardInterrupt as exc:
+        return _interrupted(exc)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def _main(argv) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.command == "run":
@@ -171,11 +253,17 @@ def main(argv=None) -> int:
             return _log(args)
         return args.func(args)
     except CircuitError as exc:  # ScenarioError is a CircuitError
-        print(f"hydroplant: error: {exc}", file=sys.stderr)
+        print(f"hydroplant: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("\nhydroplant: interrupted; the log written so far is finished and marked incomplete", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except OSError as exc:  # writing the log: a full disk, a folder made read-only during the run, ...
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"hydroplant: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+def _one_line(exc: BaseException) -> str:
+    """The exception's message on one line (a newline in a file name or a library's message joined)."""
+    return " ".join(str(exc).split("\n"))
 
 
 if __name__ == "__main__":

@@ -38,6 +38,8 @@ of the compressible network (:class:`hydraulics.coupling.CouplingMixed`).
 from __future__ import annotations
 
 import csv
+import dataclasses
+import io
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -45,7 +47,8 @@ from pathlib import Path
 import numpy as np
 
 from hydraulics.circuit import read_toml
-from hydraulics.components import CircuitError
+from hydraulics.components import COMPONENT_TYPES, CircuitError
+from hydraulics.files import check_regular, read_text, resolve
 from hydraulics.network import FIDELITIES
 
 MODES = ("mujoco", "pbd", "pbd-naive")
@@ -53,6 +56,10 @@ COUPLINGS = ("implicit", "explicit", "implicit-linear", "rosenbrock")
 LINEAR_COUPLINGS = ("implicit-linear", "rosenbrock")  # one linearly implicit step per plant step (PBD: per substep)
 STEPPER_NAMES = ("implicit_euler", "explicit_euler", "reference")
 DEFAULT_BASE_PRESSURE = 1.0e6  # Pa absolute: the low side of a loaded cylinder at t = 0
+DT_RANGE = (1e-9, 1.0)  # s, [low, high]: 1 ns is the resolution of the log's timestamps
+DURATION_MAX = 1e6  # s
+RATE_RANGE = (1e-6, 1e9)  # Hz, [low, high] for [log] rate_hz and tf_rate_hz (above 1/dt: every step)
+VALVE_COMMAND_RANGE = (-1.0, 1.0)  # [-]: spool command, -1 and +1 fully open to either side, 0 centred
 
 
 class ScenarioError(CircuitError):
@@ -98,6 +105,8 @@ class Scenario:
     log_rate_hz: float = 100.0
     tf_rate_hz: float = 100.0  # [log] tf_rate_hz: /tf (Foxglove's 3D view) at most this often [Hz]
     log_dir: Path | None = None
+    inputs_csv: Path | None = None  # the inputs CSV file the schedules were read from, if any
+    monitor: bool = True  # [monitor] enabled: a run beyond the plausibility bounds stops (sim.run.monitor); False: warns
 
     @property
     def name(self) -> str:
@@ -192,11 +201,15 @@ def _schedule(name, spec, where) -> Schedule:
         spec = {"t": [0.0], "value": [spec]}
     if not isinstance(spec, dict) or set(spec) != {"t", "value"}:
         _error(where, "expected a table with exactly the keys 't' (s) and 'value'")
+    for key in ("t", "value"):
+        items = spec[key]
+        if not isinstance(items, list) or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in items):
+            _error(where, f"'{key}' must be an array of numbers (not true/false, strings or tables), got {items!r:.80}")
     try:
         t = np.array(spec["t"], dtype=float)
         value = np.array(spec["value"], dtype=float)
-    except (TypeError, ValueError):
-        _error(where, "'t' and 'value' must be arrays of numbers")
+    except (TypeError, ValueError, OverflowError):
+        _error(where, "'t' and 'value' must be arrays of finite numbers")
     if t.ndim != 1 or t.shape != value.shape or len(t) == 0:
         _error(where, f"'t' and 'value' must be non-empty arrays of equal length (got {t.shape} and {value.shape})")
     if not (np.all(np.isfinite(t)) and np.all(np.isfinite(value))):
@@ -208,11 +221,11 @@ def _schedule(name, spec, where) -> Schedule:
 
 def _csv_inputs(path: Path, where) -> dict:
     """Schedules from a CSV file whose first column is time [s] and whose header names the inputs."""
+    text = read_text(path, "inputs CSV", ScenarioError)
     try:
-        with open(path, newline="", encoding="utf-8") as f:
-            rows = [row for row in csv.reader(f) if row]
-    except (OSError, UnicodeDecodeError) as exc:
-        _error(where, f"field 'inputs_csv': cannot read {path} ({getattr(exc, 'strerror', None) or exc})")
+        rows = [row for row in csv.reader(io.StringIO(text, newline="")) if row]
+    except csv.Error as exc:
+        _error(f"{path}", f"not a valid CSV file: {exc}")
     if len(rows) < 2 or rows[0][0].strip() != "t":
         _error(f"{path}", "a header row starting with 't' and at least one data row are required")
     header = [h.strip() for h in rows[0]]
@@ -235,10 +248,13 @@ def _validate_run(s: Scenario, where):
                       f"(got mode {s.mode!r}, hydraulic_substeps {s.hydraulic_substeps})")
     if s.stepper is not None and s.stepper not in STEPPER_NAMES:
         _error(where, f"field 'run.stepper': {s.stepper!r} is not one of {list(STEPPER_NAMES)}")
-    for key, low, high in (("dt", 0.0, 1.0), ("duration", 0.0, 1e6)):
-        value = getattr(s, key)
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and low < value <= high):
-            _error(where, f"field 'run.{key}': {value!r} is not in ({low}, {high}] s")
+    if not (isinstance(s.dt, (int, float)) and math.isfinite(s.dt) and DT_RANGE[0] <= s.dt <= DT_RANGE[1]):
+        _error(where, f"field 'run.dt': {s.dt!r} is not in [{DT_RANGE[0]:g}, {DT_RANGE[1]:g}] s")
+    if not (isinstance(s.duration, (int, float)) and math.isfinite(s.duration) and 0.0 < s.duration <= DURATION_MAX):
+        _error(where, f"field 'run.duration': {s.duration!r} is not in (0, {DURATION_MAX:g}] s")
+    if s.step_count < 1 or s.duration < s.dt * (1.0 - 1e-9):
+        _error(where, f"field 'run.duration': {s.duration!r} s is shorter than one step (dt = {s.dt!r} s); "
+                      f"the run would take no step; it must be in [dt, {DURATION_MAX:g}] s")
     for key in ("hydraulic_substeps", "pbd_substeps", "pbd_iterations"):
         value = getattr(s, key)
         if not (isinstance(value, int) and 1 <= value <= 100000):
@@ -250,10 +266,9 @@ def _validate_run(s: Scenario, where):
     for name, level in s.actuator_fidelity.items():
         if level not in FIDELITIES:
             _error(where, f"field 'fidelity.{name}': {level!r} is not one of {list(FIDELITIES)}")
-    if not (math.isfinite(s.log_rate_hz) and s.log_rate_hz > 0):
-        _error(where, f"field 'log.rate_hz': {s.log_rate_hz!r} is not in (0, inf) Hz")
-    if not (math.isfinite(s.tf_rate_hz) and s.tf_rate_hz > 0):
-        _error(where, f"field 'log.tf_rate_hz': {s.tf_rate_hz!r} is not in (0, inf) Hz")
+    for key, value in (("rate_hz", s.log_rate_hz), ("tf_rate_hz", s.tf_rate_hz)):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and RATE_RANGE[0] <= value <= RATE_RANGE[1]):
+            _error(where, f"field 'log.{key}': {value!r} is not in [{RATE_RANGE[0]:g}, {RATE_RANGE[1]:g}] Hz")
 
 
 def as_scenario(scenario, *, duration: float | None = None) -> Scenario:
@@ -267,10 +282,10 @@ def as_scenario(scenario, *, duration: float | None = None) -> Scenario:
 
 def load_scenario(path) -> Scenario:
     """Read and validate a scenario file."""
-    path = Path(path).resolve()
+    path = resolve(path, "scenario", ScenarioError)
     where = str(path)
     data = read_toml(path, "scenario", ScenarioError)
-    allowed = {"scene", "run", "initial", "inputs", "inputs_csv", "log", "fidelity"}
+    allowed = {"scene", "run", "initial", "inputs", "inputs_csv", "log", "fidelity", "monitor"}
     unknown = sorted(set(data) - allowed)
     if unknown:
         _error(where, f"unknown top-level key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -281,9 +296,9 @@ def load_scenario(path) -> Scenario:
     for key in ("mjcf", "circuit"):
         if not isinstance(scene.get(key), str):
             _error(where, f"field 'scene.{key}': a path relative to the scenario file is required")
-        files[key] = (path.parent / scene[key]).resolve()
-        if not files[key].is_file():
-            _error(where, f"field 'scene.{key}': file {files[key]} not found")
+        what = f"field 'scene.{key}' of {where}: {'MJCF' if key == 'mjcf' else 'circuit'}"
+        files[key] = resolve(path.parent / scene[key], what, ScenarioError)
+        check_regular(files[key], what, ScenarioError)
     run = data.get("run", {})
     initial = data.get("initial", {})
     log = data.get("log", {})
@@ -302,8 +317,8 @@ def load_scenario(path) -> Scenario:
         if unknown:
             _error(where, f"unknown field(s) in [{name}]: {unknown}; allowed: {sorted(allowed_keys[name])}")
     w = f"{where}, [run]"
-    dt = _number(run, "dt", w, low=0.0, high=1.0, default=1e-3)
-    duration = _number(run, "duration", w, low=0.0, high=1e6, default=1.0)
+    dt = _number(run, "dt", w, low=DT_RANGE[0], high=DT_RANGE[1], low_open=False, default=1e-3)
+    duration = _number(run, "duration", w, low=0.0, high=DURATION_MAX, default=1.0)
 
     def joint_table(key):
         table = initial.get(key, {})
@@ -339,10 +354,12 @@ def load_scenario(path) -> Scenario:
     if not isinstance(inputs_table, dict):
         _error(where, "[inputs] must be a table of input name = schedule")
     inputs = {name: _schedule(name, spec, where) for name, spec in inputs_table.items()}
+    inputs_csv = None
     if "inputs_csv" in data:
         if not isinstance(data["inputs_csv"], str):
             _error(where, "field 'inputs_csv': a path relative to the scenario file is required")
-        inputs.update(_csv_inputs(path.parent / data["inputs_csv"], where))
+        inputs_csv = resolve(path.parent / data["inputs_csv"], f"field 'inputs_csv' of {where}: inputs CSV", ScenarioError)
+        inputs.update(_csv_inputs(inputs_csv, where))
     scenario = Scenario(
         path=path,
         mjcf=files["mjcf"],
@@ -365,8 +382,58 @@ def load_scenario(path) -> Scenario:
         base_pressure=_number(initial, "base_pressure", f"{where}, [initial]", low=0.0, high=1e8, default=DEFAULT_BASE_PRESSURE),
         pressures={k: float(v) for k, v in pressures.items()},
         inputs=inputs,
-        log_rate_hz=_number(log, "rate_hz", f"{where}, [log]", low=0.0, high=1e7, default=100.0),
-        tf_rate_hz=_number(log, "tf_rate_hz", f"{where}, [log]", low=0.0, high=1e7, default=100.0),
+        inputs_csv=inputs_csv,
+        log_rate_hz=_number(log, "rate_hz", f"{where}, [log]", low=RATE_RANGE[0], high=RATE_RANGE[1], low_open=False, default=100.0),
+        tf_rate_hz=_number(log, "tf_rate_hz", f"{where}, [log]", low=RATE_RANGE[0], high=RATE_RANGE[1], low_open=False, default=100.0),
+        monitor=_monitor_enabled(data.get("monitor", {}), where),
     )
     _validate_run(scenario, where)
     return scenario
+
+
+def _monitor_enabled(table, where) -> bool:
+    """``[monitor] enabled`` (default true): whether the plausibility monitor stops a run that leaves its bounds."""
+    if not isinstance(table, dict) or set(table) - {"enabled"}:
+        _error(where, "[monitor] must be a table with the one field 'enabled' (true or false)")
+    return _flag(table, "enabled", f"{where}, [monitor]", True)
+
+
+PUMP_KINDS = ("pump_fixed", "pump_compensated")
+
+
+def input_range(circuit, name: str):
+    """Allowed range ``(low, high, unit)`` of the scenario input ``name`` of ``circuit``, or None if no valve or pump has it.
+
+    A valve's spool command is in :data:`VALVE_COMMAND_RANGE` [-]; a pump's shaft speed in the range
+    of its type's ``speed`` field [rev/s] (``[0, 1000]`` rev/s for :class:`hydraulics.components.PumpFixed`
+    and :class:`~hydraulics.components.PumpCompensated`: the pumps turn one way; 1000 rev/s is 60 000 rpm,
+    beyond any hydraulic pump).
+    """
+    for c in circuit.components:
+        if c.name != name:
+            continue
+        if c.kind in PUMP_KINDS:
+            meta = {f.name: f.metadata for f in dataclasses.fields(COMPONENT_TYPES[c.kind])}["speed"]
+            return float(meta["low"]), float(meta["high"]), meta["unit"]
+        if c.kind == "valve_4_3":
+            return (*VALVE_COMMAND_RANGE, "")
+    return None
+
+
+def check_input_ranges(scenario: Scenario, circuit) -> None:
+    """Refuse schedule values outside each input's physical range (:func:`input_range`), naming the input and knot.
+
+    Inputs that name no valve or pump are left to the caller (:func:`sim.io.scene.load_scene` names them).
+    """
+    for name, schedule in scenario.inputs.items():
+        bounds = input_range(circuit, name) if isinstance(schedule, Schedule) else None
+        if bounds is None:
+            continue
+        low, high, unit = bounds
+        bad = np.flatnonzero((schedule.value < low) | (schedule.value > high))
+        if len(bad):
+            i = int(bad[0])
+            kind = "pump speed" if unit else "valve command"
+            _error(f"{scenario.path}, field 'inputs.{name}'",
+                   f"value {schedule.value[i]!r} at t = {schedule.t[i]!r} s is outside the {kind} range "
+                   f"[{low:g}, {high:g}]{' ' + unit if unit else ''} of '{name}' in {scenario.circuit}")

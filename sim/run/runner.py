@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
+import os
 import platform
 import sys
 import time as _time
@@ -53,7 +54,9 @@ import mujoco
 import numpy as np
 
 from sim import version
+from hydraulics.components import CircuitError
 from sim.run.guards import check_plant
+from sim.io.files import PARTIAL_SUFFIX, check_output, free_path, read_bytes
 from sim.io.mcap_log import LogLevel, LogWriter
 from sim.run.recorder import RunRecorder
 from sim.io.scenario import Scenario, load_scenario
@@ -228,9 +231,46 @@ class RunResult:
 
 
 def default_log_path(scenario: Scenario) -> Path:
-    """logs/<scene>-<scenario>-<mode>-<coupling>-<UTC time>.mcap"""
+    """logs/<scene>-<scenario>-<mode>-<coupling>-<UTC time>.mcap, with ``-2``, ``-3``, ... before ``.mcap`` when
+    that name or its ``.partial`` exists already (:func:`sim.io.files.free_path`): a default name never names an
+    existing file (two runs that still pick one name at once: the second's exclusive ``.partial`` is refused
+    and :func:`run` takes the next name)."""
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S%fZ")
-    return (scenario.log_dir or DEFAULT_LOG_DIR) / f"{scenario.scene_name}-{scenario.name}-{scenario.mode}-{scenario.coupling}-{stamp}.mcap"
+    name = f"{scenario.scene_name}-{scenario.name}-{scenario.mode}-{scenario.coupling}-{stamp}.mcap"
+    return free_path((scenario.log_dir or DEFAULT_LOG_DIR) / name)
+
+
+DEFAULT_NAME_TRIES = 100  # default log names tried when other runs take them at the same instant
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """Ctrl-C (or SIGTERM / SIGHUP, see :mod:`sim.cli`) stopped a run; ``log_path`` is its finished log, marked incomplete."""
+
+    def __init__(self, log_path: Path):
+        super().__init__(str(log_path))
+        self.log_path = log_path
+
+
+def input_files(scene) -> list[tuple[str, str, Path, bytes]]:
+    """Every file the run is built from, as ``(attachment name, media type, path, bytes)``, read now.
+
+    The scenario (``scenario.toml``), the circuit (``circuit.toml``), the inputs CSV when there is one
+    (``inputs.csv``), the MJCF's includes and assets (named by their path relative to the MJCF's folder),
+    and the MJCF itself last (under its own file name).
+    """
+    scenario = scene.scenario
+    files = [("scenario.toml", "application/toml", scenario.path, read_bytes(scenario.path, "scenario", CircuitError)),
+             ("circuit.toml", "application/toml", scenario.circuit, read_bytes(scenario.circuit, "circuit", CircuitError))]
+    if scenario.inputs_csv is not None:
+        files.append(("inputs.csv", "text/csv", scenario.inputs_csv, read_bytes(scenario.inputs_csv, "inputs CSV", CircuitError)))
+    model = list(scene.model_files)
+    folder = Path(scenario.mjcf).parent
+    for f in model[1:]:
+        media = "application/xml" if f.kind == "include" else "application/octet-stream"
+        files.append((os.path.relpath(f.path, folder), media, f.path, f.data))
+    main = model[0].data if model else read_bytes(scenario.mjcf, "MJCF", CircuitError)
+    files.append((scenario.mjcf.name, "application/xml", scenario.mjcf, main))
+    return files
 
 
 def run_metadata(scenario: Scenario, plant=None) -> dict:
@@ -264,19 +304,31 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
     }
 
 
-def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = False, overwrite: bool = True,
+def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = False, overwrite: bool = False,
         fast: bool = True) -> RunResult:
     """Run a scenario (path or :class:`Scenario`) and write its MCAP log; see the module docstring.
+
+    ``out``: the log file (default :func:`default_log_path`).  Before the run starts it is checked
+    by :func:`sim.io.files.check_output`: an existing file is replaced only with ``overwrite=True``,
+    and never when it is one of the run's inputs (scenario, circuit, MJCF, its includes and assets,
+    inputs CSV) or not a regular file; refusals raise :class:`CircuitError`.  Every input file is
+    attached to the log (:func:`input_files`).
 
     ``fast=False`` forces the per-step path (:class:`~sim.plants.mujoco.MujocoPlant`
     in MuJoCo mode); the scenario's ``compiled = false`` (``hydroplant run --pure``)
     also selects it, with the numpy hydraulics.
+
+    Raises :class:`RunInterrupted` (a :class:`KeyboardInterrupt`) naming the log when interrupted
+    while the log is written.
     """
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
     if overrides:
         scenario = scenario.with_overrides(**overrides)
     scene = load_scene(scenario)
+    inputs = input_files(scene)
+    if out is not None:
+        log_path = check_output(out, [path for _, _, path, _ in inputs], overwrite=overwrite)
     if scene.network.pruned and progress:
         print(f"hydroplant: not built (connected to no cylinder or motor): {', '.join(scene.network.pruned)}", file=sys.stderr)
     plant = make_plant(scene, fast=fast)
@@ -284,27 +336,19 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     if progress:
         for text in guard.warnings:
             print(f"hydroplant: warning: {text}", file=sys.stderr)
-    log_path = Path(out) if out is not None else default_log_path(scenario)
-    log_path.parent.mkdir(parents=True, exist_ok=True)
-    attachments = [
-        ("scenario.toml", "application/toml", scenario.path.read_bytes()),
-        ("circuit.toml", "application/toml", scenario.circuit.read_bytes()),
-        (scenario.mjcf.name, "application/xml", scenario.mjcf.read_bytes()),
-    ]
+    attachments = [(name, media, data) for name, media, _, data in inputs]
     net = plant.network
-    with LogWriter(log_path, dt=scenario.dt, run_metadata=run_metadata(scenario, plant), attachments=attachments, overwrite=overwrite) as log:
-        recorder = RunRecorder(log, plant, tf_every=scenario.tf_every)
-        for text in guard.warnings:
-            recorder.event(0, LogLevel.WARNING, "stability guard: " + text)
-        loop = _Loop(plant, recorder, log, scenario, progress)
-        if getattr(plant, "fast", False):
-            loop.blocks()
-        else:
-            loop.per_step()
-        if loop.status == "complete" and loop.drain():  # the last batch of samples, checked like the others
-            log.mark("complete")
-        loop.finish_extremes()
-        wall = _time.perf_counter() - loop.start
+    if out is not None:
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        writer = LogWriter(log_path, dt=scenario.dt, run_metadata=run_metadata(scenario, plant), attachments=attachments,
+                           overwrite=overwrite)
+    else:
+        log_path, writer = _default_writer(scenario, plant, attachments)
+    try:
+        with writer as log:
+            loop, wall = _run_loop(log, plant, scenario, guard, progress)
+    except KeyboardInterrupt:
+        raise RunInterrupted(log_path) from None
     if progress and wall > PROGRESS_AFTER:
         print(file=sys.stderr)
     e = plant.energy
@@ -339,6 +383,35 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
             "relative": sample["residual"] / pump_work if pump_work else 0.0,
         },
     )
+
+
+def _default_writer(scenario: Scenario, plant, attachments):
+    """The log at :func:`default_log_path`, the next free name when another run takes it at the same instant."""
+    for _ in range(DEFAULT_NAME_TRIES):
+        path = default_log_path(scenario)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            return path, LogWriter(path, dt=scenario.dt, run_metadata=run_metadata(scenario, plant), attachments=attachments)
+        except (FileExistsError, CircuitError):
+            if not any(os.path.lexists(p) for p in (path, path.with_name(path.name + PARTIAL_SUFFIX))):
+                raise  # refused for another reason
+    raise CircuitError(f"{path.parent}: no free default log name after {DEFAULT_NAME_TRIES} tries; name one with --out")
+
+
+def _run_loop(log: LogWriter, plant, scenario: Scenario, guard, progress: bool):
+    """Step the plant through the run, logging to ``log``: the finished :class:`_Loop` and the wall time [s]."""
+    recorder = RunRecorder(log, plant, tf_every=scenario.tf_every)
+    for text in guard.warnings:
+        recorder.event(0, LogLevel.WARNING, "stability guard: " + text)
+    loop = _Loop(plant, recorder, log, scenario, progress)
+    if getattr(plant, "fast", False):
+        loop.blocks()
+    else:
+        loop.per_step()
+    if loop.status == "complete" and loop.drain():  # the last batch of samples, checked like the others
+        log.mark("complete")
+    loop.finish_extremes()
+    return loop, _time.perf_counter() - loop.start
 
 
 class _Loop:

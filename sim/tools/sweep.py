@@ -24,6 +24,17 @@
   (scene files, a reference log, code) the caller puts into the point, e.g. as
   :func:`content_hash` values.  A sweep that is interrupted (Ctrl-C, a killed job, a crashed
   worker) and started again recomputes only the points without a cache file.
+* Each cache file carries what made it -- the point, the key, the function's name and a hash
+  of its code (:func:`func_code_hash`: the simulation source, :func:`code_hash`, and the
+  function's own module) -- and a SHA-256 ``digest`` of all that and the result
+  (:func:`entry_digest`).  On reading, every one of them is checked against the present point
+  and code; a file that fails any check (damaged, made by other code, or a file put there by
+  hand under the right name) is ignored and its point computed again.  The digest is a
+  content hash, not a signature: it catches damage, stale and planted entries, not someone who
+  recomputes it.
+* A point whose result has ``"status": "error"`` (the function caught a failure and reported
+  it, e.g. :func:`sim.tools.tradeoff.run_point`) is returned but not cached, so that a rerun
+  tries it again; a point whose function raises stops the sweep (:class:`SweepError`).
 * With a Dask scheduler the cache is written by the calling process, so ``cache_dir`` need
   not be visible to remote workers; whatever files ``func`` reads must be.
 """
@@ -34,18 +45,31 @@ import hashlib
 import json
 import math
 import os
+import sys
 import tempfile
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-__all__ = ["SweepError", "code_hash", "content_hash", "finite_or_none", "point_key", "run_sweep"]
+from hydraulics.components import CircuitError
+from hydraulics.files import read_bytes, read_text
 
-CACHE_VERSION = 1  # bump when the cache file layout changes
+__all__ = ["SchedulerError", "SweepError", "code_hash", "content_hash", "entry_digest", "finite_or_none", "func_code_hash",
+           "point_key", "run_sweep"]
+
+CACHE_VERSION = 2  # bump when the cache file layout changes
+FAILED_STATUS = "error"  # a result with this "status" is not cached
 
 
 class SweepError(RuntimeError):
     """A point of a sweep failed; the message names the point."""
+
+
+class SchedulerError(CircuitError):
+    """The Dask scheduler named by ``scheduler`` cannot be reached (bad input: the command line exits 2)."""
+
+
+SCHEDULER_TIMEOUT = 10.0  # s to connect to a Dask scheduler
 
 
 def content_hash(*items) -> str:
@@ -69,7 +93,7 @@ def content_hash(*items) -> str:
             path = Path(item)
             if not path.is_file():
                 raise FileNotFoundError(f"content_hash: {path} is not a file")
-            data = path.read_bytes()
+            data = read_bytes(path, "hashed")  # bounded size, never blocking
         else:
             raise TypeError(f"content_hash takes paths or bytes, got {type(item).__name__}: {item!r}")
         digest.update(len(data).to_bytes(8, "little"))  # so that ("ab", "c") != ("a", "bc")
@@ -121,23 +145,44 @@ def _roundtrip(result) -> dict:
     return json.loads(json.dumps(result, sort_keys=True))
 
 
-def _read_cached(path: Path, point: dict):
-    """The cached result, or None when the file is missing, unreadable or of another point."""
+def func_code_hash(func: Callable, code: str | None = None) -> str:
+    """SHA-256 of the code behind ``func``'s results: :func:`code_hash` (or ``code``) and the source of ``func``'s module."""
+    module = sys.modules.get(getattr(func, "__module__", None) or "")
+    source = getattr(module, "__file__", None)
+    items = [(code or code_hash()).encode(), _func_name(func).encode()]
+    if source and Path(source).is_file():
+        items.append(Path(source))
+    return content_hash(*items)
+
+
+def entry_digest(entry: dict) -> str:
+    """SHA-256 of a cache entry's fields but ``digest`` (sorted JSON, NaN and inf as Python writes them)."""
+    body = {k: v for k, v in entry.items() if k != "digest"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def _read_cached(path: Path, point: dict, key: str, made_by: dict):
+    """The cached result, or None when the file is missing, unreadable, of another point or code, or fails its digest."""
     try:
-        data = json.loads(path.read_text())
-    except (OSError, ValueError):
+        data = json.loads(read_text(path, "sweep cache"))
+    except (CircuitError, ValueError, RecursionError):
         return None
-    if not isinstance(data, dict) or data.get("point") != json.loads(_canonical(point)) or "result" not in data:
+    if not isinstance(data, dict) or set(data) != {"version", "key", "point", "made_by", "result", "digest"}:
+        return None
+    if (data["version"] != CACHE_VERSION or data["key"] != key or data["point"] != json.loads(_canonical(point))
+            or data["made_by"] != made_by or not isinstance(data["result"], dict) or data["digest"] != entry_digest(data)):
         return None
     return data["result"]
 
 
-def _write_cached(path: Path, point: dict, result: dict) -> None:
+def _write_cached(path: Path, point: dict, result: dict, key: str, made_by: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
+    entry = {"version": CACHE_VERSION, "key": key, "point": point, "made_by": made_by, "result": result}
+    entry["digest"] = entry_digest(entry)
     fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "w") as f:
-            json.dump({"point": point, "result": result}, f, sort_keys=True)
+            json.dump(entry, f, sort_keys=True)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -162,8 +207,8 @@ def run_sweep(func: Callable[[dict], dict], points: Sequence[dict], *, scheduler
         Process-pool size (default ``os.cpu_count()``); ``1`` runs the points one after the
         other in this process. Ignored with a scheduler.
     cache_dir : str or Path, optional
-        Directory of ``<key>.json`` result files; points found there are not recomputed.
-        ``None``: no cache.
+        Directory of ``<key>.json`` result files; points found there (and passing their checks,
+        see the module docstring) are not recomputed. ``None``: no cache.
     progress : callable, optional
         ``progress(done, total)`` after every finished point (cached ones included).
 
@@ -187,10 +232,11 @@ def run_sweep(func: Callable[[dict], dict], points: Sequence[dict], *, scheduler
     keys = [point_key(p, func) for p in points]
     cache = Path(cache_dir) if cache_dir is not None else None
     results: dict[str, dict] = {}
+    made_by = {"func": _func_name(func), "code": func_code_hash(func)} if cache is not None else {}
     if cache is not None:
         for key, point in zip(keys, points):
             if key not in results:
-                cached = _read_cached(cache / f"{key}.json", point)
+                cached = _read_cached(cache / f"{key}.json", point, key, made_by)
                 if cached is not None:
                     results[key] = cached
     todo = {}
@@ -205,8 +251,8 @@ def run_sweep(func: Callable[[dict], dict], points: Sequence[dict], *, scheduler
     def finished(key, result):
         nonlocal done
         result = _roundtrip(result)
-        if cache is not None:
-            _write_cached(cache / f"{key}.json", todo[key], result)
+        if cache is not None and result.get("status") != FAILED_STATUS:
+            _write_cached(cache / f"{key}.json", todo[key], result, key, made_by)
         results[key] = result
         done += 1
         if progress is not None:
@@ -259,7 +305,15 @@ def _run_dask(func, todo: dict, scheduler, finished) -> None:
     from dask.distributed import as_completed as dask_completed
 
     own = not isinstance(scheduler, Client)
-    client = Client(scheduler) if own else scheduler
+    if own:
+        try:
+            client = Client(scheduler, timeout=SCHEDULER_TIMEOUT)
+        except (OSError, TimeoutError, ValueError) as exc:
+            reason = " ".join(str(exc).split()) or type(exc).__name__
+            raise SchedulerError(f"--scheduler {scheduler}: no Dask scheduler reachable within {SCHEDULER_TIMEOUT:g} s "
+                                 f"({reason:.200})") from None
+    else:
+        client = scheduler
     try:
         keys = list(todo)
         # pure=False with explicit keys: every point runs once, named by its cache key.
