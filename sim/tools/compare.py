@@ -617,7 +617,7 @@ def compare_runs(scenario, specs: list[RunSpec], out_dir, *, dt: float | None = 
     for spec in specs:
         path = out_dir / f"{spec.label}.mcap"
         overrides = {"mode": spec.mode, "coupling": spec.coupling, "dt": dt, **(run_overrides or {}).get(spec.label, {})}
-        result = run(scenario, out=path, overrides=overrides)
+        result = run(scenario, out=path, overrides=overrides, overwrite=True)  # compare's own files in its folder
         if progress:
             import sys
 

@@ -567,11 +567,11 @@ def run_point(point: dict) -> dict:
                  "pbd_substeps": point.get("pbd_substeps")}  # (None: the scenario's)
     start = _time.perf_counter()
     try:
-        result = run(point["scenario"], out=log_path, overrides=overrides, progress=False)
+        result = run(point["scenario"], out=log_path, overrides=overrides, progress=False, overwrite=True)
         if not result.extremes_every_step:
             # the block-stepping runner only saw the pressures at its log samples (a plant without
             # per-step extremes): the bounds check needs every step, so repeat the run step by step
-            result = run(point["scenario"], out=log_path, overrides=overrides, progress=False, fast=False)
+            result = run(point["scenario"], out=log_path, overrides=overrides, progress=False, fast=False, overwrite=True)
     except (KeyboardInterrupt, SystemExit):
         raise
     except Exception as exc:  # a crash is a result of the map, not of the tool
