@@ -21,6 +21,7 @@ from sim.io.mcap_log import (
     FRAME_TRANSFORMS,
     Column,
     LogLevel,
+    LogPathError,
     LogWriter,
     TIMESTAMP,
     flat_schema,
@@ -286,10 +287,10 @@ def test_keyboard_interrupt_is_recorded(tmp_path):
 
 def test_ctrl_c_during_batch_write_loses_nothing(tmp_path, monkeypatch):
     """A SIGINT landing inside the MCAP writer is held until the batch is written."""
-    import sim.io.mcap_log
+    from sim.io.mcap_file import ChunkedWriter
 
     path = tmp_path / "sigint.mcap"
-    original = sim.io.mcap_log._BulkWriter.add_records
+    original = ChunkedWriter.add_records
     calls = {"n": 0}
 
     def add_records_with_ctrl_c(self, *args, **kwargs):
@@ -298,7 +299,7 @@ def test_ctrl_c_during_batch_write_loses_nothing(tmp_path, monkeypatch):
             signal.raise_signal(signal.SIGINT)  # handler runs at the next bytecode boundary
         return original(self, *args, **kwargs)
 
-    monkeypatch.setattr(sim.io.mcap_log._BulkWriter, "add_records", add_records_with_ctrl_c)
+    monkeypatch.setattr(ChunkedWriter, "add_records", add_records_with_ctrl_c)
     # Python's own handler, also when the suite inherited SIGINT ignored (started in the background)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     appended = 0
@@ -320,11 +321,11 @@ def test_ctrl_c_during_batch_write_loses_nothing(tmp_path, monkeypatch):
 def test_existing_files_are_not_overwritten(tmp_path):
     path = tmp_path / "twice.mcap"
     write_run(path, 10)
-    with pytest.raises(FileExistsError, match="twice.mcap exists; pass overwrite=True"):
+    with pytest.raises(LogPathError, match=r"twice.mcap exists; pass --overwrite \(overwrite=True\)"):
         LogWriter(path, dt=1e-3)
     write_run(path, 20, overwrite=True)
     assert read_log(path).message_counts == {"/hydroplant/cylinders/boom": 20}
-    with pytest.raises(FileExistsError):
+    with pytest.raises(LogPathError, match="another file than its input"):
         recover(path, path)
 
 
@@ -749,16 +750,16 @@ def test_chunk_thread_writes_the_inline_file(tmp_path, monkeypatch):
     """Chunks compressed and written on the chunk thread make the same file, byte for byte, as the caller's thread."""
     import threading
 
-    import sim.io.mcap_log as mcap_log
+    from sim.io.mcap_file import ChunkedWriter
 
     writers = []
-    write_chunk = mcap_log._BulkWriter._write_chunk
+    write_chunk = ChunkedWriter._write_chunk
 
     def spy(self, *args):
         writers.append(threading.current_thread().name)
         write_chunk(self, *args)
 
-    monkeypatch.setattr(mcap_log._BulkWriter, "_write_chunk", spy)
+    monkeypatch.setattr(ChunkedWriter, "_write_chunk", spy)
     _write_mixed_run(tmp_path / "inline.mcap", 900, chunk_thread=False)
     inline = len(writers)
     _write_mixed_run(tmp_path / "thread.mcap", 900)
@@ -772,10 +773,10 @@ def test_chunk_thread_writes_the_inline_file(tmp_path, monkeypatch):
 
 def test_chunk_thread_failure_is_raised_and_the_partial_kept(tmp_path, monkeypatch):
     """A chunk write failing on the chunk thread stops the run with that error; the chunks before it come back."""
-    import sim.io.mcap_log as mcap_log
+    from sim.io.mcap_file import ChunkedWriter
 
     calls = []
-    write_chunk = mcap_log._BulkWriter._write_chunk
+    write_chunk = ChunkedWriter._write_chunk
 
     def failing(self, *args):
         calls.append(len(calls))
@@ -783,7 +784,7 @@ def test_chunk_thread_failure_is_raised_and_the_partial_kept(tmp_path, monkeypat
             raise OSError(28, "No space left on device")
         write_chunk(self, *args)
 
-    monkeypatch.setattr(mcap_log._BulkWriter, "_write_chunk", failing)
+    monkeypatch.setattr(ChunkedWriter, "_write_chunk", failing)
     path = tmp_path / "full.mcap"
     with pytest.raises(OSError, match="No space left"):
         write_run(path, 5000, chunk_size=4000)

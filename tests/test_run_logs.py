@@ -100,7 +100,8 @@ def test_cli_run_writes_log_and_bad_input_exits_2(tmp_path, capsys):
     assert main(["log", "info", str(out)]) == 0
     assert "status: complete" in capsys.readouterr().out
     assert main(["run", str(tmp_path / "missing.toml")]) == 2
-    assert "scenario file not found" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "missing.toml" in err and "file not found" in err and err.count("\n") == 1
 
 
 # ------------------------------------------------------------------------ batched logging

@@ -22,10 +22,10 @@ sample of every topic of a frame are one constant byte row (record headers, CDR 
 with their strings and padding) with slots, and a batch of samples is that row repeated and
 its slots (sequences, log times, timestamps, float64 fields) filled row by row in one
 compiled pass (:class:`_RecordRows`, numba). Batches of all channels are merged in log-time
-order, sample by sample, and handed whole to the chunks of :class:`mcap.writer.Writer`
-(:meth:`_BulkWriter.add_records`), so every file is globally ordered by ``log_time``. Chunks
-are compressed with zstd at level -2 (:attr:`_BulkWriter.ZSTD_LEVEL`) and written, in order, by
-one background thread (``chunk_thread``), while the caller goes on stepping.
+order, sample by sample, and handed whole to the chunks of :class:`sim.io.mcap_file.ChunkedWriter`
+(:meth:`~sim.io.mcap_file.ChunkedWriter.add_records`), so every file is globally ordered by
+``log_time``. Chunks are compressed with zstd at level -2 and written, in order, by one
+background thread (``chunk_thread``), while the caller goes on stepping.
 
 :func:`read_log` reads both kinds back as numpy columns with the field names of the
 messages (``"p_cap_pa"``, ``"pressure_pa.supply"``, ``"position/<joint>"``,
@@ -40,9 +40,11 @@ Conventions:
   ``{sec, nsec}`` in JSON).
 - NaN and ±inf are stored as they are in CDR (float64); JSON is strict: non-finite floats
   are written as ``null`` and read back as NaN.
-- The file is written to ``PATH.partial`` and renamed to ``PATH`` when it is finished,
-  also when the ``with`` block raises. A file cut by SIGKILL can be rebuilt with
-  :func:`recover`.
+- The file is written to ``PATH.partial``, created exclusively (two writers never share
+  it; an existing one is never replaced unless asked), and published as ``PATH`` when it
+  is finished, also when the ``with`` block raises; an existing ``PATH`` is replaced only
+  with ``overwrite=True``. A file cut by SIGKILL or damaged can be rebuilt with
+  :func:`recover`, which skips damaged chunks and keeps the others.
 
 This module does not import MuJoCo; see :mod:`sim.io.foxglove_scene` for the model-specific
 channels.
@@ -50,46 +52,34 @@ channels.
 
 from __future__ import annotations
 
-import collections
-import concurrent.futures
 import dataclasses
 import enum
 import functools
 import heapq
-import io
 import json
 import math
 import os
 import re
 import signal
+import stat
 import struct
 import threading
-import zlib
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
-import mcap
 import numba
 import numpy as np
-from mcap.data_stream import RecordBuilder
-from mcap.exceptions import EndOfFile, McapError
-from mcap.opcode import Opcode
+from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.records import Attachment as _McapAttachment
-from mcap.records import Channel as _McapChannel
-from mcap.records import Chunk as _McapChunk
-from mcap.records import ChunkIndex as _McapChunkIndex
-from mcap.records import Header as _McapHeader
-from mcap.records import Message as _McapMessage
-from mcap.records import MessageIndex as _McapMessageIndex
-from mcap.records import Metadata as _McapMetadata
-from mcap.records import Schema as _McapSchema
-from mcap.stream_reader import StreamReader, breakup_chunk
-from mcap.writer import CompressionType, IndexType, Writer
+from mcap.records import Schema as McapSchema
+from mcap.writer import CompressionType, Writer
 
-from sim import version
+from sim.io.log_recover import RecoverReport, recover, verify_log
+from sim.io.mcap_file import (DEFAULT_CHUNK_SIZE, MCAP_MAGIC, MESSAGE_RECORD, NS_PER_S, PARTIAL_SUFFIX, RESULT_METADATA,
+                              RUN_METADATA, ChunkedWriter, LogPathError, LogReadError, RecordStream, RunStatus,
+                              library_string, publish, refuse_special)
 
 __all__ = [
     "Attachment",
@@ -101,6 +91,8 @@ __all__ = [
     "JOINT_STATES",
     "JointStatesChannel",
     "LogLevel",
+    "LogPathError",
+    "LogReadError",
     "LogWriter",
     "MsgField",
     "MsgType",
@@ -115,6 +107,7 @@ __all__ = [
     "cdr_decode",
     "cdr_encode",
     "flat_schema",
+    "inspect_log",
     "library_string",
     "log_info",
     "log_message",
@@ -128,18 +121,11 @@ __all__ = [
     "to_json_bytes",
 ]
 
-RUN_METADATA = "hydroplant.run"  # metadata record written at construction
-RESULT_METADATA = "hydroplant.result"  # metadata record written at close
-PARTIAL_SUFFIX = ".partial"  # suffix of the file while it is being written
-NS_PER_S = 1_000_000_000  # nanoseconds per second
-DEFAULT_CHUNK_SIZE = 512 * 1024  # uncompressed bytes per chunk [B]
 # sim time between forced chunk ends [s]: at the default 100 Hz a sample is ≈ 2 kB, so a 512 KiB chunk fills in ≈ 2.6 s
 # and a 2 s flush ends about one chunk early; each flush costs a batch derive and encode and a chunk end (≈ 1.5 ms
 # on the excavator at 100 Hz), whatever the chunk holds
 DEFAULT_FLUSH_INTERVAL = 2.0
 DEFAULT_BATCH_SIZE = 1024  # buffered samples per channel before a batch encode
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-RECORD_PREFIX = struct.Struct("<BQ")  # opcode (uint8) + record length (uint64)
 FRAME_ID_KEYS = ("frame_id", "parent_frame_id", "child_frame_id")  # rewritten by merge_logs
 _PREFIX_PATTERN = re.compile(r"[A-Za-z0-9_.\-]+")
 
@@ -244,11 +230,6 @@ def _reject_constant(name: str) -> None:
 
 def _loads(data: bytes) -> Any:
     return json.loads(data, parse_constant=_reject_constant)
-
-
-def library_string() -> str:
-    """Header library string ``"hydroplant/<version> mcap-python/<version>"``."""
-    return f"hydroplant/{version()} mcap-python/{mcap.__version__}"
 
 
 # ---------------------------------------------------------------------------------------
@@ -978,7 +959,7 @@ def _fields_layout(fields: Sequence[str]) -> dict:
 # MCAP Message records of many samples at once
 # ---------------------------------------------------------------------------------------
 
-_MESSAGE_RECORD = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log time, publish time
+_MESSAGE_RECORD = MESSAGE_RECORD
 _MESSAGE_RECORD_OVERHEAD = _MESSAGE_RECORD.size  # 31 B before the message data
 
 
@@ -1095,28 +1076,7 @@ def _message_record(channel_id: int, sequence: int, log_time: int, data: bytes) 
     return np.frombuffer(header + data, dtype=np.uint8)
 
 
-@dataclass(frozen=True)
-class _RecordStream:
-    """Records of several blocks merged in log-time order, unit (sample) after unit.
-
-    Unit u ends at byte ``unit_ends[u]`` of ``data`` (uint8, the units one after the other), at
-    ``unit_times[u]`` [ns]. ``messages`` holds
-    per block the units of its rows (ascending), its channel ids and, for row r and member j,
-    the stream offset of that message: ``(units (n,), channel_ids (m,), offsets (n, m))``.
-    """
-
-    data: np.ndarray
-    unit_ends: np.ndarray
-    unit_times: np.ndarray
-    messages: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
-
-    def write_bytes(self, start_unit: int, stop_unit: int, out: Any) -> None:
-        """Write the bytes of units ``start_unit`` to ``stop_unit - 1`` to ``out`` (a binary stream)."""
-        first = int(self.unit_ends[start_unit - 1]) if start_unit else 0
-        out.write(self.data[first:int(self.unit_ends[stop_unit - 1])].data)
-
-
-def _merge_blocks(blocks: Sequence[_RecordBlock]) -> _RecordStream:
+def _merge_blocks(blocks: Sequence[_RecordBlock]) -> RecordStream:
     """One record stream of ``blocks``, units ordered by (log time, channel order, block serial, row)."""
     counts = [len(b.log_times) for b in blocks]
     if len(blocks) == 1:  # (the usual drain: one frame's samples) already in order
@@ -1146,251 +1106,7 @@ def _merge_blocks(blocks: Sequence[_RecordBlock]) -> _RecordStream:
         positions = np.split(position_of, np.cumsum(counts)[:-1])
     messages = [(where, b.channel_ids, (unit_ends[where] - b.rows.shape[1])[:, None] + b.offsets[None, :])
                 for b, where in zip(blocks, positions)]
-    return _RecordStream(data, unit_ends, unit_times, messages)
-
-
-class _MessageIndexArrays(_McapMessageIndex):
-    """A chunk's message index of one channel, kept as numpy (log_time, offset) blocks and written in one piece."""
-
-    def write(self, stream) -> None:
-        stream.write(self.record_bytes())
-
-    def record_bytes(self) -> bytes:
-        """The whole MessageIndex record (opcode, length, channel id, (log_time, offset) pairs)."""
-        blocks = [np.asarray(r, dtype=np.uint64).reshape(-1, 2) for r in self.records]
-        pairs = (np.concatenate(blocks) if len(blocks) > 1 else blocks[0]) if blocks else np.empty((0, 2), np.uint64)
-        data = pairs.astype("<u8").tobytes()
-        return struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 6 + len(data), self.channel_id, len(data)) + data
-
-
-class _BulkWriter(Writer):
-    """:class:`mcap.writer.Writer` that also takes many ready Message records at once (:meth:`add_records`).
-
-    The records, chunks, indexes and statistics are those the base class writes
-    message by message; the bulk path takes the Message records of a batch built
-    as numpy rows (:class:`_RecordRows`) and hands them to the base class's chunk
-    builder in whole samples, finishing a chunk after the sample that takes it past
-    ``chunk_size``.  If this version of ``mcap`` lays its writer out differently,
-    the bulk path falls back to ``add_message`` per message.
-    """
-
-    # zstd's fast level -2, measured on the 512 KiB chunks of a 20 s dig logged every step with /tf at
-    # 100 Hz: 957 MB/s at a ratio of 2.75 against level -1's 778 MB/s at 2.84 and level 1's
-    # 591 MB/s at 2.89; -3 998 MB/s at 2.71, -5 1149 MB/s at 2.40, lz4 1160 MB/s at 2.33. Whole 20 s
-    # logs, every step / 100 Hz: 17.00 / 2.13 MB at -2, 16.68 / 2.08 MB at -1 (2 % for 23 % less time)
-    ZSTD_LEVEL = -2
-
-    MAX_PENDING_CHUNKS = 4  # chunks handed to the chunk thread and not yet written (≤ 4 × chunk_size of memory)
-
-    def __init__(self, *args: Any, chunk_thread: bool = True, **kwargs: Any):
-        super().__init__(*args, **kwargs)
-        self._chunk_thread = chunk_thread
-        self._pool: concurrent.futures.ThreadPoolExecutor | None = None  # started by the first chunk
-        self._pending: collections.deque[concurrent.futures.Future] = collections.deque()
-        self._failure: BaseException | None = None
-
-    # -- the chunk thread ------------------------------------------------------------
-    # One worker compresses finished chunks (zstd and crc32 release the GIL, as do the file writes and MuJoCo's
-    # mj_step) and writes them with their message indexes, in the order they were finished. While it has work, it
-    # is the only writer of the stream: every base-class method that writes the stream itself waits for it first
-    # (settle), so the file is byte for byte the one an inline writer makes.
-
-    def _submit(self, job: Callable[..., None], *args: Any) -> None:
-        """Run ``job(*args)`` on the chunk thread (inline without one), after every job submitted before it."""
-        if not self._chunk_thread:
-            job(*args)
-            return
-        self._raise_failure()
-        if self._pool is None:
-            self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="mcap-chunks")
-        while len(self._pending) >= self.MAX_PENDING_CHUNKS:
-            self._wait_one()
-        self._pending.append(self._pool.submit(self._guarded, job, args))
-
-    def _guarded(self, job: Callable[..., None], args: tuple) -> None:
-        """Run a job on the chunk thread; its error is kept in ``_failure`` for the caller's thread to raise."""
-        if self._failure is not None:  # after a failed write the stream's offsets are unknown: write nothing more
-            return
-        try:
-            job(*args)
-        except BaseException as error:  # noqa: BLE001 - raised in the caller's thread by _raise_failure
-            self._failure = error
-
-    def _wait_one(self) -> None:
-        self._pending.popleft().result()
-
-    def _raise_failure(self) -> None:
-        if self._failure is not None:
-            raise self._failure
-
-    def settle(self) -> None:
-        """Wait until the chunk thread has written everything handed to it; raise the error of a failed write."""
-        while self._pending:
-            self._wait_one()
-        self._raise_failure()
-
-    def stop_thread(self) -> None:
-        """Settle and end the chunk thread (idempotent; later chunks are written inline)."""
-        self._chunk_thread = False
-        try:
-            self.settle()
-        finally:
-            if self._pool is not None:
-                self._pool.shutdown(wait=True)
-                self._pool = None
-
-    # -- base-class methods that write the stream: settle first ------------------------
-
-    def add_attachment(self, *args: Any, **kwargs: Any) -> None:
-        self.settle()
-        super().add_attachment(*args, **kwargs)
-
-    def add_metadata(self, name: str, data: dict[str, str]) -> None:
-        self.settle()
-        super().add_metadata(name, data)
-
-    def flush(self, wait: bool = True) -> None:
-        """End the chunk in progress and flush the stream; ``wait=False`` leaves both to the chunk thread."""
-        self._Writer__finalize_chunk()
-        if wait or not self._chunk_thread:
-            self.settle()
-            super().flush()
-        else:
-            self.flush_stream()
-
-    def flush_stream(self) -> None:
-        """Flush the stream's buffer to the OS after the chunks handed over so far (on the chunk thread)."""
-        self._submit(self._Writer__stream.flush)  # type: ignore[attr-defined]
-
-    def finish(self) -> None:
-        self._Writer__finalize_chunk()
-        self.stop_thread()
-        super().finish()
-
-    # -- chunks ----------------------------------------------------------------------
-
-    def _Writer__finalize_chunk(self) -> None:  # noqa: N802 - overrides the base class's private method
-        """The base class's chunk finalisation, with a reused zstd compressor at :attr:`ZSTD_LEVEL`, on the chunk
-        thread: the chunk's bytes and indexes are taken here and :meth:`_write_chunk` compresses and writes them."""
-        try:
-            chunks = self._Writer__chunk_builder  # type: ignore[attr-defined]
-            zstd = self._Writer__compression == CompressionType.ZSTD  # type: ignore[attr-defined]
-            plain_stream = not self._Writer__enable_data_crcs  # type: ignore[attr-defined]
-        except AttributeError:  # pragma: no cover - other mcap versions
-            chunks, zstd, plain_stream = None, False, False
-        if (not zstd or not plain_stream or chunks is None or chunks.num_messages == 0
-                or not hasattr(self, "_Writer__chunk_indices")):
-            self.settle()
-            return Writer._Writer__finalize_chunk(self)  # type: ignore[attr-defined]
-        self._Writer__statistics.chunk_count += 1  # type: ignore[attr-defined]
-        job = (chunks.end(), chunks.message_start_time, chunks.message_end_time, list(chunks.message_indices.items()))
-        chunks.reset()
-        self._submit(self._write_chunk, *job)
-
-    def _write_chunk(self, chunk_data: bytes, start_time: int, end_time: int, indexes: list[tuple[int, Any]]) -> None:
-        """Compress one chunk and write it and its message indexes at the end of the stream; index it."""
-        if not hasattr(self, "_zstd"):
-            import zstandard
-
-            self._zstd = zstandard.ZstdCompressor(level=self.ZSTD_LEVEL)
-        compressed = self._zstd.compress(chunk_data)
-        chunk = _McapChunk(compression="zstd", data=compressed, message_start_time=start_time, message_end_time=end_time,
-                           uncompressed_crc=zlib.crc32(chunk_data) if self._Writer__enable_crcs else 0,  # type: ignore[attr-defined]
-                           uncompressed_size=len(chunk_data))
-        builder = RecordBuilder()  # the chunk thread's own: the base class's builder belongs to the caller's thread
-        chunk.write(builder)
-        stream = self._Writer__stream  # type: ignore[attr-defined]
-        chunk_start = stream.tell()
-        chunk_length = builder.count
-        chunk_index = _McapChunkIndex(message_start_time=start_time, message_end_time=end_time,
-                                      chunk_start_offset=chunk_start, chunk_length=chunk_length, message_index_offsets={},
-                                      message_index_length=0, compression=chunk.compression, compressed_size=len(compressed),
-                                      uncompressed_size=chunk.uncompressed_size)
-        records = [builder.end()]
-        if self._Writer__index_types & IndexType.MESSAGE:  # type: ignore[attr-defined]
-            position = chunk_start + chunk_length
-            for channel_id, index in indexes:
-                if isinstance(index, _MessageIndexArrays):
-                    record = index.record_bytes()
-                else:  # pragma: no cover - filled by add_message
-                    single = RecordBuilder()
-                    index.write(single)
-                    record = single.end()
-                chunk_index.message_index_offsets[channel_id] = position
-                records.append(record)
-                position += len(record)
-            chunk_index.message_index_length = position - chunk_start - chunk_length
-        stream.write(b"".join(records))
-        self._Writer__chunk_indices.append(chunk_index)  # type: ignore[attr-defined]
-
-    def _bulk_parts(self):
-        try:
-            return (self._Writer__chunk_builder, self._Writer__statistics, self._Writer__chunk_size,  # type: ignore[attr-defined]
-                    self._Writer__maybe_finalize_chunk)  # type: ignore[attr-defined]
-        except AttributeError:  # pragma: no cover - other mcap versions
-            return None
-
-    def add_records(self, stream: _RecordStream) -> None:
-        """Add the Message records of ``stream`` (already in log-time order) to the chunks, as the base class would
-        message by message, finishing a chunk after the unit (sample) that takes it past ``chunk_size``."""
-        n = len(stream.unit_ends)
-        if n == 0:
-            return
-        parts = self._bulk_parts()
-        if parts is None or parts[0] is None:  # pragma: no cover - other mcap versions
-            self._add_records_one_by_one(stream)
-            return
-        chunks, stats, chunk_size, maybe_finalize = parts
-        times = stream.unit_times
-        if stats.message_count == 0:
-            stats.message_start_time = int(times.min())
-        else:
-            stats.message_start_time = min(stats.message_start_time, int(times.min()))
-        stats.message_end_time = max(stats.message_end_time, int(times.max()))
-        for units, channel_ids, _ in stream.messages:
-            for channel_id in channel_ids.tolist():
-                stats.channel_message_counts[channel_id] += len(units)
-            stats.message_count += len(units) * len(channel_ids)
-        done = 0
-        while done < n:
-            base = int(stream.unit_ends[done - 1]) if done else 0
-            filled = chunks.count + (stream.unit_ends[done:] - base)  # units up to the one taking the chunk past chunk_size
-            stop = min(n, done + int(np.searchsorted(filled, chunk_size, side="right")) + 1)
-            piece_times = times[done:stop]
-            if chunks.num_messages == 0:
-                chunks.message_start_time = int(piece_times.min())
-            else:
-                chunks.message_start_time = min(chunks.message_start_time, int(piece_times.min()))
-            chunks.message_end_time = max(chunks.message_end_time, int(piece_times.max()))
-            shift = chunks.count - base
-            for units, channel_ids, offsets in stream.messages:  # a block's rows are in order: one slice per block
-                first, last = np.searchsorted(units, (done, stop))
-                if first == last:
-                    continue
-                pairs = np.empty((len(channel_ids), last - first, 2), dtype=np.uint64)
-                pairs[:, :, 0] = times[units[first:last]]
-                pairs[:, :, 1] = (offsets[first:last] + shift).T
-                for j, channel_id in enumerate(channel_ids.tolist()):
-                    index = chunks.message_indices.get(channel_id)
-                    if index is None:
-                        index = chunks.message_indices[channel_id] = _MessageIndexArrays(channel_id=channel_id, records=[])
-                    elif not isinstance(index, _MessageIndexArrays):  # pragma: no cover - filled by add_message before
-                        index = chunks.message_indices[channel_id] = _MessageIndexArrays(channel_id, [list(index.records)])
-                    index.records.append(pairs[j])
-                chunks.num_messages += (last - first) * len(channel_ids)
-            stream.write_bytes(done, stop, chunks.record_writer)
-            maybe_finalize()
-            done = stop
-
-    def _add_records_one_by_one(self, stream: _RecordStream) -> None:  # pragma: no cover - other mcap versions
-        buffer = io.BytesIO()
-        stream.write_bytes(0, len(stream.unit_ends), buffer)
-        data = buffer.getvalue()
-        offsets = np.sort(np.concatenate([o.ravel() for _, _, o in stream.messages]))
-        for offset in offsets.tolist():
-            _, length, channel_id, sequence, log_time, publish_time = _MESSAGE_RECORD.unpack_from(data, offset)
-            self.add_message(channel_id, log_time, data[offset + _MESSAGE_RECORD_OVERHEAD:offset + 9 + length],
-                             publish_time, sequence)
+    return RecordStream(data, unit_ends, unit_times, messages)
 
 
 # ---------------------------------------------------------------------------------------
@@ -1431,15 +1147,6 @@ class _DeferredSigint:
             self._previous(*self._received)  # default_int_handler raises KeyboardInterrupt here
         elif self._previous == signal.SIG_DFL:
             signal.raise_signal(signal.SIGINT)
-
-
-class RunStatus(str, enum.Enum):
-    """Values of ``status`` in the ``hydroplant.result`` metadata record."""
-
-    COMPLETE = "complete"
-    DIVERGED = "diverged"
-    INCOMPLETE = "incomplete"
-    RECOVERED = "recovered"
 
 
 @dataclass(frozen=True)
@@ -1867,6 +1574,53 @@ class Frame:
         return encoded
 
 
+def _locked_by_other(partial: Path) -> bool:
+    """Whether another writer holds ``partial`` (its exclusive lock); False where locks are not available."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        return False
+    try:
+        fd = os.open(partial, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    finally:
+        os.close(fd)  # (closing releases a lock taken here)
+    return False
+
+
+def _create_partial(path: Path, partial: Path, overwrite: bool) -> BinaryIO:
+    """Create ``partial`` exclusively (``O_CREAT | O_EXCL``) and lock it; the checks of :class:`LogWriter`."""
+    for target in (path, partial):
+        refuse_special(target)
+    if os.path.lexists(path) and not overwrite:
+        raise LogPathError(f"{path} exists; pass --overwrite (overwrite=True) to replace it")
+    if os.path.lexists(partial):
+        if _locked_by_other(partial):
+            raise LogPathError(f"{partial} is being written by another run; choose another output")
+        if not overwrite:
+            raise LogPathError(f"{partial} exists (left by an interrupted run): recover it with "
+                               f"'hydroplant log recover {partial}', or pass --overwrite (overwrite=True) to replace it")
+        partial.unlink()
+    try:
+        fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
+    except FileExistsError:
+        raise LogPathError(f"{partial} is being written by another run; choose another output") from None
+    except OSError as error:
+        raise LogPathError(f"{partial}: cannot create the log ({error.strerror or error})") from None
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        pass
+    else:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held until the file is closed
+    return os.fdopen(fd, "wb")
+
+
 class LogWriter:
     """Write a simulation run to an MCAP file.
 
@@ -1892,7 +1646,10 @@ class LogWriter:
     compression : {"zstd", "lz4", "none"}, optional
         Chunk compression.
     overwrite : bool, optional
-        Replace an existing ``path`` or ``path.partial``; otherwise ``FileExistsError``.
+        Replace an existing regular file ``path``, and an existing ``path.partial`` that no
+        other writer holds; otherwise :class:`LogPathError` (a ``CircuitError``) naming it.
+        A ``path`` that exists and is not a regular file (folder, device, FIFO) is refused
+        either way, as is a ``path.partial`` another writer is writing.
     chunk_thread : bool, optional
         Compress and write finished zstd chunks on a background thread (zstd, crc32, the
         file writes and MuJoCo's ``mj_step`` all release the GIL, so they overlap the
@@ -1904,7 +1661,7 @@ class LogWriter:
     What a SIGKILL can lose is bounded by the larger of ``flush_interval`` of simulation
     time and ``chunk_size`` bytes of messages plus ``batch_size`` samples per channel,
     plus, with the chunk thread, the chunks handed to it and not yet written (at most
-    ``_BulkWriter.MAX_PENDING_CHUNKS``; a periodic flush does not wait for them, an
+    ``ChunkedWriter.MAX_PENDING_CHUNKS``; a periodic flush does not wait for them, an
     explicit :meth:`flush` does); everything before is in complete chunks on disk and
     comes back with :func:`recover`. A write that fails on the chunk thread is raised by
     the next call that hands it work or waits for it (at the latest :meth:`close`, which
@@ -1931,9 +1688,8 @@ class LogWriter:
             raise ValueError(f"`batch_size` must be >= 1, got {batch_size!r}")
         if int(chunk_size) < 1:
             raise ValueError(f"`chunk_size` must be >= 1, got {chunk_size!r} B")
-        compressions = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
-        if compression not in compressions:
-            raise ValueError(f"`compression` must be one of {sorted(compressions)}, got {compression!r}")
+        if compression not in ("zstd", "lz4", "none"):
+            raise ValueError(f"`compression` must be one of ['lz4', 'none', 'zstd'], got {compression!r}")
         metadata = _str_dict("run_metadata", run_metadata)
         own = {"dt_s": repr(dt), "time_epoch": "sim_time_from_zero"}
         for key, value in own.items():
@@ -1963,24 +1719,27 @@ class LogWriter:
         self._serial = 0
         self._closed = False
         self._close_hooks: list[Callable[[], None]] = []
+        self._overwrite = bool(overwrite)
 
-        if not overwrite:
-            for existing in (self.path, self.partial_path):
-                if existing.exists():
-                    raise FileExistsError(f"{existing} exists; pass overwrite=True, or recover() a .partial first")
-        self._file: BinaryIO = open(self.partial_path, "wb")
+        self._file: BinaryIO = _create_partial(self.path, self.partial_path, self._overwrite)
         try:
-            self._writer = _BulkWriter(self._file, chunk_size=int(chunk_size), compression=compressions[compression],
-                                       index_types=IndexType.ALL, chunk_thread=chunk_thread)
-            self._writer.start(profile="", library=library_string())
+            self._writer = ChunkedWriter(self._file, chunk_size=int(chunk_size), compression=compression,
+                                         chunk_thread=chunk_thread)
+            self._writer.start(library=library_string())
             self._writer.add_metadata(RUN_METADATA, metadata)
             for attachment in files:
                 self._writer.add_attachment(0, 0, attachment.name, attachment.media_type, bytes(attachment.data))
-            self._file.flush()
+            self._writer.flush()
         except BaseException:
-            self._file.close()
-            self.partial_path.unlink()
+            self._writer_failed_at_start()
             raise
+
+    def _writer_failed_at_start(self) -> None:
+        """Remove the ``.partial`` this writer created and holds, when its start failed (it holds no run yet)."""
+        try:
+            self._file.close()
+        finally:
+            self.partial_path.unlink(missing_ok=True)
 
     # -- channels --------------------------------------------------------------------
 
@@ -2215,8 +1974,8 @@ class LogWriter:
                 try:
                     self._writer.stop_thread()  # (done by finish(); here for a close that failed before it)
                 finally:
-                    self._file.close()
-            os.replace(self.partial_path, self.path)
+                    self._file.close()  # (also releases the lock on the partial)
+            publish(self.partial_path, self.path, self._overwrite)
 
     def __enter__(self) -> LogWriter:
         return self
@@ -2230,210 +1989,6 @@ class LogWriter:
             self._status = RunStatus.INCOMPLETE.value
             self._result_info["reason"] = reason
         self.close()
-
-
-# ---------------------------------------------------------------------------------------
-# Recovery
-# ---------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RecoverReport:
-    """Outcome of :func:`recover`.
-
-    Attributes
-    ----------
-    message_count : int
-        Messages copied to the new file.
-    chunk_count : int
-        Complete chunks read from the damaged file.
-    schema_count, channel_count, metadata_count, attachment_count : int
-        Records of each kind copied.
-    end_time_ns : int or None
-        Largest log time recovered [ns].
-    bytes_read : int
-        Bytes of complete records read.
-    bytes_total : int
-        Size of the damaged file [B].
-    stop_reason : str
-        Why reading stopped (``"footer"`` for an intact file, else the error at the cut).
-    original_status : str or None
-        ``status`` of a ``hydroplant.result`` record found in the input, if any.
-    """
-
-    message_count: int
-    chunk_count: int
-    schema_count: int
-    channel_count: int
-    metadata_count: int
-    attachment_count: int
-    end_time_ns: int | None
-    bytes_read: int
-    bytes_total: int
-    stop_reason: str
-    original_status: str | None
-
-
-class _BoundedReader(io.RawIOBase):
-    """Read-only view of the first ``limit`` bytes of a binary file."""
-
-    def __init__(self, stream: BinaryIO, limit: int):
-        self._stream = stream
-        self._remaining = limit
-
-    def readable(self) -> bool:
-        return True
-
-    def readinto(self, buffer: Any) -> int:
-        size = min(len(buffer), self._remaining)
-        if size <= 0:
-            return 0
-        data = self._stream.read(size)
-        buffer[: len(data)] = data
-        self._remaining -= len(data)
-        return len(data)
-
-
-def _complete_prefix(stream: BinaryIO, size: int) -> int:
-    """Byte offset after the last record that lies entirely in the file."""
-    if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-        raise ValueError("not an MCAP file (bad magic)")
-    offset = len(MCAP_MAGIC)
-    while offset + RECORD_PREFIX.size <= size:
-        stream.seek(offset)
-        opcode, length = RECORD_PREFIX.unpack(stream.read(RECORD_PREFIX.size))
-        end = offset + RECORD_PREFIX.size + length
-        if end > size:
-            break
-        offset = end
-        if opcode == Opcode.FOOTER:
-            if offset + len(MCAP_MAGIC) <= size:
-                offset += len(MCAP_MAGIC)
-            break
-    stream.seek(0)
-    return offset
-
-
-def recover(partial_path: str | os.PathLike, out_path: str | os.PathLike, *,
-            overwrite: bool = False) -> RecoverReport:
-    """Rebuild a valid, indexed MCAP from the complete records of a truncated file.
-
-    Parameters
-    ----------
-    partial_path : str or Path
-        Damaged file, typically ``run.mcap.partial`` left by a killed process.
-    out_path : str or Path
-        Output file (written via ``out_path.recovering`` and renamed). It may be the
-        name the killed writer was aiming for, e.g. ``recover("run.mcap.partial", "run.mcap")``.
-    overwrite : bool, optional
-        Replace an existing ``out_path``; otherwise ``FileExistsError``.
-
-    Returns
-    -------
-    RecoverReport
-
-    Notes
-    -----
-    Reads sequentially with :class:`mcap.stream_reader.StreamReader` (chunk CRCs checked)
-    up to the last complete record and copies schemas, channels, messages, metadata and
-    attachments. Any ``hydroplant.result`` record is replaced by one with
-    ``status="recovered"``.
-    """
-    partial_path = Path(partial_path)
-    out_path = Path(out_path)
-    if out_path.exists() and not overwrite:
-        raise FileExistsError(f"{out_path} exists; pass overwrite=True")
-    bytes_total = partial_path.stat().st_size
-    schemas: dict[int, _McapSchema] = {}
-    channels: dict[int, _McapChannel] = {}
-    messages: list[_McapMessage] = []
-    metadata: list[_McapMetadata] = []
-    attachments: list[_McapAttachment] = []
-    chunk_count = 0
-    stop_reason = "end of data"
-    library = ""
-    with open(partial_path, "rb") as stream:
-        limit = _complete_prefix(stream, bytes_total)
-        reader = StreamReader(_BoundedReader(stream, limit), emit_chunks=True, validate_crcs=True)
-        try:
-            for record in reader.records:
-                if isinstance(record, _McapChunk):
-                    inner = breakup_chunk(record, validate_crc=True)  # all or nothing per chunk
-                    chunk_count += 1
-                else:
-                    inner = [record]
-                for item in inner:
-                    if isinstance(item, _McapMessage):
-                        messages.append(item)
-                    elif isinstance(item, _McapSchema):
-                        schemas.setdefault(item.id, item)
-                    elif isinstance(item, _McapChannel):
-                        channels.setdefault(item.id, item)
-                    elif isinstance(item, _McapMetadata):
-                        metadata.append(item)
-                    elif isinstance(item, _McapAttachment):
-                        attachments.append(item)
-                    elif isinstance(item, _McapHeader):
-                        library = item.library
-            stop_reason = "footer"
-        except EndOfFile:
-            if limit == bytes_total:
-                stop_reason = f"no footer: data ends at a record boundary after {limit} bytes"
-            else:
-                stop_reason = f"truncated record: {limit} of {bytes_total} bytes are complete records"
-        except (McapError, ValueError, struct.error) as error:  # CRC mismatch, bad compression
-            stop_reason = f"{type(error).__name__}: {error}"
-
-    original_status = None
-    kept_metadata = []
-    for record in metadata:
-        if record.name == RESULT_METADATA:
-            original_status = record.metadata.get("status")
-        else:
-            kept_metadata.append(record)
-
-    # Not ".partial": recover("run.mcap.partial", "run.mcap") must not overwrite its input.
-    tmp_path = out_path.with_name(out_path.name + ".recovering")
-    schema_map: dict[int, int] = {0: 0}
-    channel_map: dict[int, int] = {}
-    copied = 0
-    end_time = None
-    with open(tmp_path, "wb") as out:
-        writer = Writer(out, chunk_size=DEFAULT_CHUNK_SIZE, compression=CompressionType.ZSTD)
-        writer.start(profile="", library=library_string())
-        for record in kept_metadata:
-            writer.add_metadata(record.name, record.metadata)
-        for record in attachments:
-            writer.add_attachment(record.create_time, record.log_time, record.name, record.media_type, record.data)
-        for schema_id, schema in schemas.items():
-            schema_map[schema_id] = writer.register_schema(schema.name, schema.encoding, schema.data)
-        for channel_id, channel in channels.items():
-            if channel.schema_id in schema_map:
-                channel_map[channel_id] = writer.register_channel(
-                    channel.topic, channel.message_encoding, schema_map[channel.schema_id], dict(channel.metadata))
-        for message in messages:
-            new_id = channel_map.get(message.channel_id)
-            if new_id is None:
-                continue
-            writer.add_message(new_id, message.log_time, message.data, message.publish_time, message.sequence)
-            copied += 1
-            end_time = message.log_time if end_time is None else max(end_time, message.log_time)
-        result = {"status": RunStatus.RECOVERED.value, "reason": stop_reason, "source": partial_path.name,
-                  "message_count": str(copied)}
-        if original_status is not None:
-            result["original_status"] = original_status
-        if library:
-            result["source_library"] = library
-        if end_time is not None:
-            result["end_time_s"] = repr(end_time / NS_PER_S)
-        writer.add_metadata(RESULT_METADATA, result)
-        writer.finish()
-    os.replace(tmp_path, out_path)
-    return RecoverReport(
-        message_count=copied, chunk_count=chunk_count, schema_count=len(schema_map) - 1,
-        channel_count=len(channel_map), metadata_count=len(kept_metadata) + 1, attachment_count=len(attachments),
-        end_time_ns=end_time, bytes_read=limit, bytes_total=bytes_total, stop_reason=stop_reason,
-        original_status=original_status)
 
 
 # ---------------------------------------------------------------------------------------
@@ -2639,6 +2194,8 @@ class RunLog:
         Attachment contents by name.
     attachment_media_types : dict of str to str
         Attachment media types by name.
+    attachment_list : list of (str, str, int)
+        Every attachment in file order: name, media type, size [B] (names may repeat).
     topics : list of str
         Topics in channel order.
     schema_names : dict of str to str
@@ -2651,22 +2208,30 @@ class RunLog:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
-        with open(self.path, "rb") as stream:
-            reader = make_reader(stream, validate_crcs=True)
-            try:
+        try:
+            with open(self.path, "rb") as stream:
+                if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                    raise LogReadError(f"{self.path}: not an MCAP file (no MCAP magic at its start)")
+                stream.seek(0)
+                reader = make_reader(stream, validate_crcs=True)
                 summary = reader.get_summary()
-            except McapError:
-                raise ValueError(f"{self.path} is not a finished MCAP file (no valid footer or summary); "
-                                 "run recover() on it") from None
-            if summary is None or summary.statistics is None:
-                raise ValueError(f"{self.path} has no summary; it was not finished; run recover() on it")
-            self.library = reader.get_header().library
-            self.metadata = {record.name: dict(record.metadata) for record in reader.iter_metadata()}
-            self.attachments: dict[str, bytes] = {}
-            self.attachment_media_types: dict[str, str] = {}
-            for attachment in reader.iter_attachments():
-                self.attachments[attachment.name] = bytes(attachment.data)
-                self.attachment_media_types[attachment.name] = attachment.media_type
+                if summary is None or summary.statistics is None:
+                    raise LogReadError(f"{self.path}: has no summary; it was not finished; "
+                                       f"run 'hydroplant log recover {self.path}'")
+                self.library = reader.get_header().library
+                self.metadata = {record.name: dict(record.metadata) for record in reader.iter_metadata()}
+                self.attachments: dict[str, bytes] = {}
+                self.attachment_media_types: dict[str, str] = {}
+                self.attachment_list: list[tuple[str, str, int]] = []
+                for attachment in reader.iter_attachments():
+                    self.attachments[attachment.name] = bytes(attachment.data)
+                    self.attachment_media_types[attachment.name] = attachment.media_type
+                    self.attachment_list.append((attachment.name, attachment.media_type, len(attachment.data)))
+        except LogReadError:
+            raise
+        except (McapError, EOFError, LookupError, ValueError, struct.error) as error:
+            raise LogReadError(f"{self.path}: not a finished, readable MCAP log ({type(error).__name__}: {error}); "
+                               f"run 'hydroplant log recover {self.path}'") from None
         stats = summary.statistics
         self.topics: list[str] = []
         self.schema_names: dict[str, str] = {}
@@ -2698,16 +2263,27 @@ class RunLog:
         log_times: list[int] = []
         datas: list[bytes] = []
         encoding, msg_type = "json", None
-        with open(self.path, "rb") as stream:
-            reader = make_reader(stream, validate_crcs=True)
-            for schema, channel, message in reader.iter_messages(topics=[name], log_time_order=True):
-                if channel.message_encoding != encoding:
-                    if channel.message_encoding != "cdr" or schema is None or schema.encoding != "ros2msg" or datas:
-                        raise ValueError(f"topic {name!r} uses {channel.message_encoding!r}; json and cdr (ros2msg) "
-                                         "are supported, one per topic")
-                    encoding, msg_type = "cdr", ros2msg_type(schema.name, schema.data.decode())
-                log_times.append(message.log_time)
-                datas.append(message.data)
+        try:
+            with open(self.path, "rb") as stream:
+                reader = make_reader(stream, validate_crcs=True)
+                for schema, channel, message in reader.iter_messages(topics=[name], log_time_order=True):
+                    if channel.message_encoding != encoding:
+                        if channel.message_encoding != "cdr" or schema is None or schema.encoding != "ros2msg" or datas:
+                            raise ValueError(f"topic {name!r} uses {channel.message_encoding!r}; json and cdr "
+                                             "(ros2msg) are supported, one per topic")
+                        encoding, msg_type = "cdr", ros2msg_type(schema.name, schema.data.decode())
+                    log_times.append(message.log_time)
+                    datas.append(message.data)
+        except (McapError, EOFError, LookupError, struct.error) as error:
+            raise LogReadError(f"{self.path}: topic {name!r} cannot be read, the log is damaged "
+                               f"({type(error).__name__}: {error}); 'hydroplant log recover {self.path}' keeps "
+                               "every chunk that checks") from None
+        except Exception as error:  # zstandard raises its own ZstdError on a damaged chunk
+            if type(error).__module__.split(".")[0] not in ("zstandard", "lz4", "_lz4"):
+                raise
+            raise LogReadError(f"{self.path}: topic {name!r} cannot be read, a chunk does not decompress "
+                               f"({error}); 'hydroplant log recover {self.path}' keeps every chunk that "
+                               "checks") from None
         times = np.array(log_times, dtype=np.int64)
         if msg_type is not None:
             data = TopicData.from_cdr(name, msg_type, times, datas)
@@ -2725,18 +2301,40 @@ def read_log(path: str | os.PathLike) -> RunLog:
     return RunLog(path)
 
 
-def log_info(path: str | os.PathLike) -> str:
-    """Human-readable summary of a log: run metadata, status, span, topics and counts.
+def log_info(path: str | os.PathLike, *, verify: bool = True) -> str:
+    """Human-readable summary of a log: run metadata, status, span, topics and counts, attachments, damage.
+
+    See :func:`inspect_log`, which also gives the exit status of ``hydroplant log info``.
+    """
+    return inspect_log(path, verify=verify)[0]
+
+
+def inspect_log(path: str | os.PathLike, *, verify: bool = True) -> tuple[str, int]:
+    """Summary of a log and its state: ``(text, code)`` with code 0 for a finished log whose chunks all check, 1 for
+    a damaged or unfinished one.
 
     Parameters
     ----------
     path : str or Path
-        A finished log; an unfinished file yields a one-paragraph note.
+        A log; an unfinished file yields a note instead of the summary.
+    verify : bool, optional
+        Decompress every chunk and check its CRC (:func:`sim.io.log_recover.verify_log`).
+
+    Raises
+    ------
+    LogReadError
+        The file is not an MCAP file.
     """
+    check = verify_log(path) if verify else None
+    damage = [] if check is None else [check.summary_text()]
     try:
         log = RunLog(path)
-    except ValueError as error:
-        return f"{path}: UNFINISHED: {error}"
+    except LogReadError as error:
+        if check is not None and check.damage and not check.footer:
+            return "\n".join([f"{path}: UNFINISHED: no footer; run 'hydroplant log recover {path}'", *damage]), 1
+        if check is None and "not an MCAP file" in str(error):
+            raise
+        return "\n".join([f"{path}: UNFINISHED: {error}", *damage]), 1
     lines = [f"file: {log.path}", f"library: {log.library}"]
     result = log.metadata.get(RESULT_METADATA)
     if result is None:
@@ -2760,10 +2358,10 @@ def log_info(path: str | os.PathLike) -> str:
     other = [name for name in log.metadata if name not in (RUN_METADATA, RESULT_METADATA)]
     if other:
         lines.append("metadata: " + ", ".join(other))
-    if log.attachments:
-        lines.append("attachments: " + ", ".join(
-            f"{name} ({log.attachment_media_types[name]}, {len(data)} B)" for name, data in log.attachments.items()))
-    return "\n".join(lines)
+    lines.append(f"attachments: {len(log.attachment_list)}")
+    lines += [f"  {name}  {media_type}  {size} B" for name, media_type, size in log.attachment_list]
+    lines += damage if check is not None else ["verified: no (--no-verify)"]
+    return "\n".join(lines), 1 if check is not None and check.damage else 0
 
 
 # ---------------------------------------------------------------------------------------
@@ -2785,7 +2383,7 @@ def _prefix_frames(node: Any, prefix: str, shared: frozenset[str]) -> Any:
     return node
 
 
-def _frame_rewriter(schema: _McapSchema | None, message_encoding: str, prefix: str,
+def _frame_rewriter(schema: McapSchema | None, message_encoding: str, prefix: str,
                     shared: frozenset[str]) -> Callable[[bytes], bytes] | None:
     """The function prefixing the frame ids of one channel's messages (Foxglove schemas, JSON or CDR), or None."""
     if schema is None:
@@ -2834,7 +2432,7 @@ def merge_logs(inputs: Mapping[str, str | os.PathLike], out_path: str | os.PathL
     streams = [open(path, "rb") for path in inputs.values()]
     try:
         readers = [make_reader(stream, validate_crcs=True) for stream in streams]
-        with open(tmp_path, "wb") as out:
+        with open(tmp_path, "xb") as out:
             writer = Writer(out, chunk_size=DEFAULT_CHUNK_SIZE, compression=CompressionType.ZSTD)
             writer.start(profile="", library=library_string())
             writer.add_metadata("hydroplant.merge", {prefix: Path(path).name for prefix, path in inputs.items()})
