@@ -68,6 +68,8 @@ def _stat(path: Path, what: str, error: type[CircuitError]) -> os.stat_result:
         return os.stat(path)
     except ValueError:  # an embedded NUL byte in the path
         raise error(f"{str(path)!r}: a file name may not hold a NUL byte ({what} file)") from None
+    except FileNotFoundError:
+        raise error(f"{path}: {what} file not found") from None
     except OSError as exc:
         raise error(f"{path}: {what} file: {_os_reason(exc)}") from None
 

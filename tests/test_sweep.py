@@ -57,7 +57,7 @@ def test_interrupted_sweep_resumes_without_recomputing_finished_points(tmp_path)
     again = run_sweep(square, points, workers=2, cache_dir=cache)
     assert again == results and [calls(markers, x) for x in range(5)] == [1, 1, 2, 1, 1]
     cached = json.loads(next(cache.glob("*.json")).read_text())
-    assert set(cached) == {"point", "result"}
+    assert set(cached) == {"version", "key", "point", "made_by", "result", "digest"}
 
 
 def test_seed_sweep_gives_the_same_error_table_on_a_process_pool_and_on_dask(tmp_path):

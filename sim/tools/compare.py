@@ -900,6 +900,7 @@ def add_parser(subparsers):
     parser.add_argument("--max-steps", type=int, help="largest reference run [steps] (default 2 000 000)")
     parser.add_argument("--fresh-reference", action="store_true", help="recompute the reference even if it is cached "
                         "(the cache key covers the scene, circuit and scenario files and the simulation code)")
+    parser.add_argument("--fresh", action="store_true", help="ignore every cache (here: the reference's; as --fresh-reference)")
     parser.set_defaults(func=main)
 
 
@@ -927,7 +928,7 @@ def main(args) -> int:
         tolerance = Tolerance(relative=args.tolerance) if args.tolerance else None
         out = args.out or Path("logs") / f"compare-{scenario.scene_name}-{scenario.name}"
         result = compare_runs(scenario, specs, out, dt=args.dt, duration=args.duration, tolerance=tolerance,
-                              cache_dir=args.cache, fresh_reference=args.fresh_reference, progress=True,
+                              cache_dir=args.cache, fresh_reference=args.fresh_reference or args.fresh, progress=True,
                               filter_window=getattr(args, "filter_window", None),
                               reference_options={"max_steps": args.max_steps} if getattr(args, "max_steps", None) else None)
     else:

@@ -15,7 +15,10 @@ References are cached in ``cache_dir/<key>/`` (default ``.cache/references/``), 
 SHA-256 of the MJCF, circuit and scenario file contents, the source code of ``hydraulics/``
 and ``sim/`` (:func:`sim.tools.sweep.code_hash`), the effective run settings (duration, log rate,
 fidelity and its per-actuator overrides, initial state, inputs) and the reference settings;
-a cached reference is re-checked when it is loaded.
+a cached reference is re-checked when it is loaded: its ``reference.json`` must hold that key,
+the SHA-256 of both logs and a digest of all of it (:func:`sim.tools.sweep.entry_digest`), and
+the two logs must still pass :func:`check_convergence`; an entry failing any check (damaged,
+stale, or a file put there by hand) is ignored and the reference computed again.
 
 :func:`require_converged` rejects a candidate pair of logs at ``h`` and ``h/2`` that is not
 converged, with a message naming every signal that moved too much.
@@ -42,8 +45,11 @@ from pathlib import Path
 
 from sim import version
 from sim.io.mcap_log import RUN_METADATA, read_log
+from mcap.exceptions import McapError
+
+from hydraulics.files import read_text
 from sim.io.scenario import Scenario, ScenarioError, load_scenario
-from sim.tools.sweep import code_hash, content_hash
+from sim.tools.sweep import code_hash, content_hash, entry_digest
 
 __all__ = [
     "ConvergenceReport",
@@ -60,6 +66,7 @@ __all__ = [
 
 DEFAULT_CACHE_DIR = Path(".cache/references")
 REFERENCE_VERSION = 1  # bump when what a reference is changes (invalidates caches)
+REFERENCE_LOGS = ("coarse.mcap", "reference.mcap")  # the files of a cache entry besides reference.json
 MAX_HALVINGS = 10  # default: at most h0 / 2**10
 MAX_STEPS = 2_000_000  # default: no reference run longer than this many steps
 DT_RATIO_SLACK = 1e-6  # relative slack on "the fine log is at exactly half the coarse step"
@@ -393,15 +400,23 @@ def start_step(scenario: Scenario, start_dt: float | None = None) -> float:
     return period / n
 
 
+def _log_hashes(directory: Path) -> dict:
+    return {name: content_hash(directory / name) for name in REFERENCE_LOGS}
+
+
 def _load_cached(directory: Path, scenario: Scenario, settings: ReferenceSettings, key: str):
+    """The cached reference in ``directory``, or None when missing or failing a check (see the module docstring)."""
     info_path = directory / "reference.json"
     if not info_path.is_file():
         return None
     try:
-        info = json.loads(info_path.read_text())
+        info = json.loads(read_text(info_path, "reference cache"))
+        if (not isinstance(info, dict) or info.get("key") != key or info.get("digest") != entry_digest(info)
+                or info.get("logs") != _log_hashes(directory)):
+            return None
         fine, coarse = directory / "reference.mcap", directory / "coarse.mcap"
         report = check_convergence(coarse, fine, settings.tolerance, filter_window=settings.filter_window)
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, LookupError, TypeError, EOFError, RecursionError, McapError):  # (CircuitError: a ValueError)
         return None
     if not report.converged:
         return None
@@ -497,7 +512,10 @@ def compute_reference(scenario, *, tolerance: Tolerance | None = None, cache_dir
         final.mkdir()
         shutil.move(str(previous), final / "coarse.mcap")
         shutil.move(str(path), final / "reference.mcap")
-        info = {"key": key, "dt": dt, "scenario": str(scenario.path), "settings": asdict(settings), "runs": runs}
+        info = {"key": key, "dt": dt, "scenario": str(scenario.path), "settings": asdict(settings), "runs": runs,
+                "logs": _log_hashes(final)}
+        info = json.loads(json.dumps(info))  # (as it reads back: tuples become lists)
+        info["digest"] = entry_digest(info)
         (final / "reference.json").write_text(json.dumps(info, indent=1, sort_keys=True))
         shutil.rmtree(directory, ignore_errors=True)
         final.rename(directory)

@@ -54,7 +54,7 @@ from pathlib import Path
 from hydraulics.components import CircuitError
 from hydraulics.files import read_bytes, read_text
 
-__all__ = ["SchedulerError", "SweepError", "code_hash", "content_hash", "entry_digest", "finite_or_none", "func_code_hash",
+__all__ = ["SchedulerError", "SweepError", "check_scheduler", "code_hash", "content_hash", "entry_digest", "finite_or_none", "func_code_hash",
            "point_key", "run_sweep"]
 
 CACHE_VERSION = 2  # bump when the cache file layout changes
@@ -190,7 +190,7 @@ def _write_cached(path: Path, point: dict, result: dict, key: str, made_by: dict
 
 
 def run_sweep(func: Callable[[dict], dict], points: Sequence[dict], *, scheduler=None, workers: int | None = None,
-              cache_dir=None, progress: Callable[[int, int], None] | None = None) -> list[dict]:
+              cache_dir=None, progress: Callable[[int, int], None] | None = None, fresh: bool = False) -> list[dict]:
     """Evaluate ``func`` at every point, in parallel, with a per-point result cache.
 
     Parameters
@@ -211,6 +211,8 @@ def run_sweep(func: Callable[[dict], dict], points: Sequence[dict], *, scheduler
         see the module docstring) are not recomputed. ``None``: no cache.
     progress : callable, optional
         ``progress(done, total)`` after every finished point (cached ones included).
+    fresh : bool
+        Read nothing from the cache: every point is computed (and its result cached).
 
     Returns
     -------
@@ -233,7 +235,7 @@ def run_sweep(func: Callable[[dict], dict], points: Sequence[dict], *, scheduler
     cache = Path(cache_dir) if cache_dir is not None else None
     results: dict[str, dict] = {}
     made_by = {"func": _func_name(func), "code": func_code_hash(func)} if cache is not None else {}
-    if cache is not None:
+    if cache is not None and not fresh:
         for key, point in zip(keys, points):
             if key not in results:
                 cached = _read_cached(cache / f"{key}.json", point, key, made_by)
@@ -327,6 +329,31 @@ def _run_dask(func, todo: dict, scheduler, finished) -> None:
     finally:
         if own:
             client.close()
+
+
+def check_scheduler(address: str, timeout: float = SCHEDULER_TIMEOUT) -> None:
+    """Raise :class:`SchedulerError` unless something accepts a TCP connection at a ``tcp://host:port`` address.
+
+    A quick probe before a long computation, so that a closed port or a wrong host is reported at once,
+    in one line; other schemes (``tls://``, ``inproc://``, ...) are left to Dask.
+    """
+    import socket
+    from urllib.parse import urlsplit
+
+    if not address.startswith("tcp://"):
+        return
+    try:
+        parts = urlsplit(address)
+        host, port = parts.hostname, parts.port
+    except ValueError as exc:
+        raise SchedulerError(f"--scheduler {address}: not an address like tcp://host:8786 ({exc})") from None
+    if not host or port is None:
+        raise SchedulerError(f"--scheduler {address}: not an address like tcp://host:8786 (host and port needed)")
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise SchedulerError(f"--scheduler {address}: no Dask scheduler reachable ({reason})") from None
 
 
 def finite_or_none(value: float):

@@ -481,29 +481,31 @@ class TradeoffResult:
 
 
 def evaluate(scenario, settings: list[dict], reference_log, *, repeats: int = DEFAULT_REPEATS, scheduler=None,
-             workers=None, cache_dir=None, progress=None, filter_window: float | None = None) -> list[dict]:
+             workers=None, cache_dir=None, progress=None, filter_window: float | None = None, fresh: bool = False) -> list[dict]:
     """Run the settings through :func:`sim.tools.sweep.run_sweep` and return the error rows against ``reference_log``
-    (``filter_window``: see :func:`error_rows`)."""
+    (``filter_window``: see :func:`error_rows`; ``fresh``: every point computed again, none read from the cache)."""
     from sim.tools.compare import log_signals
     from sim.io.mcap_log import read_log
 
     points = sweep_points(scenario, settings, repeats=repeats)
     # The reference is not in the points: the workers return signals, the errors are computed here.
-    results = run_sweep(run_point, points, scheduler=scheduler, workers=workers, cache_dir=cache_dir, progress=progress)
+    results = run_sweep(run_point, points, scheduler=scheduler, workers=workers, cache_dir=cache_dir, progress=progress,
+                        fresh=fresh)
     return error_rows(points, results, log_signals(read_log(reference_log)), filter_window)
 
 
 def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = False, duration=None, modes=None,
              repeats=None, tolerance=None, cache_dir=None, sweep_cache=None, fresh_reference: bool = False,
              progress: bool = False, fidelities=None, reference_fidelity: str | None = None,
-             filter_window: float | None = None) -> TradeoffResult:
+             filter_window: float | None = None, fresh: bool = False) -> TradeoffResult:
     """The full sweep of a scenario; writes ``tradeoff.csv``, ``pareto.png`` and ``tradeoff.md`` into ``out_dir``.
 
     ``fidelities`` are the levels swept (see :func:`sweep_settings`); ``reference_fidelity`` the level of
     the reference (default: the scenario's own, per-actuator overrides included). ``filter_window`` [s]
     compares the signals averaged over a centred moving window, for the reference's convergence and the
     errors alike (for runs whose point-wise signals never converge, e.g. the whole excavator dig with
-    the teeth's stick-slip in the soil).
+    the teeth's stick-slip in the soil). ``fresh``: ignore the reference and sweep caches (results are
+    still written to them).
     """
     from sim.tools.reference import DEFAULT_CACHE_DIR, compute_reference
     from sim.io.scenario import as_scenario
@@ -515,7 +517,7 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
     if reference_fidelity is not None and reference_fidelity != scenario.fidelity:
         reference_scenario = scenario.with_overrides(fidelity=reference_fidelity, actuator_fidelity={})
     reference = compute_reference(reference_scenario, tolerance=tolerance, cache_dir=cache_dir or DEFAULT_CACHE_DIR,
-                                  fresh=fresh_reference, progress=progress, filter_window=filter_window)
+                                  fresh=fresh_reference or fresh, progress=progress, filter_window=filter_window)
     settings = sweep_settings(scenario, quick=quick, modes=modes, fidelities=fidelities)
     repeats = repeats or (QUICK_REPEATS if quick else DEFAULT_REPEATS)
 
@@ -528,7 +530,7 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
 
     cache = Path(sweep_cache) if sweep_cache else Path(".cache/sweeps") / f"{scenario.scene_name}-{scenario.name}"
     rows = evaluate(scenario, settings, reference.log_path, repeats=repeats, scheduler=scheduler, workers=workers,
-                    cache_dir=cache, progress=report, filter_window=filter_window)
+                    cache_dir=cache, progress=report, filter_window=filter_window, fresh=fresh)
     title = f"{scenario.scene_name}/{scenario.name}, {scenario.duration:g} s"
     csv_path = write_csv(rows, out_dir / "tradeoff.csv")
     fig = pareto_figure(rows, out_dir / "pareto.png", title=title)
@@ -585,6 +587,7 @@ def add_parser(subparsers):
     parser.add_argument("--modes", help="comma-separated subset of mujoco,pbd,pbd-naive (default: those available)")
     parser.add_argument("--tolerance", type=float, help="relative convergence tolerance of the reference (default 1e-3)")
     parser.add_argument("--fresh-reference", action="store_true", help="recompute the reference even if it is cached")
+    parser.add_argument("--fresh", action="store_true", help="ignore every cache: the reference and every setting computed again")
     parser.add_argument("--fidelities", help="comma-separated fidelity levels to sweep (default: all; quick: the scenario's and incompressible)")
     parser.add_argument("--reference-fidelity", help="fidelity of the reference (default: the scenario's)")
     parser.add_argument("--filter-window", type=float, help="compare signals averaged over a centred moving window [s] "
@@ -607,6 +610,10 @@ def main(args) -> int:
             raise CircuitError(f"--{name}: {value!r} must be >= 1")
     if args.scheduler is not None and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
         raise CircuitError(f"--scheduler: {args.scheduler!r} is not a scheduler address like tcp://host:8786")
+    if args.scheduler is not None:
+        from sim.tools.sweep import check_scheduler
+
+        check_scheduler(args.scheduler)  # a closed port: one line now, not after the reference is computed
     modes = None
     if args.modes:
         modes = [m.strip() for m in args.modes.split(",") if m.strip()]
@@ -630,7 +637,7 @@ def main(args) -> int:
     result = tradeoff(scenario, out, scheduler=args.scheduler, workers=args.workers, quick=args.quick,
                       duration=args.duration, modes=modes, repeats=args.repeats,
                       tolerance=Tolerance(relative=args.tolerance) if args.tolerance else None,
-                      fresh_reference=args.fresh_reference, progress=True, fidelities=fidelities,
+                      fresh_reference=args.fresh_reference, fresh=args.fresh, progress=True, fidelities=fidelities,
                       reference_fidelity=args.reference_fidelity, filter_window=args.filter_window)
     for kind in ("stroke", "pressure"):
         for s in result.statements[kind]:
