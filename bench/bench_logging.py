@@ -134,7 +134,7 @@ def sample_parts(samples: int, out: Path) -> dict:
     capture (raw state into the ring, per sample), derive (the logged fields of a
     whole ring, vectorised, per sample), push (rows into the log's frame), encode
     (CDR Message records), write (merge, chunks, message indexes, zstd); plus, for comparison, the
-    per-sample numpy hydraulic terms the recorder used to compute for every sample.
+    per-sample numpy hydraulic terms computed sample by sample.
     """
     from sim.io.mcap_log import LogWriter
     from sim.run.recorder import RunRecorder

@@ -121,8 +121,8 @@ def test_pbd_mode_steps_the_mixed_network(tmp_path):
 
 
 def test_incompressible_closed_cylinder_without_valves_is_rigid(tmp_path):
-    """The seed's closed cylinder (no valve, no relief) at 'incompressible': rigid oil locks the rod (it used to
-    raise an IndexError on a circuit without metering edges)."""
+    """The seed's closed cylinder (no valve, no relief) at 'incompressible': rigid oil locks the rod (a circuit
+    without metering edges is valid at this level)."""
     scenario = load_scenario(MODELS / "seed_cylinder" / "closed.scenario.toml").with_overrides(
         fidelity="incompressible", duration=0.05)
     for mode in ("mujoco", "pbd"):

@@ -154,9 +154,9 @@ def test_rigid_bucket_and_compressible_boom_share_the_pump(tmp_path, circuit, co
 
 def test_all_incompressible_hands_out_no_more_than_the_pump_delivers(tmp_path, circuit, compressible_share):
     """The same boom-up + bucket-curl at the all-``incompressible`` level: its rule shares the pump by demand
-    (not by load, so the split differs from the compressible model's), but the shares add up to the pump's flow.
-    (A pump-limited actuator used to switch between its metering damper and the share tracker, overshooting
-    the share each step: 1.43× the pump's flow in total.)"""
+    (not by load, so the split differs from the compressible model's), but the shares add up to the pump's flow
+    (a pump-limited actuator switching between its metering damper and the share tracker would overshoot its
+    share each step, 1.43× the pump's flow in total)."""
     d = scene_copy(tmp_path, "excavator")
     path = d / "share.scenario.toml"
     path.write_text(SHARE.format(mode="mujoco", dt=0.001) + '\n[fidelity]\ndefault = "incompressible"\n')

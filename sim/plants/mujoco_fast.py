@@ -72,9 +72,9 @@ differences are summation orders (J·q̇, energy sums).
 MuJoCo has then already computed that state's ``xpos``, ``xquat`` and ``energy``, so the row is
 bit for bit :meth:`MujocoPlantFast.record_row` after that step, without returning to Python.
 The runner's recorder passes rows of its ring (same layout), so logging every step, or every
-tenth, no longer needs one ``advance`` per sample.
+tenth, needs no ``advance`` per sample.
 
-**API** (unchanged by the cached, allocation-free rewrite): ``advance(n)`` runs
+**API**: ``advance(n)`` runs
 n coupled steps and returns the last step's :class:`StepReport` (``success``,
 ``message``, ``status``; Newton counters of the last step); ``step()`` is
 ``advance(1)``; after each call ``net_state``, ``effort``, ``theta``,
