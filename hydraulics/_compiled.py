@@ -197,8 +197,8 @@ if _NUMBA:
         be stored or returned).
 
         Numba passes a tuple argument by value, field by field: the packed network ``net`` (22 arrays, ~170 machine
-        words) was copied onto the stack at every call of every kernel that takes it, which under ``perf`` was the
-        largest single cost of a small network's step.  The kernels take this pointer (``pnet``) instead and read
+        words) would be copied onto the stack at every call of every kernel that takes it, which under ``perf`` is
+        the largest single cost of a small network's step.  The kernels take this pointer (``pnet``) instead and read
         the fields they use through :func:`_deref`."""
         def codegen(context, builder, signature, llargs):
             return _cgutils.alloca_once_value(builder, llargs[0])

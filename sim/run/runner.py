@@ -152,9 +152,9 @@ SNAPSHOT_STEPS = 100
 # log interval and every-step logging then step the plant in the same blocks.
 MIN_BLOCK_STEPS = 100
 # Simulated time a block spans at least [s] when that is more than MIN_BLOCK_STEPS steps: what is left per block
-# (the compiled call's dispatch, ~150 arguments for PBD mode, the snapshot, committing the recorded samples) was
-# still 0.1–0.4 ms, i.e. 4–12 % of a 100-step block of the excavator at 1 kHz (paired runs, 3 s: implicit
-# 34.6 → 30.6 µs per step with 500-step blocks).
+# (the compiled call's dispatch, ~150 arguments for PBD mode, the snapshot, committing the recorded samples) is
+# 0.1–0.4 ms, i.e. 4–12 % of a 100-step block of the excavator at 1 kHz (paired runs, 3 s: implicit
+# 34.6 µs per step with 100-step blocks, 30.6 µs with 500-step blocks).
 BLOCK_SECONDS = 0.5
 
 

@@ -38,7 +38,7 @@ LIMIT_COLS = 19
 
 # Kernels that allocate nothing are compiled without numba's reference counting (``_nrt=False``): in a
 # reference-counted function every array argument and view costs an NRT_incref/NRT_decref pair.  On the excavator
-# at 1 ms × 1 substep those pairs were 24 % of a PBD step's samples (perf), 15 % with these helpers uncounted.
+# at 1 ms × 1 substep those pairs are 24 % of a PBD step's samples (perf) if every helper counts, 15 % if these do not.
 # A function that allocates (or calls one that does) keeps the counting.
 _leaf = njit(cache=True, _nrt=False)
 
