@@ -90,7 +90,7 @@ def test_holding_pressure_is_the_virtual_work_force_and_the_arm_does_not_sag(mod
 
 
 def test_holding_ignoring_the_loop_would_be_wrong():
-    """The old fit over the actuator moments alone: the pins' bodies carry no load and F is far off."""
+    """A fit over the actuator moments alone, ignoring the loop: the pins' bodies carry no load and F is far off."""
     plant = plant_for(HOLD)
     m, d = plant.model, mujoco.MjData(plant.model)
     d.qpos[:] = plant.data.qpos
