@@ -88,12 +88,21 @@ class _UnionFind:
             self.parent[max(ra, rb)] = min(ra, rb)
 
 
-def prune(circuit: Circuit):
+def prune(circuit: Circuit, drives=None):
     """Drop components that no cylinder or motor reaches through shared nets (tank nets do not connect).
 
+    ``drives`` (names of the actuators the scene has, e.g. the MJCF's) also drops
+    every cylinder or motor not among them and the branches that fed only those:
+    for each net n, the parts the circuit falls into without n that hold a dropped
+    actuator and no kept one (a valve section with its hoses and port reliefs
+    hanging off the supply net) are dropped whole.
     Returns the reduced circuit and the names of the dropped components.
     """
     tank_nets = {c.ports["port"] for c in circuit.by_kind("tank")}
+    if drives is not None:
+        circuit, dropped = _prune_undriven(circuit, set(drives), tank_nets)
+        circuit, rest = prune(circuit)
+        return circuit, dropped + rest
     by_net = {}
     for c in circuit.components:
         for net in c.ports.values():
@@ -115,6 +124,36 @@ def prune(circuit: Circuit):
     if not pruned:
         return circuit, ()
     return Circuit(circuit.fluid, kept, circuit.source), pruned
+
+
+def _prune_undriven(circuit: Circuit, drives: set, tank_nets: set):
+    """``circuit`` without the actuators not in ``drives`` and the parts that only feed them (see :func:`prune`)."""
+    actuators = {c.name for c in circuit.by_kind("cylinder", "motor")}
+    gone = actuators - drives
+    if not gone:
+        return circuit, ()
+    nets = {net for c in circuit.components for net in c.ports.values() if net not in tank_nets}
+    drop = set(gone)
+    for cut in nets:
+        uf = _UnionFind()
+        index = {c.name: i for i, c in enumerate(circuit.components)}
+        by_net = {}
+        for c in circuit.components:
+            for net in c.ports.values():
+                if net != cut and net not in tank_nets:
+                    by_net.setdefault(net, []).append(index[c.name])
+        for members in by_net.values():
+            for other in members[1:]:
+                uf.union(members[0], other)
+        parts = {}
+        for c in circuit.components:
+            if c.kind != "tank":
+                parts.setdefault(uf.find(index[c.name]), []).append(c.name)
+        for names in parts.values():
+            if set(names) & gone and not set(names) & (actuators - gone):
+                drop.update(names)
+    kept = tuple(c for c in circuit.components if c.name not in drop)
+    return Circuit(circuit.fluid, kept, circuit.source), tuple(c.name for c in circuit.components if c.name in drop)
 
 
 def resolve_fidelity(circuit: Circuit, fidelity: str, actuator_fidelity=None) -> tuple:

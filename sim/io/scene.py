@@ -23,7 +23,7 @@ import numpy as np
 from hydraulics.circuit import load_circuit
 from hydraulics.components import CircuitError
 from hydraulics.files import read_bytes, read_text, resolve
-from hydraulics.network import ACTUATOR_CYLINDER, NetworkModel
+from hydraulics.network import ACTUATOR_CYLINDER, NetworkModel, prune
 
 from sim.io.scenario import Scenario, ScenarioError, check_input_ranges
 
@@ -49,6 +49,7 @@ class Scene:
     binding: Binding
     joint_names: tuple
     model_files: tuple = field(default_factory=tuple)  # (path, bytes) of the MJCF, then its includes and assets
+    warnings: tuple = ()  # what the validator found, one line each naming the MJCF element (validate_model)
 
     def mjcf_text(self) -> bytes:
         return read_bytes(self.scenario.mjcf, "MJCF", ScenarioError)
@@ -194,9 +195,7 @@ def bind(network: NetworkModel, mjmodel: mujoco.MjModel, circuit_path, mjcf_path
         if aid < 0:
             raise ScenarioError(f"{where}: no actuator named '{name}' in {mjcf_path}; its actuators are {names}")
         if network.actuator_kind[a] == ACTUATOR_CYLINDER:
-            if int(mjmodel.actuator_trntype[aid]) != int(mujoco.mjtTrn.mjTRN_TENDON):
-                raise ScenarioError(f"{mjcf_path}: actuator '{name}' must act on a spatial tendon (the cylinder's pin-to-pin line)")
-            tid = int(mjmodel.actuator_trnid[aid, 0])
+            tid = check_cylinder_transmission(mjmodel, aid, name, mjcf_path)
             low, high = mjmodel.tendon_range[tid]
             stroke = network.cylinder_stroke[list(network.cylinder_actuator).index(a)]
             if abs((high - low) - stroke) > STROKE_TOLERANCE:
@@ -214,6 +213,133 @@ def bind(network: NetworkModel, mjmodel: mujoco.MjModel, circuit_path, mjcf_path
             closed.append(0.0)
             tendons.append(-1)
     return Binding(np.array(ids, int), np.array(closed, float), np.array(tendons, int))
+
+
+def check_cylinder_transmission(mjmodel: mujoco.MjModel, aid: int, name: str, mjcf_path) -> int:
+    """The tendon id of cylinder actuator ``aid``; refuses (both modes) any transmission but a two-site spatial tendon.
+
+    A cylinder is its pin-to-pin line: a ``<spatial>`` tendon through exactly two
+    sites, one at the barrel pin and one at the rod eye (on the barrel and rod
+    bodies of a model that has them, or on the links).  A ``<fixed>`` tendon or a
+    joint transmission (the rod's slide) is refused with the change to make.
+    """
+    fix = (f"; give it a <spatial> tendon through two sites, one at the barrel pin and one at the rod eye (on the barrel "
+           f"and rod bodies if the model has them), with range = [closed pin-to-pin length, closed length + stroke] [m]")
+    trn = int(mjmodel.actuator_trntype[aid])
+    target = int(mjmodel.actuator_trnid[aid, 0])
+    if trn == int(mujoco.mjtTrn.mjTRN_JOINT):
+        joint = mujoco.mj_id2name(mjmodel, mujoco.mjtObj.mjOBJ_JOINT, target) or str(target)
+        raise ScenarioError(f"{mjcf_path}: actuator '{name}' (a cylinder) acts on joint '{joint}'" + fix)
+    if trn != int(mujoco.mjtTrn.mjTRN_TENDON):
+        kind = mujoco.mjtTrn(trn).name.removeprefix("mjTRN_").lower()
+        raise ScenarioError(f"{mjcf_path}: actuator '{name}' (a cylinder) has a {kind} transmission" + fix)
+    tendon = mujoco.mj_id2name(mjmodel, mujoco.mjtObj.mjOBJ_TENDON, target) or str(target)
+    adr, num = int(mjmodel.tendon_adr[target]), int(mjmodel.tendon_num[target])
+    wraps = [int(w) for w in mjmodel.wrap_type[adr : adr + num]]
+    if any(w == int(mujoco.mjtWrap.mjWRAP_JOINT) for w in wraps):
+        raise ScenarioError(f"{mjcf_path}: actuator '{name}' (a cylinder) acts on <fixed> tendon '{tendon}' (a sum of joints)" + fix)
+    if wraps != [int(mujoco.mjtWrap.mjWRAP_SITE)] * 2:
+        raise ScenarioError(
+            f"{mjcf_path}: actuator '{name}' (a cylinder) acts on spatial tendon '{tendon}' with {num} path elements "
+            "(sites, geoms or pulleys)" + fix
+        )
+    return target
+
+
+PBD_MODES = ("pbd", "pbd-naive")
+PBD_CONTACT_GEOMS = tuple(int(t) for t in (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_SPHERE,
+                                           mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_BOX))
+PBD_EQUALITIES = (int(mujoco.mjtEq.mjEQ_CONNECT), int(mujoco.mjtEq.mjEQ_WELD))
+
+
+def _name(mjmodel, objtype, i) -> str:
+    return mujoco.mj_id2name(mjmodel, objtype, int(i)) or f"#{int(i)}"
+
+
+def validate_model(mjmodel: mujoco.MjModel, binding: Binding, scenario: Scenario) -> tuple:
+    """Warnings for what the model holds beyond the circuit and the chosen mode; refuses what a mode cannot step.
+
+    Both modes: MJCF actuators the circuit does not drive (set to zero force in
+    both, so a leftover ``<velocity>`` actuator brakes nothing).  PBD mode: a
+    body with more than one joint, or a free joint below another body, is
+    refused (:class:`ScenarioError`); free joints (a base welded to the world),
+    colliding geoms other than planes, spheres, capsules and boxes, equalities
+    other than connect and weld, and joint frictionloss / stiffness are named
+    in warnings.  Returns the warnings (one line each, MJCF names).
+    """
+    m, mjcf = mjmodel, scenario.mjcf
+    out = []
+    unused = [a for a in range(m.nu) if a not in set(int(i) for i in binding.actuator_id)]
+    if unused:
+        names = ", ".join(f"'{_name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a)}'" for a in unused)
+        out.append(
+            f"{mjcf}: actuator(s) {names} are not driven by {scenario.circuit}: they are set to zero force in both modes "
+            "(a <velocity> or <position> actuator left in would brake or hold its joint); delete them from the MJCF"
+        )
+    if scenario.mode not in PBD_MODES:
+        return tuple(out)
+    joints_of = {}
+    for j in range(m.njnt):
+        joints_of.setdefault(int(m.jnt_bodyid[j]), []).append(j)
+    for b, joints in joints_of.items():
+        if len(joints) > 1:
+            names = ", ".join(f"'{_name(m, mujoco.mjtObj.mjOBJ_JOINT, j)}'" for j in joints)
+            raise ScenarioError(
+                f"{mjcf}: body '{_name(m, mujoco.mjtObj.mjOBJ_BODY, b)}' has joints {names}: PBD mode steps one joint per body; "
+                "nest one body per joint, or use mode \"mujoco\""
+            )
+    free = int(mujoco.mjtJoint.mjJNT_FREE)
+    for j in range(m.njnt):
+        if int(m.jnt_type[j]) != free:
+            continue
+        b = int(m.jnt_bodyid[j])
+        body, joint = _name(m, mujoco.mjtObj.mjOBJ_BODY, b), _name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+        if int(m.body_parentid[b]) != 0:
+            raise ScenarioError(f"{mjcf}: free joint '{joint}' of body '{body}' is not on a child of the world: PBD mode "
+                                "cannot step it; use mode \"mujoco\"")
+        welds = [e for e in range(m.neq) if int(m.eq_type[e]) == int(mujoco.mjtEq.mjEQ_WELD)
+                 and b in (int(m.eq_obj1id[e]), int(m.eq_obj2id[e]))]
+        held = f", held by weld '{_name(m, mujoco.mjtObj.mjOBJ_EQUALITY, welds[0])}'" if welds else ""
+        out.append(
+            f"{mjcf}: body '{body}' has free joint '{joint}'{held}: PBD mode then steps every body as free (no compiled "
+            "joint-space path, about 20x slower); " + ("delete the free joint and the weld so the body is fixed to the world"
+                                                       if welds else "fix the body to the world if it does not move")
+        )
+    if not (m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT):
+        dropped = [g for g in range(m.ngeom) if (m.geom_contype[g] or m.geom_conaffinity[g])
+                   and int(m.geom_type[g]) not in PBD_CONTACT_GEOMS]
+        if dropped:
+            names = ", ".join(f"'{_name(m, mujoco.mjtObj.mjOBJ_GEOM, g)}' ({mujoco.mjtGeom(int(m.geom_type[g])).name.removeprefix('mjGEOM_').lower()})"
+                              for g in dropped)
+            out.append(
+                f"{mjcf}: geom(s) {names} can collide, but PBD mode's contacts are spheres, capsules and boxes against "
+                "planes: their contacts are dropped; give them contype=\"0\" conaffinity=\"0\" and add primitive collision geoms"
+            )
+    for e in range(m.neq):
+        if int(m.eq_type[e]) not in PBD_EQUALITIES or (int(m.eq_type[e]) == int(mujoco.mjtEq.mjEQ_WELD)
+                                                        and int(m.eq_objtype[e]) == int(mujoco.mjtObj.mjOBJ_SITE)):
+            kind = mujoco.mjtEq(int(m.eq_type[e])).name.removeprefix("mjEQ_").lower()
+            out.append(f"{mjcf}: equality '{_name(m, mujoco.mjtObj.mjOBJ_EQUALITY, e)}' ({kind}) is not enforced in PBD mode "
+                       "(connect and body welds are)")
+    for j in range(m.njnt):
+        dof = int(m.jnt_dofadr[j])
+        ignored = [what for what, value in (("frictionloss", m.dof_frictionloss[dof]), ("stiffness", m.jnt_stiffness[j])) if value]
+        if ignored:
+            out.append(f"{mjcf}: joint '{_name(m, mujoco.mjtObj.mjOBJ_JOINT, j)}': {' and '.join(ignored)} ignored in PBD mode")
+    return tuple(out)
+
+
+def disable_unbound_actuators(mjmodel: mujoco.MjModel, binding: Binding) -> None:
+    """Zero force for every MJCF actuator the circuit does not drive (gain and bias 0, no dynamics), as PBD mode has it."""
+    bound = set(int(i) for i in binding.actuator_id)
+    for aid in range(mjmodel.nu):
+        if aid in bound:
+            continue
+        mjmodel.actuator_dyntype[aid] = mujoco.mjtDyn.mjDYN_NONE
+        mjmodel.actuator_gaintype[aid] = mujoco.mjtGain.mjGAIN_FIXED
+        mjmodel.actuator_biastype[aid] = mujoco.mjtBias.mjBIAS_NONE
+        mjmodel.actuator_gainprm[aid, :] = 0.0
+        mjmodel.actuator_biasprm[aid, :] = 0.0
 
 
 def configure_actuators(mjmodel: mujoco.MjModel, binding: Binding) -> None:
@@ -242,12 +368,23 @@ def has_contact_pairs(mjmodel: mujoco.MjModel) -> bool:
     return bool(np.any(can & (body[:, None] != body[None, :])))
 
 
-def build_network(scenario: Scenario) -> NetworkModel:
+def build_network(scenario: Scenario, actuators=None) -> NetworkModel:
     """The scenario's circuit at its fidelity (default level + per-actuator ``[fidelity]`` overrides);
-    the scenario's input schedules are range-checked against it (:func:`sim.io.scenario.check_input_ranges`)."""
+    the scenario's input schedules are range-checked against it (:func:`sim.io.scenario.check_input_ranges`).
+
+    ``actuators`` (the MJCF's actuator names): cylinders and motors the MJCF lacks are not
+    built, nor the branches that feed only them (:func:`hydraulics.network.prune`); the
+    network's ``pruned`` names them first.
+    """
     circuit = load_circuit(scenario.circuit)
     check_input_ranges(scenario, circuit)
     names = [c.name for c in circuit.by_kind("cylinder", "motor")]
+    undriven = ()
+    if actuators is not None and set(names) - set(actuators):
+        if not set(names) & set(actuators):
+            raise ScenarioError(f"{scenario.circuit}: none of its cylinders and motors {names} is an actuator of {scenario.mjcf}; "
+                                f"its actuators are {sorted(actuators)}")
+        circuit, undriven = prune(circuit, drives=actuators)
     for name in scenario.actuator_fidelity:
         if name not in names:
             raise ScenarioError(
@@ -255,7 +392,10 @@ def build_network(scenario: Scenario) -> NetworkModel:
                 f"actuators: {names}"
             )
     try:
-        return NetworkModel.from_circuit(circuit, fidelity=scenario.fidelity, actuator_fidelity=scenario.actuator_fidelity)
+        kept = {c.name for c in circuit.components}
+        network = NetworkModel.from_circuit(circuit, fidelity=scenario.fidelity,
+                                            actuator_fidelity={k: v for k, v in scenario.actuator_fidelity.items() if k in kept})
+        return replace(network, pruned=undriven + network.pruned) if undriven else network
     except CircuitError as exc:
         if "fidelity 'incompressible'" in str(exc):
             raise ScenarioError(f"{scenario.path}, [fidelity] / field 'run.fidelity': {str(exc).split(': ', 1)[1]}") from None
@@ -266,7 +406,17 @@ def load_scene(scenario: Scenario) -> Scene:
     """Compile the MJCF, build the network and bind them; MJCF timestep set to the scenario's dt."""
     files = mjcf_files(scenario.mjcf)
     mjmodel = load_mjmodel(scenario.mjcf, files)
-    network = build_network(scenario)
+    network = build_network(scenario, [mujoco.mj_id2name(mjmodel, mujoco.mjtObj.mjOBJ_ACTUATOR, i) for i in range(mjmodel.nu)])
+    notices = ()
+    if network.pruned:
+        dropped = set(network.pruned)
+        gone = [name for name in scenario.inputs if name in dropped]
+        nets = [net for net in scenario.pressures if net not in network.net_node]
+        notices = (f"{scenario.circuit}: not built: {', '.join(network.pruned)} (they feed no cylinder or motor that "
+                   f"{scenario.mjcf} has)" + (f"; their inputs {gone} in {scenario.path} are ignored" if gone else "")
+                   + (f"; initial pressures on nets {nets} that are no longer built are ignored" if nets else ""),)
+        scenario = replace(scenario, inputs={k: v for k, v in scenario.inputs.items() if k not in dropped},
+                           pressures={k: v for k, v in scenario.pressures.items() if k not in nets})
     if network.fidelity == "incompressible" and scenario.fidelity != "incompressible":
         scenario = replace(scenario, fidelity="incompressible")  # every actuator overridden: the plants' switch
     elif network.fidelity != "incompressible" and scenario.fidelity == "incompressible":
@@ -275,7 +425,9 @@ def load_scene(scenario: Scenario) -> Scene:
         scenario = replace(scenario, fidelity=network.fidelity,
                            actuator_fidelity={a: lv for a, lv in levels.items() if lv != network.fidelity})
     binding = bind(network, mjmodel, scenario.circuit, scenario.mjcf)
+    warnings = notices + validate_model(mjmodel, binding, scenario)
     configure_actuators(mjmodel, binding)
+    disable_unbound_actuators(mjmodel, binding)
     mjmodel.opt.timestep = scenario.dt
     if not has_contact_pairs(mjmodel):
         mjmodel.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT  # nothing can touch: skip collision detection
@@ -292,7 +444,7 @@ def load_scene(scenario: Scenario) -> Scene:
     for net in scenario.pressures:
         if net not in network.net_node:
             raise ScenarioError(f"{scenario.path}, field 'initial.pressures.{net}': no net '{net}' in {scenario.circuit}")
-    scene = Scene(scenario, mjmodel, network, binding, joints, tuple(files))
+    scene = Scene(scenario, mjmodel, network, binding, joints, tuple(files), warnings)
     check_initial_joints(scene)
     check_start_pose(scene)
     return scene
