@@ -201,7 +201,10 @@ class PbdPlant(PlantBase):
         if self.rigid:
             self.coupling.blend = self.blend  # without blend the masses only size the rigid actuators' trackers
         m = self.model
-        self.xmodel = xm = XpbdModel.from_mjmodel(m)
+        try:
+            self.xmodel = xm = XpbdModel.from_mjmodel(m)
+        except (ValueError, NotImplementedError) as exc:
+            raise ScenarioError(f"{scenario.mjcf}: PBD mode cannot step this model: {exc}; use mode \"mujoco\"") from None
         # cylinders: one length row each, in network cylinder order
         self.cylinders = np.array([a for a in range(net.actuator_count) if net.actuator_kind[a] == ACTUATOR_CYLINDER], int)
         rows = [LengthConstraint(*xm.tendon_site_pair(int(binding.tendon_id[a])), name=net.actuator_names[a]) for a in self.cylinders]
@@ -943,6 +946,38 @@ def _c64(a):
 def _i64(a):
     """:func:`_writeable` int64."""
     return _writeable(a, np.int64)
+
+
+def fast_path(plant: PbdPlant) -> str:
+    """Which PBD path steps ``plant`` and, when it is not the fastest, why not (one line, MJCF names).
+
+    Fastest first: compiled blocks of steps (``sim/plants/pbd_block.py``), one compiled
+    call per step (``sim/plants/pbd_frame.py``), compiled coupling hooks
+    (``sim/plants/pbd_hydraulics.py``), the Python hooks.
+    """
+    xm = plant.xmodel
+    if plant.fast:
+        return "compiled blocks of steps (the fastest path)"
+    why = []
+    if not plant.scene.scenario.compiled:
+        why.append("the scenario asks for the pure path (compiled = false / --pure)")
+    if plant._fast is None:
+        why.append("the coupling is not an implicit one at the compressible fidelity with the compiled stepper "
+                   f"(mode {plant.mode}, coupling {plant.scene.scenario.coupling}, fidelity {plant.network.fidelity})")
+    if not plant._tree:
+        other = [f"'{xm.jnt_names[j]}'" for j in range(xm.njnt) if int(xm.jnt_type[j]) not in SCALAR_JOINTS]
+        why.append(f"joints {', '.join(other)} are not hinges or slides: no joint-space (articulated) path" if other
+                   else "the joints do not form a tree of hinges and slides")
+    if not len(plant.cylinders):
+        why.append("no cylinders")
+    bad_motors = [f"'{xm.jnt_names[j]}'" for j in plant.motor_joint if not plant._hinge[j]]
+    if bad_motors:
+        why.append(f"motor joints {', '.join(bad_motors)} are not hinges")
+    if not plant.block:
+        why.append("blocks switched off (block=False)")
+    path = ("one compiled call per step" if plant.frame_compiled and plant._tree else
+            "compiled coupling hooks around the XPBD substeps" if plant._fast is not None else "Python hooks")
+    return f"{path}; not the compiled blocks because " + "; ".join(why or ["the compiled frame does not apply"])
 
 
 def make_pbd_plant(scene: Scene, *, block: bool = True) -> PbdPlant:

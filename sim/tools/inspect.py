@@ -1,7 +1,9 @@
 """``hydroplant inspect SCENARIO``: what a scenario will build, and whether its step is stable.
 
 Prints the bodies and joints, the circuit at its fidelity (hydraulic state
-count, what was pruned), each cylinder's bore, rod and stroke with its
+count, what was pruned), the MJCF actuators the circuit does not drive, the
+equality constraints the statics and inertias go through, in PBD mode the path
+that steps it (:func:`sim.plants.pbd.fast_path`), each cylinder's bore, rod and stroke with its
 hydraulic frequency ω_h at mid-stroke and at 5 % stroke (the stiffest
 position of a typical working range), ω_h·dt and the stability verdict of the
 chosen mode and coupling (:mod:`sim.run.guards`), and the largest dt that method
@@ -73,6 +75,19 @@ def describe(scenario_path, overrides=None) -> str:
     if net.hose_lines:
         lines.append(f"lines     {', '.join(net.hose_lines)} (pi-lines: own end volumes + laminar resistance)")
     lines.append(f"pruned    {', '.join(net.pruned) if net.pruned else 'nothing'}")
+    bound = set(int(i) for i in scene.binding.actuator_id)
+    undriven = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_ACTUATOR, a) or f"#{a}" for a in range(m.nu) if a not in bound]
+    lines.append(f"undriven  {', '.join(undriven) + ' (MJCF actuators the circuit does not drive: zero force)' if undriven else 'none'}")
+    if m.neq:
+        from sim.plants.constraints import equality_name
+
+        kinds = [f"{equality_name(m, e)} ({mujoco.mjtEq(int(m.eq_type[e])).name.removeprefix('mjEQ_').lower()})" for e in range(m.neq)]
+        lines.append(f"equality  {', '.join(kinds)}: holding efforts and m_eff through them"
+                     + (f"; static balance residual {plant.holding_residual:.2g}" if plant.holding_residual is not None else ""))
+    if scenario.mode in ("pbd", "pbd-naive"):
+        from sim.plants.pbd import fast_path, make_pbd_plant
+
+        lines.append(f"pbd path  {fast_path(make_pbd_plant(scene))}")
     mid, end = at_positions(plant, (0.5, NEAR_END))
     report_mid = guards.check(scene, mid)
     report_end = guards.check(scene, end)

@@ -320,7 +320,7 @@ class XpbdModel:
             else:
                 M = float(sum(m.body_mass[b] for b in members))
                 if M <= 0:
-                    raise ValueError(f"rigid group rooted at body {r} has no mass")
+                    raise ValueError(f"rigid group rooted at body {m.body(r).name or r!r} has no mass")
                 coms, rots = {}, {}
                 for b in members:
                     coms[b], qI = _compose(rel[b][0], rel[b][1], ipos[b], iquat[b])
@@ -338,7 +338,7 @@ class XpbdModel:
                 if np.linalg.det(evecs) < 0:
                     evecs[:, 2] *= -1.0
                 if np.any(evals <= 0):
-                    raise ValueError(f"rigid group rooted at body {r} has singular inertia")
+                    raise ValueError(f"rigid group rooted at body {m.body(r).name or r!r} has singular inertia")
                 Gp, Gq = c, _mat2quat(evecs)
                 Id = evals
             g_mass[gi] = M
@@ -402,7 +402,7 @@ class XpbdModel:
                     damping[j] = m.dof_damping[m.jnt_dofadr[j]]
             elif t == JNT_FREE:
                 if g1 != 0:
-                    raise NotImplementedError("free joints must be on children of the world")
+                    raise NotImplementedError(f"free joint {m.joint(j).name or j!r}: free joints must be on children of the world")
                 limited[j] = False
                 if np.any(m.dof_damping[m.jnt_dofadr[j]:m.jnt_dofadr[j] + 6] != 0):
                     notes.append(f"free joint {j}: damping ignored")
