@@ -121,7 +121,8 @@ def test_readme_is_short_and_its_library_example_runs(tmp_path, monkeypatch, cap
     out = capsys.readouterr().out
     assert out.startswith("complete real-time factor")
     assert "301 samples to t = 3.00 s" in out  # 3 s at the default 100 Hz log rate, both ends included
-    assert (tmp_path / "logs" / "lift.mcap").is_file()
+    assert [p.name[:len("boom-lift-mujoco-implicit-")] for p in (tmp_path / "logs").glob("*.mcap")] == [
+        "boom-lift-mujoco-implicit-"]
 
 
 def _links(path: Path):
