@@ -27,7 +27,7 @@ median is reported:
   them with 1 kHz of bare ``mj_step``.
 
 Prints µs/step, the ratio to bare, the real-time factor (simulated/wall time)
-and the process's peak RSS; ``--markdown`` also prints these as README's table
+and the process's peak RSS; ``--markdown`` also prints these as the table of docs/benchmarks.md
 (one row per scene).  Run: ``.venv/bin/python bench/bench_fast.py [--markdown]``.
 """
 
@@ -139,7 +139,7 @@ def bench(name, path, reps, window, python_window=0.2):
     return med, peak_rss_mib()
 
 
-# README's table: column heading -> the bench's variant keys in that cell (MuJoCo mode: the runner's block, then the
+# The table of docs/benchmarks.md: column heading -> the bench's variant keys in that cell (MuJoCo mode: the runner's block, then the
 # longest)
 TABLE_COLUMNS = {
     **{f"{coupling}, blocks of {RUNNER_BLOCK} / {LONGEST_BLOCK}": tuple(key for _, key, c in MUJOCO_VARIANTS if c == coupling)
@@ -150,7 +150,7 @@ TABLE_COLUMNS = {
 
 
 def markdown_table(results: dict) -> str:
-    """README's table from ``{scene: (medians [µs per 1 ms simulated], peak RSS [MiB])}``: each cell µs, ratio to
+    """The table of docs/benchmarks.md from ``{scene: (medians [µs per 1 ms simulated], peak RSS [MiB])}``: each cell µs, ratio to
     bare and real-time factor; the bare column µs and RTF; the process's peak RSS after the scene."""
     us = lambda x: f"{x:.0f}" if x >= 100 else f"{x:.1f}" if x >= 10 else f"{x:.2f}"  # noqa: E731 - µs, ~3 figures
     ratio = lambda x: f"{x:.0f}" if x >= 10 else f"{x:.2f}"  # noqa: E731
@@ -171,7 +171,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reps", type=int, default=5)
     parser.add_argument("--window", type=float, default=6.0, help="simulated seconds per variant and repetition")
-    parser.add_argument("--markdown", action="store_true", help="also print README's table")
+    parser.add_argument("--markdown", action="store_true", help="also print the table of docs/benchmarks.md")
     args = parser.parse_args()
     if args.window < LONGEST_BLOCK * DT:  # every variant must time at least one whole block
         parser.error(f"--window {args.window} s: must be at least {LONGEST_BLOCK * DT:g} s "
