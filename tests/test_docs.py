@@ -38,7 +38,7 @@ def test_every_component_field_has_a_unit_and_a_description():
         docs = docgen.attribute_docs(cls)
         for f in dataclasses.fields(cls):
             assert f.metadata.get("unit"), f"{kind}.{f.name}: no unit in its param() metadata"
-            assert docs.get(f.name), f"{kind}.{f.name}: no attribute docstring (the reference's description)"
+            assert docgen.field_description(f, docs), f"{kind}.{f.name}: no attribute docstring (the reference's description)"
 
 
 def test_component_rows_carry_the_metadata():

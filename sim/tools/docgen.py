@@ -48,6 +48,12 @@ def attribute_docs(cls) -> dict[str, str]:
     return docs
 
 
+def field_description(f: dataclasses.Field, docs: dict[str, str]) -> str:
+    """A field's description: its attribute docstring (``docs``, from :func:`attribute_docs`), else a ``doc``
+    entry of its metadata, else empty."""
+    return docs.get(f.name) or " ".join(str(f.metadata.get("doc", "")).split())
+
+
 def first_line(doc: str | None) -> str:
     """The first sentence line of a docstring, whitespace collapsed."""
     if not doc:
@@ -108,14 +114,15 @@ def component_reference() -> str:
     for kind, cls in COMPONENT_TYPES.items():
         docs = attribute_docs(cls)
         ports = ", ".join(f"`{p}`" for p in getattr(cls, "PORTS", ()))
-        lines += ["", f"## {kind}", "", f"`type = \"{kind}\"` ({cls.__name__}). {_markdown(first_line(cls.__doc__))}", ""]
+        lines += ["", f"## {kind}", "", f"`type = \"{kind}\"` (`{cls.__module__}.{cls.__name__}`). "
+                  f"{_markdown(first_line(cls.__doc__))}", ""]
         if ports:
             lines += [f"Ports: {ports}.", ""]
         lines += ["| field | unit | range | default | description |", "|---|---|---|---|---|"]
         for f in dataclasses.fields(cls):
             meta = f.metadata
             lines.append(f"| `{f.name}` | {meta.get('unit', '')} | {format_range(meta)} | {format_value(f.default)} "
-                         f"| {_markdown(docs.get(f.name, ''))} |")
+                         f"| {_markdown(field_description(f, docs))} |")
     return "\n".join(lines) + "\n"
 
 
