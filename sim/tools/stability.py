@@ -908,7 +908,7 @@ class StabilityMap:
 
     def summary(self) -> str:
         """Text summary of the stability boundary per method."""
-        lines = [f"stability map of {self.facts.scenario}",
+        lines = [f"stability map of {self.facts.scene}/{Path(self.facts.scenario).name}",  # no absolute path in the docs
                  f"scene {self.facts.scene}; configuration duration {self.facts.duration:.4g} s; "
                  f"nominal omega_h max {self.facts.omega_h_max:.4g} rad/s; tolerance {self.grid.tolerance:g}; "
                  f"dt {', '.join(f'{d:.3g}' for d in self.grid.dts)} s"]
