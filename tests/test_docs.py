@@ -4,6 +4,7 @@ defaults those of the loaders, README's example runs, links resolve, no file spe
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
 from pathlib import Path
 
@@ -139,14 +140,19 @@ def test_relative_links_of_readme_and_docs_resolve():
 
 
 HISTORY = re.compile(r"session [0-9]|sessions? [0-9]+[-–][0-9]+|issue #[0-9]|this[ ]session|/wor[k]/|\.\./share[d]", re.I)
-SKIP = {".git", ".venv", ".cache", "logs", "build", "dist", "__pycache__"}
+SKIP = {"logs", "build", "dist", "__pycache__"}  # and every hidden folder (.git, .venv, caches)
+
+
+def project_files(suffixes=(".py", ".md", ".toml")):
+    """The project's own files with these suffixes (no virtual environment, caches, logs or build output)."""
+    for folder, subfolders, names in os.walk(ROOT):
+        subfolders[:] = [d for d in subfolders if not d.startswith(".") and d not in SKIP and not d.endswith(".egg-info")]
+        yield from (Path(folder) / n for n in names if n.endswith(suffixes))
 
 
 def test_no_file_speaks_of_development_history():
     found = []
-    for path in ROOT.rglob("*"):
-        if path.suffix not in (".py", ".md", ".toml") or SKIP & set(path.relative_to(ROOT).parts) or "egg-info" in str(path):
-            continue
+    for path in project_files():
         for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
             if HISTORY.search(line):
                 found.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()[:100]}")
