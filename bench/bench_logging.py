@@ -15,7 +15,7 @@ interleaved, medians reported:
                   rate (``sim.run.runner.block_steps``), the samples inside a block copied by the
                   plant from its compiled loop (``MujocoPlantFast.advance(n, record, every)``);
 ``per-step path`` for reference, ``run(..., fast=False)`` at 100 Hz: :class:`MujocoPlant`, one
-                  Python-orchestrated step at a time (what ``run()`` did before the block path).
+                  Python-orchestrated step at a time (``run()``'s per-step path).
 
 Overhead = (time / no-log time) − 1 of the medians (wall and CPU), and the median and quartiles of
 the paired overheads (each logged run against the no-log run just before it, which shares the

@@ -17,7 +17,7 @@ matched against ``mujoco-fast`` (the two fastest PBD matches of each row, since 
 them) is then timed again, alternately, ``--pair-reps`` times; the median of the paired ratios is the figure
 to read.  References: the seed's own
 equations solved by scipy (seed cylinder); MuJoCo mode at dt = 0.25 ms, logged every step (boom,
-excavator; a reference logged at 100 Hz, interpolated between its 10 ms samples, had doubled the
+excavator; a reference logged at 100 Hz, interpolated between its 10 ms samples, doubles the
 pre-contact errors of the rows whose samples fall between them).  The excavator runs its full 20 s
 dig cycle.  The second error column stops before the first contact (the boom cylinder reaching its
 end stop at 2.45 s, the excavator's teeth reaching the ground at 1.6 s) and is measured against a
