@@ -5,8 +5,9 @@ Subcommands::
     hydroplant run SCENARIO | --example NAME [--mode M] [--coupling C] [--dt S] [--duration S] [--substeps N] [--out PATH]
     hydroplant examples                  the shipped example scenes (names for ``run --example``)
     hydroplant demo                      the hydraulics-only 1-DOF lift (no MuJoCo)
-    hydroplant log info LOG              summary of a log
-    hydroplant log recover PARTIAL [OUT] rebuild a valid MCAP from a killed run's partial file
+    hydroplant log info LOG [--no-verify]  summary of a log, chunk CRCs checked (exit 1 if damaged)
+    hydroplant log recover PARTIAL [OUT] [--overwrite]  rebuild a valid MCAP from a cut or damaged log
+                                         (exit 1 if data was skipped)
     hydroplant compile [--jobs N]        fill numba's disk cache with every compiled kernel, in parallel
 
 Bad input (scenario, circuit, MJCF binding, arguments, an output file that may not be
@@ -159,11 +160,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     log = sub.add_parser("log", help="inspect or repair logs")
     log_sub = log.add_subparsers(dest="log_command", required=True, parser_class=_Parser)
-    info = log_sub.add_parser("info", help="summary of a log")
+    info = log_sub.add_parser("info", help="summary of a log; checks every chunk's CRC",
+                              description="Summary of a log (metadata, status, topics, attachments). Every chunk is "
+                              "decompressed and its CRC checked unless --no-verify. Exit 0: a finished log whose "
+                              "chunks all check; 1: damaged or unfinished (see 'log recover'); 2: not an MCAP file.")
     info.add_argument("log", type=Path)
-    recover = log_sub.add_parser("recover", help="rebuild a valid MCAP from a partial file")
+    info.add_argument("--no-verify", action="store_true", help="do not decompress the chunks to check their CRCs")
+    recover = log_sub.add_parser("recover", help="rebuild a valid MCAP from a cut or damaged log",
+                                 description="Write a finished, indexed log from every chunk of PARTIAL that checks; "
+                                 "damaged chunks and records are skipped and reported (chunks, messages, byte ranges). "
+                                 "OUT defaults to NAME.recovered.mcap and is never replaced unless --overwrite. "
+                                 "Exit 0: nothing was skipped; 1: data was skipped; 2: not an MCAP file or OUT exists.")
     recover.add_argument("partial", type=Path)
     recover.add_argument("out", type=Path, nargs="?")
+    recover.add_argument("--overwrite", action="store_true", help="replace an existing OUT")
     for module in _tool_modules():
         module.add_parser(sub)
     return parser
@@ -204,24 +214,27 @@ def _run(args) -> int:
 
 
 def _log(args) -> int:
-    from mcap.exceptions import McapError
-
-    from sim.io.mcap_log import log_info, recover
+    """``log info`` (exit 0 intact, 1 damaged or unfinished) and ``log recover`` (exit 0 nothing skipped, 1 data
+    skipped); a file that is not a readable MCAP log raises CircuitError (exit 2)."""
+    from sim.io.mcap_log import inspect_log, recover
 
     path = args.log if args.log_command == "info" else args.partial
     if not path.is_file():
-        raise CircuitError(f"{path}: log file not found")
+        raise CircuitError(f"{path}: log file not found" if not path.exists() else f"{path}: not a regular file")
     try:
         if args.log_command == "info":
-            print(log_info(path))
-            return 0
+            text, code = inspect_log(path, verify=not args.no_verify)
+            print(text)
+            return code
         out = args.out or path.with_name(path.name.removesuffix(".partial").removesuffix(".mcap") + ".recovered.mcap")
-        report = recover(path, out, overwrite=True)
-    except (OSError, ValueError, EOFError, LookupError, McapError) as exc:
+        report = recover(path, out, overwrite=args.overwrite)
+    except CircuitError:
+        raise
+    except (OSError, ValueError, EOFError, LookupError) as exc:
         raise CircuitError(f"{path}: not a readable MCAP log ({type(exc).__name__}: {exc})") from None
-    print(report)
+    print(report.summary_text())
     print(f"recovered log: {out}")
-    return 0
+    return 0 if report.complete else 1
 
 
 def main(argv=None) -> int:

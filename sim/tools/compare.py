@@ -40,6 +40,7 @@ import numpy as np
 
 from hydraulics.components import CircuitError
 
+from sim.io.log_recover import verify_log
 from sim.io.mcap_log import RESULT_METADATA, RUN_METADATA, merge_logs, read_log
 
 __all__ = [
@@ -653,6 +654,10 @@ def compare_existing(logs: list, out_dir, *, filter_window: float | None = None)
         others = [read_log(p) for p in logs[1:]]
     except ValueError as exc:
         raise CircuitError(str(exc)) from None
+    for path in logs:  # a damaged chunk would otherwise surface deep in a topic read or the merge
+        if damage := verify_log(path).damage:
+            raise CircuitError(f"{path}: damaged log ({damage[0].what} at bytes {damage[0].start}..{damage[0].end}); "
+                               f"'hydroplant log recover {path}' keeps every chunk that checks")
     comparisons = []
     labels = set()
     for log in others:
