@@ -157,3 +157,38 @@ def test_no_file_speaks_of_development_history():
             if HISTORY.search(line):
                 found.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()[:100]}")
     assert not found, "\n".join(found)
+
+
+def _run_all(monkeypatch):
+    """bench/run_all.py as a module (bench/ is no package)."""
+    import importlib.util
+    import sys
+
+    spec = importlib.util.spec_from_file_location("run_all", ROOT / "bench" / "run_all.py")
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "run_all", module)  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_make_bench_rewrites_only_the_sections_it_ran(tmp_path, monkeypatch, capsys):
+    run_all = _run_all(monkeypatch)
+    (tmp_path / "bench").mkdir()
+    (tmp_path / "bench" / "bench_a.py").write_text('print("median 4.2 us\\n| x | y |\\n|---|---|\\n| 1 | 2 |")\n')
+    (tmp_path / "bench" / "bench_b.py").write_text('raise SystemExit("no MuJoCo here")\n')
+    monkeypatch.setattr(run_all, "ROOT", tmp_path)
+    monkeypatch.setattr(run_all, "BENCHES", (run_all.Bench("bench_a", (), "A", "About A."),
+                                             run_all.Bench("bench_b", ("--quick",), "B", "About B.")))
+    page = tmp_path / "benchmarks.md"
+    page.write_text(run_all.page({"bench_a": run_all.section(run_all.BENCHES[0], "old A", "then"),
+                                  "bench_b": run_all.section(run_all.BENCHES[1], "old B", "then")}))
+    assert run_all.main(["--out", str(page), "--only", "bench_a"]) == 0
+    text = page.read_text()
+    assert "old A" not in text and "```text\nmedian 4.2 us\n```\n\n| x | y |\n|---|---|\n| 1 | 2 |\n<!-- /bench -->" in text
+    assert "old B" in text  # a benchmark not run keeps its figures
+    assert run_all.main(["--out", str(page), "--only", "bench_b"]) == 1
+    text = page.read_text()
+    assert "**Failed** with exit status 1" in text and "no MuJoCo here" in text and "old B" not in text
+    assert "median 4.2 us" in text and text.index("## A") < text.index("## B")
+    assert "`python bench/bench_b.py --quick`" in text
+    capsys.readouterr()
