@@ -176,13 +176,43 @@ def load_mjmodel(path: Path, files: list[MjcfFile] | None = None) -> mujoco.MjMo
     except Exception as exc:  # mujoco raises ValueError with the parser's message
         message = " ".join(str(exc).split())  # one line
         raise ScenarioError(f"{path}: MuJoCo cannot compile this MJCF: {message}") from None
-    for name, values in (("mass", model.body_mass), ("inertia", model.body_inertia)):
-        bad = np.flatnonzero(~np.isfinite(values).reshape(len(values), -1).all(axis=1))
-        if len(bad):
-            body = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(bad[0])) or f"body {int(bad[0])}"
-            raise ScenarioError(f"{path}: body '{body}' has a non-finite {name} after compilation; "
-                                "masses [kg] and inertias [kg*m^2] must be finite")
+    check_finite_model(model, path)
     return model
+
+
+_MODEL_OBJECTS = {"body": mujoco.mjtObj.mjOBJ_BODY, "jnt": mujoco.mjtObj.mjOBJ_JOINT, "dof": None,
+                  "geom": mujoco.mjtObj.mjOBJ_GEOM, "site": mujoco.mjtObj.mjOBJ_SITE, "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR,
+                  "tendon": mujoco.mjtObj.mjOBJ_TENDON, "eq": mujoco.mjtObj.mjOBJ_EQUALITY, "pair": mujoco.mjtObj.mjOBJ_PAIR}
+
+
+_MODEL_FIELDS_FIRST = ("body_mass", "body_inertia", "dof_armature", "dof_damping", "dof_frictionloss", "jnt_stiffness",
+                       "jnt_range", "geom_size", "geom_friction", "actuator_gear", "tendon_range")  # what the MJCF sets
+
+
+def check_finite_model(model: mujoco.MjModel, path) -> None:
+    """Refuse a compiled model with a NaN or infinite number in any of its arrays (a mass, an inertia, an
+    armature, a damping, a size, ...): MuJoCo compiles some of them silently and the run fails later.
+    The message names the MJCF, the model field (MuJoCo's name, e.g. ``dof_armature``) and the element."""
+    for field_name in (*_MODEL_FIELDS_FIRST, *dir(model)):
+        if field_name.startswith("_") or field_name == "opt":
+            continue
+        try:
+            values = getattr(model, field_name)
+        except Exception:  # noqa: BLE001 - properties MuJoCo cannot give for this model
+            continue
+        if not (isinstance(values, np.ndarray) and values.dtype.kind == "f" and values.size):
+            continue
+        bad = np.flatnonzero(~np.isfinite(values.reshape(len(values), -1)).all(axis=1)) if values.ndim else []
+        if len(bad) == 0:
+            continue
+        prefix, index = field_name.split("_", 1)[0], int(bad[0])
+        if prefix == "dof":
+            prefix, index = "jnt", int(model.dof_jntid[index])
+        obj = _MODEL_OBJECTS.get(prefix)
+        name = (mujoco.mj_id2name(model, obj, index) if obj is not None else None) or f"#{index}"
+        kind = {"jnt": "joint", "eq": "equality"}.get(prefix, prefix)
+        raise ScenarioError(f"{path}: {kind} '{name}': a NaN or infinite value in '{field_name}' after compilation; "
+                            "every number of the model must be finite")
 
 
 def bind(network: NetworkModel, mjmodel: mujoco.MjModel, circuit_path, mjcf_path) -> Binding:
