@@ -501,25 +501,25 @@ def chunk_records(body: bytes) -> bytes:
     """The uncompressed records of a Chunk record's body; ValueError when it does not parse, decompress or match its
     CRC."""
     if len(body) < _CHUNK_FIXED.size:
-        raise ValueError("chunk record too short")
+        raise ValueError("record too short")
     _, _, size, crc, name_length = _CHUNK_FIXED.unpack_from(body)
     data_at = _CHUNK_FIXED.size + name_length + 8
     if data_at > len(body) or size > _MAX_UNCOMPRESSED:
-        raise ValueError("chunk header does not parse")
+        raise ValueError("header does not parse")
     compression = bytes(body[_CHUNK_FIXED.size:data_at - 8]).decode("ascii", "replace")
     (data_length,) = struct.unpack_from("<Q", body, data_at - 8)
     if data_at + data_length != len(body):
-        raise ValueError("chunk data length does not match the record length")
+        raise ValueError("data length does not match the record length")
     try:
         data = _decompress(compression, body[data_at:], size)
     except ValueError:
         raise
     except Exception as error:  # noqa: BLE001 - zstd/lz4 raise their own error types on damaged data
-        raise ValueError(f"chunk does not decompress ({type(error).__name__}: {error})") from None
+        raise ValueError(f"does not decompress ({type(error).__name__}: {error})") from None
     if len(data) != size:
-        raise ValueError(f"chunk decompresses to {len(data)} bytes, not {size}")
+        raise ValueError(f"decompresses to {len(data)} bytes, not {size}")
     if crc and zlib.crc32(data) != crc:
-        raise ValueError("chunk CRC mismatch")
+        raise ValueError("CRC mismatch")
     return data
 
 

@@ -61,7 +61,6 @@ import math
 import os
 import re
 import signal
-import stat
 import struct
 import threading
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -1117,9 +1116,9 @@ def _merge_blocks(blocks: Sequence[_RecordBlock]) -> RecordStream:
 class _DeferredSigint:
     """Hold back SIGINT (Ctrl-C) while the MCAP writer is mid-record.
 
-    ``mcap.writer.Writer`` builds records in several Python steps, so a
-    ``KeyboardInterrupt`` inside ``add_message`` would leave a half-written record in the
-    chunk. Inside this context a SIGINT is recorded and the previous handler is called on
+    A batch is merged, added to the chunk in progress and its message indexes extended in
+    several Python steps, so a ``KeyboardInterrupt`` among them would leave the chunk and its
+    indexes out of step. Inside this context a SIGINT is recorded and the previous handler is called on
     exit. The handler is swapped only in the main thread and only when the current one was
     installed from Python; it is always restored.
     """
