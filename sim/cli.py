@@ -17,9 +17,11 @@ never the run's inputs or anything that is not a regular file (:func:`sim.io.fil
 
 Signals: Ctrl-C (SIGINT), SIGTERM and SIGHUP all stop a command the same way: a run's log is
 finished and marked incomplete, one line on stderr names it, and the exit status is 128 + the
-signal number (130, 143, 129).  SIGTERM and SIGHUP are routed to the SIGINT handler in force
-(:func:`_forward_signal`), so the log writer's deferral of Ctrl-C while a record is half written
-holds for all three.  A signal before any log is open (start-up, imports) exits quietly.
+signal number (130, 143, 129).  Each signal is recorded, then SIGINT raises
+:class:`KeyboardInterrupt` (:func:`_interrupt`) and SIGTERM and SIGHUP are routed to the SIGINT
+handler in force (:func:`_forward_signal`), so the log writer's deferral of Ctrl-C while a record
+is half written holds for all three.  A signal before any log is open (start-up, imports; also
+when a library turns the interrupt into another error, as MuJoCo's import does) exits quietly.
 """
 
 from __future__ import annotations
@@ -46,6 +48,12 @@ FORWARDED_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP"
 _received: list[int] = []  # the signals received during main(), first first
 
 
+def _interrupt(signum, frame):
+    """SIGINT handler: remember the signal, then raise :class:`KeyboardInterrupt` as Python's own handler does."""
+    _received.append(signum)
+    signal.default_int_handler(signum, frame)
+
+
 def _forward_signal(signum, frame):
     """SIGTERM / SIGHUP handler: remember the signal, then do what SIGINT does now.
 
@@ -54,19 +62,24 @@ def _forward_signal(signum, frame):
     """
     _received.append(signum)
     handler = signal.getsignal(signal.SIGINT)
-    if callable(handler):
+    if handler is _interrupt:
+        signal.default_int_handler(signum, frame)
+    elif callable(handler):
         handler(signum, frame)
     else:  # SIGINT ignored or default (a background job): SIGTERM still stops the command cleanly
         raise KeyboardInterrupt
 
 
 def _install_signals() -> dict:
-    """Route SIGTERM and SIGHUP to :func:`_forward_signal` (main thread only); the previous handlers."""
+    """SIGINT to :func:`_interrupt` (unless ignored or replaced), SIGTERM and SIGHUP to :func:`_forward_signal`
+    (main thread only); the previous handlers."""
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         return {}
     previous = {}
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, _interrupt)
     for signum in FORWARDED_SIGNALS:
         if signal.getsignal(signum) == signal.SIG_IGN:
             continue  # ignored by whoever started us (nohup): left ignored
@@ -74,7 +87,7 @@ def _install_signals() -> dict:
     return previous
 
 
-def _interrupted(exc: KeyboardInterrupt) -> int:
+def _interrupted(exc: BaseException | None) -> int:
     """One line when a log was being written (named), nothing before; the exit status 128 + signal."""
     signum = _received[0] if _received else signal.SIGINT
     log_path = getattr(exc, "log_path", None)
@@ -244,6 +257,10 @@ def main(argv=None) -> int:
         return _main(argv)
     except KeyboardInterrupt as exc:
         return _interrupted(exc)
+    except Exception:
+        if _received:  # the interrupt became another error inside a library (MuJoCo's import: "initialization failed")
+            return _interrupted(None)
+        raise
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)

@@ -1,0 +1,378 @@
+"""Data safety: nothing a user has is overwritten or read unsafely, signals leave a finished log, caches are verified.
+
+Every test that runs a command hashes the scene's files (scenario, circuit, MJCF and any
+include) before and after it: no command changes what the user wrote.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import MODELS, ROOT
+from hydraulics.components import CircuitError
+from hydraulics.files import MAX_INPUT_BYTES, read_text
+from sim import cli
+from sim.io.files import check_output, free_path
+from sim.io.mcap_log import read_log
+
+SCENARIO = "hold.scenario.toml"
+SHORT = ("--duration", "0.01", "--no-progress")
+
+
+@pytest.fixture
+def scene(tmp_path):
+    """A copy of the boom scene whose MJCF takes its <visual> from an include outside the scene's folder."""
+    folder = tmp_path / "boom"
+    shutil.copytree(MODELS / "boom", folder)
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    (shared / "visual.xml").write_text('<mujoco><visual><global offwidth="640" offheight="480"/></visual></mujoco>\n')
+    mjcf = folder / "boom.xml"
+    text = mjcf.read_text()
+    start, end = text.index("  <visual>"), text.index("</visual>") + len("</visual>")
+    mjcf.write_text(text[:start] + '  <include file="../shared/visual.xml"/>' + text[end:])
+    return folder
+
+
+def user_files(folder: Path) -> dict:
+    """SHA-256 of every file the user wrote (the scene folder and the shared include)."""
+    files = sorted(p for p in [*folder.iterdir(), *(folder.parent / "shared").glob("*")] if p.is_file() and p.suffix != ".mcap"
+                   and not p.name.endswith(".partial"))
+    return {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
+
+
+def hydroplant(*argv, capsys):
+    """(exit code, stdout, stderr lines) of an in-process ``hydroplant ARGV``."""
+    try:
+        code = cli.main([str(a) for a in argv])
+    except SystemExit as exc:
+        code = exc.code
+    out, err = capsys.readouterr()
+    assert "Traceback" not in out + err
+    return code, out, [line for line in err.splitlines() if line.strip()]
+
+
+def refused(scene, capsys, *argv, expected: str):
+    """Run ``hydroplant run SCENARIO ARGV``: exit 2, one stderr line holding ``expected``, the user's files unchanged."""
+    before = user_files(scene)
+    code, _, err = hydroplant("run", scene / SCENARIO, *SHORT, *argv, capsys=capsys)
+    assert code == 2 and len(err) == 1, (code, err)
+    assert expected in err[0], err
+    assert user_files(scene) == before
+    return err[0]
+
+
+# ------------------------------------------------------------------------------------ --out
+@pytest.mark.parametrize("name", ["hold.scenario.toml", "boom.circuit.toml", "boom.xml", "../shared/visual.xml"])
+def test_out_never_replaces_an_input_of_the_run(scene, capsys, name):
+    line = refused(scene, capsys, "--out", scene / name, "--overwrite", expected="is an input of this run")
+    assert Path(name).name in line
+
+
+def test_out_at_a_device_is_refused_and_the_device_stays_one(scene, capsys):
+    refused(scene, capsys, "--out", "/dev/null", "--overwrite", expected="/dev/null: is a character device, not a regular file")
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+
+
+def test_out_at_a_folder_is_refused_without_a_stray_partial(scene, capsys, tmp_path):
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    refused(scene, capsys, "--out", folder, "--overwrite", expected="is a directory, not a regular file")
+    assert folder.is_dir() and not (tmp_path / "logs.partial").exists()
+
+
+def test_out_empty_nul_and_too_long_names_are_refused(scene, capsys, tmp_path):
+    refused(scene, capsys, "--out", "", expected="an empty file name")
+    refused(scene, capsys, "--out", str(tmp_path / "a") + "\0b", expected="NUL byte")
+    refused(scene, capsys, "--out", tmp_path / ("x" * 250 + ".mcap"), expected="file name too long")
+    with pytest.raises(CircuitError, match="not a folder"):
+        check_output(scene / SCENARIO / "run.mcap")
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_out_in_a_read_only_folder_is_refused(scene, capsys, tmp_path):
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o500)
+    try:
+        refused(scene, capsys, "--out", folder / "run.mcap", expected="is not writable")
+    finally:
+        folder.chmod(0o700)
+
+
+def test_out_at_an_existing_log_needs_overwrite(scene, capsys, tmp_path):
+    out = tmp_path / "run.mcap"
+    before = user_files(scene)
+    assert hydroplant("run", scene / SCENARIO, *SHORT, "--out", out, capsys=capsys)[0] == 0
+    first = out.read_bytes()
+    refused(scene, capsys, "--out", out, expected=f"{out}: exists; pass --overwrite")
+    assert out.read_bytes() == first
+    code, _, err = hydroplant("run", scene / SCENARIO, *SHORT, "--out", out, "--overwrite", "--dt", "5e-4", capsys=capsys)
+    assert code == 0 and not err
+    assert read_log(out).metadata["hydroplant.run"]["dt_s"] == "0.0005"  # replaced by the new run
+    assert user_files(scene) == before
+
+
+def test_out_with_an_existing_partial_is_refused_and_the_partial_kept(scene, capsys, tmp_path):
+    out = tmp_path / "run.mcap"
+    partial = tmp_path / "run.mcap.partial"
+    partial.write_bytes(b"\x89MCAP0\r\n" + b"left by a killed run" * 1000)
+    kept = partial.read_bytes()
+    line = refused(scene, capsys, "--out", out, expected=f"{partial}: exists")
+    assert f"hydroplant log recover {partial}" in line
+    assert partial.read_bytes() == kept and not out.exists()
+
+
+def test_default_log_names_never_name_an_existing_file(tmp_path):
+    taken = tmp_path / "boom-hold-mujoco-implicit-T.mcap"
+    taken.write_bytes(b"a user's log")
+    (tmp_path / "boom-hold-mujoco-implicit-T-2.mcap.partial").write_bytes(b"a killed run's data")
+    assert free_path(taken) == tmp_path / "boom-hold-mujoco-implicit-T-3.mcap"
+    assert free_path(tmp_path / "new.mcap") == tmp_path / "new.mcap"
+
+
+def test_run_defaults_to_refusing_an_existing_out(scene, tmp_path):
+    from sim.run.runner import run
+
+    out = tmp_path / "run.mcap"
+    out.write_bytes(b"the user's data")
+    with pytest.raises(CircuitError, match="exists"):
+        run(scene / SCENARIO, out=out, overrides={"duration": 0.01})
+    assert out.read_bytes() == b"the user's data"
+
+
+# ---------------------------------------------------------------------- subprocess commands
+def start(*argv, cwd):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen([sys.executable, "-m", "sim.cli", *map(str, argv)], cwd=cwd, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def test_two_runs_on_one_out_one_is_refused_the_other_log_is_valid(scene, tmp_path):
+    out = tmp_path / "shared.mcap"
+    before = user_files(scene)
+    runs = [start("run", scene / SCENARIO, "--duration", "2", "--no-progress", "--out", out, cwd=tmp_path) for _ in range(2)]
+    results = [(p.wait(timeout=120), *p.communicate()) for p in runs]
+    codes = sorted(code for code, _, _ in results)
+    assert codes == [0, 2], results
+    _, _, err = next(r for r in results if r[0] == 2)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and str(out) in lines[0] and "Traceback" not in err, err
+    log = read_log(out)
+    assert log.metadata["hydroplant.result"]["status"] == "complete"
+    assert not (tmp_path / "shared.mcap.partial").exists()
+    assert user_files(scene) == before
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGHUP, 129)])
+def test_sigterm_and_sighup_mid_run_finish_the_log_marked_incomplete(scene, tmp_path, sig, code):
+    out = tmp_path / "long.mcap"
+    before = user_files(scene)
+    proc = start("run", scene / SCENARIO, "--duration", "1000", "--no-progress", "--out", out, cwd=tmp_path)
+    partial = tmp_path / "long.mcap.partial"
+    deadline = time.monotonic() + 60
+    while not partial.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    time.sleep(0.5)  # mid-run
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == code, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and f"interrupted ({signal.Signals(sig).name})" in lines[0] and str(out) in lines[0], err
+    result = read_log(out).metadata["hydroplant.result"]
+    assert result["status"] == "incomplete" and result["reason"] == "interrupted"
+    assert 0 < float(result["end_time_s"]) < 1000
+    assert not partial.exists() and user_files(scene) == before
+
+
+def test_ctrl_c_during_start_up_exits_quietly_with_130(scene, tmp_path):
+    proc = start("run", scene / SCENARIO, "--duration", "0.01", "--no-progress", "--out", tmp_path / "x.mcap", cwd=tmp_path)
+    time.sleep(0.15)  # still importing
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and err == "", (proc.returncode, err)
+
+
+# ------------------------------------------------------------------------------------ inputs
+def test_a_fifo_as_scenario_is_refused_at_once(tmp_path):
+    fifo = tmp_path / "pipe.scenario.toml"
+    os.mkfifo(fifo)
+    started = time.monotonic()
+    proc = start("run", fifo, "--no-progress", cwd=tmp_path)
+    _, err = proc.communicate(timeout=30)
+    assert time.monotonic() - started < 5.0
+    assert proc.returncode == 2 and err.strip() == f"hydroplant: error: {fifo}: scenario file is a FIFO (named pipe), not a regular file"
+
+
+@pytest.mark.parametrize("which", ["circuit", "csv", "include"])
+def test_a_fifo_among_the_inputs_is_refused_without_blocking(scene, capsys, which):
+    target = {"circuit": scene / "boom.circuit.toml", "csv": scene / "inputs.csv", "include": scene.parent / "shared" / "visual.xml"}[which]
+    if which == "csv":
+        scenario = scene / SCENARIO
+        scenario.write_text('inputs_csv = "inputs.csv"\n' + scenario.read_text())
+    else:
+        target.unlink()
+    os.mkfifo(target)
+    code, _, err = hydroplant("run", scene / SCENARIO, *SHORT, "--out", scene.parent / "x.mcap", capsys=capsys)
+    assert code == 2 and len(err) == 1 and f"{target}" in err[0] and "FIFO" in err[0], err
+
+
+def test_devices_loops_nul_bytes_huge_and_non_utf8_files_are_one_line(scene, capsys, tmp_path):
+    loop = tmp_path / "loop.toml"
+    loop.symlink_to(tmp_path / "loop2.toml")
+    (tmp_path / "loop2.toml").symlink_to(loop)
+    big = tmp_path / "big.scenario.toml"
+    with open(big, "wb") as f:
+        f.truncate(MAX_INPUT_BYTES + 1)  # sparse: no disk used
+    nul = tmp_path / "nul.scenario.toml"
+    nul.write_bytes((scene / SCENARIO).read_bytes().replace(b"[run]", b"[run]\0"))
+    latin = tmp_path / "latin.scenario.toml"
+    latin.write_bytes((scene / SCENARIO).read_bytes() + b"# \xe9t\xe9\n")
+    for path, expected in [("/dev/zero", "/dev/zero: scenario file is a character device, not a regular file"),
+                           (loop, f"{loop}: scenario file: symbolic link loop"),
+                           (big, f"{big}: scenario file is {MAX_INPUT_BYTES + 1} B; at most {MAX_INPUT_BYTES} B (64 MiB)"),
+                           (nul, f"{nul}: scenario file holds a NUL byte at byte"),
+                           (latin, f"{latin}: scenario file is not UTF-8 text")]:
+        code, _, err = hydroplant("run", path, *SHORT, capsys=capsys)
+        assert code == 2 and len(err) == 1 and expected in err[0], (path, err)
+    with pytest.raises(CircuitError, match="NUL byte"):
+        read_text("a\0b", "scenario")
+
+
+def test_mjcf_includes_outside_the_scene_are_attached_to_the_log(scene, capsys, tmp_path):
+    out = tmp_path / "run.mcap"
+    code, stdout, err = hydroplant("run", scene / SCENARIO, *SHORT, "--out", out, capsys=capsys)
+    assert code == 0 and not err
+    log = read_log(out)
+    assert log.attachments["../shared/visual.xml"] == (scene.parent / "shared" / "visual.xml").read_bytes()
+    assert log.attachments["boom.xml"] == (scene / "boom.xml").read_bytes()
+    assert list(log.attachments)[-1] == "boom.xml"  # the MJCF itself last (compare's scene identity)
+    assert set(log.attachments) == {"scenario.toml", "circuit.toml", "../shared/visual.xml", "boom.xml"}
+
+
+@pytest.mark.parametrize("value", ["nan", "inf"])
+def test_nan_or_inf_mass_in_the_mjcf_is_one_line(scene, capsys, value):
+    mjcf = scene / "boom.xml"
+    mjcf.write_text(mjcf.read_text().replace('mass="150"', f'mass="{value}"'))
+    refused(scene, capsys, "--out", scene.parent / "x.mcap", expected="body 'boom', <inertial> mass")
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (("--dt", "5e-324"), "field 'run.dt': 5e-324 is not in [1e-09, 1] s"),
+    (("--dt", "2"), "field 'run.dt': 2.0 is not in [1e-09, 1] s"),
+    (("--dt", "1e-3", "--duration", "5e-4"), "field 'run.duration': 0.0005 s is shorter than one step (dt = 0.001 s)"),
+])
+def test_step_sizes_and_durations_out_of_range(scene, capsys, argv, expected):
+    before = user_files(scene)
+    code, _, err = hydroplant("run", scene / SCENARIO, "--no-progress", "--out", scene.parent / "x.mcap", *argv, capsys=capsys)
+    assert code == 2 and len(err) == 1 and expected in err[0], err
+    assert user_files(scene) == before
+
+
+@pytest.mark.parametrize("old, new, expected", [
+    ("[log]\nrate_hz = 100", "[log]\nrate_hz = 5e-324", "field 'rate_hz': 5e-324 is not a number in [1e-06, 1000000000.0]"),
+    ("[log]\nrate_hz = 100", "[log]\nrate_hz = 1e300", "field 'rate_hz': 1e+300 is not a number in [1e-06, 1000000000.0]"),
+    ("dt = 0.001 ", "dt = 5e-324 ", "field 'dt': 5e-324 is not a number in [1e-09, 1.0]"),
+    ("value = [0.0] }   # spool", "value = [5.0] }   # spool",
+     "field 'inputs.boom_valve': value 5.0 at t = 0.0 s is outside the valve command range [-1, 1] of 'boom_valve'"),
+    ("value = [0.0] }   # spool", "value = [1e300] }   # spool", "outside the valve command range [-1, 1]"),
+    ("value = [0.0] }   # spool", "value = [true] }   # spool", "'value' must be an array of numbers (not true/false"),
+    ("value = [40.0] }", "value = [-40.0] }",
+     "field 'inputs.pump': value -40.0 at t = 0.0 s is outside the pump speed range [0, 1000] rev/s of 'pump'"),
+    ("value = [40.0] }", "value = [1e6] }", "outside the pump speed range [0, 1000] rev/s"),
+    ("value = [40.0] }", "value = [nan] }", "NaN or inf in the schedule"),
+])
+def test_scenario_values_out_of_range(scene, capsys, old, new, expected):
+    scenario = scene / SCENARIO
+    text = scenario.read_text()
+    assert text.count(old) == 1
+    scenario.write_text(text.replace(old, new))
+    line = refused(scene, capsys, "--out", scene.parent / "x.mcap", expected=expected)
+    assert str(scenario) in line
+
+
+# ------------------------------------------------------------------------------------ caches
+def square(point):
+    marker = Path(point["markers"]) / f"{point['x']}-{time.perf_counter_ns()}"
+    marker.touch()
+    if point.get("fail"):
+        return {"status": "error", "message": "a failure the function caught"}
+    return {"y": point["x"] ** 2}
+
+
+def test_a_planted_sweep_cache_entry_is_rejected_and_recomputed(tmp_path):
+    from sim.tools.sweep import point_key, run_sweep
+
+    markers, cache = tmp_path / "markers", tmp_path / "cache"
+    markers.mkdir()
+    point = {"x": 3, "markers": str(markers)}
+    cache.mkdir()
+    planted = cache / f"{point_key(point, square)}.json"
+    planted.write_text(json.dumps({"point": point, "result": {"y": 1000}}))  # the old layout, right key
+    assert run_sweep(square, [point], workers=1, cache_dir=cache) == [{"y": 9}]
+    assert len(list(markers.iterdir())) == 1
+    entry = json.loads(planted.read_text())
+    entry["result"] = {"y": 1000}  # a forged result without a matching digest
+    planted.write_text(json.dumps(entry))
+    assert run_sweep(square, [point], workers=1, cache_dir=cache) == [{"y": 9}]
+    assert len(list(markers.iterdir())) == 2
+    assert run_sweep(square, [point], workers=1, cache_dir=cache) == [{"y": 9}]  # a genuine entry is used
+    assert len(list(markers.iterdir())) == 2
+    assert run_sweep(square, [point], workers=1, cache_dir=cache, fresh=True) == [{"y": 9}]  # --fresh
+    assert len(list(markers.iterdir())) == 3
+
+
+def test_failed_sweep_points_are_not_cached(tmp_path):
+    from sim.tools.sweep import run_sweep
+
+    markers, cache = tmp_path / "markers", tmp_path / "cache"
+    markers.mkdir()
+    point = {"x": 1, "markers": str(markers), "fail": True}
+    for n in (1, 2):
+        assert run_sweep(square, [point], workers=1, cache_dir=cache)[0]["status"] == "error"
+        assert len(list(markers.iterdir())) == n
+    assert not list(cache.glob("*.json"))
+
+
+def test_a_planted_reference_is_rejected_and_recomputed(tmp_path):
+    from sim.io.scenario import load_scenario
+    from sim.tools.reference import Tolerance, compute_reference
+
+    scenario = load_scenario(MODELS / "seed_cylinder" / "closed.scenario.toml").with_overrides(duration=0.01)
+    tol, cache = Tolerance(relative=0.02), tmp_path / "cache"
+    first = compute_reference(scenario, tolerance=tol, cache_dir=cache, start_dt=1 / 4800)
+    info_path = first.log_path.parent / "reference.json"
+    info = json.loads(info_path.read_text())
+    info["dt"] = 1.0  # a planted value
+    info_path.write_text(json.dumps(info))
+    again = compute_reference(scenario, tolerance=tol, cache_dir=cache, start_dt=1 / 4800)
+    assert not again.cached and again.dt == first.dt
+    assert compute_reference(scenario, tolerance=tol, cache_dir=cache, start_dt=1 / 4800).cached
+
+
+def test_tradeoff_at_a_closed_scheduler_port_is_one_line(capsys):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # closed once the socket is
+    code, _, err = hydroplant("tradeoff", MODELS / "seed_cylinder" / "closed.scenario.toml", "--scheduler",
+                              f"tcp://127.0.0.1:{port}", "--quick", capsys=capsys)
+    assert code == 2 and len(err) == 1 and f"--scheduler tcp://127.0.0.1:{port}: no Dask scheduler reachable" in err[0]
+
+
+def test_fresh_flags_exist_on_tradeoff_and_compare():
+    parser = cli.build_parser()
+    assert parser.parse_args(["tradeoff", "x.toml", "--fresh"]).fresh
+    assert parser.parse_args(["compare", "x.toml", "--fresh"]).fresh
