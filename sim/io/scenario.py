@@ -435,5 +435,5 @@ def check_input_ranges(scenario: Scenario, circuit) -> None:
             i = int(bad[0])
             kind = "pump speed" if unit else "valve command"
             _error(f"{scenario.path}, field 'inputs.{name}'",
-                   f"value {schedule.value[i]!r} at t = {schedule.t[i]!r} s is outside the {kind} range "
+                   f"value {float(schedule.value[i])!r} at t = {float(schedule.t[i])!r} s is outside the {kind} range "
                    f"[{low:g}, {high:g}]{' ' + unit if unit else ''} of '{name}' in {scenario.circuit}")
