@@ -16,8 +16,8 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from sim.io.log_schemas import _step_log_times
 from sim.io.mcap_log import (
-    _step_log_times,
     FRAME_TRANSFORMS,
     Column,
     LogLevel,

@@ -13,7 +13,7 @@ Groups (each group's kernels depend on each other, so one group is one process):
 ``mujoco``
     :class:`~sim.plants.mujoco_fast.MujocoPlantFast` on the excavator (the control callback; the
     same kernel serves the implicit, implicit-linear and rosenbrock couplings), a logged run
-    (``mcap_log._fill_records``), and the per-step :class:`~sim.plants.mujoco.MujocoPlant` with the
+    (``log_writer._fill_records``), and the per-step :class:`~sim.plants.mujoco.MujocoPlant` with the
     compiled stepper (``_compiled._step_kernel``, ``_linearize_kernel``).
 ``pbd``
     :class:`~sim.plants.pbd.PbdPlant` on the excavator: the block path (``xpbd/block_nb``, with the
