@@ -33,7 +33,8 @@ import numpy as np
 from hydraulics.equilibrium import constrained_inverse_inertia
 from hydraulics.equilibrium import holding_efforts as solve_holding
 
-EQUALITY_TOLERANCE = 1e-9  # m (connect) or rad (weld): a start pose closer than this to the constraints is on them
+EQUALITY_TOLERANCE = 1e-6  # m (connect) or rad (weld): a start pose the free joints cannot bring closer is refused
+PROJECTION_TARGET = 1e-12  # m or rad: the projection stops below this violation
 PROJECTION_ITERATIONS = 50  # Gauss-Newton iterations of project_pose
 HOLDING_RESIDUAL_WARN = 1e-6  # relative residual of the static balance above which the start is not in equilibrium
 
@@ -127,7 +128,7 @@ def project_pose(m, qpos, qvel, held, *, where: str = ""):
     for _ in range(PROJECTION_ITERATIONS):
         _forward(m, d, q)
         G, r, names = equality_rows(m, d)
-        if not len(r) or np.max(np.abs(r)) < EQUALITY_TOLERANCE:
+        if not len(r) or np.max(np.abs(r)) < PROJECTION_TARGET:
             break
         step = np.zeros(m.nv)
         step[free] = -np.linalg.lstsq(G[:, free], r, rcond=None)[0]

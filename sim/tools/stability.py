@@ -442,10 +442,15 @@ def _step(before, after, at) -> dict:
 
 
 def end_stop_pose(scene, facts: SceneFacts, gap_time: float):
-    """qpos, qvel (dicts by joint name) that put every limited cylinder v_full·gap_time short of its extended stop, moving at v_full."""
+    """qpos, qvel (dicts by joint name) that put every limited cylinder v_full·gap_time short of its extended stop, moving at v_full.
+
+    Gauss–Newton on the cylinder extensions together with the MJCF's equality constraints
+    (loop closures, :func:`sim.plants.constraints.equality_rows`), so the pose and the
+    velocities stay on the closed loops.
+    """
     import mujoco
 
-    from sim.run.guards import actuator_moments
+    from sim.plants.constraints import actuator_moments, equality_rows
     from sim.io.scene import initial_qpos_qvel
 
     m = scene.mjmodel
@@ -461,14 +466,17 @@ def end_stop_pose(scene, facts: SceneFacts, gap_time: float):
         mujoco.mj_forward(m, d)
         x = d.actuator_length[ids[rows]] - scene.binding.closed_length[rows]
         J = actuator_moments(m, d, ids)[rows]
+        G, violation, _ = equality_rows(m, d)
         error = target - x
-        if np.max(np.abs(error), initial=0.0) < 1e-9:
+        if max(np.max(np.abs(error), initial=0.0), np.max(np.abs(violation), initial=0.0)) < 1e-9:
             break
-        mujoco.mj_integratePos(m, d.qpos, np.linalg.lstsq(J, error, rcond=None)[0], 1.0)
+        step = np.linalg.lstsq(np.vstack([J, G]), np.r_[error, -violation], rcond=None)[0]
+        mujoco.mj_integratePos(m, d.qpos, step, 1.0)
     mujoco.mj_forward(m, d)
     J = actuator_moments(m, d, ids)[rows]
+    G, _, _ = equality_rows(m, d)
     speed = np.array([facts.full_speed[net.actuator_names[a]] for a in rows])
-    qvel = np.linalg.lstsq(J, speed, rcond=None)[0] if len(rows) else np.zeros(m.nv)
+    qvel = np.linalg.lstsq(np.vstack([J, G]), np.r_[speed, np.zeros(len(G))], rcond=None)[0] if len(rows) else np.zeros(m.nv)
     names_q, names_v = {}, {}
     for j in range(m.njnt):
         name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j)
@@ -480,7 +488,7 @@ def end_stop_pose(scene, facts: SceneFacts, gap_time: float):
 
 def write_variant(facts: SceneFacts, config: Config, directory) -> Path:
     """Write the circuit, MJCF (if changed) and scenario of ``config`` into ``directory``; returns the scenario path."""
-    directory = Path(directory)
+    directory = Path(directory).resolve()  # the variant's scenario names its files by absolute path
     directory.mkdir(parents=True, exist_ok=True)
     base = Path(facts.scenario)
     scenario = tomllib.loads(base.read_text())
@@ -503,7 +511,7 @@ def write_variant(facts: SceneFacts, config: Config, directory) -> Path:
             component["time_constant"] = 0.0
     circuit_path = directory / Path(facts.circuit).name
     circuit_path.write_text(dump_toml(circuit))
-    mjcf_path = Path(facts.mjcf)
+    mjcf_path = Path(facts.mjcf).resolve()
     if config.mass_scale != 1.0:
         mjcf_path = directory / Path(facts.mjcf).name
         scale_mjcf_masses(Path(facts.mjcf), mjcf_path, config.mass_scale)
@@ -1040,7 +1048,7 @@ def stability_map(scenario, *, grid: Grid = DEFAULT_GRID, out_dir=None, schedule
     facts = scene_facts(scenario_path, grid)
     if out_dir is None:
         out_dir = Path("logs") / f"stability-{facts.scene}-{scenario_path.name.removesuffix('.toml').removesuffix('.scenario')}"
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     points, configs = build_points(facts, grid, out_dir)
     for p in points:
