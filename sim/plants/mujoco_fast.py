@@ -79,14 +79,16 @@ n coupled steps and returns the last step's :class:`StepReport` (``success``,
 ``message``, ``status``; Newton counters of the last step); ``step()`` is
 ``advance(1)``; after each call ``net_state``, ``effort``, ``theta``,
 ``energy``, ``control``, ``last_report``, ``step_index`` and ``time`` describe
-the same instant; ``net_state`` (its arrays), ``effort``, ``theta``, ``last_report`` and the pressure
-extremes are replaced by new objects by each compiled ``advance``, never written into (the runner's snapshot of a block keeps
+the same instant; ``net_state`` (its arrays), ``effort``, ``theta``, ``last_report`` and the pressure and
+actuator-coordinate extremes are replaced by new objects by each compiled ``advance``, never written into (the runner's snapshot of a block keeps
 them by reference), while ``control``'s arrays are updated in place.  The constructor takes ``coupling`` (as
 :class:`MujocoPlant`) to override the scenario's coupling.  New: ``node_pressure_max`` / ``node_pressure_min`` [Pa], the
 running extremes of every successful step's end pressures since
 :meth:`reset` (initial pressures included; the runner folds them into its
 peaks, so they cover every step, not only the logged ones; assigning them is
-allowed, :meth:`advance` continues from the assigned values); module-level
+allowed, :meth:`advance` continues from the assigned values), and in the same way
+``actuator_position_max`` / ``actuator_position_min`` [m | rad] of the actuator coordinates
+(the plausibility monitor's stroke check per block, :mod:`sim.run.monitor`); module-level
 :func:`scratch_size`, ``CTX_SYMBOL``, ``SOLVEM_SYMBOL``, ``MODE_*``.
 
 **Global state / limitations**
@@ -152,9 +154,9 @@ except ImportError:  # pragma: no cover
     P_XSTART, P_VSTART, P_CONST, P_SLOPE, P_THETA, P_MEFF, P_EFFORT, P_FLOW, P_PASSIVE_SAVED, P_FS, P_QUAD,
     P_WORK, P_SCRATCH, P_ISTATS, P_PMAX, P_PMIN, C_LINEAR,
     C_NQ, C_NBODY, C_REC_ROWS, C_REC_EVERY, C_REC_FIRST, C_REC_COUNT, C_REC_BAD, C_END_FINITE, C_REC_WIDTH,
-    P_QPOS, P_BXPOS, P_BXQUAT, P_ENERGY, P_REC, P_OIL_CHANGE,
+    P_QPOS, P_BXPOS, P_BXQUAT, P_ENERGY, P_REC, P_OIL_CHANGE, P_XMAX, P_XMIN,
     NCTX,
-) = range(81)
+) = range(83)
 
 # float scalars (P_FS): step, residual of the last step, ledger terms
 FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD = range(8)  # ledger: C._account's order
@@ -254,7 +256,7 @@ def _vi64(ctx, slot, n):
     return carray(_pi64(ctx[slot]), (n,))
 
 
-_Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W', 'istats', 'cmd', 'speed', 'oil', 'pres', 'spool', 'pos', 'vel', 'flow', 'const', 'slope', 'effort', 'quad', 'passive_saved', 'constraint', 'passive', 'act', 'closed', 'length', 'avel', 'meff', 'theta', 'ctrl', 'bias', 'rowadr', 'rownnz', 'colind', 'moment', 'pmax', 'pmin', 'oil_change'))
+_Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W', 'istats', 'cmd', 'speed', 'oil', 'pres', 'spool', 'pos', 'vel', 'flow', 'const', 'slope', 'effort', 'quad', 'passive_saved', 'constraint', 'passive', 'act', 'closed', 'length', 'avel', 'meff', 'theta', 'ctrl', 'bias', 'rowadr', 'rownnz', 'colind', 'moment', 'pmax', 'pmin', 'oil_change', 'xmax', 'xmin'))
 
 
 @_jit
@@ -267,7 +269,7 @@ def _views(ctx):
     nnz = 0
     for a in range(nu):
         nnz = max(nnz, rowadr[a] + rownnz[a])
-    return _Views(_vf(ctx, P_FS, NFS), _mf(ctx, P_J, na, nv), _mf(ctx, P_MINVJ, na, nv), _vf(ctx, P_QVEL, nv), _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na), _vf(ctx, P_SCRATCH, ctx[C_NS]), _vf(ctx, P_WORK, ctx[C_NW]), _vi64(ctx, P_ISTATS, 6), _mf(ctx, P_CMD, ctx[C_ROWS], nvalve), _mf(ctx, P_SPEED, ctx[C_ROWS], npump), _vf(ctx, P_OIL, n), _vf(ctx, P_PRESSURE, n), _vf(ctx, P_SPOOL, nvalve), _vf(ctx, P_XPOS, na), _vf(ctx, P_XVEL, na), _vf(ctx, P_FLOW, nb), _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na), _vf(ctx, P_EFFORT, na), _vf(ctx, P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, P_PASSIVE_SAVED, nv), _vf(ctx, P_CONSTRAINT, nv), _vf(ctx, P_PASSIVE, nv), _vi64(ctx, P_ACT, na), _vf(ctx, P_CLOSED, na), _vf(ctx, P_LENGTH, nu), _vf(ctx, P_AVEL, nu), _vf(ctx, P_MEFF, na), _vf(ctx, P_THETA, na), _vf(ctx, P_CTRL, nu), _vf(ctx, P_BIASPRM, nu * ctx[C_NBIAS]), _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu), _vi32(ctx, P_COLIND, nnz), _vf(ctx, P_MOMENT, nnz), _vf(ctx, P_PMAX, n), _vf(ctx, P_PMIN, n), _vf(ctx, P_OIL_CHANGE, n))
+    return _Views(_vf(ctx, P_FS, NFS), _mf(ctx, P_J, na, nv), _mf(ctx, P_MINVJ, na, nv), _vf(ctx, P_QVEL, nv), _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na), _vf(ctx, P_SCRATCH, ctx[C_NS]), _vf(ctx, P_WORK, ctx[C_NW]), _vi64(ctx, P_ISTATS, 6), _mf(ctx, P_CMD, ctx[C_ROWS], nvalve), _mf(ctx, P_SPEED, ctx[C_ROWS], npump), _vf(ctx, P_OIL, n), _vf(ctx, P_PRESSURE, n), _vf(ctx, P_SPOOL, nvalve), _vf(ctx, P_XPOS, na), _vf(ctx, P_XVEL, na), _vf(ctx, P_FLOW, nb), _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na), _vf(ctx, P_EFFORT, na), _vf(ctx, P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, P_PASSIVE_SAVED, nv), _vf(ctx, P_CONSTRAINT, nv), _vf(ctx, P_PASSIVE, nv), _vi64(ctx, P_ACT, na), _vf(ctx, P_CLOSED, na), _vf(ctx, P_LENGTH, nu), _vf(ctx, P_AVEL, nu), _vf(ctx, P_MEFF, na), _vf(ctx, P_THETA, na), _vf(ctx, P_CTRL, nu), _vf(ctx, P_BIASPRM, nu * ctx[C_NBIAS]), _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu), _vi32(ctx, P_COLIND, nnz), _vf(ctx, P_MOMENT, nnz), _vf(ctx, P_PMAX, n), _vf(ctx, P_PMIN, n), _vf(ctx, P_OIL_CHANGE, n), _vf(ctx, P_XMAX, na), _vf(ctx, P_XMIN, na))
 
 
 @_kernel
@@ -365,7 +367,7 @@ def _finish_pending(ctx, pnet, V):
     if status != ST_OK:
         ctx[C_FAILED] = k
     else:  # the step's oil change (NetworkState.node_oil_change), running extremes of the end-of-step pressures
-        oil_change = V.oil_change
+        oil_change = V.oil_change  # and actuator coordinates
         for i in range(n):
             oil_change[i] = oil[i] - mstart[i]
         pmax, pmin = V.pmax, V.pmin
@@ -374,6 +376,12 @@ def _finish_pending(ctx, pnet, V):
                 pmax[i] = pres[i]
             if pres[i] < pmin[i]:
                 pmin[i] = pres[i]
+        xmax, xmin = V.xmax, V.xmin
+        for i in range(na):
+            if pos[i] > xmax[i]:
+                xmax[i] = pos[i]
+            if pos[i] < xmin[i]:
+                xmin[i] = pos[i]
     # applied effort: law(v⁺)
     const, slope, effort = V.const, V.slope, V.effort
     for i in range(na):
@@ -660,6 +668,7 @@ class MujocoPlantFast(MujocoPlant):
         self._scratch = np.zeros(scratch_size(na, n, len(net.branch_names), len(net.valve_names)))
         self._istats = np.zeros(6, np.int64)
         self._pmax, self._pmin = np.zeros(n), np.zeros(n)
+        self._xmax, self._xmin = np.zeros(na), np.zeros(na)
         self._fs = np.zeros(NFS)
         self._fs[FS_DT] = self.dt
         self._quad = potential_quadrature()
@@ -686,7 +695,7 @@ class MujocoPlantFast(MujocoPlant):
             P_XSTART: self._xs, P_VSTART: self._vs, P_CONST: self._const, P_SLOPE: self._slope, P_THETA: self._theta,
             P_MEFF: self._meff, P_EFFORT: self._effort, P_FLOW: self._flow, P_PASSIVE_SAVED: self._passive, P_FS: self._fs,
             P_QUAD: self._quad, P_WORK: self._work, P_SCRATCH: self._scratch, P_ISTATS: self._istats,
-            P_PMAX: self._pmax, P_PMIN: self._pmin, P_OIL_CHANGE: self._oil_change, P_QPOS: d.qpos, P_BXPOS: d.xpos, P_BXQUAT: d.xquat, P_ENERGY: d.energy,
+            P_PMAX: self._pmax, P_PMIN: self._pmin, P_XMAX: self._xmax, P_XMIN: self._xmin, P_OIL_CHANGE: self._oil_change, P_QPOS: d.qpos, P_BXPOS: d.xpos, P_BXQUAT: d.xquat, P_ENERGY: d.energy,
         }
         for a in (d.qpos, d.xpos, d.xquat, d.energy):
             assert a.flags.c_contiguous and a.dtype == np.float64
@@ -699,10 +708,10 @@ class MujocoPlantFast(MujocoPlant):
         callback()
 
     def reset(self) -> None:
-        """As :meth:`MujocoPlant.reset`; the running pressure extremes restart from the initial pressures."""
+        """As :meth:`MujocoPlant.reset`; the running pressure and actuator-coordinate extremes restart from the
+        initial state (:meth:`PlantBase.reset_extremes`)."""
         super().reset()
-        self.node_pressure_max = self.net_state.node_pressure.copy()
-        self.node_pressure_min = self.net_state.node_pressure.copy()
+        self.reset_extremes()
 
     # ------------------------------------------------------------------ inputs
     def _sample_inputs(self, n):
@@ -820,6 +829,8 @@ class MujocoPlantFast(MujocoPlant):
                     break
                 self.node_pressure_max = np.maximum(self.node_pressure_max, self.net_state.node_pressure)
                 self.node_pressure_min = np.minimum(self.node_pressure_min, self.net_state.node_pressure)
+                self.actuator_position_max = np.maximum(self.actuator_position_max, self.net_state.actuator_position)
+                self.actuator_position_min = np.minimum(self.actuator_position_min, self.net_state.actuator_position)
                 if self.recorded < rows and self.step_index % every == 0:
                     self.record_row(record[self.recorded])
                     self.recorded += 1
@@ -835,6 +846,8 @@ class MujocoPlantFast(MujocoPlant):
         self._v[:] = state.actuator_velocity
         self._pmax[:] = self.node_pressure_max
         self._pmin[:] = self.node_pressure_min
+        self._xmax[:] = self.actuator_position_max
+        self._xmin[:] = self.actuator_position_min
         e = self.energy
         fs = self._fs
         fs[FS_PUMP], fs[FS_MOTOR], fs[FS_DISS_H] = e.pump_work, e.motor_work, e.dissipated_hydraulic
@@ -878,6 +891,8 @@ class MujocoPlantFast(MujocoPlant):
         self.theta = self._theta.copy()
         self.node_pressure_max = self._pmax.copy()
         self.node_pressure_min = self._pmin.copy()
+        self.actuator_position_max = self._xmax.copy()
+        self.actuator_position_min = self._xmin.copy()
         report = StepReport(newton_iterations=newton, rhs_evaluations=rhs, jacobian_evaluations=jac,
                             residual=float(fs[FS_NORM]), branch_flow=self._flow.copy())
         names = self.network.node_names

@@ -13,7 +13,8 @@ the per-frame path calls from Python:
    substep of the block beforehand: rows ``k·substeps .. (k+1)·substeps − 1`` of ``cmd``/``speed``);
 4. the network time (+ h per successful substep), body time (+ dt), the hinge-unwrapping hint
    (``compiled.qpos_qvel`` with the previous hint), the mechanical ledger (work of the efforts minus
-   Δ(kinetic + potential), ``compiled.energies``) and the running node-pressure extremes.
+   Δ(kinetic + potential), ``compiled.energies``) and the running extremes of the node pressures
+   (``pmax``/``pmin`` [Pa]) and actuator coordinates (``xmax``/``xmin`` [m | rad]).
 
 The block stops after a frame whose hydraulic step failed (as ``advance`` stops at the first
 failed step), and before a frame the compiled frame does not cover (singular mass matrix, a
@@ -53,7 +54,7 @@ BLOCK_OK, BLOCK_SINGULAR, BLOCK_INELIGIBLE = 0, 1, 2
 
 def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
            F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, flow,
-           bx, bq, bv, bw, hint, clock, pmax, pmin,
+           bx, bq, bv, bw, hint, clock, pmax, pmin, xmax, xmin,
            root, from_root_quat, from_root_pos, Xg, Qg, Vg, Wg,
            IM, II, GI, gravity, jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff, rg, rvec,
            c_group, c_plane, c_plane_group, c_local, c_radius, c_origin, c_normal, margin, c_out, c_eligible,
@@ -122,6 +123,9 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
         for i in range(pres.size):
             pmax[i] = max(pmax[i], pres[i])
             pmin[i] = min(pmin[i], pres[i])
+        for i in range(pos.size):
+            xmax[i] = max(xmax[i], pos[i])
+            xmin[i] = min(xmin[i], pos[i])
         if rec[3] < rows and k < nframe - 1 and (first_step + k + 1) % every == 0:
             last = (k + 1) * substeps - 1
             if not _record_row(record[rec[3]], pres, qpos, qvel, rq, rd, oil, pos, vel, effort, theta, cmd[last], spool,

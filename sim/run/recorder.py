@@ -352,8 +352,9 @@ class RunRecorder:
         """Compute the logged fields of the pending samples, vectorised over them; None when none are pending.
 
         Returns the batch's energy terms as arrays over its samples (``step``,
-        ``kinetic``, ``potential``, ``oil``, ``residual``, ``pump_work`` [J]), for
-        checks before :meth:`push` (e.g. the runner's energy-growth check).
+        ``kinetic``, ``potential``, ``oil``, ``residual``, ``pump_work`` [J]) and the
+        ``actuator_position`` [m | rad] and scalar ``joint_position`` [rad | m] rows, for
+        checks before :meth:`push` (the runner's energy-growth check and plausibility monitor).
         """
         k = self._pending
         if k == 0:
@@ -410,8 +411,9 @@ class RunRecorder:
         s[:, 2] = np.minimum(theta.min(axis=1), 1.0) if theta.shape[1] else 1.0
         rows[:, block["solver"]] = s
         self._derived = k
+        jp = block["joints"].start
         return {"step": self._raw_steps[:k], "kinetic": kinetic, "potential": potential, "oil": oil_energy,
-                "residual": residual, "pump_work": pump_work}
+                "residual": residual, "pump_work": pump_work, "actuator_position": x, "joint_position": rows[:, jp:jp + self._nj]}
 
     def push(self, count: int | None = None) -> None:
         """Write the first ``count`` derived samples (all by default) to the log and empty the ring.

@@ -58,6 +58,7 @@ from hydraulics.components import CircuitError
 from sim.run.guards import check_plant
 from sim.io.files import PARTIAL_SUFFIX, check_output, free_path, read_bytes
 from sim.io.mcap_log import LogLevel, LogWriter
+from sim.run.monitor import RunMonitor, Violation
 from sim.run.recorder import RunRecorder
 from sim.io.scenario import Scenario, load_scenario
 from sim.io.scene import load_scene
@@ -173,10 +174,13 @@ class _NonFinite:
 
 _NONFINITE = _NonFinite()
 
+# Verdicts of _Loop.block_checks
+_GO_ON, _REPLAY, _STOP = "go on", "replay", "stop"
 
-# Per-step node pressure extremes [Pa] a plant may keep over its blocks (running max / min of the
-# end-of-step pressures of every successful step, initial state included); used when present.
-_PLANT_EXTREMES = ("node_pressure_max", "node_pressure_min")
+
+# Per-step extremes a plant may keep over its blocks (running max / min of the end-of-step node pressures [Pa] and
+# actuator coordinates [m | rad] of every successful step, initial state included); used when present.
+_PLANT_EXTREMES = ("node_pressure_max", "node_pressure_min", "actuator_position_max", "actuator_position_min")
 
 
 @dataclass
@@ -437,6 +441,18 @@ class _Loop:
         over every step when the plant keeps them (``node_pressure_max`` /
         ``node_pressure_min``), else from the state at each block end, i.e. at
         the log rate.
+
+    The plausibility monitor (:class:`sim.run.monitor.RunMonitor`, scenario
+    ``[monitor] enabled``, ``hydroplant run --no-monitor``) checks the state at
+    t = 0; pressures and strokes after every step on the per-step path and,
+    on the block path, the plant's per-step extremes at each block end (a
+    block whose extremes leave a bound is replayed step by step like a failed
+    one, so the violation is reported at its step); energy residual, strokes
+    and joint ranges on every batch of logged samples (:meth:`drain`); equality
+    constraints per logged sample on the per-step path and per block end on
+    the block path.  A violation stops the run (status ``diverged``, the log
+    marked with ``check = "plausibility"``) or, with the monitor off, is
+    written once per component and quantity as a warning event.
     """
 
     def __init__(self, plant, recorder: RunRecorder, log: LogWriter, scenario: Scenario, progress: bool):
@@ -455,11 +471,29 @@ class _Loop:
         self.start = _time.perf_counter()
         self.last_progress = self.start
         self.sample: dict = {}
-        self.log_sample()
+        self.monitor = RunMonitor(plant, enforce=getattr(scenario, "monitor", True))
+        if not self.monitor.enforce:
+            recorder.event(0, LogLevel.WARNING, "plausibility monitor off (hydroplant run --no-monitor, or [monitor] "
+                           "enabled = false): a state beyond its bounds is written as a warning and the run goes on")
+        self.running = self.first_sample()
+
+    def first_sample(self) -> bool:
+        """The sample at t = 0 and the monitor's checks of that state; False when the run must stop there."""
+        plant, monitor = self.plant, self.monitor
+        found = monitor.check_start(plant)  # (before the sample's energy terms, NaN then, are checked)
+        if found is not None and not self.accept(found):
+            return False
+        if not self.log_sample():
+            return False
+        state = plant.net_state
+        found = monitor.check_state(plant.time, state.node_pressure, state.actuator_position)
+        return self.accept(found or monitor.check_constraints(plant.time), capture=False)
 
     # ----------------------------------------------------------------- drivers
     def per_step(self) -> None:
         plant = self.plant
+        if not self.running:
+            return
         for _ in range(self.steps):
             if not self.after_step(plant.step()):
                 return
@@ -490,6 +524,8 @@ class _Loop:
 
     def blocks(self) -> None:
         plant, recorder, steps, every = self.plant, self.recorder, self.steps, self.every
+        if not self.running:
+            return
         snapshot = _Snapshot(plant)
         while plant.step_index < steps:
             k = plant.step_index
@@ -514,13 +550,16 @@ class _Loop:
                         finite = recorder.captured_finite()
                     else:
                         due, finite = recorder.due, plant.end_finite  # (plant.finite(), from the compiled loop)
-                    if finite:
+                    verdict = self.block_checks(captured) if finite else _REPLAY
+                    if verdict == _GO_ON:
                         if not self.per_step_extremes:
                             self.track_block()
                         if due and not self.drain():
                             return
                         self.show_progress()
                         continue
+                    if verdict == _STOP:
+                        return
                     recorder.discard(rows + captured)
             if n == 1:  # a one-step block is its own replay
                 if not self.after_step(report):
@@ -544,12 +583,64 @@ class _Loop:
         if not report.success or not plant.finite():
             self.diverged(report)
             return False
-        p = plant.net_state.node_pressure
+        state = plant.net_state
+        p = state.node_pressure
         np.maximum(self.peak, p, out=self.peak)
         np.minimum(self.low, p, out=self.low)
+        if not self.accept(self.monitor.check_state(plant.time, p, state.actuator_position)):
+            return False
         if plant.step_index % self.every == 0 or plant.step_index == self.steps:
-            return self.log_sample()
+            return self.log_sample() and self.accept(self.monitor.check_constraints(plant.time), capture=False)
         return True
+
+    def block_checks(self, captured: bool) -> str:
+        """The monitor's checks after a successful block: ``_GO_ON``, ``_REPLAY`` (the plant's per-step extremes
+        left a bound: replay the block step by step to find the step) or ``_STOP`` (the run stopped here)."""
+        plant, monitor = self.plant, self.monitor
+        if self.per_step_extremes:
+            if not monitor.extremes_within(plant):
+                if monitor.enforce:
+                    return _REPLAY
+                self.accept(monitor.check_extremes(plant.time, plant))  # (warns)
+        else:
+            state = plant.net_state
+            if not self.accept(monitor.check_state(plant.time, state.node_pressure, state.actuator_position), capture=not captured):
+                return _STOP
+        if not self.accept(monitor.check_constraints(plant.time), capture=not captured):
+            return _STOP
+        return _GO_ON
+
+    def accept(self, violation: Violation | None, *, capture: bool = True) -> bool:
+        """True when the run goes on: no violation, or the monitor is off (a new kind of violation is then
+        written as a warning event); else the run stops here (:meth:`implausible`, with a sample of the current
+        state unless ``capture`` is False because it is logged already)."""
+        monitor = self.monitor
+        if monitor.accept(violation):
+            if monitor.new_warning is not None:
+                step = int(round(violation.time / self.plant.dt))
+                self.recorder.event(step, LogLevel.WARNING, f"plausibility (monitor off, the run goes on): {violation.message}")
+            return True
+        self.implausible(violation, capture=capture)
+        return False
+
+    def implausible(self, violation: Violation, *, capture: bool = True) -> None:
+        """Stop the run at the plant's current step for a monitor violation: the log ends with this step's
+        sample, marked ``diverged`` with ``check = "plausibility"``."""
+        plant = self.plant
+        if not self.drain():  # an earlier sample still in the ring stops the run there
+            return
+        if capture:
+            self.recorder.capture(plant.step_index)
+        self.drain(check=False)
+        self.stop(violation, plant.step_index)
+
+    def stop(self, violation: Violation, step: int) -> None:
+        """Mark the run stopped by the monitor at ``step`` (its log already ends there)."""
+        self.status, self.stop_step = "diverged", step
+        self.message = f"{violation.message}; stopped by the plausibility monitor (hydroplant run --no-monitor goes on)"
+        self.recorder.event(step, LogLevel.ERROR, "implausible: " + self.message)
+        self.log.mark("diverged", time_s=repr(step * self.plant.dt), component=violation.component, message=self.message,
+                      check="plausibility", quantity=violation.quantity)
 
     def track_block(self) -> None:
         plant = self.plant
@@ -582,10 +673,12 @@ class _Loop:
         return True
 
     def drain(self, check: bool = True) -> bool:
-        """Derive and write the captured samples, checking energy growth on each; False when the run diverged.
+        """Derive and write the captured samples, checking energy growth and the monitor's per-sample bounds
+        (energy residual, strokes, joint ranges) on each; False when the run diverged.
 
-        The first sample whose mechanical + oil energy grew beyond what the pumps put in
-        stops the run: the log ends with that sample, marked ``diverged`` at its time.
+        The first sample whose mechanical + oil energy grew beyond what the pumps put in, or
+        that leaves a bound of the monitor, stops the run: the log ends with that sample,
+        marked ``diverged`` at its time.
         """
         plant, recorder = self.plant, self.recorder
         batch = recorder.derive()
@@ -600,6 +693,14 @@ class _Loop:
             if len(over):
                 bad = int(over[0])
                 step, gain, pump_work = int(batch["step"][bad]), float(gained[bad]), float(batch["pump_work"][bad])
+        found = self.monitor.check_batch(batch, plant.dt, plant.energy.initial_total) if check else None
+        if found is not None and self.monitor.enforce and (bad is None or found[0] < bad):
+            recorder.push(found[0] + 1)
+            self.sample = recorder.last
+            self.stop(found[1], int(self.sample["step"]))
+            return False
+        if found is not None and bad is None:
+            self.accept(found[1])  # the monitor is off: a warning
         recorder.push(None if bad is None else bad + 1)
         self.sample = recorder.last
         if bad is None:

@@ -1,0 +1,211 @@
+"""The plausibility monitor (sim.run.monitor): wrong runs stop with the time, the component and the quantity;
+right runs complete; ``--no-monitor`` goes on with warnings in the log."""
+
+import re
+import shutil
+
+import pytest
+
+from conftest import MODELS
+from sim.cli import main
+from sim.io.examples import example_path, examples
+from sim.io.mcap_log import read_log
+from sim.io.scenario import ScenarioError, load_scenario
+from sim.run import monitor as M
+from sim.run.runner import run
+
+BOOM = MODELS / "boom"
+
+
+def _boom_copy(tmp_path, *, circuit=None, mjcf=None, scenario: str):
+    """The boom scene copied into tmp_path with its circuit / MJCF text replaced and a scenario written."""
+    for f in BOOM.iterdir():
+        if f.is_file():
+            shutil.copy(f, tmp_path / f.name)
+    if circuit is not None:
+        (tmp_path / "boom.circuit.toml").write_text(circuit)
+    if mjcf is not None:
+        (tmp_path / "boom.xml").write_text(mjcf)
+    path = tmp_path / "test.scenario.toml"
+    path.write_text('[scene]\nmjcf = "boom.xml"\ncircuit = "boom.circuit.toml"\n' + scenario)
+    return path
+
+
+def _circuit_without(name: str, *, reverse: bool = False) -> str:
+    """The boom circuit with component ``name`` deleted, or with its two ports swapped (``reverse``)."""
+    blocks = (BOOM / "boom.circuit.toml").read_text().split("[[component]]")
+    out = [blocks[0]]
+    for block in blocks[1:]:
+        if f'name = "{name}"' in block:
+            if not reverse:
+                continue
+            block = block.replace('ports = { inlet = "supply", outlet = "tank" }', 'ports = { inlet = "tank", outlet = "supply" }')
+        out.append(block)
+    return "[[component]]".join(out)
+
+
+# the boom driven against its end stop: the pump's whole flow must go somewhere (the pump starts at 0.1 s, so the
+# equilibrium start, which knows no pump flow, is the same with and without the relief)
+END_STOP = """[run]
+dt = 0.001
+duration = 2.0
+[initial]
+qpos = { boom_hinge = 0.7 }
+[inputs]
+boom_valve = { t = [0.0, 0.1, 0.2], value = [0.0, 0.0, 1.0] }
+pump = { t = [0.0, 0.1, 0.2], value = [0.0, 0.0, 40.0] }
+"""
+
+
+def _result_record(result):
+    return read_log(result.log_path).metadata["hydroplant.result"]
+
+
+@pytest.mark.parametrize("reverse", [False, True], ids=["relief deleted", "relief reversed"])
+@pytest.mark.parametrize("mode", ["mujoco", "pbd"])
+def test_a_circuit_without_its_relief_stops_on_pressure(tmp_path, mode, reverse):
+    """Dead-headed at the end stop, the pump raises the supply to the bound (no relief: NO_RELIEF_PRESSURE_LIMIT;
+    reversed: 2 x (200 bar + 10 %) + ambient = 441.013 bar); the run stops there, exit status 3, the node named."""
+    scenario = END_STOP.replace("[run]\n", f'[run]\nmode = "{mode}"\n')
+    path = _boom_copy(tmp_path, circuit=_circuit_without("relief", reverse=reverse), scenario=scenario)
+    bound = M.NO_RELIEF_PRESSURE_LIMIT if not reverse else 2.0 * 1.1 * 2.0e7 + 1.01325e5
+    result = run(path, out=tmp_path / "run.mcap")
+    assert result.status == "diverged"
+    match = re.match(r"t = ([0-9.]+) s, node '(\w+)': pressure ([0-9.]+) bar above its bound ([0-9.]+) bar", result.message)
+    assert match, result.message
+    assert match.group(2) in ("supply", "boom_valve_a", "boom_cyl_cap")  # the pump side of the closed circuit
+    assert float(match.group(3)) * 1e5 > bound and float(match.group(4)) == pytest.approx(bound / 1e5, rel=1e-6)
+    assert 0.2 < result.simulated_time < 2.0 and float(match.group(1)) == pytest.approx(result.simulated_time)
+    record = _result_record(result)
+    assert record["status"] == "diverged" and record["check"] == "plausibility" and record["quantity"] == "pressure"
+    assert float(record["time_s"]) == result.simulated_time
+    # the CLI: exit status 3, one line naming time, node, quantity
+    assert main(["run", str(path), "--out", str(tmp_path / "cli.mcap"), "--no-progress"]) == 3
+
+
+def test_the_block_path_finds_the_same_step_as_the_per_step_path(tmp_path):
+    """A block whose per-step pressure extremes leave the bound is replayed step by step: the fast MuJoCo plant
+    stops at the same step, node and log time as the per-step plant."""
+    path = _boom_copy(tmp_path, circuit=_circuit_without("relief"), scenario=END_STOP)
+    fast = run(path, out=tmp_path / "fast.mcap")
+    slow = run(path, out=tmp_path / "slow.mcap", fast=False)
+    assert fast.status == slow.status == "diverged"
+    assert fast.steps == slow.steps and fast.message.split(":")[0] == slow.message.split(":")[0]
+    assert read_log(fast.log_path).topic("/hydroplant/nodes").log_time[-1] == round(fast.simulated_time * 1e9)
+
+
+def test_no_monitor_goes_on_with_a_warning_event(tmp_path):
+    """--no-monitor: the same relief-less circuit runs to the end (exit 0), the log holds the warnings."""
+    path = _boom_copy(tmp_path, circuit=_circuit_without("relief"), scenario=END_STOP.replace("duration = 2.0", "duration = 0.5"))
+    out = tmp_path / "run.mcap"
+    assert main(["run", str(path), "--out", str(out), "--no-progress", "--no-monitor"]) == 0
+    log = read_log(out)
+    assert log.metadata["hydroplant.result"]["status"] == "complete"
+    events = [m["message"] for m in log.topic("/hydroplant/events").messages]
+    assert any(e.startswith("plausibility monitor off") for e in events)
+    assert any("plausibility (monitor off, the run goes on)" in e and "pressure" in e and "bar above its bound" in e
+               for e in events)
+
+
+def test_the_scenario_setting_and_its_errors(tmp_path):
+    path = _boom_copy(tmp_path, scenario=END_STOP + "[monitor]\nenabled = false\n")
+    assert load_scenario(path).monitor is False
+    path.write_text(path.read_text().replace("enabled = false", "enabled = 1"))
+    with pytest.raises(ScenarioError, match=r"\[monitor\].*'enabled'"):
+        load_scenario(path)
+
+
+# a 5 t load hanging from a vertical cylinder whose annulus is vented and that has no end stop
+HANGING_MJCF = """<mujoco model="hanging">
+  <option timestep="0.001" integrator="implicitfast" gravity="0 0 -9.81"/>
+  <worldbody>
+    <site name="barrel" pos="0 0 3"/>
+    <body name="load" pos="0 0 2">
+      <joint name="drop" type="slide" axis="0 0 1" limited="false"/>
+      <inertial pos="0 0 0" mass="5000" diaginertia="100 100 100"/>
+      <site name="rod" pos="0 0 0"/>
+    </body>
+  </worldbody>
+  <tendon>
+    <spatial name="boom_cyl" limited="false" range="0.5 1.5"><site site="barrel"/><site site="rod"/></spatial>
+  </tendon>
+  <actuator>
+    <general name="boom_cyl" tendon="boom_cyl" gaintype="fixed" gainprm="1" biastype="affine" biasprm="0 0 0"/>
+  </actuator>
+</mujoco>
+"""
+
+
+def test_a_load_falling_through_the_cylinder_stops_on_stroke(tmp_path):
+    """Explicit coupling, 5 t on a 1 m cylinder with its rod chamber vented and its valve closed: nothing holds the
+    load (the cap chamber cavitates), it falls freely from mid-stroke, x = 0.5 m + g·t²/2, and passes the bound
+    stroke + max(1 cm, 5 %) = 1.05 m at t = sqrt(2·0.55/9.81) = 0.335 s; the run stops there, naming the cylinder."""
+    circuit = (BOOM / "boom.circuit.toml").read_text()
+    circuit = circuit.replace("stroke = 0.40 ", "stroke = 1.0 ").replace('ports = { cap = "boom_cyl_cap", rod = "boom_cyl_rod" }',
+                                                                           'ports = { cap = "boom_cyl_cap", rod = "tank" }')
+    scenario = '[run]\ncoupling = "explicit"\ndt = 0.001\nduration = 1.0\n[initial]\nequilibrium = false\n[inputs]\npump = 40.0\n'
+    path = _boom_copy(tmp_path, circuit=circuit, mjcf=HANGING_MJCF, scenario=scenario)
+    result = run(path, out=tmp_path / "run.mcap")
+    assert result.status == "diverged"
+    assert re.match(r"t = 0\.3[34]\d* s, cylinder 'boom_cyl': stroke 1\.05\d* m beyond its extended end \(stroke 0 \.\. 1 m, "
+                    r"bound 1\.05 m", result.message), result.message
+    assert _result_record(result)["quantity"] == "stroke"
+
+
+@pytest.mark.parametrize("mode", ["mujoco", "pbd"])
+@pytest.mark.parametrize("speed", [20.0, 1e300])
+def test_a_huge_start_velocity_does_not_end_complete(tmp_path, mode, speed):
+    """The boom started at 20 rad/s slams its rod chamber past 441 bar within 2 ms; at 1e300 rad/s the kinetic energy
+    is infinite at t = 0: both stop, naming the node or the joint, in both modes."""
+    result = run(example_path("boom/lift"), out=tmp_path / "run.mcap",
+                 overrides={"mode": mode, "duration": 0.5, "qvel": {"boom_hinge": speed}})
+    assert result.status == "diverged" and _result_record(result)["check"] == "plausibility"
+    if speed == 20.0:
+        assert re.match(r"t = 0\.00[1-5] s, node 'boom_cyl_rod': pressure", result.message), result.message
+    else:
+        assert result.message.startswith("t = 0 s, joint 'boom_hinge': start energy inf J is not finite")
+
+
+def test_a_leftover_velocity_actuator_braking_the_boom_shows_in_the_residual(tmp_path, monkeypatch):
+    """A <velocity kv=2e5> actuator on the boom hinge the circuit does not drive, left acting (the scene loader's
+    zeroing of undriven actuators switched off): the lowering boom's potential energy goes into the brake, outside
+    every modelled loss, and the energy residual passes half the throughput; without the brake the same run's
+    residual stays below 1 % of it."""
+    import sim.io.scene
+
+    monkeypatch.setattr(sim.io.scene, "disable_unbound_actuators", lambda *args, **kwargs: None, raising=False)
+    mjcf = (BOOM / "boom.xml").read_text()
+    braked = mjcf.replace("</actuator>", '  <velocity name="brake" joint="boom_hinge" kv="200000"/>\n  </actuator>')
+    scenario = ("[run]\ndt = 0.001\nduration = 3.0\n[initial]\nqpos = { boom_hinge = 0.5 }\n[inputs]\n"
+                "boom_valve = { t = [0.0, 0.2, 0.4], value = [0.0, 0.0, -1.0] }\npump = 0.0\n")
+    free = run(_boom_copy(tmp_path, scenario=scenario), out=tmp_path / "free.mcap")
+    assert free.status == "complete" and abs(free.energy["residual"]) < 0.01 * abs(free.energy["delta"])
+    path = _boom_copy(tmp_path, mjcf=braked, scenario=scenario)
+    result = run(path, out=tmp_path / "braked.mcap")
+    assert result.status == "diverged"
+    assert re.match(r"t = [0-9.]+ s, energy balance: residual [0-9.e+]+ J beyond the bound", result.message), result.message
+    e = result.energy
+    assert e["residual"] > M.ENERGY_RESIDUAL_FRACTION * (e["pump_work"] + abs(e["delta"])) + M.ENERGY_RESIDUAL_FLOOR
+
+
+def test_a_loop_closure_pulled_apart_stops_on_the_equality(tmp_path):
+    """A soft connect (solref 0.5 s) holding the boom tip to the world: the lifting cylinder pulls it apart by more
+    than EQUALITY_TOLERANCE; the run stops naming the equality."""
+    mjcf = (BOOM / "boom.xml").read_text().replace(
+        "</tendon>", '</tendon>\n  <equality>\n    <connect name="tip_stay" body1="boom" anchor="2.5 0 0" solref="0.5 1"/>\n  </equality>')
+    scenario = ("[run]\ndt = 0.001\nduration = 2.0\n[initial]\nqpos = { boom_hinge = 0.0 }\n[inputs]\n"
+                "boom_valve = { t = [0.0, 0.1, 0.3], value = [0.0, 0.0, 1.0] }\npump = 40.0\n")
+    result = run(_boom_copy(tmp_path, mjcf=mjcf, scenario=scenario), out=tmp_path / "run.mcap")
+    assert result.status == "diverged"
+    match = re.match(r"t = [0-9.]+ s, equality 'tip_stay': violation ([0-9.]+) m beyond the tolerance 0.01 m", result.message)
+    assert match, result.message
+    assert float(match.group(1)) > M.EQUALITY_TOLERANCE and _result_record(result)["quantity"] == "violation"
+
+
+@pytest.mark.parametrize("mode", ["mujoco", "pbd"])
+@pytest.mark.parametrize("name", [name for name, _ in examples()])
+def test_every_shipped_scenario_completes(tmp_path, name, mode):
+    """Right runs stay within every bound: each example completes in both modes (the closed-cylinder benchmark,
+    whose scheme damps its unresolved oil column on purpose, has its monitor set to warn)."""
+    result = run(example_path(name), out=tmp_path / "run.mcap", overrides={"mode": mode})
+    assert result.status == "complete", result.message
