@@ -376,3 +376,19 @@ def test_fresh_flags_exist_on_tradeoff_and_compare():
     parser = cli.build_parser()
     assert parser.parse_args(["tradeoff", "x.toml", "--fresh"]).fresh
     assert parser.parse_args(["compare", "x.toml", "--fresh"]).fresh
+
+
+def test_a_full_disk_during_the_run_is_one_line_naming_the_log(scene, capsys, tmp_path, monkeypatch):
+    import errno
+
+    import sim.run.runner as runner
+
+    def full(log, *args):
+        log.path.with_name(log.path.name + ".partial").stat()  # the writer's file exists
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(runner, "_run_loop", full)
+    out = tmp_path / "full.mcap"
+    refused(scene, capsys, "--out", out, expected=f"{out}: cannot write the log (No space left on device); "
+            "the log written so far is finished and marked incomplete")
+    assert read_log(out).metadata["hydroplant.result"]["status"] == "incomplete"

@@ -247,6 +247,10 @@ def default_log_path(scenario: Scenario) -> Path:
 DEFAULT_NAME_TRIES = 100  # default log names tried when other runs take them at the same instant
 
 
+class LogWriteError(CircuitError):
+    """The log could not be written (a full disk, a folder that became read-only); the message names it."""
+
+
 class RunInterrupted(KeyboardInterrupt):
     """Ctrl-C (or SIGTERM / SIGHUP, see :mod:`sim.cli`) stopped a run; ``log_path`` is its finished log, marked incomplete."""
 
@@ -353,6 +357,13 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
             loop, wall = _run_loop(log, plant, scenario, guard, progress)
     except KeyboardInterrupt:
         raise RunInterrupted(log_path) from None
+    except OSError as exc:  # a full disk, a folder gone or made read-only during the run
+        partial = log_path.with_name(log_path.name + PARTIAL_SUFFIX)
+        if os.path.lexists(partial):
+            kept = f"; the data written so far is in {partial} ('hydroplant log recover {partial}' once the cause is fixed)"
+        else:
+            kept = "; the log written so far is finished and marked incomplete" if os.path.lexists(log_path) else ""
+        raise LogWriteError(f"{log_path}: cannot write the log ({exc.strerror or exc}){kept}") from None
     if progress and wall > PROGRESS_AFTER:
         print(file=sys.stderr)
     e = plant.energy
