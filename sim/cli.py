@@ -194,7 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Tool subcommands living in their own modules: each module has ``add_parser(subparsers)``,
 # which registers one subcommand whose ``func`` default is ``module.main(args) -> int``.
-TOOL_MODULES = ("sim.tools.inspect", "sim.tools.stability", "sim.tools.compare", "sim.tools.tradeoff", "sim.run.precompile")
+TOOL_MODULES = ("sim.tools.inspect", "sim.tools.check", "sim.tools.stability", "sim.tools.compare", "sim.tools.tradeoff", "sim.run.precompile")
 
 
 def _tool_modules():

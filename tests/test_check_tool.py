@@ -1,0 +1,53 @@
+"""``hydroplant check`` on the shipped scenes and the loop-closure test scenes: numbers and verdicts."""
+
+from __future__ import annotations
+
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+
+from sim import cli
+from sim.tools.check import check_scene
+
+SCENES = Path(__file__).parent / "scenes"
+
+
+def test_check_passes_on_every_shipped_scene_and_the_test_scenes(capsys):
+    code = cli.main(["check", "--examples", str(SCENES / "hold.scenario.toml"), str(SCENES / "hold_links.scenario.toml"),
+                     str(SCENES / "hlink.scenario.toml")])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert out.rstrip().endswith("all checks passed")
+    # the excavator's figures quoted in models/excavator/README.md
+    assert "boom_cyl: LMIN 1.9540 LMAX 3.2880 m (stroke 1.334 m) | start L = 2.8020 m (63.6 % stroke), dL/dboom = +0.7875 m" in out
+    assert "boom_cyl: F = +341.466 kN -> cap 151.0 bar gauge" in out
+
+
+def test_check_reports_the_loop_closure_and_the_same_numbers_with_pins_on_the_links():
+    barrel_rod, problems = check_scene(SCENES / "hold.scenario.toml")
+    links, _ = check_scene(SCENES / "hold_links.scenario.toml")
+    assert problems == 0
+    assert "equality rod_eye: violation 0.0998 at the set pose, 0 after projection" in barrel_rod
+    for text in (barrel_rod, links):  # the driving joint is the arm, whichever bodies carry the pins
+        assert "start L = 1.0270 m (69.3 % stroke), dL/darm_hinge = +0.8237 m" in text
+        assert "lift_cyl: F = +5.436 kN -> cap 10.8 bar gauge" in text
+        assert "valve 'lift_valve' +1 -> extends" in text
+
+
+def test_check_flags_a_joint_range_past_the_stroke_and_a_hold_beyond_the_relief(tmp_path, capsys):
+    for name in ("hold.scenario.toml", "loop.circuit.toml"):
+        shutil.copy(SCENES / name, tmp_path / name)
+    xml = (SCENES / "loop_arm.xml").read_text().replace('range="-0.22 0.25"', 'range="-0.5 0.8"')
+    (tmp_path / "loop_arm.xml").write_text(xml.replace('mass="100" diaginertia="1 1 1"', 'mass="8000" diaginertia="1 1 1"'))
+    text, problems = check_scene(tmp_path / "hold.scenario.toml")
+    assert problems >= 2
+    assert re.search(r"sweep arm_hinge \[-0.5000, \+0.8000\]: L in \[0.49\d\d, 1.53\d\d\] m OUTSIDE the stroke.*!!", text)
+    assert re.search(r"lift_cyl: F = \+\d+\.\d+ kN -> cap \d+\.\d bar gauge = \d+ % of relief 'relief' \(200 bar\)  !!", text)
+    assert cli.main(["check", str(tmp_path / "hold.scenario.toml")]) == 1
+
+
+def test_check_without_a_scenario_is_bad_input(capsys):
+    assert cli.main(["check"]) == 2
+    assert "check: give a SCENARIO file or --examples" in capsys.readouterr().err
