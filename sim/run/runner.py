@@ -483,6 +483,8 @@ class _Loop:
         self.last_progress = self.start
         self.sample: dict = {}
         self.monitor = RunMonitor(plant, enforce=getattr(scenario, "monitor", True))
+        self.last_event_step = 0
+        self.warnings: list = []  # (step, text) of the monitor's warnings not yet written (see accept)
         if not self.monitor.enforce:
             recorder.event(0, LogLevel.WARNING, "plausibility monitor off (hydroplant run --no-monitor, or [monitor] "
                            "enabled = false): a state beyond its bounds is written as a warning and the run goes on")
@@ -629,10 +631,30 @@ class _Loop:
         if monitor.accept(violation):
             if monitor.new_warning is not None:
                 step = int(round(violation.time / self.plant.dt))
-                self.recorder.event(step, LogLevel.WARNING, f"plausibility (monitor off, the run goes on): {violation.message}")
+                # written when the samples up to it are checked (drain): a run stopped at an earlier sample never saw it
+                self.warnings.append((step, f"plausibility (monitor off, the run goes on): {violation.message}"))
             return True
         self.implausible(violation, capture=capture)
         return False
+
+    def write_warnings(self, upto: int) -> None:
+        """Write the monitor's pending warnings at steps up to ``upto`` (the last logged sample); drop the later ones
+        when the run has stopped."""
+        keep = []
+        for step, text in sorted(self.warnings):
+            if step <= upto:
+                self.event(step, LogLevel.WARNING, text)
+            elif self.status == "complete":
+                keep.append((step, text))
+        self.warnings = keep
+
+    def event(self, step: int, level: LogLevel, text: str) -> None:
+        """An event at ``step``, or at the last event's step when that is later (events are written in step order;
+        a check of a batch of samples finds a violation at a sample before a warning the per-step checks wrote;
+        the text carries its own time)."""
+        step = max(int(step), self.last_event_step)
+        self.last_event_step = step
+        self.recorder.event(step, level, text)
 
     def implausible(self, violation: Violation, *, capture: bool = True) -> None:
         """Stop the run at the plant's current step for a monitor violation: the log ends with this step's
@@ -649,7 +671,7 @@ class _Loop:
         """Mark the run stopped by the monitor at ``step`` (its log already ends there)."""
         self.status, self.stop_step = "diverged", step
         self.message = f"{violation.message}; stopped by the plausibility monitor (hydroplant run --no-monitor goes on)"
-        self.recorder.event(step, LogLevel.ERROR, "implausible: " + self.message)
+        self.event(step, LogLevel.ERROR, "implausible: " + self.message)
         self.log.mark("diverged", time_s=repr(step * self.plant.dt), component=violation.component, message=self.message,
                       check="plausibility", quantity=violation.quantity)
 
@@ -674,7 +696,7 @@ class _Loop:
         self.message = f"t = {plant.time:.6g} s, {component}: {report.message or 'non-finite state'}"
         self.recorder.capture(plant.step_index)
         self.drain(check=False)
-        self.recorder.event(plant.step_index, LogLevel.ERROR, "diverged: " + self.message)
+        self.event(plant.step_index, LogLevel.ERROR, "diverged: " + self.message)
         self.log.mark("diverged", time_s=repr(plant.time), component=component, message=self.message)
 
     def log_sample(self) -> bool:
@@ -710,10 +732,11 @@ class _Loop:
             self.sample = recorder.last
             self.stop(found[1], int(self.sample["step"]))
             return False
-        if found is not None and bad is None:
+        if found is not None and (bad is None or found[0] <= bad):
             self.accept(found[1])  # the monitor is off: a warning
         recorder.push(None if bad is None else bad + 1)
         self.sample = recorder.last
+        self.write_warnings(int(self.sample["step"]) if self.sample else 0)
         if bad is None:
             return True
         time = step * plant.dt  # as plant.time
@@ -722,7 +745,7 @@ class _Loop:
             f"t = {time:.6g} s, energy growth: the machine gained {gain:.4g} J, more than the "
             f"{pump_work:.4g} J of pump work allows; the coupling is unstable at this step size"
         )
-        recorder.event(step, LogLevel.ERROR, "diverged: " + self.message)
+        self.event(step, LogLevel.ERROR, "diverged: " + self.message)
         self.log.mark("diverged", time_s=repr(time), component="coupling (energy growth)", message=self.message)
         return False
 
