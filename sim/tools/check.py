@@ -41,7 +41,7 @@ from hydraulics.network import ACTUATOR_CYLINDER
 from sim.io.scenario import ScenarioError
 
 SWEEP_POINTS = 101  # points of a joint-range sweep
-LENGTH_TOLERANCE = 1e-6  # m: L may reach LMIN/LMAX by this much in a sweep
+LENGTH_TOLERANCE = 1e-4  # m: L may pass LMIN/LMAX by this much in a sweep (ranges rounded in the MJCF)
 PROBE = 1e-5  # rad or m: joint perturbation that finds the driving joint
 
 
