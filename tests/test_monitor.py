@@ -83,10 +83,11 @@ def test_a_circuit_without_its_relief_stops_on_pressure(tmp_path, mode, reverse)
     assert main(["run", str(path), "--out", str(tmp_path / "cli.mcap"), "--no-progress"]) == 3
 
 
-def test_the_block_path_finds_the_same_step_as_the_per_step_path(tmp_path):
-    """A block whose per-step pressure extremes leave the bound is replayed step by step: the fast MuJoCo plant
-    stops at the same step, node and log time as the per-step plant."""
-    path = _boom_copy(tmp_path, circuit=_circuit_without("relief"), scenario=END_STOP)
+@pytest.mark.parametrize("mode", ["mujoco", "pbd"])
+def test_the_block_path_finds_the_same_step_as_the_per_step_path(tmp_path, mode):
+    """A block whose per-step pressure extremes leave the bound is replayed step by step: the block path (fast MuJoCo
+    plant, PBD compiled blocks) stops at the same step, node and log time as the per-step path."""
+    path = _boom_copy(tmp_path, circuit=_circuit_without("relief"), scenario=END_STOP.replace("[run]\n", f'[run]\nmode = "{mode}"\n'))
     fast = run(path, out=tmp_path / "fast.mcap")
     slow = run(path, out=tmp_path / "slow.mcap", fast=False)
     assert fast.status == slow.status == "diverged"
@@ -113,6 +114,43 @@ def test_the_scenario_setting_and_its_errors(tmp_path):
     path.write_text(path.read_text().replace("enabled = false", "enabled = 1"))
     with pytest.raises(ScenarioError, match=r"\[monitor\].*'enabled'"):
         load_scenario(path)
+
+
+@pytest.mark.parametrize("mode", ["mujoco", "pbd"])
+def test_a_joint_pushed_through_a_soft_limit_stops_on_its_range(tmp_path, mode):
+    """The boom's hinge limited to 0.5 rad by a soft limit (solreflimit 0.5 s) and its cylinder's end stop removed:
+    the cylinder's 200 bar push the hinge past 0.5 + JOINT_RANGE_TOLERANCE_HINGE = 0.55 rad, found at a logged
+    sample (100 Hz), the same in both modes."""
+    mjcf = (BOOM / "boom.xml").read_text()
+    mjcf = mjcf.replace('limited="true" range="-0.2448 0.7710"', 'limited="true" range="-0.2448 0.5" solreflimit="0.5 1"')
+    mjcf = mjcf.replace('limited="true" range="0.66 1.06"', 'limited="false" range="0.66 1.06"')
+    scenario = (f'[run]\nmode = "{mode}"\ndt = 0.001\nduration = 3.0\n[initial]\nqpos = {{ boom_hinge = 0.3 }}\n[inputs]\n'
+                "boom_valve = { t = [0.0, 0.1, 0.3], value = [0.0, 0.0, 1.0] }\npump = 40.0\n")
+    result = run(_boom_copy(tmp_path, mjcf=mjcf, scenario=scenario), out=tmp_path / "run.mcap")
+    assert result.status == "diverged"
+    match = re.match(r"t = ([0-9.]+) s, joint 'boom_hinge': position ([0-9.]+) rad outside its range -0.2448 .. 0.5 rad "
+                     r"\(bound 0.55 rad", result.message)
+    assert match, result.message
+    assert float(match.group(2)) > 0.55 and result.final_joints["boom_hinge"] == pytest.approx(float(match.group(2)), abs=1e-4)
+    assert round(float(match.group(1)) * 100) == pytest.approx(float(match.group(1)) * 100, abs=1e-9)  # a logged sample
+    assert result.final_strokes["boom_cyl"] < 0.4  # the stroke is still inside its ends
+
+
+def test_pbd_pin_errors_name_the_joint():
+    """PBD mode checks its own constraint errors: the boom body moved 0.1 m off its hinge pin reads as a pin error of
+    0.1 m on joint 'boom_hinge' (world position of the two anchors), beyond EQUALITY_TOLERANCE."""
+    from sim.io.scene import load_scene
+    from sim.run.runner import make_plant
+
+    plant = make_plant(load_scene(load_scenario(BOOM / "lift.scenario.toml").with_overrides(mode="pbd")))
+    monitor = M.RunMonitor(plant)
+    assert monitor.check_constraints(0.0) is None
+    boom = plant.xmodel.body_names.index("boom")
+    plant.state.x[boom] += (0.0, 0.06, 0.08)
+    found = monitor.check_constraints(0.25)
+    assert found.component == "joint 'boom_hinge'" and found.quantity == "violation"
+    assert found.value == pytest.approx(0.1, rel=1e-9)
+    assert found.message.startswith("t = 0.25 s, joint 'boom_hinge': violation 0.1 m beyond the tolerance 0.01 m")
 
 
 # a 5 t load hanging from a vertical cylinder whose annulus is vented and that has no end stop
