@@ -51,3 +51,11 @@ def test_check_flags_a_joint_range_past_the_stroke_and_a_hold_beyond_the_relief(
 def test_check_without_a_scenario_is_bad_input(capsys):
     assert cli.main(["check"]) == 2
     assert "check: give a SCENARIO file or --examples" in capsys.readouterr().err
+
+
+def test_check_grid_finds_the_worst_hold_over_the_joint_range():
+    text, problems = check_scene(SCENES / "hold.scenario.toml", grid=9)
+    assert problems == 0
+    line = next(l for l in text.splitlines() if l.startswith("    lift_cyl") and " at arm_hinge " in l)
+    # worst at the top of the arm's range: the extended-end hold of the sweep
+    assert line.startswith("    lift_cyl: F = +5.603 kN -> cap 11.1 bar gauge") and line.endswith("at arm_hinge +0.253")

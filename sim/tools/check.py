@@ -23,6 +23,7 @@ Example::
 
     hydroplant check models/excavator/dig.scenario.toml
     hydroplant check --examples            every shipped scene
+    hydroplant check --grid 15 SCENARIO    also the worst holding pressures over the joint ranges
 """
 
 from __future__ import annotations
@@ -67,13 +68,14 @@ class Checker:
     def equalities(self, qpos):
         return equality_rows(self.m, self.forward(qpos))
 
-    def pose(self, dof: int, value: float):
-        """The start pose with DOF ``dof`` at ``value`` and the loops closed by the loop DOFs (None if they cannot)."""
+    def pose(self, dof, value):
+        """The start pose with DOF(s) ``dof`` at ``value`` and the loops closed by the loop DOFs (None if they cannot)."""
         m = self.m
         q = self.q0.copy()
-        q[m.jnt_qposadr[m.dof_jntid[dof]]] = value
+        dofs, values = np.atleast_1d(dof), np.atleast_1d(value)
+        q[m.jnt_qposadr[m.dof_jntid[dofs]]] = values
         held = ~self.loop_dofs
-        held[dof] = True
+        held[dofs] = True
         try:
             q, _, _ = project_pose(m, q, np.zeros(m.nv), held)
         except ScenarioError:
@@ -188,8 +190,43 @@ def pressure_text(ck: Checker, a: int, effort: float) -> str:
     return f"{name}: F = {effort / 1e3:+.3f} kN -> {side} {p / 1e5:.1f} bar gauge{against}{flag}"
 
 
-def check_scene(scenario_path) -> tuple[str, int]:
-    """The check report of one scenario and its count of problems."""
+GRID_POSES_MAX = 20000  # poses of a --grid scan at most (fewer points per joint beyond)
+
+
+def worst_holding(ck: Checker, points: int) -> list:
+    """Highest static holding pressure of each cylinder over a grid of its driving joints' ranges (no contacts)."""
+    m, net = ck.m, ck.scene.network
+    ids = ck.scene.binding.actuator_id
+    dofs = sorted({d for a in range(net.actuator_count) if net.actuator_kind[a] == ACTUATOR_CYLINDER
+                   for d in [driving_joint(ck, a)[0]] if d is not None and m.jnt_limited[m.dof_jntid[d]]})
+    if not dofs:
+        return []
+    points = max(2, min(points, int(GRID_POSES_MAX ** (1.0 / len(dofs)))))
+    axes = [np.linspace(*m.jnt_range[m.dof_jntid[d]], points) for d in dofs]
+    worst, skipped = {}, 0
+    for values in np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(dofs)):
+        q = ck.pose(np.array(dofs), values)
+        if q is None or ck.forward(q).ncon:
+            skipped += 1
+            continue
+        effort, _ = holding_efforts(m, q, lambda d: actuator_moments(m, d, ids))
+        for a in range(net.actuator_count):
+            if net.actuator_kind[a] != ACTUATOR_CYLINDER:
+                continue
+            i = list(net.cylinder_actuator).index(a)
+            p = effort[a] / net.cylinder_cap_area[i] if effort[a] >= 0 else -effort[a] / net.cylinder_rod_area[i]
+            if p > worst.get(a, (-1.0,))[0]:
+                worst[a] = (p, float(effort[a]), values)
+    names = ", ".join(joint_name(m, d) for d in dofs)
+    out = [f"  worst holding over a {points}-point grid of {names} ({skipped} poses in contact or open skipped):"]
+    for a, (p, effort, values) in worst.items():
+        where = ", ".join(f"{joint_name(m, d)} {v:+.3f}" for d, v in zip(dofs, values))
+        out.append(f"    {pressure_text(ck, a, effort)} at {where}")
+    return out
+
+
+def check_scene(scenario_path, grid: int = 0) -> tuple[str, int]:
+    """The check report of one scenario and its count of problems (``grid``: points per joint of the worst-holding scan, 0 = off)."""
     ck = Checker(scenario_path)
     m, scene, net = ck.m, ck.scene, ck.scene.network
     out = [f"=== {ck.scenario.path} ({Path(ck.scenario.mjcf).name}: nq {m.nq}, nv {m.nv}, nu {m.nu}, "
@@ -267,6 +304,8 @@ def check_scene(scenario_path) -> tuple[str, int]:
         effort, residual = holding_efforts(m, q, lambda d: actuator_moments(m, d, ids))
         out.append(f"  holding at {label} (static balance residual {residual:.2g}{ck.note(residual < 1e-6)}):")
         out += [f"    {pressure_text(ck, a, float(effort[a]))}" for a in range(net.actuator_count)]
+    if grid:
+        out += worst_holding(ck, grid)
     # signs: gravity off, a positive effort alone extends the actuator
     gravity = m.opt.gravity.copy()
     m.opt.gravity[:] = 0.0
@@ -293,6 +332,8 @@ def add_parser(subparsers):
     parser = subparsers.add_parser("check", help="static checks of a scene: strokes, sweeps, holding pressures, signs, loop closures")
     parser.add_argument("scenario", type=Path, nargs="*", help="scenario TOML file(s)")
     parser.add_argument("--examples", action="store_true", help="check every shipped example scene")
+    parser.add_argument("--grid", type=int, default=0, metavar="N",
+                        help="also the worst holding pressure over an N-point grid of the cylinders' driving joints")
     parser.set_defaults(func=main)
 
 
@@ -302,7 +343,7 @@ def main(args) -> int:
         raise ScenarioError("check: give a SCENARIO file or --examples")
     problems = 0
     for path in paths:
-        text, count = check_scene(path)
+        text, count = check_scene(path, args.grid)
         print(text)
         problems += count
     print("\nall checks passed" if not problems else f"\n!! {problems} check(s) failed")
