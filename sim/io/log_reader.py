@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Schema as McapSchema
 from mcap.writer import CompressionType, Writer
@@ -277,7 +276,9 @@ class RunLog:
                     self.attachment_list.append((attachment.name, attachment.media_type, len(attachment.data)))
         except LogReadError:
             raise
-        except (McapError, EOFError, LookupError, ValueError, struct.error) as error:
+        except OSError:
+            raise
+        except Exception as error:  # noqa: BLE001 - a damaged summary: mcap's errors, parse errors
             raise LogReadError(f"{self.path}: not a finished, readable MCAP log ({type(error).__name__}: {error}); "
                                f"run 'hydroplant log recover {self.path}'") from None
         stats = summary.statistics
@@ -317,21 +318,17 @@ class RunLog:
                 for schema, channel, message in reader.iter_messages(topics=[name], log_time_order=True):
                     if channel.message_encoding != encoding:
                         if channel.message_encoding != "cdr" or schema is None or schema.encoding != "ros2msg" or datas:
-                            raise ValueError(f"topic {name!r} uses {channel.message_encoding!r}; json and cdr "
-                                             "(ros2msg) are supported, one per topic")
+                            raise LogReadError(f"{self.path}: topic {name!r} uses {channel.message_encoding!r}; json "
+                                               "and cdr (ros2msg) are supported, one per topic")
                         encoding, msg_type = "cdr", ros2msg_type(schema.name, schema.data.decode())
                     log_times.append(message.log_time)
                     datas.append(message.data)
-        except (McapError, EOFError, LookupError, struct.error) as error:
+        except LogReadError:
+            raise
+        except Exception as error:  # noqa: BLE001 - a damaged chunk: mcap's CRC error, zstd's or a parse error
             raise LogReadError(f"{self.path}: topic {name!r} cannot be read, the log is damaged "
                                f"({type(error).__name__}: {error}); 'hydroplant log recover {self.path}' keeps "
                                "every chunk that checks") from None
-        except Exception as error:  # zstandard raises its own ZstdError on a damaged chunk
-            if type(error).__module__.split(".")[0] not in ("zstandard", "lz4", "_lz4"):
-                raise
-            raise LogReadError(f"{self.path}: topic {name!r} cannot be read, a chunk does not decompress "
-                               f"({error}); 'hydroplant log recover {self.path}' keeps every chunk that "
-                               "checks") from None
         times = np.array(log_times, dtype=np.int64)
         if msg_type is not None:
             data = TopicData.from_cdr(name, msg_type, times, datas)
