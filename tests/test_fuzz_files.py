@@ -12,8 +12,9 @@ in-process (one step size, a few steps) under a wall-clock limit.  Mutations:
   or replaced by random bytes.
 
 Every case must end in exit 0 (a clean run), exit 3 (a run the divergence checks or the
-plausibility monitor stopped: a valid but absurd input) or exit 2 with exactly one line on stderr
-that names one of the scene's files; never a traceback, never past its time limit.  The cases are
+plausibility monitor stopped: a valid but absurd input, e.g. the seed scenario without its
+``[monitor] enabled = false``) or exit 2 with exactly one line on stderr that names the damaged
+file; never a traceback, never past its time limit.  The cases are
 drawn by hypothesis from a fixed seed (``derandomize``), so the battery is the same on every run;
 its size is bounded so that it takes well under a minute on one core.
 """
@@ -155,8 +156,7 @@ def run_case(folder, scene, target, operator, seed):
         return "clean", ""
     if code == 3 and not lines and "status" in out.getvalue():
         return "stopped", ""
-    names = [p.name for p in folder.iterdir()]
-    if code == 2 and len(lines) == 1 and lines[0].startswith("hydroplant: error: ") and any(n in lines[0] for n in names):
+    if code == 2 and len(lines) == 1 and lines[0].startswith("hydroplant: error: ") and path.name in lines[0]:
         return "error", lines[0]
     return "bad", f"exit {code}: {text!r}"
 
