@@ -153,3 +153,20 @@ def test_start_pose_contradicting_the_loop_is_refused_naming_the_equality():
     scenario = replace(load_scenario(HOLD), qpos={"arm_hinge": 0.1, "barrel_hinge": 0.3, "rod_slide": 0.0})
     with pytest.raises(ScenarioError, match=r"hold.scenario.toml, \[initial\]: equality 'rod_eye' is violated by .* at the start pose"):
         load_scene(scenario)
+
+
+def test_a_start_the_actuators_and_loops_cannot_hold_is_warned(tmp_path):
+    """Without the rod's pin the arm hangs on nothing: the static balance leaves 99 % of the load unheld."""
+    import re
+    import shutil
+
+    from sim.run.guards import check_plant
+
+    for name in ("hold.scenario.toml", "loop.circuit.toml"):
+        shutil.copy(SCENES / name, tmp_path / name)
+    (tmp_path / "loop_arm.xml").write_text(re.sub(r'<connect name="rod_eye"[^>]*/>', "", (SCENES / "loop_arm.xml").read_text()))
+    plant = MujocoPlant(load_scene(load_scenario(tmp_path / "hold.scenario.toml")))
+    assert plant.holding_residual == pytest.approx(0.992, abs=1e-3)
+    (warning,) = [w for w in check_plant(plant).warnings if "initial.equilibrium" in w]
+    assert warning.startswith(f"{tmp_path / 'hold.scenario.toml'}, field 'initial.equilibrium': the actuators and the MJCF's "
+                              "equality constraints cannot hold the start pose at rest (static balance residual 0.992 of the load)")

@@ -55,7 +55,7 @@ import numpy as np
 from hydraulics import laws
 from hydraulics.network import ACTUATOR_CYLINDER
 
-from sim.plants.constraints import actuator_moments, inverse_inertia
+from sim.plants.constraints import HOLDING_RESIDUAL_WARN, actuator_moments, inverse_inertia
 
 # Practical explicit limit on ω_h·dt with typical physical damping (seal friction, valve
 # flow gain); measured on the boom and excavator maps (docs/stability/), 0.1–0.2 in the literature.
@@ -409,7 +409,16 @@ def check_plant(plant) -> GuardReport:
     is not finite (:func:`check_initial_state`); otherwise it only warns.
     """
     check_initial_state(plant)
-    return check(plant.scene, plant.net_state)
+    report = check(plant.scene, plant.net_state)
+    residual = getattr(plant, "holding_residual", None)
+    if residual is not None and residual > HOLDING_RESIDUAL_WARN:
+        from dataclasses import replace
+
+        report = replace(report, warnings=report.warnings + (
+            f"{plant.scene.scenario.path}, field 'initial.equilibrium': the actuators and the MJCF's equality constraints cannot "
+            f"hold the start pose at rest (static balance residual {residual:.3g} of the load); the start is not in equilibrium: "
+            "check the pose and that every loaded joint is driven or closed by a loop",))
+    return report
 
 
 def check_scenario(scenario, *, overrides: dict | None = None) -> GuardReport:
