@@ -392,3 +392,18 @@ def test_a_full_disk_during_the_run_is_one_line_naming_the_log(scene, capsys, tm
     refused(scene, capsys, "--out", out, expected=f"{out}: cannot write the log (No space left on device); "
             "the log written so far is finished and marked incomplete")
     assert read_log(out).metadata["hydroplant.result"]["status"] == "incomplete"
+
+
+def test_cache_keys_cover_the_mjcf_includes(scene):
+    from sim.io.scenario import load_scenario
+    from sim.io.scene import input_paths
+    from sim.tools.reference import ReferenceSettings, reference_key
+    from sim.tools.tradeoff import sweep_points
+
+    scenario = load_scenario(scene / SCENARIO)
+    include = scene.parent / "shared" / "visual.xml"
+    assert include in input_paths(scenario)
+    key, files = reference_key(scenario, ReferenceSettings()), sweep_points(scenario, [{}], repeats=1)[0]["files"]
+    include.write_text(include.read_text().replace('offwidth="640"', 'offwidth="800"'))
+    assert reference_key(scenario, ReferenceSettings()) != key
+    assert sweep_points(scenario, [{}], repeats=1)[0]["files"] != files

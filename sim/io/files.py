@@ -86,7 +86,7 @@ def check_output(path, protected=(), *, overwrite: bool = False, what: str = "lo
         The kind of file, for the messages.
     """
     text = os.fspath(path)
-    if text in ("", "."):
+    if text == "":
         raise CircuitError(f"--out {text!r}: an empty file name; name the {what} file, e.g. logs/run.mcap")
     if "\0" in text:
         raise CircuitError(f"--out {text!r}: a file name may not hold a NUL byte")

@@ -134,6 +134,13 @@ def mjcf_files(path) -> list[MjcfFile]:
     return files
 
 
+def input_paths(scenario: Scenario) -> list[Path]:
+    """Every file a run of ``scenario`` reads: the MJCF, its includes and assets (:func:`mjcf_files`), the circuit,
+    the scenario and its inputs CSV if any -- e.g. for a content hash of everything a result depends on."""
+    paths = [f.path for f in mjcf_files(scenario.mjcf)] + [Path(scenario.circuit), Path(scenario.path)]
+    return paths + ([Path(scenario.inputs_csv)] if scenario.inputs_csv is not None else [])
+
+
 def check_masses(path: Path, root=None) -> None:
     """Reject negative, NaN or infinite masses and inertias in the MJCF text (MuJoCo's compiler silently zeroes some).
 

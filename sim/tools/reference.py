@@ -12,7 +12,7 @@ of the log period, so that every run logs at the same instants and no comparison
 interpolates.
 
 References are cached in ``cache_dir/<key>/`` (default ``.cache/references/``), ``key`` the
-SHA-256 of the MJCF, circuit and scenario file contents, the source code of ``hydraulics/``
+SHA-256 of the MJCF (with its includes and assets), circuit, scenario and inputs CSV contents, the source code of ``hydraulics/``
 and ``sim/`` (:func:`sim.tools.sweep.code_hash`), the effective run settings (duration, log rate,
 fidelity and its per-actuator overrides, initial state, inputs) and the reference settings;
 a cached reference is re-checked when it is loaded: its ``reference.json`` must hold that key,
@@ -49,6 +49,7 @@ from mcap.exceptions import McapError
 
 from hydraulics.files import read_text
 from sim.io.scenario import Scenario, ScenarioError, load_scenario
+from sim.io.scene import input_paths
 from sim.tools.sweep import code_hash, content_hash, entry_digest
 
 __all__ = [
@@ -384,7 +385,7 @@ def reference_key(scenario: Scenario, settings: ReferenceSettings) -> str:
     payload = {
         "version": REFERENCE_VERSION,
         "hydroplant": version(),
-        "files": content_hash(scenario.mjcf, scenario.circuit, scenario.path),
+        "files": content_hash(*input_paths(scenario)),  # MJCF (with includes and assets), circuit, scenario, CSV
         "code": code_hash(),  # the hydraulics/ and sim/ source: a code change recomputes the reference
         "scenario": _scenario_state(scenario),
         "settings": {k: v for k, v in asdict(settings).items() if not (k == "filter_window" and v is None)},

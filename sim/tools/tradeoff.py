@@ -204,7 +204,9 @@ def setting_label(p: dict, default_fidelity: str | None = None) -> str:
 
 def sweep_points(scenario, settings: list[dict], *, repeats: int) -> list[dict]:
     """Sweep points: the settings plus what their results depend on (file and code hashes, duration, repeats)."""
-    files = content_hash(scenario.mjcf, scenario.circuit, scenario.path)
+    from sim.io.scene import input_paths
+
+    files = content_hash(*input_paths(scenario))  # MJCF with its includes and assets, circuit, scenario, inputs CSV
     code = code_hash()
     return [{**setting, "fidelity": setting.get("fidelity", scenario.fidelity), "scenario_fidelity": scenario.fidelity,
              "scenario": str(scenario.path), "files": files, "code": code, "duration": scenario.duration,
