@@ -645,7 +645,8 @@ class Scan:
             return self.size
         opcode, length = RECORD_PREFIX.unpack_from(data, position)
         end = position + RECORD_PREFIX.size + length
-        name = Opcode(opcode).name.lower().replace("_", " ") if opcode in Opcode._value2member_map_ else "unknown record"
+        known = opcode in {int(o) for o in Opcode}
+        name = Opcode(opcode).name.lower().replace("_", " ") if known else "unknown record"
         if end == self.size or (end < self.size and self._record_at(end) is not None):  # its length is intact
             why = "does not parse"
             if opcode == Opcode.CHUNK:
@@ -657,7 +658,7 @@ class Scan:
             self.damage.append(Damage(position, end, f"{name}: {why}", lost if opcode == Opcode.CHUNK else 0))
             return end
         resume = self._next_chunk(position)
-        if resume == self.size and end > self.size and opcode in Opcode._value2member_map_:
+        if resume == self.size and end > self.size and known:
             self.damage.append(Damage(position, self.size, f"incomplete {name} record at the end of the file"))
         else:
             self.damage.append(Damage(position, resume, f"unreadable bytes ({name} opcode 0x{opcode:02x})"))
