@@ -407,3 +407,32 @@ def test_cache_keys_cover_the_mjcf_includes(scene):
     include.write_text(include.read_text().replace('offwidth="640"', 'offwidth="800"'))
     assert reference_key(scenario, ReferenceSettings()) != key
     assert sweep_points(scenario, [{}], repeats=1)[0]["files"] != files
+
+
+def tetrahedron_stl() -> bytes:
+    """A binary STL of a 0.1 m tetrahedron (4 facets)."""
+    import struct
+
+    v = [(0, 0, 0), (0.1, 0, 0), (0, 0.1, 0), (0, 0, 0.1)]
+    faces = [(0, 2, 1), (0, 1, 3), (0, 3, 2), (1, 2, 3)]
+    data = b"\0" * 80 + struct.pack("<I", len(faces))
+    for face in faces:
+        data += struct.pack("<3f", 0, 0, 0) + b"".join(struct.pack("<3f", *v[i]) for i in face) + b"\0\0"
+    return data
+
+
+def test_mesh_assets_are_read_safely_and_attached(scene, capsys, tmp_path):
+    mesh = scene.parent / "shared" / "tet.stl"
+    mesh.write_bytes(tetrahedron_stl())
+    mjcf = scene / "boom.xml"
+    text = mjcf.read_text().replace("  <worldbody>", '  <asset><mesh name="tet" file="../shared/tet.stl"/></asset>\n  <worldbody>', 1)
+    mjcf.write_text(text.replace('<body name="boom" pos="0 0 1.5">', '<body name="boom" pos="0 0 1.5">\n'
+                                 '      <geom type="mesh" mesh="tet" mass="0" contype="0" conaffinity="0"/>', 1))
+    out = tmp_path / "mesh.mcap"
+    code, _, err = hydroplant("run", scene / SCENARIO, *SHORT, "--out", out, capsys=capsys)
+    assert code == 0 and not err, err
+    assert read_log(out).attachments["../shared/tet.stl"] == mesh.read_bytes()
+    mesh.unlink()
+    os.mkfifo(mesh)  # a FIFO as the mesh: refused before MuJoCo opens it
+    code, _, err = hydroplant("run", scene / SCENARIO, *SHORT, "--out", tmp_path / "fifo.mcap", capsys=capsys)
+    assert code == 2 and len(err) == 1 and f"{mesh}: MJCF asset <mesh file>" in err[0] and "FIFO" in err[0], err
