@@ -307,8 +307,8 @@ def recover(partial_path: str | os.PathLike, out_path: str | os.PathLike, *,
                     result["end_time_s"] = repr(end_time / NS_PER_S)
                 writer.add_metadata(RESULT_METADATA, result)
                 writer.finish()
-            publish(tmp_path, out_path, overwrite)
         except BaseException:
             tmp_path.unlink(missing_ok=True)  # (ours, created above; the input is untouched)
             raise
+    publish(tmp_path, out_path, overwrite)  # (an output that appeared meanwhile is kept, and so is ours)
     return report
