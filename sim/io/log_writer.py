@@ -711,7 +711,10 @@ def _create_partial(path: Path, partial: Path, overwrite: bool) -> BinaryIO:
     except ImportError:  # pragma: no cover - not POSIX
         pass
     else:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held until the file is closed
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # held until the file is closed
+        except OSError:  # a file system without locks: O_EXCL alone keeps a second writer out
+            pass
     return os.fdopen(fd, "wb")
 
 
