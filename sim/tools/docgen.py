@@ -179,6 +179,9 @@ def scenario_keys() -> tuple:
          "most one per step)."),
         ("log", "tf_rate_hz", "Hz", closed(*sc.RATE_RANGE), "tf_rate_hz", "Samples per second of `/tf` (Foxglove's "
          "3D view), at most `rate_hz`."),
+        ("monitor", "enabled", "", "true, false", "monitor", "The plausibility monitor stops a run whose stroke, "
+         "pressure, energy residual, loop closures or joint ranges leave their bounds (exit status 3; see "
+         "`sim/run/monitor.py`); `false` (or `hydroplant run --no-monitor`) logs them as warnings and the run goes on."),
         ("fidelity", "default", "", "FIDELITIES", "fidelity", "Same as `[run] fidelity` (give one of the two)."),
         ("fidelity", "ACTUATOR", "", "FIDELITIES", None, "Fidelity level of one cylinder or motor, by name."),
     )
@@ -231,7 +234,7 @@ def scenario_reference() -> str:
         "",
         "## Scenario file (`*.scenario.toml`)",
         "",
-        "Top-level tables: `[scene]` (required), `[run]`, `[initial]`, `[inputs]`, `[log]`, `[fidelity]`, and the key",
+        "Top-level tables: `[scene]` (required), `[run]`, `[initial]`, `[inputs]`, `[log]`, `[monitor]`, `[fidelity]`, and the key",
         "`inputs_csv`. Command-line options of `hydroplant run` (`--mode`, `--coupling`, `--dt`, `--duration`,",
         "`--substeps`, `--pbd-substeps`, `--iterations`, `--pbd-blend`) override `[run]` and are checked alike.",
         "",
