@@ -1,7 +1,8 @@
 """Data safety: nothing a user has is overwritten or read unsafely, signals leave a finished log, caches are verified.
 
-Every test that runs a command hashes the scene's files (scenario, circuit, MJCF and any
-include) before and after it: no command changes what the user wrote.
+Every command run by these tests is checked not to change what the user wrote: the scene's
+files (scenario, circuit, MJCF, includes, assets) and the shipped models are hashed before and
+after it (:func:`hydroplant`, :func:`user_files`).
 """
 
 from __future__ import annotations
@@ -52,14 +53,29 @@ def user_files(folder: Path) -> dict:
     return {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
 
 
+def watched_files(argv) -> dict:
+    """SHA-256 of what a command must not change: the shipped models and the folders of the files it names
+    (with the scene fixture's shared folder), logs excepted."""
+    folders = {MODELS}
+    for arg in argv:
+        path = Path(arg) if isinstance(arg, Path) else None
+        if path is not None and path.is_file() and path.suffix != ".mcap":
+            folders |= {path.parent, path.parent.parent / "shared"}
+    files = sorted(p for folder in folders if folder.is_dir() for p in folder.rglob("*")
+                   if p.is_file() and p.suffix != ".mcap" and not p.name.endswith(".partial") and "__pycache__" not in p.parts)
+    return {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
+
+
 def hydroplant(*argv, capsys):
-    """(exit code, stdout, stderr lines) of an in-process ``hydroplant ARGV``."""
+    """(exit code, stdout, stderr lines) of an in-process ``hydroplant ARGV``; the user's files must not change."""
+    before = watched_files(argv)
     try:
         code = cli.main([str(a) for a in argv])
     except SystemExit as exc:
         code = exc.code
     out, err = capsys.readouterr()
     assert "Traceback" not in out + err
+    assert watched_files(argv) == before
     return code, out, [line for line in err.splitlines() if line.strip()]
 
 
