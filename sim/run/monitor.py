@@ -161,6 +161,7 @@ class RunMonitor:
         self.plant = plant
         self.enforce = bool(enforce)
         self.warned: set = set()
+        self.new_warning: Violation | None = None  # set by accept()
         net = plant.network
         self.network = net
         fluid = net.fluid

@@ -587,6 +587,11 @@ class _Loop:
                 for _ in range(n):
                     if not self.after_step(plant.advance(1)):
                         return
+            if report.success and not self.monitor.extremes_within(plant):
+                # (never: the replay repeats the steps whose extremes left a bound, and after_step checks each; should
+                # it not find the step, the run stops at the block's end rather than replaying every later block)
+                if not self.accept(self.monitor.check_extremes(plant.time, plant)):
+                    return
             self.show_progress()
 
     # ------------------------------------------------------------------ checks
