@@ -6,7 +6,6 @@ import re
 import shutil
 from pathlib import Path
 
-import pytest
 
 from sim import cli
 from sim.tools.check import check_scene

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import re
 import shutil
-from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -141,3 +140,20 @@ def test_loop_closure_scenes_run_to_the_end_holding_still(scenario, mode, tmp_pa
     plant = MujocoPlant(load_scene(load_scenario(scenario)))
     start = plant.net_state.node_pressure[plant.network.node(cap)]
     assert result.peak_pressure[cap] <= 1.02 * start and result.min_pressure[cap] >= 0.98 * start
+
+
+def test_equality_rows_are_the_same_from_sparse_and_dense_jacobians():
+    """Large models make MuJoCo store its constraint Jacobian sparse; the loop-closure rows must not change."""
+    from sim.plants.constraints import equality_rows
+
+    rows = []
+    for jacobian in (mujoco.mjtJacobian.mjJAC_DENSE, mujoco.mjtJacobian.mjJAC_SPARSE):
+        m = mujoco.MjModel.from_xml_path(str(SCENES / "hlink.xml"))
+        m.opt.jacobian = jacobian
+        d = mujoco.MjData(m)
+        d.qpos[m.joint("bucket_hinge").qposadr[0]] = 0.1
+        mujoco.mj_forward(m, d)
+        rows.append(equality_rows(m, d))
+    (G1, r1, n1), (G2, r2, n2) = rows
+    assert n1 == n2 == ("base_weld",) * 6 + ("hlink_pin",) * 3 + ("rod_eye",) * 3
+    assert np.array_equal(G1, G2) and np.array_equal(r1, r2) and np.max(np.abs(r1)) > 1e-3

@@ -34,12 +34,12 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from sim.io.examples import example_path, examples
-from sim.io.scenario import load_scenario
-from sim.io.scene import initial_qpos_qvel, load_scene
-from sim.plants.constraints import (actuator_moments, equality_rows, held_dofs, holding_efforts, project_pose)
 from hydraulics.network import ACTUATOR_CYLINDER
-from sim.io.scenario import ScenarioError
+
+from sim.io.examples import example_path, examples
+from sim.io.scenario import ScenarioError, load_scenario
+from sim.io.scene import initial_qpos_qvel, load_scene
+from sim.plants.constraints import actuator_moments, equality_rows, holding_efforts, project_pose
 
 SWEEP_POINTS = 101  # points of a joint-range sweep
 LENGTH_TOLERANCE = 1e-4  # m: L may pass LMIN/LMAX by this much in a sweep (ranges rounded in the MJCF)
