@@ -339,7 +339,7 @@ def validate_model(mjmodel: mujoco.MjModel, binding: Binding, scenario: Scenario
         held = f", held by weld '{_name(m, mujoco.mjtObj.mjOBJ_EQUALITY, welds[0])}'" if welds else ""
         out.append(
             f"{mjcf}: body '{body}' has free joint '{joint}'{held}: PBD mode then steps every body as free (no compiled "
-            "joint-space path, about 20x slower); " + ("delete the free joint and the weld so the body is fixed to the world"
+            "joint-space path, an order of magnitude slower); " + ("delete the free joint and the weld so the body is fixed to the world"
                                                        if welds else "fix the body to the world if it does not move")
         )
     if not (m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT):
