@@ -170,3 +170,30 @@ def test_a_start_the_actuators_and_loops_cannot_hold_is_warned(tmp_path):
     (warning,) = [w for w in check_plant(plant).warnings if "initial.equilibrium" in w]
     assert warning.startswith(f"{tmp_path / 'hold.scenario.toml'}, field 'initial.equilibrium': the actuators and the MJCF's "
                               "equality constraints cannot hold the start pose at rest (static balance residual 0.992 of the load)")
+
+
+def cap_pressure_range(plant, steps) -> tuple:
+    p = []
+    for _ in range(steps):
+        plant.step()
+        p.append(plant.net_state.node_pressure[plant.network.cylinder_cap_node[0]])
+    return min(p), max(p)
+
+
+def test_a_light_rod_near_its_retracted_end_is_warned_and_diverges_where_the_guard_says():
+    """Arm at −0.2 rad: x = 0.019 m, the stiff column rings the 60 kg rod at ω_local·dt = 2.12 > √2 and MuJoCo mode
+    diverges at 1 ms; at the advised dt (0.6 ms, ω_local·dt = 1.27) the start's ringing decays to its equilibrium pressure."""
+    plant = plant_for(HOLD, qpos={"arm_hinge": -0.2})
+    (warning,) = [w for w in guards.check(plant.scene, plant.net_state).warnings if "pins sit on bodies" in w]
+    assert "lift_cyl: its pins sit on bodies of 60 kg" in warning and "omega*dt = 2.12 > 1.41" in warning
+    advised = float(warning.split("use dt <= ")[1].split(" s")[0])
+    assert advised == pytest.approx(6.67e-4, rel=1e-2)
+    start = plant.net_state.node_pressure[plant.network.cylinder_cap_node[0]]
+    low, high = cap_pressure_range(plant, 500)
+    assert high > 10 * start  # the local mode blows up
+    stable = plant_for(HOLD, qpos={"arm_hinge": -0.2}, dt=6e-4)
+    low, high = cap_pressure_range(stable, 400)  # the pins' settling: a few % at first, decaying
+    assert 0.95 * start < low and high < 1.05 * start
+    low, high = cap_pressure_range(stable, 400)
+    assert 0.995 * start < low and high < 1.005 * start
+    assert not [w for w in guards.check(stable.scene, stable.net_state).warnings if "pins sit on bodies" in w]

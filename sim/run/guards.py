@@ -304,7 +304,7 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
                 f"dt <= {0.2 / omega:.3g} s resolves it"
             )
     if mode == "mujoco" and scene.mjmodel.neq and rows:
-        warnings += local_mode_warnings(scene, qpos, k, mass, dt)
+        warnings += local_mode_warnings(scene, qpos, k, mass, dt, net_state.actuator_position)
     limits = relief_limits(network, net_state)
     explicit_stepper = (mode == "pbd-naive") or (coupling == "explicit" and (scenario.stepper or "explicit_euler") == "explicit_euler")
     if explicit_stepper:
@@ -319,14 +319,15 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
     return GuardReport(mode, coupling, dt, tuple(rows), tuple(warnings), tuple(notes), tuple(limits))
 
 
-def local_mode_warnings(scene, qpos, stiffness, mass, dt) -> list:
+def local_mode_warnings(scene, qpos, stiffness, mass, dt, position) -> list:
     """Warnings for cylinders whose pins sit on light bodies held by MuJoCo's soft equalities (see ``LOCAL_MODE_OMEGA_DT``).
 
     With the barrel and rod modelled as bodies closed onto the links by ``connect``
     equalities, the oil column also acts on the rod body alone, held by the soft
     equality: a local mode of frequency ω_local = √(k/m_local), m_local the inertia
     the pins see with the equalities ignored.  MuJoCo mode keeps it stable while
-    ω_local·dt ≤ ``LOCAL_MODE_OMEGA_DT``.
+    ω_local·dt ≤ ``LOCAL_MODE_OMEGA_DT``.  ``position``: the actuator extensions [m or rad] the
+    stiffness was taken at (named in the warning).
     """
     local, _ = inertia_seen(scene.mjmodel, qpos, scene.binding.actuator_id, constrained=False)
     out = []
@@ -337,8 +338,8 @@ def local_mode_warnings(scene, qpos, stiffness, mass, dt) -> list:
         omega = math.sqrt(k / m_local)
         if omega * dt > LOCAL_MODE_OMEGA_DT:
             out.append(
-                f"{name}: its pins sit on bodies of {m_local:.4g} kg closed onto the links by equality constraints; the oil "
-                f"column rings them against MuJoCo's soft equality at {omega / (2 * math.pi):.4g} Hz, omega*dt = {omega * dt:.3g} "
+                f"{name}: its pins sit on bodies of {m_local:.4g} kg closed onto the links by equality constraints; at extension "
+                f"x = {float(position[a]):.4g} m the oil column rings them against MuJoCo's soft equality at {omega / (2 * math.pi):.4g} Hz, omega*dt = {omega * dt:.3g} "
                 f"> {LOCAL_MODE_OMEGA_DT:.3g}, which diverges in MuJoCo mode; use dt <= {LOCAL_MODE_OMEGA_DT / omega:.3g} s, "
                 "give the rod body its real mass, or put the tendon's sites on the links"
             )
