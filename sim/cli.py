@@ -175,8 +175,9 @@ def build_parser() -> argparse.ArgumentParser:
     log_sub = log.add_subparsers(dest="log_command", required=True, parser_class=_Parser)
     info = log_sub.add_parser("info", help="summary of a log; checks every chunk's CRC",
                               description="Summary of a log (metadata, status, topics, attachments). Every chunk is "
-                              "decompressed and its CRC checked unless --no-verify. Exit 0: a finished log whose "
-                              "chunks all check; 1: damaged or unfinished (see 'log recover'); 2: not an MCAP file.")
+                              "decompressed and its CRC checked unless --no-verify. Exit 0: no damage found (an "
+                              "unfinished log is marked UNFINISHED); 1: damaged (see 'log recover'); 2: not an MCAP "
+                              "file.")
     info.add_argument("log", type=Path)
     info.add_argument("--no-verify", action="store_true", help="do not decompress the chunks to check their CRCs")
     recover = log_sub.add_parser("recover", help="rebuild a valid MCAP from a cut or damaged log",
@@ -227,7 +228,7 @@ def _run(args) -> int:
 
 
 def _log(args) -> int:
-    """``log info`` (exit 0 intact, 1 damaged or unfinished) and ``log recover`` (exit 0 nothing skipped, 1 data
+    """``log info`` (exit 0 no damage found, 1 damaged) and ``log recover`` (exit 0 nothing skipped, 1 data
     skipped); a file that is not a readable MCAP log raises CircuitError (exit 2)."""
     from sim.io.mcap_log import inspect_log, recover
 

@@ -157,7 +157,7 @@ def test_sigkill_leaves_a_partial_file_that_recovers(tmp_path, capsys):
     assert main(["log", "info", str(partial)]) == 0
     assert "UNFINISHED" in capsys.readouterr().out
     recovered = tmp_path / "recovered.mcap"
-    assert main(["log", "recover", str(partial), str(recovered)]) == 0
+    assert main(["log", "recover", str(partial), str(recovered)]) in (0, 1)  # 1 when the cut chunk was skipped
     printed = capsys.readouterr().out
     assert f"recovered log: {recovered}" in printed
     assert_indexed(recovered)
@@ -168,7 +168,7 @@ def test_sigkill_leaves_a_partial_file_that_recovers(tmp_path, capsys):
     assert log.metadata["hydroplant.run"]["scene"] == "boom"
     assert_prefix_of_clean_run(log, tmp_path, "sigkill")
     # the default output name when none is given
-    assert main(["log", "recover", str(partial)]) == 0
+    assert main(["log", "recover", str(partial)]) in (0, 1)
     assert (tmp_path / "killed.recovered.mcap").is_file()
 
 
@@ -183,7 +183,7 @@ def logs(tmp_path_factory):
     data = complete.read_bytes()
     partial.write_bytes(data[: len(data) * 2 // 3])
     recovered = d / "recovered.mcap"
-    assert main(["log", "recover", str(partial), str(recovered)]) == 0
+    assert main(["log", "recover", str(partial), str(recovered)]) == 1  # the record cut in two is skipped
     return {"complete": complete, "diverged": diverged, "recovered": recovered}
 
 

@@ -177,7 +177,8 @@ def test_compare_on_a_damaged_log_is_one_line_exit_2(dig, tmp_path, capsys):
 
 def test_cut_logs_recover_the_chunks_before_the_cut(dig, tmp_path, capsys):
     """A log cut inside chunk k recovers the messages of chunks 0..k-1 exactly (exit 1: an incomplete record was
-    skipped); cut where a chunk starts, nothing is skipped (exit 0); an existing output is never replaced."""
+    skipped, and ``log info`` reports the damage: exit 1); cut where a chunk starts, nothing is skipped (exit 0,
+    ``log info`` says UNFINISHED: exit 0); an existing output is never replaced."""
     path, data, chunks, messages = dig
     for k in (1, 6, 10):
         start, length, _, _ = chunks[k]
@@ -189,7 +190,7 @@ def test_cut_logs_recover_the_chunks_before_the_cut(dig, tmp_path, capsys):
             assert main(["log", "recover", str(partial), str(out)]) == code
             assert _messages(out) == messages[:before]
             text, info_code = inspect_log(partial)
-            assert info_code == 1 and "UNFINISHED" in text
+            assert info_code == code and "UNFINISHED" in text
     kept = out.read_bytes()
     capsys.readouterr()
     assert main(["log", "recover", str(partial), str(out)]) == 2

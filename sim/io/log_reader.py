@@ -355,8 +355,9 @@ def log_info(path: str | os.PathLike, *, verify: bool = True) -> str:
 
 
 def inspect_log(path: str | os.PathLike, *, verify: bool = True) -> tuple[str, int]:
-    """Summary of a log and its state: ``(text, code)`` with code 0 for a finished log whose chunks all check, 1 for
-    a damaged or unfinished one.
+    """Summary of a log and its state: ``(text, code)`` with code 1 when the verification found damage (a chunk that
+    fails its CRC or does not decompress, unreadable bytes, an incomplete record at the end), else 0 (an unfinished
+    log without damage is summarised as such: 0).
 
     Parameters
     ----------
@@ -375,11 +376,12 @@ def inspect_log(path: str | os.PathLike, *, verify: bool = True) -> tuple[str, i
     try:
         log = RunLog(path)
     except LogReadError as error:
-        if check is not None and check.damage and not check.footer:
-            return "\n".join([f"{path}: UNFINISHED: no footer; run 'hydroplant log recover {path}'", *damage]), 1
         if check is None and "not an MCAP file" in str(error):
             raise
-        return "\n".join([f"{path}: UNFINISHED: {error}", *damage]), 1
+        code = 1 if check is not None and check.damage else 0
+        if check is not None and not check.footer:
+            return "\n".join([f"{path}: UNFINISHED: no footer; run 'hydroplant log recover {path}'", *damage]), code
+        return "\n".join([f"{path}: UNFINISHED: {error}", *damage]), code
     lines = [f"file: {log.path}", f"library: {log.library}"]
     result = log.metadata.get(RESULT_METADATA)
     if result is None:
