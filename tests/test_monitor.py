@@ -61,12 +61,17 @@ def _result_record(result):
     return read_log(result.log_path).metadata["hydroplant.result"]
 
 
-@pytest.mark.parametrize("reverse", [False, True], ids=["relief deleted", "relief reversed"])
-@pytest.mark.parametrize("mode", ["mujoco", "pbd"])
-def test_a_circuit_without_its_relief_stops_on_pressure(tmp_path, mode, reverse):
+CASES = [("mujoco", c, False) for c in ("implicit", "implicit-linear", "rosenbrock", "explicit")] + [
+    ("pbd", c, False) for c in ("implicit", "implicit-linear", "rosenbrock")] + [("mujoco", "implicit", True), ("pbd", "implicit", True)]
+
+
+@pytest.mark.parametrize("mode,coupling,reverse", CASES,
+                         ids=[f"{m}-{c}-{'reversed' if r else 'deleted'}" for m, c, r in CASES])
+def test_a_circuit_without_its_relief_stops_on_pressure(tmp_path, capsys, mode, coupling, reverse):
     """Dead-headed at the end stop, the pump raises the supply to the bound (no relief: NO_RELIEF_PRESSURE_LIMIT;
-    reversed: 2 x (200 bar + 10 %) + ambient = 441.013 bar); the run stops there, exit status 3, the node named."""
-    scenario = END_STOP.replace("[run]\n", f'[run]\nmode = "{mode}"\n')
+    reversed: 2 x (200 bar + 10 %) + ambient = 441.013 bar); the run stops there, exit status 3, the node named,
+    at the same time within 1 ms in every mode and coupling (the pump's flow into the supply's oil column)."""
+    scenario = END_STOP.replace("[run]\n", f'[run]\nmode = "{mode}"\ncoupling = "{coupling}"\n')
     path = _boom_copy(tmp_path, circuit=_circuit_without("relief", reverse=reverse), scenario=scenario)
     bound = M.NO_RELIEF_PRESSURE_LIMIT if not reverse else 2.0 * 1.1 * 2.0e7 + 1.01325e5
     result = run(path, out=tmp_path / "run.mcap")
@@ -75,12 +80,21 @@ def test_a_circuit_without_its_relief_stops_on_pressure(tmp_path, mode, reverse)
     assert match, result.message
     assert match.group(2) in ("supply", "boom_valve_a", "boom_cyl_cap")  # the pump side of the closed circuit
     assert float(match.group(3)) * 1e5 > bound and float(match.group(4)) == pytest.approx(bound / 1e5, rel=1e-6)
-    assert 0.2 < result.simulated_time < 2.0 and float(match.group(1)) == pytest.approx(result.simulated_time)
-    record = _result_record(result)
+    assert float(match.group(1)) == pytest.approx(result.simulated_time)
+    if not reverse:
+        assert 0.471 <= result.simulated_time <= 0.474
+    else:
+        assert 0.2 < result.simulated_time < 0.471
+    log = read_log(result.log_path)  # kept, finished, marked, the last sample and the event at the stop
+    record = log.metadata["hydroplant.result"]
     assert record["status"] == "diverged" and record["check"] == "plausibility" and record["quantity"] == "pressure"
-    assert float(record["time_s"]) == result.simulated_time
-    # the CLI: exit status 3, one line naming time, node, quantity
-    assert main(["run", str(path), "--out", str(tmp_path / "cli.mcap"), "--no-progress"]) == 3
+    assert float(record["time_s"]) == result.simulated_time and record["component"] == f"node '{match.group(2)}'"
+    events = log.topic("/hydroplant/events")
+    assert events.messages[-1]["message"] == "implausible: " + result.message
+    assert events.log_time[-1] == log.topic("/hydroplant/nodes").log_time[-1] == round(result.simulated_time * 1e9)
+    if (mode, coupling) == ("mujoco", "implicit"):  # the CLI: exit status 3, its status line the monitor's message
+        assert main(["run", str(path), "--out", str(tmp_path / "cli.mcap"), "--no-progress"]) == 3
+        assert f"status        diverged: {result.message}" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("mode", ["mujoco", "pbd"])
