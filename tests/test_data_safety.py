@@ -452,3 +452,24 @@ def test_mesh_assets_are_read_safely_and_attached(scene, capsys, tmp_path):
     os.mkfifo(mesh)  # a FIFO as the mesh: refused before MuJoCo opens it
     code, _, err = hydroplant("run", scene / SCENARIO, *SHORT, "--out", tmp_path / "fifo.mcap", capsys=capsys)
     assert code == 2 and len(err) == 1 and f"{mesh}: MJCF asset <mesh file>" in err[0] and "FIFO" in err[0], err
+
+
+def test_runs_at_one_instant_take_distinct_default_names(scene, tmp_path, monkeypatch):
+    import datetime as dt
+    from dataclasses import replace
+
+    import sim.run.runner as runner
+    from sim.io.scenario import load_scenario
+
+    class Frozen(dt.datetime):
+        @classmethod
+        def now(cls, tz=None):
+            return dt.datetime(2026, 1, 2, 3, 4, 5, 678901, tzinfo=tz)
+
+    monkeypatch.setattr(runner._dt, "datetime", Frozen)
+    scenario = replace(load_scenario(scene / SCENARIO), log_dir=tmp_path / "logs")
+    first = runner.run(scenario, overrides={"duration": 0.01}).log_path
+    second = runner.run(scenario, overrides={"duration": 0.01}).log_path
+    stem = "boom-hold-mujoco-implicit-20260102T030405678901Z"
+    assert (first.name, second.name) == (f"{stem}.mcap", f"{stem}-2.mcap")
+    assert read_log(first).metadata["hydroplant.result"]["status"] == "complete"
