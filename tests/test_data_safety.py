@@ -212,12 +212,14 @@ def test_sigterm_and_sighup_mid_run_finish_the_log_marked_incomplete(scene, tmp_
     assert not partial.exists() and user_files(scene) == before
 
 
-def test_ctrl_c_during_start_up_exits_quietly_with_130(scene, tmp_path):
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_during_start_up_exits_quietly(scene, tmp_path, sig, code):
     proc = start("run", scene / SCENARIO, "--duration", "0.01", "--no-progress", "--out", tmp_path / "x.mcap", cwd=tmp_path)
-    time.sleep(0.15)  # still importing
-    proc.send_signal(signal.SIGINT)
+    time.sleep(0.3)  # still importing
+    proc.send_signal(sig)
     out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130 and err == "", (proc.returncode, err)
+    assert proc.returncode == code and err == "", (proc.returncode, err)
+    assert not list(tmp_path.glob("x.mcap*"))
 
 
 # ------------------------------------------------------------------------------------ inputs
