@@ -33,7 +33,7 @@ from sim.io.log_recover import verify_log
 from sim.io.log_schemas import (FRAME_TRANSFORMS, JOINT_STATES, MsgType, _CDR_BASE, _cdr_get, _Leaf, _loads, cdr_decode,
                                 cdr_encode, ros2msg_type, to_json_bytes)
 from sim.io.mcap_file import (DEFAULT_CHUNK_SIZE, MCAP_MAGIC, NS_PER_S, PARTIAL_SUFFIX, RESULT_METADATA, RUN_METADATA,
-                              LogReadError, library_string)
+                              LogPathError, LogReadError, library_string, publish, refuse_special)
 
 FRAME_ID_KEYS = ("frame_id", "parent_frame_id", "child_frame_id")  # rewritten by merge_logs
 _PREFIX_PATTERN = re.compile(r"[A-Za-z0-9_.\-]+")
@@ -453,11 +453,12 @@ def merge_logs(inputs: Mapping[str, str | os.PathLike], out_path: str | os.PathL
         Prefix -> log file, e.g. ``{"mujoco": a, "pbd": b}``. Prefixes are
         ``[A-Za-z0-9_.-]+``.
     out_path : str or Path
-        Output file (written via ``out_path.partial`` and renamed).
+        Output file (written via ``out_path.partial``, created exclusively, and published
+        without replacing another file unless ``overwrite``).
     shared_frames : iterable of str, optional
         Frame ids left unprefixed so that both trees hang off a common root.
     overwrite : bool, optional
-        Replace an existing ``out_path``; otherwise ``FileExistsError``.
+        Replace an existing regular file ``out_path``; otherwise :class:`LogPathError`.
 
     Notes
     -----
@@ -473,13 +474,18 @@ def merge_logs(inputs: Mapping[str, str | os.PathLike], out_path: str | os.PathL
         if not isinstance(prefix, str) or not _PREFIX_PATTERN.fullmatch(prefix):
             raise ValueError(f"merge prefix must match [A-Za-z0-9_.-]+, got {prefix!r}")
     out_path = Path(out_path)
-    if out_path.exists() and not overwrite:
-        raise FileExistsError(f"{out_path} exists; pass overwrite=True")
+    refuse_special(out_path)
+    if os.path.lexists(out_path) and not overwrite:
+        raise LogPathError(f"{out_path} exists; pass overwrite=True to replace it")
     tmp_path = out_path.with_name(out_path.name + PARTIAL_SUFFIX)
+    if os.path.lexists(tmp_path):
+        raise LogPathError(f"{tmp_path} exists (left by an interrupted merge or being written); remove it first")
     streams = [open(path, "rb") for path in inputs.values()]
+    created = False
     try:
         readers = [make_reader(stream, validate_crcs=True) for stream in streams]
         with open(tmp_path, "xb") as out:
+            created = True
             writer = Writer(out, chunk_size=DEFAULT_CHUNK_SIZE, compression=CompressionType.ZSTD)
             writer.start(profile="", library=library_string())
             writer.add_metadata("hydroplant.merge", {prefix: Path(path).name for prefix, path in inputs.items()})
@@ -519,7 +525,11 @@ def merge_logs(inputs: Mapping[str, str | os.PathLike], out_path: str | os.PathL
                 data = message.data if rewrite is None else rewrite(message.data)
                 writer.add_message(new_id, message.log_time, data, message.publish_time, message.sequence)
             writer.finish()
+    except BaseException:
+        if created:  # (ours: created exclusively above)
+            tmp_path.unlink(missing_ok=True)
+        raise
     finally:
         for stream in streams:
             stream.close()
-    os.replace(tmp_path, out_path)
+    publish(tmp_path, out_path, overwrite)
