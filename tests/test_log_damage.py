@@ -109,6 +109,19 @@ def test_flipped_bit_in_a_chunk_length_resynchronises_on_the_next_chunk(dig, tmp
     assert collections.Counter(_messages(tmp_path / "out.mcap")) == collections.Counter(messages) - _in_chunk(dig, 3)
 
 
+def test_flipped_bit_in_a_chunk_opcode_loses_that_chunk_only(dig, tmp_path):
+    """A chunk whose opcode byte is hit is recognised by the message indexes that follow it: that chunk is skipped
+    and its messages counted, the others kept."""
+    path, data, chunks, messages = dig
+    start, length, _, count = chunks[7]
+    damaged = tmp_path / "opcode.mcap"
+    damaged.write_bytes(_flipped(data, start, 4))  # 0x06 -> 0x16
+    report = recover(damaged, tmp_path / "out.mcap")
+    assert report.message_count == len(messages) - count and report.chunk_count == 10
+    assert [(d.start, d.end, d.what, d.messages) for d in report.skipped] == [
+        (start, start + length, "chunk: opcode damaged (0x16)", count)]
+
+
 def test_flipped_bits_in_message_indexes_lose_nothing(dig, tmp_path):
     """Recovery does not read message indexes: a flip in an index entry loses nothing and skips nothing; a flip in
     an index's length skips bytes up to the next chunk but no message."""

@@ -654,8 +654,11 @@ class Scan:
                     chunk_records(data[position + RECORD_PREFIX.size:end])
                 except ValueError as error:
                     why = str(error)
-            lost, _ = self._lost_messages(end) if opcode == Opcode.CHUNK else (None, end)
-            self.damage.append(Damage(position, end, f"{name}: {why}", lost if opcode == Opcode.CHUNK else 0))
+            lost = None if opcode == Opcode.MESSAGE_INDEX else self._lost_messages(end)[0]
+            if lost is not None and opcode != Opcode.CHUNK:  # message indexes follow it: a chunk whose opcode is hit
+                name, why = "chunk", f"opcode damaged (0x{opcode:02x})"
+            self.damage.append(Damage(position, end, f"{name}: {why}",
+                                      lost if lost is not None or opcode == Opcode.CHUNK else 0))
             return end
         resume = self._next_chunk(position)
         if resume == self.size and end > self.size and known:
