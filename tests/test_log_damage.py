@@ -105,7 +105,7 @@ def test_flipped_bit_in_a_chunk_length_resynchronises_on_the_next_chunk(dig, tmp
     damaged.write_bytes(_flipped(data, start + 2, 0))  # length += 256
     report = recover(damaged, tmp_path / "out.mcap")
     assert report.message_count == len(messages) - count and report.chunk_count == 10
-    assert [(d.start, d.end) for d in report.skipped] == [(start, chunks[4][0])]
+    assert [(d.start, d.end, d.messages) for d in report.skipped] == [(start, chunks[4][0], count)]  # (summary)
     assert collections.Counter(_messages(tmp_path / "out.mcap")) == collections.Counter(messages) - _in_chunk(dig, 3)
 
 
@@ -138,7 +138,7 @@ def test_flipped_bits_in_message_indexes_lose_nothing(dig, tmp_path):
     damaged.write_bytes(_flipped(data, max(offsets.values()) + 1, 1))
     report = recover(damaged, tmp_path / "length-out.mcap")
     assert report.message_count == len(messages) and report.chunk_count == 11
-    assert len(report.skipped) == 1 and report.skipped[0].end == chunks[3][0]
+    assert len(report.skipped) == 1 and report.skipped[0].end == chunks[3][0] and report.skipped_messages == 0
 
 
 def test_log_info_verifies_chunk_crcs(dig, tmp_path, capsys):

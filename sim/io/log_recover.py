@@ -7,7 +7,8 @@ repeats schemas and channels in its summary), and the messages of every chunk wh
 Reading resumes after damage at the next record when the damaged one's length is intact (a
 chunk with a flipped bit in its data loses that chunk only), else at the next Chunk opcode
 whose chunk decompresses to its CRC.  Message indexes are not read (a damaged index loses
-nothing); a damaged chunk's own indexes, when intact, say how many messages it held.
+nothing); a damaged chunk's own indexes, when intact, say how many messages it held (found
+after it, or through the summary's chunk indexes of a finished file).
 
 Limitations: a Message record inside a chunk whose CRC holds is trusted; records outside
 chunks (schemas, channels, metadata) carry no CRC and are kept when they parse to their

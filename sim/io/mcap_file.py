@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
+import dataclasses
 import enum
 import io
 import mmap
@@ -635,7 +636,30 @@ class Scan:
                     self.end = end + len(MCAP_MAGIC)
                 else:
                     self.damage.append(Damage(end, self.size, "no closing magic after the footer"))
-                return
+                break
+        self._count_from_summary()
+
+    def _count_from_summary(self) -> None:
+        """Messages of damaged ranges whose count is unknown, from the summary's chunk indexes (a finished file):
+        the message indexes of every chunk starting in the range, or 0 when no chunk starts there."""
+        indexes = [record for _, record in self.records if isinstance(record, mr.ChunkIndex)]
+        if not indexes:
+            return
+        for i, damage in enumerate(self.damage):
+            if damage.messages is not None:
+                continue
+            count = 0
+            for index in indexes:
+                if damage.start <= index.chunk_start_offset < damage.end:
+                    for offset in index.message_index_offsets.values():
+                        found = self._record_at(offset)
+                        if found is None or found[0] != Opcode.MESSAGE_INDEX:
+                            count = None
+                            break
+                        count += len(found[2].records)
+                if count is None:
+                    break
+            self.damage[i] = dataclasses.replace(damage, messages=count)
 
     def _skip(self, position: int) -> int:
         """Record the damage at ``position``; return where reading resumes."""
