@@ -36,6 +36,7 @@ from hydraulics.equilibrium import holding_efforts as solve_holding
 EQUALITY_TOLERANCE = 1e-6  # m (connect) or rad (weld): a start pose the free joints cannot bring closer is refused
 PROJECTION_TARGET = 1e-12  # m or rad: the projection stops below this violation
 PROJECTION_ITERATIONS = 50  # Gauss-Newton iterations of project_pose
+BACKTRACK_HALVINGS = 20  # step halvings per iteration when a full step does not reduce the violation
 HOLDING_RESIDUAL_WARN = 1e-6  # relative residual of the static balance above which the start is not in equilibrium
 
 _EQUALITY = int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
@@ -134,7 +135,15 @@ def project_pose(m, qpos, qvel, held, *, where: str = ""):
         step[free] = -np.linalg.lstsq(G[:, free], r, rcond=None)[0]
         if not np.any(step):
             break
-        mujoco.mj_integratePos(m, q, step, 1.0)
+        size = np.linalg.norm(r)
+        for _ in range(BACKTRACK_HALVINGS):  # halve a step that would not reduce the violation
+            trial = q.copy()
+            mujoco.mj_integratePos(m, trial, step, 1.0)
+            _forward(m, d, trial)
+            if np.linalg.norm(equality_rows(m, d)[1]) < size:
+                break
+            step *= 0.5
+        q = trial
     else:
         _forward(m, d, q)
         G, r, names = equality_rows(m, d)
