@@ -197,3 +197,35 @@ def test_a_light_rod_near_its_retracted_end_is_warned_and_diverges_where_the_gua
     low, high = cap_pressure_range(stable, 400)
     assert 0.995 * start < low and high < 1.005 * start
     assert not [w for w in guards.check(stable.scene, stable.net_state).warnings if "pins sit on bodies" in w]
+
+
+FLAP_JOINT = '<joint name="flap_hinge" type="hinge" axis="0 -1 0" limited="true" range="{}"/>'
+FLAP = '<body name="flap" pos="1.5 0 0">{}<inertial pos="0.2 0 0" mass="50" diaginertia="0.5 0.5 0.5"/></body>'
+
+
+def flap_plant(folder, joint_range):
+    """loop_arm_links with a 50 kg flap on the arm, hinged at 1.5 m, at qpos0 = 0 (``joint_range`` None: welded)."""
+    import shutil
+
+    folder.mkdir()
+    for name in ("hold_links.scenario.toml", "loop.circuit.toml"):
+        shutil.copy(SCENES / name, folder / name)
+    flap = FLAP.format(FLAP_JOINT.format(joint_range) if joint_range else "")
+    xml = (SCENES / "loop_arm_links.xml").read_text().replace('<body name="payload"', flap + '\n      <body name="payload"')
+    (folder / "loop_arm_links.xml").write_text(xml)
+    return MujocoPlant(load_scene(load_scenario(folder / "hold_links.scenario.toml")))
+
+
+def test_a_flap_resting_on_its_stop_is_held_by_the_stop(tmp_path):
+    """The flap's weight on its lower stop: the stop carries its torque about the flap hinge, the cylinder the rest,
+    exactly as if the flap were welded to the arm; a flap that would hang from its upper stop cannot be held."""
+    from sim.run.guards import check_plant
+
+    welded = flap_plant(tmp_path / "welded", None)
+    resting = flap_plant(tmp_path / "resting", "0 1")
+    assert resting.holding_residual < 1e-9
+    assert resting.effort[0] == pytest.approx(welded.effort[0], rel=1e-9)
+    assert resting.effort[0] > virtual_work_force(0.1) + 100.0  # the flap's 50 kg is on the cylinder too
+    hanging = flap_plant(tmp_path / "hanging", "-1 0")
+    assert hanging.holding_residual > 1e-3
+    assert any("initial.equilibrium" in w for w in check_plant(hanging).warnings)

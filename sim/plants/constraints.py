@@ -38,6 +38,7 @@ PROJECTION_TARGET = 1e-12  # m or rad: the projection stops below this violation
 PROJECTION_ITERATIONS = 50  # Gauss-Newton iterations of project_pose
 BACKTRACK_HALVINGS = 20  # step halvings per iteration when a full step does not reduce the violation
 HOLDING_RESIDUAL_WARN = 1e-6  # relative residual of the static balance above which the start is not in equilibrium
+LIMIT_CONTACT = 1e-9  # rad or m: a joint this close to a range end rests on its stop
 
 _EQUALITY = int(mujoco.mjtConstraint.mjCNSTR_EQUALITY)
 _LIMITS = (int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT), int(mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON))
@@ -86,11 +87,31 @@ def equality_rows(m, d):
 
 
 def limit_rows(m, d):
-    """(G (rows × nv), violation (rows,)) of the joint and tendon limits MuJoCo holds active at this pose."""
+    """(G (rows × nv), violation (rows,)) of the limits that can carry load at this pose (after mj_forward).
+
+    MuJoCo's active joint- and tendon-limit rows, and every limited hinge or slide at
+    an end of its range (within ``LIMIT_CONTACT``; MuJoCo counts a limit active only
+    once it is passed).  Each row is oriented so that a positive force pushes back
+    into the range: a stop pushes, it never pulls.
+    """
     rows = np.flatnonzero(np.isin(np.asarray(d.efc_type[: d.nefc]), _LIMITS))
-    if not len(rows):
+    G = list(_dense_efc(m, d)[rows]) if len(rows) else []
+    violation = list(d.efc_pos[rows]) if len(rows) else []
+    active = {int(d.efc_id[r]) for r in rows if int(d.efc_type[r]) == _LIMITS[0]}
+    scalar = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    for j in range(m.njnt):
+        if j in active or not m.jnt_limited[j] or int(m.jnt_type[j]) not in scalar:
+            continue
+        value = float(d.qpos[m.jnt_qposadr[j]])
+        for end, sign in ((float(m.jnt_range[j][0]), 1.0), (float(m.jnt_range[j][1]), -1.0)):
+            if abs(value - end) <= LIMIT_CONTACT:
+                row = np.zeros(m.nv)
+                row[m.jnt_dofadr[j]] = sign
+                G.append(row)
+                violation.append(sign * (value - end))
+    if not G:
         return np.zeros((0, m.nv)), np.zeros(0)
-    return _dense_efc(m, d)[rows], np.array(d.efc_pos[rows])
+    return np.array(G).reshape(-1, m.nv), np.array(violation)
 
 
 def _forward(m, d, qpos, qvel=None):
@@ -196,8 +217,13 @@ def holding_efforts(m, qpos, moment_of):
     effort, _, residual = solve_holding(J, load, G)
     if residual > HOLDING_RESIDUAL_WARN:
         L, _ = limit_rows(m, d)
-        if len(L):
-            effort, _, residual = solve_holding(J, load, np.vstack([G, L]))
+        while len(L):  # the stops that push join the balance; one that would have to pull leaves it
+            with_limits, force, with_residual = solve_holding(J, load, np.vstack([G, L]))
+            pulling = force[len(G):] < 0.0
+            if not np.any(pulling):
+                effort, residual = with_limits, with_residual
+                break
+            L = L[~pulling]
     return effort, residual
 
 
