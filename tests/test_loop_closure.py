@@ -203,7 +203,7 @@ FLAP_JOINT = '<joint name="flap_hinge" type="hinge" axis="0 -1 0" limited="true"
 FLAP = '<body name="flap" pos="1.5 0 0">{}<inertial pos="0.2 0 0" mass="50" diaginertia="0.5 0.5 0.5"/></body>'
 
 
-def flap_plant(folder, joint_range):
+def flap_plant(folder, joint_range, mode="mujoco"):
     """loop_arm_links with a 50 kg flap on the arm, hinged at 1.5 m, at qpos0 = 0 (``joint_range`` None: welded)."""
     import shutil
 
@@ -213,19 +213,21 @@ def flap_plant(folder, joint_range):
     flap = FLAP.format(FLAP_JOINT.format(joint_range) if joint_range else "")
     xml = (SCENES / "loop_arm_links.xml").read_text().replace('<body name="payload"', flap + '\n      <body name="payload"')
     (folder / "loop_arm_links.xml").write_text(xml)
-    return MujocoPlant(load_scene(load_scenario(folder / "hold_links.scenario.toml")))
+    scene = load_scene(load_scenario(folder / "hold_links.scenario.toml").with_overrides(mode=mode))
+    return MujocoPlant(scene) if mode == "mujoco" else make_pbd_plant(scene, block=False)
 
 
-def test_a_flap_resting_on_its_stop_is_held_by_the_stop(tmp_path):
+@pytest.mark.parametrize("mode", ["mujoco", "pbd"])
+def test_a_flap_resting_on_its_stop_is_held_by_the_stop(tmp_path, mode):
     """The flap's weight on its lower stop: the stop carries its torque about the flap hinge, the cylinder the rest,
     exactly as if the flap were welded to the arm; a flap that would hang from its upper stop cannot be held."""
     from sim.run.guards import check_plant
 
-    welded = flap_plant(tmp_path / "welded", None)
-    resting = flap_plant(tmp_path / "resting", "0 1")
+    welded = flap_plant(tmp_path / "welded", None, mode)
+    resting = flap_plant(tmp_path / "resting", "0 1", mode)
     assert resting.holding_residual < 1e-9
     assert resting.effort[0] == pytest.approx(welded.effort[0], rel=1e-9)
     assert resting.effort[0] > virtual_work_force(0.1) + 100.0  # the flap's 50 kg is on the cylinder too
-    hanging = flap_plant(tmp_path / "hanging", "-1 0")
+    hanging = flap_plant(tmp_path / "hanging", "-1 0", mode)
     assert hanging.holding_residual > 1e-3
     assert any("initial.equilibrium" in w for w in check_plant(hanging).warnings)

@@ -86,32 +86,50 @@ def equality_rows(m, d):
     return G, np.array(d.efc_pos[rows]), names
 
 
-def limit_rows(m, d):
-    """(G (rows × nv), violation (rows,)) of the limits that can carry load at this pose (after mj_forward).
-
-    MuJoCo's active joint- and tendon-limit rows, and every limited hinge or slide at
-    an end of its range (within ``LIMIT_CONTACT``; MuJoCo counts a limit active only
-    once it is passed).  Each row is oriented so that a positive force pushes back
-    into the range: a stop pushes, it never pulls.
-    """
-    rows = np.flatnonzero(np.isin(np.asarray(d.efc_type[: d.nefc]), _LIMITS))
-    G = list(_dense_efc(m, d)[rows]) if len(rows) else []
-    violation = list(d.efc_pos[rows]) if len(rows) else []
-    active = {int(d.efc_id[r]) for r in rows if int(d.efc_type[r]) == _LIMITS[0]}
+def joint_stop_rows(m, qpos, skip=()) -> np.ndarray:
+    """Rows (n × nv) of the limited hinges and slides at an end of their range in ``qpos`` (within ``LIMIT_CONTACT``),
+    each oriented so that a positive force pushes back into the range; joints in ``skip`` left out."""
     scalar = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+    rows = []
     for j in range(m.njnt):
-        if j in active or not m.jnt_limited[j] or int(m.jnt_type[j]) not in scalar:
+        if j in skip or not m.jnt_limited[j] or int(m.jnt_type[j]) not in scalar:
             continue
-        value = float(d.qpos[m.jnt_qposadr[j]])
+        value = float(qpos[m.jnt_qposadr[j]])
         for end, sign in ((float(m.jnt_range[j][0]), 1.0), (float(m.jnt_range[j][1]), -1.0)):
             if abs(value - end) <= LIMIT_CONTACT:
                 row = np.zeros(m.nv)
                 row[m.jnt_dofadr[j]] = sign
-                G.append(row)
-                violation.append(sign * (value - end))
-    if not G:
-        return np.zeros((0, m.nv)), np.zeros(0)
-    return np.array(G).reshape(-1, m.nv), np.array(violation)
+                rows.append(row)
+    return np.array(rows).reshape(-1, m.nv)
+
+
+def limit_rows(m, d) -> np.ndarray:
+    """Rows (n × nv) of the limits that can carry load at this pose (after mj_forward).
+
+    MuJoCo's active joint- and tendon-limit rows, and every limited hinge or slide at
+    an end of its range (:func:`joint_stop_rows`; MuJoCo counts a limit active only
+    once it is passed).  Each row is oriented so that a positive force pushes back
+    into the range: a stop pushes, it never pulls.
+    """
+    rows = np.flatnonzero(np.isin(np.asarray(d.efc_type[: d.nefc]), _LIMITS))
+    active = {int(d.efc_id[r]) for r in rows if int(d.efc_type[r]) == _LIMITS[0]}
+    mujoco_rows = _dense_efc(m, d)[rows] if len(rows) else np.zeros((0, m.nv))
+    return np.vstack([mujoco_rows, joint_stop_rows(m, d.qpos, active)])
+
+
+def hold_with_stops(moment, load, equalities, stops):
+    """:func:`hydraulics.equilibrium.holding_efforts` with the equality rows, then, if they cannot hold the load,
+    with the stop rows that push too (active set: a stop that would have to pull leaves).  Returns (effort, residual)."""
+    effort, _, residual = solve_holding(moment, load, equalities)
+    G = np.zeros((0, len(load))) if equalities is None else equalities
+    if residual > HOLDING_RESIDUAL_WARN:
+        while len(stops):
+            with_stops, force, with_residual = solve_holding(moment, load, np.vstack([G, stops]))
+            pulling = force[len(G):] < 0.0
+            if not np.any(pulling):
+                return with_stops, with_residual
+            stops = stops[~pulling]
+    return effort, residual
 
 
 def _forward(m, d, qpos, qvel=None):
@@ -214,17 +232,7 @@ def holding_efforts(m, qpos, moment_of):
     J = moment_of(d)
     G, _, _ = equality_rows(m, d)
     load = static_load(m, d)
-    effort, _, residual = solve_holding(J, load, G)
-    if residual > HOLDING_RESIDUAL_WARN:
-        L, _ = limit_rows(m, d)
-        while len(L):  # the stops that push join the balance; one that would have to pull leaves it
-            with_limits, force, with_residual = solve_holding(J, load, np.vstack([G, L]))
-            pulling = force[len(G):] < 0.0
-            if not np.any(pulling):
-                effort, residual = with_limits, with_residual
-                break
-            L = L[~pulling]
-    return effort, residual
+    return hold_with_stops(J, load, G, limit_rows(m, d))
 
 
 def inverse_inertia(m, qpos, moment_of, *, constrained: bool = True):

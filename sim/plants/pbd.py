@@ -335,17 +335,17 @@ class PbdPlant(PlantBase):
         """Actuator efforts [N or N·m] that hold the current pose at rest, the MJCF's loop closures carrying their share.
 
         Jᵀ·F + Gᵀ·λ = −Q_gravity by least squares (:func:`hydraulics.equilibrium.holding_efforts`) with G the
-        equality Jacobian from the XPBD kinematics (:func:`sim.plants.constraints.frame_equality_jacobian`);
+        equality Jacobian from the XPBD kinematics (:func:`sim.plants.constraints.frame_equality_jacobian`) and,
+        where that cannot hold the load, the joints resting on a range end (:func:`sim.plants.constraints.hold_with_stops`);
         relative residual in ``holding_residual``.
         """
-        from hydraulics.equilibrium import holding_efforts
-        from sim.plants.constraints import frame_equality_jacobian
+        from sim.plants.constraints import frame_equality_jacobian, hold_with_stops, joint_stop_rows
 
         _, gravity, moment = self.joint_space()
         xm = self.xmodel
         qpos, _ = xm.qpos_qvel(self.state)
         G = frame_equality_jacobian(self.model, lambda q: xm.body_frames(xm.state_from_qpos(q)), qpos) if self.model.neq else None
-        effort, _, self.holding_residual = holding_efforts(moment, -gravity, G)
+        effort, self.holding_residual = hold_with_stops(moment, -gravity, G, joint_stop_rows(self.model, qpos))
         return effort
 
     # -------------------------------------------------------------------- step
