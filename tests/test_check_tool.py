@@ -58,3 +58,9 @@ def test_check_grid_finds_the_worst_hold_over_the_joint_range():
     line = next(l for l in text.splitlines() if l.startswith("    lift_cyl") and " at arm_hinge " in l)
     # worst at the top of the arm's range: the extended-end hold of the sweep
     assert line.startswith("    lift_cyl: F = +5.603 kN -> cap 11.1 bar gauge") and line.endswith("at arm_hinge +0.253")
+
+
+def test_check_for_pbd_mode_names_what_pbd_mode_drops(capsys):
+    assert cli.main(["check", "--mode", "pbd", str(SCENES / "hlink.scenario.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "body 'base' has free joint 'base_free', held by weld 'base_weld'" in out and "geom(s) 'cab' (mesh)" in out

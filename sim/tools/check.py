@@ -24,6 +24,7 @@ Example::
     hydroplant check models/excavator/dig.scenario.toml
     hydroplant check --examples            every shipped scene
     hydroplant check --grid 15 SCENARIO    also the worst holding pressures over the joint ranges
+    hydroplant check --mode pbd SCENARIO   with PBD mode's warnings and refusals
 """
 
 from __future__ import annotations
@@ -49,8 +50,10 @@ PROBE = 1e-5  # rad or m: joint perturbation that finds the driving joint
 class Checker:
     """The scene of one scenario and the kinematic helpers of the checks."""
 
-    def __init__(self, scenario_path):
+    def __init__(self, scenario_path, mode=None):
         self.scenario = load_scenario(scenario_path)
+        if mode:
+            self.scenario = self.scenario.with_overrides(mode=mode)
         self.scene = load_scene(self.scenario)
         self.m = self.scene.mjmodel
         self.d = mujoco.MjData(self.m)
@@ -225,9 +228,10 @@ def worst_holding(ck: Checker, points: int) -> list:
     return out
 
 
-def check_scene(scenario_path, grid: int = 0) -> tuple[str, int]:
-    """The check report of one scenario and its count of problems (``grid``: points per joint of the worst-holding scan, 0 = off)."""
-    ck = Checker(scenario_path)
+def check_scene(scenario_path, grid: int = 0, mode=None) -> tuple[str, int]:
+    """The check report of one scenario and its count of problems (``grid``: points per joint of the worst-holding scan,
+    0 = off; ``mode`` overrides the scenario's, for that mode's warnings)."""
+    ck = Checker(scenario_path, mode)
     m, scene, net = ck.m, ck.scene, ck.scene.network
     out = [f"=== {ck.scenario.path} ({Path(ck.scenario.mjcf).name}: nq {m.nq}, nv {m.nv}, nu {m.nu}, "
            f"total mass {float(np.sum(m.body_mass)):.1f} kg)"]
@@ -332,6 +336,7 @@ def add_parser(subparsers):
     parser = subparsers.add_parser("check", help="static checks of a scene: strokes, sweeps, holding pressures, signs, loop closures")
     parser.add_argument("scenario", type=Path, nargs="*", help="scenario TOML file(s)")
     parser.add_argument("--examples", action="store_true", help="check every shipped example scene")
+    parser.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"), help="validate for this mode (its warnings and refusals)")
     parser.add_argument("--grid", type=int, default=0, metavar="N",
                         help="also the worst holding pressure over an N-point grid of the cylinders' driving joints")
     parser.set_defaults(func=main)
@@ -343,7 +348,7 @@ def main(args) -> int:
         raise ScenarioError("check: give a SCENARIO file or --examples")
     problems = 0
     for path in paths:
-        text, count = check_scene(path, args.grid)
+        text, count = check_scene(path, args.grid, args.mode)
         print(text)
         problems += count
     print("\nall checks passed" if not problems else f"\n!! {problems} check(s) failed")
