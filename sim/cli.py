@@ -255,7 +255,10 @@ def main(argv=None) -> int:
     _received.clear()
     previous = _install_signals()
     try:
-        return _main(argv)
+        status = _main(argv)
+        # A signal whose interrupt a library turned into an error it then handled (an import fallback)
+        # still stops the command as the signal asks.
+        return _interrupted(None) if _received else status
     except KeyboardInterrupt as exc:
         return _interrupted(exc)
     except Exception:

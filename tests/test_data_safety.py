@@ -36,19 +36,19 @@ def scene(tmp_path):
     """A copy of the boom scene whose MJCF takes its <visual> from an include outside the scene's folder."""
     folder = tmp_path / "boom"
     shutil.copytree(MODELS / "boom", folder)
-    shared = tmp_path / "shared"
+    shared = tmp_path / "common"
     shared.mkdir()
     (shared / "visual.xml").write_text('<mujoco><visual><global offwidth="640" offheight="480"/></visual></mujoco>\n')
     mjcf = folder / "boom.xml"
     text = mjcf.read_text()
     start, end = text.index("  <visual>"), text.index("</visual>") + len("</visual>")
-    mjcf.write_text(text[:start] + '  <include file="../shared/visual.xml"/>' + text[end:])
+    mjcf.write_text(text[:start] + '  <include file="../common/visual.xml"/>' + text[end:])
     return folder
 
 
 def user_files(folder: Path) -> dict:
     """SHA-256 of every file the user wrote (the scene folder and the shared include)."""
-    files = sorted(p for p in [*folder.iterdir(), *(folder.parent / "shared").glob("*")] if p.is_file() and p.suffix != ".mcap"
+    files = sorted(p for p in [*folder.iterdir(), *(folder.parent / "common").glob("*")] if p.is_file() and p.suffix != ".mcap"
                    and not p.name.endswith(".partial"))
     return {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
 
@@ -60,7 +60,7 @@ def watched_files(argv) -> dict:
     for arg in argv:
         path = Path(arg) if isinstance(arg, Path) else None
         if path is not None and path.is_file() and path.suffix != ".mcap":
-            folders |= {path.parent, path.parent.parent / "shared"}
+            folders |= {path.parent, path.parent.parent / "common"}
     files = sorted(p for folder in folders if folder.is_dir() for p in folder.rglob("*")
                    if p.is_file() and p.suffix != ".mcap" and not p.name.endswith(".partial") and "__pycache__" not in p.parts)
     return {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
@@ -90,7 +90,7 @@ def refused(scene, capsys, *argv, expected: str):
 
 
 # ------------------------------------------------------------------------------------ --out
-@pytest.mark.parametrize("name", ["hold.scenario.toml", "boom.circuit.toml", "boom.xml", "../shared/visual.xml"])
+@pytest.mark.parametrize("name", ["hold.scenario.toml", "boom.circuit.toml", "boom.xml", "../common/visual.xml"])
 def test_out_never_replaces_an_input_of_the_run(scene, capsys, name):
     line = refused(scene, capsys, "--out", scene / name, "--overwrite", expected="is an input of this run")
     assert Path(name).name in line
@@ -235,7 +235,7 @@ def test_a_fifo_as_scenario_is_refused_at_once(tmp_path):
 
 @pytest.mark.parametrize("which", ["circuit", "csv", "include"])
 def test_a_fifo_among_the_inputs_is_refused_without_blocking(scene, capsys, which):
-    target = {"circuit": scene / "boom.circuit.toml", "csv": scene / "inputs.csv", "include": scene.parent / "shared" / "visual.xml"}[which]
+    target = {"circuit": scene / "boom.circuit.toml", "csv": scene / "inputs.csv", "include": scene.parent / "common" / "visual.xml"}[which]
     if which == "csv":
         scenario = scene / SCENARIO
         scenario.write_text('inputs_csv = "inputs.csv"\n' + scenario.read_text())
@@ -273,10 +273,10 @@ def test_mjcf_includes_outside_the_scene_are_attached_to_the_log(scene, capsys, 
     code, stdout, err = hydroplant("run", scene / SCENARIO, *SHORT, "--out", out, capsys=capsys)
     assert code == 0 and not err
     log = read_log(out)
-    assert log.attachments["../shared/visual.xml"] == (scene.parent / "shared" / "visual.xml").read_bytes()
+    assert log.attachments["../common/visual.xml"] == (scene.parent / "common" / "visual.xml").read_bytes()
     assert log.attachments["boom.xml"] == (scene / "boom.xml").read_bytes()
     assert list(log.attachments)[-1] == "boom.xml"  # the MJCF itself last (compare's scene identity)
-    assert set(log.attachments) == {"scenario.toml", "circuit.toml", "../shared/visual.xml", "boom.xml"}
+    assert set(log.attachments) == {"scenario.toml", "circuit.toml", "../common/visual.xml", "boom.xml"}
 
 
 @pytest.mark.parametrize("value", ["nan", "inf"])
@@ -419,7 +419,7 @@ def test_cache_keys_cover_the_mjcf_includes(scene):
     from sim.tools.tradeoff import sweep_points
 
     scenario = load_scenario(scene / SCENARIO)
-    include = scene.parent / "shared" / "visual.xml"
+    include = scene.parent / "common" / "visual.xml"
     assert include in input_paths(scenario)
     key, files = reference_key(scenario, ReferenceSettings()), sweep_points(scenario, [{}], repeats=1)[0]["files"]
     include.write_text(include.read_text().replace('offwidth="640"', 'offwidth="800"'))
@@ -440,16 +440,16 @@ def tetrahedron_stl() -> bytes:
 
 
 def test_mesh_assets_are_read_safely_and_attached(scene, capsys, tmp_path):
-    mesh = scene.parent / "shared" / "tet.stl"
+    mesh = scene.parent / "common" / "tet.stl"
     mesh.write_bytes(tetrahedron_stl())
     mjcf = scene / "boom.xml"
-    text = mjcf.read_text().replace("  <worldbody>", '  <asset><mesh name="tet" file="../shared/tet.stl"/></asset>\n  <worldbody>', 1)
+    text = mjcf.read_text().replace("  <worldbody>", '  <asset><mesh name="tet" file="../common/tet.stl"/></asset>\n  <worldbody>', 1)
     mjcf.write_text(text.replace('<body name="boom" pos="0 0 1.5">', '<body name="boom" pos="0 0 1.5">\n'
                                  '      <geom type="mesh" mesh="tet" mass="0" contype="0" conaffinity="0"/>', 1))
     out = tmp_path / "mesh.mcap"
     code, _, err = hydroplant("run", scene / SCENARIO, *SHORT, "--out", out, capsys=capsys)
     assert code == 0 and not err, err
-    assert read_log(out).attachments["../shared/tet.stl"] == mesh.read_bytes()
+    assert read_log(out).attachments["../common/tet.stl"] == mesh.read_bytes()
     mesh.unlink()
     os.mkfifo(mesh)  # a FIFO as the mesh: refused before MuJoCo opens it
     code, _, err = hydroplant("run", scene / SCENARIO, *SHORT, "--out", tmp_path / "fifo.mcap", capsys=capsys)
