@@ -81,6 +81,10 @@ except ImportError:  # pragma: no cover - the pure stepper is used instead
     _numba = None
     _NUMBA = False
 
+JIT_ENABLED = _NUMBA and not _numba.config.DISABLE_JIT
+"""False when numba is missing or ``NUMBA_DISABLE_JIT=1``: the kernels then run as plain Python (for debugging) and
+the numba intrinsics below are replaced by Python functions with the same results."""
+
 
 def compiled_available() -> bool:
     """True when numba imports (the compiled kernels can be used)."""
@@ -131,7 +135,7 @@ def _kernel(function):
     return _numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=False)(function)
 
 
-if _NUMBA:
+if JIT_ENABLED:
     from numba.core import cgutils as _cgutils
     from numba.extending import intrinsic as _intrinsic
 

@@ -179,7 +179,9 @@ def scratch_size(na, n, nb, nvalve):
     return _finish_scratch(na, n, nb, nvalve) + 9 * na + 5 * n + na * na + n + nvalve + na + nb + n * na
 
 
-if _NUMBA:
+_JIT = _NUMBA and C.JIT_ENABLED  # False under NUMBA_DISABLE_JIT=1: the callback runs as Python (below)
+
+if _JIT:
 
     def _pointer_cast(nbtype):
         """A numba intrinsic that turns an integer address into a pointer of type ``nbtype``."""
@@ -224,7 +226,28 @@ if _NUMBA:
 
     def _kernel(function):
         return numba.njit(error_model="numpy", nogil=True, _nrt=False)(function)
-else:  # pragma: no cover
+else:  # the same callback as Python (NUMBA_DISABLE_JIT=1, for debugging): ctypes pointers, mujoco.mj_solveM
+    def _pointer_cast(ctype):
+        def cast(addr):
+            return ctypes.cast(int(addr), ctypes.POINTER(ctype))
+
+        return cast
+
+    _pf64 = _pointer_cast(ctypes.c_double)
+    _pi64 = _pointer_cast(ctypes.c_int64)
+    _pi32 = _pointer_cast(ctypes.c_int32)
+
+    def _pvoid(addr):
+        return int(addr)
+
+    def _ctx_address():
+        return int(_CTX.ctypes.data)
+
+    def _mj_solveM_nb(m, d, x, y, n):
+        """mj_solveM(m, d, x, y, n) on the addresses ``x`` (out) and ``y`` (n × nv each) through the bindings."""
+        shape = (int(n), m.nv)
+        mujoco.mj_solveM(m, d, carray(_pf64(x), shape), carray(_pf64(y), shape))
+
     def _jit(f):
         return f
 
@@ -601,6 +624,11 @@ def callback():
     (≈ 3 s, once per change of this file or of :mod:`hydraulics._compiled`).
     """
     global _CALLBACK, _CALLBACK_POINTER
+    if _CALLBACK is None and not _JIT:  # NUMBA_DISABLE_JIT=1: MuJoCo calls the Python function
+        def coupled_step_python(m, d):
+            _coupled_step(_ctx_address(), m, d)
+
+        _CALLBACK = _CALLBACK_POINTER = coupled_step_python
     if _CALLBACK is None:
         llvm_binding.add_symbol(CTX_SYMBOL, int(_CTX.ctypes.data))
         llvm_binding.add_symbol(SOLVEM_SYMBOL, _mj_solveM_address())
