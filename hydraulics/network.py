@@ -37,9 +37,8 @@ import numpy as np
 from . import laws
 from .circuit import Circuit
 from .components import CircuitError
+from .components.relief import REGULARISATION as RELIEF_REGULARISATION  # [-] C¹ blend width / cracking pressure
 
-# Width of the C¹ blend at a relief valve's cracking point, relative to the cracking pressure.
-RELIEF_REGULARISATION = 1e-3  # [-]
 # Pressure inversion of compliant nodes (elastic walls, accumulators).
 PRESSURE_INVERSION_MAX_ITERATIONS = 60  # converges in < 8 from the rigid guess
 PRESSURE_INVERSION_TOLERANCE = 1e-13  # on ln(V·φ/m)

@@ -42,7 +42,7 @@ symbol ``CTX_SYMBOL`` and ``mj_solveM`` the external function
 ``SOLVEM_SYMBOL``, both registered with ``llvmlite.binding.add_symbol`` before
 the callback is loaded — so numba's disk cache (``sim/__pycache__``) holds it
 and a new process loads it in milliseconds instead of compiling it (≈ 3 s the
-first time after a change of this file or of ``hydraulics/_compiled.py``).
+first time after a change of this file or of the hydraulic kernel sources, ``hydraulics._jit.SOURCES``).
 numba keys a cached function by its own file only, so the callback carries a
 sha256 of both source files as a closure variable (part of numba's cache key),
 and this module's other numba functions are not cached on their own: they
@@ -219,7 +219,7 @@ if _JIT:
         SOLVEM_SYMBOL, types.void(types.voidptr, types.voidptr, types.voidptr, types.voidptr, types.int32)
     )
     # Not cached on their own: they are only ever compiled into the control callback, whose cache
-    # key includes a fingerprint of this file and of hydraulics/_compiled.py (see callback()).
+    # key includes a fingerprint of this file and of the hydraulic kernel sources (see callback()).
     # (numba's cache of a function does not notice changes of the functions it calls in other files.)
     def _jit(function):
         return numba.njit(error_model="numpy", nogil=True)(function)
@@ -593,8 +593,8 @@ def _callback_function(fingerprint):
     return coupled_step_c
 
 
-# this file and hydraulics/_compiled.py (everything the callback compiles in), taken at import: part of the cache key
-SOURCE_SHA256 = C.source_sha256(__file__, C.__file__)
+# this file and the hydraulic kernel sources (everything the callback compiles in), taken at import: part of the cache key
+SOURCE_SHA256 = C.source_sha256(__file__, *C.SOURCES)
 
 
 # ----------------------------------------------------------------------------

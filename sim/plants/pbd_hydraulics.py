@@ -28,7 +28,7 @@ held actuators), clipped into the stroke.  Any other configuration keeps the Pyt
 hooks (:func:`eligible`).
 
 Caching: numba caches a function by its own file only, so the two entry points
-carry a sha256 of this file and of ``hydraulics/_compiled.py`` (and the numba
+carry a sha256 of this file and of the hydraulic kernel sources (``hydraulics._jit.SOURCES``, and the numba
 version) as a closure variable, which is part of numba's cache key (as
 :mod:`sim.plants.mujoco_fast` does); the helpers below are not cached on their
 own and exist only inside the entry points.  One signature each.
@@ -197,9 +197,9 @@ def _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, c
     C._account(pnet, ledger, L_PUMP, h, pres, flow, v_end, quad, mu, fric, dv)
 
 
-# this file and hydraulics/_compiled.py (everything compiled into the entry points), taken at import: part of the
+# this file and the hydraulic kernel sources (everything compiled into the entry points), taken at import: part of the
 # cache key
-SOURCE_SHA256 = C.source_sha256(__file__, C.__file__)
+SOURCE_SHA256 = C.source_sha256(__file__, *C.SOURCES)
 
 
 def _entry_points(fingerprint):
