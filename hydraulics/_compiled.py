@@ -101,6 +101,7 @@ from .components.pumps import P_BAND, P_COMP, P_DISP, P_EFF
 from .components.relief import R_CRACK, R_GRAD, R_WIDTH
 from .components.valve_4_3 import V_OVERLAP, V_TAU
 from .components.parameters import table as _table
+from .components import BRANCH_LAWS, LAW_WIDTH
 
 _NUMBA = compiled_available()
 
@@ -110,8 +111,9 @@ _NUMBA = compiled_available()
 # I starts with the float-field offsets (len(_FLOAT_FIELDS) + 1, into F) and the
 # int-field offsets (len(_INT_FIELDS) + 1, into I).
 # ----------------------------------------------------------------------------
-_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "lam", "rel", "chk", "pump")
-_INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act")
+_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "lam", "rel", "chk", "pump", "law")
+_INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act",
+               "law_kind")
 _NFF = len(_FLOAT_FIELDS)
 _NIF = len(_INT_FIELDS)
 _Net = namedtuple("_Net", _FLOAT_FIELDS + _INT_FIELDS)
@@ -124,13 +126,13 @@ SCALAR_LAYOUT = ("reference_pressure", "bulk_modulus", "air_fraction", "polytrop
 (S_PREF, S_BETA, S_AIR, S_NPOLY, S_FLOOR, S_PHI_FLOOR, S_NEWTON_PTOL, S_NEWTON_RTOL, S_SUFFICIENT, S_TRUST_P, S_TRUST_F,
  S_PINV_TOL, S_FILL_TOL, S_VREG, S_GUESS) = range(len(SCALAR_LAYOUT))
 # ic: int scalars, by name: sizes, then each branch kind's [start, stop) (NetworkModel.branch_slices), then limits
-BRANCH_KINDS = ("orifice", "laminar", "relief", "check", "pump", "motor")
+BRANCH_KINDS = ("orifice", "laminar", "relief", "check", "pump", "motor", "law")
 INT_LAYOUT = (("node_count", "free_count", "actuator_count", "branch_count", "cylinder_count", "motor_count",
                "accumulator_count", "valve_count", "pump_count")
               + tuple(f"{kind}_{end}" for kind in BRANCH_KINDS for end in ("start", "stop"))
               + ("newton_max_iterations", "line_search_halvings", "inversion_max_iterations", "fill_max_iterations"))
 (IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_NPUMP, IC_O0, IC_O1, IC_L0, IC_L1, IC_R0, IC_R1, IC_C0,
- IC_C1, IC_P0, IC_P1, IC_M0, IC_M1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX, IC_FILL_MAX) = range(len(INT_LAYOUT))
+ IC_C1, IC_P0, IC_P1, IC_M0, IC_M1, IC_W0, IC_W1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX, IC_FILL_MAX) = range(len(INT_LAYOUT))
 # node table columns
 NODE_COLUMNS = ("fixed_pressure", "volume", "wall_compliance")
 NODE_FIXED_P, NODE_VOLUME, NODE_WALL = range(len(NODE_COLUMNS))
@@ -138,6 +140,12 @@ NODE_FIXED_P, NODE_VOLUME, NODE_WALL = range(len(NODE_COLUMNS))
 _W_NODE, _W_ACC, _W_CYL, _W_VALVE = len(NODE_COLUMNS), len(_accumulator.COLUMNS), len(_cylinder.COLUMNS), len(_valve.COLUMNS)
 _W_ORI, _W_REL, _W_CHK, _W_PUMP = len(_orifice.COLUMNS), len(_relief.COLUMNS), len(_check_valve.COLUMNS), len(_pumps.COLUMNS)
 _W_CI, _W_MI = len(_cylinder.INDEX_COLUMNS), len(_motor.INDEX_COLUMNS)
+# branch terminals (columns of ``br`` and of the flow derivatives ``dflow``): flow from FROM to TO; PILOT: a
+# third terminal whose pressure the law reads (-1: none)
+TERMINAL_COLUMNS = ("from", "to", "pilot")
+T_FROM, T_TO, T_PILOT = range(len(TERMINAL_COLUMNS))
+_W_BR = len(TERMINAL_COLUMNS)
+_W_LAW = LAW_WIDTH
 
 # status codes returned by the kernels
 _OK, _NEWTON_FAILED = 0, 1
@@ -205,6 +213,7 @@ def pack_network(model: NetworkModel):
         rel=_relief.pack(model),
         chk=_check_valve.pack(model),
         pump=_pumps.pack(model),
+        law=model.law_table,
     )
     ints = dict(
         ic=ic,
@@ -215,9 +224,10 @@ def pack_network(model: NetworkModel):
         acc_node=model.accumulator_node,
         cyl_i=_cylinder.pack_index(model),
         mot_i=_motor.pack_index(model),
-        br=np.column_stack((model.branch_from, model.branch_to)).reshape(len(model.branch_names), 2),
+        br=np.column_stack((model.branch_from, model.branch_to, model.branch_pilot)).reshape(len(model.branch_names), _W_BR),
         or_valve=model.orifice_valve,
         mot_br_act=model.motor_branch_actuator,
+        law_kind=model.law_kind,
     )
     fparts = [np.ascontiguousarray(floats[k], float).ravel() for k in _FLOAT_FIELDS]
     iparts = [np.ascontiguousarray(ints[k]).astype(np.int64).ravel() for k in _INT_FIELDS]
@@ -236,6 +246,7 @@ def _unpack(F, I):
     ic = I[I[o]:I[o + 1]]
     n, ncyl, nmot, nacc, nv, nb = ic[IC_N], ic[IC_NCYL], ic[IC_NMOT], ic[IC_NACC], ic[IC_NV], ic[IC_NB]
     nor, nrel, nchk, npump = ic[IC_O1] - ic[IC_O0], ic[IC_R1] - ic[IC_R0], ic[IC_C1] - ic[IC_C0], ic[IC_P1] - ic[IC_P0]
+    nlaw = ic[IC_W1] - ic[IC_W0]
     return _Net(
         F[I[0]:I[1]],
         _matrix(F[I[1]:I[2]], n, _W_NODE),
@@ -248,6 +259,7 @@ def _unpack(F, I):
         _matrix(F[I[8]:I[9]], nrel, _W_REL),
         _matrix(F[I[9]:I[10]], nchk, _W_CHK),
         _matrix(F[I[10]:I[11]], npump, _W_PUMP),
+        _matrix(F[I[11]:I[12]], nlaw, _W_LAW),
         ic,
         I[I[o + 1]:I[o + 2]],
         I[I[o + 2]:I[o + 3]],
@@ -256,9 +268,10 @@ def _unpack(F, I):
         I[I[o + 5]:I[o + 6]],
         _matrix(I[I[o + 6]:I[o + 7]], ncyl, _W_CI),
         _matrix(I[I[o + 7]:I[o + 8]], nmot, _W_MI),
-        _matrix(I[I[o + 8]:I[o + 9]], nb, 2),
+        _matrix(I[I[o + 8]:I[o + 9]], nb, _W_BR),
         I[I[o + 9]:I[o + 10]],
         I[I[o + 10]:I[o + 11]],
+        I[I[o + 11]:I[o + 12]],
     )
 
 
@@ -278,6 +291,30 @@ def fill_ratio_nb(p, pref, beta, air, n):
     dspecific = -liquid / beta - a / (n * pp)
     phi = (1.0 + air) / specific
     return phi, -phi * dspecific / specific
+
+
+def _law_dispatch(laws, first=0):
+    """A kernel ``dispatch(kind, row, p_from, p_to, p_pilot)`` that calls ``laws[kind - first]`` (the branch laws of
+    :data:`hydraulics.components.BRANCH_LAWS`, in order): a chain of closures, one ``if`` per law, built from the
+    registry so that a new component needs no line here."""
+    if not laws:
+        @_kernel
+        def none(kind, row, p_from, p_to, p_pilot):
+            return math.nan, math.nan, math.nan, math.nan
+
+        return none
+    law, rest = laws[0], _law_dispatch(laws[1:], first + 1)
+
+    @_kernel
+    def dispatch(kind, row, p_from, p_to, p_pilot):
+        if kind == first:
+            return law(row, p_from, p_to, p_pilot)
+        return rest(kind, row, p_from, p_to, p_pilot)
+
+    return dispatch
+
+
+_branch_law = _law_dispatch(tuple(cls.BRANCH_LAW for cls in BRANCH_LAWS))
 
 
 # ----------------------------------------------------------------------------
@@ -485,40 +522,46 @@ def _valve_areas(pnet, spool, area):
 
 
 @_kernel
-def _branch_flows(pnet, p, area, speed, velocity, flow, dfrom, dto):
-    # NetworkModel.branch_flows
+def _branch_flows(pnet, p, area, speed, velocity, flow, dflow):
+    """NetworkModel.branch_flows: ``flow`` [m³/s] of every branch and ``dflow`` (branches × terminals) its
+    derivative with respect to the pressure of each terminal (columns :data:`TERMINAL_COLUMNS`) [m³/(s·Pa)]."""
     net = _deref(pnet)
     ic, br = net.ic, net.br
-    for b in range(ic[IC_NB]):
-        dfrom[b] = 0.0
-        dto[b] = 0.0
+    dflow[:, :] = 0.0
     for b in range(ic[IC_O0], ic[IC_O1]):
         i = b - ic[IC_O0]
         q, g = _orifice.flow_with_derivative(area[i], net.ori[i, O_K], net.ori[i, O_C], p[br[b, 0]] - p[br[b, 1]])
-        flow[b], dfrom[b], dto[b] = q, g, -g
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
     for b in range(ic[IC_L0], ic[IC_L1]):
         g = net.lam[b - ic[IC_L0]]
-        flow[b], dfrom[b], dto[b] = g * (p[br[b, 0]] - p[br[b, 1]]), g, -g
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = g * (p[br[b, 0]] - p[br[b, 1]]), g, -g
     rel = net.rel
     for b in range(ic[IC_R0], ic[IC_R1]):
         i = b - ic[IC_R0]
         q, g = _relief.flow_with_derivative(p[br[b, 0]] - p[br[b, 1]], rel[i, R_CRACK], rel[i, R_GRAD], rel[i, R_WIDTH])
-        flow[b], dfrom[b], dto[b] = q, g, -g
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
     chk = net.chk
     for b in range(ic[IC_C0], ic[IC_C1]):
         i = b - ic[IC_C0]
         q, g = _check_valve.flow_with_derivative(p[br[b, 0]] - p[br[b, 1]], chk[i, K_CRACK], chk[i, K_FULL], chk[i, K_AREA],
                                                  chk[i, K_LEAK], chk[i, K_K], chk[i, K_C])
-        flow[b], dfrom[b], dto[b] = q, g, -g
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
     pump = net.pump
     for b in range(ic[IC_P0], ic[IC_P1]):
         i = b - ic[IC_P0]
         disp, ddisp = _pumps.compensated_displacement_with_derivative(pump[i, P_DISP], p[br[b, 1]], pump[i, P_COMP], pump[i, P_BAND])
         flow[b] = _pumps.flow(disp, speed[i], pump[i, P_EFF])
-        dto[b] = _pumps.flow(ddisp, speed[i], pump[i, P_EFF])
+        dflow[b, T_TO] = _pumps.flow(ddisp, speed[i], pump[i, P_EFF])
     for b in range(ic[IC_M0], ic[IC_M1]):
         i = b - ic[IC_M0]
         flow[b] = _motor.flow(net.mot[i], velocity[net.mot_br_act[i]])
+    law = net.law
+    for b in range(ic[IC_W0], ic[IC_W1]):
+        i = b - ic[IC_W0]
+        pilot = br[b, T_PILOT]
+        q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], p[br[b, T_FROM]], p[br[b, T_TO]],
+                                    p[pilot] if pilot >= 0 else 0.0)
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO], dflow[b, T_PILOT] = q, d0, d1, d2
 
 
 @_kernel
@@ -535,39 +578,41 @@ def _net_inflow(pnet, flow, inflow):
 
 
 @_kernel
-def _flow_jacobian(pnet, dfrom, dto, jq):
-    # NetworkModel.flow_jacobian (full, node × node)
+def _flow_jacobian(pnet, dflow, jq):
+    """NetworkModel.flow_jacobian (full, node × node): ∂(net inflow)/∂p from the branches' terminal derivatives."""
     net = _deref(pnet)
     jq[:, :] = 0.0
     br = net.br
-    for b in range(dfrom.size):
-        f, t = br[b, 0], br[b, 1]
-        if f != t:
-            jq[t, f] += dfrom[b]
-            jq[t, t] += dto[b]
-            jq[f, f] -= dfrom[b]
-            jq[f, t] -= dto[b]
+    for b in range(dflow.shape[0]):
+        f, t = br[b, T_FROM], br[b, T_TO]
+        if f == t:
+            continue
+        for j in range(_W_BR):
+            k = br[b, j]
+            if k >= 0:
+                jq[t, k] += dflow[b, j]
+                jq[f, k] -= dflow[b, j]
 
 
 @_kernel
-def _newton_matrix(pnet, dfrom, dto, dpdm, h, jac):
-    # I − h·(∂Q/∂p)[free, free]·diag(∂p/∂m[free])
+def _newton_matrix(pnet, dflow, dpdm, h, jac):
+    """I − h·(∂Q/∂p)[free, free]·diag(∂p/∂m[free]) from the branches' terminal derivatives ``dflow``."""
     net = _deref(pnet)
     jac[:, :] = 0.0
     br, fi, free = net.br, net.free_index, net.free
-    for b in range(dfrom.size):
-        f, t = br[b, 0], br[b, 1]
+    for b in range(dflow.shape[0]):
+        f, t = br[b, T_FROM], br[b, T_TO]
         if f == t:
             continue
         jf, jt = fi[f], fi[t]
-        if jt >= 0:
-            if jf >= 0:
-                jac[jt, jf] += dfrom[b]
-            jac[jt, jt] += dto[b]
-        if jf >= 0:
-            jac[jf, jf] -= dfrom[b]
+        for j in range(_W_BR):
+            k = br[b, j]
+            if k < 0 or fi[k] < 0:
+                continue
             if jt >= 0:
-                jac[jf, jt] -= dto[b]
+                jac[jt, fi[k]] += dflow[b, j]
+            if jf >= 0:
+                jac[jf, fi[k]] -= dflow[b, j]
     nf = free.size
     for i in range(nf):
         for j in range(nf):
@@ -616,11 +661,11 @@ def _lu_solve(a, b):
 
 
 @_kernel
-def _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, dto, inflow, residual):
+def _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dflow, inflow, residual):
     # StepperImplicitEuler._solve.evaluate
     net = _deref(pnet)
     _pressure(pnet, oil, x, geo, p, dpdm)
-    _branch_flows(pnet, p, area, speed, v, flow, dfrom, dto)
+    _branch_flows(pnet, p, area, speed, v, flow, dflow)
     _net_inflow(pnet, flow, inflow)
     free = net.free
     for j in range(free.size):
@@ -707,7 +752,7 @@ def _take2(W, offset, rows, cols):
 def _solve_work_size(ic):
     """Scratch entries _solve_core needs (float64)."""
     n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
-    return (ic[IC_O1] - ic[IC_O0]) + 8 * n + 6 * nb + 4 * nf + nf * nf
+    return (ic[IC_O1] - ic[IC_O0]) + 8 * n + (2 + 2 * _W_BR) * nb + 4 * nf + nf * nf
 
 
 @_kernel
@@ -720,7 +765,7 @@ def _step_work_size(ic):
 def _linearize_work_size(ic):
     """Scratch entries _linearize_core needs (float64)."""
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
-    return (_solve_work_size(ic) + 3 * nb + 2 * n + 5 * n * na + (ic[IC_O1] - ic[IC_O0]) + n * n + nf * na + nf * nf
+    return (_solve_work_size(ic) + (1 + _W_BR) * nb + 2 * n + 5 * n * na + (ic[IC_O1] - ic[IC_O0]) + n * n + nf * na + nf * nf
             + na)
 
 
@@ -732,7 +777,7 @@ def work_size(F, I) -> int:
 
 
 @_kernel
-def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, dto_out, istats, W, p_first, oil_init):
+def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out, istats, W, p_first, oil_init):
     """StepperImplicitEuler._solve; returns the scaled residual norm, counters in ``istats``.
 
     ``W`` is scratch (at least ``_solve_work_size``); ``p_first`` receives the
@@ -755,11 +800,9 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
     t_p, o = _take(W, o, n)
     t_dpdm, o = _take(W, o, n)
     flow, o = _take(W, o, nb)
-    dfrom, o = _take(W, o, nb)
-    dto, o = _take(W, o, nb)
+    dflow, o = _take2(W, o, nb, _W_BR)
     t_flow, o = _take(W, o, nb)
-    t_dfrom, o = _take(W, o, nb)
-    t_dto, o = _take(W, o, nb)
+    t_dflow, o = _take2(W, o, nb, _W_BR)
     residual, o = _take(W, o, nf)
     t_residual, o = _take(W, o, nf)
     scale, o = _take(W, o, nf)
@@ -772,7 +815,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
     rhs = 0
     jacobians = 0
     iterations = 0
-    _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, dto, inflow, residual)
+    _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dflow, inflow, residual)
     _copy(p_first, p)
     rhs += 1
     for j in range(nf):
@@ -784,7 +827,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
     for _ in range(ic[IC_NEWTON_MAX]):
         if converged:
             break
-        _newton_matrix(pnet, dfrom, dto, dpdm, h, jac)
+        _newton_matrix(pnet, dflow, dpdm, h, jac)
         jacobians += 1
         for j in range(nf):
             delta[j, 0] = -residual[j]
@@ -797,7 +840,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
             _copy(t_oil, oil)
             for j in range(nf):
                 t_oil[free[j]] = oil[free[j]] + step * delta[j, 0]
-            _evaluate(pnet, t_oil, oil0, x, v, area, speed, h, geo, t_p, t_dpdm, t_flow, t_dfrom, t_dto, inflow, t_residual)
+            _evaluate(pnet, t_oil, oil0, x, v, area, speed, h, geo, t_p, t_dpdm, t_flow, t_dflow, inflow, t_residual)
             rhs += 1
             t_norm = _scaled_norm(t_residual, scale)
             if math.isfinite(t_norm) and (t_norm <= (1.0 - sc[S_SUFFICIENT] * step) * norm or halving == halvings - 1):
@@ -811,8 +854,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
         p, t_p = t_p, p
         dpdm, t_dpdm = t_dpdm, dpdm
         flow, t_flow = t_flow, flow
-        dfrom, t_dfrom = t_dfrom, dfrom
-        dto, t_dto = t_dto, dto
+        dflow, t_dflow = t_dflow, dflow
         residual, t_residual = t_residual, residual
         norm = t_norm
         tol = _tolerance(pnet, p)
@@ -845,8 +887,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
         k = free[j]
         oil_out[k] = oil0[k] + h * inflow[k]
     _copy(flow_out, flow)
-    _copy(dfrom_out, dfrom)
-    _copy(dto_out, dto)
+    _copy2(dflow_out, dflow)
     return norm
 
 
@@ -862,8 +903,7 @@ def _spool_end(pnet, spool0, command, h, spool):
 # Cores (no allocation: outputs and scratch passed in) and entry points (called from Python)
 # ----------------------------------------------------------------------------
 @_kernel
-def _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats,
-               oil_init):
+def _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dflow, istats, oil_init):
     """One backward-Euler substep into the given outputs: spool update (or ``spool0`` as given), Newton solve
     started from ``oil_init``, end-of-step pressures; returns the residual norm.  ``W``: scratch of
     ``_step_work_size`` entries."""
@@ -876,7 +916,7 @@ def _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil
     s = _solve_work_size(net.ic)
     dpdm, o = _take(W, s, n)
     geo, o = _take(W, o, n)
-    norm = _solve_core(pnet, oil0, x, v, spool, speed, h, oil, flow, dfrom, dto, istats, W, p, oil_init)
+    norm = _solve_core(pnet, oil0, x, v, spool, speed, h, oil, flow, dflow, istats, W, p, oil_init)
     _pressure(pnet, oil, x, geo, p, dpdm)
     return norm
 
@@ -890,11 +930,11 @@ def _step_python_entry(F, I, oil0, spool0, command, speed, x, v, h, update_spool
     n, nb = net.ic[IC_N], net.ic[IC_NB]
     W = np.empty(_step_work_size(net.ic))
     spool = np.empty(spool0.size)
-    oil, p, flow, dfrom, dto = np.empty(n), np.empty(n), np.empty(nb), np.empty(nb), np.empty(nb)
+    oil, p, flow, dflow = np.empty(n), np.empty(n), np.empty(nb), np.empty((nb, _W_BR))
     istats = np.zeros(6, np.int64)
-    norm = _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats,
+    norm = _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dflow, istats,
                       oil_init)
-    return oil, p, spool, flow, dfrom, dto, istats, norm
+    return oil, p, spool, flow, dflow, istats, norm
 
 
 @_kernel
@@ -1020,12 +1060,11 @@ def _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil
         x[a] = x0[a] + dt * velocity[a]
     _spool_end(pnet, spool0, command, dt, spool)
     o = _solve_work_size(ic)
-    dfrom, o = _take(W, o, nb)
-    dto, o = _take(W, o, nb)
+    dflow, o = _take2(W, o, nb, _W_BR)
     flow2, o = _take(W, o, nb)
     dpdm, o = _take(W, o, n)
     geo, o = _take(W, o, n)
-    norm = _solve_core(pnet, oil0, x, velocity, spool, speed, dt, oil, flow, dfrom, dto, istats, W, p_first, oil_init)
+    norm = _solve_core(pnet, oil0, x, velocity, spool, speed, dt, oil, flow, dflow, istats, W, p_first, oil_init)
     _pressure(pnet, oil, x, geo, p, dpdm)
     dvdx, o = _take2(W, o, n, na)
     dpdx_dt, o = _take2(W, o, n, na)  # dt·∂p/∂x
@@ -1039,8 +1078,8 @@ def _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil
     slope, o = _take(W, o, na)
     _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt)
     _valve_areas(pnet, spool, area)
-    _branch_flows(pnet, p, area, speed, velocity, flow2, dfrom, dto)
-    _flow_jacobian(pnet, dfrom, dto, jq)
+    _branch_flows(pnet, p, area, speed, velocity, flow2, dflow)
+    _flow_jacobian(pnet, dflow, jq)
     _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, 0)
     _newton_matrix_of(pnet, jq, dpdm, dt, jac)
     _copy2(dpdv, dpdx_dt)
@@ -1093,8 +1132,7 @@ def _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity
     geo, o = _take(W, o, n)
     inflow, o = _take(W, o, n)
     dpdm, o = _take(W, o, n)
-    dfrom, o = _take(W, o, nb)
-    dto, o = _take(W, o, nb)
+    dflow, o = _take2(W, o, nb, _W_BR)
     residual, o = _take(W, o, nf)
     dvdx, o = _take2(W, o, n, na)
     dpdx_dt, o = _take2(W, o, n, na)
@@ -1106,9 +1144,9 @@ def _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity
     epg, o = _take2(W, o, na, n)
     slope, o = _take(W, o, na)
     _valve_areas(pnet, spool, area)
-    _evaluate(pnet, oil0, oil0, x0, velocity, area, speed, dt, geo, p_first, dpdm, flow, dfrom, dto, inflow, residual)
+    _evaluate(pnet, oil0, oil0, x0, velocity, area, speed, dt, geo, p_first, dpdm, flow, dflow, inflow, residual)
     _position_pressure_gradient(pnet, x0, geo, p_first, dpdm, dt, dvdx, dpdx_dt)
-    _flow_jacobian(pnet, dfrom, dto, jq)
+    _flow_jacobian(pnet, dflow, jq)
     _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, 1)
     for j in range(nf):  # dt·ΣQ(p₀, v) (= −residual) + dt·(∂Q/∂p)·(dt·∂p/∂x)·v (= (−∂r/∂v − dt·∂Q_motor/∂v)·v)
         k = free[j]
@@ -1428,7 +1466,7 @@ def _linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow):
     """CouplingImplicitLinear.finish after the prediction: end pressures p = p(m⁺, x⁺) [Pa] of the predicted oil
     ``oil`` (m⁺ [m³]) at the end positions ``x``, and the branch flows ``flow`` [m³/s] at the linearisation's
     spools ``spool``, pump speeds ``speed`` and end velocities ``v`` (no Newton solve).  ``W``: scratch of at least
-    (orifices + 2·nodes) entries; ``dflow``: scratch (branches)."""
+    (orifices + 2·nodes) entries; ``dflow``: scratch (branches × terminals)."""
     net = _deref(pnet)
     n = oil.size
     o = 0
@@ -1437,7 +1475,7 @@ def _linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow):
     dpdm, o = _take(W, o, n)
     _pressure(pnet, oil, x, geo, p, dpdm)
     _valve_areas(pnet, spool, area)
-    _branch_flows(pnet, p, area, speed, v, flow, dflow, dflow)
+    _branch_flows(pnet, p, area, speed, v, flow, dflow)
 
 
 @_kernel
@@ -1472,6 +1510,8 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
         motor += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
     dissipated = 0.0
     for b in range(ic[IC_O0], ic[IC_C1]):
+        dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+    for b in range(ic[IC_W0], ic[IC_W1]):
         dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
     ledger[at] += h * -pump
     ledger[at + 1] += h * motor
@@ -1566,7 +1606,7 @@ class StepperImplicitEulerCompiled(StepperImplicitEuler):
         if not _NUMBA:  # pragma: no cover
             return super()._substep(state, control, motion, h, oil_guess)
         oil0 = _f64(state.node_oil)
-        oil, pressure, spool, flow, _, _, istats, norm = _step_kernel(
+        oil, pressure, spool, flow, _, istats, norm = _step_kernel(
             self._F, self._I, oil0, _f64(state.valve_spool), _f64(control.valve_command),
             _f64(control.pump_speed), _f64(motion.position_end), _f64(motion.velocity_end), float(h), True,
             oil0 if oil_guess is None else _f64(oil_guess),
@@ -1580,11 +1620,12 @@ class StepperImplicitEulerCompiled(StepperImplicitEuler):
         if not _NUMBA:  # pragma: no cover
             return super()._solve(state, control, position, velocity, spool, h, oil_guess)
         oil0 = _f64(state.node_oil)
-        oil, _, _, flow, dfrom, dto, istats, norm = _step_kernel(
+        oil, _, _, flow, dflow, istats, norm = _step_kernel(
             self._F, self._I, oil0, _f64(spool), _f64(control.valve_command), _f64(control.pump_speed),
             _f64(position), _f64(velocity), float(h), False, oil0 if oil_guess is None else _f64(oil_guess),
         )
-        return oil, BranchFlows(flow, dfrom, dto), self._make_report(istats, norm, flow)
+        return (oil, BranchFlows(flow, dflow[:, T_FROM].copy(), dflow[:, T_TO].copy(), dflow[:, T_PILOT].copy()),
+                self._make_report(istats, norm, flow))
 
     def linearize(self, state: NetworkState, control, velocity, dt: float, *, newton: bool = True,
                   oil_guess=None) -> Linearization:

@@ -24,9 +24,11 @@ from .hose import Hose
 from .motor import Motor
 from .orifice import Orifice
 from .parameters import CircuitError, check_number, describe_range, param
+from .pilot_check import PilotCheckValve
 from .pumps import PumpCompensated, PumpFixed
 from .relief import ReliefValve
 from .tank import Tank
+from .throttle_check import ThrottleCheckValve
 from .valve_4_3 import Valve43
 from .volume import Volume
 
@@ -43,8 +45,21 @@ COMPONENT_TYPES = {
     "cylinder": Cylinder,
     "motor": Motor,
     "accumulator": Accumulator,
+    "pilot_check_valve": PilotCheckValve,
+    "throttle_check_valve": ThrottleCheckValve,
 }
 """Circuit-file ``type`` name → parameter class."""
+
+BRANCH_LAWS = tuple(cls for cls in COMPONENT_TYPES.values() if hasattr(cls, "BRANCH_LAW"))
+"""The component classes that bring their own branch law, in registry order (their law number in the network).
+
+Such a class declares ``PORTS`` (two or three: the flow runs from the first to the second port; a third is a
+pilot terminal whose pressure the law reads), ``LAW_COLUMNS`` (the names of its parameter row),
+``law_row(fluid)`` (that row) and ``BRANCH_LAW``, a compiled function
+``law(row, p_from, p_to, p_pilot) -> (Q, ∂Q/∂p_from, ∂Q/∂p_to, ∂Q/∂p_pilot)`` [m³/s, m³/(s·Pa)].
+Adding such a component takes its module and one line in :data:`COMPONENT_TYPES`."""
+LAW_WIDTH = max([len(cls.LAW_COLUMNS) for cls in BRANCH_LAWS], default=1)
+"""Floats per row of the network's law-branch table (the widest law's row)."""
 
 
 def build_component(kind: str, table: dict, where: str):
@@ -80,6 +95,6 @@ def build_component(kind: str, table: dict, where: str):
     return component
 
 
-__all__ = ["COMPONENT_TYPES", "CircuitError", "build_component", "check_number", "describe_range", "param",
-           "Accumulator", "CheckValve", "Cylinder", "Hose", "Motor", "Orifice", "PumpCompensated", "PumpFixed",
-           "ReliefValve", "Tank", "Valve43", "Volume"]
+__all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "check_number", "describe_range", "param",
+           "Accumulator", "CheckValve", "Cylinder", "Hose", "Motor", "Orifice", "PilotCheckValve", "PumpCompensated",
+           "PumpFixed", "ReliefValve", "Tank", "ThrottleCheckValve", "Valve43", "Volume"]

@@ -39,3 +39,16 @@ def ramp_piece(z, width):
 def unit_clip_with_derivative(z):
     """clip(z, 0, 1) and its derivative (1 inside (0, 1), 0 outside)."""
     return clip(z, 0.0, 1.0), (1.0 if (z > 0.0 and z < 1.0) else 0.0)
+
+
+@kernel
+def smooth_step_with_derivative(z):
+    """C¹ unit step and its slope: 0 for z ≤ 0, 3z² − 2z³ for 0 < z < 1, 1 for z ≥ 1 (slope 6z(1 − z) inside).
+
+    The opening of a pilot-operated poppet: continuous opening and slope, so Newton's method sees no kink.
+    """
+    if z >= 1.0:
+        return 1.0, 0.0
+    if z > 0.0:
+        return z * z * (3.0 - 2.0 * z), 6.0 * z * (1.0 - z)
+    return 0.0, 0.0

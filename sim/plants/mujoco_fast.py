@@ -170,7 +170,7 @@ SOLVEM_SYMBOL = "hydroplant_mj_solveM"
 
 
 def _finish_scratch(na, n, nb, nvalve):
-    return 4 * na + 6 * n + 2 * nb + nvalve
+    return 4 * na + 6 * n + (1 + C._W_BR) * nb + nvalve
 
 
 def scratch_size(na, n, nb, nvalve):
@@ -321,7 +321,7 @@ def _finish_pending(ctx, pnet, V):
     p2, o = C._take(S, o, n)
     mu, o = C._take(S, o, n)
     fl, o = C._take(S, o, nb)
-    dfl, o = C._take(S, o, nb)
+    dfl, o = C._take2(S, o, nb, C._W_BR)  # branches × terminals
     sp2, o = C._take(S, o, nvalve)
     mpred, o = C._take(S, o, n)
     mstart, o = C._take(S, o, n)
@@ -368,7 +368,7 @@ def _finish_pending(ctx, pnet, V):
             C._copy(xe, x_end)
             C._copy(ve, v_end)
             C._copy(minit, mpred)
-        norm = C._step_core(pnet, W, oil, spool, cmd, speed, xe, ve, h, True, o2, p2, sp2, fl, dfl, dfl, istats, minit)
+        norm = C._step_core(pnet, W, oil, spool, cmd, speed, xe, ve, h, True, o2, p2, sp2, fl, dfl, istats, minit)
         newton += istats[C.IS_NEWTON]
         rhs += istats[C.IS_RHS]
         jac += istats[C.IS_JAC]

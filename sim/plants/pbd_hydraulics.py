@@ -90,7 +90,7 @@ def keep_size(n, na, nb, nvalve):
     """Length of the float64 buffer S: the last substep's oil change [m³] (``NetworkState.node_oil_change``, the
     next substep's warm start, which persists across substeps and steps; :meth:`FastHydraulics.load` / ``store``
     move it), what begin leaves for finish (``C._take_linearization``), then begin's and finish's temporaries."""
-    return n + (na + n + nvalve + n * na) + _begin_temporaries(n, na, nb, nvalve) + (5 * n + 2 * na + 3 * nb + nvalve)
+    return n + (na + n + nvalve + n * na) + _begin_temporaries(n, na, nb, nvalve) + (5 * n + 2 * na + (1 + C._W_BR) * nb + nvalve)
 
 
 _begin_temporaries_nb = _kernel(_begin_temporaries)
@@ -158,22 +158,20 @@ def _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, c
     mu, o = C._take(S, o, n)
     dv, o = C._take(S, o, na)
     fric, o = C._take(S, o, na)
-    dfrom, o = C._take(S, o, nb)
-    dto, o = C._take(S, o, nb)
+    dflow, o = C._take2(S, o, nb, C._W_BR)  # branches × terminals
     fl, o = C._take(S, o, nb)
     sp2, o = C._take(S, o, nvalve)
     change, o = C._take(S, o, n)
     C._predicted_oil(lin_oil, doil, guess, v_end, dv, mpred)
     if scheme == SCHEME_NEWTON:
-        norm = C._step_core(pnet, W, oil, spool, cmd, speed, x_end, v_end, h, True, o2, p2, sp2, fl, dfrom, dto, istats,
-                            mpred)
+        norm = C._step_core(pnet, W, oil, spool, cmd, speed, x_end, v_end, h, True, o2, p2, sp2, fl, dflow, istats, mpred)
         istats[I_NEWTON] += istats[C.IS_NEWTON]
         istats[I_RHS] += istats[C.IS_RHS]
         istats[I_JAC] += istats[C.IS_JAC]
     else:  # m⁺ = the prediction, at the linearisation's spools
         C._copy(o2, mpred)
         C._copy(sp2, lin_spool)
-        C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfrom)
+        C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dflow)
         norm = 0.0
         istats[C.IS_STATUS] = C._OK
         istats[I_RHS] += 1
