@@ -152,6 +152,19 @@ _OK, _NEWTON_FAILED = 0, 1
 # istats entries
 (IS_STATUS, IS_NEWTON, IS_RHS, IS_JAC, IS_WORST, IS_SINGULAR) = range(6)
 
+# Arguments of the step and linearisation kernels, as named tuples of arrays (numba passes them by value; views only)
+StepStart = namedtuple("StepStart", ("oil", "spool", "command", "speed", "position", "velocity"))
+StepStart.__doc__ = """Start of a (sub)step: node oil [m³], valve spools and commands [-], pump speeds [rev/s], actuator
+positions [m | rad] and velocities [m/s | rad/s] (each shape (count,))."""
+StepOut = namedtuple("StepOut", ("oil", "pressure", "spool", "flow", "dflow", "istats"))
+StepOut.__doc__ = """Outputs of :func:`_step_core`: end oil [m³], pressures [Pa], spools [-], branch flows [m³/s], their
+terminal derivatives (branches × :data:`TERMINAL_COLUMNS`) [m³/(s·Pa)], counters (``IS_*``)."""
+LinearizationOut = namedtuple("LinearizationOut", ("oil", "pressure", "spool", "position", "flow", "istats", "effort",
+                                                   "gradient", "pressure_first", "oil_gradient"))
+LinearizationOut.__doc__ = """Outputs of the linearisation kernels: predicted end oil [m³], pressures [Pa], spools,
+positions, branch flows, counters, actuator efforts [N | N·m] and their gradient ∂f/∂v⁺ (na × na), the pressures of the
+first evaluation [Pa], ∂m⁺/∂v (n × na)."""
+
 
 def elimination_order(model: NetworkModel) -> np.ndarray:
     """The free nodes in the order the kernels number their unknowns: fewest free neighbours first (a stable sort
@@ -903,10 +916,12 @@ def _spool_end(pnet, spool0, command, h, spool):
 # Cores (no allocation: outputs and scratch passed in) and entry points (called from Python)
 # ----------------------------------------------------------------------------
 @_kernel
-def _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dflow, istats, oil_init):
-    """One backward-Euler substep into the given outputs: spool update (or ``spool0`` as given), Newton solve
-    started from ``oil_init``, end-of-step pressures; returns the residual norm.  ``W``: scratch of
-    ``_step_work_size`` entries."""
+def _step_core(pnet, W, start, h, update_spool, out, oil_init):
+    """One backward-Euler substep of ``h`` [s] from ``start`` (:class:`StepStart`, its velocities those of the step's
+    end) into ``out`` (:class:`StepOut`): spool update (or the start spools as given), Newton solve started from
+    ``oil_init``, end-of-step pressures; returns the residual norm.  ``W``: scratch of ``_step_work_size`` entries."""
+    oil0, spool0, command, speed, x, v = start
+    oil, p, spool, flow, dflow, istats = out
     net = _deref(pnet)
     n = net.ic[IC_N]
     if update_spool:
@@ -932,8 +947,8 @@ def _step_python_entry(F, I, oil0, spool0, command, speed, x, v, h, update_spool
     spool = np.empty(spool0.size)
     oil, p, flow, dflow = np.empty(n), np.empty(n), np.empty(nb), np.empty((nb, _W_BR))
     istats = np.zeros(6, np.int64)
-    norm = _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dflow, istats,
-                      oil_init)
+    norm = _step_core(pnet, W, StepStart(oil0, spool0, command, speed, x, v), h, update_spool,
+                      StepOut(oil, p, spool, flow, dflow, istats), oil_init)
     return oil, p, spool, flow, dflow, istats, norm
 
 
@@ -1044,15 +1059,17 @@ def _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope):
 
 
 @_kernel
-def _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort, gradient,
-                    p_first, doil, oil_init):
-    """StepperImplicitEuler.linearize into the given outputs, its Newton solve started from ``oil_init`` (the pure
-    ``oil_guess``; ``oil0`` for a cold start); returns the residual norm.
+def _linearize_core(pnet, W, start, dt, out, oil_init):
+    """StepperImplicitEuler.linearize from ``start`` (:class:`StepStart`, its velocities the linearisation point) into
+    ``out`` (:class:`LinearizationOut`), its Newton solve started from ``oil_init`` (the pure ``oil_guess``; the start
+    oil for a cold start); returns the residual norm.
 
     ``W``: scratch of ``_linearize_work_size`` entries; ``p_first`` receives
     the pressures at (``oil_init``, x0 + dt·velocity), the Newton solve's first evaluation;
     ``doil`` (n × na) receives ∂m⁺/∂v (``Linearization.oil_velocity_gradient``; zero rows for fixed nodes).
     """
+    oil0, spool0, command, speed, x0, velocity = start
+    oil, p, spool, x, flow, istats, effort, gradient, p_first, doil = out
     net = _deref(pnet)
     ic, free = net.ic, net.free
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
@@ -1100,8 +1117,7 @@ def _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil
 
 
 @_kernel
-def _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
-                             gradient, p_first, doil):
+def _linearize_one_step_core(pnet, W, start, dt, out):
     """StepperImplicitEuler.linearize(…, newton=False): the Rosenbrock–Euler (W-method) twin of
     :func:`_linearize_core`, with the same arguments and outputs.
 
@@ -1121,6 +1137,8 @@ def _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity
     hitting its end stop drives the supply past the relief), or when the matrix is singular; the
     outputs are then incomplete and the caller solves (:func:`_linearize_any`).
     """
+    oil0, spool0, command, speed, x0, velocity = start
+    oil, p, spool, x, flow, istats, effort, gradient, p_first, doil = out
     net = _deref(pnet)
     ic, free = net.ic, net.free
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
@@ -1225,17 +1243,14 @@ def _one_step_accepted(istats):
 
 
 @_kernel
-def _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
-                   gradient, p_first, doil, oil_init):
+def _linearize_any(newton, pnet, W, start, dt, out, oil_init):
     """:func:`_linearize_core` (``newton``: backward Euler solved by Newton from ``oil_init``), or
     :func:`_linearize_one_step_core` (Rosenbrock–Euler, one Newton step from ``oil0``) where it accepts its step and
     :func:`_linearize_core` where it does not; same arguments and outputs; returns the residual norm (0 for an
     accepted one-step linearisation)."""
-    if not newton and _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x,
-                                               flow, istats, effort, gradient, p_first, doil):
+    if not newton and _linearize_one_step_core(pnet, W, start, dt, out):
         return 0.0
-    return _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
-                           effort, gradient, p_first, doil, oil_init)
+    return _linearize_core(pnet, W, start, dt, out, oil_init)
 
 
 @_jit
@@ -1249,8 +1264,8 @@ def _linearize_python_entry(F, I, oil0, spool0, command, speed, x0, velocity, dt
     oil, p, spool, x, flow = np.empty(n), np.empty(n), np.empty(spool0.size), np.empty(na), np.empty(nb)
     istats = np.zeros(6, np.int64)
     effort, gradient, p_first, doil = np.empty(na), np.empty((na, na)), np.empty(n), np.empty((n, na))
-    norm = _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
-                          effort, gradient, p_first, doil, oil_init)
+    norm = _linearize_any(newton, pnet, W, StepStart(oil0, spool0, command, speed, x0, velocity), dt,
+                          LinearizationOut(oil, p, spool, x, flow, istats, effort, gradient, p_first, doil), oil_init)
     return oil, p, spool, x, flow, istats, norm, effort, gradient, doil
 
 
@@ -1377,27 +1392,26 @@ def _clipped_guess_is_held(pnet, x, dt, guess):
 
 
 @_kernel
-def _linearize_at_start_velocity(newton, pnet, W, oil0, spool0, command, speed, x0, v, dt, guess, oil, p, spool, x, flow,
-                                 istats, effort, gradient, p_first, doil, oil_warm):
-    """CouplingImplicit.begin's linearisation (:func:`_linearize_any`) at :func:`_start_velocity_guess` of the start
-    velocities ``v``, written to ``guess``; where that guess is not held and its linearisation is not usable (an
+def _linearize_at_start_velocity(newton, pnet, W, start, dt, guess, out, oil_warm):
+    """CouplingImplicit.begin's linearisation (:func:`_linearize_any`, into ``out``) at :func:`_start_velocity_guess`
+    of the start velocities ``v`` of ``start`` (:class:`StepStart`), written to ``guess``; where that guess is not held and its linearisation is not usable (an
     unresolved oscillation: x + dt·v can empty a chamber), again at the held actuators.  Returns whether the
     linearisation is at the held actuators (its first evaluation, ``p_first``, is then at the start oil and
     positions).  Where the guess is not held, Newton starts from ``oil_warm`` (coupling.secant_oil_guess; ``oil0``
     when there is none), and again from ``oil0`` if that linearisation is not usable; else from ``oil0``;
     ``istats[IS_SINGULAR]`` tells a singular linearisation."""
+    oil0, spool0, command, speed, x0, v = start
+    at_guess = StepStart(oil0, spool0, command, speed, x0, guess)
+    istats, p, gradient = out.istats, out.pressure, out.gradient
     held = _start_velocity_guess(pnet, x0, v, dt, guess)
-    _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats, effort,
-                   gradient, p_first, doil, oil0 if held else oil_warm)
+    _linearize_any(newton, pnet, W, at_guess, dt, out, oil0 if held else oil_warm)
     if not held and not _linearization_usable(istats, p, gradient):  # the warm start changes iterations only
-        _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats,
-                       effort, gradient, p_first, doil, oil0)
+        _linearize_any(newton, pnet, W, at_guess, dt, out, oil0)
     if not held and not _linearization_usable(istats, p, gradient):
         for a in range(guess.size):
             guess[a] = 0.0
         held = _clipped_guess_is_held(pnet, x0, dt, guess)
-        _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats,
-                       effort, gradient, p_first, doil, oil0)
+        _linearize_any(newton, pnet, W, at_guess, dt, out, oil0)
     return held
 
 

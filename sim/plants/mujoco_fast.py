@@ -368,7 +368,8 @@ def _finish_pending(ctx, pnet, V):
             C._copy(xe, x_end)
             C._copy(ve, v_end)
             C._copy(minit, mpred)
-        norm = C._step_core(pnet, W, oil, spool, cmd, speed, xe, ve, h, True, o2, p2, sp2, fl, dfl, istats, minit)
+        norm = C._step_core(pnet, W, C.StepStart(oil, spool, cmd, speed, xe, ve), h, True,
+                            C.StepOut(o2, p2, sp2, fl, dfl, istats), minit)
         newton += istats[C.IS_NEWTON]
         rhs += istats[C.IS_RHS]
         jac += istats[C.IS_JAC]
@@ -479,9 +480,10 @@ def _begin(ctx, pnet, V):
     C._secant_oil_guess(oil, V.oil_change, oil_warm)
     # predicted end velocities: the start velocities where their chord is short (coupling.start_velocity_guess),
     # clipped so the cylinders stay inside their stroke; the held actuators where that linearisation is useless
-    held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, pnet, W, oil, spool, cmd, speed, xs, vs, dt,
-                                          guess, lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient,
-                                          p0, doil, oil_warm)
+    held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, pnet, W,
+                                          C.StepStart(oil, spool, cmd, speed, xs, vs), dt, guess,
+                                          C.LinearizationOut(lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats,
+                                                             effort_end, gradient, p0, doil), oil_warm)
     if istats[C.IS_SINGULAR]:
         ctx[C_STATUS] = ST_SINGULAR
         ctx[C_FAILED] = k

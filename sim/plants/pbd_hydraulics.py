@@ -128,9 +128,9 @@ def _begin_core(pnet, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const
     effort_end = fg  # overwritten by the guess's friction below
     # linearised at the start velocities where their chord is short (coupling.start_velocity_guess), kept inside the
     # stroke, else at the held actuators
-    C._linearize_at_start_velocity(scheme != SCHEME_ROSENBROCK, pnet, W, oil, spool, cmd, speed, x, v, h, guess, lin_oil,
-                                   lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient, p_first, doil,
-                                   oil_warm)
+    C._linearize_at_start_velocity(scheme != SCHEME_ROSENBROCK, pnet, W, C.StepStart(oil, spool, cmd, speed, x, v), h, guess,
+                                   C.LinearizationOut(lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats, effort_end,
+                                                      gradient, p_first, doil), oil_warm)
     if istats[C.IS_SINGULAR]:
         return False
     C._effort_law_terms(pnet, guess, lin_p, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
@@ -164,7 +164,8 @@ def _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, c
     change, o = C._take(S, o, n)
     C._predicted_oil(lin_oil, doil, guess, v_end, dv, mpred)
     if scheme == SCHEME_NEWTON:
-        norm = C._step_core(pnet, W, oil, spool, cmd, speed, x_end, v_end, h, True, o2, p2, sp2, fl, dflow, istats, mpred)
+        norm = C._step_core(pnet, W, C.StepStart(oil, spool, cmd, speed, x_end, v_end), h, True,
+                            C.StepOut(o2, p2, sp2, fl, dflow, istats), mpred)
         istats[I_NEWTON] += istats[C.IS_NEWTON]
         istats[I_RHS] += istats[C.IS_RHS]
         istats[I_JAC] += istats[C.IS_JAC]
