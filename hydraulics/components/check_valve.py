@@ -18,7 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._jit import kernel
-from . import orifice
+from .orifice import coefficients as orifice_coefficients
+from .orifice import flow_area_derivative as orifice_flow_area_derivative
+from .orifice import flow_with_derivative as orifice_flow_with_derivative
 from .parameters import CircuitError, param, table
 from .ramps import unit_clip_with_derivative
 
@@ -57,8 +59,8 @@ def area_with_derivative(dp, cracking, full_open, max_area, leakage_area):
 def flow_with_derivative(dp, cracking, full_open, max_area, leakage_area, k, c):
     """Flow Q [m³/s] and total dQ/dΔp [m³/(s·Pa)] at Δp = inlet − outlet [Pa]; (k, c) of the orifice law."""
     a, da = area_with_derivative(dp, cracking, full_open, max_area, leakage_area)
-    q, g = orifice.flow_with_derivative(a, k, c, dp)
-    return q, g + orifice.flow_area_derivative(a, k, c, dp) * da
+    q, g = orifice_flow_with_derivative(a, k, c, dp)
+    return q, g + orifice_flow_area_derivative(a, k, c, dp) * da
 
 
 COLUMNS = ("cracking", "full_open", "area", "leakage", "k", "c")
@@ -69,6 +71,6 @@ K_CRACK, K_FULL, K_AREA, K_LEAK, K_K, K_C = range(len(COLUMNS))
 def pack(model) -> np.ndarray:
     """The check-branch table of a :class:`~hydraulics.network.NetworkModel`, columns :data:`COLUMNS`."""
     fluid = model.fluid
-    k, c = orifice.coefficients(model.check_cd, fluid.density, fluid.kinematic_viscosity)
+    k, c = orifice_coefficients(model.check_cd, fluid.density, fluid.kinematic_viscosity)
     return table(COLUMNS, len(model.check_cd), cracking=model.check_cracking, full_open=model.check_full_open,
                  area=model.check_area, leakage=model.check_leakage, k=k, c=c)

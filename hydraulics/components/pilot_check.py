@@ -38,7 +38,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._jit import kernel
-from . import orifice
+from .orifice import coefficients as orifice_coefficients
+from .orifice import flow_area_derivative as orifice_flow_area_derivative
+from .orifice import flow_with_derivative as orifice_flow_with_derivative
 from .parameters import param, table
 from .ramps import smooth_step_with_derivative
 
@@ -57,8 +59,8 @@ def flow_with_derivatives(row, p_a, p_b, p_x):
     y, dy = smooth_step_with_derivative(z)
     area = row[LEAKAGE] + row[AREA] * y
     dp = p_a - p_b
-    q, g = orifice.flow_with_derivative(area, row[K], row[C], dp)
-    dq_dz = orifice.flow_area_derivative(area, row[K], row[C], dp) * row[AREA] * dy / band
+    q, g = orifice_flow_with_derivative(area, row[K], row[C], dp)
+    dq_dz = orifice_flow_area_derivative(area, row[K], row[C], dp) * row[AREA] * dy / band
     return q, g + dq_dz, -g - dq_dz, dq_dz * row[RATIO]
 
 
@@ -84,6 +86,6 @@ class PilotCheckValve:
 
     def law_row(self, fluid) -> np.ndarray:
         """This valve's row of :data:`COLUMNS` in ``fluid`` (a :class:`~hydraulics.fluid.Fluid`)."""
-        k, c = orifice.coefficients(self.discharge_coefficient, fluid.density, fluid.kinematic_viscosity)
+        k, c = orifice_coefficients(self.discharge_coefficient, fluid.density, fluid.kinematic_viscosity)
         return table(COLUMNS, 1, cracking=self.cracking_pressure, band=self.opening_band, ratio=self.pilot_area_ratio,
                      ambient=fluid.reference_pressure, area=self.area, leakage=self.leakage_area, k=k, c=c)[0]

@@ -24,7 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._jit import kernel
-from . import check_valve, orifice
+from .check_valve import flow_with_derivative as check_valve_flow
+from .orifice import coefficients as orifice_coefficients
 from .parameters import CircuitError, param, table
 
 COLUMNS = ("cracking", "full_open", "area", "throttle", "k", "c")
@@ -36,8 +37,7 @@ CRACKING, FULL_OPEN, AREA, THROTTLE, K, C = range(len(COLUMNS))
 @kernel
 def flow_with_derivatives(row, p_a, p_b, p_x):
     """Flow Q [m³/s] from ``a`` to ``b`` and ∂Q/∂p_a, ∂Q/∂p_b, ∂Q/∂p_x (0: two ports) [m³/(s·Pa)]."""
-    q, g = check_valve.flow_with_derivative(p_a - p_b, row[CRACKING], row[FULL_OPEN], row[AREA], row[THROTTLE], row[K],
-                                            row[C])
+    q, g = check_valve_flow(p_a - p_b, row[CRACKING], row[FULL_OPEN], row[AREA], row[THROTTLE], row[K], row[C])
     return q, g, -g, 0.0
 
 
@@ -66,6 +66,6 @@ class ThrottleCheckValve:
 
     def law_row(self, fluid) -> np.ndarray:
         """This valve's row of :data:`COLUMNS` in ``fluid`` (a :class:`~hydraulics.fluid.Fluid`)."""
-        k, c = orifice.coefficients(self.discharge_coefficient, fluid.density, fluid.kinematic_viscosity)
+        k, c = orifice_coefficients(self.discharge_coefficient, fluid.density, fluid.kinematic_viscosity)
         return table(COLUMNS, 1, cracking=self.cracking_pressure, full_open=self.full_open_pressure, area=self.area,
                      throttle=self.throttle_area, k=k, c=c)[0]
