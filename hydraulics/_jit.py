@@ -3,8 +3,9 @@
 * :func:`kernel`, :func:`jit`, :func:`inline`: ``numba.njit`` with numpy's floating-point error model (x/0 →
   inf/nan, no exception), without (``kernel``, ``inline``) or with (``jit``) numba's reference counting.  They
   do not cache: a cached function is keyed by its own file only, so a kernel cached on its own would keep
-  stale copies of the laws it calls from other files.  Only the entry points called from Python are cached
-  (:func:`entry_fingerprint`), keyed by the digest of every file compiled into them (:data:`SOURCES`).
+  stale copies of the laws it calls from other files.  Only the entry points called from Python are cached, each
+  carrying :data:`FINGERPRINT` (the digest of every file compiled into them, :data:`SOURCES`) as a closure
+  variable, which is part of numba's cache key (``hydraulics._compiled`` and the compiled plants of ``sim.plants``).
 * :func:`borrowed`, :func:`matrix`, :func:`ref`, :func:`deref`: intrinsics that remove reference-counting
   and copying costs in the hot loops (see each docstring).
 * Under ``NUMBA_DISABLE_JIT=1`` (:data:`JIT_ENABLED` False) the decorators return the Python functions and the
