@@ -53,26 +53,26 @@ def _time_piece(F, I, oil, x, v, spool, speed, piece, reps):
     n, nb, nf, na = net.ic[C.IC_N], net.ic[C.IC_NB], net.ic[C.IC_NF], x.size
     area = np.empty(net.ic[C.IC_O1] - net.ic[C.IC_O0])
     geo, p, dpdm, inflow = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-    flow, dfrom, dto = np.empty(nb), np.empty(nb), np.empty(nb)
+    flow, dflow = np.empty(nb), np.empty((nb, C._W_BR))  # flow derivatives: branches × terminals
     residual = np.empty(nf)
     jac = np.empty((nf, nf))
     rhs = np.empty((nf, 1 + na))
     C._valve_areas(pnet, spool, area)
-    C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dfrom, dto, inflow, residual)
+    C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
     check = 0.0
     for r in range(reps):
         if piece == PRESSURES:
             C._pressure(pnet, oil, x, geo, p, dpdm)
             check += p[n - 1]
         elif piece == FLOWS:
-            C._branch_flows(pnet, p, area, speed, v, flow, dfrom, dto)
+            C._branch_flows(pnet, p, area, speed, v, flow, dflow)
             C._net_inflow(pnet, flow, inflow)
             check += inflow[n - 1]
         elif piece == EVALUATION:
-            C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dfrom, dto, inflow, residual)
+            C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
             check += residual[nf - 1] if nf else 0.0
         else:
-            C._newton_matrix(pnet, dfrom, dto, dpdm, DT, jac)
+            C._newton_matrix(pnet, dflow, dpdm, DT, jac)
             for i in range(nf):
                 for j in range(1 + na):
                     rhs[i, j] = residual[i] * (1.0 + j)

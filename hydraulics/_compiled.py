@@ -7,16 +7,16 @@ results agree with it to round-off.  The :class:`~hydraulics.network.NetworkMode
 int64 array; a whole (sub)step — spool update, Newton solve, end pressures — or
 a whole linearisation is then one call of a ``@njit`` kernel.
 
-The scalar laws are re-written below as numba functions named after the law of
-:mod:`hydraulics.laws` / :mod:`hydraulics.fluid` they mirror (``*_nb``); the
-node relations and flow assembly mirror :class:`~hydraulics.network.NetworkModel`.
-Tuning constants (Newton tolerances, trust region, inversion limits …) are
-imported from :mod:`hydraulics.steppers`, :mod:`hydraulics.network`,
-:mod:`hydraulics.fluid` and :mod:`hydraulics.laws` and passed to the kernels in
-the packed arrays at run time, so the numba disk cache (``cache=True``) can never
-hold stale values of them.  Importing this module compiles nothing: the kernels
-are compiled on first use (≈ 15–20 s) and later processes load them from the
-cache.
+The component laws are the compiled scalar functions of their modules
+(:mod:`hydraulics.components`, e.g. :func:`hydraulics.components.orifice.flow_with_derivative`), each
+packed into its table by the module's ``pack``; the fluid law (:func:`fill_ratio_nb`), the node relations
+and the flow assembly are here.  Tuning constants (Newton tolerances, trust region, inversion limits …)
+are imported from :mod:`hydraulics.steppers`, :mod:`hydraulics.network`, :mod:`hydraulics.fluid` and the
+component modules and passed to the kernels in the packed arrays at run time (named layouts
+:data:`SCALAR_LAYOUT`, :data:`INT_LAYOUT`, the modules' ``COLUMNS``).  Importing this module compiles
+nothing: the two entry points the stepper calls are cached on disk under the digest of every kernel source
+(:data:`hydraulics._jit.SOURCES`); they are compiled on first use (≈ 15–20 s) and later processes load
+them from the cache.
 
 **Hot path, without allocation or reference counting.**  The ``*_core``
 functions (:func:`_step_core`, :func:`_linearize_core`, :func:`_solve_core`)
@@ -67,180 +67,43 @@ import numpy as np
 
 from . import coupling as _coupling
 from . import fluid as _fluid
-from . import laws
 from . import network as _network
 from . import steppers as _steppers
 from .network import BranchFlows, NetworkModel, NetworkState
 from .steppers import Linearization, StepperImplicitEuler, StepReport, StepStatus
 
-try:  # pragma: no branch
-    import numba as _numba
+from ._jit import FINGERPRINT, JIT_ENABLED, SOURCES, borrowed, compiled_available, source_sha256
+from ._jit import clip as _clip
+from ._jit import deref as _deref
+from ._jit import inline as _inline
+from ._jit import jit as _jit
+from ._jit import kernel as _kernel
+from ._jit import matrix as _matrix
+from ._jit import maximum as _maximum
+from ._jit import minimum as _minimum
+from ._jit import ref as _ref
+from .components import accumulator as _accumulator
+from .components import check_valve as _check_valve
+from .components import cylinder as _cylinder
+from .components import orifice as _orifice
+from .components import pumps as _pumps
+from .components import ramps as _ramps
+from .components import relief as _relief
+from .components import valve_4_3 as _valve
+from .components import motor as _motor
+from .components.accumulator import ACC_GAS, ACC_INDEX, ACC_PRE
+from .components.check_valve import K_AREA, K_C, K_CRACK, K_FULL, K_K, K_LEAK
+from .components.cylinder import (CI_ACT, CI_CAP, CI_ROD, CYL_CAP_AREA, CYL_COULOMB, CYL_DEAD_CAP, CYL_DEAD_ROD,
+                                  CYL_ROD_AREA, CYL_STATIC, CYL_STRIBECK, CYL_STROKE, CYL_VISCOUS)
+from .components.motor import MI_A, MI_ACT, MI_B
+from .components.orifice import O_BASE, O_C, O_CENTRE, O_K, O_MAX, O_SIGN
+from .components.pumps import P_BAND, P_COMP, P_DISP, P_EFF
+from .components.relief import R_CRACK, R_GRAD, R_WIDTH
+from .components.valve_4_3 import V_OVERLAP, V_TAU
+from .components.parameters import table as _table
+from .components import BRANCH_LAWS, LAW_WIDTH
 
-    _NUMBA = True
-except ImportError:  # pragma: no cover - the pure stepper is used instead
-    _numba = None
-    _NUMBA = False
-
-
-def compiled_available() -> bool:
-    """True when numba imports (the compiled kernels can be used)."""
-    return _NUMBA
-
-
-def source_sha256(*paths) -> str:
-    """sha256 of the source files ``paths`` and of numba's version.
-
-    numba keys a cached function by its own file only, so an entry point that compiles in functions of other files
-    carries this digest as a closure variable (part of numba's cache key).  The modules take it when they are
-    imported: a process that imported one version of the sources keeps that version's key even if a file changes on
-    disk before its first compilation (a key read at compile time would file the old code under the new sources).
-    A file that cannot be read makes the digest unique to this process (never reuse a cache entry across versions).
-    """
-    import hashlib
-    import os
-
-    digest = hashlib.sha256()
-    for path in paths:
-        try:
-            with open(path, "rb") as f:
-                digest.update(f.read())
-        except OSError:  # pragma: no cover
-            digest.update(repr((path, os.getpid())).encode())
-    digest.update(_numba.__version__.encode() if _NUMBA else b"")
-    return digest.hexdigest()
-
-
-def _jit(function):
-    """``numba.njit`` with the disk cache and numpy's floating-point error model (x/0 → inf/nan, no exception)."""
-    if not _NUMBA:  # pragma: no cover
-        return function
-    return _numba.njit(cache=True, error_model="numpy", nogil=True)(function)
-
-
-def _kernel(function):
-    """:func:`_jit` without numba's reference counting (``_nrt=False``), for every function below that allocates
-    nothing and returns no array to a reference-counted caller.
-
-    Reading a field of the packed network ``net`` (a tuple of 22 arrays) in a
-    reference-counted function costs an ``NRT_incref``/``NRT_decref`` call pair;
-    in the Newton loops these calls cost more than the arithmetic.  Arrays are
-    borrowed from the (reference-counted) entry point that owns them.
-    """
-    if not _NUMBA:  # pragma: no cover
-        return function
-    return _numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=False)(function)
-
-
-if _NUMBA:
-    from numba.core import cgutils as _cgutils
-    from numba.extending import intrinsic as _intrinsic
-
-    @_intrinsic
-    def borrowed(typingctx, args):
-        """The tuple ``args`` with every array (also in nested tuples) replaced by a view that owns no reference (a
-        null meminfo).
-
-        For a reference-counted entry point that passes its (caller-owned) arrays to many compiled callees:
-        numba's ``NRT_incref``/``NRT_decref`` return at once on a null meminfo, so the callees' reference
-        counting costs a compare per call instead of an atomic add.  Safe while the arrays of ``args`` stay
-        alive, i.e. for the duration of the call that received them; a borrowed view must not be returned
-        or stored.  Other members of the tuple are passed through unchanged.
-        """
-        if not isinstance(args, _numba.types.BaseTuple):
-            return None
-
-        def borrow(context, builder, member, value):
-            if isinstance(member, _numba.types.Array):
-                view = context.make_array(member)(context, builder, value=value)
-                view.meminfo = _cgutils.get_null_value(view.meminfo.type)
-                view.parent = _cgutils.get_null_value(view.parent.type)
-                return view._getvalue()
-            if isinstance(member, _numba.types.BaseTuple):
-                out = value
-                for i, inner in enumerate(member.types):
-                    out = builder.insert_value(out, borrow(context, builder, inner, builder.extract_value(value, i)), i)
-                return out
-            return value
-
-        def codegen(context, builder, signature, llargs):
-            return borrow(context, builder, args, llargs[0])
-
-        return args(args), codegen
-
-    @_intrinsic
-    def _matrix(typingctx, a, rows, cols):
-        """The 1-D C-contiguous array ``a`` (``rows·cols`` entries) as a C-contiguous ``rows`` × ``cols`` view:
-        ``a.reshape((rows, cols))`` without numba's run-time reshape helper and its checks, which cost more than
-        the kernels' small loops (``_unpack`` makes 13 such views per call)."""
-        if not (isinstance(a, _numba.types.Array) and a.ndim == 1 and a.layout == "C"
-                and isinstance(rows, _numba.types.Integer) and isinstance(cols, _numba.types.Integer)):
-            return None
-        matrix = a.copy(ndim=2, layout="C")
-
-        def codegen(context, builder, signature, llargs):
-            from numba.core.imputils import impl_ret_borrowed
-
-            flat = context.make_array(a)(context, builder, value=llargs[0])
-            nrow = context.cast(builder, llargs[1], signature.args[1], _numba.types.intp)
-            ncol = context.cast(builder, llargs[2], signature.args[2], _numba.types.intp)
-            out = context.make_array(matrix)(context, builder)
-            context.populate_array(out, data=flat.data, shape=_cgutils.pack_array(builder, [nrow, ncol]),
-                                   strides=_cgutils.pack_array(builder, [builder.mul(ncol, flat.itemsize), flat.itemsize]),
-                                   itemsize=flat.itemsize, meminfo=flat.meminfo, parent=flat.parent)
-            return impl_ret_borrowed(context, builder, matrix, out._getvalue())
-
-        return matrix(a, rows, cols), codegen
-
-    @_intrinsic
-    def _ref(typingctx, value):
-        """A pointer to ``value`` in the calling function's stack frame (valid until that function returns; never to
-        be stored or returned).
-
-        Numba passes a tuple argument by value, field by field: the packed network ``net`` (22 arrays, ~170 machine
-        words) would be copied onto the stack at every call of every kernel that takes it, which under ``perf`` is
-        the largest single cost of a small network's step.  The kernels take this pointer (``pnet``) instead and read
-        the fields they use through :func:`_deref`."""
-        def codegen(context, builder, signature, llargs):
-            return _cgutils.alloca_once_value(builder, llargs[0])
-
-        return _numba.types.CPointer(value)(value), codegen
-
-    @_intrinsic
-    def _deref(typingctx, ref):
-        """The value behind a :func:`_ref` pointer; any other value passes through unchanged (a kernel called from
-        Python with the tuple itself)."""
-        from numba.core.imputils import impl_ret_borrowed
-
-        if isinstance(ref, _numba.types.CPointer):
-            def load(context, builder, signature, llargs):
-                return impl_ret_borrowed(context, builder, signature.return_type, builder.load(llargs[0]))
-
-            return ref.dtype(ref), load
-
-        def same(context, builder, signature, llargs):
-            return impl_ret_borrowed(context, builder, signature.return_type, llargs[0])
-
-        return ref(ref), same
-else:  # pragma: no cover
-    def borrowed(args):
-        return args
-
-    def _ref(value):
-        return value
-
-    def _deref(ref):
-        return ref
-
-    def _matrix(a, rows, cols):
-        return a.reshape((rows, cols))
-
-
-def _inline(function):
-    """:func:`_kernel`, inlined into its callers at numba IR level (small helpers that take ``net``:
-    LLVM does not inline them, and each call passes ~170 machine words)."""
-    if not _NUMBA:  # pragma: no cover
-        return function
-    return _numba.njit(cache=True, error_model="numpy", nogil=True, inline="always", _nrt=False)(function)
+_NUMBA = compiled_available()
 
 
 # ----------------------------------------------------------------------------
@@ -248,36 +111,59 @@ def _inline(function):
 # I starts with the float-field offsets (len(_FLOAT_FIELDS) + 1, into F) and the
 # int-field offsets (len(_INT_FIELDS) + 1, into I).
 # ----------------------------------------------------------------------------
-_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "lam", "rel", "chk", "pump")
-_INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act")
+_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "lam", "rel", "chk", "pump", "law")
+_INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act",
+               "law_kind")
 _NFF = len(_FLOAT_FIELDS)
 _NIF = len(_INT_FIELDS)
 _Net = namedtuple("_Net", _FLOAT_FIELDS + _INT_FIELDS)
 
-# sc: float scalars
+# sc: float scalars, by name (pack_network fills them by name: the order here is the only one)
+SCALAR_LAYOUT = ("reference_pressure", "bulk_modulus", "air_fraction", "polytropic_index", "pressure_floor",
+                 "fill_floor", "newton_pressure_tolerance", "newton_relative_tolerance", "sufficient_decrease",
+                 "trust_pressure", "trust_fraction", "inversion_tolerance", "fill_tolerance",
+                 "friction_regularisation_velocity", "guess_volume_fraction")
 (S_PREF, S_BETA, S_AIR, S_NPOLY, S_FLOOR, S_PHI_FLOOR, S_NEWTON_PTOL, S_NEWTON_RTOL, S_SUFFICIENT, S_TRUST_P, S_TRUST_F,
- S_PINV_TOL, S_FILL_TOL, S_VREG, S_GUESS) = range(15)
-_NSC = 15
-# ic: int scalars
+ S_PINV_TOL, S_FILL_TOL, S_VREG, S_GUESS) = range(len(SCALAR_LAYOUT))
+# ic: int scalars, by name: sizes, then each branch kind's [start, stop) (NetworkModel.branch_slices), then limits
+BRANCH_KINDS = ("orifice", "laminar", "relief", "check", "pump", "motor", "law")
+INT_LAYOUT = (("node_count", "free_count", "actuator_count", "branch_count", "cylinder_count", "motor_count",
+               "accumulator_count", "valve_count", "pump_count")
+              + tuple(f"{kind}_{end}" for kind in BRANCH_KINDS for end in ("start", "stop"))
+              + ("newton_max_iterations", "line_search_halvings", "inversion_max_iterations", "fill_max_iterations"))
 (IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_NPUMP, IC_O0, IC_O1, IC_L0, IC_L1, IC_R0, IC_R1, IC_C0,
- IC_C1, IC_P0, IC_P1, IC_M0, IC_M1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX, IC_FILL_MAX) = range(25)
-_NIC = 25
-# table columns
-NODE_FIXED_P, NODE_VOLUME, NODE_WALL = range(3)
-ACC_GAS, ACC_PRE, ACC_INDEX = range(3)
-CYL_CAP_AREA, CYL_ROD_AREA, CYL_STROKE, CYL_DEAD_CAP, CYL_DEAD_ROD, CYL_COULOMB, CYL_STATIC, CYL_STRIBECK, CYL_VISCOUS = range(9)
-CI_ACT, CI_CAP, CI_ROD = range(3)
-MI_ACT, MI_A, MI_B = range(3)
-V_TAU, V_OVERLAP = range(2)
-O_K, O_C, O_BASE, O_MAX, O_CENTRE, O_SIGN = range(6)
-R_CRACK, R_GRAD, R_WIDTH = range(3)
-K_CRACK, K_FULL, K_AREA, K_LEAK, K_K, K_C = range(6)
-P_DISP, P_EFF, P_COMP, P_BAND = range(4)
+ IC_C1, IC_P0, IC_P1, IC_M0, IC_M1, IC_W0, IC_W1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX, IC_FILL_MAX) = range(len(INT_LAYOUT))
+# node table columns
+NODE_COLUMNS = ("fixed_pressure", "volume", "wall_compliance")
+NODE_FIXED_P, NODE_VOLUME, NODE_WALL = range(len(NODE_COLUMNS))
+# widths of the component tables (compile-time constants of _unpack)
+_W_NODE, _W_ACC, _W_CYL, _W_VALVE = len(NODE_COLUMNS), len(_accumulator.COLUMNS), len(_cylinder.COLUMNS), len(_valve.COLUMNS)
+_W_ORI, _W_REL, _W_CHK, _W_PUMP = len(_orifice.COLUMNS), len(_relief.COLUMNS), len(_check_valve.COLUMNS), len(_pumps.COLUMNS)
+_W_CI, _W_MI = len(_cylinder.INDEX_COLUMNS), len(_motor.INDEX_COLUMNS)
+# branch terminals (columns of ``br`` and of the flow derivatives ``dflow``): flow from FROM to TO; PILOT: a
+# third terminal whose pressure the law reads (-1: none)
+TERMINAL_COLUMNS = ("from", "to", "pilot")
+T_FROM, T_TO, T_PILOT = range(len(TERMINAL_COLUMNS))
+_W_BR = len(TERMINAL_COLUMNS)
+_W_LAW = LAW_WIDTH
 
 # status codes returned by the kernels
 _OK, _NEWTON_FAILED = 0, 1
 # istats entries
 (IS_STATUS, IS_NEWTON, IS_RHS, IS_JAC, IS_WORST, IS_SINGULAR) = range(6)
+
+# Arguments of the step and linearisation kernels, as named tuples of arrays (numba passes them by value; views only)
+StepStart = namedtuple("StepStart", ("oil", "spool", "command", "speed", "position", "velocity"))
+StepStart.__doc__ = """Start of a (sub)step: node oil [m³], valve spools and commands [-], pump speeds [rev/s], actuator
+positions [m | rad] and velocities [m/s | rad/s] (each shape (count,))."""
+StepOut = namedtuple("StepOut", ("oil", "pressure", "spool", "flow", "dflow", "istats"))
+StepOut.__doc__ = """Outputs of :func:`_step_core`: end oil [m³], pressures [Pa], spools [-], branch flows [m³/s], their
+terminal derivatives (branches × :data:`TERMINAL_COLUMNS`) [m³/(s·Pa)], counters (``IS_*``)."""
+LinearizationOut = namedtuple("LinearizationOut", ("oil", "pressure", "spool", "position", "flow", "istats", "effort",
+                                                   "gradient", "pressure_first", "oil_gradient"))
+LinearizationOut.__doc__ = """Outputs of the linearisation kernels: predicted end oil [m³], pressures [Pa], spools,
+positions, branch flows, counters, actuator efforts [N | N·m] and their gradient ∂f/∂v⁺ (na × na), the pressures of the
+first evaluation [Pa], ∂m⁺/∂v (n × na)."""
 
 
 def elimination_order(model: NetworkModel) -> np.ndarray:
@@ -307,79 +193,54 @@ def pack_network(model: NetworkModel):
     free = elimination_order(model)
     free_index = np.full(n, -1, np.int64)
     free_index[free] = np.arange(len(free))
-    sc = np.zeros(_NSC)
-    sc[S_PREF] = fl.reference_pressure
-    sc[S_BETA] = fl.bulk_modulus
-    sc[S_AIR] = fl.air_fraction
-    sc[S_NPOLY] = fl.polytropic_index
-    sc[S_FLOOR] = fl.pressure_floor
-    sc[S_PHI_FLOOR] = fl.fill_ratio(max(fl.pressure_floor, -fl.bulk_modulus))[0]  # as StepperImplicitEuler._trust_step
-    sc[S_NEWTON_PTOL] = _steppers.NEWTON_PRESSURE_TOLERANCE
-    sc[S_NEWTON_RTOL] = _steppers.NEWTON_RELATIVE_TOLERANCE
-    sc[S_SUFFICIENT] = _steppers.SUFFICIENT_DECREASE
-    sc[S_TRUST_P] = _steppers.TRUST_PRESSURE
-    sc[S_TRUST_F] = _steppers.TRUST_FRACTION
-    sc[S_PINV_TOL] = _network.PRESSURE_INVERSION_TOLERANCE
-    sc[S_FILL_TOL] = _fluid.FILL_INVERSION_TOLERANCE
-    sc[S_VREG] = laws.FRICTION_REGULARISATION_VELOCITY
-    sc[S_GUESS] = _coupling.GUESS_VOLUME_FRACTION
-    ic = np.zeros(_NIC, np.int64)
-    ic[IC_N] = n
-    ic[IC_NF] = len(free)
-    ic[IC_NA] = model.actuator_count
-    ic[IC_NB] = len(model.branch_names)
-    ic[IC_NCYL] = len(model.cylinder_actuator)
-    ic[IC_NMOT] = len(model.motor_actuator)
-    ic[IC_NACC] = len(model.accumulator_node)
-    ic[IC_NV] = len(model.valve_names)
-    ic[IC_NPUMP] = len(model.pump_names)
-    for i, kind in enumerate(("orifice", "laminar", "relief", "check", "pump", "motor")):
-        ic[IC_O0 + 2 * i], ic[IC_O0 + 2 * i + 1] = sl[kind].start, sl[kind].stop
-    ic[IC_NEWTON_MAX] = _steppers.NEWTON_MAX_ITERATIONS
-    ic[IC_HALVINGS] = _steppers.LINE_SEARCH_HALVINGS
-    ic[IC_PINV_MAX] = _network.PRESSURE_INVERSION_MAX_ITERATIONS
-    ic[IC_FILL_MAX] = _fluid.FILL_INVERSION_MAX_ITERATIONS
-
-    compliant = model.compliant_nodes
-    o_k, o_c = laws.orifice_coefficients(model.orifice_cd, fl.density, fl.kinematic_viscosity)
-    c_k, c_c = laws.orifice_coefficients(model.check_cd, fl.density, fl.kinematic_viscosity)
-
-    def table(*columns, count):
-        return np.column_stack([np.asarray(c, float).reshape(count) for c in columns]) if columns else np.zeros((count, 0))
-
+    sc = _table(SCALAR_LAYOUT, 1,
+                reference_pressure=fl.reference_pressure, bulk_modulus=fl.bulk_modulus, air_fraction=fl.air_fraction,
+                polytropic_index=fl.polytropic_index, pressure_floor=fl.pressure_floor,
+                fill_floor=fl.fill_ratio(max(fl.pressure_floor, -fl.bulk_modulus))[0],  # as StepperImplicitEuler._trust_step
+                newton_pressure_tolerance=_steppers.NEWTON_PRESSURE_TOLERANCE,
+                newton_relative_tolerance=_steppers.NEWTON_RELATIVE_TOLERANCE,
+                sufficient_decrease=_steppers.SUFFICIENT_DECREASE, trust_pressure=_steppers.TRUST_PRESSURE,
+                trust_fraction=_steppers.TRUST_FRACTION, inversion_tolerance=_network.PRESSURE_INVERSION_TOLERANCE,
+                fill_tolerance=_fluid.FILL_INVERSION_TOLERANCE,
+                friction_regularisation_velocity=_cylinder.FRICTION_REGULARISATION_VELOCITY,
+                guess_volume_fraction=_coupling.GUESS_VOLUME_FRACTION)[0]
+    slices = {f"{kind}_{end}": getattr(sl[kind], end) for kind in BRANCH_KINDS for end in ("start", "stop")}
+    ic = _table(INT_LAYOUT, 1, node_count=n, free_count=len(free), actuator_count=model.actuator_count,
+                branch_count=len(model.branch_names), cylinder_count=len(model.cylinder_actuator),
+                motor_count=len(model.motor_actuator), accumulator_count=len(model.accumulator_node),
+                valve_count=len(model.valve_names), pump_count=len(model.pump_names), **slices,
+                newton_max_iterations=_steppers.NEWTON_MAX_ITERATIONS,
+                line_search_halvings=_steppers.LINE_SEARCH_HALVINGS,
+                inversion_max_iterations=_network.PRESSURE_INVERSION_MAX_ITERATIONS,
+                fill_max_iterations=_fluid.FILL_INVERSION_MAX_ITERATIONS)[0].astype(np.int64)
     floats = dict(
         sc=sc,
-        node=table(model.node_fixed_pressure, model.node_volume, model.node_wall_compliance, count=n),
-        acc=table(model.accumulator_gas_volume, model.accumulator_precharge, model.accumulator_index, count=len(model.accumulator_node)),
-        cyl=table(
-            model.cylinder_cap_area, model.cylinder_rod_area, model.cylinder_stroke, model.cylinder_dead_cap,
-            model.cylinder_dead_rod, model.cylinder_coulomb, model.cylinder_static, model.cylinder_stribeck,
-            model.cylinder_viscous, count=len(model.cylinder_actuator),
-        ),
+        node=_table(NODE_COLUMNS, n, fixed_pressure=model.node_fixed_pressure, volume=model.node_volume,
+                    wall_compliance=model.node_wall_compliance),
+        acc=_accumulator.pack(model),
+        cyl=_cylinder.pack(model),
         mot=model.motor_displacement,
-        valve=table(model.valve_time_constant, model.valve_overlap, count=len(model.valve_names)),
-        ori=table(o_k, o_c, model.orifice_base_area, model.orifice_max_area, model.orifice_centre_area, model.orifice_sign,
-                  count=len(model.orifice_cd)),
+        valve=_valve.pack(model),
+        ori=_orifice.pack(model),
         lam=model.laminar_conductance,
-        rel=table(model.relief_cracking, model.relief_gradient, _network.RELIEF_REGULARISATION * model.relief_cracking,
-                  count=len(model.relief_cracking)),
-        chk=table(model.check_cracking, model.check_full_open, model.check_area, model.check_leakage, c_k, c_c,
-                  count=len(model.check_cd)),
-        pump=table(model.pump_displacement, model.pump_efficiency, model.pump_compensator, model.pump_band,
-                   count=len(model.pump_displacement)),
+        rel=_relief.pack(model),
+        chk=_check_valve.pack(model),
+        pump=_pumps.pack(model),
+        law=model.law_table,
     )
     ints = dict(
         ic=ic,
         fixed=model.node_fixed,
         free=free,
         free_index=free_index,
-        compliant=compliant,
+        compliant=model.compliant_nodes,
         acc_node=model.accumulator_node,
-        cyl_i=table(model.cylinder_actuator, model.cylinder_cap_node, model.cylinder_rod_node, count=len(model.cylinder_actuator)),
-        mot_i=table(model.motor_actuator, model.motor_a_node, model.motor_b_node, count=len(model.motor_actuator)),
-        br=table(model.branch_from, model.branch_to, count=len(model.branch_names)),
+        cyl_i=_cylinder.pack_index(model),
+        mot_i=_motor.pack_index(model),
+        br=np.column_stack((model.branch_from, model.branch_to, model.branch_pilot)).reshape(len(model.branch_names), _W_BR),
         or_valve=model.orifice_valve,
         mot_br_act=model.motor_branch_actuator,
+        law_kind=model.law_kind,
     )
     fparts = [np.ascontiguousarray(floats[k], float).ravel() for k in _FLOAT_FIELDS]
     iparts = [np.ascontiguousarray(ints[k]).astype(np.int64).ravel() for k in _INT_FIELDS]
@@ -398,60 +259,37 @@ def _unpack(F, I):
     ic = I[I[o]:I[o + 1]]
     n, ncyl, nmot, nacc, nv, nb = ic[IC_N], ic[IC_NCYL], ic[IC_NMOT], ic[IC_NACC], ic[IC_NV], ic[IC_NB]
     nor, nrel, nchk, npump = ic[IC_O1] - ic[IC_O0], ic[IC_R1] - ic[IC_R0], ic[IC_C1] - ic[IC_C0], ic[IC_P1] - ic[IC_P0]
+    nlaw = ic[IC_W1] - ic[IC_W0]
     return _Net(
         F[I[0]:I[1]],
-        _matrix(F[I[1]:I[2]], n, 3),
-        _matrix(F[I[2]:I[3]], nacc, 3),
-        _matrix(F[I[3]:I[4]], ncyl, 9),
+        _matrix(F[I[1]:I[2]], n, _W_NODE),
+        _matrix(F[I[2]:I[3]], nacc, _W_ACC),
+        _matrix(F[I[3]:I[4]], ncyl, _W_CYL),
         F[I[4]:I[5]],
-        _matrix(F[I[5]:I[6]], nv, 2),
-        _matrix(F[I[6]:I[7]], nor, 6),
+        _matrix(F[I[5]:I[6]], nv, _W_VALVE),
+        _matrix(F[I[6]:I[7]], nor, _W_ORI),
         F[I[7]:I[8]],
-        _matrix(F[I[8]:I[9]], nrel, 3),
-        _matrix(F[I[9]:I[10]], nchk, 6),
-        _matrix(F[I[10]:I[11]], npump, 4),
+        _matrix(F[I[8]:I[9]], nrel, _W_REL),
+        _matrix(F[I[9]:I[10]], nchk, _W_CHK),
+        _matrix(F[I[10]:I[11]], npump, _W_PUMP),
+        _matrix(F[I[11]:I[12]], nlaw, _W_LAW),
         ic,
         I[I[o + 1]:I[o + 2]],
         I[I[o + 2]:I[o + 3]],
         I[I[o + 3]:I[o + 4]],
         I[I[o + 4]:I[o + 5]],
         I[I[o + 5]:I[o + 6]],
-        _matrix(I[I[o + 6]:I[o + 7]], ncyl, 3),
-        _matrix(I[I[o + 7]:I[o + 8]], nmot, 3),
-        _matrix(I[I[o + 8]:I[o + 9]], nb, 2),
+        _matrix(I[I[o + 6]:I[o + 7]], ncyl, _W_CI),
+        _matrix(I[I[o + 7]:I[o + 8]], nmot, _W_MI),
+        _matrix(I[I[o + 8]:I[o + 9]], nb, _W_BR),
         I[I[o + 9]:I[o + 10]],
         I[I[o + 10]:I[o + 11]],
+        I[I[o + 11]:I[o + 12]],
     )
 
 
 # ----------------------------------------------------------------------------
-# numpy element-wise semantics (NaN propagates like np.maximum / np.clip)
-# ----------------------------------------------------------------------------
-@_kernel
-def _maximum(a, b):
-    if a != a or b != b:
-        return math.nan
-    return a if a >= b else b
-
-
-@_kernel
-def _minimum(a, b):
-    if a != a or b != b:
-        return math.nan
-    return a if a <= b else b
-
-
-@_kernel
-def _clip(z, lo, hi):
-    if z < lo:
-        return lo
-    if z > hi:
-        return hi
-    return z
-
-
-# ----------------------------------------------------------------------------
-# Scalar laws (one per function; each mirrors the law named in its comment)
+# Fluid law (the component laws live in their modules, hydraulics.components.*)
 # ----------------------------------------------------------------------------
 @_kernel
 def fill_ratio_nb(p, pref, beta, air, n):
@@ -468,145 +306,28 @@ def fill_ratio_nb(p, pref, beta, air, n):
     return phi, -phi * dspecific / specific
 
 
-@_kernel
-def accumulator_liquid_volume_with_derivative_nb(p, gas, pre, n):
-    # mirrors laws.accumulator_liquid_volume_with_derivative
-    pc = _maximum(p, pre)
-    ratio = (pre / pc) ** (1.0 / n)
-    if p > pre:
-        return gas * (1.0 - ratio), gas * ratio / (n * pc)
-    return 0.0, 0.0
+def _law_dispatch(laws, first=0):
+    """A kernel ``dispatch(kind, row, p_from, p_to, p_pilot)`` that calls ``laws[kind - first]`` (the branch laws of
+    :data:`hydraulics.components.BRANCH_LAWS`, in order): a chain of closures, one ``if`` per law, built from the
+    registry so that a new component needs no line here."""
+    if not laws:
+        @_kernel
+        def none(kind, row, p_from, p_to, p_pilot):
+            return math.nan, math.nan, math.nan, math.nan
+
+        return none
+    law, rest = laws[0], _law_dispatch(laws[1:], first + 1)
+
+    @_kernel
+    def dispatch(kind, row, p_from, p_to, p_pilot):
+        if kind == first:
+            return law(row, p_from, p_to, p_pilot)
+        return rest(kind, row, p_from, p_to, p_pilot)
+
+    return dispatch
 
 
-@_kernel
-def chamber_volumes_nb(x, stroke, cap_area, rod_area, dead_cap, dead_rod):
-    # mirrors laws.chamber_volumes: V_cap, V_rod, dV_cap/dx, dV_rod/dx
-    inside = 1.0 if (x > 0.0 and x < stroke) else 0.0
-    xc = _clip(x, 0.0, stroke)
-    return dead_cap + cap_area * xc, dead_rod + rod_area * (stroke - xc), cap_area * inside, -rod_area * inside
-
-
-@_kernel
-def spool_step_nb(spool, command, tau, dt):
-    # mirrors laws.spool_step
-    decay = math.exp(-dt / tau) if tau > 0.0 else 0.0
-    return command + (spool - command) * decay
-
-
-@_kernel
-def metering_opening_nb(spool, overlap):
-    # mirrors laws.metering_opening
-    return _clip((spool - overlap) / (1.0 - overlap), 0.0, 1.0)
-
-
-@_kernel
-def centre_opening_nb(spool, overlap):
-    # mirrors laws.centre_opening
-    return _clip(1.0 - abs(spool) / _maximum(overlap, 0.1), 0.0, 1.0)
-
-
-@_kernel
-def orifice_flow_with_derivative_nb(area, k, c, dp):
-    # mirrors laws.orifice_flow_with_derivative; (k, c) from laws.orifice_coefficients
-    # (sqrt instead of pow: s**0.25 and area**1.5 to within an ulp, several times cheaper)
-    adp = area * dp
-    a_dp_sq = adp * adp
-    s = a_dp_sq + c * c
-    root4 = math.sqrt(math.sqrt(s))
-    a32 = area * math.sqrt(area)
-    return k * dp * a32 / root4, k * a32 * (0.5 * a_dp_sq + c * c) / (s * root4)
-
-
-@_kernel
-def orifice_flow_area_derivative_nb(area, k, c, dp):
-    # mirrors laws.orifice_flow_area_derivative
-    adp = area * dp
-    a_dp_sq = adp * adp
-    s = a_dp_sq + c * c
-    return k * dp * math.sqrt(area) * (a_dp_sq + 1.5 * c * c) / (s * math.sqrt(math.sqrt(s)))
-
-
-@_kernel
-def smooth_ramp_with_derivative_nb(z, width):
-    # mirrors laws.smooth_ramp_with_derivative
-    if z >= width:
-        return z - 0.5 * width, 1.0
-    if z > 0.0 and z < width:
-        return z * z / (2.0 * width), z / width
-    return 0.0, 0.0
-
-
-@_kernel
-def unit_clip_with_derivative_nb(z):
-    # mirrors laws.unit_clip_with_derivative
-    return _clip(z, 0.0, 1.0), (1.0 if (z > 0.0 and z < 1.0) else 0.0)
-
-
-@_kernel
-def relief_flow_with_derivative_nb(dp, cracking, gradient, width):
-    # mirrors laws.relief_flow_with_derivative
-    ramp, slope = smooth_ramp_with_derivative_nb(dp - cracking, width)
-    return gradient * ramp, gradient * slope
-
-
-@_kernel
-def ramp_piece_nb(z, width):
-    # mirrors laws.ramp_piece
-    if z >= width:
-        return 2
-    return 1 if z > 0.0 else 0
-
-
-@_kernel
-def check_valve_area_with_derivative_nb(dp, cracking, full_open, max_area, leakage_area):
-    # mirrors laws.check_valve_area_with_derivative
-    span = full_open - cracking
-    frac, dfrac = unit_clip_with_derivative_nb((dp - cracking) / span)
-    return leakage_area + max_area * frac, max_area * dfrac / span
-
-
-@_kernel
-def compensated_displacement_with_derivative_nb(max_displacement, outlet, compensator, band):
-    # mirrors laws.compensated_displacement_with_derivative
-    frac, dfrac = unit_clip_with_derivative_nb((compensator + band - outlet) / band)
-    return max_displacement * frac, -max_displacement * dfrac / band
-
-
-@_kernel
-def pump_flow_nb(displacement, speed, efficiency):
-    # mirrors laws.pump_flow
-    return efficiency * displacement * speed
-
-
-@_kernel
-def motor_flow_nb(displacement, shaft_speed):
-    # mirrors laws.motor_flow
-    return displacement * shaft_speed / (2.0 * np.pi)
-
-
-@_kernel
-def pump_torque_nb(displacement, delta_p):
-    # mirrors laws.pump_torque
-    return displacement * delta_p / (2.0 * np.pi)
-
-
-@_kernel
-def cylinder_pressure_force_nb(cap_pressure, rod_pressure, cap_area, rod_area, ambient):
-    # mirrors laws.cylinder_pressure_force
-    return cap_pressure * cap_area - rod_pressure * rod_area - ambient * (cap_area - rod_area)
-
-
-@_kernel
-def friction_force_with_derivative_nb(v, coulomb, static, stribeck_velocity, viscous, v_reg):
-    # mirrors laws.friction_force_with_derivative (v_reg = laws.FRICTION_REGULARISATION_VELOCITY)
-    vs = _maximum(stribeck_velocity, 1e-12)
-    r = v / vs
-    stribeck = math.exp(-(r * r))
-    level = coulomb + (static - coulomb) * stribeck
-    dlevel = (static - coulomb) * stribeck * (-2.0 * v / (vs * vs))
-    th = math.tanh(v / v_reg)
-    dth = (1.0 - th * th) / v_reg
-    return level * th + viscous * v, dlevel * th + level * dth + viscous
+_branch_law = _law_dispatch(tuple(cls.BRANCH_LAW for cls in BRANCH_LAWS))
 
 
 # ----------------------------------------------------------------------------
@@ -620,11 +341,11 @@ def _geometric_volume(pnet, x, geo):
         geo[k] = net.node[k, NODE_VOLUME]
     cyl, ci = net.cyl, net.cyl_i
     for c in range(cyl.shape[0]):
-        vc, _, _, _ = chamber_volumes_nb(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
+        vc, _, _, _ = _cylinder.chamber_volumes(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
                                          cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
         geo[ci[c, CI_CAP]] += vc
     for c in range(cyl.shape[0]):
-        _, vr, _, _ = chamber_volumes_nb(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
+        _, vr, _, _ = _cylinder.chamber_volumes(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
                                          cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
         geo[ci[c, CI_ROD]] += vr
 
@@ -639,7 +360,7 @@ def _node_extra(pnet, k, p):
     acc = net.acc
     for a in range(net.acc_node.size):
         if net.acc_node[a] == k:
-            liquid, dliquid = accumulator_liquid_volume_with_derivative_nb(p, acc[a, ACC_GAS], acc[a, ACC_PRE], acc[a, ACC_INDEX])
+            liquid, dliquid = _accumulator.liquid_volume_with_derivative(p, acc[a, ACC_GAS], acc[a, ACC_PRE], acc[a, ACC_INDEX])
             extra += liquid
             dextra += dliquid
     return extra, dextra
@@ -808,48 +529,52 @@ def _valve_areas(pnet, spool, area):
             vi = ov[i]
             s = spool[vi] if vi >= 0 else 0.0
             overlap = net.valve[vi, V_OVERLAP] if vi >= 0 else 0.0
-            a = a + ori[i, O_MAX] * metering_opening_nb(ori[i, O_SIGN] * s, overlap)
-            a = a + ori[i, O_CENTRE] * centre_opening_nb(s, overlap)
+            a = a + ori[i, O_MAX] * _valve.metering_opening(ori[i, O_SIGN] * s, overlap)
+            a = a + ori[i, O_CENTRE] * _valve.centre_opening(s, overlap)
         area[i] = a
 
 
 @_kernel
-def _branch_flows(pnet, p, area, speed, velocity, flow, dfrom, dto):
-    # NetworkModel.branch_flows
+def _branch_flows(pnet, p, area, speed, velocity, flow, dflow):
+    """NetworkModel.branch_flows: ``flow`` [m³/s] of every branch and ``dflow`` (branches × terminals) its
+    derivative with respect to the pressure of each terminal (columns :data:`TERMINAL_COLUMNS`) [m³/(s·Pa)]."""
     net = _deref(pnet)
     ic, br = net.ic, net.br
-    for b in range(ic[IC_NB]):
-        dfrom[b] = 0.0
-        dto[b] = 0.0
+    dflow[:, :] = 0.0
     for b in range(ic[IC_O0], ic[IC_O1]):
         i = b - ic[IC_O0]
-        q, g = orifice_flow_with_derivative_nb(area[i], net.ori[i, O_K], net.ori[i, O_C], p[br[b, 0]] - p[br[b, 1]])
-        flow[b], dfrom[b], dto[b] = q, g, -g
+        q, g = _orifice.flow_with_derivative(area[i], net.ori[i, O_K], net.ori[i, O_C], p[br[b, 0]] - p[br[b, 1]])
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
     for b in range(ic[IC_L0], ic[IC_L1]):
         g = net.lam[b - ic[IC_L0]]
-        flow[b], dfrom[b], dto[b] = g * (p[br[b, 0]] - p[br[b, 1]]), g, -g
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = g * (p[br[b, 0]] - p[br[b, 1]]), g, -g
     rel = net.rel
     for b in range(ic[IC_R0], ic[IC_R1]):
         i = b - ic[IC_R0]
-        q, g = relief_flow_with_derivative_nb(p[br[b, 0]] - p[br[b, 1]], rel[i, R_CRACK], rel[i, R_GRAD], rel[i, R_WIDTH])
-        flow[b], dfrom[b], dto[b] = q, g, -g
+        q, g = _relief.flow_with_derivative(p[br[b, 0]] - p[br[b, 1]], rel[i, R_CRACK], rel[i, R_GRAD], rel[i, R_WIDTH])
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
     chk = net.chk
     for b in range(ic[IC_C0], ic[IC_C1]):
         i = b - ic[IC_C0]
-        dp = p[br[b, 0]] - p[br[b, 1]]
-        a, da = check_valve_area_with_derivative_nb(dp, chk[i, K_CRACK], chk[i, K_FULL], chk[i, K_AREA], chk[i, K_LEAK])
-        q, g = orifice_flow_with_derivative_nb(a, chk[i, K_K], chk[i, K_C], dp)
-        g = g + orifice_flow_area_derivative_nb(a, chk[i, K_K], chk[i, K_C], dp) * da
-        flow[b], dfrom[b], dto[b] = q, g, -g
+        q, g = _check_valve.flow_with_derivative(p[br[b, 0]] - p[br[b, 1]], chk[i, K_CRACK], chk[i, K_FULL], chk[i, K_AREA],
+                                                 chk[i, K_LEAK], chk[i, K_K], chk[i, K_C])
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
     pump = net.pump
     for b in range(ic[IC_P0], ic[IC_P1]):
         i = b - ic[IC_P0]
-        disp, ddisp = compensated_displacement_with_derivative_nb(pump[i, P_DISP], p[br[b, 1]], pump[i, P_COMP], pump[i, P_BAND])
-        flow[b] = pump_flow_nb(disp, speed[i], pump[i, P_EFF])
-        dto[b] = pump_flow_nb(ddisp, speed[i], pump[i, P_EFF])
+        disp, ddisp = _pumps.compensated_displacement_with_derivative(pump[i, P_DISP], p[br[b, 1]], pump[i, P_COMP], pump[i, P_BAND])
+        flow[b] = _pumps.flow(disp, speed[i], pump[i, P_EFF])
+        dflow[b, T_TO] = _pumps.flow(ddisp, speed[i], pump[i, P_EFF])
     for b in range(ic[IC_M0], ic[IC_M1]):
         i = b - ic[IC_M0]
-        flow[b] = motor_flow_nb(net.mot[i], velocity[net.mot_br_act[i]])
+        flow[b] = _motor.flow(net.mot[i], velocity[net.mot_br_act[i]])
+    law = net.law
+    for b in range(ic[IC_W0], ic[IC_W1]):
+        i = b - ic[IC_W0]
+        pilot = br[b, T_PILOT]
+        q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], p[br[b, T_FROM]], p[br[b, T_TO]],
+                                    p[pilot] if pilot >= 0 else 0.0)
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO], dflow[b, T_PILOT] = q, d0, d1, d2
 
 
 @_kernel
@@ -866,39 +591,41 @@ def _net_inflow(pnet, flow, inflow):
 
 
 @_kernel
-def _flow_jacobian(pnet, dfrom, dto, jq):
-    # NetworkModel.flow_jacobian (full, node × node)
+def _flow_jacobian(pnet, dflow, jq):
+    """NetworkModel.flow_jacobian (full, node × node): ∂(net inflow)/∂p from the branches' terminal derivatives."""
     net = _deref(pnet)
     jq[:, :] = 0.0
     br = net.br
-    for b in range(dfrom.size):
-        f, t = br[b, 0], br[b, 1]
-        if f != t:
-            jq[t, f] += dfrom[b]
-            jq[t, t] += dto[b]
-            jq[f, f] -= dfrom[b]
-            jq[f, t] -= dto[b]
+    for b in range(dflow.shape[0]):
+        f, t = br[b, T_FROM], br[b, T_TO]
+        if f == t:
+            continue
+        for j in range(_W_BR):
+            k = br[b, j]
+            if k >= 0:
+                jq[t, k] += dflow[b, j]
+                jq[f, k] -= dflow[b, j]
 
 
 @_kernel
-def _newton_matrix(pnet, dfrom, dto, dpdm, h, jac):
-    # I − h·(∂Q/∂p)[free, free]·diag(∂p/∂m[free])
+def _newton_matrix(pnet, dflow, dpdm, h, jac):
+    """I − h·(∂Q/∂p)[free, free]·diag(∂p/∂m[free]) from the branches' terminal derivatives ``dflow``."""
     net = _deref(pnet)
     jac[:, :] = 0.0
     br, fi, free = net.br, net.free_index, net.free
-    for b in range(dfrom.size):
-        f, t = br[b, 0], br[b, 1]
+    for b in range(dflow.shape[0]):
+        f, t = br[b, T_FROM], br[b, T_TO]
         if f == t:
             continue
         jf, jt = fi[f], fi[t]
-        if jt >= 0:
-            if jf >= 0:
-                jac[jt, jf] += dfrom[b]
-            jac[jt, jt] += dto[b]
-        if jf >= 0:
-            jac[jf, jf] -= dfrom[b]
+        for j in range(_W_BR):
+            k = br[b, j]
+            if k < 0 or fi[k] < 0:
+                continue
             if jt >= 0:
-                jac[jf, jt] -= dto[b]
+                jac[jt, fi[k]] += dflow[b, j]
+            if jf >= 0:
+                jac[jf, fi[k]] -= dflow[b, j]
     nf = free.size
     for i in range(nf):
         for j in range(nf):
@@ -947,11 +674,11 @@ def _lu_solve(a, b):
 
 
 @_kernel
-def _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, dto, inflow, residual):
+def _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dflow, inflow, residual):
     # StepperImplicitEuler._solve.evaluate
     net = _deref(pnet)
     _pressure(pnet, oil, x, geo, p, dpdm)
-    _branch_flows(pnet, p, area, speed, v, flow, dfrom, dto)
+    _branch_flows(pnet, p, area, speed, v, flow, dflow)
     _net_inflow(pnet, flow, inflow)
     free = net.free
     for j in range(free.size):
@@ -1038,7 +765,7 @@ def _take2(W, offset, rows, cols):
 def _solve_work_size(ic):
     """Scratch entries _solve_core needs (float64)."""
     n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
-    return (ic[IC_O1] - ic[IC_O0]) + 8 * n + 6 * nb + 4 * nf + nf * nf
+    return (ic[IC_O1] - ic[IC_O0]) + 8 * n + (2 + 2 * _W_BR) * nb + 4 * nf + nf * nf
 
 
 @_kernel
@@ -1051,7 +778,7 @@ def _step_work_size(ic):
 def _linearize_work_size(ic):
     """Scratch entries _linearize_core needs (float64)."""
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
-    return (_solve_work_size(ic) + 3 * nb + 2 * n + 5 * n * na + (ic[IC_O1] - ic[IC_O0]) + n * n + nf * na + nf * nf
+    return (_solve_work_size(ic) + (1 + _W_BR) * nb + 2 * n + 5 * n * na + (ic[IC_O1] - ic[IC_O0]) + n * n + nf * na + nf * nf
             + na)
 
 
@@ -1063,7 +790,7 @@ def work_size(F, I) -> int:
 
 
 @_kernel
-def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out, dto_out, istats, W, p_first, oil_init):
+def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out, istats, W, p_first, oil_init):
     """StepperImplicitEuler._solve; returns the scaled residual norm, counters in ``istats``.
 
     ``W`` is scratch (at least ``_solve_work_size``); ``p_first`` receives the
@@ -1086,11 +813,9 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
     t_p, o = _take(W, o, n)
     t_dpdm, o = _take(W, o, n)
     flow, o = _take(W, o, nb)
-    dfrom, o = _take(W, o, nb)
-    dto, o = _take(W, o, nb)
+    dflow, o = _take2(W, o, nb, _W_BR)
     t_flow, o = _take(W, o, nb)
-    t_dfrom, o = _take(W, o, nb)
-    t_dto, o = _take(W, o, nb)
+    t_dflow, o = _take2(W, o, nb, _W_BR)
     residual, o = _take(W, o, nf)
     t_residual, o = _take(W, o, nf)
     scale, o = _take(W, o, nf)
@@ -1103,7 +828,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
     rhs = 0
     jacobians = 0
     iterations = 0
-    _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dfrom, dto, inflow, residual)
+    _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dflow, inflow, residual)
     _copy(p_first, p)
     rhs += 1
     for j in range(nf):
@@ -1115,7 +840,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
     for _ in range(ic[IC_NEWTON_MAX]):
         if converged:
             break
-        _newton_matrix(pnet, dfrom, dto, dpdm, h, jac)
+        _newton_matrix(pnet, dflow, dpdm, h, jac)
         jacobians += 1
         for j in range(nf):
             delta[j, 0] = -residual[j]
@@ -1128,7 +853,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
             _copy(t_oil, oil)
             for j in range(nf):
                 t_oil[free[j]] = oil[free[j]] + step * delta[j, 0]
-            _evaluate(pnet, t_oil, oil0, x, v, area, speed, h, geo, t_p, t_dpdm, t_flow, t_dfrom, t_dto, inflow, t_residual)
+            _evaluate(pnet, t_oil, oil0, x, v, area, speed, h, geo, t_p, t_dpdm, t_flow, t_dflow, inflow, t_residual)
             rhs += 1
             t_norm = _scaled_norm(t_residual, scale)
             if math.isfinite(t_norm) and (t_norm <= (1.0 - sc[S_SUFFICIENT] * step) * norm or halving == halvings - 1):
@@ -1142,8 +867,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
         p, t_p = t_p, p
         dpdm, t_dpdm = t_dpdm, dpdm
         flow, t_flow = t_flow, flow
-        dfrom, t_dfrom = t_dfrom, dfrom
-        dto, t_dto = t_dto, dto
+        dflow, t_dflow = t_dflow, dflow
         residual, t_residual = t_residual, residual
         norm = t_norm
         tol = _tolerance(pnet, p)
@@ -1176,8 +900,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dfrom_out,
         k = free[j]
         oil_out[k] = oil0[k] + h * inflow[k]
     _copy(flow_out, flow)
-    _copy(dfrom_out, dfrom)
-    _copy(dto_out, dto)
+    _copy2(dflow_out, dflow)
     return norm
 
 
@@ -1186,18 +909,19 @@ def _spool_end(pnet, spool0, command, h, spool):
     # Stepper._spool_end
     net = _deref(pnet)
     for i in range(spool.size):
-        spool[i] = spool_step_nb(spool0[i], _clip(command[i], -1.0, 1.0), net.valve[i, V_TAU], h)
+        spool[i] = _valve.spool_step(spool0[i], _clip(command[i], -1.0, 1.0), net.valve[i, V_TAU], h)
 
 
 # ----------------------------------------------------------------------------
 # Cores (no allocation: outputs and scratch passed in) and entry points (called from Python)
 # ----------------------------------------------------------------------------
 @_kernel
-def _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats,
-               oil_init):
-    """One backward-Euler substep into the given outputs: spool update (or ``spool0`` as given), Newton solve
-    started from ``oil_init``, end-of-step pressures; returns the residual norm.  ``W``: scratch of
-    ``_step_work_size`` entries."""
+def _step_core(pnet, W, start, h, update_spool, out, oil_init):
+    """One backward-Euler substep of ``h`` [s] from ``start`` (:class:`StepStart`, its velocities those of the step's
+    end) into ``out`` (:class:`StepOut`): spool update (or the start spools as given), Newton solve started from
+    ``oil_init``, end-of-step pressures; returns the residual norm.  ``W``: scratch of ``_step_work_size`` entries."""
+    oil0, spool0, command, speed, x, v = start
+    oil, p, spool, flow, dflow, istats = out
     net = _deref(pnet)
     n = net.ic[IC_N]
     if update_spool:
@@ -1207,13 +931,13 @@ def _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil
     s = _solve_work_size(net.ic)
     dpdm, o = _take(W, s, n)
     geo, o = _take(W, o, n)
-    norm = _solve_core(pnet, oil0, x, v, spool, speed, h, oil, flow, dfrom, dto, istats, W, p, oil_init)
+    norm = _solve_core(pnet, oil0, x, v, spool, speed, h, oil, flow, dflow, istats, W, p, oil_init)
     _pressure(pnet, oil, x, geo, p, dpdm)
     return norm
 
 
 @_jit
-def _step_kernel(F, I, oil0, spool0, command, speed, x, v, h, update_spool, oil_init):
+def _step_python_entry(F, I, oil0, spool0, command, speed, x, v, h, update_spool, oil_init):
     """One backward-Euler substep: spool update (or ``spool0`` as given), Newton solve from ``oil_init``,
     end-of-step pressures."""
     net = _unpack(F, I)
@@ -1221,11 +945,11 @@ def _step_kernel(F, I, oil0, spool0, command, speed, x, v, h, update_spool, oil_
     n, nb = net.ic[IC_N], net.ic[IC_NB]
     W = np.empty(_step_work_size(net.ic))
     spool = np.empty(spool0.size)
-    oil, p, flow, dfrom, dto = np.empty(n), np.empty(n), np.empty(nb), np.empty(nb), np.empty(nb)
+    oil, p, flow, dflow = np.empty(n), np.empty(n), np.empty(nb), np.empty((nb, _W_BR))
     istats = np.zeros(6, np.int64)
-    norm = _step_core(pnet, W, oil0, spool0, command, speed, x, v, h, update_spool, oil, p, spool, flow, dfrom, dto, istats,
-                      oil_init)
-    return oil, p, spool, flow, dfrom, dto, istats, norm
+    norm = _step_core(pnet, W, StepStart(oil0, spool0, command, speed, x, v), h, update_spool,
+                      StepOut(oil, p, spool, flow, dflow, istats), oil_init)
+    return oil, p, spool, flow, dflow, istats, norm
 
 
 @_kernel
@@ -1250,11 +974,11 @@ def _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt):
     dvdx[:, :] = 0.0
     cyl, ci = net.cyl, net.cyl_i
     for c in range(cyl.shape[0]):
-        _, _, dvc, _ = chamber_volumes_nb(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
+        _, _, dvc, _ = _cylinder.chamber_volumes(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
                                           cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
         dvdx[ci[c, CI_CAP], ci[c, CI_ACT]] += dvc
     for c in range(cyl.shape[0]):
-        _, _, _, dvr = chamber_volumes_nb(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
+        _, _, _, dvr = _cylinder.chamber_volumes(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
                                           cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
         dvdx[ci[c, CI_ROD], ci[c, CI_ACT]] += dvr
     na = x.size
@@ -1307,12 +1031,12 @@ def _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope):
     slope[:] = 0.0
     for c in range(cyl.shape[0]):
         a = ci[c, CI_ACT]
-        effort[a] = cylinder_pressure_force_nb(p[ci[c, CI_CAP]], p[ci[c, CI_ROD]], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA], sc[S_PREF])
+        effort[a] = _cylinder.pressure_force(p[ci[c, CI_CAP]], p[ci[c, CI_ROD]], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA], sc[S_PREF])
     for i in range(mi.shape[0]):
-        effort[mi[i, MI_ACT]] = pump_torque_nb(net.mot[i], p[mi[i, MI_A]] - p[mi[i, MI_B]])
+        effort[mi[i, MI_ACT]] = _pumps.torque(net.mot[i], p[mi[i, MI_A]] - p[mi[i, MI_B]])
     for c in range(cyl.shape[0]):
         a = ci[c, CI_ACT]
-        f, df = friction_force_with_derivative_nb(velocity[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC], cyl[c, CYL_STRIBECK],
+        f, df = _cylinder.friction_force_with_derivative(velocity[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC], cyl[c, CYL_STRIBECK],
                                                   cyl[c, CYL_VISCOUS], sc[S_VREG])
         effort[a] = effort[a] + -f
         slope[a] = -df
@@ -1335,15 +1059,17 @@ def _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope):
 
 
 @_kernel
-def _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort, gradient,
-                    p_first, doil, oil_init):
-    """StepperImplicitEuler.linearize into the given outputs, its Newton solve started from ``oil_init`` (the pure
-    ``oil_guess``; ``oil0`` for a cold start); returns the residual norm.
+def _linearize_core(pnet, W, start, dt, out, oil_init):
+    """StepperImplicitEuler.linearize from ``start`` (:class:`StepStart`, its velocities the linearisation point) into
+    ``out`` (:class:`LinearizationOut`), its Newton solve started from ``oil_init`` (the pure ``oil_guess``; the start
+    oil for a cold start); returns the residual norm.
 
     ``W``: scratch of ``_linearize_work_size`` entries; ``p_first`` receives
     the pressures at (``oil_init``, x0 + dt·velocity), the Newton solve's first evaluation;
     ``doil`` (n × na) receives ∂m⁺/∂v (``Linearization.oil_velocity_gradient``; zero rows for fixed nodes).
     """
+    oil0, spool0, command, speed, x0, velocity = start
+    oil, p, spool, x, flow, istats, effort, gradient, p_first, doil = out
     net = _deref(pnet)
     ic, free = net.ic, net.free
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
@@ -1351,12 +1077,11 @@ def _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil
         x[a] = x0[a] + dt * velocity[a]
     _spool_end(pnet, spool0, command, dt, spool)
     o = _solve_work_size(ic)
-    dfrom, o = _take(W, o, nb)
-    dto, o = _take(W, o, nb)
+    dflow, o = _take2(W, o, nb, _W_BR)
     flow2, o = _take(W, o, nb)
     dpdm, o = _take(W, o, n)
     geo, o = _take(W, o, n)
-    norm = _solve_core(pnet, oil0, x, velocity, spool, speed, dt, oil, flow, dfrom, dto, istats, W, p_first, oil_init)
+    norm = _solve_core(pnet, oil0, x, velocity, spool, speed, dt, oil, flow, dflow, istats, W, p_first, oil_init)
     _pressure(pnet, oil, x, geo, p, dpdm)
     dvdx, o = _take2(W, o, n, na)
     dpdx_dt, o = _take2(W, o, n, na)  # dt·∂p/∂x
@@ -1370,8 +1095,8 @@ def _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil
     slope, o = _take(W, o, na)
     _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt)
     _valve_areas(pnet, spool, area)
-    _branch_flows(pnet, p, area, speed, velocity, flow2, dfrom, dto)
-    _flow_jacobian(pnet, dfrom, dto, jq)
+    _branch_flows(pnet, p, area, speed, velocity, flow2, dflow)
+    _flow_jacobian(pnet, dflow, jq)
     _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, 0)
     _newton_matrix_of(pnet, jq, dpdm, dt, jac)
     _copy2(dpdv, dpdx_dt)
@@ -1392,8 +1117,7 @@ def _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil
 
 
 @_kernel
-def _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
-                             gradient, p_first, doil):
+def _linearize_one_step_core(pnet, W, start, dt, out):
     """StepperImplicitEuler.linearize(…, newton=False): the Rosenbrock–Euler (W-method) twin of
     :func:`_linearize_core`, with the same arguments and outputs.
 
@@ -1413,6 +1137,8 @@ def _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity
     hitting its end stop drives the supply past the relief), or when the matrix is singular; the
     outputs are then incomplete and the caller solves (:func:`_linearize_any`).
     """
+    oil0, spool0, command, speed, x0, velocity = start
+    oil, p, spool, x, flow, istats, effort, gradient, p_first, doil = out
     net = _deref(pnet)
     ic, free = net.ic, net.free
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
@@ -1424,8 +1150,7 @@ def _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity
     geo, o = _take(W, o, n)
     inflow, o = _take(W, o, n)
     dpdm, o = _take(W, o, n)
-    dfrom, o = _take(W, o, nb)
-    dto, o = _take(W, o, nb)
+    dflow, o = _take2(W, o, nb, _W_BR)
     residual, o = _take(W, o, nf)
     dvdx, o = _take2(W, o, n, na)
     dpdx_dt, o = _take2(W, o, n, na)
@@ -1437,9 +1162,9 @@ def _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity
     epg, o = _take2(W, o, na, n)
     slope, o = _take(W, o, na)
     _valve_areas(pnet, spool, area)
-    _evaluate(pnet, oil0, oil0, x0, velocity, area, speed, dt, geo, p_first, dpdm, flow, dfrom, dto, inflow, residual)
+    _evaluate(pnet, oil0, oil0, x0, velocity, area, speed, dt, geo, p_first, dpdm, flow, dflow, inflow, residual)
     _position_pressure_gradient(pnet, x0, geo, p_first, dpdm, dt, dvdx, dpdx_dt)
-    _flow_jacobian(pnet, dfrom, dto, jq)
+    _flow_jacobian(pnet, dflow, jq)
     _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, 1)
     for j in range(nf):  # dt·ΣQ(p₀, v) (= −residual) + dt·(∂Q/∂p)·(dt·∂p/∂x)·v (= (−∂r/∂v − dt·∂Q_motor/∂v)·v)
         k = free[j]
@@ -1491,20 +1216,20 @@ def _same_law_pieces(pnet, pa, pb):
         i = b - ic[IC_R0]
         za = pa[br[b, 0]] - pa[br[b, 1]] - rel[i, R_CRACK]
         zb = pb[br[b, 0]] - pb[br[b, 1]] - rel[i, R_CRACK]
-        if ramp_piece_nb(za, rel[i, R_WIDTH]) != ramp_piece_nb(zb, rel[i, R_WIDTH]):
+        if _ramps.ramp_piece(za, rel[i, R_WIDTH]) != _ramps.ramp_piece(zb, rel[i, R_WIDTH]):
             return False
     for b in range(ic[IC_C0], ic[IC_C1]):
         i = b - ic[IC_C0]
         span = chk[i, K_FULL] - chk[i, K_CRACK]
         za = (pa[br[b, 0]] - pa[br[b, 1]] - chk[i, K_CRACK]) / span
         zb = (pb[br[b, 0]] - pb[br[b, 1]] - chk[i, K_CRACK]) / span
-        if ramp_piece_nb(za, 1.0) != ramp_piece_nb(zb, 1.0):
+        if _ramps.ramp_piece(za, 1.0) != _ramps.ramp_piece(zb, 1.0):
             return False
     for b in range(ic[IC_P0], ic[IC_P1]):
         i = b - ic[IC_P0]
         za = (pump[i, P_COMP] + pump[i, P_BAND] - pa[br[b, 1]]) / pump[i, P_BAND]
         zb = (pump[i, P_COMP] + pump[i, P_BAND] - pb[br[b, 1]]) / pump[i, P_BAND]
-        if ramp_piece_nb(za, 1.0) != ramp_piece_nb(zb, 1.0):
+        if _ramps.ramp_piece(za, 1.0) != _ramps.ramp_piece(zb, 1.0):
             return False
     return True
 
@@ -1518,21 +1243,18 @@ def _one_step_accepted(istats):
 
 
 @_kernel
-def _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats, effort,
-                   gradient, p_first, doil, oil_init):
+def _linearize_any(newton, pnet, W, start, dt, out, oil_init):
     """:func:`_linearize_core` (``newton``: backward Euler solved by Newton from ``oil_init``), or
     :func:`_linearize_one_step_core` (Rosenbrock–Euler, one Newton step from ``oil0``) where it accepts its step and
     :func:`_linearize_core` where it does not; same arguments and outputs; returns the residual norm (0 for an
     accepted one-step linearisation)."""
-    if not newton and _linearize_one_step_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x,
-                                               flow, istats, effort, gradient, p_first, doil):
+    if not newton and _linearize_one_step_core(pnet, W, start, dt, out):
         return 0.0
-    return _linearize_core(pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
-                           effort, gradient, p_first, doil, oil_init)
+    return _linearize_core(pnet, W, start, dt, out, oil_init)
 
 
 @_jit
-def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt, newton, oil_init):
+def _linearize_python_entry(F, I, oil0, spool0, command, speed, x0, velocity, dt, newton, oil_init):
     """StepperImplicitEuler.linearize (``newton`` False: its Rosenbrock–Euler variant), Newton from ``oil_init``."""
     net = _unpack(F, I)
     pnet = _ref(net)
@@ -1542,8 +1264,8 @@ def _linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt, newt
     oil, p, spool, x, flow = np.empty(n), np.empty(n), np.empty(spool0.size), np.empty(na), np.empty(nb)
     istats = np.zeros(6, np.int64)
     effort, gradient, p_first, doil = np.empty(na), np.empty((na, na)), np.empty(n), np.empty((n, na))
-    norm = _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, velocity, dt, oil, p, spool, x, flow, istats,
-                          effort, gradient, p_first, doil, oil_init)
+    norm = _linearize_any(newton, pnet, W, StepStart(oil0, spool0, command, speed, x0, velocity), dt,
+                          LinearizationOut(oil, p, spool, x, flow, istats, effort, gradient, p_first, doil), oil_init)
     return oil, p, spool, x, flow, istats, norm, effort, gradient, doil
 
 
@@ -1572,10 +1294,10 @@ def _pressure_effort(pnet, p, out):
     cyl, ci, mi = net.cyl, net.cyl_i, net.mot_i
     pref = net.sc[S_PREF]
     for c in range(cyl.shape[0]):
-        out[ci[c, CI_ACT]] = cylinder_pressure_force_nb(p[ci[c, CI_CAP]], p[ci[c, CI_ROD]], cyl[c, CYL_CAP_AREA],
+        out[ci[c, CI_ACT]] = _cylinder.pressure_force(p[ci[c, CI_CAP]], p[ci[c, CI_ROD]], cyl[c, CYL_CAP_AREA],
                                                         cyl[c, CYL_ROD_AREA], pref)
     for i in range(mi.shape[0]):
-        out[mi[i, MI_ACT]] = pump_torque_nb(net.mot[i], p[mi[i, MI_A]] - p[mi[i, MI_B]])
+        out[mi[i, MI_ACT]] = _pumps.torque(net.mot[i], p[mi[i, MI_A]] - p[mi[i, MI_B]])
 
 
 @_kernel
@@ -1588,7 +1310,7 @@ def _friction_effort(pnet, v, effort, slope):
     cyl, ci = net.cyl, net.cyl_i
     for c in range(cyl.shape[0]):
         a = ci[c, CI_ACT]
-        f, df = friction_force_with_derivative_nb(v[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC], cyl[c, CYL_STRIBECK],
+        f, df = _cylinder.friction_force_with_derivative(v[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC], cyl[c, CYL_STRIBECK],
                                                   cyl[c, CYL_VISCOUS], net.sc[S_VREG])
         effort[a] = -f
         slope[a] = -df
@@ -1650,7 +1372,7 @@ def _start_velocity_guess(pnet, x, v, dt, guess):
     fraction = net.sc[S_GUESS]
     for c in range(cyl.shape[0]):
         a = ci[c, CI_ACT]
-        vcap, vrod, _, _ = chamber_volumes_nb(x[a], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
+        vcap, vrod, _, _ = _cylinder.chamber_volumes(x[a], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
                                               cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
         swept = dt * abs(guess[a])
         if not (swept * cyl[c, CYL_CAP_AREA] <= fraction * vcap and swept * cyl[c, CYL_ROD_AREA] <= fraction * vrod):
@@ -1670,27 +1392,26 @@ def _clipped_guess_is_held(pnet, x, dt, guess):
 
 
 @_kernel
-def _linearize_at_start_velocity(newton, pnet, W, oil0, spool0, command, speed, x0, v, dt, guess, oil, p, spool, x, flow,
-                                 istats, effort, gradient, p_first, doil, oil_warm):
-    """CouplingImplicit.begin's linearisation (:func:`_linearize_any`) at :func:`_start_velocity_guess` of the start
-    velocities ``v``, written to ``guess``; where that guess is not held and its linearisation is not usable (an
+def _linearize_at_start_velocity(newton, pnet, W, start, dt, guess, out, oil_warm):
+    """CouplingImplicit.begin's linearisation (:func:`_linearize_any`, into ``out``) at :func:`_start_velocity_guess`
+    of the start velocities ``v`` of ``start`` (:class:`StepStart`), written to ``guess``; where that guess is not held and its linearisation is not usable (an
     unresolved oscillation: x + dt·v can empty a chamber), again at the held actuators.  Returns whether the
     linearisation is at the held actuators (its first evaluation, ``p_first``, is then at the start oil and
     positions).  Where the guess is not held, Newton starts from ``oil_warm`` (coupling.secant_oil_guess; ``oil0``
     when there is none), and again from ``oil0`` if that linearisation is not usable; else from ``oil0``;
     ``istats[IS_SINGULAR]`` tells a singular linearisation."""
+    oil0, spool0, command, speed, x0, v = start
+    at_guess = StepStart(oil0, spool0, command, speed, x0, guess)
+    istats, p, gradient = out.istats, out.pressure, out.gradient
     held = _start_velocity_guess(pnet, x0, v, dt, guess)
-    _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats, effort,
-                   gradient, p_first, doil, oil0 if held else oil_warm)
+    _linearize_any(newton, pnet, W, at_guess, dt, out, oil0 if held else oil_warm)
     if not held and not _linearization_usable(istats, p, gradient):  # the warm start changes iterations only
-        _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats,
-                       effort, gradient, p_first, doil, oil0)
+        _linearize_any(newton, pnet, W, at_guess, dt, out, oil0)
     if not held and not _linearization_usable(istats, p, gradient):
         for a in range(guess.size):
             guess[a] = 0.0
         held = _clipped_guess_is_held(pnet, x0, dt, guess)
-        _linearize_any(newton, pnet, W, oil0, spool0, command, speed, x0, guess, dt, oil, p, spool, x, flow, istats,
-                       effort, gradient, p_first, doil, oil0)
+        _linearize_any(newton, pnet, W, at_guess, dt, out, oil0)
     return held
 
 
@@ -1759,7 +1480,7 @@ def _linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow):
     """CouplingImplicitLinear.finish after the prediction: end pressures p = p(m⁺, x⁺) [Pa] of the predicted oil
     ``oil`` (m⁺ [m³]) at the end positions ``x``, and the branch flows ``flow`` [m³/s] at the linearisation's
     spools ``spool``, pump speeds ``speed`` and end velocities ``v`` (no Newton solve).  ``W``: scratch of at least
-    (orifices + 2·nodes) entries; ``dflow``: scratch (branches)."""
+    (orifices + 2·nodes) entries; ``dflow``: scratch (branches × terminals)."""
     net = _deref(pnet)
     n = oil.size
     o = 0
@@ -1768,7 +1489,7 @@ def _linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow):
     dpdm, o = _take(W, o, n)
     _pressure(pnet, oil, x, geo, p, dpdm)
     _valve_areas(pnet, spool, area)
-    _branch_flows(pnet, p, area, speed, v, flow, dflow, dflow)
+    _branch_flows(pnet, p, area, speed, v, flow, dflow)
 
 
 @_kernel
@@ -1804,6 +1525,8 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     dissipated = 0.0
     for b in range(ic[IC_O0], ic[IC_C1]):
         dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+    for b in range(ic[IC_W0], ic[IC_W1]):
+        dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
     ledger[at] += h * -pump
     ledger[at + 1] += h * motor
     ledger[at + 2] += h * dissipated
@@ -1812,6 +1535,36 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     for i in range(v.size):
         fw += friction[i] * v[i]
     ledger[at + 3] -= h * fw
+
+
+def _cached_entries(fingerprint):
+    """The two entry points the stepper calls from Python, cached on disk (numba's ``cache=True``) under a key
+    that includes ``fingerprint`` (a closure variable; :data:`hydraulics._jit.FINGERPRINT`): numba keys a cached
+    function by its own file only, and these compile in the laws of every component module."""
+
+    def step_kernel(F, I, oil0, spool0, command, speed, x, v, h, update_spool, oil_init):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _step_python_entry(F, I, oil0, spool0, command, speed, x, v, h, update_spool, oil_init)
+
+    def linearize_kernel(F, I, oil0, spool0, command, speed, x0, velocity, dt, newton, oil_init):
+        if fingerprint is None:  # never (see step_kernel)
+            raise ValueError("no fingerprint")
+        return _linearize_python_entry(F, I, oil0, spool0, command, speed, x0, velocity, dt, newton, oil_init)
+
+    if not _NUMBA:  # pragma: no cover
+        return step_kernel, linearize_kernel
+    return tuple(_numba_cached(f) for f in (step_kernel, linearize_kernel))
+
+
+def _numba_cached(function):
+    """``numba.njit`` with the disk cache (numpy's error model, as :func:`hydraulics._jit.jit`)."""
+    import numba
+
+    return numba.njit(cache=True, error_model="numpy", nogil=True)(function)
+
+
+_step_kernel, _linearize_kernel = _cached_entries(FINGERPRINT)
 
 
 # ----------------------------------------------------------------------------
@@ -1867,7 +1620,7 @@ class StepperImplicitEulerCompiled(StepperImplicitEuler):
         if not _NUMBA:  # pragma: no cover
             return super()._substep(state, control, motion, h, oil_guess)
         oil0 = _f64(state.node_oil)
-        oil, pressure, spool, flow, _, _, istats, norm = _step_kernel(
+        oil, pressure, spool, flow, _, istats, norm = _step_kernel(
             self._F, self._I, oil0, _f64(state.valve_spool), _f64(control.valve_command),
             _f64(control.pump_speed), _f64(motion.position_end), _f64(motion.velocity_end), float(h), True,
             oil0 if oil_guess is None else _f64(oil_guess),
@@ -1881,11 +1634,12 @@ class StepperImplicitEulerCompiled(StepperImplicitEuler):
         if not _NUMBA:  # pragma: no cover
             return super()._solve(state, control, position, velocity, spool, h, oil_guess)
         oil0 = _f64(state.node_oil)
-        oil, _, _, flow, dfrom, dto, istats, norm = _step_kernel(
+        oil, _, _, flow, dflow, istats, norm = _step_kernel(
             self._F, self._I, oil0, _f64(spool), _f64(control.valve_command), _f64(control.pump_speed),
             _f64(position), _f64(velocity), float(h), False, oil0 if oil_guess is None else _f64(oil_guess),
         )
-        return oil, BranchFlows(flow, dfrom, dto), self._make_report(istats, norm, flow)
+        return (oil, BranchFlows(flow, dflow[:, T_FROM].copy(), dflow[:, T_TO].copy(), dflow[:, T_PILOT].copy()),
+                self._make_report(istats, norm, flow))
 
     def linearize(self, state: NetworkState, control, velocity, dt: float, *, newton: bool = True,
                   oil_guess=None) -> Linearization:

@@ -72,6 +72,6 @@ def branch_powers(model: NetworkModel, state: NetworkState, flow: np.ndarray) ->
     mu = model.fluid.pressure_potential(state.node_pressure)
     power = flow * (mu[model.branch_from] - mu[model.branch_to])
     sl = model.branch_slices
-    dissipative = np.concatenate([power[sl[k]] for k in ("orifice", "laminar", "relief", "check")])
+    dissipative = np.concatenate([power[sl[k]] for k in ("orifice", "laminar", "relief", "check", "law") if k in sl])
     return {"pump": float(-np.sum(power[sl["pump"]])), "motor": float(np.sum(power[sl["motor"]])),
             "dissipated": float(np.sum(dissipative)), "rigid": float(np.sum(power[sl["rigid"]]))}

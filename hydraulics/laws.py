@@ -13,14 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-# Regularisation velocity of Coulomb friction: tanh(v / v_reg) reaches 76 % of
-# the Coulomb force at 1 mm/s, far below any operator-commanded rod speed.
-FRICTION_REGULARISATION_VELOCITY = 1e-3  # m/s
-
-# Critical Reynolds number of the laminar–turbulent transition of a sharp-edged
-# orifice (Merritt, "Hydraulic Control Systems", §2.4 quotes 10–1000; 150 is the
-# value used by several lumped-parameter tools).
-ORIFICE_CRITICAL_REYNOLDS = 150.0
+from .components.cylinder import FRICTION_REGULARISATION_VELOCITY  # noqa: F401  (m/s, the friction law's)
+from .components.hose import line_conductance  # noqa: F401
+from .components.orifice import CRITICAL_REYNOLDS as ORIFICE_CRITICAL_REYNOLDS
+from .components.orifice import coefficients as orifice_coefficients
 
 
 # --------------------------------------------------------------------------
@@ -75,13 +71,6 @@ def orifice_transition_pressure(area, discharge_coefficient, density, kinematic_
         return 0.5 * density * (ORIFICE_CRITICAL_REYNOLDS * kinematic_viscosity) ** 2 / (
             discharge_coefficient**2 * hydraulic_diameter_sq
         )
-
-
-def orifice_coefficients(discharge_coefficient, density, kinematic_viscosity):
-    """Constants (k, c) of the orifice law: k = C_d·sqrt(2/ρ) and c = p_tr·A (independent of A)."""
-    cd = np.asarray(discharge_coefficient, dtype=float)
-    c = 0.5 * density * (ORIFICE_CRITICAL_REYNOLDS * kinematic_viscosity) ** 2 * np.pi / (4.0 * cd**2)
-    return cd * np.sqrt(2.0 / density), c
 
 
 def orifice_flow_with_derivative(area, discharge_coefficient, delta_p, density, kinematic_viscosity):
@@ -313,11 +302,6 @@ def accumulator_liquid_volume_with_derivative(pressure, gas_volume, precharge_pr
     volume = np.where(charged, gas_volume * (1.0 - ratio), 0.0)
     slope = np.where(charged, gas_volume * ratio / (polytropic_index * p), 0.0)
     return volume, slope
-
-
-def line_conductance(inner_diameter, length, dynamic_viscosity):
-    """Laminar (Hagen–Poiseuille) conductance of a pipe, G = π·d⁴/(128·μ·L) [m³/(s·Pa)]."""
-    return np.pi * inner_diameter**4 / (128.0 * dynamic_viscosity * length)
 
 
 def wall_expansion_with_derivative(pressure, volume, wall_bulk_modulus, reference_pressure):

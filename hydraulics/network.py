@@ -16,11 +16,14 @@ Nodes
     the hose volume.
 
 Branches
-    Two-terminal flow laws Q(p_from, p_to) [m³/s at reference density], each
-    with analytic derivatives: orifices (fixed, valve edges, check valves),
-    laminar leaks, relief valves, pumps (sources), motors (flow set by the
-    shaft speed) and rigid branches (the flow a rigid actuator's rod displaces,
-    set by its speed and its valve's direction; see ``FIDELITIES``).
+    Flow laws Q [m³/s at reference density] from a ``from`` to a ``to`` node, each
+    with analytic derivatives with respect to the pressure of each of its terminals:
+    orifices (fixed, valve edges, check valves), laminar leaks, relief valves, pumps
+    (sources), motors (flow set by the shaft speed), rigid branches (the flow a rigid
+    actuator's rod displaces, set by its speed and its valve's direction; see
+    ``FIDELITIES``) and *law branches*: the components that bring their own law
+    (:data:`hydraulics.components.BRANCH_LAWS`), which may read a third, pilot
+    terminal (``branch_pilot``).
 
 Actuators
     Cylinders (coordinate: rod extension x [m], effort: force [N]) and motors
@@ -36,10 +39,9 @@ import numpy as np
 
 from . import laws
 from .circuit import Circuit
-from .components import CircuitError
+from .components import BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, CircuitError
+from .components.relief import REGULARISATION as RELIEF_REGULARISATION  # [-] C¹ blend width / cracking pressure
 
-# Width of the C¹ blend at a relief valve's cracking point, relative to the cracking pressure.
-RELIEF_REGULARISATION = 1e-3  # [-]
 # Pressure inversion of compliant nodes (elastic walls, accumulators).
 PRESSURE_INVERSION_MAX_ITERATIONS = 60  # converges in < 8 from the rigid guess
 PRESSURE_INVERSION_TOLERANCE = 1e-13  # on ln(V·φ/m)
@@ -275,11 +277,14 @@ class BranchFlows:
     flow : shape (branch_count,) [m³/s], positive from ``branch_from`` to ``branch_to``.
     dflow_dfrom, dflow_dto : shape (branch_count,) [m³/(s·Pa)], derivatives with
     respect to the pressures of the two terminal nodes.
+    dflow_dpilot : shape (branch_count,) [m³/(s·Pa)] or None (no pilot terminals), derivative with
+    respect to the pressure of the third terminal ``branch_pilot`` (zero where there is none).
     """
 
     flow: np.ndarray
     dflow_dfrom: np.ndarray
     dflow_dto: np.ndarray
+    dflow_dpilot: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -364,6 +369,11 @@ class NetworkModel:
     rigid_cd: np.ndarray = field(default_factory=lambda: np.zeros(0))  # discharge coefficient of the metering edges
     rigid_base_area: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m², leakage area of a closed edge
     rigid_max_area: np.ndarray = field(default_factory=lambda: np.zeros(0))  # m², fully open edge
+    # law branches (components with their own law, hydraulics.components.BRANCH_LAWS): third terminal of every
+    # branch (-1: none), law of each law branch (index into BRANCH_LAWS) and its parameter row
+    branch_pilot: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    law_kind: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    law_table: np.ndarray = field(default_factory=lambda: np.zeros((0, LAW_WIDTH)))
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -572,6 +582,22 @@ class NetworkModel:
             add_branch(c.name, node(c, "a"), node(c, "b"))
         slices["motor"] = slice(start, len(branch_names))
 
+        # law branches: from the component's first port to its second; a third port is a pilot terminal
+        start = len(branch_names)
+        law_pilot, law_kind, law_rows = [], [], []
+        for c in circuit.components:
+            law_class = COMPONENT_TYPES[c.kind]
+            if law_class not in BRANCH_LAWS or not keep(c, node(c, law_class.PORTS[0]), node(c, law_class.PORTS[1])):
+                continue
+            add_branch(c.name, node(c, law_class.PORTS[0]), node(c, law_class.PORTS[1]))
+            law_pilot.append(node(c, law_class.PORTS[2]) if len(law_class.PORTS) > 2 else -1)
+            law_kind.append(BRANCH_LAWS.index(law_class))
+            row = np.zeros(LAW_WIDTH)
+            values = c.params.law_row(circuit.fluid)
+            row[:len(values)] = values
+            law_rows.append(row)
+        slices["law"] = slice(start, len(branch_names))
+
         # rigid branches: valve P -> T, carrying the flow a rigid actuator's rod (shaft) displaces
         start = len(branch_names)
         rigid = [c for c in actuators if c.name in rigid_valve]
@@ -589,6 +615,8 @@ class NetworkModel:
         nb = len(branch_names)
         b_from = np.array(b_from, int)
         b_to = np.array(b_to, int)
+        b_pilot = np.full(nb, -1, int)
+        b_pilot[slices["law"]] = law_pilot
         incidence = np.zeros((n, nb))
         incidence[b_to, np.arange(nb)] += 1.0
         incidence[b_from, np.arange(nb)] -= 1.0
@@ -682,6 +710,9 @@ class NetworkModel:
             rigid_cd=column(rigid_valves, "discharge_coefficient"),
             rigid_base_area=column(rigid_valves, "leakage_area"),
             rigid_max_area=column(rigid_valves, "max_area"),
+            branch_pilot=b_pilot,
+            law_kind=f(law_kind, int),
+            law_table=np.array(law_rows, float).reshape(len(law_rows), LAW_WIDTH),
         )
         return model
 
@@ -1008,7 +1039,17 @@ class NetworkModel:
         s = sl["rigid"]
         if s.stop > s.start:
             flow[s] = orifice_area[sl["orifice"].stop:] * actuator_velocity[self.rigid_branch_actuator]
-        return BranchFlows(flow, dfrom, dto)
+
+        s = sl.get("law", slice(0, 0))
+        if s.stop == s.start:
+            return BranchFlows(flow, dfrom, dto)
+        dpilot = np.zeros(nb)
+        for i, b in enumerate(range(s.start, s.stop)):  # the compiled law of each component, called from Python
+            pilot = self.branch_pilot[b]
+            law = BRANCH_LAWS[self.law_kind[i]].BRANCH_LAW
+            flow[b], dfrom[b], dto[b], dpilot[b] = law(self.law_table[i], pressure[self.branch_from[b]],
+                                                       pressure[self.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0)
+        return BranchFlows(flow, dfrom, dto, dpilot)
 
     def flow_jacobian(self, flows: BranchFlows) -> np.ndarray:
         """∂(net inflow)/∂p, shape (node_count, node_count) [m³/(s·Pa)]."""
@@ -1017,6 +1058,9 @@ class NetworkModel:
         idx = np.arange(len(self.branch_names))
         np.add.at(d, (idx, self.branch_from), flows.dflow_dfrom)
         np.add.at(d, (idx, self.branch_to), flows.dflow_dto)
+        if flows.dflow_dpilot is not None:
+            piloted = self.branch_pilot >= 0
+            np.add.at(d, (idx[piloted], self.branch_pilot[piloted]), flows.dflow_dpilot[piloted])
         return self.incidence @ d
 
     @property

@@ -42,7 +42,7 @@ symbol ``CTX_SYMBOL`` and ``mj_solveM`` the external function
 ``SOLVEM_SYMBOL``, both registered with ``llvmlite.binding.add_symbol`` before
 the callback is loaded — so numba's disk cache (``sim/__pycache__``) holds it
 and a new process loads it in milliseconds instead of compiling it (≈ 3 s the
-first time after a change of this file or of ``hydraulics/_compiled.py``).
+first time after a change of this file or of the hydraulic kernel sources, ``hydraulics._jit.SOURCES``).
 numba keys a cached function by its own file only, so the callback carries a
 sha256 of both source files as a closure variable (part of numba's cache key),
 and this module's other numba functions are not cached on their own: they
@@ -172,7 +172,7 @@ SOLVEM_SYMBOL = "hydroplant_mj_solveM"
 
 
 def _finish_scratch(na, n, nb, nvalve):
-    return 4 * na + 6 * n + 2 * nb + nvalve
+    return 4 * na + 6 * n + (1 + C._W_BR) * nb + nvalve
 
 
 def scratch_size(na, n, nb, nvalve):
@@ -181,7 +181,9 @@ def scratch_size(na, n, nb, nvalve):
     return _finish_scratch(na, n, nb, nvalve) + 9 * na + 5 * n + na * na + n + nvalve + na + nb + n * na
 
 
-if _NUMBA:
+_JIT = _NUMBA and C.JIT_ENABLED  # False under NUMBA_DISABLE_JIT=1: the callback runs as Python (below)
+
+if _JIT:
 
     def _pointer_cast(nbtype):
         """A numba intrinsic that turns an integer address into a pointer of type ``nbtype``."""
@@ -219,14 +221,35 @@ if _NUMBA:
         SOLVEM_SYMBOL, types.void(types.voidptr, types.voidptr, types.voidptr, types.voidptr, types.int32)
     )
     # Not cached on their own: they are only ever compiled into the control callback, whose cache
-    # key includes a fingerprint of this file and of hydraulics/_compiled.py (see callback()).
+    # key includes a fingerprint of this file and of the hydraulic kernel sources (see callback()).
     # (numba's cache of a function does not notice changes of the functions it calls in other files.)
     def _jit(function):
         return numba.njit(error_model="numpy", nogil=True)(function)
 
     def _kernel(function):
         return numba.njit(error_model="numpy", nogil=True, _nrt=False)(function)
-else:  # pragma: no cover
+else:  # the same callback as Python (NUMBA_DISABLE_JIT=1, for debugging): ctypes pointers, mujoco.mj_solveM
+    def _pointer_cast(ctype):
+        def cast(addr):
+            return ctypes.cast(int(addr), ctypes.POINTER(ctype))
+
+        return cast
+
+    _pf64 = _pointer_cast(ctypes.c_double)
+    _pi64 = _pointer_cast(ctypes.c_int64)
+    _pi32 = _pointer_cast(ctypes.c_int32)
+
+    def _pvoid(addr):
+        return int(addr)
+
+    def _ctx_address():
+        return int(_CTX.ctypes.data)
+
+    def _mj_solveM_nb(m, d, x, y, n):
+        """mj_solveM(m, d, x, y, n) on the addresses ``x`` (out) and ``y`` (n × nv each) through the bindings."""
+        shape = (int(n), m.nv)
+        mujoco.mj_solveM(m, d, carray(_pf64(x), shape), carray(_pf64(y), shape))
+
     def _jit(f):
         return f
 
@@ -300,7 +323,7 @@ def _finish_pending(ctx, pnet, V):
     p2, o = C._take(S, o, n)
     mu, o = C._take(S, o, n)
     fl, o = C._take(S, o, nb)
-    dfl, o = C._take(S, o, nb)
+    dfl, o = C._take2(S, o, nb, C._W_BR)  # branches × terminals
     sp2, o = C._take(S, o, nvalve)
     mpred, o = C._take(S, o, n)
     mstart, o = C._take(S, o, n)
@@ -347,7 +370,8 @@ def _finish_pending(ctx, pnet, V):
             C._copy(xe, x_end)
             C._copy(ve, v_end)
             C._copy(minit, mpred)
-        norm = C._step_core(pnet, W, oil, spool, cmd, speed, xe, ve, h, True, o2, p2, sp2, fl, dfl, dfl, istats, minit)
+        norm = C._step_core(pnet, W, C.StepStart(oil, spool, cmd, speed, xe, ve), h, True,
+                            C.StepOut(o2, p2, sp2, fl, dfl, istats), minit)
         newton += istats[C.IS_NEWTON]
         rhs += istats[C.IS_RHS]
         jac += istats[C.IS_JAC]
@@ -464,9 +488,10 @@ def _begin(ctx, pnet, V):
     C._secant_oil_guess(oil, V.oil_change, oil_warm)
     # predicted end velocities: the start velocities where their chord is short (coupling.start_velocity_guess),
     # clipped so the cylinders stay inside their stroke; the held actuators where that linearisation is useless
-    held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, pnet, W, oil, spool, cmd, speed, xs, vs, dt,
-                                          guess, lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient,
-                                          p0, doil, oil_warm)
+    held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, pnet, W,
+                                          C.StepStart(oil, spool, cmd, speed, xs, vs), dt, guess,
+                                          C.LinearizationOut(lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats,
+                                                             effort_end, gradient, p0, doil), oil_warm)
     if istats[C.IS_SINGULAR]:
         ctx[C_STATUS] = ST_SINGULAR
         ctx[C_FAILED] = k
@@ -578,8 +603,8 @@ def _callback_function(fingerprint):
     return coupled_step_c
 
 
-# this file and hydraulics/_compiled.py (everything the callback compiles in), taken at import: part of the cache key
-SOURCE_SHA256 = C.source_sha256(__file__, C.__file__)
+# this file and the hydraulic kernel sources (everything the callback compiles in), taken at import: part of the cache key
+SOURCE_SHA256 = C.source_sha256(__file__, *C.SOURCES)
 
 
 # ----------------------------------------------------------------------------
@@ -609,6 +634,11 @@ def callback():
     (≈ 3 s, once per change of this file or of :mod:`hydraulics._compiled`).
     """
     global _CALLBACK, _CALLBACK_POINTER
+    if _CALLBACK is None and not _JIT:  # NUMBA_DISABLE_JIT=1: MuJoCo calls the Python function
+        def coupled_step_python(m, d):
+            _coupled_step(_ctx_address(), m, d)
+
+        _CALLBACK = _CALLBACK_POINTER = coupled_step_python
     if _CALLBACK is None:
         llvm_binding.add_symbol(CTX_SYMBOL, int(_CTX.ctypes.data))
         llvm_binding.add_symbol(SOLVEM_SYMBOL, _mj_solveM_address())

@@ -188,7 +188,7 @@ def _record_row(row, pres, qpos, qvel, rq, rd, oil, pos, vel, effort, theta, cmd
 
 
 # this file and everything frame_nb compiles in, taken at import: part of the cache key
-SOURCE_SHA256 = C.source_sha256(__file__, FN.__file__, H.__file__, XC.__file__, C.__file__)
+SOURCE_SHA256 = C.source_sha256(__file__, FN.__file__, H.__file__, XC.__file__, *C.SOURCES)
 
 
 _BLOCK = {}

@@ -30,7 +30,7 @@ contacts.  Results equal the per-substep hooks to round-off.
 
 Caching as :mod:`sim.plants.pbd_hydraulics`: the entry point carries a sha256 of
 this file, ``hydraulics_nb.py``, ``compiled.py`` and
-``hydraulics/_compiled.py`` (and numba's version) as a closure variable.
+the hydraulic kernel sources (``hydraulics._jit.SOURCES``, and numba's version) as a closure variable.
 """
 
 from __future__ import annotations
@@ -193,9 +193,9 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
     return FRAME_OK
 
 
-# every source compiled into the frame (this file, hydraulics_nb.py, compiled.py, hydraulics/_compiled.py), taken at
+# every source compiled into the frame (this file, hydraulics_nb.py, compiled.py, the hydraulic kernel sources), taken at
 # import: part of the cache key
-SOURCE_SHA256 = C.source_sha256(__file__, H.__file__, XC.__file__, C.__file__)
+SOURCE_SHA256 = C.source_sha256(__file__, H.__file__, XC.__file__, *C.SOURCES)
 
 
 def _entry(fingerprint, transport, articulated_contacts):

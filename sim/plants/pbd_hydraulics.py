@@ -28,7 +28,7 @@ held actuators), clipped into the stroke.  Any other configuration keeps the Pyt
 hooks (:func:`eligible`).
 
 Caching: numba caches a function by its own file only, so the two entry points
-carry a sha256 of this file and of ``hydraulics/_compiled.py`` (and the numba
+carry a sha256 of this file and of the hydraulic kernel sources (``hydraulics._jit.SOURCES``, and the numba
 version) as a closure variable, which is part of numba's cache key (as
 :mod:`sim.plants.mujoco_fast` does); the helpers below are not cached on their
 own and exist only inside the entry points.  One signature each.
@@ -90,7 +90,7 @@ def keep_size(n, na, nb, nvalve):
     """Length of the float64 buffer S: the last substep's oil change [m³] (``NetworkState.node_oil_change``, the
     next substep's warm start, which persists across substeps and steps; :meth:`FastHydraulics.load` / ``store``
     move it), what begin leaves for finish (``C._take_linearization``), then begin's and finish's temporaries."""
-    return n + (na + n + nvalve + n * na) + _begin_temporaries(n, na, nb, nvalve) + (5 * n + 2 * na + 3 * nb + nvalve)
+    return n + (na + n + nvalve + n * na) + _begin_temporaries(n, na, nb, nvalve) + (5 * n + 2 * na + (1 + C._W_BR) * nb + nvalve)
 
 
 _begin_temporaries_nb = _kernel(_begin_temporaries)
@@ -128,9 +128,9 @@ def _begin_core(pnet, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const
     effort_end = fg  # overwritten by the guess's friction below
     # linearised at the start velocities where their chord is short (coupling.start_velocity_guess), kept inside the
     # stroke, else at the held actuators
-    C._linearize_at_start_velocity(scheme != SCHEME_ROSENBROCK, pnet, W, oil, spool, cmd, speed, x, v, h, guess, lin_oil,
-                                   lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient, p_first, doil,
-                                   oil_warm)
+    C._linearize_at_start_velocity(scheme != SCHEME_ROSENBROCK, pnet, W, C.StepStart(oil, spool, cmd, speed, x, v), h, guess,
+                                   C.LinearizationOut(lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats, effort_end,
+                                                      gradient, p_first, doil), oil_warm)
     if istats[C.IS_SINGULAR]:
         return False
     C._effort_law_terms(pnet, guess, lin_p, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
@@ -158,22 +158,21 @@ def _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, c
     mu, o = C._take(S, o, n)
     dv, o = C._take(S, o, na)
     fric, o = C._take(S, o, na)
-    dfrom, o = C._take(S, o, nb)
-    dto, o = C._take(S, o, nb)
+    dflow, o = C._take2(S, o, nb, C._W_BR)  # branches × terminals
     fl, o = C._take(S, o, nb)
     sp2, o = C._take(S, o, nvalve)
     change, o = C._take(S, o, n)
     C._predicted_oil(lin_oil, doil, guess, v_end, dv, mpred)
     if scheme == SCHEME_NEWTON:
-        norm = C._step_core(pnet, W, oil, spool, cmd, speed, x_end, v_end, h, True, o2, p2, sp2, fl, dfrom, dto, istats,
-                            mpred)
+        norm = C._step_core(pnet, W, C.StepStart(oil, spool, cmd, speed, x_end, v_end), h, True,
+                            C.StepOut(o2, p2, sp2, fl, dflow, istats), mpred)
         istats[I_NEWTON] += istats[C.IS_NEWTON]
         istats[I_RHS] += istats[C.IS_RHS]
         istats[I_JAC] += istats[C.IS_JAC]
     else:  # m⁺ = the prediction, at the linearisation's spools
         C._copy(o2, mpred)
         C._copy(sp2, lin_spool)
-        C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfrom)
+        C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dflow)
         norm = 0.0
         istats[C.IS_STATUS] = C._OK
         istats[I_RHS] += 1
@@ -197,9 +196,9 @@ def _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, c
     C._account(pnet, ledger, L_PUMP, h, pres, flow, v_end, quad, mu, fric, dv)
 
 
-# this file and hydraulics/_compiled.py (everything compiled into the entry points), taken at import: part of the
+# this file and the hydraulic kernel sources (everything compiled into the entry points), taken at import: part of the
 # cache key
-SOURCE_SHA256 = C.source_sha256(__file__, C.__file__)
+SOURCE_SHA256 = C.source_sha256(__file__, *C.SOURCES)
 
 
 def _entry_points(fingerprint):

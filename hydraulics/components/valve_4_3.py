@@ -1,0 +1,83 @@
+"""Proportional 4/3 directional control valve: first-order spool, four metering edges (orifice law), centre type.
+
+Spool s ∈ [−1, 1] follows its command u through τ·ds/dt = u − s, advanced exactly over a step h
+(:func:`spool_step`: s⁺ = u + (s − u)·exp(−h/τ), exact for a command held over the step).  s > 0 opens
+P→A and B→T, s < 0 opens P→B and A→T; each edge opens linearly beyond the overlap ε,
+y = clip((s − ε)/(1 − ε), 0, 1) (:func:`metering_opening`), and its flow is the orifice law
+(:mod:`hydraulics.components.orifice`) at area A_leak + y·A_max.  Open and tandem centres add passages of
+area y_c·A_centre with y_c = clip(1 − |s|/max(ε, 0.1), 0, 1) (:func:`centre_opening`).
+
+Packing: the spool table, columns :data:`COLUMNS` (:func:`pack`); the edges are orifice branches.
+
+Example
+-------
+>>> metering_opening(0.62, 0.05)
+0.6
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._jit import clip, kernel, maximum
+from .parameters import param, table
+
+
+@dataclass(frozen=True, kw_only=True)
+class Valve43:
+    """Proportional 4/3 directional control valve (ports P, T, A, B).
+
+    Spool s ∈ [−1, 1] follows its command through a first-order lag.  s > 0
+    opens P→A and B→T, s < 0 opens P→B and A→T; each metering edge opens
+    linearly beyond the overlap.  Centre: ``closed`` (all blocked but leakage),
+    ``open`` (P, T, A, B all connected at s = 0), ``tandem`` (P→T open, A and B
+    blocked at s = 0).
+    """
+
+    max_area: float = param("m^2", low=0.0, high=0.01)
+    """Area of each metering edge fully open [m²]."""
+    centre: str = param("-", default="closed", choices=("closed", "open", "tandem"))
+    """Centre type."""
+    centre_area: float = param("m^2", low=0.0, high=0.01, low_open=False, default=0.0)
+    """Area of the centre passages at s = 0 [m²] (open/tandem)."""
+    overlap: float = param("-", low=0.0, high=0.5, low_open=False, default=0.05)
+    """Dead band of each edge as a fraction of spool travel [-]."""
+    leakage_area: float = param("m^2", low=0.0, high=1e-5, low_open=False, default=1e-9)
+    """Area of every edge when closed (spool clearance) [m²]."""
+    time_constant: float = param("s", low=0.0, high=10.0, low_open=False, default=0.03)
+    """First-order spool time constant τ [s]; 0 = ideal spool."""
+    discharge_coefficient: float = param("-", low=0.0, high=1.0, default=0.7)
+    """C_d [-]."""
+    PORTS = ("P", "T", "A", "B")
+
+
+@kernel
+def spool_step(spool, command, tau, dt):
+    """Spool position [-] after ``dt`` [s] of τ·ds/dt = u − s from ``spool`` with ``command`` u held; τ = 0: s = u."""
+    decay = math.exp(-dt / tau) if tau > 0.0 else 0.0
+    return command + (spool - command) * decay
+
+
+@kernel
+def metering_opening(spool, overlap):
+    """Opening fraction [0, 1] of an edge that opens for positive spool: clip((s − ε)/(1 − ε), 0, 1)."""
+    return clip((spool - overlap) / (1.0 - overlap), 0.0, 1.0)
+
+
+@kernel
+def centre_opening(spool, overlap):
+    """Opening fraction of an open/tandem centre passage: 1 at s = 0, closed at |s| ≥ max(ε, 0.1)."""
+    return clip(1.0 - abs(spool) / maximum(overlap, 0.1), 0.0, 1.0)
+
+
+COLUMNS = ("time_constant", "overlap")
+"""Spool table: time constant τ [s], overlap ε [-]."""
+V_TAU, V_OVERLAP = range(len(COLUMNS))
+
+
+def pack(model) -> np.ndarray:
+    """The spool table of a :class:`~hydraulics.network.NetworkModel`, columns :data:`COLUMNS`."""
+    return table(COLUMNS, len(model.valve_names), time_constant=model.valve_time_constant, overlap=model.valve_overlap)
