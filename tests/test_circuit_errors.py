@@ -135,3 +135,21 @@ def test_fidelity_overrides_name_actuators_and_levels():
         NetworkModel.from_circuit(circuit, actuator_fidelity={"arm": "lines"})
     with pytest.raises(CircuitError, match=r"fidelity for 'cyl': 'exact' is not one of"):
         NetworkModel.from_circuit(circuit, actuator_fidelity={"cyl": "exact"})
+
+
+def test_circuit_without_any_actuator_is_refused(tmp_path):
+    """A circuit whose only cylinder is deleted would build an empty network: refused in one line naming it."""
+    from conftest import scene_copy
+    from sim.io.scenario import ScenarioError, load_scenario
+    from sim.io.scene import load_scene
+
+    scene = scene_copy(tmp_path, "boom")
+    circuit = scene / "boom.circuit.toml"
+    text = circuit.read_text()
+    start = text.index('name = "boom_cyl"')
+    start = text.rindex("[[component]]", 0, start)
+    end = text.find("[[component]]", start + 1)
+    circuit.write_text(text[:start] + (text[end:] if end >= 0 else ""))
+    with pytest.raises(ScenarioError, match=r"boom\.circuit\.toml: no 'cylinder' or 'motor' component") as err:
+        load_scene(load_scenario(scene / "lift.scenario.toml"))
+    assert "\n" not in str(err.value)

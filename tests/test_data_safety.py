@@ -218,7 +218,9 @@ def test_a_signal_during_start_up_exits_quietly(scene, tmp_path, sig, code):
     time.sleep(0.3)  # still importing
     proc.send_signal(sig)
     out, err = proc.communicate(timeout=60)
-    assert proc.returncode == code and err == "", (proc.returncode, err)
+    # A signal that lands before the interpreter runs the command's code ends it by the signal's default
+    # action, as quietly (the shell reports the same 128 + signal).
+    assert proc.returncode in (code, -sig) and err == "", (proc.returncode, err)
     assert not list(tmp_path.glob("x.mcap*"))
 
 

@@ -44,7 +44,7 @@ def _default_sigint():
 def start_run(out, *extra):
     """``python -m sim.cli run LIFT ...`` in a subprocess (the console script's entry point)."""
     return subprocess.Popen(
-        [sys.executable, "-m", "sim.cli", "run", str(LIFT), "--dt", SIGNAL_DT, "--duration", "600", "--no-progress",
+        [sys.executable, "-m", "sim.cli", "run", str(LIFT), "--dt", SIGNAL_DT, "--duration", "36000", "--no-progress",
          "--out", str(out), *extra],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"},
         preexec_fn=_default_sigint,

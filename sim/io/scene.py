@@ -416,6 +416,9 @@ def build_network(scenario: Scenario, actuators=None) -> NetworkModel:
     circuit = load_circuit(scenario.circuit)
     check_input_ranges(scenario, circuit)
     names = [c.name for c in circuit.by_kind("cylinder", "motor")]
+    if not names:
+        raise ScenarioError(f"{scenario.circuit}: no 'cylinder' or 'motor' component: a circuit must drive at least one "
+                            f"actuator of {scenario.mjcf}")
     undriven = ()
     if actuators is not None and set(names) - set(actuators):
         if not set(names) & set(actuators):
