@@ -20,7 +20,7 @@ from conftest import MODELS
 from sim.plants.pbd import PbdPlant
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
-from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs
+from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdOptions
 from test_xpbd_rigid import BOX, EXC_Q0, EXC_V0, EXCAVATOR, FOURBAR, PENDULUM, SLIDER, G, build
 
 RTOL = 1e-9
@@ -92,7 +92,7 @@ def _run_pair(xml, n, dt, substeps, *, qpos=None, qvel=None, inputs=None, rows=(
     m, xm = build(xml)
     out = []
     for compiled in (False, True):
-        solver = SolverXPBD(xm, substeps=substeps, length_constraints=rows, compiled=compiled, **kw)
+        solver = SolverXPBD(xm, XpbdOptions(substeps=substeps, compiled=compiled, **kw), length_constraints=rows)
         st = xm.state_from_qpos(qpos, qvel)
         forces = []
         for _ in range(n):

@@ -17,16 +17,20 @@ multipliers λ [N·s²] (row force λ/h² [N], + pushes the sites apart).
 
 Supported contacts: soft pyramidal (MuJoCo's default cone, condim ≥ 3, μ > 0); the solver
 falls back to the pure path for a step with any other contact candidate.
+
+Arguments come in named layouts (namedtuples of arrays, built once per solver or plant): the
+static ``GroupModel`` and ``BodyTree``, per substep ``SubstepRows``, ``SubstepLoads``,
+``ContactRows``, ``SubstepOptions``, the outputs ``RowOutputs`` and the scratch ``SubstepWork``
+(``substep_work``).  numba passes a namedtuple as its fields, so a layout costs nothing at run time.
 """
 
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
-
-from hydraulics._compiled import _matrix  # 2-D views of flat work buffers (an intrinsic: compiled into its callers)
 
 _EPS = 1e-14
 JNT_FREE, JNT_BALL, JNT_SLIDE, JNT_HINGE = 0, 1, 2, 3
@@ -35,6 +39,97 @@ EQ_CONNECT, EQ_WELD = 0, 1
 # the rows after the joints' are tendon limits with also lo, hi [m], groups a, b and the site offsets ra, rb
 LIMIT_COLS = 19
 
+
+# ---------------------------------------------------------------------------- named layouts
+# The kernels take these tuples of arrays (built once per solver or plant; numba passes a namedtuple as its
+# fields) instead of long positional argument lists.  Shapes: ng rigid groups, nj joints, ne equalities,
+# nr length rows, nc contact candidates, nb bodies.
+
+GroupModel = namedtuple("GroupModel", [
+    "IM",  # inverse mass of each group [1/kg], (ng,); 0 = static
+    "II",  # inverse principal inertia of each group [1/(kg·m²)], (ng, 3)
+    "GI",  # principal inertia of each group [kg·m²], (ng, 3)
+    "gravity",  # [m/s²], (3,)
+    "jt",  # joint type (JNT_*), (nj,)
+    "jg",  # joint groups (g1, g2), (nj, 2)
+    "jvec",  # joint anchors r1, r2 [m] and axes a1, a2 in the group frames, (nj, 4, 3)
+    "jqoff",  # joint rest orientation offset (w, x, y, z), (nj, 4)
+    "jlim",  # limit table (SolverXPBD._limit_table), (nj + tendon limits, LIMIT_COLS)
+    "jlo",  # lower joint limit [rad or m], (nj,)
+    "jhi",  # upper joint limit [rad or m], (nj,)
+    "jdamp",  # joint damping [N·m·s/rad or N·s/m], (nj,)
+    "et",  # equality type (EQ_*), (ne,)
+    "eg",  # equality groups, (ne, 2)
+    "evec",  # equality anchors [m], (ne, 2, 3)
+    "eqoff",  # weld orientation offsets, (ne, 4)
+    "body_group",  # group of each body, (nb,)
+    "in_group_quat",  # body orientation in its group's frame, (nb, 4)
+    "in_group_pos",  # body COM position in its group's frame [m], (nb, 3)
+    "contact_cone",  # MuJoCo cone (0 pyramidal, 1 elliptic), int
+    "contact_impratio",  # MuJoCo impratio [-], float
+])
+
+SubstepRows = namedtuple("SubstepRows", [
+    "group",  # groups (a, b) of each length row, (nr, 2)
+    "vec",  # site offsets ra, rb in the group frames [m], (nr, 2, 3)
+    "active",  # indices of the rows solved this substep, (k,)
+    "target",  # target length ℓ* [m], (nr,)
+    "compliance",  # α̃ = α/h² [m/(N·s²)], (nr,)
+    "lower",  # lower bound on λ [N·s²], (nr,)
+    "upper",  # upper bound on λ [N·s²], (nr,)
+    "use_block",  # solve the active rows as one block through ``mobility`` (bool)
+    "mobility",  # articulated row mobility, (nr, ng, 6)
+])
+
+SubstepLoads = namedtuple("SubstepLoads", [
+    "use_group_acceleration",  # bool: ``group_acceleration`` replaces gravity
+    "group_acceleration",  # group accelerations (linear [m/s²], angular [rad/s²]), (ng, 6)
+    "force",  # external world force on each group [N], (ng, 3)
+    "torque",  # external world torque on each group [N·m], (ng, 3)
+    "use_joint_torque",  # bool: apply ``joint_torque`` as impulses
+    "joint_torque",  # hinge torques [N·m], (nj,)
+])
+
+ContactRows = namedtuple("ContactRows", [
+    "group",  # (body group, plane group), (nc, 2)
+    "vec",  # r2 local, plane origin, plane normal, tangent t₁ (plane group frame), (nc, 4, 3)
+    "radius",  # [m], (nc,)
+    "mu",  # friction coefficient [-], (nc,)
+    "solref",  # MuJoCo solref, (nc, 2)
+    "solimp",  # MuJoCo solimp, (nc, 5)
+    "condim",  # (nc,)
+    "tran",  # effective inverse weight of the contact (body_invweight0 sum) [1/kg], (nc,)
+])
+
+SubstepOptions = namedtuple("SubstepOptions", [
+    "iterations",  # position passes per substep, int
+    "symmetric",  # forward + backward Gauss-Seidel per pass, bool
+    "linear_damping",  # global linear damping c [1/s]
+    "angular_damping",  # global angular damping c [1/s]
+    "articulated_contacts",  # contact pyramids with the articulated response, bool
+])
+
+RowOutputs = namedtuple("RowOutputs", [
+    "lam",  # multiplier λ of every row [N·s²], (nr,)
+    "length",  # ℓ after the substep [m], (nr,)
+    "rate",  # dℓ/dt after the substep [m/s], (nr,)
+])
+
+SubstepWork = namedtuple("SubstepWork", [
+    "joint_soft", "joint_lam", "tendon_soft", "tendon_lam",  # soft limit rows and their λ
+    "contact_active", "contact_local", "contact_edge", "contact_lam",  # contact candidates' edge rows
+    "X_start", "Q_start",  # group poses at the prediction
+    "block_soft", "block_mu",  # the articulated limit block
+    "rows_matrix", "rows_augmented", "rows_vectors",  # the row block's system (nr, nr), (nr, nr + 1), (3, nr)
+    "G", "Minv",  # articulated contacts: group Jacobian (ng, 6, nj), joint-space M⁻¹ (nj, nj)
+])
+
+BodyTree = namedtuple("BodyTree", [
+    "iquat", "ipos",  # inertial frame of each body (quaternion, position [m]), (nb, 4), (nb, 3)
+    "parent", "body_quat", "body_pos",  # MuJoCo body tree, (nb,), (nb, 4), (nb, 3)
+    "jnt_type", "jnt_body", "jnt_qposadr", "jnt_dofadr", "jnt_axis",  # MuJoCo joints
+    "qpos0",  # reference configuration, (nq,)
+])
 
 # Kernels that allocate nothing are compiled without numba's reference counting (``_nrt=False``): in a
 # reference-counted function every array argument and view costs an NRT_incref/NRT_decref pair.  On the excavator
@@ -891,22 +986,16 @@ def _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, reverse):
                              at[i], lam[i], lo[i], hi[i])
 
 
-@_leaf
-def rows_block_work_size(nr):
-    """Length of ``_solve_rows_block``'s float64 work buffer for up to ``nr`` active rows."""
-    return nr * (2 * nr + 4)
-
-
 @njit(cache=True)
 def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob, work):
-    """The active cylinder rows as one block through their articulated mobility ``mob``; ``work``: float64
-    scratch of at least ``rows_block_work_size(len(act))`` entries."""
+    """The active cylinder rows as one block through their articulated mobility ``mob``; ``work``: the
+    ``SubstepWork`` (its ``rows_*`` arrays, for at least ``len(act)`` rows)."""
     k = act.shape[0]
-    A = _matrix(work[:k * k], k, k)
-    rhs = work[k * k:k * k + k]
-    live = work[k * k + k:k * k + 2 * k]  # 1.0 for a row with a usable direction
-    dlam = work[k * k + 2 * k:k * k + 3 * k]
-    M = _matrix(work[k * k + 3 * k:2 * k * k + 4 * k], k, k + 1)
+    A = work.rows_matrix[:k, :k]
+    rhs = work.rows_vectors[0, :k]
+    live = work.rows_vectors[1, :k]  # 1.0 for a row with a usable direction
+    dlam = work.rows_vectors[2, :k]
+    M = work.rows_augmented[:k, :k + 1]
     for m in range(k):
         rhs[m] = 0.0
         live[m] = 0.0
@@ -1012,12 +1101,14 @@ def _contact_law(solref, solimp, condim, tran, mu, pos, cone, impratio, timestep
 
 
 @_leaf
-def _contact_targets(X, Q, V, W, cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, h,
-                     active, clocal, edge):
-    """Soft pyramidal edge rows of every candidate for the substep (``SolverXPBD._soft_contact_targets``).
+def _contact_targets(X, Q, V, W, contacts, cone, impratio, h, active, clocal, edge):
+    """Soft pyramidal edge rows of every candidate (``ContactRows``) for the substep
+    (``SolverXPBD._soft_contact_targets``).
 
     active[ci]: 1 if the candidate penetrates (edge rows live), else 0; clocal[ci] = (r1 local, r2 local);
     edge[ci, j] = (ê (3), target Δ*/|e| [m], α̃ = R_e/|e|², 1/|e|)."""
+    cg, cvec, crad, cmu = contacts.group, contacts.vec, contacts.radius, contacts.mu
+    csolref, csolimp, ccondim, ctran = contacts.solref, contacts.solimp, contacts.condim, contacts.tran
     for ci in range(cg.shape[0]):
         g2, g1 = cg[ci, 0], cg[ci, 1]
         r2l, ol, nl, t1l = _v3(cvec[ci], 0), _v3(cvec[ci], 1), _v3(cvec[ci], 2), _v3(cvec[ci], 3)
@@ -1209,43 +1300,52 @@ def _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rever
 
 @njit(cache=True)
 def substep_work(ng, nj, ntl, ncap, nr):
-    """The work arrays of ``substep_core`` for ``ng`` groups, ``nj`` joints, ``ntl`` tendon limits, up to ``ncap``
+    """The ``SubstepWork`` of ``substep_core`` for ``ng`` groups, ``nj`` joints, ``ntl`` tendon limits, up to ``ncap``
     contact candidates and ``nr`` length rows (made once by a caller that runs many substeps)."""
-    return (np.zeros((nj, 3)), np.zeros(nj), np.zeros((ntl, 3)), np.zeros(ntl), np.zeros(ncap, np.int64),
-            np.zeros((ncap, 2, 3)), np.zeros((ncap, 4, 6)), np.zeros((ncap, 4)), np.zeros((ng, 3)), np.zeros((ng, 4)),
-            np.zeros((nj, 3)), np.zeros(nj + ntl), np.zeros(rows_block_work_size(nr)))
+    return SubstepWork(np.zeros((nj, 3)), np.zeros(nj), np.zeros((ntl, 3)), np.zeros(ntl), np.zeros(ncap, np.int64),
+                       np.zeros((ncap, 2, 3)), np.zeros((ncap, 4, 6)), np.zeros((ncap, 4)), np.zeros((ng, 3)),
+                       np.zeros((ng, 4)), np.zeros((nj, 3)), np.zeros(nj + ntl), np.zeros((nr, nr)),
+                       np.zeros((nr, nr + 1)), np.zeros((3, nr)), np.zeros((ng, 6, nj)), np.zeros((nj, nj)))
 
 
 @njit(cache=True)
-def substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
-                 jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp,
-                 et, eg, evec, eqoff,
-                 rg, rvec, act, tgt, at, lo, hi, use_block, mob,
-                 use_gg, gg, F, T, use_tau, tau,
-                 cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
-                 lin_damp, ang_damp, lam_rows, ell, rate, art_contacts, Gc, Minv, work):
+def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work):
     """One XPBD substep of length h [s] in place on the group arrays X, Q, V, W (see module docstring).
 
-    Rows: ``act`` the active row indices, tgt/at/lo/hi per row (ℓ* [m], α̃ = α/h², bounds on λ [N·s²]),
-    ``mob`` (nrows, ngroup, 6) the articulated mobility (``use_block``).  ``gg`` (ngroup, 6) group
-    accelerations replacing gravity (``use_gg``), F/T (ngroup, 3) external world forces/torques, ``tau``
-    (njnt,) hinge torques applied as impulses (``use_tau``).  Contacts: the step's candidates
-    (cg = (body group, plane group); cvec = (r2 local, plane origin, plane normal, tangent t₁)).
-    Limits: ``jlim`` (njnt + ntendonlimits, LIMIT_COLS), ``SolverXPBD._limit_table``: soft limits (MuJoCo's law,
-    rows set up from the state at the substep's start) or, for a joint with invweight 0, the rigid projection.
-    Outputs: lam_rows (λ of every row), ell and rate (ℓ [m], dℓ/dt [m/s] of every row after the substep).
-    ``art_contacts``: the contact pyramids are solved with the articulated response of a hinge/slide tree
-    (``articulated_inverse`` at the predicted pose, into the work arrays Gc (ngroup, 6, njnt) and Minv
-    (njnt, njnt)); otherwise (or for other joints) with the free-body response of the touching groups.
-    ``work``: the tuple of ``substep_work`` (for at least this substep's contacts and rows), overwritten.
+    ``model``: the ``GroupModel``; ``rows``: the ``SubstepRows`` (``active`` the rows solved, target/compliance/
+    lower/upper per row: ℓ* [m], α̃ = α/h², bounds on λ [N·s²]; ``mobility`` (nrows, ngroup, 6) the articulated
+    mobility, used with ``use_block``).  ``loads``: the ``SubstepLoads`` (group accelerations replacing gravity,
+    external world forces/torques, hinge torques applied as impulses).  ``contacts``: the step's candidates
+    (``ContactRows``).  Limits: ``model.jlim`` (``SolverXPBD._limit_table``): soft limits (MuJoCo's law, rows set
+    up from the state at the substep's start) or, for a joint with invweight 0, the rigid projection.
+    ``out``: the ``RowOutputs`` (λ of every row, ℓ [m], dℓ/dt [m/s] of every row after the substep).
+    With ``options.articulated_contacts`` the contact pyramids are solved with the articulated response of a
+    hinge/slide tree (``articulated_inverse`` at the predicted pose, into ``work.G`` (ngroup, 6, njnt) and
+    ``work.Minv`` (njnt, njnt)); otherwise (or for other joints) with the free-body response of the touching
+    groups.  ``work``: the ``SubstepWork`` of ``substep_work`` (for at least this substep's contacts and rows),
+    overwritten.
     """
+    IM, II, GI, gravity = model.IM, model.II, model.GI, model.gravity
+    jt, jg, jvec, jqoff, jlim = model.jt, model.jg, model.jvec, model.jqoff, model.jlim
+    jlo, jhi, jdamp = model.jlo, model.jhi, model.jdamp
+    et, eg, evec, eqoff = model.et, model.eg, model.evec, model.eqoff
+    rg, rvec, act, tgt, at, lo, hi = rows.group, rows.vec, rows.active, rows.target, rows.compliance, rows.lower, rows.upper
+    use_block, mob = rows.use_block, rows.mobility
+    use_gg, gg, F, T = loads.use_group_acceleration, loads.group_acceleration, loads.force, loads.torque
+    use_tau, tau = loads.use_joint_torque, loads.joint_torque
+    iterations, symmetric, art_contacts = options.iterations, options.symmetric, options.articulated_contacts
+    lam_rows, ell, rate = out.lam, out.length, out.rate
+    Gc, Minv = work.G, work.Minv
     ng = X.shape[0]
     nr = rg.shape[0]
-    nc = cg.shape[0]
+    nc = contacts.group.shape[0]
+    cg = contacts.group
     # soft joint limit rows of the substep, from the state at its start (before the torque impulses)
     nj = jt.shape[0]
     ntl = jlim.shape[0] - nj
-    jsoft, jlam, tsoft, tlam, active_w, clocal_w, edge_w, lam_e_w, Xp, Qp, bsoft, mu, rwork = work
+    jsoft, jlam, tsoft, tlam = work.joint_soft, work.joint_lam, work.tendon_soft, work.tendon_lam
+    active_w, clocal_w, edge_w, lam_e_w = work.contact_active, work.contact_local, work.contact_edge, work.contact_lam
+    Xp, Qp, bsoft, mu = work.X_start, work.Q_start, work.block_soft, work.block_mu
     jsoft[:, :] = 0.0
     jlam[:] = 0.0
     tsoft[:, :] = 0.0
@@ -1289,8 +1389,7 @@ def substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
     edge[:, :, :] = 0.0
     lam_e[:, :] = 0.0
     if nc:
-        _contact_targets(X, Q, V, W, cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, h,
-                         active, clocal, edge)
+        _contact_targets(X, Q, V, W, contacts, model.contact_cone, model.contact_impratio, h, active, clocal, edge)
     for g in range(ng):
         for c in range(3):
             Xp[g, c] = X[g, c]
@@ -1345,7 +1444,7 @@ def substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)
                 if act.shape[0]:
                     if use_block:
-                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, rwork)
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 if nc:
@@ -1355,7 +1454,7 @@ def substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
                     _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rev, cart, Gc, Minv)
                 if act.shape[0]:
                     if use_block:
-                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, rwork)
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)
@@ -1410,8 +1509,8 @@ def substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
             p = (jimp * n[0], jimp * n[1], jimp * n[2])
             _apply_vel(V, W, Q, IM, II, g2, zero, p, -1.0)
             _apply_vel(V, W, Q, IM, II, g1, r1w, p, 1.0)
-    cl = 1.0 / (1.0 + lin_damp * h)
-    ca = 1.0 / (1.0 + ang_damp * h)
+    cl = 1.0 / (1.0 + options.linear_damping * h)
+    ca = 1.0 / (1.0 + options.angular_damping * h)
     for g in range(1, ng):
         if cl != 1.0:
             for c in range(3):
@@ -1532,10 +1631,12 @@ def body_frames(x, q, iquat, ipos, xb, qb):
 
 
 @_leaf
-def qpos_qvel(x, q, v, w, hint, iquat, ipos, body_parent, body_quat, body_pos, jnt_type, jnt_body,
-                 jnt_qposadr, jnt_dofadr, jnt_axis, qpos0, xb, qb, qpos, qvel):
+def qpos_qvel(x, q, v, w, hint, tree, xb, qb, qpos, qvel):
     """MuJoCo generalized coordinates from the body state (``XpbdModel.qpos_qvel``; also fills the body
-    frames ``xb``, ``qb``).  Joint types: 0 free, 1 ball, 2 slide, 3 hinge."""
+    frames ``xb``, ``qb``) on the ``BodyTree`` ``tree``.  Joint types: 0 free, 1 ball, 2 slide, 3 hinge."""
+    iquat, ipos, body_parent, body_quat, body_pos = tree.iquat, tree.ipos, tree.parent, tree.body_quat, tree.body_pos
+    jnt_type, jnt_body, jnt_qposadr, jnt_dofadr = tree.jnt_type, tree.jnt_body, tree.jnt_qposadr, tree.jnt_dofadr
+    jnt_axis, qpos0 = tree.jnt_axis, tree.qpos0
     body_frames(x, q, iquat, ipos, xb, qb)
     for k in range(qpos.shape[0]):
         qpos[k] = qpos0[k]

@@ -19,7 +19,7 @@ Sign conventions
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Optional, Protocol, Sequence
 
 import numpy as np
@@ -47,12 +47,85 @@ from sim.xpbd.kernels import (
 )
 from sim.xpbd.model import EQ_WELD, JNT_BALL, JNT_FREE, JNT_HINGE, JNT_SLIDE, XpbdModel, XpbdState
 
-__all__ = ["LengthConstraint", "SubstepInputs", "SubstepForces", "SubstepHooks", "SolverXPBD",
+__all__ = ["LengthConstraint", "SubstepInputs", "SubstepForces", "SubstepHooks", "SolverXPBD", "XpbdOptions",
            "mujoco_contact_law", "mujoco_impedance", "mujoco_limit_law"]
 
 _EPS = 1e-14
 _INF = math.inf
-_PYRAMID = "pyramid"  # marker of a soft pyramidal contact in SolverXPBD._csoft
+_PYRAMID = "pyramid"  # marker of a soft pyramidal contact in SubstepWork.contact_soft
+
+
+@dataclass(frozen=True, kw_only=True)
+class XpbdOptions:
+    """The scheme options of :class:`SolverXPBD` (see its docstring for what each changes).
+
+    Examples
+    --------
+    >>> XpbdOptions(substeps=10, articulated_contacts=False).iterations
+    1
+    """
+
+    substeps: int = 20
+    """XPBD substeps per step [-]; must be >= 1."""
+    iterations: int = 1
+    """Position passes per substep [-]; must be >= 1."""
+    linear_damping: float = 0.0
+    """Global linear damping c of v ← v/(1 + c·h) [1/s]."""
+    angular_damping: float = 0.0
+    """Global angular damping c of ω ← ω/(1 + c·h) [1/s]."""
+    contact_margin: float = 1e-3
+    """Contact candidate distance added to 2·dt·|v_rel| [m]."""
+    block_attach: bool = True
+    """Project pin/connect attachments with the 3×3 block update."""
+    velocity_sweeps: int = 4
+    """Projected Gauss-Seidel sweeps of the contact velocity pass [-]."""
+    symmetric: bool = True
+    """Forward + backward Gauss-Seidel per iteration."""
+    soft_contacts: bool = True
+    """MuJoCo's soft-contact law (else the rigid contacts of [RB])."""
+    pyramid_friction: bool = True
+    """Soft pyramidal friction rows (MuJoCo's default cone) on soft contacts."""
+    compiled: bool = True
+    """Run the substeps in ``compiled.substep_core``."""
+    transport_response: bool = False
+    """Carry the articulated responses to each substep's pose."""
+    articulated_contacts: bool = True
+    """Solve the contact pyramids with the mechanism's articulated response."""
+    soft_limits: bool = True
+    """MuJoCo's soft joint and tendon limits (else rigid limits)."""
+
+    def __post_init__(self):
+        for name in ("substeps", "iterations"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)!r}")
+
+
+@dataclass
+class SubstepWork:
+    """What one substep of the pure path sets up from its start state and its passes update: made per substep by
+    :meth:`SolverXPBD.step` and passed explicitly to the position and velocity passes (never kept on the solver).
+    The compiled path's counterpart is ``compiled.SubstepWork``."""
+
+    joint_soft: Optional[list] = None
+    """Per joint, its soft limit row (side ±1, target q* [rad or m], α̃) or None; None: no soft limits."""
+    joint_lam: list = field(default_factory=list)
+    """Accumulated multiplier of each joint's soft limit row."""
+    tendon_soft: Optional[list] = None
+    """Per soft tendon limit, its row (side, ℓ* [m], α̃) or None; None: no tendon limits."""
+    tendon_lam: list = field(default_factory=list)
+    """Accumulated multiplier of each tendon limit row."""
+    block_soft: Optional[list] = None
+    """The joint limit rows solved in the articulated limit block (``_solve_limits_block``), or None."""
+    block_mu: list = field(default_factory=list)
+    """Pushing multipliers μ ≥ 0 of the limit block's rows (joints, then tendon limits)."""
+    contact_soft: Optional[list] = None
+    """Per contact candidate, its soft row (``_soft_contact_targets``) or None (rigid); None: rigid contacts."""
+    contact_articulated: Optional[tuple] = None
+    """(G, M⁻¹) of the articulated contacts, or None (free-body response)."""
+    limit_articulated: Optional[tuple] = None
+    """(G, M⁻¹) for the soft tendon limits, or None (free-body response)."""
+    edge_lam: list = field(default_factory=list)
+    """Per candidate, the multipliers of its pyramid edge rows (or None)."""
 
 
 @dataclass(frozen=True)
@@ -180,7 +253,8 @@ class SolverXPBD:
     pass (dynamic friction, zero restitution, implicit joint damping), global damping
     v ← v/(1 + c h).  ``step`` updates the state in place and returns it.
 
-    Options and where they depart from the paper's single forward sweep:
+    Options (:class:`XpbdOptions`, the second argument) and where they depart from the paper's single forward
+    sweep:
 
     * ``symmetric`` (default True): each iteration is a forward + backward Gauss-Seidel
       pass.  Forward-only sweeps can be unstable with light bodies between joints
@@ -262,40 +336,30 @@ class SolverXPBD:
     straight two-site spatial tendons between different rigid groups.
     """
 
-    def __init__(self, model: XpbdModel, *, substeps: int = 20, iterations: int = 1,
-                 linear_damping: float = 0.0, angular_damping: float = 0.0,
-                 length_constraints: Sequence[LengthConstraint] = (),
-                 contact_margin: float = 1e-3, block_attach: bool = True,
-                 velocity_sweeps: int = 4, symmetric: bool = True, soft_contacts: bool = True,
-                 pyramid_friction: bool = True, compiled: bool = True, transport_response: bool = False,
-                 articulated_contacts: bool = True, soft_limits: bool = True):
-        if substeps < 1 or iterations < 1:
-            raise ValueError("substeps and iterations must be >= 1")
+    def __init__(self, model: XpbdModel, options: Optional[XpbdOptions] = None, *,
+                 length_constraints: Sequence[LengthConstraint] = ()):
+        o = XpbdOptions() if options is None else options
+        if not isinstance(o, XpbdOptions):
+            raise TypeError(f"`options` must be an XpbdOptions, got {type(o).__name__}")
         self.model = model
-        self.substeps = int(substeps)
-        self.iterations = int(iterations)
-        self.linear_damping = float(linear_damping)
-        self.angular_damping = float(angular_damping)
-        self.contact_margin = float(contact_margin)
-        self.block_attach = bool(block_attach)
-        self.velocity_sweeps = int(velocity_sweeps)
-        self.symmetric = bool(symmetric)
-        self.soft_contacts = bool(soft_contacts) and model.contact_solref is not None
-        self.pyramid_friction = bool(pyramid_friction) and self.soft_contacts
-        self.transport_response = bool(transport_response)
-        self.articulated_contacts = bool(articulated_contacts)
-        self._lam_edges: list = []
+        self.substeps = int(o.substeps)
+        self.iterations = int(o.iterations)
+        self.linear_damping = float(o.linear_damping)
+        self.angular_damping = float(o.angular_damping)
+        self.contact_margin = float(o.contact_margin)
+        self.block_attach = bool(o.block_attach)
+        self.velocity_sweeps = int(o.velocity_sweeps)
+        self.symmetric = bool(o.symmetric)
+        self.soft_contacts = bool(o.soft_contacts) and model.contact_solref is not None
+        self.pyramid_friction = bool(o.pyramid_friction) and self.soft_contacts
+        self.transport_response = bool(o.transport_response)
+        self.articulated_contacts = bool(o.articulated_contacts)
         # contact tangent t₁ of each plane (its geom x axis in the plane's group frame), t₂ = n × t₁
         self._plane_tangent = []
         for nrm in np.asarray(model.plane_normal, float).reshape(-1, 3):
             axis = np.array([1.0, 0.0, 0.0]) if abs(nrm[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
             t = axis - (axis @ nrm) * nrm
             self._plane_tangent.append(tuple(float(c) for c in t / np.linalg.norm(t)))
-        self._csoft = None  # per substep: (target gap r* [m], α̃) of each contact candidate, or None (rigid)
-        self._art = None  # per substep: (G, M⁻¹) of the articulated contacts, or None (free-body response)
-        self._tart = None  # per substep: (G, M⁻¹) for the soft tendon limits, or None (free-body response)
-        self._bsoft = None  # per substep: the joint limit rows solved in _solve_limits_block, or None
-        self._mu: list = []
         self._cidx: list[int] = []  # model contact index of each candidate of the step
         self._rows: list[tuple] = []
         self.rows: list[LengthConstraint] = []
@@ -318,14 +382,12 @@ class SolverXPBD:
                       tup(m.eq_r2[e]), tup(m.eq_qoff[e])) for e in range(len(m.eq_type))]
         self._damped = [jt for jt in self._joints if jt[11] > 0.0 and jt[0] != JNT_FREE]
         # soft joint limits: (solref, solimp, dof_invweight0) per limited hinge/slide, None = rigid projection
-        self.soft_limits = bool(soft_limits) and m.jnt_invweight is not None
+        self.soft_limits = bool(o.soft_limits) and m.jnt_invweight is not None
         self._jlaw = [None] * m.njnt
         if self.soft_limits:
             for j in range(m.njnt):
                 if bool(m.jnt_limited[j]) and int(m.jnt_type[j]) in (JNT_HINGE, JNT_SLIDE) and m.jnt_invweight[j] > 0.0:
                     self._jlaw[j] = (tup(m.jnt_solref[j]), tup(m.jnt_solimp[j]), float(m.jnt_invweight[j]))
-        self._jsoft = None  # per substep: (side ±1, target q* [rad or m], α̃) of each joint's soft limit, or None
-        self._jlam: list = []
         # soft tendon limits (two-site spatial tendons): (ga, gb, ra, rb, lo, hi, solref, solimp, tendon_invweight0)
         self._tlaw = []
         if self.soft_limits and m.tendon_limit_invweight is not None:
@@ -337,17 +399,18 @@ class SolverXPBD:
                                    tup(m.site_pos_group[sb]), float(m.tendon_limit_range[k][0]),
                                    float(m.tendon_limit_range[k][1]), tup(m.tendon_limit_solref[k]),
                                    tup(m.tendon_limit_solimp[k]), float(m.tendon_limit_invweight[k])))
-        self._tsoft = None  # per substep: (side, ℓ* [m], α̃) of each tendon limit, or None
-        self._tlam: list = []
         self.last_forces: list[SubstepForces] = []
         # compiled path (numba, ``compiled.substep_core``): same equations on flat arrays; the pure
         # path above stays the reference (``tests/test_pbd_compiled.py``)
-        self.compiled = bool(compiled) and self.block_attach
+        self.compiled = bool(o.compiled) and self.block_attach
         self._flat = self._flat_model() if self.compiled else None
         self.compiled_steps = 0  # steps taken by the compiled path (the others fell back to the pure one)
 
     def _flat_model(self):
-        """Writable contiguous copies of the model for ``compiled.substep_core`` (one numba signature)."""
+        """Writable contiguous copies of the model for ``compiled.substep_core`` (one numba signature): the
+        ``compiled.GroupModel``."""
+        from sim.xpbd.compiled import GroupModel
+
         m = self.model
         f64 = lambda a, shape: np.ascontiguousarray(np.array(a, dtype=np.float64).reshape(shape))  # noqa: E731
         nj, ne = m.njnt, len(m.eq_type)
@@ -358,7 +421,7 @@ class SolverXPBD:
         evec = np.zeros((ne, 2, 3))
         if ne:
             evec[:, 0], evec[:, 1] = f64(m.eq_r1, (ne, 3)), f64(m.eq_r2, (ne, 3))
-        return dict(
+        return GroupModel(
             IM=f64(m.group_inv_mass, (-1,)), II=f64(m.group_inv_inertia, (-1, 3)), GI=f64(m.group_inertia, (-1, 3)),
             gravity=f64(m.gravity, (3,)),
             jt=np.array(m.jnt_type, dtype=np.int64).reshape(nj),
@@ -370,6 +433,7 @@ class SolverXPBD:
             evec=evec, eqoff=f64(m.eq_qoff, (ne, 4)),
             body_group=np.array(m.body_group, dtype=np.int64), in_group_quat=f64(m.body_in_group_quat, (-1, 4)),
             in_group_pos=f64(m.body_in_group_pos, (-1, 3)),
+            contact_cone=int(m.contact_cone), contact_impratio=float(m.contact_impratio),
         )
 
     def _limit_table(self):
@@ -398,10 +462,10 @@ class SolverXPBD:
         fm = self._flat
         out = (state.x, state.q, state.v, state.w)
         if all(a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable for a in out):
-            scatter(X, Q, V, W, fm["body_group"], fm["in_group_quat"], fm["in_group_pos"], *out)  # in place
+            scatter(X, Q, V, W, fm.body_group, fm.in_group_quat, fm.in_group_pos, *out)  # in place
             return
         x, q, v, w = (np.empty((self.model.nbody, k)) for k in (3, 4, 3, 3))
-        scatter(X, Q, V, W, fm["body_group"], fm["in_group_quat"], fm["in_group_pos"], x, q, v, w)
+        scatter(X, Q, V, W, fm.body_group, fm.in_group_quat, fm.in_group_pos, x, q, v, w)
         state.x[:], state.q[:], state.v[:], state.w[:] = x, q, v, w
 
     def _flat_rows(self):
@@ -443,12 +507,14 @@ class SolverXPBD:
         return c
 
     def _flat_contacts(self, cands):
-        """The step's contact candidates as arrays for ``compiled.substep_core``, or None when one of them is
-        not a soft pyramidal contact (the pure path handles those)."""
+        """The step's contact candidates as ``compiled.ContactRows`` for ``compiled.substep_core``, or None when one
+        of them is not a soft pyramidal contact (the pure path handles those)."""
+        from sim.xpbd.compiled import ContactRows
+
         m = self.model
         nc = len(cands)
         if nc == 0:
-            return _NO_CONTACTS
+            return ContactRows(*_NO_CONTACTS)
         if not (self.soft_contacts and self.pyramid_friction and m.contact_cone == 0):
             return None
         if self.compiled:  # rows of the per-contact arrays made once (same values as below)
@@ -456,8 +522,8 @@ class SolverXPBD:
             idx = np.array(self._cidx, dtype=np.int64)
             if not c["eligible"][idx].all():
                 return None
-            return (c["cg"][idx], c["cvec"][idx], c["crad"][idx], c["mu"][idx], c["solref"][idx], c["solimp"][idx],
-                    c["condim"][idx], c["tran"][idx])
+            return ContactRows(c["cg"][idx], c["cvec"][idx], c["crad"][idx], c["mu"][idx], c["solref"][idx],
+                               c["solimp"][idx], c["condim"][idx], c["tran"][idx])
         idx = np.array(self._cidx, dtype=np.int64)
         condim = np.array(m.contact_condim, dtype=np.int64)[idx]
         mu = np.array(m.contact_mu, dtype=np.float64)[idx]
@@ -468,8 +534,10 @@ class SolverXPBD:
         planes = np.asarray(m.contact_plane)[idx]
         cvec = np.array([[c[1], c[4], c[5], self._plane_tangent[int(pl)]] for c, pl in zip(cands, planes)], dtype=np.float64)
         crad = np.array([c[2] for c in cands], dtype=np.float64)
-        return (cg, cvec, crad, mu, np.ascontiguousarray(np.array(m.contact_solref, dtype=np.float64)[idx].reshape(nc, 2)),
-                np.ascontiguousarray(np.array(m.contact_solimp, dtype=np.float64)[idx].reshape(nc, 5)), condim, tran)
+        return ContactRows(cg, cvec, crad, mu,
+                           np.ascontiguousarray(np.array(m.contact_solref, dtype=np.float64)[idx].reshape(nc, 2)),
+                           np.ascontiguousarray(np.array(m.contact_solimp, dtype=np.float64)[idx].reshape(nc, 5)),
+                           condim, tran)
 
     # ------------------------------------------------------------------ rows
     def add_length_constraint(self, lc: LengthConstraint) -> int:
@@ -639,7 +707,7 @@ class SolverXPBD:
                 for i in np.nonzero(active)[0]]
 
     # ------------------------------------------------------------------ position solve
-    def _solve_positions(self, X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo, Xp, Qp,
+    def _solve_positions(self, sw, X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo, Xp, Qp,
                          reverse=False, block=None):
         """One Gauss-Seidel pass over joints, equalities, length rows and contacts.
 
@@ -657,11 +725,11 @@ class SolverXPBD:
         solves the rows together with their articulated response.
         """
         if not reverse:
-            self._solve_joints(X, Q, self._joints)
-            if self._bsoft is not None:
-                self._solve_limits_block(X, Q)
-            elif self._tsoft is not None:
-                self._solve_tendon_limits(X, Q, False)
+            self._solve_joints(sw, X, Q, self._joints)
+            if sw.block_soft is not None:
+                self._solve_limits_block(sw, X, Q)
+            elif sw.tendon_soft is not None:
+                self._solve_tendon_limits(sw, X, Q, False)
             self._solve_eqs(X, Q, self._eqs)
             if rowdata:
                 if block is None:
@@ -669,10 +737,10 @@ class SolverXPBD:
                 else:
                     self._solve_rows_block(X, Q, rowdata, lam_rows, block)
             if cands:
-                self._solve_contacts(X, Q, range(len(cands)), cands, lam_n, lam_t, cinfo, Xp, Qp)
+                self._solve_contacts(sw, X, Q, range(len(cands)), cands, lam_n, lam_t, cinfo, Xp, Qp)
         else:
             if cands:
-                self._solve_contacts(X, Q, range(len(cands) - 1, -1, -1), cands, lam_n, lam_t,
+                self._solve_contacts(sw, X, Q, range(len(cands) - 1, -1, -1), cands, lam_n, lam_t,
                                      cinfo, Xp, Qp)
             if rowdata:
                 if block is None:
@@ -680,18 +748,18 @@ class SolverXPBD:
                 else:
                     self._solve_rows_block(X, Q, rowdata, lam_rows, block)
             self._solve_eqs(X, Q, self._eqs[::-1])
-            if self._bsoft is not None:
-                self._solve_limits_block(X, Q)
-            elif self._tsoft is not None:
-                self._solve_tendon_limits(X, Q, True)
-            self._solve_joints(X, Q, self._joints, reverse=True)
+            if sw.block_soft is not None:
+                self._solve_limits_block(sw, X, Q)
+            elif sw.tendon_soft is not None:
+                self._solve_tendon_limits(sw, X, Q, True)
+            self._solve_joints(sw, X, Q, self._joints, reverse=True)
 
-    def _solve_joints(self, X, Q, joints, reverse=False):
+    def _solve_joints(self, sw, X, Q, joints, reverse=False):
         """Joint rows ([RB] Sec. 3.4); ``reverse`` traverses the joints backwards and also reverses the row
         order inside a joint.  Limits: MuJoCo's soft limit law (``_soft_limit_targets``) when the joint's
         limit is soft, else the rigid projection ([RB] Algorithm 3)."""
         n = len(joints)
-        soft = self._jsoft
+        soft = sw.joint_soft
         for jj in range(n):
             j = n - 1 - jj if reverse else jj
             (t, g1, g2, r1, r2, a1, a2, qoff, limited, lo, hi, _) = joints[j]
@@ -701,7 +769,7 @@ class SolverXPBD:
                 sl = soft[j]
             if t == JNT_HINGE:
                 if sl is not None:
-                    self._jlam[j] += self._hinge_soft_limit(X, Q, g1, g2, r1, r2, a1, qoff, sl, self._jlam[j])
+                    sw.joint_lam[j] += self._hinge_soft_limit(X, Q, g1, g2, r1, r2, a1, qoff, sl, sw.joint_lam[j])
                     continue
                 if limited and self._hinge_limit(X, Q, g1, g2, r1, r2, a1, qoff, lo, hi):
                     continue
@@ -713,11 +781,11 @@ class SolverXPBD:
                     self._attach(X, Q, g1, g2, r1, r2)
             elif t == JNT_SLIDE:
                 if reverse:
-                    self._slide_axis(X, Q, g1, g2, r1, a1, limited, lo, hi, sl, j)
+                    self._slide_axis(sw, X, Q, g1, g2, r1, a1, limited, lo, hi, sl, j)
                     self._fix_orientation(Q, g1, g2, qoff)
                 else:
                     self._fix_orientation(Q, g1, g2, qoff)
-                    self._slide_axis(X, Q, g1, g2, r1, a1, limited, lo, hi, sl, j)
+                    self._slide_axis(sw, X, Q, g1, g2, r1, a1, limited, lo, hi, sl, j)
             elif t == JNT_BALL:
                 self._attach(X, Q, g1, g2, r1, r2)
 
@@ -752,7 +820,7 @@ class SolverXPBD:
             out[j] = _soft_limit_target(qv, qd, lo, hi, law[0], law[1], law[2], h)
         return out
 
-    def _solve_limits_block(self, X, Q):
+    def _solve_limits_block(self, sw, X, Q):
         """All active soft limits of a hinge/slide tree in one block, when a tendon limit is active: MuJoCo
         solves the rows of a joint limit and a tendon limit reached together (the boom's cylinder end stop)
         as one problem, and Gauss-Seidel over two nearly parallel compliant rows with λ reset every substep
@@ -760,11 +828,11 @@ class SolverXPBD:
         ℓ − ℓ* (tendon), taken in their pushing direction (μ = −side·λ ≥ 0); W = J·M⁻¹·Jᵀ + diag(α̃),
         Δμ = W⁻¹(−C − α̃·μ) with an active set over μ ≥ 0 (as the contact pyramids); every group moves by
         G·M⁻¹·Jᵀ·Δμ, and the joint projections clean up the second-order error."""
-        G, Minv = self._tart
+        G, Minv = sw.limit_articulated
         IM = self._IM
         nq = G.shape[2]
         rows = []  # (id, J', C', α̃, μ)
-        for j, sl in enumerate(self._bsoft):
+        for j, sl in enumerate(sw.block_soft):
             if sl is None:
                 continue
             side, target, at = sl
@@ -779,9 +847,9 @@ class SolverXPBD:
                     (X[g2][2] - X[g1][2] - r1w[2]) * aw[2]
             Jr = np.zeros(nq)
             Jr[j] = -side
-            rows.append((j, Jr, -side * (qv - target), at, self._mu[j]))
+            rows.append((j, Jr, -side * (qv - target), at, sw.block_mu[j]))
         nj = len(self._joints)
-        for k, sl in enumerate(self._tsoft):
+        for k, sl in enumerate(sw.tendon_soft):
             if sl is None:
                 continue
             side, target, at = sl
@@ -792,7 +860,7 @@ class SolverXPBD:
                     continue
                 v = G[b, :3, :] + np.cross(G[b, 3:, :].T, r).T
                 Jr -= side * sg * (np.asarray(n) @ v)
-            rows.append((nj + k, Jr, -side * (ell - target), at, self._mu[nj + k]))
+            rows.append((nj + k, Jr, -side * (ell - target), at, sw.block_mu[nj + k]))
         if not rows:
             return
         Jm = np.array([r[1] for r in rows])
@@ -820,7 +888,7 @@ class SolverXPBD:
             free &= ~neg
         new = np.maximum(lam + dlam, 0.0)
         for (rid, *_), v in zip(rows, new):
-            self._mu[rid] = float(v)
+            sw.block_mu[rid] = float(v)
         dq = MJ @ (new - lam)
         _move_groups(X, Q, IM, G, dq)
 
@@ -848,7 +916,7 @@ class SolverXPBD:
             out[k] = _soft_limit_target(ell, rate, lo, hi, solref, solimp, invw, h)
         return out
 
-    def _solve_tendon_limits(self, X, Q, reverse):
+    def _solve_tendon_limits(self, sw, X, Q, reverse):
         """Soft tendon limit rows C = ℓ − ℓ* (compliance α̃, λ ≤ 0 at an upper limit, ≥ 0 at a lower one) with
         the articulated response of a hinge/slide tree (W = J·M⁻¹·Jᵀ, every group moved by G·M⁻¹·Jᵀ·Δλ, as the
         articulated contacts) or else the free-body response of the two groups."""
@@ -856,18 +924,18 @@ class SolverXPBD:
         nt = len(self._tlaw)
         for kk in range(nt):
             k = nt - 1 - kk if reverse else kk
-            sl = self._tsoft[k]
+            sl = sw.tendon_soft[k]
             if sl is None:
                 continue
             side, target, at = sl
             ga, gb, raw, rbw, ell, n = self._tendon_geometry(X, Q, k)
             c = ell - target
-            lam = self._tlam[k]
+            lam = sw.tendon_lam[k]
             lo, hi = (-_INF, 0.0) if side > 0.0 else (0.0, _INF)
-            if self._tart is None:
-                self._tlam[k] += solve_positional(X, Q, IM, II, ga, gb, raw, rbw, n, c, at, lam, lo, hi)
+            if sw.limit_articulated is None:
+                sw.tendon_lam[k] += solve_positional(X, Q, IM, II, ga, gb, raw, rbw, n, c, at, lam, lo, hi)
                 continue
-            G, Minv = self._tart
+            G, Minv = sw.limit_articulated
             J = np.zeros(G.shape[2])
             for b, sg, r in ((ga, -1.0, raw), (gb, 1.0, rbw)):
                 if IM[b] == 0.0:
@@ -880,7 +948,7 @@ class SolverXPBD:
                 continue
             new = min(max(lam + (-c - at * lam) / den, lo), hi)
             dl = new - lam
-            self._tlam[k] = new
+            sw.tendon_lam[k] = new
             if dl == 0.0:
                 continue
             dq = MJ * dl
@@ -921,7 +989,7 @@ class SolverXPBD:
         self._hinge_at_limit(X, Q, g1, g2, r1, r2, aw, ang - viol, qt)
         return True
 
-    def _slide_axis(self, X, Q, g1, g2, r1, a1, limited, lo, hi, sl=None, j=-1):
+    def _slide_axis(self, sw, X, Q, g1, g2, r1, a1, limited, lo, hi, sl=None, j=-1):
         """Prismatic joint: keep the child's COM on the parent's axis (perpendicular offset
         → 0) and its axial position within [lo, hi] ([RB] Sec. 3.4.3).  The lever arm on
         the parent is taken at the slider, which is the exact gradient of both rows.  ``sl``: the soft
@@ -947,8 +1015,8 @@ class SolverXPBD:
             aw = quat_rotate(q1, a1)
             dist = (x2[0] - x1[0] - r1w[0]) * aw[0] + (x2[1] - x1[1] - r1w[1]) * aw[1] + \
                 (x2[2] - x1[2] - r1w[2]) * aw[2]
-            self._jlam[j] += solve_positional(X, Q, IM, II, g1, g2, (x2[0] - x1[0], x2[1] - x1[1], x2[2] - x1[2]),
-                                              zero, aw, dist - target, at, self._jlam[j],
+            sw.joint_lam[j] += solve_positional(X, Q, IM, II, g1, g2, (x2[0] - x1[0], x2[1] - x1[1], x2[2] - x1[2]),
+                                              zero, aw, dist - target, at, sw.joint_lam[j],
                                               -_INF if side > 0.0 else 0.0, 0.0 if side > 0.0 else _INF)
         elif limited:
             q1 = Q[g1]
@@ -1042,23 +1110,23 @@ class SolverXPBD:
             if mv[3] != 0.0 or mv[4] != 0.0 or mv[5] != 0.0:
                 Q[g] = K._quat_add_rotation(Q[g], (mv[3], mv[4], mv[5]), 1.0)
 
-    def _solve_contacts(self, X, Q, order, cands, lam_n, lam_t, cinfo, Xp, Qp):
+    def _solve_contacts(self, sw, X, Q, order, cands, lam_n, lam_t, cinfo, Xp, Qp):
         """Normal pass over all contact candidates, then the static-friction pass (soft pyramidal
         contacts: their edge rows, ``_contact_pyramid``, carry normal force and friction together)."""
-        soft = self._csoft
+        soft = sw.contact_soft
         pyramids: dict = {}
         for ci in order:
             if soft is not None and soft[ci] is not None and soft[ci][0] == _PYRAMID:
                 pyramids.setdefault((cands[ci][3], cands[ci][0]), []).append(ci)
             else:
-                self._contact_normal(X, Q, ci, cands[ci], lam_n, cinfo)
+                self._contact_normal(sw, X, Q, ci, cands[ci], lam_n, cinfo)
         for (g1, g2), cis in pyramids.items():
-            self._contact_pyramids(X, Q, g1, g2, cis, lam_n, Xp, Qp)
+            self._contact_pyramids(sw, X, Q, g1, g2, cis, lam_n, Xp, Qp)
         for ci in order:
             if ci in cinfo:
                 self._contact_static_friction(X, Q, ci, cands[ci], lam_n, lam_t, cinfo, Xp, Qp)
 
-    def _contact_pyramids(self, X, Q, g1, g2, cis, lam_n, Xp, Qp):
+    def _contact_pyramids(self, sw, X, Q, g1, g2, cis, lam_n, Xp, Qp):
         """Soft pyramidal contacts between groups g1 (plane) and g2: the edge rows e = n ± μ·t_k of
         every contact (``_soft_contact_targets``) as XPBD rows on the displacement of the contact
         points along ê over the substep, C = ê·Δp − Δ*, compliance α̃, λ ≥ 0 (MuJoCo's pyramid
@@ -1071,7 +1139,7 @@ class SolverXPBD:
         pts, E, tgt, alpha, lam, inv_le, owner = [], [], [], [], [], [], []
         disp_rows = []
         for ci in cis:
-            _, r1l, r2l, edges = self._csoft[ci]
+            _, r1l, r2l, edges = sw.contact_soft[ci]
             r1w = quat_rotate(Q[g1], r1l)
             r2w = quat_rotate(Q[g2], r2l)
             r1p = quat_rotate(Qp[g1], r1l)
@@ -1079,7 +1147,7 @@ class SolverXPBD:
             x1, x2, x1p, x2p = X[g1], X[g2], Xp[g1], Xp[g2]
             disp = [(x2[k] + r2w[k] - x2p[k] - r2p[k]) - (x1[k] + r1w[k] - x1p[k] - r1p[k]) for k in range(3)]
             pts.append((r1w, r2w))
-            lam_e = self._lam_edges[ci]
+            lam_e = sw.edge_lam[ci]
             for j, (e, target, at, il) in enumerate(edges):
                 E.append(e)
                 tgt.append(target)
@@ -1090,7 +1158,7 @@ class SolverXPBD:
                 disp_rows.append(dot(disp, e))
         Ea = np.array(E)
         W = np.zeros((len(E), len(E)))
-        art = getattr(self, "_art", None)
+        art = sw.contact_articulated
         if art is not None:  # articulated response: W = J·M⁻¹·Jᵀ, J_ik = ê_i·(v_g2,k(p) − v_g1,k(p))
             G, Minv = art
             J = np.zeros((len(E), G.shape[2]))
@@ -1134,24 +1202,24 @@ class SolverXPBD:
         dlam = new - lam
         if art is not None:  # every group moves by G·M⁻¹·Jᵀ·Δλ
             for row, (pi, ci, j) in enumerate(owner):
-                self._lam_edges[ci][j] = float(new[row])
+                sw.edge_lam[ci][j] = float(new[row])
             dq = MJ @ dlam
             _move_groups(X, Q, IM, G, dq)
             for ci in cis:
-                edges = self._csoft[ci][3]
-                lam_n[ci] = sum(self._lam_edges[ci][j] * edges[j][3] for j in range(len(edges)))
+                edges = sw.contact_soft[ci][3]
+                lam_n[ci] = sum(sw.edge_lam[ci][j] * edges[j][3] for j in range(len(edges)))
             return
         impulse = [[0.0, 0.0, 0.0] for _ in pts]
         for row, (pi, ci, j) in enumerate(owner):
-            self._lam_edges[ci][j] = float(new[row])
+            sw.edge_lam[ci][j] = float(new[row])
             for k in range(3):
                 impulse[pi][k] += float(dlam[row]) * E[row][k]
         for pi, (r1w, r2w) in enumerate(pts):
             K.apply_positional_impulse(X, Q, IM, II, g2, r2w, impulse[pi], 1.0)
             K.apply_positional_impulse(X, Q, IM, II, g1, r1w, impulse[pi], -1.0)
         for ci in cis:
-            edges = self._csoft[ci][3]
-            lam_n[ci] = sum(self._lam_edges[ci][j] * edges[j][3] for j in range(len(edges)))
+            edges = sw.contact_soft[ci][3]
+            lam_n[ci] = sum(sw.edge_lam[ci][j] * edges[j][3] for j in range(len(edges)))
 
     def _attach(self, X, Q, g1, g2, r1, r2):
         """Attach two body points ([RB] Sec. 3.4.2): C = |p2 − p1|, α = 0."""
@@ -1206,7 +1274,7 @@ class SolverXPBD:
             th = 2.0 * math.atan2(s, qe[0])
             solve_angular(Q, self._IM, self._II, g1, g2, (qe[1] / s, qe[2] / s, qe[3] / s), th)
 
-    def _soft_contact_targets(self, X, Q, V, W, cands, h):
+    def _soft_contact_targets(self, sw, X, Q, V, W, cands, h):
         """Per contact candidate, the compliant normal row of the substep: (r* [m], α̃ [m/(N·s²)·s²]).
 
         MuJoCo's soft contact law R·f = −(a + b·v + k·d·r) (``mujoco_contact_law``, from the
@@ -1226,7 +1294,7 @@ class SolverXPBD:
         """
         m = self.model
         out = []
-        self._lam_edges = [None] * len(cands)
+        sw.edge_lam = [None] * len(cands)
         for ci, (g2, r2l, rad, g1, ol, nl, mu) in enumerate(cands):
             i = self._cidx[ci]
             n = quat_rotate(Q[g1], nl)
@@ -1269,13 +1337,13 @@ class SolverXPBD:
                         ve = dot(vr, e)
                         target = h * ve - h * h * (b * ve + kd * gap)
                         edges.append(((e[0] / le, e[1] / le, e[2] / le), target / le, r_edge / (le * le), 1.0 / le))
-                self._lam_edges[ci] = [0.0] * len(edges)
+                sw.edge_lam[ci] = [0.0] * len(edges)
                 out.append((_PYRAMID, quat_rotate_inv(Q[g1], r1c), quat_rotate_inv(Q[g2], r2c), edges))
                 continue
             out.append((mujoco_step_target(gap, rate, kd, b, h), R))
         return out
 
-    def _contact_normal(self, X, Q, ci, cand, lam_n, cinfo):
+    def _contact_normal(self, sw, X, Q, ci, cand, lam_n, cinfo):
         """Plane contact, normal part ([RB] Sec. 3.5): C = d ≥ 0 at the deepest point."""
         g2, r2l, rad, g1, ol, nl, mu = cand
         q1, q2 = Q[g1], Q[g2]
@@ -1286,7 +1354,7 @@ class SolverXPBD:
         p = (x2[0] + r2c[0], x2[1] + r2c[1], x2[2] + r2c[2])
         d = (p[0] - x1[0] - o[0]) * n[0] + (p[1] - x1[1] - o[1]) * n[1] + \
             (p[2] - x1[2] - o[2]) * n[2] - rad
-        soft = None if self._csoft is None else self._csoft[ci]
+        soft = None if sw.contact_soft is None else sw.contact_soft[ci]
         if soft is not None:  # MuJoCo-equivalent compliant normal: f = −(d − r*)/α ≥ 0
             c = d - soft[0]
             if c >= 0.0 and lam_n[ci] <= 0.0:
@@ -1338,7 +1406,7 @@ class SolverXPBD:
             solve_positional(X, Q, IM, II, g1, g2, r1w, r2w, t, c)
 
     # ------------------------------------------------------------------ velocity solve
-    def _solve_velocities(self, V, W, Q, X, cinfo, lam_n, cands, h):
+    def _solve_velocities(self, sw, V, W, Q, X, cinfo, lam_n, cands, h):
         """Velocity pass ([RB] Sec. 3.6): contacts, then implicit joint damping.
 
         Contacts use ``velocity_sweeps`` projected Gauss-Seidel sweeps.  Per contact:
@@ -1357,7 +1425,7 @@ class SolverXPBD:
             for _ in range(self.velocity_sweeps):
                 for ci, (r1l, r2l, nl) in items:
                     g2, _, _, g1, _, _, mu = cands[ci]
-                    if self._csoft is not None and self._csoft[ci] is not None and self._csoft[ci][0] == _PYRAMID:
+                    if sw.contact_soft is not None and sw.contact_soft[ci] is not None and sw.contact_soft[ci][0] == _PYRAMID:
                         continue
                     ln = lam_n[ci]
                     q1, q2 = Q[g1], Q[g2]
@@ -1388,7 +1456,7 @@ class SolverXPBD:
                                 acc_t[ci] = new
                                 apply_velocity_impulse(V, W, Q, IM, II, g2, r2, p, 1.0)
                                 apply_velocity_impulse(V, W, Q, IM, II, g1, r1, p, -1.0)
-                    if self._csoft is not None and self._csoft[ci] is not None:
+                    if sw.contact_soft is not None and sw.contact_soft[ci] is not None:
                         continue  # compliant normal: its damping is in the position law
                     va = point_velocity(V, W, g2, r2)
                     vb = point_velocity(V, W, g1, r1)
@@ -1576,14 +1644,15 @@ class SolverXPBD:
             F, T = self._external(inp, X, Q)
             # soft limits from the state at the substep's start (before the torque impulses: the applied torques
             # are part of MuJoCo's unconstrained acceleration, not of the rate v⁻ of its law)
-            self._jsoft = self._soft_limit_targets(X, Q, V, W, h) if self.soft_limits else None
-            self._jlam = [0.0] * len(self._joints)
-            self._tsoft = self._tendon_limit_targets(X, Q, V, W, h) if self._tlaw else None
-            self._tlam = [0.0] * len(self._tlaw)
-            tact = self._tsoft is not None and any(ts is not None for ts in self._tsoft)
+            sw = SubstepWork()  # this substep's rows and multipliers, passed to every pass below
+            sw.joint_soft = self._soft_limit_targets(X, Q, V, W, h) if self.soft_limits else None
+            sw.joint_lam = [0.0] * len(self._joints)
+            sw.tendon_soft = self._tendon_limit_targets(X, Q, V, W, h) if self._tlaw else None
+            sw.tendon_lam = [0.0] * len(self._tlaw)
+            tact = sw.tendon_soft is not None and any(ts is not None for ts in sw.tendon_soft)
             if inp is not None and inp.joint_force is not None:
                 self._apply_hinge_torques(inp, V, W, Q, h)
-            self._csoft = self._soft_contact_targets(X, Q, V, W, cands, h) if (cands and self.soft_contacts) else None
+            sw.contact_soft = self._soft_contact_targets(sw, X, Q, V, W, cands, h) if (cands and self.soft_contacts) else None
             Xp, Qp = X[:], Q[:]
             gg = None if inp is None or inp.group_gravity is None else np.asarray(inp.group_gravity, float).tolist()
             for g in dyn:  # predict
@@ -1598,29 +1667,29 @@ class SolverXPBD:
                     None if F is None else F[g], tq, h)
             # articulated contacts: G and M⁻¹ at the predicted pose (compiled.articulated_inverse)
             art = self._articulated_inverse(X, Q) if ((cands and self.articulated_contacts) or tact) else None
-            self._art = art if self.articulated_contacts else None
-            self._tart = art
-            self._bsoft = None
+            sw.contact_articulated = art if self.articulated_contacts else None
+            sw.limit_articulated = art
+            sw.block_soft = None
             if tact and art is not None:  # every active soft limit in one articulated block (_solve_limits_block)
-                self._bsoft, self._jsoft = self._jsoft, [None] * len(self._joints)
-                self._mu = [0.0] * (len(self._joints) + len(self._tlaw))
+                sw.block_soft, sw.joint_soft = sw.joint_soft, [None] * len(self._joints)
+                sw.block_mu = [0.0] * (len(self._joints) + len(self._tlaw))
             lam_rows = [0.0] * nr
             lam_n = [0.0] * len(cands)
             lam_t = [0.0] * len(cands)
             cinfo: dict = {}
             for _ in range(self.iterations):
                 if self.symmetric:
-                    self._solve_positions(X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo,
+                    self._solve_positions(sw, X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo,
                                           Xp, Qp, reverse=False, block=block)
-                    self._solve_positions(X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo,
+                    self._solve_positions(sw, X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo,
                                           Xp, Qp, reverse=True, block=block)
                 else:
-                    self._solve_positions(X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo,
+                    self._solve_positions(sw, X, Q, rowdata, lam_rows, cands, lam_n, lam_t, cinfo,
                                           Xp, Qp, reverse=False, block=block)
             for g in dyn:  # velocity update
                 V[g], W[g] = update_velocity_body(X[g], Q[g], Xp[g], Qp[g], h)
             if need_vel:
-                self._solve_velocities(V, W, Q, X, cinfo, lam_n, cands, h)
+                self._solve_velocities(sw, V, W, Q, X, cinfo, lam_n, cands, h)
             if cl != 1.0:
                 for g in dyn:
                     V[g] = [cl * V[g][0], cl * V[g][1], cl * V[g][2]]
@@ -1641,7 +1710,6 @@ class SolverXPBD:
                 self.last_forces.append(forces)
                 if after is not None:
                     after(k, h, state, forces)
-        self._csoft = self._art = self._jsoft = self._tsoft = self._tart = self._bsoft = None
         self._scatter(np.array(X), np.array(Q), np.array(V), np.array(W), state)
         state.time = t0 + dt
         state.qpos_hint = m.qpos_qvel(state)[0]
@@ -1649,7 +1717,7 @@ class SolverXPBD:
 
     def _step_compiled(self, state, dt, hooks, inputs, x, q, v, w, contacts):
         """``step`` with every substep in ``compiled.substep_core`` (same order of operations as the pure loop)."""
-        from sim.xpbd.compiled import substep_core as _substep, substep_work
+        from sim.xpbd.compiled import RowOutputs, SubstepLoads, SubstepOptions, SubstepRows, substep_core, substep_work
 
         m = self.model
         fm = self._flat
@@ -1669,17 +1737,16 @@ class SolverXPBD:
         no_gg = np.zeros((ng, 6))
         zeros_g = np.zeros((ng, 3))
         no_tau = np.zeros(nj)
-        cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran = contacts
-        cone, impratio = int(m.contact_cone), float(m.contact_impratio)
-        Gc, Minv = np.zeros((ng, 6, nj)), np.zeros((nj, nj))  # work arrays of articulated contacts
-        work = substep_work(ng, nj, len(fm["jlim"]) - nj, len(cg), nr)  # the substeps' other work arrays
+        options = SubstepOptions(self.iterations, self.symmetric, self.linear_damping, self.angular_damping,
+                                 self.articulated_contacts)
+        work = substep_work(ng, nj, len(fm.jlim) - nj, len(contacts.group), nr)  # the substeps' work arrays
         Gk = P0 = None
         if self.transport_response and nj:  # compiled.group_jacobian / jacobian_pinv / transport
             from sim.xpbd.compiled import group_jacobian, jacobian_pinv, transport
 
             Gk = np.zeros((ng, 6, nj))
             P0 = np.zeros((nj, ng * 6))
-            if not (group_jacobian(X, Q, fm["IM"], fm["jt"], fm["jg"], fm["jvec"], Gk) and jacobian_pinv(Gk, P0)):
+            if not (group_jacobian(X, Q, fm.IM, fm.jt, fm.jg, fm.jvec, Gk) and jacobian_pinv(Gk, P0)):
                 P0 = None
         for k in range(self.substeps):
             inp = inputs
@@ -1688,7 +1755,7 @@ class SolverXPBD:
                 if r is not None:
                     inp = r
             if P0 is not None and k and inp is not None and (inp.row_mobility is not None or inp.group_gravity is not None):
-                group_jacobian(X, Q, fm["IM"], fm["jt"], fm["jg"], fm["jvec"], Gk)
+                group_jacobian(X, Q, fm.IM, fm.jt, fm.jg, fm.jvec, Gk)
                 mob = None
                 if inp.row_mobility is not None:
                     src = _f64(inp.row_mobility)
@@ -1722,13 +1789,8 @@ class SolverXPBD:
             lam = np.zeros(nr)
             ell = np.zeros(nr)
             rate = np.zeros(nr)
-            _substep(X, Q, V, W, fm["IM"], fm["II"], fm["GI"], fm["gravity"], float(h), self.iterations, self.symmetric,
-                     fm["jt"], fm["jg"], fm["jvec"], fm["jqoff"], fm["jlim"], fm["jlo"], fm["jhi"], fm["jdamp"],
-                     fm["et"], fm["eg"], fm["evec"], fm["eqoff"],
-                     rg, rvec, act, tgt, at, lo, hi, use_block, mob, use_gg, gg, F, T, use_tau, tau,
-                     cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
-                     self.linear_damping, self.angular_damping, lam, ell, rate, self.articulated_contacts, Gc, Minv,
-                     work)
+            substep_core(X, Q, V, W, fm, SubstepRows(rg, rvec, act, tgt, at, lo, hi, use_block, mob), contacts,
+                         SubstepLoads(use_gg, gg, F, T, use_tau, tau), options, float(h), RowOutputs(lam, ell, rate), work)
             if after is not None or nr:
                 active = np.zeros(nr, dtype=bool)
                 active[act] = True
