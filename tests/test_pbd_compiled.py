@@ -148,6 +148,27 @@ def test_compiled_box_lands_on_soft_pyramidal_contacts():
     assert abs(st.x[b, 2] - 0.05) < 1e-3  # it landed and rests on its largest face
 
 
+ELLIPTIC = BOX.replace("<mujoco>", '<mujoco><option cone="elliptic"/>', 1)
+
+
+@pytest.mark.parametrize("xml, options", [
+    (ELLIPTIC.format(mu=0.8, x0=0, z0=0.08, ex=6, ey=-4, sites=""), {}),
+    (BOX.format(mu=0.8, x0=0, z0=0.08, ex=6, ey=-4, sites="").replace('friction="0.8"/>', 'friction="0.8" condim="1"/>'), {}),
+    (BOX.format(mu=0.0, x0=0, z0=0.08, ex=6, ey=-4, sites=""), {}),
+    (BOX.format(mu=0.8, x0=0, z0=0.08, ex=6, ey=-4, sites=""), dict(soft_contacts=False)),
+    (BOX.format(mu=0.8, x0=0, z0=0.08, ex=6, ey=-4, sites=""), dict(pyramid_friction=False)),
+], ids=["elliptic", "condim-1", "frictionless", "rigid", "coulomb"])
+def test_compiled_box_lands_on_every_other_contact_kind(xml, options):
+    """The tilted box dropped on the floor with the contacts that are not soft pyramidal: a soft normal row with
+    Coulomb friction (elliptic cone, condim 1, pyramids off), rigid rows (μ = 0 on the pyramidal cone: R = 0; soft
+    contacts off); compiled and pure agree to round-off, every step compiled, and the box comes to rest on its
+    largest face (within its soft penetration)."""
+    xm, st = _run_pair(xml, 40, 1 / 60, 20, **options)
+    b = xm.body_id("box")
+    assert abs(st.x[b, 2] - 0.05) < 2e-3
+    assert np.max(np.abs(st.v[b])) < 0.05  # [m/s]: at rest
+
+
 def test_compiled_body_wrench():
     xml = """<mujoco><option gravity="0 0 0"/><worldbody>
       <body name="b" pos="0 0 1"><freejoint/>

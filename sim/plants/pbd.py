@@ -511,9 +511,9 @@ class PbdPlant(PlantBase):
             c = dict(group=np.zeros(0, np.int64), plane=np.zeros(0, np.int64), plane_group=np.zeros(0, np.int64),
                      local=np.zeros((0, 3)), radius=np.zeros(0), plane_origin=np.zeros((0, 3)), plane_normal=np.zeros((0, 3)),
                      out=np.zeros(0, np.int64))
-        pyramid = "cg" in c and solver.soft_contacts and solver.pyramid_friction and int(xm.contact_cone) == 0
-        eligible = np.array(c["eligible"] if pyramid else np.zeros(nc, bool), np.bool_)  # the block's own copy
-        rows = [c["cg"], c["cvec"], c["crad"], c["mu"], c["solref"], c["solimp"], c["condim"], c["tran"]] if pyramid else [
+        known = "cg" in c
+        eligible = np.array(c["eligible"] if known else np.zeros(nc, bool), np.bool_)  # the block's own copy
+        rows = [c["cg"], c["cvec"], c["crad"], c["mu"], c["solref"], c["solimp"], c["condim"], c["tran"]] if known else [
             np.zeros((nc, 2), np.int64), np.zeros((nc, 4, 3)), np.zeros(nc), np.zeros(nc), np.zeros((nc, 2)),
             np.zeros((nc, 5)), np.zeros(nc, np.int64), np.zeros(nc)]
         rows = [np.ascontiguousarray(r) for r in rows]
@@ -699,7 +699,8 @@ class PbdPlant(PlantBase):
 
         solver, fast = self.solver, self._fast
         return FrameSettings(float(h), solver.substeps, solver.iterations, solver.symmetric, solver.linear_damping,
-                             solver.angular_damping, fast.scheme, fast.blend)
+                             solver.angular_damping, solver.soft_contacts, solver.pyramid_friction,
+                             solver.velocity_sweeps, fast.scheme, fast.blend)
 
     def _sample_inputs(self, ctx, h):
         """The schedules at every substep's start time t + k·h (rows of ctx's cmd/speed), as ``before_substep``

@@ -17,7 +17,7 @@ the per-frame path calls from Python:
 
 The block stops after a frame whose hydraulic step failed (as ``advance`` stops at the first
 failed step), and before a frame the compiled frame does not cover (singular mass matrix, a
-contact that is not soft and pyramidal: the plant steps that frame on its per-frame path).
+contact point marked not ``eligible``: the plant steps that frame on its per-frame path).
 Results equal the per-frame path to round-off (``tests/test_pbd_block.py``).
 
 Recording (as ``MujocoPlantFast.advance(n, record, every)``, the ``Recording`` layout): after every step but
@@ -57,7 +57,7 @@ BLOCK_OK, BLOCK_SINGULAR, BLOCK_INELIGIBLE = 0, 1, 2
 ContactCandidates = namedtuple("ContactCandidates", [
     "group", "plane", "plane_group", "local", "radius", "plane_origin", "plane_normal",  # ``compiled.contact_candidates``
     "margin",  # candidate distance margin [m]
-    "eligible",  # the contact point is soft and pyramidal (the compiled frame covers it), (contacts,)
+    "eligible",  # the compiled frame covers the contact point (all do; a test clears it), (contacts,)
 ])
 
 BlockPlant = namedtuple("BlockPlant", [  # what stays fixed over the plant's life

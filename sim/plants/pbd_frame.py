@@ -25,8 +25,8 @@ Per substep, in the order of :meth:`sim.plants.pbd.PbdPlant.before_substep`,
 The operator inputs are sampled for every substep beforehand (rows of
 ``cmd``/``speed``).  Only the case the plant's frame path checks is covered
 (:meth:`sim.plants.pbd.PbdPlant._frame_ready`): fast hydraulics, a tree of
-hinges/slides with the articulated response, hinge motors, soft pyramidal
-contacts.  Results equal the per-substep hooks to round-off.
+hinges/slides with the articulated response, hinge motors, any contact kind
+of ``compiled.substep_core``.  Results equal the per-substep hooks to round-off.
 
 Caching as :mod:`sim.plants.pbd_hydraulics`: the entry point carries a sha256 of
 this file, ``hydraulics_nb.py``, ``compiled.py`` and
@@ -103,6 +103,7 @@ FrameSettings = namedtuple("FrameSettings", [
     "h",  # substep [s]
     "substeps",  # substeps per frame, int
     "iterations", "symmetric", "linear_damping", "angular_damping",  # as ``compiled.SubstepOptions``
+    "soft_contacts", "pyramid_friction", "velocity_sweeps",  # as ``compiled.SubstepOptions``
     "scheme",  # the coupling's ``hydraulics.coupling.SCHEME_*``
     "blend",  # θ from the effective masses (else θ = 1), bool
 ])
@@ -153,7 +154,8 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
                                              actuators.motor_effort, actuators.out)
     const, slope, istats = hyd.constant, hyd.slope, hyd.istats
     options = XC.SubstepOptions(settings.iterations, settings.symmetric, settings.linear_damping,
-                                settings.angular_damping, art_contacts)
+                                settings.angular_damping, art_contacts, settings.soft_contacts,
+                                settings.pyramid_friction, settings.velocity_sweeps)
     na = x.size
     # group accelerations on, joint torques off, as runtime bools: compiled.substep_core then has the one signature
     # the per-substep path (Python bools) uses too (literal True/False compile a second specialisation)

@@ -15,8 +15,9 @@ to round-off (``tests/test_pbd_compiled.py``).  Units and sign conventions as in
 ``solver.py``: positions [m], quaternions (w, x, y, z), velocities [m/s], [rad/s],
 multipliers λ [N·s²] (row force λ/h² [N], + pushes the sites apart).
 
-Supported contacts: soft pyramidal (MuJoCo's default cone, condim ≥ 3, μ > 0); the solver
-falls back to the pure path for a step with any other contact candidate.
+Contacts as the pure path: MuJoCo's soft pyramidal edge rows (pyramidal cone, condim ≥ 3), a soft
+normal row with [RB]'s Coulomb friction (elliptic cone, condim 1), or rigid rows (``soft_contacts``
+off, or μ = 0 on a pyramidal cone) with [RB]'s velocity pass.
 
 Arguments come in named layouts (namedtuples of arrays, built once per solver or plant): the
 static ``GroupModel`` and ``BodyTree``, per substep ``SubstepRows``, ``SubstepLoads``,
@@ -35,6 +36,9 @@ from numba import njit
 _EPS = 1e-14
 JNT_FREE, JNT_BALL, JNT_SLIDE, JNT_HINGE = 0, 1, 2, 3
 EQ_CONNECT, EQ_WELD = 0, 1
+# kind of a contact candidate in a substep (``_contact_targets``): no force (a soft contact that does not penetrate
+# at the substep's start), soft pyramidal edge rows, a soft normal row with Coulomb friction, a rigid normal row
+CONTACT_IDLE, CONTACT_PYRAMID, CONTACT_SOFT, CONTACT_RIGID = 0, 1, 2, 3
 # columns of the limit table ``jlim`` (``SolverXPBD._limit_table``): limited, solref (2), solimp (5), invweight;
 # the rows after the joints' are tendon limits with also lo, hi [m], groups a, b and the site offsets ra, rb
 LIMIT_COLS = 19
@@ -107,6 +111,9 @@ SubstepOptions = namedtuple("SubstepOptions", [
     "linear_damping",  # global linear damping c [1/s]
     "angular_damping",  # global angular damping c [1/s]
     "articulated_contacts",  # contact pyramids with the articulated response, bool
+    "soft_contacts",  # MuJoCo's soft-contact law (else rigid normal rows), bool
+    "pyramid_friction",  # soft pyramidal edge rows where the cone is pyramidal and condim ≥ 3, bool
+    "velocity_sweeps",  # projected Gauss-Seidel sweeps of the contact velocity pass, int
 ])
 
 RowOutputs = namedtuple("RowOutputs", [
@@ -118,6 +125,13 @@ RowOutputs = namedtuple("RowOutputs", [
 SubstepWork = namedtuple("SubstepWork", [
     "joint_soft", "joint_lam", "tendon_soft", "tendon_lam",  # soft limit rows and their λ
     "contact_active", "contact_local", "contact_edge", "contact_lam",  # contact candidates' edge rows
+    "contact_kind",  # CONTACT_* of each candidate, (ncap,)
+    "contact_row",  # soft normal row: target gap r* [m], α̃ = R, (ncap, 2)
+    "normal_lam", "friction_lam",  # normal and static-friction multipliers [N·s²], (ncap,)
+    "contact_fixed",  # body-fixed contact points r1, r2 (group frames) [m] once touching, (ncap, 2, 3)
+    "contact_seen",  # 1 once the normal row acted in this substep, (ncap,)
+    "contact_order", "contact_count",  # the touching candidates in the order they first acted, (ncap,), (1,)
+    "contact_impulse",  # velocity pass: accumulated friction (3) and normal (1) impulses [N·s], (ncap, 4)
     "X_start", "Q_start",  # group poses at the prediction
     "block_soft", "block_mu",  # the articulated limit block
     "rows_matrix", "rows_augmented", "rows_vectors",  # the row block's system (nr, nr), (nr, nr + 1), (3, nr)
@@ -1101,15 +1115,166 @@ def _contact_law(solref, solimp, condim, tran, mu, pos, cone, impratio, timestep
 
 
 @_leaf
-def _contact_targets(X, Q, V, W, contacts, cone, impratio, h, active, clocal, edge):
-    """Soft pyramidal edge rows of every candidate (``ContactRows``) for the substep
-    (``SolverXPBD._soft_contact_targets``).
+def _contact_normal(X, Q, IM, II, contacts, work, ci):
+    """Normal row of a soft (non-pyramidal) or rigid candidate ``ci`` ([RB] Sec. 3.5; ``SolverXPBD._contact_normal``):
+    C = d ≥ 0 at the deepest point (rigid), or the compliant C = d − r* with α̃ = R and λ ≥ 0 (soft).  The first time
+    it acts in the substep its body-fixed points are kept for friction and the velocity pass."""
+    cg, cvec = contacts.group, contacts.vec
+    g2, g1 = cg[ci, 0], cg[ci, 1]
+    rad = contacts.radius[ci]
+    q1, q2 = _q4(Q, g1), _q4(Q, g2)
+    n = _rot(q1, _v3(cvec[ci], 2))
+    o = _rot(q1, _v3(cvec[ci], 1))
+    r2c = _rot(q2, _v3(cvec[ci], 0))
+    p = (X[g2, 0] + r2c[0], X[g2, 1] + r2c[1], X[g2, 2] + r2c[2])
+    d = (p[0] - X[g1, 0] - o[0]) * n[0] + (p[1] - X[g1, 1] - o[1]) * n[1] + (p[2] - X[g1, 2] - o[2]) * n[2] - rad
+    lam_n = work.normal_lam
+    soft = work.contact_kind[ci] == CONTACT_SOFT
+    c = 0.0
+    if soft:
+        c = d - work.contact_row[ci, 0]
+        if c >= 0.0 and lam_n[ci] <= 0.0:
+            return
+    elif d >= 0.0:
+        return
+    s2 = (p[0] - rad * n[0], p[1] - rad * n[1], p[2] - rad * n[2])  # surface point
+    s1 = (s2[0] - d * n[0], s2[1] - d * n[1], s2[2] - d * n[2])  # on the plane
+    r1 = (s1[0] - X[g1, 0], s1[1] - X[g1, 1], s1[2] - X[g1, 2])
+    r2 = (s2[0] - X[g2, 0], s2[1] - X[g2, 1], s2[2] - X[g2, 2])
+    if not work.contact_seen[ci]:
+        a1, a2 = _rotinv(q1, r1), _rotinv(q2, r2)
+        for k in range(3):
+            work.contact_fixed[ci, 0, k] = a1[k]
+            work.contact_fixed[ci, 1, k] = a2[k]
+        work.contact_seen[ci] = 1
+        m = work.contact_count[0]
+        work.contact_order[m] = ci
+        work.contact_count[0] = m + 1
+    if soft:
+        lam_n[ci] += _solve_pos(X, Q, IM, II, g1, g2, r1, r2, n, c, work.contact_row[ci, 1], lam_n[ci], 0.0, math.inf)
+    else:
+        lam_n[ci] += _solve_pos(X, Q, IM, II, g1, g2, r1, r2, n, d, 0.0, 0.0, -math.inf, math.inf)
 
-    active[ci]: 1 if the candidate penetrates (edge rows live), else 0; clocal[ci] = (r1 local, r2 local);
-    edge[ci, j] = (ê (3), target Δ*/|e| [m], α̃ = R_e/|e|², 1/|e|)."""
+
+@_leaf
+def _contact_static_friction(X, Q, IM, II, contacts, work, ci):
+    """Static friction of a touching candidate ([RB] Sec. 3.5; ``SolverXPBD._contact_static_friction``): cancel the
+    relative tangential motion of its points over the substep while the multiplier stays inside the cone
+    λ_t < μ λ_n."""
+    mu, ln = contacts.mu[ci], work.normal_lam[ci]
+    if mu <= 0.0 or ln <= 0.0:
+        return
+    g2, g1 = contacts.group[ci, 0], contacts.group[ci, 1]
+    Xp, Qp = work.X_start, work.Q_start
+    r1l, r2l = _v3(work.contact_fixed[ci], 0), _v3(work.contact_fixed[ci], 1)
+    q1, q2 = _q4(Q, g1), _q4(Q, g2)
+    r1w = _rot(q1, r1l)
+    r2w = _rot(q2, r2l)
+    r1p = _rot(_q4(Qp, g1), r1l)
+    r2p = _rot(_q4(Qp, g2), r2l)
+    dp = ((X[g2, 0] + r2w[0] - Xp[g2, 0] - r2p[0]) - (X[g1, 0] + r1w[0] - Xp[g1, 0] - r1p[0]),
+          (X[g2, 1] + r2w[1] - Xp[g2, 1] - r2p[1]) - (X[g1, 1] + r1w[1] - Xp[g1, 1] - r1p[1]),
+          (X[g2, 2] + r2w[2] - Xp[g2, 2] - r2p[2]) - (X[g1, 2] + r1w[2] - Xp[g1, 2] - r1p[2]))
+    n = _rot(q1, _v3(contacts.vec[ci], 2))
+    dn = _dot(dp, n)
+    dt = (dp[0] - dn * n[0], dp[1] - dn * n[1], dp[2] - dn * n[2])
+    c = math.sqrt(_dot(dt, dt))
+    if c <= _EPS:
+        return
+    t = (dt[0] / c, dt[1] / c, dt[2] / c)
+    w = _pos_w(IM[g1], _v3(II, g1), q1, r1w, t) + _pos_w(IM[g2], _v3(II, g2), q2, r2w, t)
+    if w <= 0.0:
+        return
+    dlt = c / w
+    if work.friction_lam[ci] + dlt < mu * ln:
+        work.friction_lam[ci] += dlt
+        _solve_pos(X, Q, IM, II, g1, g2, r1w, r2w, t, c, 0.0, 0.0, -math.inf, math.inf)
+
+
+@_leaf
+def _contact_velocities(V, W, Q, IM, II, contacts, work, h, sweeps):
+    """Velocity pass of the touching non-pyramidal candidates ([RB] Sec. 3.6; ``SolverXPBD._solve_velocities``):
+    ``sweeps`` projected Gauss-Seidel sweeps, in the order the candidates first acted, of dynamic friction (the
+    accumulated impulse clamped to μ·λ_n/h) and, on rigid rows, restitution e = 0 (accumulated normal impulse
+    ≥ −λ_n/h; a soft row's damping is in its position law)."""
+    count = work.contact_count[0]
+    imp = work.contact_impulse
+    cg, cvec, cmu = contacts.group, contacts.vec, contacts.mu
+    for m in range(count):
+        ci = work.contact_order[m]
+        for k in range(4):
+            imp[ci, k] = 0.0
+    for _ in range(sweeps):
+        for m in range(count):
+            ci = work.contact_order[m]
+            g2, g1 = cg[ci, 0], cg[ci, 1]
+            mu, ln = cmu[ci], work.normal_lam[ci]
+            q1, q2 = _q4(Q, g1), _q4(Q, g2)
+            n = _rot(q1, _v3(cvec[ci], 2))
+            r1 = _rot(q1, _v3(work.contact_fixed[ci], 0))
+            r2 = _rot(q2, _v3(work.contact_fixed[ci], 1))
+            if mu > 0.0 and ln > 0.0:
+                va = _point_vel(V, W, g2, r2)
+                vb = _point_vel(V, W, g1, r1)
+                vr = (va[0] - vb[0], va[1] - vb[1], va[2] - vb[2])
+                vn = _dot(vr, n)
+                vt = (vr[0] - vn * n[0], vr[1] - vn * n[1], vr[2] - vn * n[2])
+                vtl = math.sqrt(_dot(vt, vt))
+                if vtl > _EPS:
+                    t = (vt[0] / vtl, vt[1] / vtl, vt[2] / vtl)
+                    w = _pos_w(IM[g1], _v3(II, g1), q1, r1, t) + _pos_w(IM[g2], _v3(II, g2), q2, r2, t)
+                    if w > 0.0:
+                        j = -vtl / w
+                        old = (imp[ci, 0], imp[ci, 1], imp[ci, 2])
+                        new = (old[0] + j * t[0], old[1] + j * t[1], old[2] + j * t[2])
+                        cap = mu * ln / h
+                        mag = math.sqrt(_dot(new, new))
+                        if mag > cap:
+                            sc = cap / mag
+                            new = (new[0] * sc, new[1] * sc, new[2] * sc)
+                        p = (new[0] - old[0], new[1] - old[1], new[2] - old[2])
+                        imp[ci, 0], imp[ci, 1], imp[ci, 2] = new
+                        _apply_vel(V, W, Q, IM, II, g2, r2, p, 1.0)
+                        _apply_vel(V, W, Q, IM, II, g1, r1, p, -1.0)
+            if work.contact_kind[ci] == CONTACT_SOFT:
+                continue  # compliant normal: its damping is in the position law
+            va = _point_vel(V, W, g2, r2)
+            vb = _point_vel(V, W, g1, r1)
+            vn = (va[0] - vb[0]) * n[0] + (va[1] - vb[1]) * n[1] + (va[2] - vb[2]) * n[2]
+            if vn == 0.0:
+                continue
+            w = _pos_w(IM[g1], _v3(II, g1), q1, r1, n) + _pos_w(IM[g2], _v3(II, g2), q2, r2, n)
+            if w > 0.0:
+                old_n = imp[ci, 3]
+                new_n = max(old_n - vn / w, -ln / h)
+                jn = new_n - old_n
+                imp[ci, 3] = new_n
+                p = (jn * n[0], jn * n[1], jn * n[2])
+                _apply_vel(V, W, Q, IM, II, g2, r2, p, 1.0)
+                _apply_vel(V, W, Q, IM, II, g1, r1, p, -1.0)
+
+
+@_leaf
+def _contact_targets(X, Q, V, W, contacts, model, options, h, work):
+    """The kind (``CONTACT_*``) and rows of every candidate (``ContactRows``) for the substep
+    (``SolverXPBD._soft_contact_targets``), into ``work`` (``SubstepWork``).
+
+    Rigid (``options.soft_contacts`` off, or R = 0: μ = 0 on a pyramidal cone): the normal row of [RB].  Soft and
+    not penetrating at the substep's start: no force.  Soft pyramidal (``options.pyramid_friction``, condim ≥ 3,
+    MuJoCo's pyramidal cone): contact_active[ci] = 1, contact_local[ci] = (r1 local, r2 local),
+    contact_edge[ci, j] = (ê (3), target Δ*/|e| [m], α̃ = R_e/|e|², 1/|e|).  Other soft contacts (elliptic cone,
+    condim 1): one compliant normal row, contact_row[ci] = (r* = ``mujoco_step_target`` [m], α̃ = R), with the
+    Coulomb friction of [RB] (``_contact_static_friction`` and the velocity pass)."""
     cg, cvec, crad, cmu = contacts.group, contacts.vec, contacts.radius, contacts.mu
     csolref, csolimp, ccondim, ctran = contacts.solref, contacts.solimp, contacts.condim, contacts.tran
+    cone, impratio = model.contact_cone, model.contact_impratio
+    active, clocal, edge = work.contact_active, work.contact_local, work.contact_edge
+    kind, row = work.contact_kind, work.contact_row
     for ci in range(cg.shape[0]):
+        active[ci] = 0
+        if not options.soft_contacts:
+            kind[ci] = CONTACT_RIGID
+            continue
         g2, g1 = cg[ci, 0], cg[ci, 1]
         r2l, ol, nl, t1l = _v3(cvec[ci], 0), _v3(cvec[ci], 1), _v3(cvec[ci], 2), _v3(cvec[ci], 3)
         rad, mu = crad[ci], cmu[ci]
@@ -1121,9 +1286,22 @@ def _contact_targets(X, Q, V, W, contacts, cone, impratio, h, active, clocal, ed
         gap = (p[0] - X[g1, 0] - o[0]) * n[0] + (p[1] - X[g1, 1] - o[1]) * n[1] + (p[2] - X[g1, 2] - o[2]) * n[2] - rad
         kd, b, R = _contact_law(csolref[ci], csolimp[ci], ccondim[ci], ctran[ci], mu, min(gap, 0.0),
                                 cone, impratio, h)
-        active[ci] = 0
-        if gap >= 0.0:
+        if R <= 0.0:
+            kind[ci] = CONTACT_RIGID
             continue
+        if gap >= 0.0:  # MuJoCo instantiates a contact only once it penetrates (margin 0)
+            kind[ci] = CONTACT_IDLE
+            continue
+        if not (options.pyramid_friction and ccondim[ci] >= 3 and cone == 0):
+            r1 = (p[0] - X[g1, 0], p[1] - X[g1, 1], p[2] - X[g1, 2])
+            va = _point_vel(V, W, g2, r2)
+            vb = _point_vel(V, W, g1, r1)
+            rate = (va[0] - vb[0]) * n[0] + (va[1] - vb[1]) * n[1] + (va[2] - vb[2]) * n[2]
+            kind[ci] = CONTACT_SOFT
+            row[ci, 0] = gap + h * rate - h * h * (b * rate + kd * gap)  # solver.mujoco_step_target
+            row[ci, 1] = R
+            continue
+        kind[ci] = CONTACT_PYRAMID
         ne = 2 * (ccondim[ci] - 1)
         r_edge = R * ne
         rel = (p[0] - rad * n[0], p[1] - rad * n[1], p[2] - rad * n[2])
@@ -1271,8 +1449,19 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
 
 
 @njit(cache=True)
-def _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, reverse, art, G, Minv):
+def _solve_contacts(X, Q, IM, II, contacts, work, reverse, art):
+    """One pass over the candidates (``SolverXPBD._solve_contacts``): the normal rows of the non-pyramidal ones,
+    the pyramids per body pair (``art``: with the articulated response ``work.G``, ``work.Minv``), then the
+    static friction of every touching non-pyramidal candidate."""
+    cg = contacts.group
     nc = cg.shape[0]
+    kind = work.contact_kind
+    for k in range(nc):
+        ci = nc - 1 - k if reverse else k
+        if kind[ci] == CONTACT_SOFT or kind[ci] == CONTACT_RIGID:
+            _contact_normal(X, Q, IM, II, contacts, work, ci)
+    Xp, Qp, G, Minv = work.X_start, work.Q_start, work.G, work.Minv
+    active, clocal, edge, lam_e = work.contact_active, work.contact_local, work.contact_edge, work.contact_lam
     done = np.zeros(nc, np.bool_)
     for k in range(nc):
         ci = nc - 1 - k if reverse else k
@@ -1293,6 +1482,10 @@ def _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rever
                 done[cj] = True
                 cnt += 1
         _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, art, G, Minv)
+    for k in range(nc):
+        ci = nc - 1 - k if reverse else k
+        if work.contact_seen[ci]:
+            _contact_static_friction(X, Q, IM, II, contacts, work, ci)
 
 
 # ---------------------------------------------------------------------------- the substep
@@ -1303,7 +1496,10 @@ def substep_work(ng, nj, ntl, ncap, nr):
     """The ``SubstepWork`` of ``substep_core`` for ``ng`` groups, ``nj`` joints, ``ntl`` tendon limits, up to ``ncap``
     contact candidates and ``nr`` length rows (made once by a caller that runs many substeps)."""
     return SubstepWork(np.zeros((nj, 3)), np.zeros(nj), np.zeros((ntl, 3)), np.zeros(ntl), np.zeros(ncap, np.int64),
-                       np.zeros((ncap, 2, 3)), np.zeros((ncap, 4, 6)), np.zeros((ncap, 4)), np.zeros((ng, 3)),
+                       np.zeros((ncap, 2, 3)), np.zeros((ncap, 4, 6)), np.zeros((ncap, 4)), np.zeros(ncap, np.int64),
+                       np.zeros((ncap, 2)), np.zeros(ncap), np.zeros(ncap), np.zeros((ncap, 2, 3)),
+                       np.zeros(ncap, np.int64), np.zeros(ncap, np.int64), np.zeros(1, np.int64), np.zeros((ncap, 4)),
+                       np.zeros((ng, 3)),
                        np.zeros((ng, 4)), np.zeros((nj, 3)), np.zeros(nj + ntl), np.zeros((nr, nr)),
                        np.zeros((nr, nr + 1)), np.zeros((3, nr)), np.zeros((ng, 6, nj)), np.zeros((nj, nj)))
 
@@ -1388,8 +1584,12 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
     clocal[:, :, :] = 0.0
     edge[:, :, :] = 0.0
     lam_e[:, :] = 0.0
+    work.normal_lam[:nc] = 0.0
+    work.friction_lam[:nc] = 0.0
+    work.contact_seen[:nc] = 0
+    work.contact_count[0] = 0
     if nc:
-        _contact_targets(X, Q, V, W, contacts, model.contact_cone, model.contact_impratio, h, active, clocal, edge)
+        _contact_targets(X, Q, V, W, contacts, model, options, h, work)
     for g in range(ng):
         for c in range(3):
             Xp[g, c] = X[g, c]
@@ -1448,10 +1648,10 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 if nc:
-                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rev, cart, Gc, Minv)
+                    _solve_contacts(X, Q, IM, II, contacts, work, rev, cart)
             else:
                 if nc:
-                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rev, cart, Gc, Minv)
+                    _solve_contacts(X, Q, IM, II, contacts, work, rev, cart)
                 if act.shape[0]:
                     if use_block:
                         _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work)
@@ -1471,7 +1671,9 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
         dq = _qmul(_q4(Q, g), _qconj(_q4(Qp, g)))
         s = 2.0 * ih if dq[0] >= 0.0 else -2.0 * ih
         W[g, 0], W[g, 1], W[g, 2] = s * dq[1], s * dq[2], s * dq[3]
-    # velocity pass: soft pyramidal contacts have none; implicit joint damping
+    # velocity pass: the touching non-pyramidal contacts (soft pyramidal ones have none); implicit joint damping
+    if work.contact_count[0] > 0:
+        _contact_velocities(V, W, Q, IM, II, contacts, work, h, options.velocity_sweeps)
     for j in range(jt.shape[0]):
         b = jdamp[j]
         t = jt[j]

@@ -316,8 +316,8 @@ class SolverXPBD:
       ``cache=True``, one signature), a port of this class's substep on flat arrays with the
       same operations in the same order; the hooks are still called per substep.  This
       pure-Python path stays the reference (``compiled=False``; agreement to round-off in
-      ``tests/test_pbd_compiled.py``) and is used for a step whose contact candidates are not
-      all soft pyramidal (rigid, elliptic, condim 1, μ = 0) or with ``block_attach=False``.
+      ``tests/test_pbd_compiled.py``) and is used with ``block_attach=False``.  Every contact kind
+      (soft pyramidal, soft normal with Coulomb friction on an elliptic cone or condim 1, rigid) runs compiled.
       ``compiled_steps`` counts the steps the compiled path took.  On the compiled path the
       per-step group gather and contact-candidate test are compiled too (``compiled.gather``,
       ``compiled.contact_candidates``; same values as the numpy code, tests/test_pbd_fast.py).
@@ -492,52 +492,48 @@ class SolverXPBD:
         c["tuples"] = [(int(g[k]), tuple(map(float, m.contact_local[k])), float(m.contact_radius[k]),
                         int(pg[k]), tuple(map(float, m.plane_origin[pl[k]])),
                         tuple(map(float, m.plane_normal[pl[k]])), float(m.contact_mu[k])) for k in range(nc)]
-        if nc and self.soft_contacts:
+        if nc:  # the rows of ``_flat_contacts`` (solref, solimp, tran are not read without soft contacts)
+            soft = m.contact_solref is not None
             c["cg"] = np.column_stack([g, pg]).astype(np.int64)
             c["cvec"] = np.array([[c["tuples"][k][1], c["tuples"][k][4], c["tuples"][k][5], self._plane_tangent[int(pl[k])]]
                                   for k in range(nc)], dtype=np.float64).reshape(nc, 4, 3)
             c["crad"] = f(m.contact_radius, -1)
-            c["condim"] = i(m.contact_condim)
+            c["condim"] = i(m.contact_condim if soft else np.ones(nc))
             c["mu"] = f(m.contact_mu, -1)
-            c["tran"] = f(m.contact_tran, -1)
-            c["solref"] = f(m.contact_solref, nc, 2)
-            c["solimp"] = f(m.contact_solimp, nc, 5)
-            c["eligible"] = (c["condim"] >= 3) & (c["mu"] > 0.0) & (c["tran"] > 0.0)
+            c["tran"] = f(m.contact_tran if soft else np.zeros(nc), -1)
+            c["solref"] = f(m.contact_solref if soft else np.zeros((nc, 2)), nc, 2)
+            c["solimp"] = f(m.contact_solimp if soft else np.zeros((nc, 5)), nc, 5)
+            c["eligible"] = np.ones(nc, bool)  # every contact kind runs in the compiled substep
         self._contact_cache = c
         return c
 
     def _flat_contacts(self, cands):
-        """The step's contact candidates as ``compiled.ContactRows`` for ``compiled.substep_core``, or None when one
-        of them is not a soft pyramidal contact (the pure path handles those)."""
+        """The step's contact candidates as ``compiled.ContactRows`` for ``compiled.substep_core`` (every kind:
+        soft pyramidal, soft normal with Coulomb friction, rigid)."""
         from sim.xpbd.compiled import ContactRows
 
         m = self.model
         nc = len(cands)
         if nc == 0:
             return ContactRows(*_NO_CONTACTS)
-        if not (self.soft_contacts and self.pyramid_friction and m.contact_cone == 0):
-            return None
         if self.compiled:  # rows of the per-contact arrays made once (same values as below)
             c = self._contact_arrays()
             idx = np.array(self._cidx, dtype=np.int64)
-            if not c["eligible"][idx].all():
-                return None
             return ContactRows(c["cg"][idx], c["cvec"][idx], c["crad"][idx], c["mu"][idx], c["solref"][idx],
                                c["solimp"][idx], c["condim"][idx], c["tran"][idx])
         idx = np.array(self._cidx, dtype=np.int64)
-        condim = np.array(m.contact_condim, dtype=np.int64)[idx]
+        soft = m.contact_solref is not None
+        condim = np.array(m.contact_condim if soft else np.ones(len(m.contact_mu)), dtype=np.int64)[idx]
         mu = np.array(m.contact_mu, dtype=np.float64)[idx]
-        tran = np.array(m.contact_tran, dtype=np.float64)[idx]
-        if np.any(condim < 3) or np.any(~(mu > 0.0)) or np.any(~(tran > 0.0)):
-            return None
+        tran = np.array(m.contact_tran if soft else np.zeros(len(m.contact_mu)), dtype=np.float64)[idx]
         cg = np.array([[c[0], c[3]] for c in cands], dtype=np.int64)
         planes = np.asarray(m.contact_plane)[idx]
         cvec = np.array([[c[1], c[4], c[5], self._plane_tangent[int(pl)]] for c, pl in zip(cands, planes)], dtype=np.float64)
         crad = np.array([c[2] for c in cands], dtype=np.float64)
-        return ContactRows(cg, cvec, crad, mu,
-                           np.ascontiguousarray(np.array(m.contact_solref, dtype=np.float64)[idx].reshape(nc, 2)),
-                           np.ascontiguousarray(np.array(m.contact_solimp, dtype=np.float64)[idx].reshape(nc, 5)),
-                           condim, tran)
+        solref = np.array(m.contact_solref, dtype=np.float64)[idx] if soft else np.zeros((nc, 2))
+        solimp = np.array(m.contact_solimp, dtype=np.float64)[idx] if soft else np.zeros((nc, 5))
+        return ContactRows(cg, cvec, crad, mu, np.ascontiguousarray(solref.reshape(nc, 2)),
+                           np.ascontiguousarray(solimp.reshape(nc, 5)), condim, tran)
 
     # ------------------------------------------------------------------ rows
     def add_length_constraint(self, lc: LengthConstraint) -> int:
@@ -1738,7 +1734,8 @@ class SolverXPBD:
         zeros_g = np.zeros((ng, 3))
         no_tau = np.zeros(nj)
         options = SubstepOptions(self.iterations, self.symmetric, self.linear_damping, self.angular_damping,
-                                 self.articulated_contacts)
+                                 self.articulated_contacts, self.soft_contacts, self.pyramid_friction,
+                                 self.velocity_sweeps)
         work = substep_work(ng, nj, len(fm.jlim) - nj, len(contacts.group), nr)  # the substeps' work arrays
         Gk = P0 = None
         if self.transport_response and nj:  # compiled.group_jacobian / jacobian_pinv / transport
