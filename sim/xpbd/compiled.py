@@ -122,19 +122,30 @@ RowOutputs = namedtuple("RowOutputs", [
     "rate",  # dℓ/dt after the substep [m/s], (nr,)
 ])
 
+ContactWork = namedtuple("ContactWork", [  # per contact candidate, for up to ncap candidates
+    "active",  # 1: the soft pyramid's edge rows are live, (ncap,)
+    "local",  # the pyramid's contact points r1, r2 in the group frames [m], (ncap, 2, 3)
+    "edge",  # the pyramid's edge rows (ê, target, α̃, 1/|e|), (ncap, 4, 6)
+    "lam",  # the edge rows' multipliers [N·s²], (ncap, 4)
+    "kind",  # CONTACT_* of each candidate, (ncap,)
+    "row",  # soft normal row: target gap r* [m], α̃ = R, (ncap, 2)
+    "normal_lam", "friction_lam",  # normal and static-friction multipliers [N·s²], (ncap,)
+    "fixed",  # body-fixed contact points r1, r2 (group frames) [m] once touching, (ncap, 2, 3)
+    "seen",  # 1 once the normal row acted in this substep, (ncap,)
+    "order", "count",  # the touching candidates in the order they first acted, (ncap,), (1,)
+    "impulse",  # velocity pass: accumulated friction (3) and normal (1) impulses [N·s], (ncap, 4)
+])
+
+RowBlockWork = namedtuple("RowBlockWork", [  # the length rows' block system, for up to nr active rows
+    "matrix", "augmented", "vectors",  # (nr, nr), (nr, nr + 1), (3, nr): rhs, live flags, Δλ
+])
+
 SubstepWork = namedtuple("SubstepWork", [
     "joint_soft", "joint_lam", "tendon_soft", "tendon_lam",  # soft limit rows and their λ
-    "contact_active", "contact_local", "contact_edge", "contact_lam",  # contact candidates' edge rows
-    "contact_kind",  # CONTACT_* of each candidate, (ncap,)
-    "contact_row",  # soft normal row: target gap r* [m], α̃ = R, (ncap, 2)
-    "normal_lam", "friction_lam",  # normal and static-friction multipliers [N·s²], (ncap,)
-    "contact_fixed",  # body-fixed contact points r1, r2 (group frames) [m] once touching, (ncap, 2, 3)
-    "contact_seen",  # 1 once the normal row acted in this substep, (ncap,)
-    "contact_order", "contact_count",  # the touching candidates in the order they first acted, (ncap,), (1,)
-    "contact_impulse",  # velocity pass: accumulated friction (3) and normal (1) impulses [N·s], (ncap, 4)
+    "contacts",  # ``ContactWork``
     "X_start", "Q_start",  # group poses at the prediction
     "block_soft", "block_mu",  # the articulated limit block
-    "rows_matrix", "rows_augmented", "rows_vectors",  # the row block's system (nr, nr), (nr, nr + 1), (3, nr)
+    "rows",  # ``RowBlockWork``
     "G", "Minv",  # articulated contacts: group Jacobian (ng, 6, nj), joint-space M⁻¹ (nj, nj)
 ])
 
@@ -1003,13 +1014,13 @@ def _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, reverse):
 @njit(cache=True)
 def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob, work):
     """The active cylinder rows as one block through their articulated mobility ``mob``; ``work``: the
-    ``SubstepWork`` (its ``rows_*`` arrays, for at least ``len(act)`` rows)."""
+    ``RowBlockWork`` (for at least ``len(act)`` rows)."""
     k = act.shape[0]
-    A = work.rows_matrix[:k, :k]
-    rhs = work.rows_vectors[0, :k]
-    live = work.rows_vectors[1, :k]  # 1.0 for a row with a usable direction
-    dlam = work.rows_vectors[2, :k]
-    M = work.rows_augmented[:k, :k + 1]
+    A = work.matrix[:k, :k]
+    rhs = work.vectors[0, :k]
+    live = work.vectors[1, :k]  # 1.0 for a row with a usable direction
+    dlam = work.vectors[2, :k]
+    M = work.augmented[:k, :k + 1]
     for m in range(k):
         rhs[m] = 0.0
         live[m] = 0.0
@@ -1115,7 +1126,7 @@ def _contact_law(solref, solimp, condim, tran, mu, pos, cone, impratio, timestep
 
 
 @_leaf
-def _contact_normal(X, Q, IM, II, contacts, work, ci):
+def _contact_normal(X, Q, IM, II, contacts, cw, ci):
     """Normal row of a soft (non-pyramidal) or rigid candidate ``ci`` ([RB] Sec. 3.5; ``SolverXPBD._contact_normal``):
     C = d ≥ 0 at the deepest point (rigid), or the compliant C = d − r* with α̃ = R and λ ≥ 0 (soft).  The first time
     it acts in the substep its body-fixed points are kept for friction and the velocity pass."""
@@ -1128,11 +1139,11 @@ def _contact_normal(X, Q, IM, II, contacts, work, ci):
     r2c = _rot(q2, _v3(cvec[ci], 0))
     p = (X[g2, 0] + r2c[0], X[g2, 1] + r2c[1], X[g2, 2] + r2c[2])
     d = (p[0] - X[g1, 0] - o[0]) * n[0] + (p[1] - X[g1, 1] - o[1]) * n[1] + (p[2] - X[g1, 2] - o[2]) * n[2] - rad
-    lam_n = work.normal_lam
-    soft = work.contact_kind[ci] == CONTACT_SOFT
+    lam_n = cw.normal_lam
+    soft = cw.kind[ci] == CONTACT_SOFT
     c = 0.0
     if soft:
-        c = d - work.contact_row[ci, 0]
+        c = d - cw.row[ci, 0]
         if c >= 0.0 and lam_n[ci] <= 0.0:
             return
     elif d >= 0.0:
@@ -1141,32 +1152,31 @@ def _contact_normal(X, Q, IM, II, contacts, work, ci):
     s1 = (s2[0] - d * n[0], s2[1] - d * n[1], s2[2] - d * n[2])  # on the plane
     r1 = (s1[0] - X[g1, 0], s1[1] - X[g1, 1], s1[2] - X[g1, 2])
     r2 = (s2[0] - X[g2, 0], s2[1] - X[g2, 1], s2[2] - X[g2, 2])
-    if not work.contact_seen[ci]:
+    if not cw.seen[ci]:
         a1, a2 = _rotinv(q1, r1), _rotinv(q2, r2)
         for k in range(3):
-            work.contact_fixed[ci, 0, k] = a1[k]
-            work.contact_fixed[ci, 1, k] = a2[k]
-        work.contact_seen[ci] = 1
-        m = work.contact_count[0]
-        work.contact_order[m] = ci
-        work.contact_count[0] = m + 1
+            cw.fixed[ci, 0, k] = a1[k]
+            cw.fixed[ci, 1, k] = a2[k]
+        cw.seen[ci] = 1
+        m = cw.count[0]
+        cw.order[m] = ci
+        cw.count[0] = m + 1
     if soft:
-        lam_n[ci] += _solve_pos(X, Q, IM, II, g1, g2, r1, r2, n, c, work.contact_row[ci, 1], lam_n[ci], 0.0, math.inf)
+        lam_n[ci] += _solve_pos(X, Q, IM, II, g1, g2, r1, r2, n, c, cw.row[ci, 1], lam_n[ci], 0.0, math.inf)
     else:
         lam_n[ci] += _solve_pos(X, Q, IM, II, g1, g2, r1, r2, n, d, 0.0, 0.0, -math.inf, math.inf)
 
 
 @_leaf
-def _contact_static_friction(X, Q, IM, II, contacts, work, ci):
+def _contact_static_friction(X, Q, IM, II, contacts, cw, Xp, Qp, ci):
     """Static friction of a touching candidate ([RB] Sec. 3.5; ``SolverXPBD._contact_static_friction``): cancel the
     relative tangential motion of its points over the substep while the multiplier stays inside the cone
     λ_t < μ λ_n."""
-    mu, ln = contacts.mu[ci], work.normal_lam[ci]
+    mu, ln = contacts.mu[ci], cw.normal_lam[ci]
     if mu <= 0.0 or ln <= 0.0:
         return
     g2, g1 = contacts.group[ci, 0], contacts.group[ci, 1]
-    Xp, Qp = work.X_start, work.Q_start
-    r1l, r2l = _v3(work.contact_fixed[ci], 0), _v3(work.contact_fixed[ci], 1)
+    r1l, r2l = _v3(cw.fixed[ci], 0), _v3(cw.fixed[ci], 1)
     q1, q2 = _q4(Q, g1), _q4(Q, g2)
     r1w = _rot(q1, r1l)
     r2w = _rot(q2, r2l)
@@ -1186,33 +1196,33 @@ def _contact_static_friction(X, Q, IM, II, contacts, work, ci):
     if w <= 0.0:
         return
     dlt = c / w
-    if work.friction_lam[ci] + dlt < mu * ln:
-        work.friction_lam[ci] += dlt
+    if cw.friction_lam[ci] + dlt < mu * ln:
+        cw.friction_lam[ci] += dlt
         _solve_pos(X, Q, IM, II, g1, g2, r1w, r2w, t, c, 0.0, 0.0, -math.inf, math.inf)
 
 
 @_leaf
-def _contact_velocities(V, W, Q, IM, II, contacts, work, h, sweeps):
+def _contact_velocities(V, W, Q, IM, II, contacts, cw, h, sweeps):
     """Velocity pass of the touching non-pyramidal candidates ([RB] Sec. 3.6; ``SolverXPBD._solve_velocities``):
     ``sweeps`` projected Gauss-Seidel sweeps, in the order the candidates first acted, of dynamic friction (the
     accumulated impulse clamped to μ·λ_n/h) and, on rigid rows, restitution e = 0 (accumulated normal impulse
     ≥ −λ_n/h; a soft row's damping is in its position law)."""
-    count = work.contact_count[0]
-    imp = work.contact_impulse
+    count = cw.count[0]
+    imp = cw.impulse
     cg, cvec, cmu = contacts.group, contacts.vec, contacts.mu
     for m in range(count):
-        ci = work.contact_order[m]
+        ci = cw.order[m]
         for k in range(4):
             imp[ci, k] = 0.0
     for _ in range(sweeps):
         for m in range(count):
-            ci = work.contact_order[m]
+            ci = cw.order[m]
             g2, g1 = cg[ci, 0], cg[ci, 1]
-            mu, ln = cmu[ci], work.normal_lam[ci]
+            mu, ln = cmu[ci], cw.normal_lam[ci]
             q1, q2 = _q4(Q, g1), _q4(Q, g2)
             n = _rot(q1, _v3(cvec[ci], 2))
-            r1 = _rot(q1, _v3(work.contact_fixed[ci], 0))
-            r2 = _rot(q2, _v3(work.contact_fixed[ci], 1))
+            r1 = _rot(q1, _v3(cw.fixed[ci], 0))
+            r2 = _rot(q2, _v3(cw.fixed[ci], 1))
             if mu > 0.0 and ln > 0.0:
                 va = _point_vel(V, W, g2, r2)
                 vb = _point_vel(V, W, g1, r1)
@@ -1236,7 +1246,7 @@ def _contact_velocities(V, W, Q, IM, II, contacts, work, h, sweeps):
                         imp[ci, 0], imp[ci, 1], imp[ci, 2] = new
                         _apply_vel(V, W, Q, IM, II, g2, r2, p, 1.0)
                         _apply_vel(V, W, Q, IM, II, g1, r1, p, -1.0)
-            if work.contact_kind[ci] == CONTACT_SOFT:
+            if cw.kind[ci] == CONTACT_SOFT:
                 continue  # compliant normal: its damping is in the position law
             va = _point_vel(V, W, g2, r2)
             vb = _point_vel(V, W, g1, r1)
@@ -1255,24 +1265,25 @@ def _contact_velocities(V, W, Q, IM, II, contacts, work, h, sweeps):
 
 
 @_leaf
-def _contact_targets(X, Q, V, W, contacts, model, options, h, work):
+def _contact_targets(X, Q, V, W, contacts, cone, impratio, soft, pyramid, h, cw):
     """The kind (``CONTACT_*``) and rows of every candidate (``ContactRows``) for the substep
-    (``SolverXPBD._soft_contact_targets``), into ``work`` (``SubstepWork``).
+    (``SolverXPBD._soft_contact_targets``), into ``cw`` (``ContactWork``).
 
     Rigid (``options.soft_contacts`` off, or R = 0: μ = 0 on a pyramidal cone): the normal row of [RB].  Soft and
     not penetrating at the substep's start: no force.  Soft pyramidal (``options.pyramid_friction``, condim ≥ 3,
     MuJoCo's pyramidal cone): contact_active[ci] = 1, contact_local[ci] = (r1 local, r2 local),
     contact_edge[ci, j] = (ê (3), target Δ*/|e| [m], α̃ = R_e/|e|², 1/|e|).  Other soft contacts (elliptic cone,
     condim 1): one compliant normal row, contact_row[ci] = (r* = ``mujoco_step_target`` [m], α̃ = R), with the
-    Coulomb friction of [RB] (``_contact_static_friction`` and the velocity pass)."""
+    Coulomb friction of [RB] (``_contact_static_friction`` and the velocity pass).  ``soft``, ``pyramid``:
+    ``SubstepOptions.soft_contacts``, ``pyramid_friction``; ``cone``, ``impratio``: MuJoCo's (``GroupModel``);
+    ``cw``: the ``ContactWork``."""
     cg, cvec, crad, cmu = contacts.group, contacts.vec, contacts.radius, contacts.mu
     csolref, csolimp, ccondim, ctran = contacts.solref, contacts.solimp, contacts.condim, contacts.tran
-    cone, impratio = model.contact_cone, model.contact_impratio
-    active, clocal, edge = work.contact_active, work.contact_local, work.contact_edge
-    kind, row = work.contact_kind, work.contact_row
+    active, clocal, edge = cw.active, cw.local, cw.edge
+    kind, row = cw.kind, cw.row
     for ci in range(cg.shape[0]):
         active[ci] = 0
-        if not options.soft_contacts:
+        if not soft:
             kind[ci] = CONTACT_RIGID
             continue
         g2, g1 = cg[ci, 0], cg[ci, 1]
@@ -1292,7 +1303,7 @@ def _contact_targets(X, Q, V, W, contacts, model, options, h, work):
         if gap >= 0.0:  # MuJoCo instantiates a contact only once it penetrates (margin 0)
             kind[ci] = CONTACT_IDLE
             continue
-        if not (options.pyramid_friction and ccondim[ci] >= 3 and cone == 0):
+        if not (pyramid and ccondim[ci] >= 3 and cone == 0):
             r1 = (p[0] - X[g1, 0], p[1] - X[g1, 1], p[2] - X[g1, 2])
             va = _point_vel(V, W, g2, r2)
             vb = _point_vel(V, W, g1, r1)
@@ -1449,19 +1460,18 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
 
 
 @njit(cache=True)
-def _solve_contacts(X, Q, IM, II, contacts, work, reverse, art):
-    """One pass over the candidates (``SolverXPBD._solve_contacts``): the normal rows of the non-pyramidal ones,
-    the pyramids per body pair (``art``: with the articulated response ``work.G``, ``work.Minv``), then the
-    static friction of every touching non-pyramidal candidate."""
+def _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, reverse, art, G, Minv):
+    """One pass over the candidates (``SolverXPBD._solve_contacts``; ``cw`` the ``ContactWork``, Xp, Qp the group
+    poses at the prediction): the normal rows of the non-pyramidal ones, the pyramids per body pair (``art``: with
+    the articulated response G, M⁻¹), then the static friction of every touching non-pyramidal candidate."""
     cg = contacts.group
     nc = cg.shape[0]
-    kind = work.contact_kind
+    kind = cw.kind
     for k in range(nc):
         ci = nc - 1 - k if reverse else k
         if kind[ci] == CONTACT_SOFT or kind[ci] == CONTACT_RIGID:
-            _contact_normal(X, Q, IM, II, contacts, work, ci)
-    Xp, Qp, G, Minv = work.X_start, work.Q_start, work.G, work.Minv
-    active, clocal, edge, lam_e = work.contact_active, work.contact_local, work.contact_edge, work.contact_lam
+            _contact_normal(X, Q, IM, II, contacts, cw, ci)
+    active, clocal, edge, lam_e = cw.active, cw.local, cw.edge, cw.lam
     done = np.zeros(nc, np.bool_)
     for k in range(nc):
         ci = nc - 1 - k if reverse else k
@@ -1484,8 +1494,8 @@ def _solve_contacts(X, Q, IM, II, contacts, work, reverse, art):
         _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, art, G, Minv)
     for k in range(nc):
         ci = nc - 1 - k if reverse else k
-        if work.contact_seen[ci]:
-            _contact_static_friction(X, Q, IM, II, contacts, work, ci)
+        if cw.seen[ci]:
+            _contact_static_friction(X, Q, IM, II, contacts, cw, Xp, Qp, ci)
 
 
 # ---------------------------------------------------------------------------- the substep
@@ -1495,13 +1505,14 @@ def _solve_contacts(X, Q, IM, II, contacts, work, reverse, art):
 def substep_work(ng, nj, ntl, ncap, nr):
     """The ``SubstepWork`` of ``substep_core`` for ``ng`` groups, ``nj`` joints, ``ntl`` tendon limits, up to ``ncap``
     contact candidates and ``nr`` length rows (made once by a caller that runs many substeps)."""
-    return SubstepWork(np.zeros((nj, 3)), np.zeros(nj), np.zeros((ntl, 3)), np.zeros(ntl), np.zeros(ncap, np.int64),
-                       np.zeros((ncap, 2, 3)), np.zeros((ncap, 4, 6)), np.zeros((ncap, 4)), np.zeros(ncap, np.int64),
-                       np.zeros((ncap, 2)), np.zeros(ncap), np.zeros(ncap), np.zeros((ncap, 2, 3)),
-                       np.zeros(ncap, np.int64), np.zeros(ncap, np.int64), np.zeros(1, np.int64), np.zeros((ncap, 4)),
-                       np.zeros((ng, 3)),
-                       np.zeros((ng, 4)), np.zeros((nj, 3)), np.zeros(nj + ntl), np.zeros((nr, nr)),
-                       np.zeros((nr, nr + 1)), np.zeros((3, nr)), np.zeros((ng, 6, nj)), np.zeros((nj, nj)))
+    contacts = ContactWork(np.zeros(ncap, np.int64), np.zeros((ncap, 2, 3)), np.zeros((ncap, 4, 6)),
+                           np.zeros((ncap, 4)), np.zeros(ncap, np.int64), np.zeros((ncap, 2)), np.zeros(ncap),
+                           np.zeros(ncap), np.zeros((ncap, 2, 3)), np.zeros(ncap, np.int64), np.zeros(ncap, np.int64),
+                           np.zeros(1, np.int64), np.zeros((ncap, 4)))
+    rows = RowBlockWork(np.zeros((nr, nr)), np.zeros((nr, nr + 1)), np.zeros((3, nr)))
+    return SubstepWork(np.zeros((nj, 3)), np.zeros(nj), np.zeros((ntl, 3)), np.zeros(ntl), contacts, np.zeros((ng, 3)),
+                       np.zeros((ng, 4)), np.zeros((nj, 3)), np.zeros(nj + ntl), rows,
+                       np.zeros((ng, 6, nj)), np.zeros((nj, nj)))
 
 
 @njit(cache=True)
@@ -1540,7 +1551,8 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
     nj = jt.shape[0]
     ntl = jlim.shape[0] - nj
     jsoft, jlam, tsoft, tlam = work.joint_soft, work.joint_lam, work.tendon_soft, work.tendon_lam
-    active_w, clocal_w, edge_w, lam_e_w = work.contact_active, work.contact_local, work.contact_edge, work.contact_lam
+    cw = work.contacts
+    active_w, clocal_w, edge_w, lam_e_w = cw.active, cw.local, cw.edge, cw.lam
     Xp, Qp, bsoft, mu = work.X_start, work.Q_start, work.block_soft, work.block_mu
     jsoft[:, :] = 0.0
     jlam[:] = 0.0
@@ -1584,12 +1596,13 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
     clocal[:, :, :] = 0.0
     edge[:, :, :] = 0.0
     lam_e[:, :] = 0.0
-    work.normal_lam[:nc] = 0.0
-    work.friction_lam[:nc] = 0.0
-    work.contact_seen[:nc] = 0
-    work.contact_count[0] = 0
+    cw.normal_lam[:nc] = 0.0
+    cw.friction_lam[:nc] = 0.0
+    cw.seen[:nc] = 0
+    cw.count[0] = 0
     if nc:
-        _contact_targets(X, Q, V, W, contacts, model, options, h, work)
+        _contact_targets(X, Q, V, W, contacts, model.contact_cone, model.contact_impratio, options.soft_contacts,
+                         options.pyramid_friction, h, cw)
     for g in range(ng):
         for c in range(3):
             Xp[g, c] = X[g, c]
@@ -1644,17 +1657,17 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)
                 if act.shape[0]:
                     if use_block:
-                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work)
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work.rows)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 if nc:
-                    _solve_contacts(X, Q, IM, II, contacts, work, rev, cart)
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, rev, cart, Gc, Minv)
             else:
                 if nc:
-                    _solve_contacts(X, Q, IM, II, contacts, work, rev, cart)
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, rev, cart, Gc, Minv)
                 if act.shape[0]:
                     if use_block:
-                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work)
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work.rows)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)
@@ -1672,8 +1685,8 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
         s = 2.0 * ih if dq[0] >= 0.0 else -2.0 * ih
         W[g, 0], W[g, 1], W[g, 2] = s * dq[1], s * dq[2], s * dq[3]
     # velocity pass: the touching non-pyramidal contacts (soft pyramidal ones have none); implicit joint damping
-    if work.contact_count[0] > 0:
-        _contact_velocities(V, W, Q, IM, II, contacts, work, h, options.velocity_sweeps)
+    if cw.count[0] > 0:
+        _contact_velocities(V, W, Q, IM, II, contacts, cw, h, options.velocity_sweeps)
     for j in range(jt.shape[0]):
         b = jdamp[j]
         t = jt[j]
