@@ -1,4 +1,4 @@
-"""Compiled (numba ``nopython``) XPBD substep: the same equations as ``solver.py``/``kernels.py``.
+"""Compiled (numba ``nopython``) XPBD substep: the same equations as ``reference.py``/``kernels.py``.
 
 ``substep_core`` advances the rigid groups by one substep h in place, on flat arrays:
 prediction (gravity or given group accelerations, external forces, gyroscopic term,
@@ -442,7 +442,7 @@ def _pair_mobility(IM, II, Q, b1, b2, r1, r2):
 
 @njit(cache=True)
 def _solve_dense(A, b, x):
-    """A x = b by Gaussian elimination with partial pivoting (``solver._solve_dense``); False if singular."""
+    """A x = b by Gaussian elimination with partial pivoting (``reference._solve_dense``); False if singular."""
     n = b.shape[0]
     return _solve_dense_in(A, b, x, np.empty((n, n + 1)))
 
@@ -647,7 +647,7 @@ def _soft_limit_target(params, value, rate, lo, hi, h, out):
     else:
         return
     kd, b, R = _contact_law(params[1:3], params[3:8], 1, params[8], 0.0, r, 0, 1.0, h)
-    rs = r + h * rd - h * h * (b * rd + kd * r)  # MuJoCo's semi-implicit step (solver.mujoco_step_target)
+    rs = r + h * rd - h * h * (b * rd + kd * r)  # MuJoCo's semi-implicit step (laws.mujoco_step_target)
     out[0] = side
     out[1] = hi - rs if side > 0.0 else lo + rs
     out[2] = R
@@ -1105,7 +1105,7 @@ def _impedance(solimp, pos):
 
 @_leaf
 def _contact_law(solref, solimp, condim, tran, mu, pos, cone, impratio, timestep):
-    """``solver.mujoco_contact_law``: (k·d, b, R)."""
+    """``laws.mujoco_contact_law``: (k·d, b, R)."""
     tc, zeta = solref[0], solref[1]
     d = _impedance(solimp, pos)
     dmax = min(max(solimp[1], 1e-4), 0.9999)
@@ -1309,7 +1309,7 @@ def _contact_targets(X, Q, V, W, contacts, cone, impratio, soft, pyramid, h, cw)
             vb = _point_vel(V, W, g1, r1)
             rate = (va[0] - vb[0]) * n[0] + (va[1] - vb[1]) * n[1] + (va[2] - vb[2]) * n[2]
             kind[ci] = CONTACT_SOFT
-            row[ci, 0] = gap + h * rate - h * h * (b * rate + kd * gap)  # solver.mujoco_step_target
+            row[ci, 0] = gap + h * rate - h * h * (b * rate + kd * gap)  # laws.mujoco_step_target
             row[ci, 1] = R
             continue
         kind[ci] = CONTACT_PYRAMID
