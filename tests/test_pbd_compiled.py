@@ -20,7 +20,7 @@ from conftest import MODELS
 from sim.plants.pbd import PbdPlant
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
-from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs
+from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdOptions
 from test_xpbd_rigid import BOX, EXC_Q0, EXC_V0, EXCAVATOR, FOURBAR, PENDULUM, SLIDER, G, build
 
 RTOL = 1e-9
@@ -92,7 +92,7 @@ def _run_pair(xml, n, dt, substeps, *, qpos=None, qvel=None, inputs=None, rows=(
     m, xm = build(xml)
     out = []
     for compiled in (False, True):
-        solver = SolverXPBD(xm, substeps=substeps, length_constraints=rows, compiled=compiled, **kw)
+        solver = SolverXPBD(xm, XpbdOptions(substeps=substeps, compiled=compiled, **kw), length_constraints=rows)
         st = xm.state_from_qpos(qpos, qvel)
         forces = []
         for _ in range(n):
@@ -146,6 +146,27 @@ def test_compiled_box_lands_on_soft_pyramidal_contacts():
     xm, st = _run_pair(xml, 40, 1 / 60, 20)
     b = xm.body_id("box")
     assert abs(st.x[b, 2] - 0.05) < 1e-3  # it landed and rests on its largest face
+
+
+ELLIPTIC = BOX.replace("<mujoco>", '<mujoco><option cone="elliptic"/>', 1)
+
+
+@pytest.mark.parametrize("xml, options", [
+    (ELLIPTIC.format(mu=0.8, x0=0, z0=0.08, ex=6, ey=-4, sites=""), {}),
+    (BOX.format(mu=0.8, x0=0, z0=0.08, ex=6, ey=-4, sites="").replace('friction="0.8"/>', 'friction="0.8" condim="1"/>'), {}),
+    (BOX.format(mu=0.0, x0=0, z0=0.08, ex=6, ey=-4, sites=""), {}),
+    (BOX.format(mu=0.8, x0=0, z0=0.08, ex=6, ey=-4, sites=""), dict(soft_contacts=False)),
+    (BOX.format(mu=0.8, x0=0, z0=0.08, ex=6, ey=-4, sites=""), dict(pyramid_friction=False)),
+], ids=["elliptic", "condim-1", "frictionless", "rigid", "coulomb"])
+def test_compiled_box_lands_on_every_other_contact_kind(xml, options):
+    """The tilted box dropped on the floor with the contacts that are not soft pyramidal: a soft normal row with
+    Coulomb friction (elliptic cone, condim 1, pyramids off), rigid rows (μ = 0 on the pyramidal cone: R = 0; soft
+    contacts off); compiled and pure agree to round-off, every step compiled, and the box comes to rest on its
+    largest face (within its soft penetration)."""
+    xm, st = _run_pair(xml, 40, 1 / 60, 20, **options)
+    b = xm.body_id("box")
+    assert abs(st.x[b, 2] - 0.05) < 2e-3
+    assert np.max(np.abs(st.v[b])) < 0.05  # [m/s]: at rest
 
 
 def test_compiled_body_wrench():

@@ -1,4 +1,4 @@
-"""Articulated responses carried to every substep's pose (``SolverXPBD(transport_response=True)``,
+"""Articulated responses carried to every substep's pose (``XpbdOptions(transport_response=True)``,
 ``sim.plants.pbd_frame.frame(transport=True)``, ``sim.xpbd.compiled.transport``).
 
 The PBD plant computes the articulated response of the mechanism (row mobilities, group gravity,
@@ -54,8 +54,8 @@ def _jacobian(plant, state):
     solver = plant.solver
     fm = solver._flat
     x, q, _, _ = solver._gather(state)
-    G = np.zeros((x.shape[0], 6, len(fm["jt"])))
-    assert XC.group_jacobian(x, q, fm["IM"], fm["jt"], fm["jg"], fm["jvec"], G)
+    G = np.zeros((x.shape[0], 6, len(fm.jt)))
+    assert XC.group_jacobian(x, q, fm.IM, fm.jt, fm.jg, fm.jvec, G)
     return G, x, q
 
 

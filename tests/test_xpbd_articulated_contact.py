@@ -1,4 +1,4 @@
-"""Soft contacts on articulated bodies with the mechanism's response (``SolverXPBD(articulated_contacts=True)``).
+"""Soft contacts on articulated bodies with the mechanism's response (``XpbdOptions(articulated_contacts=True)``).
 
 MuJoCo's soft contact obeys f = (aref − a)/R for each pyramid edge, a = J·M⁻¹·Jᵀ·f + a₀ with M the
 joint-space mass matrix: the contact feels the articulated mass of the whole mechanism.  XPBD with the
@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.xpbd import SolverXPBD, XpbdModel
+from sim.xpbd import SolverXPBD, XpbdModel, XpbdOptions
 
 # A 1 m hinged arm (40 kg rod near the pin, 2 kg sphere at the tip) released horizontally: the tip
 # strikes the ground at about 2.5 m/s, sliding (μ = 0.6, pyramidal, condim 3, default solref/solimp).
@@ -52,7 +52,7 @@ def _xpbd_gaps(articulated, compiled=True, frames=None):
     d = mujoco.MjData(m)
     xm = XpbdModel.from_mjmodel(m)
     st = xm.state_from_qpos()
-    solver = SolverXPBD(xm, substeps=10, articulated_contacts=articulated, compiled=compiled)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=10, articulated_contacts=articulated, compiled=compiled))
     out = []
     for _ in range(frames or round(DURATION / FRAME)):
         solver.step(st, FRAME)

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel
+from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel, XpbdOptions
 
 G = 9.81
 
@@ -111,7 +111,7 @@ def test_hinge_angle_unwraps_over_many_turns():
     m, xm = build(PENDULUM.format(d=0.5, m=1.0, ic=0.002, extra="").replace(
         "<option>", '<option gravity="0 0 0">'))
     st = xm.state_from_qpos([3.0], [10.0])
-    solver = SolverXPBD(xm, substeps=40)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=40))
     dt, integral, v_prev = 1 / 60, 0.0, 10.0
     for _ in range(120):
         solver.step(st, dt)
@@ -132,7 +132,7 @@ def test_single_pendulum_period_and_mujoco():
     T_analytic = 2 * math.pi * math.sqrt(inertia / (mass * G * dist))
     dt, n = 1 / 240, int(4.5 / (1 / 240))
     amp = 0.05
-    xp, _ = run_xpbd(xm, SolverXPBD(xm, substeps=50), [amp], [0.0], dt, n)
+    xp, _ = run_xpbd(xm, SolverXPBD(xm, XpbdOptions(substeps=50)), [amp], [0.0], dt, n)
     t = dt * np.arange(1, n + 1)
     tc = crossing_times(t, xp[:, 0])
     T_xpbd = np.mean(np.diff(tc))
@@ -147,7 +147,7 @@ def test_double_pendulum_matches_mujoco():
     m, xm = build(DOUBLE)
     q0, v0 = np.array([0.05, -0.03]), np.array([0.0, 0.1])
     dt, n = 1 / 240, 480
-    xp, _ = run_xpbd(xm, SolverXPBD(xm, substeps=50), q0, v0, dt, n)
+    xp, _ = run_xpbd(xm, SolverXPBD(xm, XpbdOptions(substeps=50)), q0, v0, dt, n)
     ref = mujoco_reference(m, q0, v0, dt, n)
     amp = np.max(np.abs(ref), axis=0)
     assert np.all(np.max(np.abs(xp - ref), axis=0) < 0.01 * amp)
@@ -156,7 +156,7 @@ def test_double_pendulum_matches_mujoco():
 def test_joint_drift_double_pendulum_20s():
     m, xm = build(DOUBLE)
     st = xm.state_from_qpos([1.2, -0.8], [0.0, 2.0])
-    solver = SolverXPBD(xm, substeps=20)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20))
     ids = [xm.site_id(s) for s in ("w_pin", "l1_top", "l1_pin", "l2_top")]
     worst = 0.0
     e0 = xm.kinetic_energy(st) + xm.potential_energy(st)
@@ -225,7 +225,7 @@ def test_3d_chain_with_swing_torque_matches_mujoco():
     m, xm = build(EXCAVATOR)
     tau = 400.0
     dt, n = 1 / 240, 120
-    solver = SolverXPBD(xm, substeps=60)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=60))
     st = xm.state_from_qpos(EXC_Q0, EXC_V0)
     jf = np.zeros(xm.njnt)
     jf[xm.joint_id("swing")] = tau
@@ -266,7 +266,7 @@ _CORNERS = "\n".join(
 def test_box_rests_on_ground():
     m, xm = build(BOX.format(mu=0.8, x0=0, z0=0.08, ex=6, ey=-4, sites=_CORNERS))
     st = xm.state_from_qpos()
-    solver = SolverXPBD(xm, substeps=20)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20))
     worst_pen = 0.0
     for n in range(120):
         solver.step(st, 1 / 60)
@@ -286,7 +286,7 @@ def test_box_sliding_friction_stops_at_v2_over_2mug():
     qvel = np.zeros(6)
     qvel[0] = v0
     st = xm.state_from_qpos(None, qvel)
-    solver = SolverXPBD(xm, substeps=20)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20))
     for _ in range(90):
         solver.step(st, 1 / 60)
     b = xm.body_id("box")
@@ -305,7 +305,7 @@ def test_contype_conaffinity_respected():
     with pytest.warns(UserWarning, match="other than plane"):  # sphere–capsule pair a–c
         xm = XpbdModel.from_mjmodel(m)
     st = xm.state_from_qpos()
-    solver = SolverXPBD(xm, substeps=10)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=10))
     for _ in range(60):
         solver.step(st, 1 / 60)
     a, b, c = (xm.body_id(n) for n in "abc")
@@ -331,7 +331,7 @@ def test_slide_with_compliant_length_row_static_and_frequency():
     inputs = SubstepInputs(target_length=np.array([1.0]), compliance=np.array([alpha]))
     # static deflection (joint damping settles it)
     m, xm = build(SLIDER.format(g=-G, m=mass, damping=60))
-    solver = SolverXPBD(xm, substeps=20, length_constraints=[LengthConstraint("anchor", "tip")])
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20), length_constraints=[LengthConstraint("anchor", "tip")])
     st = xm.state_from_qpos()
     for _ in range(2 * 240):
         solver.step(st, 1 / 240, inputs=inputs)
@@ -342,7 +342,7 @@ def test_slide_with_compliant_length_row_static_and_frequency():
     assert abs(solver.last_forces[-1].row_length[0] - (1 + mass * G * alpha)) < 1e-5
     # free oscillation about the equilibrium
     m, xm = build(SLIDER.format(g=-G, m=mass, damping=0))
-    solver = SolverXPBD(xm, substeps=20, length_constraints=[LengthConstraint("anchor", "tip")])
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20), length_constraints=[LengthConstraint("anchor", "tip")])
     st = xm.state_from_qpos()
     dt, n = 1 / 240, 360
     y = np.zeros(n)
@@ -364,7 +364,7 @@ def test_numerical_damping_is_backward_euler(substeps):
         <inertial pos="0 0 0" mass="1" diaginertia="0.1 0.1 0.1"/><site name="c"/></body>
       </worldbody></mujoco>"""
     m, xm = build(xml)
-    solver = SolverXPBD(xm, substeps=substeps, length_constraints=[LengthConstraint("anchor", "c")])
+    solver = SolverXPBD(xm, XpbdOptions(substeps=substeps), length_constraints=[LengthConstraint("anchor", "c")])
     inputs = SubstepInputs(target_length=np.array([1.0]), compliance=np.array([alpha]))
     st = xm.state_from_qpos()
     b = xm.body_id("ball")
@@ -386,7 +386,7 @@ def test_hinge_limit_holds():
     lim = 0.4
     m, xm = build(PENDULUM.format(d=0.5, m=1.0, ic=0.002,
                                   extra=f'limited="true" range="{-lim} {lim}"'))
-    solver = SolverXPBD(xm, substeps=20, soft_limits=False)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20, soft_limits=False))
 
     class Watch:
         worst = 0.0
@@ -428,7 +428,7 @@ FOURBAR = """
 def test_connect_equality_closes_four_bar():
     m, xm = build(FOURBAR)
     st = xm.state_from_qpos()
-    solver = SolverXPBD(xm, substeps=20)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20))
     s1, s2 = xm.site_id("rocker_end"), xm.site_id("ground_pin")
     e0 = xm.kinetic_energy(st) + xm.potential_energy(st)
     worst, travel, emax = 0.0, 0.0, -np.inf
@@ -447,7 +447,7 @@ def test_connect_equality_closes_four_bar():
 def test_joint_damping_matches_mujoco():
     m, xm = build(PENDULUM.format(d=0.5, m=1.0, ic=0.002, extra='damping="0.3"'))
     dt, n = 1 / 240, 480
-    xp, _ = run_xpbd(xm, SolverXPBD(xm, substeps=40), [0.3], [0.0], dt, n)
+    xp, _ = run_xpbd(xm, SolverXPBD(xm, XpbdOptions(substeps=40)), [0.3], [0.0], dt, n)
     ref = mujoco_reference(m, [0.3], [0.0], dt, n)
     assert np.max(np.abs(xp - ref)) < 0.01 * 0.3
     assert np.max(np.abs(xp[-120:])) < 0.5 * 0.3  # it did decay
@@ -457,7 +457,7 @@ def test_hooks_explicit_row_force_and_joint_torque():
     # explicit row force equal to the weight holds the slider still
     mass = 2.0
     m, xm = build(SLIDER.format(g=-G, m=mass, damping=0))
-    solver = SolverXPBD(xm, substeps=10, length_constraints=[LengthConstraint("anchor", "tip")])
+    solver = SolverXPBD(xm, XpbdOptions(substeps=10), length_constraints=[LengthConstraint("anchor", "tip")])
     calls = []
 
     class Hooks:
@@ -480,7 +480,7 @@ def test_hooks_explicit_row_force_and_joint_torque():
     assert abs(xm.qpos_qvel(st)[0][0]) < 1e-9
     # hinge torque m g d holds a horizontal pendulum
     m, xm = build(PENDULUM.format(d=0.5, m=1.0, ic=0.002, extra=""))
-    solver = SolverXPBD(xm, substeps=20)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20))
     st = xm.state_from_qpos([math.pi / 2], [0.0])
     tau = 1.0 * G * 0.5  # gravity torque is −m g d at +90°
     for _ in range(60):
@@ -496,7 +496,7 @@ def test_hooks_explicit_row_force_and_joint_torque():
 def test_unilateral_row_bounds_rope():
     # a rope (force ≤ 0: it can only pull) of length 1.2 m: slack at start, then catches
     m, xm = build(SLIDER.format(g=-G, m=1.0, damping=0))
-    solver = SolverXPBD(xm, substeps=20, length_constraints=[LengthConstraint("anchor", "tip")])
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20), length_constraints=[LengthConstraint("anchor", "tip")])
     inputs = SubstepInputs(target_length=np.array([1.2]), compliance=np.array([0.0]),
                            force_max=np.array([0.0]))
     st = xm.state_from_qpos()
@@ -522,7 +522,7 @@ def test_body_wrench_free_body():
     wrench = np.zeros((xm.nbody, 6))
     wrench[b] = [1.0, -2.0, 0.5, 0.0, 0.0, 0.06]  # torque about the principal z axis
     st = xm.state_from_qpos()
-    solver = SolverXPBD(xm, substeps=10)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=10))
     for _ in range(60):
         solver.step(st, 1 / 60, inputs=SubstepInputs(body_wrench=wrench))
     assert np.allclose(st.v[b], wrench[b, :3] / 2.0, rtol=1e-9)
@@ -553,7 +553,7 @@ def test_boom_held_by_two_stiff_chamber_rows():
     rows = [LengthConstraint("base", "eye", "cap"), LengthConstraint("base", "eye", "rod")]
     # static: joint damping settles it
     m, xm = build(BOOM.format(b=3e5))
-    solver = SolverXPBD(xm, substeps=20, length_constraints=rows)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20), length_constraints=rows)
     st = xm.state_from_qpos()
     for _ in range(240):
         solver.step(st, 1 / 240, inputs=inputs)
@@ -563,7 +563,7 @@ def test_boom_held_by_two_stiff_chamber_rows():
     assert abs(xm.qpos_qvel(st)[0][0] / (tau / (k * arm**2)) - 1) < 0.01  # +θ is downward
     # undamped: frequency
     m, xm = build(BOOM.format(b=0))
-    solver = SolverXPBD(xm, substeps=20, length_constraints=rows)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20), length_constraints=rows)
     st = xm.state_from_qpos()
     dt, n = 1 / 240, 240
     th = np.zeros(n)
@@ -596,7 +596,7 @@ def _sphere_runs(xml, settle_steps, dt_xpbd, frames, substeps=20):
             z_mj.append(d.qpos[2] - 0.1)
     xm = XpbdModel.from_mjmodel(m)
     st = xm.state_from_qpos()
-    solver = SolverXPBD(xm, substeps=substeps)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=substeps))
     z_x = []
     for _ in range(frames):
         solver.step(st, dt_xpbd)
@@ -632,7 +632,7 @@ def test_soft_contact_impact_matches_mujoco():
     m = mujoco.MjModel.from_xml_string(xml)
     xm = XpbdModel.from_mjmodel(m)
     st = xm.state_from_qpos()
-    rigid = SolverXPBD(xm, substeps=20, soft_contacts=False)
+    rigid = SolverXPBD(xm, XpbdOptions(substeps=20, soft_contacts=False))
     deepest = 0.0
     for _ in range(100):
         rigid.step(st, 0.01)
@@ -651,7 +651,7 @@ def test_soft_contact_box_rests_at_mujoco_penetration():
         mujoco.mj_step(m, d)
     xm = XpbdModel.from_mjmodel(m)
     st = xm.state_from_qpos()
-    solver = SolverXPBD(xm, substeps=20)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=20))
     for _ in range(120):
         solver.step(st, 1 / 60)
     b = xm.body_id("box")

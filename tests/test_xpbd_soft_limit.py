@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.xpbd import SolverXPBD, SubstepInputs, XpbdModel
+from sim.xpbd import SolverXPBD, SubstepInputs, XpbdModel, XpbdOptions
 from sim.xpbd.solver import mujoco_limit_law
 
 # a 10 kg arm along +x hinged at the origin (axis +y: gravity turns it towards +φ), upper limit at φ = 0
@@ -52,7 +52,7 @@ def mujoco_run(m, qpos, qvel, torque, duration):
 
 def xpbd_run(xm, qpos, qvel, torque, duration, dt=1 / 60, substeps=20, compiled=True, watch=True):
     """XPBD: qpos after every substep (``watch``) or every frame, with a constant joint force."""
-    solver = SolverXPBD(xm, substeps=substeps, compiled=compiled)
+    solver = SolverXPBD(xm, XpbdOptions(substeps=substeps, compiled=compiled))
     st = xm.state_from_qpos([qpos], [qvel])
     inp = SubstepInputs(joint_force=np.array([float(torque)]))
     out = []

@@ -86,7 +86,7 @@ stepper.  On top of that, for the implicit couplings (``implicit``, PBD mode's d
 * the hooks' coupling law, network finish and energy ledger run in two
   compiled calls per substep with preallocated buffers
   (``sim/plants/pbd_hydraulics.py``: ``_compiled._linearize_core`` / ``_step_core``);
-* on trees of hinges and slides with hinge motors and soft pyramidal contacts
+* on trees of hinges and slides with hinge motors and any contact kind (soft pyramidal or elliptic, rigid)
   (the seed, boom and excavator scenes), the whole step is one compiled call
   (``sim/plants/pbd_frame.py``: all substeps with the coupling, the XPBD substep
   and the ledger; operator inputs sampled for the substeps beforehand) and
@@ -128,10 +128,10 @@ hinges whose parent is static (the excavator swing's 320 kg·m² is modelled: a 
 inertia of the upper group, and on the joint-space diagonal; elsewhere a warning says so),
 frictionloss, joint stiffness, contacts other than sphere/capsule/box against
 planes; its joint and two-site tendon limits follow MuJoCo's soft limit law; its contacts are soft in the normal
-direction with MuJoCo's law for the scene's solref/solimp (``sim.xpbd.solver.mujoco_contact_law``),
+direction with MuJoCo's law for the scene's solref/solimp (``sim.xpbd.laws.mujoco_contact_law``),
 with friction from the same soft pyramid, and each contact sees the articulated response of the
 whole mechanism (J·M⁻¹·Jᵀ, as MuJoCo's contact problem), not that of the touching body alone
-(``SolverXPBD(articulated_contacts=True)``; a hinged arm striking the ground peaks at 24.91 mm
+(``XpbdOptions(articulated_contacts=True)``; a hinged arm striking the ground peaks at 24.91 mm
 penetration against MuJoCo's 24.98 mm, the free-body response sank 37.9 mm).  The articulated
 data (row mobilities, gravity and motor responses) is computed once per frame; at 60 Hz frames it
 goes stale within the frame (``transport_response`` carries it to each substep, off by default).
@@ -153,7 +153,7 @@ from sim.plants.base import PlantBase
 from sim.plants.mujoco_fast import MujocoPlantFast
 from sim.io.scenario import ScenarioError
 from sim.io.scene import Scene, initial_qpos_qvel
-from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel
+from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel, XpbdOptions
 from sim.plants.pbd_hydraulics import FastHydraulics
 from sim.plants.pbd_hydraulics import eligible as fast_eligible
 from sim.xpbd.kernels import np_cross, np_quat_rotate, np_quat_rotate_inv, quat_rotate
@@ -208,8 +208,8 @@ class PbdPlant(PlantBase):
         # cylinders: one length row each, in network cylinder order
         self.cylinders = np.array([a for a in range(net.actuator_count) if net.actuator_kind[a] == ACTUATOR_CYLINDER], int)
         rows = [LengthConstraint(*xm.tendon_site_pair(int(binding.tendon_id[a])), name=net.actuator_names[a]) for a in self.cylinders]
-        self.solver = SolverXPBD(xm, substeps=scenario.pbd_substeps, iterations=scenario.pbd_iterations, length_constraints=rows,
-                                 compiled=scenario.compiled)
+        options = XpbdOptions(substeps=scenario.pbd_substeps, iterations=scenario.pbd_iterations, compiled=scenario.compiled)
+        self.solver = SolverXPBD(xm, options, length_constraints=rows)
         xm.set_compiled_observations(self.solver.compiled)  # the pure path keeps the numpy observations (reference)
         self.closed_length = binding.closed_length[self.cylinders]
         # motors: joint actuators, effort = motor torque, joint torque = gear × effort
@@ -377,8 +377,7 @@ class PbdPlant(PlantBase):
         """``n`` steps (stops at the first failed one); returns the last step's report (MujocoPlantFast's interface).
 
         With :attr:`fast`, in blocks of one compiled call (:meth:`_advance_block`); a step the
-        compiled frame does not cover (singular mass matrix, a contact that is not soft and
-        pyramidal) is taken by :meth:`step`.  Otherwise one :meth:`step` at a time.
+        compiled frame does not cover (a singular mass matrix) is taken by :meth:`step`.  Otherwise one :meth:`step` at a time.
         """
         n = int(n)
         record, every = self._record_next if self._record_next is not None else (None, 1)
@@ -447,7 +446,7 @@ class PbdPlant(PlantBase):
         h = self.dt / nsub
         cmd, speed = self._block_inputs(ctx, n, h)
         fast.load(self.net_state, e)
-        fc["x"][:], fc["v"][:], fc["ell"][:] = self._x, self._v, self._ell
+        fc["x"][:], fc["v"][:], fc["ell"][:] = self._x, self._v, self._ell  # (the views of fc["actuators"])
         clock = ctx["clock"]
         clock[:] = (st.time, fast._time, e.dissipated_mechanical, self._mechanical)
         hint = ctx["hint"]
@@ -455,12 +454,12 @@ class PbdPlant(PlantBase):
         pmax, pmin, xmax, xmin = ctx["pmax"], ctx["pmin"], ctx["xmax"], ctx["xmin"]
         pmax[:], pmin[:] = self.node_pressure_max, self.node_pressure_min
         xmax[:], xmin[:] = self.actuator_position_max, self.actuator_position_min
-        done, status = ctx["kernel"](n, float(self.dt), float(h), nsub, solver.iterations, solver.symmetric, cmd, speed,
-                                     fast._F, fast._I, fast._W, fast._S, fast._istats, fast._ledger, fast._quad, fast.oil,
-                                     fast.pressure, fast.spool, fast.position, fast.velocity, fast.flow,
-                                     st.x, st.q, st.v, st.w, hint, clock, pmax, pmin, xmax, xmin, *ctx["args"],
-                                     ctx["no_record"] if record is None else record, rec, ctx["rq"], ctx["rd"], fast.theta,
-                                     fast.scheme, fast.blend)
+        from sim.plants.pbd_block import BlockTrack, Recording
+        from sim.plants.pbd_frame import RigidState
+
+        done, status = ctx["kernel"](n, float(self.dt), cmd, speed, fast.buffers, RigidState(st.x, st.q, st.v, st.w),
+                                     fc["actuators"], BlockTrack(clock, hint, pmax, pmin, xmax, xmin), ctx["plant"], ctx["buffers"],
+                                     self._frame_settings(h), Recording(ctx["no_record"] if record is None else record, rec))
         self.recorded, self.recorded_finite = int(rec[3]), not rec[4]
         if status == 1:  # block_nb.BLOCK_SINGULAR
             raise np.linalg.LinAlgError("Matrix is singular.")
@@ -474,8 +473,8 @@ class PbdPlant(PlantBase):
         self.last_report = self._report
         e.dissipated_mechanical, self._mechanical = float(clock[2]), float(clock[3])
         self._x, self._v, self._ell = fc["x"].copy(), fc["v"].copy(), fc["ell"].copy()
-        self.effort = fc["effort"].copy()
-        self._motor_effort = fc["motor_effort"].copy()
+        self.effort = fc["actuators"].effort.copy()
+        self._motor_effort = fc["actuators"].motor_effort.copy()
         self.theta = fast.theta.copy()
         self.node_pressure_max, self.node_pressure_min = pmax.copy(), pmin.copy()
         self.actuator_position_max, self.actuator_position_min = xmax.copy(), xmin.copy()
@@ -511,12 +510,14 @@ class PbdPlant(PlantBase):
         ctx = getattr(self, "_block_ctx", None)
         if ctx is not None:
             return ctx
-        from sim.plants.pbd_block import block
+        from sim.plants.pbd_block import BlockBuffers, BlockPlant, ContactCandidates, block
+        from sim.plants.pbd_frame import Articulated, RigidState
+        from sim.xpbd.compiled import ContactRows
 
         fc = self._frame_context()
         a = fc["articulated"]
         solver, xm = self.solver, self.xmodel
-        fm, nb = solver._flat, xm._nb_arrays()
+        nb = xm._nb_arrays()
         ng, nq = xm.ngroup, len(nb["qpos0"])
         c = solver._contact_arrays() if len(xm.contact_group) else None
         nc = 0 if c is None else len(c["group"])
@@ -524,39 +525,31 @@ class PbdPlant(PlantBase):
             c = dict(group=np.zeros(0, np.int64), plane=np.zeros(0, np.int64), plane_group=np.zeros(0, np.int64),
                      local=np.zeros((0, 3)), radius=np.zeros(0), plane_origin=np.zeros((0, 3)), plane_normal=np.zeros((0, 3)),
                      out=np.zeros(0, np.int64))
-        pyramid = "cg" in c and solver.soft_contacts and solver.pyramid_friction and int(xm.contact_cone) == 0
-        eligible = np.array(c["eligible"] if pyramid else np.zeros(nc, bool), np.bool_)  # the block's own copy
-        rows = [c["cg"], c["cvec"], c["crad"], c["mu"], c["solref"], c["solimp"], c["condim"], c["tran"]] if pyramid else [
+        known = "cg" in c
+        eligible = np.array(c["eligible"] if known else np.zeros(nc, bool), np.bool_)  # the block's own copy
+        rows = [c["cg"], c["cvec"], c["crad"], c["mu"], c["solref"], c["solimp"], c["condim"], c["tran"]] if known else [
             np.zeros((nc, 2), np.int64), np.zeros((nc, 4, 3)), np.zeros(nc), np.zeros(nc), np.zeros((nc, 2)),
             np.zeros((nc, 5)), np.zeros(nc, np.int64), np.zeros(nc)]
         rows = [np.ascontiguousarray(r) for r in rows]
-        buffers = [np.zeros_like(r) for r in rows]
-        rg, rvec = fc["rg"], fc["rvec"]
-        args = (
-            nb["root"], nb["from_root_quat"], nb["from_root_pos"], np.zeros((ng, 3)), np.zeros((ng, 4)), np.zeros((ng, 3)),
-            np.zeros((ng, 3)),
-            fm["IM"], fm["II"], fm["GI"], fm["gravity"], fm["jt"], fm["jg"], fm["jvec"], fm["jqoff"], fm["jlim"], fm["jlo"],
-            fm["jhi"], fm["jdamp"], fm["et"], fm["eg"], fm["evec"], fm["eqoff"], rg, rvec,
+        candidates = ContactCandidates(
             _i64(c["group"]), _i64(c["plane"]), _i64(c["plane_group"]), _c64(c["local"]), _c64(c["radius"]),
-            _c64(c["plane_origin"]), _c64(c["plane_normal"]), float(solver.contact_margin), np.zeros(nc, np.int64), eligible,
-            *rows, *buffers, int(xm.contact_cone), float(xm.contact_impratio), solver.linear_damping, solver.angular_damping,
-            fm["body_group"], fm["in_group_quat"], fm["in_group_pos"],
-            a["iquat"], a["ipos"], a["jnt_body"], a["jnt_axis"], a["jnt_pos"], a["hinge"], a["subtree"], a["body_mass"],
-            a["inertia"], a["armature"], a["site_body"], a["site_pos"], a["row_sites"], a["mot_dof"], a["group_mass"],
-            a["group_root"], a["group_dynamic"], np.zeros_like(a["mobility"]), np.zeros_like(a["group_gravity"]),
-            np.zeros_like(a["motor_response"]), np.zeros_like(a["motor_inverse_inertia"]), np.zeros_like(a["effective_mass"]),
-            nb["group_inertia"], nb["parent"], nb["body_quat"], nb["body_pos"], nb["jnt_type"], nb["jnt_qposadr"],
-            nb["jnt_dofadr"], nb["qpos0"], np.zeros((xm.nbody, 3)), np.zeros((xm.nbody, 4)), np.zeros(nq), np.zeros(xm.nv),
-            fc["cyl"], fc["closed"], fc["mot"], fc["gear"], fc["mbody"], fc["mparent"], fc["maxis"], fc["x"], fc["v"],
-            fc["ell"], fc["const"], fc["slope"], fc["effort"], fc["motor_effort"], np.zeros(2),
-        )
-        ctx = dict(kernel=block(solver.transport_response, solver.articulated_contacts), frame=fc, args=args, eligible=eligible,
+            _c64(c["plane_origin"]), _c64(c["plane_normal"]), float(solver.contact_margin), eligible)
+        plant = BlockPlant(solver._flat, nb["tree"], nb["root"], nb["from_root_quat"], nb["from_root_pos"],
+                           nb["group_mass"], nb["group_inertia"], candidates, ContactRows(*rows), fc["articulated_model"],
+                           fc["actuation"], _i64(xm.jnt_qposadr[self.scalar_joints]),
+                           _i64(xm.jnt_dofadr[self.scalar_joints]))
+        buffers = BlockBuffers(
+            RigidState(np.zeros((ng, 3)), np.zeros((ng, 4)), np.zeros((ng, 3)), np.zeros((ng, 3))),
+            ContactRows(*(np.zeros_like(r) for r in rows)), np.zeros(nc, np.int64),
+            Articulated(*(np.zeros_like(getattr(a, name)) for name in Articulated._fields)),
+            np.zeros((xm.nbody, 3)), np.zeros((xm.nbody, 4)), np.zeros(nq), np.zeros(xm.nv))
+        ctx = dict(kernel=block(solver.transport_response, solver.articulated_contacts), frame=fc, plant=plant,
+                   buffers=buffers, eligible=eligible,
                    cmd=np.zeros((0, len(self.network.valve_names))), speed=np.zeros((0, len(self.network.pump_names))),
                    clock=np.zeros(4), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
                    pmin=np.zeros(self.network.node_count), xmax=np.zeros(self.network.actuator_count),
                    xmin=np.zeros(self.network.actuator_count), rec=np.zeros(5, np.int64),
-                   no_record=np.zeros((0, self.record_width)), rq=_i64(xm.jnt_qposadr[self.scalar_joints]),
-                   rd=_i64(xm.jnt_dofadr[self.scalar_joints]))
+                   no_record=np.zeros((0, self.record_width)))
         self._block_ctx = ctx
         return ctx
 
@@ -646,19 +639,14 @@ class PbdPlant(PlantBase):
         ctx = self._frame_context()
         a = ctx["articulated"]
         xm, st = self.xmodel, self.state
-        ok = ctx["articulated_kernel"](
-            _c64(st.x), _c64(st.q), a["iquat"], a["ipos"], a["jnt_body"], a["jnt_axis"], a["jnt_pos"], a["hinge"],
-            a["subtree"], a["body_mass"], a["inertia"], a["armature"], a["gravity"], a["site_body"], a["site_pos"], a["row_sites"],
-            ctx["cyl"], ctx["mot"], a["mot_dof"], ctx["gear"], a["body_group"], a["group_mass"], a["group_root"],
-            a["group_dynamic"], a["mobility"], a["group_gravity"], a["motor_response"], a["motor_inverse_inertia"],
-            a["effective_mass"])
+        ok = ctx["articulated_kernel"](_c64(st.x), _c64(st.q), ctx["articulated_model"], a)
         if not ok:
             return True  # singular mass matrix: no articulated data (as the numpy path)
-        self._effective_mass = a["effective_mass"].copy()
-        self._motor_inverse_inertia = a["motor_inverse_inertia"].copy()
-        self._group_gravity = a["group_gravity"].copy() if GRAVITY_ARTICULATED else None
-        self._mobility = a["mobility"].copy()
-        self._motor_response = a["motor_response"].copy() if len(self.motors) and GRAVITY_ARTICULATED else None
+        self._effective_mass = a.effective_mass.copy()
+        self._motor_inverse_inertia = a.motor_inverse_inertia.copy()
+        self._group_gravity = a.group_gravity.copy() if GRAVITY_ARTICULATED else None
+        self._mobility = a.mobility.copy()
+        self._motor_response = a.motor_response.copy() if len(self.motors) and GRAVITY_ARTICULATED else None
         return True
 
     def _frame_ready(self) -> bool:
@@ -671,6 +659,8 @@ class PbdPlant(PlantBase):
 
     def _step_frame(self) -> bool:
         """The whole step in one compiled call (same results as the hooks to round-off); False if it does not apply."""
+        from sim.plants.pbd_frame import Articulated, RigidState
+
         if not self._frame_ready():
             return False
         solver, xm, st = self.solver, self.xmodel, self.state
@@ -687,32 +677,22 @@ class PbdPlant(PlantBase):
         fast.load(self.net_state, self.energy)
         Xg, Qg, Vg, Wg = (np.ascontiguousarray(a, dtype=np.float64) for a in (x, q, v, w))
         fm = solver._flat
-        cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran = flat
         xs, vs, ell0 = ctx["x"], ctx["v"], ctx["ell"]
         xs[:], vs[:], ell0[:] = self._x, self._v, self._ell
         out = ctx["out"]
-        if ctx["work_contacts"] < len(cg):  # the frame's work arrays, made again only for more contact candidates
+        ncand = len(flat.group)
+        if ctx["work_contacts"] < ncand:  # the frame's work arrays, made again only for more contact candidates
             from sim.plants.pbd_frame import frame_work
 
-            ctx["work"] = frame_work(len(self.cylinders), len(xs), Xg.shape[0], len(fm["jt"]), self._mobility.shape,
-                                     len(fm["jlim"]) - len(fm["jt"]), len(cg))
-            ctx["work_contacts"] = len(cg)
-        status = ctx["kernel"](
-            fast._F, fast._I, fast._W, fast._S, fast._istats, fast._ledger, fast._quad, fast.oil, fast.pressure,
-            fast.spool, fast.position, fast.velocity, cmd, speed,
-            Xg, Qg, Vg, Wg, fm["IM"], fm["II"], fm["GI"], fm["gravity"], float(h), nsub, solver.iterations,
-            solver.symmetric, fm["jt"], fm["jg"], fm["jvec"], fm["jqoff"], fm["jlim"], fm["jlo"], fm["jhi"], fm["jdamp"],
-            fm["et"], fm["eg"], fm["evec"], fm["eqoff"], ctx["rg"], ctx["rvec"], _c64(self._mobility),
-            _c64(self._group_gravity), _c64(self._motor_response) if len(self.motors) else ctx["no_response"],
-            cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, int(xm.contact_cone), float(xm.contact_impratio),
-            solver.linear_damping, solver.angular_damping,
-            fm["body_group"], fm["in_group_quat"], fm["in_group_pos"], ctx["bx"], ctx["bq"], ctx["bv"], ctx["bw"],
-            ctx["cyl"], ctx["closed"], ctx["mot"], ctx["gear"], _c64(self._motor_inverse_inertia), ctx["mbody"],
-            ctx["mparent"], ctx["maxis"], xs, vs, ell0, ctx["const"], ctx["slope"], ctx["effort"], ctx["motor_effort"],
-            fast.flow, out, fast.scheme, fast.blend,
-            _c64(self._effective_mass) if fast.blend else fast.theta, fast.theta,  # (the masses are not read without blend)
-            ctx["work"],
-        )
+            ctx["work"] = frame_work(len(self.cylinders), len(xs), Xg.shape[0], len(fm.jt), self._mobility.shape,
+                                     len(fm.jlim) - len(fm.jt), ncand)
+            ctx["work_contacts"] = ncand
+        articulated = Articulated(
+            _c64(self._mobility), _c64(self._group_gravity),
+            _c64(self._motor_response) if len(self.motors) else ctx["no_response"], _c64(self._motor_inverse_inertia),
+            _c64(self._effective_mass) if fast.blend else fast.theta)  # (the masses are not read without blend)
+        status = ctx["kernel"](fast.buffers, cmd, speed, RigidState(Xg, Qg, Vg, Wg), ctx["bodies"], fm, articulated, flat,
+                               ctx["actuation"], ctx["actuators"], self._frame_settings(h), ctx["work"])
         if status != 0:
             raise np.linalg.LinAlgError("Matrix is singular.")
         for _ in range(int(out[1])):  # network time: + h per successful substep (as the hooks)
@@ -720,8 +700,8 @@ class PbdPlant(PlantBase):
         self.net_state, self._report = fast.store(self.energy)
         self._work = float(out[0])
         self._x, self._v, self._ell = xs.copy(), vs.copy(), ell0.copy()
-        self.effort = ctx["effort"].copy()
-        self._motor_effort = ctx["motor_effort"].copy()
+        self.effort = ctx["actuators"].effort.copy()
+        self._motor_effort = ctx["actuators"].motor_effort.copy()
         solver._scatter_compiled(Xg, Qg, Vg, Wg, st)
         st.time = st.time + self.dt
         st.qpos_hint = self._qpos_qvel()[0].copy()  # with the previous hint, as the solver; memoised for joint_state
@@ -729,6 +709,15 @@ class PbdPlant(PlantBase):
         solver.compiled_steps += 1
         self.frame_steps += 1
         return True
+
+    def _frame_settings(self, h):
+        """The compiled frame's ``pbd_frame.FrameSettings`` for substeps of ``h`` [s]."""
+        from sim.plants.pbd_frame import FrameSettings
+
+        solver, fast = self.solver, self._fast
+        return FrameSettings(float(h), solver.substeps, solver.iterations, solver.symmetric, solver.linear_damping,
+                             solver.angular_damping, solver.soft_contacts, solver.pyramid_friction,
+                             solver.velocity_sweeps, fast.scheme, fast.blend)
 
     def _sample_inputs(self, ctx, h):
         """The schedules at every substep's start time t + k·h (rows of ctx's cmd/speed), as ``before_substep``
@@ -747,39 +736,45 @@ class PbdPlant(PlantBase):
         ctx = getattr(self, "_frame_ctx", None)
         if ctx is not None:
             return ctx
-        from sim.plants.pbd_frame import articulated, frame
+        from sim.plants.pbd_frame import (Actuation, ActuatorState, Articulated, ArticulatedModel, RigidState,
+                                          articulated, frame)
 
         xm, net = self.xmodel, self.network
         na, nsub = net.actuator_count, self.solver.substeps
+        ng, nr, nm = xm.ngroup, len(self.cylinders), len(self.motors)
         rg, rvec = self.solver._flat_rows()
         mb = np.array([int(xm.jnt_body[j]) for j in self.motor_joint], np.int64)
+        actuation = Actuation(
+            cyl=_i64(self.cylinders), closed=_c64(self.closed_length), row_group=rg, row_vec=_c64(rvec),
+            mot=_i64(self.motors), gear=_c64(self.motor_gear), mbody=mb,
+            mparent=np.array([int(xm.body_parent[b]) for b in mb], np.int64),
+            maxis=_c64(np.asarray(self._axis_inertial).reshape(-1, 3)[self.motor_joint].reshape(-1, 3)))
+        actuators = ActuatorState(x=np.zeros(na), v=np.zeros(na), ell=np.zeros(nr), effort=np.zeros(na),
+                                  motor_effort=np.zeros(nm), out=np.zeros(2))
         ctx = dict(
-            kernel=frame(self.solver.transport_response, self.solver.articulated_contacts), inputs=input_plan(net, self.control, self.scene.scenario.inputs), substep_numbers=np.arange(nsub), cmd=np.zeros((nsub, len(net.valve_names))), speed=np.zeros((nsub, len(net.pump_names))),
-            x=np.zeros(na), v=np.zeros(na), ell=np.zeros(len(self.cylinders)), out=np.zeros(2),
-            rg=rg, rvec=_c64(rvec), no_response=np.zeros((0, xm.ngroup, 6)),
-            bx=np.zeros((xm.nbody, 3)), bq=np.zeros((xm.nbody, 4)), bv=np.zeros((xm.nbody, 3)), bw=np.zeros((xm.nbody, 3)),
-            cyl=_i64(self.cylinders), closed=_c64(self.closed_length), mot=_i64(self.motors),
-            gear=_c64(self.motor_gear), mbody=mb, mparent=np.array([int(xm.body_parent[b]) for b in mb], np.int64),
-            maxis=_c64(np.asarray(self._axis_inertial).reshape(-1, 3)[self.motor_joint].reshape(-1, 3)),
-            const=np.zeros(na), slope=np.zeros(na), effort=np.zeros(na), motor_effort=np.zeros(len(self.motors)),
+            kernel=frame(self.solver.transport_response, self.solver.articulated_contacts),
+            inputs=input_plan(net, self.control, self.scene.scenario.inputs), substep_numbers=np.arange(nsub),
+            cmd=np.zeros((nsub, len(net.valve_names))), speed=np.zeros((nsub, len(net.pump_names))),
+            x=actuators.x, v=actuators.v, ell=actuators.ell, out=actuators.out, actuators=actuators,
+            actuation=actuation, no_response=np.zeros((0, ng, 6)),
+            bodies=RigidState(np.zeros((xm.nbody, 3)), np.zeros((xm.nbody, 4)), np.zeros((xm.nbody, 3)),
+                              np.zeros((xm.nbody, 3))),
             work=None, work_contacts=-1,
         )
-        ng, nr, nm = xm.ngroup, len(self.cylinders), len(self.motors)
         ctx["articulated_kernel"] = articulated()
-        ctx["articulated"] = dict(
+        ctx["articulated_model"] = ArticulatedModel(
             iquat=_c64(xm.body_iquat), ipos=_c64(xm.body_ipos), jnt_body=_i64(xm.jnt_body),
             jnt_axis=_c64(xm.jnt_axis), jnt_pos=_c64(xm.jnt_pos), hinge=np.ascontiguousarray(self._hinge, np.bool_),
             subtree=np.ascontiguousarray(self._subtree, np.bool_), body_mass=_c64(self._body_mass),
             inertia=_c64(self._body_inertia * (self._body_mass > 0)[:, None]), armature=_c64(xm.jnt_armature),
-            gravity=_c64(xm.gravity),
-            site_body=_i64(xm.site_body), site_pos=_c64(xm.site_pos_inertial),
-            row_sites=np.ascontiguousarray(self._row_sites, np.int64),
-            mot_dof=_i64(xm.jnt_dofadr[self.motor_joint]), body_group=_i64(xm.body_group),
+            gravity=_c64(xm.gravity), site_body=_i64(xm.site_body), site_pos=_c64(xm.site_pos_inertial),
+            row_sites=np.ascontiguousarray(self._row_sites, np.int64), cyl=actuation.cyl, mot=actuation.mot,
+            mot_dof=_i64(xm.jnt_dofadr[self.motor_joint]), gear=actuation.gear, body_group=_i64(xm.body_group),
             group_mass=_c64(xm.group_mass), group_root=_i64(xm.group_root),
-            group_dynamic=np.ascontiguousarray(xm.group_dynamic, np.bool_),
-            mobility=np.zeros((nr, ng, 6)), group_gravity=np.zeros((ng, 6)), motor_response=np.zeros((nm, ng, 6)),
-            motor_inverse_inertia=np.zeros(nm), effective_mass=np.zeros(na),
-        )
+            group_dynamic=np.ascontiguousarray(xm.group_dynamic, np.bool_))
+        ctx["articulated"] = Articulated(mobility=np.zeros((nr, ng, 6)), group_gravity=np.zeros((ng, 6)),
+                                         motor_response=np.zeros((nm, ng, 6)), motor_inverse_inertia=np.zeros(nm),
+                                         effective_mass=np.zeros(na))
         self._frame_ctx = ctx
         return ctx
 

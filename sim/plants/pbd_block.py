@@ -18,16 +18,16 @@ the per-frame path calls from Python:
 
 The block stops after a frame whose hydraulic step failed (as ``advance`` stops at the first
 failed step), and before a frame the compiled frame does not cover (singular mass matrix, a
-contact that is not soft and pyramidal: the plant steps that frame on its per-frame path).
+contact point marked not ``eligible``: the plant steps that frame on its per-frame path).
 Results equal the per-frame path to round-off (``tests/test_pbd_block.py``).
 
-Recording (as ``MujocoPlantFast.advance(n, record, every)``): after every step but the block's
-last whose step index becomes a multiple of ``rec[1]`` (``rec[2]``: the step index at the block's
+Recording (as ``MujocoPlantFast.advance(n, record, every)``, the ``Recording`` layout): after every step but
+the block's last whose step index becomes a multiple of ``rec[1]`` (``rec[2]``: the step index at the block's
 start), the next of ``rec[0]`` rows of ``record`` receives the raw sample the runner's recorder
 would capture after that step (``_record_row``); ``rec[3]`` counts the rows written, ``rec[4]``
 is 1 when one of them had a non-finite pressure or joint.
 
-``clock`` (float64, 4): body time [s], network time [s], dissipated mechanical energy [J],
+``track.clock`` (float64, 4): body time [s], network time [s], dissipated mechanical energy [J],
 kinetic + potential energy [J] at the start of the block; updated in place.
 Returns (frames done, status): ``BLOCK_OK`` (all frames, or stopped after a failed hydraulic
 step: the plant reads the status from ``istats``), ``BLOCK_SINGULAR`` (the coupling's
@@ -40,6 +40,8 @@ Caching as :mod:`sim.plants.pbd_frame`: the entry point carries the sources' sha
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
@@ -51,70 +53,109 @@ from sim.plants import pbd_hydraulics as H
 
 BLOCK_OK, BLOCK_SINGULAR, BLOCK_INELIGIBLE = 0, 1, 2
 
+# ---------------------------------------------------------------------------- named layouts
 
-def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
-           F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, flow,
-           bx, bq, bv, bw, hint, clock, pmax, pmin, xmax, xmin,
-           root, from_root_quat, from_root_pos, Xg, Qg, Vg, Wg,
-           IM, II, GI, gravity, jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff, rg, rvec,
-           c_group, c_plane, c_plane_group, c_local, c_radius, c_origin, c_normal, margin, c_out, c_eligible,
-           c_cg, c_cvec, c_crad, c_mu, c_solref, c_solimp, c_condim, c_tran,
-           b_cg, b_cvec, b_crad, b_mu, b_solref, b_solimp, b_condim, b_tran,
-           cone, impratio, lin_damp, ang_damp, body_group, in_group_quat, in_group_pos,
-           iquat, ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, armature, site_body, site_pos,
-           row_sites, mot_dof, group_mass, group_root, group_dynamic,
-           mobility, group_gravity, motor_response, minv, effective_mass,
-           group_inertia, parent, body_quat, body_pos, jnt_type, jnt_qposadr, jnt_dofadr, qpos0, xb, qb, qpos, qvel,
-           cyl, closed, mot, gear, mbody, mparent, maxis, x, v, ell0, const, slope, effort, motor_effort, fout,
-           record, rec, rq, rd, theta, scheme, blend, transport, art_contacts):
+ContactCandidates = namedtuple("ContactCandidates", [
+    "group", "plane", "plane_group", "local", "radius", "plane_origin", "plane_normal",  # ``compiled.contact_candidates``
+    "margin",  # candidate distance margin [m]
+    "eligible",  # the compiled frame covers the contact point (all do; a test clears it), (contacts,)
+])
+
+BlockPlant = namedtuple("BlockPlant", [  # what stays fixed over the plant's life
+    "model",  # ``compiled.GroupModel``
+    "tree",  # ``compiled.BodyTree``
+    "root", "from_root_quat", "from_root_pos",  # groups from their root bodies (``compiled.gather``)
+    "group_mass", "group_inertia",  # [kg], [kg·m²] (``compiled.energies``)
+    "candidates",  # ``ContactCandidates``
+    "contacts",  # ``compiled.ContactRows`` of every contact point of the model
+    "articulated",  # ``pbd_frame.ArticulatedModel``
+    "actuation",  # ``pbd_frame.Actuation``
+    "record_qpos", "record_qvel",  # qpos / qvel addresses of the recorded scalar joints
+])
+
+BlockBuffers = namedtuple("BlockBuffers", [  # outputs and work arrays, made once per plant
+    "groups",  # ``pbd_frame.RigidState`` of the rigid groups
+    "contacts",  # ``compiled.ContactRows`` of the frame's candidates (room for every contact point)
+    "candidate_index",  # the frame's candidates (``compiled.contact_candidates``' out)
+    "articulated",  # ``pbd_frame.Articulated``
+    "xb", "qb", "qpos", "qvel",  # body frames, generalized coordinates (``compiled.qpos_qvel``)
+])
+
+BlockTrack = namedtuple("BlockTrack", [  # running values, updated in place
+    "clock",  # body time [s], network time [s], dissipated mechanical [J], kinetic + potential [J], (4,)
+    "hint",  # hinge-unwrapping hint, (nq,)
+    "pressure_max", "pressure_min",  # running node-pressure extremes [Pa], (n,)
+    "position_max", "position_min",  # running actuator-position extremes [m or rad], (na,)
+])
+
+Recording = namedtuple("Recording", [
+    "record",  # the rows to fill, (rows, width)
+    "rec",  # (rows, every, first step index, rows written, a row was not finite), int64 (5,)
+])
+
+
+def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers, settings, recording, transport,
+           art_contacts):
+    """Up to ``nframe`` frames of ``dt`` [s] (see the module docstring): ``cmd``/``speed`` the operator inputs of
+    every substep, ``hyd`` the ``pbd_hydraulics.HydraulicBuffers``, ``bodies`` the body ``pbd_frame.RigidState``,
+    ``actuators`` the ``pbd_frame.ActuatorState``, ``track`` the ``BlockTrack``, ``plant`` the ``BlockPlant``,
+    ``buffers`` the ``BlockBuffers``, ``settings`` the ``pbd_frame.FrameSettings``, ``recording`` the
+    ``Recording``.  Returns (frames done, status)."""
+    model, tree, cand, crows, amodel, actuation = (plant.model, plant.tree, plant.candidates, plant.contacts,
+                                                   plant.articulated, plant.actuation)
+    groups, b, art = buffers.groups, buffers.contacts, buffers.articulated
+    c_out, xb, qb, qpos, qvel = buffers.candidate_index, buffers.xb, buffers.qb, buffers.qpos, buffers.qvel
+    Xg, Qg, Vg, Wg = groups.x, groups.q, groups.v, groups.w
+    bx, bq, bv, bw = bodies.x, bodies.q, bodies.v, bodies.w
+    clock, hint, pmax, pmin = track.clock, track.hint, track.pressure_max, track.pressure_min
+    xmax, xmin, pos = track.position_max, track.position_min, hyd.position
+    record, rec = recording.record, recording.rec
+    istats, ledger, pres = hyd.istats, hyd.ledger, hyd.pressure
+    substeps = settings.substeps
+    fout = actuators.out
     rows, every, first_step = rec[0], rec[1], rec[2]
     rec[3] = 0  # rows recorded
     rec[4] = 0  # a recorded row was not finite
     # the frames' work arrays, made once for the block (room for every contact candidate)
-    work = FN._frame_work_jit(cyl.size, x.size, Xg.shape[0], jt.shape[0], mobility.shape, jlim.shape[0] - jt.shape[0],
-                              b_cg.shape[0])
-    awork = FN._articulated_work_jit(bx.shape[0], jnt_body.shape[0], effective_mass.size, group_mass.size)
+    jt = model.jt
+    work = FN._frame_work_jit(actuation.cyl.size, actuators.x.size, Xg.shape[0], jt.shape[0], art.mobility.shape,
+                              model.jlim.shape[0] - jt.shape[0], b.group.shape[0])
+    awork = FN._articulated_work_jit(bx.shape[0], amodel.jnt_body.shape[0], art.effective_mass.size,
+                                     amodel.group_mass.size)
     for k in range(nframe):
-        if not FN._articulated_into_jit(
-                C.borrowed(awork), bx, bq, iquat, ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, armature, gravity,
-                site_body, site_pos, row_sites, cyl, mot, mot_dof, gear, body_group, group_mass, group_root,
-                group_dynamic, mobility, group_gravity, motor_response, minv, effective_mass):
+        if not FN._articulated_into_jit(C.borrowed(awork), bx, bq, amodel, art):
             return k, BLOCK_INELIGIBLE
-        XC.gather(bx, bq, bv, bw, root, from_root_quat, from_root_pos, Xg, Qg, Vg, Wg)
-        nc = XC.contact_candidates(Xg, Qg, Vg, Wg, c_group, c_plane, c_plane_group, c_local, c_radius, c_origin,
-                                   c_normal, margin, dt, c_out)
+        XC.gather(bx, bq, bv, bw, plant.root, plant.from_root_quat, plant.from_root_pos, Xg, Qg, Vg, Wg)
+        nc = XC.contact_candidates(Xg, Qg, Vg, Wg, cand.group, cand.plane, cand.plane_group, cand.local, cand.radius,
+                                   cand.plane_origin, cand.plane_normal, cand.margin, dt, c_out)
         for i in range(nc):
-            if not c_eligible[c_out[i]]:
+            if not cand.eligible[c_out[i]]:
                 return k, BLOCK_INELIGIBLE
         for i in range(nc):
             j = c_out[i]
-            b_cg[i, 0], b_cg[i, 1] = c_cg[j, 0], c_cg[j, 1]
-            b_cvec[i, :, :] = c_cvec[j]
-            b_crad[i], b_mu[i], b_condim[i], b_tran[i] = c_crad[j], c_mu[j], c_condim[j], c_tran[j]
-            b_solref[i, :] = c_solref[j]
-            b_solimp[i, :] = c_solimp[j]
+            b.group[i, 0], b.group[i, 1] = crows.group[j, 0], crows.group[j, 1]
+            b.vec[i, :, :] = crows.vec[j]
+            b.radius[i], b.mu[i], b.condim[i], b.tran[i] = crows.radius[j], crows.mu[j], crows.condim[j], crows.tran[j]
+            b.solref[i, :] = crows.solref[j]
+            b.solimp[i, :] = crows.solimp[j]
         istats[:] = 0  # FastHydraulics.load: the step's counters
         istats[H.I_WORST] = -1
         ledger[H.L_RESIDUAL] = 0.0
         ledger[H.L_FAIL_NORM] = 0.0
-        status = FN._frame_jit(
-            F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd[k * substeps:(k + 1) * substeps],
-            speed[k * substeps:(k + 1) * substeps], Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, substeps, iterations,
-            symmetric, jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff, rg, rvec, mobility,
-            group_gravity, motor_response, b_cg[:nc], b_cvec[:nc], b_crad[:nc], b_mu[:nc], b_solref[:nc],
-            b_solimp[:nc], b_condim[:nc], b_tran[:nc], cone, impratio, lin_damp, ang_damp, body_group,
-            in_group_quat, in_group_pos, bx, bq, bv, bw, cyl, closed, mot, gear, minv, mbody, mparent, maxis,
-            x, v, ell0, const, slope, effort, motor_effort, flow, fout, scheme, blend, effective_mass, theta,
-            C.borrowed(work), transport, art_contacts)
+        contacts = XC.ContactRows(b.group[:nc], b.vec[:nc], b.radius[:nc], b.mu[:nc], b.solref[:nc], b.solimp[:nc],
+                                  b.condim[:nc], b.tran[:nc])
+        status = FN._frame_jit(hyd, cmd[k * substeps:(k + 1) * substeps], speed[k * substeps:(k + 1) * substeps],
+                               groups, bodies, model, art, contacts, actuation, actuators, settings,
+                               C.borrowed(work), transport, art_contacts)
         if status != FN.FRAME_OK:
             return k, BLOCK_SINGULAR
         for _ in range(int(fout[1])):  # network time: + h per successful substep (FastHydraulics.finish)
-            clock[1] += h
+            clock[1] += settings.h
         clock[0] = clock[0] + dt
-        XC.qpos_qvel(bx, bq, bv, bw, hint, iquat, ipos, parent, body_quat, body_pos, jnt_type, jnt_body,
-                     jnt_qposadr, jnt_dofadr, jnt_axis, qpos0, xb, qb, qpos, qvel)
+        XC.qpos_qvel(bx, bq, bv, bw, hint, tree, xb, qb, qpos, qvel)
         hint[:] = qpos
-        kin, pot = XC.energies(bx, bq, bv, bw, root, from_root_quat, from_root_pos, group_mass, group_inertia, gravity)
+        kin, pot = XC.energies(bx, bq, bv, bw, plant.root, plant.from_root_quat, plant.from_root_pos, plant.group_mass,
+                               plant.group_inertia, model.gravity)
         mechanical = 0 + kin + pot  # sum((kinetic, potential)), as PbdPlant._end_step
         clock[2] += fout[0] - (mechanical - clock[3])
         clock[3] = mechanical
@@ -128,9 +169,8 @@ def _block(nframe, dt, h, substeps, iterations, symmetric, cmd, speed,
             xmin[i] = min(xmin[i], pos[i])
         if rec[3] < rows and k < nframe - 1 and (first_step + k + 1) % every == 0:
             last = (k + 1) * substeps - 1
-            if not _record_row(record[rec[3]], pres, qpos, qvel, rq, rd, oil, pos, vel, effort, theta, cmd[last], spool,
-                               speed[last], flow, istats[H.I_NEWTON], ledger[H.L_RESIDUAL], kin, pot, ledger, clock[2],
-                               xb, qb):
+            if not _record_row(record[rec[3]], hyd, qpos, qvel, plant.record_qpos, plant.record_qvel, actuators.effort,
+                               cmd[last], speed[last], kin, pot, clock[2], xb, qb):
                 rec[4] = 1
             rec[3] += 1
     return nframe, BLOCK_OK
@@ -144,14 +184,15 @@ def _put(row, o, values):
 
 
 @njit(cache=True)
-def _record_row(row, pres, qpos, qvel, rq, rd, oil, pos, vel, effort, theta, cmd, spool, speed, flow, newton, residual,
-                kinetic, potential, ledger, dissipated_mechanical, xb, qb):
+def _record_row(row, hyd, qpos, qvel, rq, rd, effort, cmd, speed, kinetic, potential, dissipated_mechanical, xb, qb):
     """One raw sample in the layout of ``RunRecorder.capture`` for a plant with ``joint_state``: node pressures [Pa],
     scalar-joint positions and rates, node oil, actuator positions, velocities, efforts, θ, valve commands, spools,
     pump speeds, branch flows, Newton iterations and residual [Pa], kinetic, potential energy, pump work, hydraulic,
     friction and mechanical dissipation [J], body-frame positions [m] and quaternions; returns whether the node
-    pressures and joints are finite (``RunRecorder.captured_finite``)."""
-    o = _put(row, 0, pres)
+    pressures and joints are finite (``RunRecorder.captured_finite``).  ``hyd``: the network's
+    ``pbd_hydraulics.HydraulicBuffers``."""
+    ledger = hyd.ledger
+    o = _put(row, 0, hyd.pressure)
     for i in range(rq.size):
         row[o + i] = qpos[rq[i]]
     o += rq.size
@@ -162,16 +203,16 @@ def _record_row(row, pres, qpos, qvel, rq, rd, oil, pos, vel, effort, theta, cmd
     for i in range(o):
         if not np.isfinite(row[i]):
             finite = False
-    o = _put(row, o, oil)
-    o = _put(row, o, pos)
-    o = _put(row, o, vel)
+    o = _put(row, o, hyd.oil)
+    o = _put(row, o, hyd.position)
+    o = _put(row, o, hyd.velocity)
     o = _put(row, o, effort)
-    o = _put(row, o, theta)
+    o = _put(row, o, hyd.theta)
     o = _put(row, o, cmd)
-    o = _put(row, o, spool)
+    o = _put(row, o, hyd.spool)
     o = _put(row, o, speed)
-    o = _put(row, o, flow)
-    row[o], row[o + 1] = newton, residual
+    o = _put(row, o, hyd.flow)
+    row[o], row[o + 1] = hyd.istats[H.I_NEWTON], ledger[H.L_RESIDUAL]
     row[o + 2], row[o + 3] = kinetic, potential
     row[o + 4], row[o + 5], row[o + 6] = ledger[H.L_PUMP], ledger[H.L_DISS_H], ledger[H.L_DISS_F]
     row[o + 7] = dissipated_mechanical

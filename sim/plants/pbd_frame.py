@@ -25,8 +25,8 @@ Per substep, in the order of :meth:`sim.plants.pbd.PbdPlant.before_substep`,
 The operator inputs are sampled for every substep beforehand (rows of
 ``cmd``/``speed``).  Only the case the plant's frame path checks is covered
 (:meth:`sim.plants.pbd.PbdPlant._frame_ready`): fast hydraulics, a tree of
-hinges/slides with the articulated response, hinge motors, soft pyramidal
-contacts.  Results equal the per-substep hooks to round-off.
+hinges/slides with the articulated response, hinge motors, any contact kind
+of ``compiled.substep_core``.  Results equal the per-substep hooks to round-off.
 
 Caching as :mod:`sim.plants.pbd_hydraulics`: the entry point carries a sha256 of
 this file, ``hydraulics_nb.py``, ``compiled.py`` and
@@ -34,6 +34,8 @@ the hydraulic kernel sources (``hydraulics._jit.SOURCES``, and numba's version) 
 """
 
 from __future__ import annotations
+
+from collections import namedtuple
 
 import numpy as np
 
@@ -47,34 +49,113 @@ IMPLICIT_SLOPE_LIMIT = -1e-9  # must match sim.plants.pbd.IMPLICIT_SLOPE_LIMIT
 # frame status
 FRAME_OK, FRAME_SINGULAR = 0, 1
 
+# ---------------------------------------------------------------------------- named layouts
+# nb bodies, ng rigid groups, nj joints (= DOFs), na actuators, nr cylinder rows, nm hinge motors.
+
+RigidState = namedtuple("RigidState", [
+    "x", "q", "v", "w",  # COM position [m], orientation (w, x, y, z), velocity [m/s], angular velocity [rad/s]
+])
+
+Actuation = namedtuple("Actuation", [
+    "cyl",  # actuator of each cylinder row, (nr,)
+    "closed",  # closed length of each cylinder row [m], (nr,)
+    "row_group",  # groups (a, b) of each cylinder row, (nr, 2)
+    "row_vec",  # site offsets in the group frames [m], (nr, 2, 3)
+    "mot",  # actuator of each motor, (nm,)
+    "gear",  # motor gear [-], (nm,)
+    "mbody",  # body of each motor joint, (nm,)
+    "mparent",  # its parent body, (nm,)
+    "maxis",  # motor joint axis in the body's inertial frame, (nm, 3)
+])
+
+ActuatorState = namedtuple("ActuatorState", [
+    "x",  # actuator position [m or rad], (na,)
+    "v",  # actuator velocity [m/s or rad/s], (na,)
+    "ell",  # cylinder row length [m], (nr,)
+    "effort",  # actuator effort [N or N·m], (na,)
+    "motor_effort",  # motor effort [N·m], (nm,)
+    "out",  # (work of the efforts on the bodies [J], successful hydraulic substeps), (2,)
+])
+
+Articulated = namedtuple("Articulated", [
+    "mobility",  # group motion per unit row multiplier, (nr, ng, 6)
+    "group_gravity",  # group accelerations of q̈ = M⁻¹·Q_gravity, (ng, 6)
+    "motor_response",  # group accelerations per unit motor effort, (nm, ng, 6)
+    "motor_inverse_inertia",  # (M⁻¹)ⱼⱼ of each motor joint, (nm,)
+    "effective_mass",  # 1/(J·M⁻¹·Jᵀ)ᵢᵢ per actuator [kg or kg·m²], (na,)
+])
+
+ArticulatedModel = namedtuple("ArticulatedModel", [
+    "iquat", "ipos",  # inertial frame of each body, (nb, 4), (nb, 3)
+    "jnt_body", "jnt_axis", "jnt_pos",  # joint body, axis and anchor in the body frame, (nj,), (nj, 3), (nj, 3)
+    "hinge",  # joint is a hinge (else a slide), (nj,)
+    "subtree",  # body b moves with joint j, (nj, nb)
+    "body_mass", "inertia",  # [kg], principal inertia [kg·m²], (nb,), (nb, 3)
+    "armature",  # joint armature [kg·m² or kg], (nj,)
+    "gravity",  # [m/s²], (3,)
+    "site_body", "site_pos",  # sites: body, position in the body's inertial frame [m]
+    "row_sites",  # sites (a, b) of each cylinder row, (nr, 2)
+    "cyl", "mot", "mot_dof", "gear",  # actuators of the rows and motors, motor DOFs and gears
+    "body_group", "group_mass", "group_root", "group_dynamic",  # rigid groups
+])
+
+FrameSettings = namedtuple("FrameSettings", [
+    "h",  # substep [s]
+    "substeps",  # substeps per frame, int
+    "iterations", "symmetric", "linear_damping", "angular_damping",  # as ``compiled.SubstepOptions``
+    "soft_contacts", "pyramid_friction", "velocity_sweeps",  # as ``compiled.SubstepOptions``
+    "scheme",  # the coupling's ``hydraulics.coupling.SCHEME_*``
+    "blend",  # θ from the effective masses (else θ = 1), bool
+])
+
+FrameWork = namedtuple("FrameWork", [
+    "target", "compliance", "lower", "upper", "active", "implicit", "row_force",  # per cylinder row
+    "force", "torque", "group_acceleration", "joint_torque",  # the substep's loads
+    "lam", "length", "rate",  # row outputs
+    "x_end", "v_end",  # actuator end states
+    "G", "P0", "mobility",  # transport: group Jacobian, its pseudo-inverse at the start, transported mobility
+    "substep",  # ``compiled.SubstepWork``
+])
+
 
 def frame_work(nr, na, ng, nj, mob_shape, ntl, ncap):
-    """The work arrays of ``_frame`` (made once per block by ``block_nb``, once per plant by the per-frame path) for
-    ``nr`` length rows, ``na`` actuators, ``ng`` groups, ``nj`` joints, the row mobility's shape, ``ntl`` tendon
-    limits and up to ``ncap`` contact candidates: per-row targets, compliances,
-    bounds, active rows, implicit flags, explicit forces; zero group forces/torques and joint torques; group
-    accelerations; row multipliers, lengths, rates; actuator end states; the transport and articulated-contact
-    matrices; the substep's work (``compiled.substep_work``)."""
-    return (np.empty(nr), np.empty(nr), np.full(nr, -np.inf), np.full(nr, np.inf), np.empty(nr, np.int64),
-            np.empty(nr, np.bool_), np.zeros(nr), np.zeros((ng, 3)), np.zeros((ng, 3)), np.empty((ng, 6)), np.zeros(nj),
-            np.empty(nr), np.empty(nr), np.empty(nr), np.empty(na), np.empty(na), np.zeros((ng, 6, nj)),
-            np.zeros((nj, ng * 6)), np.empty(mob_shape), np.zeros((ng, 6, nj)), np.zeros((nj, nj)),
-            XC.substep_work(ng, nj, ntl, ncap, nr))
+    """The ``FrameWork`` of ``_frame`` (made once per block by ``pbd_block``, once per plant by the per-frame path)
+    for ``nr`` length rows, ``na`` actuators, ``ng`` groups, ``nj`` joints, the row mobility's shape, ``ntl`` tendon
+    limits and up to ``ncap`` contact candidates."""
+    return FrameWork(np.empty(nr), np.empty(nr), np.full(nr, -np.inf), np.full(nr, np.inf), np.empty(nr, np.int64),
+                     np.empty(nr, np.bool_), np.zeros(nr), np.zeros((ng, 3)), np.zeros((ng, 3)), np.empty((ng, 6)),
+                     np.zeros(nj), np.empty(nr), np.empty(nr), np.empty(nr), np.empty(na), np.empty(na),
+                     np.zeros((ng, 6, nj)), np.zeros((nj, ng * 6)), np.empty(mob_shape),
+                     XC.substep_work(ng, nj, ntl, ncap, nr))
 
 
-def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed,
-           Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, substeps, iterations, symmetric,
-           jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
-           rg, rvec, mob, gg0, mresp,
-           cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, lin_damp, ang_damp,
-           body_group, in_group_quat, in_group_pos, bx, bq, bv, bw,
-           cyl, closed, mot, gear, minv, mbody, mparent, maxis,
-           x, v, ell0, const, slope, effort, motor_effort, flow, out, scheme, blend, meff, theta, fwork,
+def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuation, actuators, settings, fwork,
            transport, art_contacts):
-    """One frame (see the module docstring) on the work arrays ``fwork`` (:func:`frame_work`, for at least this
-    frame's contacts; overwritten)."""
-    net = C._unpack(F, I)
+    """One frame (see the module docstring).
+
+    ``hyd``: the network's ``pbd_hydraulics.HydraulicBuffers``; ``cmd``/``speed``: valve commands and pump speeds
+    of every substep (substeps, nvalve/npump); ``groups``/``bodies``: the ``RigidState`` of the rigid groups and of
+    the bodies (written in place); ``model``: ``compiled.GroupModel``; ``articulated``: the step's ``Articulated``
+    data; ``contacts``: the frame's candidates (``compiled.ContactRows``); ``actuation``, ``actuators``: the
+    ``Actuation`` layout and the ``ActuatorState`` (updated); ``settings``: ``FrameSettings``; ``fwork``: the
+    ``FrameWork`` (:func:`frame_work`, for at least this frame's contacts; overwritten).  Returns ``FRAME_OK`` or
+    ``FRAME_SINGULAR``."""
+    net = C._unpack(hyd.F, hyd.I)
     pnet = C._ref(net)
+    Xg, Qg, Vg, Wg = groups.x, groups.q, groups.v, groups.w
+    bq, bw = bodies.q, bodies.w
+    IM, jt, jg, jvec = model.IM, model.jt, model.jg, model.jvec
+    h, substeps = settings.h, settings.substeps
+    mob, gg0, mresp, minv = (articulated.mobility, articulated.group_gravity, articulated.motor_response,
+                             articulated.motor_inverse_inertia)
+    cyl, closed, mot, gear = actuation.cyl, actuation.closed, actuation.mot, actuation.gear
+    mbody, mparent, maxis = actuation.mbody, actuation.mparent, actuation.maxis
+    x, v, ell0, effort, motor_effort, out = (actuators.x, actuators.v, actuators.ell, actuators.effort,
+                                             actuators.motor_effort, actuators.out)
+    const, slope, istats = hyd.constant, hyd.slope, hyd.istats
+    options = XC.SubstepOptions(settings.iterations, settings.symmetric, settings.linear_damping,
+                                settings.angular_damping, art_contacts, settings.soft_contacts,
+                                settings.pyramid_friction, settings.velocity_sweeps)
     na = x.size
     # group accelerations on, joint torques off, as runtime bools: compiled.substep_core then has the one signature
     # the per-substep path (Python bools) uses too (literal True/False compile a second specialisation)
@@ -83,8 +164,14 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
     nm = mot.size
     ng = Xg.shape[0]
     # Fe, Te: no per-group forces (explicit row forces go through the articulated response); tau: no joint torques
-    (tgt, at, lo, hi, act, implicit, rforce, Fe, Te, gg, tau, lam, ell, rate, x_end, v_end, Gk, P0, mobk, Gc, Minv,
-     swork) = fwork
+    tgt, at, lo, hi, act, implicit, rforce = (fwork.target, fwork.compliance, fwork.lower, fwork.upper, fwork.active,
+                                              fwork.implicit, fwork.row_force)
+    Fe, Te, gg, tau = fwork.force, fwork.torque, fwork.group_acceleration, fwork.joint_torque
+    lam, ell, rate, x_end, v_end = fwork.lam, fwork.length, fwork.rate, fwork.x_end, fwork.v_end
+    Gk, P0, mobk, swork = fwork.G, fwork.P0, fwork.mobility, fwork.substep
+    Gc, Minv = swork.G, swork.Minv
+    loads = XC.SubstepLoads(always, gg, Fe, Te, never, tau)
+    row_out = XC.RowOutputs(lam, ell, rate)
     for r in range(nr):
         lo[r], hi[r], rforce[r] = -np.inf, np.inf, 0.0
     Fe[:, :] = 0.0
@@ -101,8 +188,8 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
     nj = jt.shape[0]
     carry = transport and nj > 0 and substeps > 1 and XC.group_jacobian(Xg, Qg, IM, jt, jg, jvec, Gk) and XC.jacobian_pinv(Gk, P0)
     for k in range(substeps):
-        if not H._begin_core(pnet, Wk, S, istats, oil, pres, spool, cmd[k], speed[k], x, v, h, const, slope, scheme, blend,
-                             meff, theta):
+        if not H._begin_core(pnet, hyd, cmd[k], speed[k], x, v, h, settings.scheme, settings.blend,
+                             articulated.effective_mass):
             out[0] = work
             return FRAME_SINGULAR
         nact = 0
@@ -147,12 +234,9 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
             XC.transport(Gk, P0, gg, gg)
         else:
             mobk[:, :, :] = mob
-        XC.substep_core(Xg, Qg, Vg, Wg, IM, II, GI, gravity, h, iterations, symmetric,
-                  jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp, et, eg, evec, eqoff,
-                  rg, rvec, act[:nact], tgt, at, lo, hi, nact > 0, mobk, always, gg, Fe, Te, never, tau,
-                  cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
-                  lin_damp, ang_damp, lam, ell, rate, art_contacts, Gc, Minv, swork)
-        XC.scatter(Xg, Qg, Vg, Wg, body_group, in_group_quat, in_group_pos, bx, bq, bv, bw)
+        rows = XC.SubstepRows(actuation.row_group, actuation.row_vec, act[:nact], tgt, at, lo, hi, nact > 0, mobk)
+        XC.substep_core(Xg, Qg, Vg, Wg, model, rows, contacts, loads, options, h, row_out, swork)
+        XC.scatter(Xg, Qg, Vg, Wg, model.body_group, model.in_group_quat, model.in_group_pos, bodies.x, bq, bodies.v, bw)
         # end of the substep: realised motion (PbdPlant.after_substep)
         for a in range(na):
             x_end[a] = x[a]
@@ -168,8 +252,7 @@ def _frame(F, I, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, s
             a = mot[i]
             v_end[a] = gear[i] * rate_j
             x_end[a] = x[a] + h * v_end[a]
-        H._finish_core(pnet, Wk, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd[k], speed[k], x_end, v_end, h, flow,
-                       scheme)
+        H._finish_core(pnet, hyd, cmd[k], speed[k], x_end, v_end, h, settings.scheme)
         out[1] += istats[H.I_LAST_OK]
         for a in range(na):
             effort[a] = 0.0
@@ -216,9 +299,9 @@ _frame_jit = _frame_work_jit = None
 def frame(transport: bool = False, articulated_contacts: bool = True):
     """The compiled frame (numba's disk cache, or compiled on first use: one signature per variant).
 
-    ``transport`` (as ``SolverXPBD(transport_response=...)``): carry the step's articulated
+    ``transport`` (as ``XpbdOptions(transport_response=...)``): carry the step's articulated
     responses to each substep's pose (``compiled.transport``); False keeps them as given for the
-    whole step.  ``articulated_contacts`` (as ``SolverXPBD(articulated_contacts=...)``): solve the
+    whole step.  ``articulated_contacts`` (as ``XpbdOptions(articulated_contacts=...)``): solve the
     contact pyramids with the mechanism's articulated response (default True, as the solver);
     ``transport`` defaults to False (see ``SolverXPBD``).
     """
@@ -239,30 +322,31 @@ def frame(transport: bool = False, articulated_contacts: bool = True):
 
 def articulated_work(nb, nj, na, ng):
     """The work arrays of ``_articulated_into`` for ``nb`` bodies, ``nj`` joints, ``na`` actuators and ``ng`` groups
-    (made once per block by ``block_nb``): body frames, joint axes and anchors, joint-to-body Jacobians, mass
+    (made once per block by ``pbd_block``): body frames, joint axes and anchors, joint-to-body Jacobians, mass
     matrix, right-hand sides, moment arms, the eliminated matrix and the group Jacobians."""
     return (np.empty((nb, 3)), np.empty((nb, 4)), np.empty((nj, 3)), np.empty((nj, 3)), np.empty((nj, nb, 3)),
             np.empty((nj, nb, 3)), np.empty((nj, nj)), np.empty((nj, na + 1)), np.empty((na, nj)), np.empty((nj, nj)),
             np.empty((nj, ng, 3)))
 
 
-def _articulated(x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia, armature,
-                 gravity, site_body, site_pos, row_sites, cyl, mot, mot_dof, gear, body_group, group_mass, group_root,
-                 group_dynamic, mobility, group_gravity, motor_response, motor_inverse_inertia, effective_mass):
-    """``PbdPlant.articulated`` for trees of hinges and slides (one DOF per joint, joint j = DOF j); returns
-    False when the mass matrix is singular (outputs untouched).  ``_articulated_into`` on fresh work arrays."""
-    work = _articulated_work_jit(x.shape[0], jnt_body.shape[0], effective_mass.size, group_mass.size)
-    return _articulated_into_jit(work, x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree,
-                                 body_mass, inertia, armature, gravity, site_body, site_pos, row_sites, cyl, mot, mot_dof,
-                                 gear, body_group, group_mass, group_root, group_dynamic, mobility, group_gravity,
-                                 motor_response, motor_inverse_inertia, effective_mass)
+def _articulated(x, q, model, out):
+    """``PbdPlant.articulated`` for trees of hinges and slides (one DOF per joint, joint j = DOF j) at the body
+    state x [m], q (nb, 3), (nb, 4) on the ``ArticulatedModel`` ``model``, into the ``Articulated`` ``out``;
+    returns False when the mass matrix is singular (outputs untouched).  ``_articulated_into`` on fresh work
+    arrays."""
+    work = _articulated_work_jit(x.shape[0], model.jnt_body.shape[0], out.effective_mass.size, model.group_mass.size)
+    return _articulated_into_jit(work, x, q, model, out)
 
 
-def _articulated_into(work, x, q, body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos, hinge, subtree, body_mass, inertia,
-                      armature, gravity, site_body, site_pos, row_sites, cyl, mot, mot_dof, gear, body_group, group_mass,
-                      group_root, group_dynamic, mobility, group_gravity, motor_response, motor_inverse_inertia,
-                      effective_mass):
+def _articulated_into(work, x, q, model, out):
     """``_articulated`` on the work arrays ``work`` (:func:`articulated_work`; overwritten): no allocation."""
+    body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos = model.iquat, model.ipos, model.jnt_body, model.jnt_axis, model.jnt_pos
+    hinge, subtree, body_mass, inertia, armature = model.hinge, model.subtree, model.body_mass, model.inertia, model.armature
+    gravity, site_body, site_pos, row_sites = model.gravity, model.site_body, model.site_pos, model.row_sites
+    cyl, mot, mot_dof, gear = model.cyl, model.mot, model.mot_dof, model.gear
+    body_group, group_mass, group_root, group_dynamic = model.body_group, model.group_mass, model.group_root, model.group_dynamic
+    mobility, group_gravity, motor_response = out.mobility, out.group_gravity, out.motor_response
+    motor_inverse_inertia, effective_mass = out.motor_inverse_inertia, out.effective_mass
     nb = x.shape[0]
     nj = jnt_body.shape[0]
     na = effective_mass.size

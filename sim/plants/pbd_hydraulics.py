@@ -36,6 +36,8 @@ own and exist only inside the entry points.  One signature each.
 
 from __future__ import annotations
 
+from collections import namedtuple
+
 import numpy as np
 
 from hydraulics import _compiled as C
@@ -58,6 +60,26 @@ NI = 12
 (L_PUMP, L_MOTOR, L_DISS_H, L_DISS_F, L_RESIDUAL, L_FAIL_NORM) = range(6)  # the first four in C._account's order
 NL = 6
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
+
+# The network's buffers for the compiled hooks, made once per plant (:class:`FastHydraulics`); n nodes,
+# na actuators, nb branches, nvalve valves.
+HydraulicBuffers = namedtuple("HydraulicBuffers", [
+    "F", "I",  # the packed network (``StepperImplicitEulerCompiled``'s float64 and int64 arrays)
+    "W",  # the kernels' scratch (``_compiled.work_size``)
+    "S",  # what persists between begin and finish (:func:`keep_size`)
+    "istats",  # int counters, (NI,) (``I_*``)
+    "ledger",  # energy ledger [J] and residuals [Pa], (NL,) (``L_*``)
+    "quad",  # the fluid's potential quadrature (``hydraulics.fluid.potential_quadrature``)
+    "oil",  # node oil [kg], (n,)
+    "pressure",  # node pressure [Pa], (n,)
+    "spool",  # valve spool position [-], (nvalve,)
+    "position",  # actuator position [m or rad], (na,)
+    "velocity",  # actuator velocity [m/s or rad/s], (na,)
+    "flow",  # branch flow of the last substep [m³/s], (nb,)
+    "constant",  # effort law constant c [N or N·m], (na,)
+    "slope",  # effort law slope s [N·s/m or N·m·s/rad], (na,)
+    "theta",  # θ of the last begin per actuator [-], (na,)
+])
 
 
 def eligible(plant) -> bool:
@@ -97,13 +119,14 @@ _begin_temporaries_nb = _kernel(_begin_temporaries)
 
 
 @_kernel
-def _begin_core(pnet, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const, slope, scheme, blend, effective_mass,
-                theta):
+def _begin_core(pnet, buffers, cmd, speed, x, v, h, scheme, blend, effective_mass):
     """CouplingImplicit.begin at the start velocities ``v`` as the velocity guess (``start_velocity_guess``): the effort
-    law (const, slope) and its θ per actuator (``theta``);
-    returns False if singular.  ``scheme``: the coupling's ``hydraulics.coupling.SCHEME_*`` (rosenbrock linearises
+    law (``buffers.constant``, ``buffers.slope``) and its θ per actuator (``buffers.theta``), on the
+    ``HydraulicBuffers`` ``buffers``; returns False if singular.  ``scheme``: the coupling's ``hydraulics.coupling.SCHEME_*`` (rosenbrock linearises
     by one Newton step); ``blend``: θ from ``effective_mass`` [kg or kg·m²] (``blend_factor``, the start force
     from the state's pressures ``pres`` [Pa], which belong to ``oil`` at ``x``), else θ = 1."""
+    W, S, istats, oil, pres, spool = buffers.W, buffers.S, buffers.istats, buffers.oil, buffers.pressure, buffers.spool
+    const, slope, theta = buffers.constant, buffers.slope, buffers.theta
     net = C._deref(pnet)
     ic = net.ic
     n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
@@ -141,10 +164,14 @@ def _begin_core(pnet, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const
 
 
 @_kernel
-def _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow, scheme):
+def _finish_core(pnet, buffers, cmd, speed, x_end, v_end, h, scheme):
     """CouplingImplicit.finish (``scheme`` SCHEME_NEWTON) or CouplingImplicitLinear.finish (the linear finishes)
-    + PlantBase._account: on success the state arrays (oil, pres, spool, pos, vel) become the end of the substep;
-    counters and failure in ``istats``, ledger terms in ``ledger``."""
+    + PlantBase._account on the ``HydraulicBuffers`` ``buffers``: on success the state arrays (oil, pressure, spool,
+    position, velocity) become the end of the substep; counters and failure in ``istats``, ledger terms in
+    ``ledger``, the branch flows in ``flow``."""
+    W, S, istats, ledger, quad = buffers.W, buffers.S, buffers.istats, buffers.ledger, buffers.quad
+    oil, pres, spool, pos, vel, flow = (buffers.oil, buffers.pressure, buffers.spool, buffers.position, buffers.velocity,
+                                        buffers.flow)
     net = C._deref(pnet)
     ic = net.ic
     n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
@@ -204,24 +231,19 @@ SOURCE_SHA256 = C.source_sha256(__file__, *C.SOURCES)
 def _entry_points(fingerprint):
     """The two cached entry points; ``fingerprint`` is a closure variable, hence part of numba's cache key."""
 
-    def begin(F, I, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const, slope, scheme, blend, effective_mass,
-              theta):
+    def begin(buffers, cmd, speed, x, v, h, scheme, blend, effective_mass):
         if fingerprint is None:  # never: only makes the fingerprint a closure variable
             return False
-        net = C._unpack(F, I)
+        net = C._unpack(buffers.F, buffers.I)
         pnet = C._ref(net)
-        pnet = C._ref(net)
-        return _begin_core(pnet, W, S, istats, oil, pres, spool, cmd, speed, x, v, h, const, slope, scheme, blend,
-                           effective_mass, theta)
+        return _begin_core(pnet, buffers, cmd, speed, x, v, h, scheme, blend, effective_mass)
 
-    def finish(F, I, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow, scheme):
+    def finish(buffers, cmd, speed, x_end, v_end, h, scheme):
         if fingerprint is None:
             return
-        net = C._unpack(F, I)
+        net = C._unpack(buffers.F, buffers.I)
         pnet = C._ref(net)
-        pnet = C._ref(net)
-        _finish_core(pnet, W, S, istats, ledger, quad, oil, pres, spool, pos, vel, cmd, speed, x_end, v_end, h, flow,
-                     scheme)
+        _finish_core(pnet, buffers, cmd, speed, x_end, v_end, h, scheme)
 
     jit = numba.njit(cache=True, error_model="numpy", nogil=True)
     return jit(begin), jit(finish)
@@ -270,6 +292,9 @@ class FastHydraulics:
         self.theta = np.ones(na)  # the last begin's θ per actuator
         self.blend = bool(plant.blend)  # θ from the articulated effective masses (else θ = 1)
         self.scheme = plant.coupling.scheme  # hydraulics.coupling.SCHEME_*
+        self.buffers = HydraulicBuffers(self._F, self._I, self._W, self._S, self._istats, self._ledger, self._quad,
+                                        self.oil, self.pressure, self.spool, self.position, self.velocity, self.flow,
+                                        self.constant, self.slope, self.theta)
         self._begin, self._finish = entry_points()
         self._time = 0.0
 
@@ -294,18 +319,16 @@ class FastHydraulics:
         θ from ``effective_mass`` [kg or kg·m², per actuator] where the plant blends (and it is given)."""
         blend = self.blend and effective_mass is not None
         meff = _f64(effective_mass) if blend else self.theta  # (not read without blend)
-        ok = self._begin(self._F, self._I, self._W, self._S, self._istats, self.oil, self.pressure, self.spool,
-                         _f64(control.valve_command), _f64(control.pump_speed), _f64(x), _f64(v), float(h),
-                         self.constant, self.slope, self.scheme, blend, meff, self.theta)
+        ok = self._begin(self.buffers, _f64(control.valve_command), _f64(control.pump_speed), _f64(x), _f64(v), float(h),
+                         self.scheme, blend, meff)
         if not ok:
             raise np.linalg.LinAlgError("Matrix is singular.")
         return self.constant, self.slope
 
     def finish(self, control, x_end, v_end, h) -> None:
         """Finish the substep with the realised end positions and velocities; ledger included."""
-        self._finish(self._F, self._I, self._W, self._S, self._istats, self._ledger, self._quad, self.oil, self.pressure,
-                     self.spool, self.position, self.velocity, _f64(control.valve_command), _f64(control.pump_speed),
-                     _f64(x_end), _f64(v_end), float(h), self.flow, self.scheme)
+        self._finish(self.buffers, _f64(control.valve_command), _f64(control.pump_speed), _f64(x_end), _f64(v_end),
+                     float(h), self.scheme)
         if self._istats[I_LAST_OK]:
             self._time += h
 

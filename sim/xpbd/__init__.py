@@ -5,12 +5,13 @@ never used for dynamics.  See ``solver.py`` for sign conventions of the length r
 """
 
 from sim.xpbd.model import XpbdModel, XpbdState
-from sim.xpbd.solver import LengthConstraint, SolverXPBD, SubstepForces, SubstepHooks, SubstepInputs
+from sim.xpbd.solver import LengthConstraint, SolverXPBD, SubstepForces, SubstepHooks, SubstepInputs, XpbdOptions
 
 __all__ = [
     "XpbdModel",
     "XpbdState",
     "SolverXPBD",
+    "XpbdOptions",
     "LengthConstraint",
     "SubstepInputs",
     "SubstepForces",

@@ -1,4 +1,4 @@
-"""Compiled (numba ``nopython``) XPBD substep: the same equations as ``solver.py``/``kernels.py``.
+"""Compiled (numba ``nopython``) XPBD substep: the same equations as ``reference.py``/``kernels.py``.
 
 ``substep_core`` advances the rigid groups by one substep h in place, on flat arrays:
 prediction (gravity or given group accelerations, external forces, gyroscopic term,
@@ -15,26 +15,146 @@ to round-off (``tests/test_pbd_compiled.py``).  Units and sign conventions as in
 ``solver.py``: positions [m], quaternions (w, x, y, z), velocities [m/s], [rad/s],
 multipliers λ [N·s²] (row force λ/h² [N], + pushes the sites apart).
 
-Supported contacts: soft pyramidal (MuJoCo's default cone, condim ≥ 3, μ > 0); the solver
-falls back to the pure path for a step with any other contact candidate.
+Contacts as the pure path: MuJoCo's soft pyramidal edge rows (pyramidal cone, condim ≥ 3), a soft
+normal row with [RB]'s Coulomb friction (elliptic cone, condim 1), or rigid rows (``soft_contacts``
+off, or μ = 0 on a pyramidal cone) with [RB]'s velocity pass.
+
+Arguments come in named layouts (namedtuples of arrays, built once per solver or plant): the
+static ``GroupModel`` and ``BodyTree``, per substep ``SubstepRows``, ``SubstepLoads``,
+``ContactRows``, ``SubstepOptions``, the outputs ``RowOutputs`` and the scratch ``SubstepWork``
+(``substep_work``).  numba passes a namedtuple as its fields, so a layout costs nothing at run time.
 """
 
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
-from hydraulics._compiled import _matrix  # 2-D views of flat work buffers (an intrinsic: compiled into its callers)
-
 _EPS = 1e-14
 JNT_FREE, JNT_BALL, JNT_SLIDE, JNT_HINGE = 0, 1, 2, 3
 EQ_CONNECT, EQ_WELD = 0, 1
+# kind of a contact candidate in a substep (``_contact_targets``): no force (a soft contact that does not penetrate
+# at the substep's start), soft pyramidal edge rows, a soft normal row with Coulomb friction, a rigid normal row
+CONTACT_IDLE, CONTACT_PYRAMID, CONTACT_SOFT, CONTACT_RIGID = 0, 1, 2, 3
 # columns of the limit table ``jlim`` (``SolverXPBD._limit_table``): limited, solref (2), solimp (5), invweight;
 # the rows after the joints' are tendon limits with also lo, hi [m], groups a, b and the site offsets ra, rb
 LIMIT_COLS = 19
 
+
+# ---------------------------------------------------------------------------- named layouts
+# The kernels take these tuples of arrays (built once per solver or plant; numba passes a namedtuple as its
+# fields) instead of long positional argument lists.  Shapes: ng rigid groups, nj joints, ne equalities,
+# nr length rows, nc contact candidates, nb bodies.
+
+GroupModel = namedtuple("GroupModel", [
+    "IM",  # inverse mass of each group [1/kg], (ng,); 0 = static
+    "II",  # inverse principal inertia of each group [1/(kg·m²)], (ng, 3)
+    "GI",  # principal inertia of each group [kg·m²], (ng, 3)
+    "gravity",  # [m/s²], (3,)
+    "jt",  # joint type (JNT_*), (nj,)
+    "jg",  # joint groups (g1, g2), (nj, 2)
+    "jvec",  # joint anchors r1, r2 [m] and axes a1, a2 in the group frames, (nj, 4, 3)
+    "jqoff",  # joint rest orientation offset (w, x, y, z), (nj, 4)
+    "jlim",  # limit table (SolverXPBD._limit_table), (nj + tendon limits, LIMIT_COLS)
+    "jlo",  # lower joint limit [rad or m], (nj,)
+    "jhi",  # upper joint limit [rad or m], (nj,)
+    "jdamp",  # joint damping [N·m·s/rad or N·s/m], (nj,)
+    "et",  # equality type (EQ_*), (ne,)
+    "eg",  # equality groups, (ne, 2)
+    "evec",  # equality anchors [m], (ne, 2, 3)
+    "eqoff",  # weld orientation offsets, (ne, 4)
+    "body_group",  # group of each body, (nb,)
+    "in_group_quat",  # body orientation in its group's frame, (nb, 4)
+    "in_group_pos",  # body COM position in its group's frame [m], (nb, 3)
+    "contact_cone",  # MuJoCo cone (0 pyramidal, 1 elliptic), int
+    "contact_impratio",  # MuJoCo impratio [-], float
+])
+
+SubstepRows = namedtuple("SubstepRows", [
+    "group",  # groups (a, b) of each length row, (nr, 2)
+    "vec",  # site offsets ra, rb in the group frames [m], (nr, 2, 3)
+    "active",  # indices of the rows solved this substep, (k,)
+    "target",  # target length ℓ* [m], (nr,)
+    "compliance",  # α̃ = α/h² [m/(N·s²)], (nr,)
+    "lower",  # lower bound on λ [N·s²], (nr,)
+    "upper",  # upper bound on λ [N·s²], (nr,)
+    "use_block",  # solve the active rows as one block through ``mobility`` (bool)
+    "mobility",  # articulated row mobility, (nr, ng, 6)
+])
+
+SubstepLoads = namedtuple("SubstepLoads", [
+    "use_group_acceleration",  # bool: ``group_acceleration`` replaces gravity
+    "group_acceleration",  # group accelerations (linear [m/s²], angular [rad/s²]), (ng, 6)
+    "force",  # external world force on each group [N], (ng, 3)
+    "torque",  # external world torque on each group [N·m], (ng, 3)
+    "use_joint_torque",  # bool: apply ``joint_torque`` as impulses
+    "joint_torque",  # hinge torques [N·m], (nj,)
+])
+
+ContactRows = namedtuple("ContactRows", [
+    "group",  # (body group, plane group), (nc, 2)
+    "vec",  # r2 local, plane origin, plane normal, tangent t₁ (plane group frame), (nc, 4, 3)
+    "radius",  # [m], (nc,)
+    "mu",  # friction coefficient [-], (nc,)
+    "solref",  # MuJoCo solref, (nc, 2)
+    "solimp",  # MuJoCo solimp, (nc, 5)
+    "condim",  # (nc,)
+    "tran",  # effective inverse weight of the contact (body_invweight0 sum) [1/kg], (nc,)
+])
+
+SubstepOptions = namedtuple("SubstepOptions", [
+    "iterations",  # position passes per substep, int
+    "symmetric",  # forward + backward Gauss-Seidel per pass, bool
+    "linear_damping",  # global linear damping c [1/s]
+    "angular_damping",  # global angular damping c [1/s]
+    "articulated_contacts",  # contact pyramids with the articulated response, bool
+    "soft_contacts",  # MuJoCo's soft-contact law (else rigid normal rows), bool
+    "pyramid_friction",  # soft pyramidal edge rows where the cone is pyramidal and condim ≥ 3, bool
+    "velocity_sweeps",  # projected Gauss-Seidel sweeps of the contact velocity pass, int
+])
+
+RowOutputs = namedtuple("RowOutputs", [
+    "lam",  # multiplier λ of every row [N·s²], (nr,)
+    "length",  # ℓ after the substep [m], (nr,)
+    "rate",  # dℓ/dt after the substep [m/s], (nr,)
+])
+
+ContactWork = namedtuple("ContactWork", [  # per contact candidate, for up to ncap candidates
+    "active",  # 1: the soft pyramid's edge rows are live, (ncap,)
+    "local",  # the pyramid's contact points r1, r2 in the group frames [m], (ncap, 2, 3)
+    "edge",  # the pyramid's edge rows (ê, target, α̃, 1/|e|), (ncap, 4, 6)
+    "lam",  # the edge rows' multipliers [N·s²], (ncap, 4)
+    "kind",  # CONTACT_* of each candidate, (ncap,)
+    "row",  # soft normal row: target gap r* [m], α̃ = R, (ncap, 2)
+    "normal_lam", "friction_lam",  # normal and static-friction multipliers [N·s²], (ncap,)
+    "fixed",  # body-fixed contact points r1, r2 (group frames) [m] once touching, (ncap, 2, 3)
+    "seen",  # 1 once the normal row acted in this substep, (ncap,)
+    "order", "count",  # the touching candidates in the order they first acted, (ncap,), (1,)
+    "impulse",  # velocity pass: accumulated friction (3) and normal (1) impulses [N·s], (ncap, 4)
+])
+
+RowBlockWork = namedtuple("RowBlockWork", [  # the length rows' block system, for up to nr active rows
+    "matrix", "augmented", "vectors",  # (nr, nr), (nr, nr + 1), (3, nr): rhs, live flags, Δλ
+])
+
+SubstepWork = namedtuple("SubstepWork", [
+    "joint_soft", "joint_lam", "tendon_soft", "tendon_lam",  # soft limit rows and their λ
+    "contacts",  # ``ContactWork``
+    "X_start", "Q_start",  # group poses at the prediction
+    "block_soft", "block_mu",  # the articulated limit block
+    "rows",  # ``RowBlockWork``
+    "G", "Minv",  # articulated contacts: group Jacobian (ng, 6, nj), joint-space M⁻¹ (nj, nj)
+])
+
+BodyTree = namedtuple("BodyTree", [
+    "iquat", "ipos",  # inertial frame of each body (quaternion, position [m]), (nb, 4), (nb, 3)
+    "parent", "body_quat", "body_pos",  # MuJoCo body tree, (nb,), (nb, 4), (nb, 3)
+    "jnt_type", "jnt_body", "jnt_qposadr", "jnt_dofadr", "jnt_axis",  # MuJoCo joints
+    "qpos0",  # reference configuration, (nq,)
+])
 
 # Kernels that allocate nothing are compiled without numba's reference counting (``_nrt=False``): in a
 # reference-counted function every array argument and view costs an NRT_incref/NRT_decref pair.  On the excavator
@@ -322,7 +442,7 @@ def _pair_mobility(IM, II, Q, b1, b2, r1, r2):
 
 @njit(cache=True)
 def _solve_dense(A, b, x):
-    """A x = b by Gaussian elimination with partial pivoting (``solver._solve_dense``); False if singular."""
+    """A x = b by Gaussian elimination with partial pivoting (``reference._solve_dense``); False if singular."""
     n = b.shape[0]
     return _solve_dense_in(A, b, x, np.empty((n, n + 1)))
 
@@ -527,7 +647,7 @@ def _soft_limit_target(params, value, rate, lo, hi, h, out):
     else:
         return
     kd, b, R = _contact_law(params[1:3], params[3:8], 1, params[8], 0.0, r, 0, 1.0, h)
-    rs = r + h * rd - h * h * (b * rd + kd * r)  # MuJoCo's semi-implicit step (solver.mujoco_step_target)
+    rs = r + h * rd - h * h * (b * rd + kd * r)  # MuJoCo's semi-implicit step (laws.mujoco_step_target)
     out[0] = side
     out[1] = hi - rs if side > 0.0 else lo + rs
     out[2] = R
@@ -891,22 +1011,16 @@ def _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, reverse):
                              at[i], lam[i], lo[i], hi[i])
 
 
-@_leaf
-def rows_block_work_size(nr):
-    """Length of ``_solve_rows_block``'s float64 work buffer for up to ``nr`` active rows."""
-    return nr * (2 * nr + 4)
-
-
 @njit(cache=True)
 def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob, work):
-    """The active cylinder rows as one block through their articulated mobility ``mob``; ``work``: float64
-    scratch of at least ``rows_block_work_size(len(act))`` entries."""
+    """The active cylinder rows as one block through their articulated mobility ``mob``; ``work``: the
+    ``RowBlockWork`` (for at least ``len(act)`` rows)."""
     k = act.shape[0]
-    A = _matrix(work[:k * k], k, k)
-    rhs = work[k * k:k * k + k]
-    live = work[k * k + k:k * k + 2 * k]  # 1.0 for a row with a usable direction
-    dlam = work[k * k + 2 * k:k * k + 3 * k]
-    M = _matrix(work[k * k + 3 * k:2 * k * k + 4 * k], k, k + 1)
+    A = work.matrix[:k, :k]
+    rhs = work.vectors[0, :k]
+    live = work.vectors[1, :k]  # 1.0 for a row with a usable direction
+    dlam = work.vectors[2, :k]
+    M = work.augmented[:k, :k + 1]
     for m in range(k):
         rhs[m] = 0.0
         live[m] = 0.0
@@ -991,7 +1105,7 @@ def _impedance(solimp, pos):
 
 @_leaf
 def _contact_law(solref, solimp, condim, tran, mu, pos, cone, impratio, timestep):
-    """``solver.mujoco_contact_law``: (k·d, b, R)."""
+    """``laws.mujoco_contact_law``: (k·d, b, R)."""
     tc, zeta = solref[0], solref[1]
     d = _impedance(solimp, pos)
     dmax = min(max(solimp[1], 1e-4), 0.9999)
@@ -1012,13 +1126,166 @@ def _contact_law(solref, solimp, condim, tran, mu, pos, cone, impratio, timestep
 
 
 @_leaf
-def _contact_targets(X, Q, V, W, cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, h,
-                     active, clocal, edge):
-    """Soft pyramidal edge rows of every candidate for the substep (``SolverXPBD._soft_contact_targets``).
+def _contact_normal(X, Q, IM, II, contacts, cw, ci):
+    """Normal row of a soft (non-pyramidal) or rigid candidate ``ci`` ([RB] Sec. 3.5; ``SolverXPBD._contact_normal``):
+    C = d ≥ 0 at the deepest point (rigid), or the compliant C = d − r* with α̃ = R and λ ≥ 0 (soft).  The first time
+    it acts in the substep its body-fixed points are kept for friction and the velocity pass."""
+    cg, cvec = contacts.group, contacts.vec
+    g2, g1 = cg[ci, 0], cg[ci, 1]
+    rad = contacts.radius[ci]
+    q1, q2 = _q4(Q, g1), _q4(Q, g2)
+    n = _rot(q1, _v3(cvec[ci], 2))
+    o = _rot(q1, _v3(cvec[ci], 1))
+    r2c = _rot(q2, _v3(cvec[ci], 0))
+    p = (X[g2, 0] + r2c[0], X[g2, 1] + r2c[1], X[g2, 2] + r2c[2])
+    d = (p[0] - X[g1, 0] - o[0]) * n[0] + (p[1] - X[g1, 1] - o[1]) * n[1] + (p[2] - X[g1, 2] - o[2]) * n[2] - rad
+    lam_n = cw.normal_lam
+    soft = cw.kind[ci] == CONTACT_SOFT
+    c = 0.0
+    if soft:
+        c = d - cw.row[ci, 0]
+        if c >= 0.0 and lam_n[ci] <= 0.0:
+            return
+    elif d >= 0.0:
+        return
+    s2 = (p[0] - rad * n[0], p[1] - rad * n[1], p[2] - rad * n[2])  # surface point
+    s1 = (s2[0] - d * n[0], s2[1] - d * n[1], s2[2] - d * n[2])  # on the plane
+    r1 = (s1[0] - X[g1, 0], s1[1] - X[g1, 1], s1[2] - X[g1, 2])
+    r2 = (s2[0] - X[g2, 0], s2[1] - X[g2, 1], s2[2] - X[g2, 2])
+    if not cw.seen[ci]:
+        a1, a2 = _rotinv(q1, r1), _rotinv(q2, r2)
+        for k in range(3):
+            cw.fixed[ci, 0, k] = a1[k]
+            cw.fixed[ci, 1, k] = a2[k]
+        cw.seen[ci] = 1
+        m = cw.count[0]
+        cw.order[m] = ci
+        cw.count[0] = m + 1
+    if soft:
+        lam_n[ci] += _solve_pos(X, Q, IM, II, g1, g2, r1, r2, n, c, cw.row[ci, 1], lam_n[ci], 0.0, math.inf)
+    else:
+        lam_n[ci] += _solve_pos(X, Q, IM, II, g1, g2, r1, r2, n, d, 0.0, 0.0, -math.inf, math.inf)
 
-    active[ci]: 1 if the candidate penetrates (edge rows live), else 0; clocal[ci] = (r1 local, r2 local);
-    edge[ci, j] = (ê (3), target Δ*/|e| [m], α̃ = R_e/|e|², 1/|e|)."""
+
+@_leaf
+def _contact_static_friction(X, Q, IM, II, contacts, cw, Xp, Qp, ci):
+    """Static friction of a touching candidate ([RB] Sec. 3.5; ``SolverXPBD._contact_static_friction``): cancel the
+    relative tangential motion of its points over the substep while the multiplier stays inside the cone
+    λ_t < μ λ_n."""
+    mu, ln = contacts.mu[ci], cw.normal_lam[ci]
+    if mu <= 0.0 or ln <= 0.0:
+        return
+    g2, g1 = contacts.group[ci, 0], contacts.group[ci, 1]
+    r1l, r2l = _v3(cw.fixed[ci], 0), _v3(cw.fixed[ci], 1)
+    q1, q2 = _q4(Q, g1), _q4(Q, g2)
+    r1w = _rot(q1, r1l)
+    r2w = _rot(q2, r2l)
+    r1p = _rot(_q4(Qp, g1), r1l)
+    r2p = _rot(_q4(Qp, g2), r2l)
+    dp = ((X[g2, 0] + r2w[0] - Xp[g2, 0] - r2p[0]) - (X[g1, 0] + r1w[0] - Xp[g1, 0] - r1p[0]),
+          (X[g2, 1] + r2w[1] - Xp[g2, 1] - r2p[1]) - (X[g1, 1] + r1w[1] - Xp[g1, 1] - r1p[1]),
+          (X[g2, 2] + r2w[2] - Xp[g2, 2] - r2p[2]) - (X[g1, 2] + r1w[2] - Xp[g1, 2] - r1p[2]))
+    n = _rot(q1, _v3(contacts.vec[ci], 2))
+    dn = _dot(dp, n)
+    dt = (dp[0] - dn * n[0], dp[1] - dn * n[1], dp[2] - dn * n[2])
+    c = math.sqrt(_dot(dt, dt))
+    if c <= _EPS:
+        return
+    t = (dt[0] / c, dt[1] / c, dt[2] / c)
+    w = _pos_w(IM[g1], _v3(II, g1), q1, r1w, t) + _pos_w(IM[g2], _v3(II, g2), q2, r2w, t)
+    if w <= 0.0:
+        return
+    dlt = c / w
+    if cw.friction_lam[ci] + dlt < mu * ln:
+        cw.friction_lam[ci] += dlt
+        _solve_pos(X, Q, IM, II, g1, g2, r1w, r2w, t, c, 0.0, 0.0, -math.inf, math.inf)
+
+
+@_leaf
+def _contact_velocities(V, W, Q, IM, II, contacts, cw, h, sweeps):
+    """Velocity pass of the touching non-pyramidal candidates ([RB] Sec. 3.6; ``SolverXPBD._solve_velocities``):
+    ``sweeps`` projected Gauss-Seidel sweeps, in the order the candidates first acted, of dynamic friction (the
+    accumulated impulse clamped to μ·λ_n/h) and, on rigid rows, restitution e = 0 (accumulated normal impulse
+    ≥ −λ_n/h; a soft row's damping is in its position law)."""
+    count = cw.count[0]
+    imp = cw.impulse
+    cg, cvec, cmu = contacts.group, contacts.vec, contacts.mu
+    for m in range(count):
+        ci = cw.order[m]
+        for k in range(4):
+            imp[ci, k] = 0.0
+    for _ in range(sweeps):
+        for m in range(count):
+            ci = cw.order[m]
+            g2, g1 = cg[ci, 0], cg[ci, 1]
+            mu, ln = cmu[ci], cw.normal_lam[ci]
+            q1, q2 = _q4(Q, g1), _q4(Q, g2)
+            n = _rot(q1, _v3(cvec[ci], 2))
+            r1 = _rot(q1, _v3(cw.fixed[ci], 0))
+            r2 = _rot(q2, _v3(cw.fixed[ci], 1))
+            if mu > 0.0 and ln > 0.0:
+                va = _point_vel(V, W, g2, r2)
+                vb = _point_vel(V, W, g1, r1)
+                vr = (va[0] - vb[0], va[1] - vb[1], va[2] - vb[2])
+                vn = _dot(vr, n)
+                vt = (vr[0] - vn * n[0], vr[1] - vn * n[1], vr[2] - vn * n[2])
+                vtl = math.sqrt(_dot(vt, vt))
+                if vtl > _EPS:
+                    t = (vt[0] / vtl, vt[1] / vtl, vt[2] / vtl)
+                    w = _pos_w(IM[g1], _v3(II, g1), q1, r1, t) + _pos_w(IM[g2], _v3(II, g2), q2, r2, t)
+                    if w > 0.0:
+                        j = -vtl / w
+                        old = (imp[ci, 0], imp[ci, 1], imp[ci, 2])
+                        new = (old[0] + j * t[0], old[1] + j * t[1], old[2] + j * t[2])
+                        cap = mu * ln / h
+                        mag = math.sqrt(_dot(new, new))
+                        if mag > cap:
+                            sc = cap / mag
+                            new = (new[0] * sc, new[1] * sc, new[2] * sc)
+                        p = (new[0] - old[0], new[1] - old[1], new[2] - old[2])
+                        imp[ci, 0], imp[ci, 1], imp[ci, 2] = new
+                        _apply_vel(V, W, Q, IM, II, g2, r2, p, 1.0)
+                        _apply_vel(V, W, Q, IM, II, g1, r1, p, -1.0)
+            if cw.kind[ci] == CONTACT_SOFT:
+                continue  # compliant normal: its damping is in the position law
+            va = _point_vel(V, W, g2, r2)
+            vb = _point_vel(V, W, g1, r1)
+            vn = (va[0] - vb[0]) * n[0] + (va[1] - vb[1]) * n[1] + (va[2] - vb[2]) * n[2]
+            if vn == 0.0:
+                continue
+            w = _pos_w(IM[g1], _v3(II, g1), q1, r1, n) + _pos_w(IM[g2], _v3(II, g2), q2, r2, n)
+            if w > 0.0:
+                old_n = imp[ci, 3]
+                new_n = max(old_n - vn / w, -ln / h)
+                jn = new_n - old_n
+                imp[ci, 3] = new_n
+                p = (jn * n[0], jn * n[1], jn * n[2])
+                _apply_vel(V, W, Q, IM, II, g2, r2, p, 1.0)
+                _apply_vel(V, W, Q, IM, II, g1, r1, p, -1.0)
+
+
+@_leaf
+def _contact_targets(X, Q, V, W, contacts, cone, impratio, soft, pyramid, h, cw):
+    """The kind (``CONTACT_*``) and rows of every candidate (``ContactRows``) for the substep
+    (``SolverXPBD._soft_contact_targets``), into ``cw`` (``ContactWork``).
+
+    Rigid (``options.soft_contacts`` off, or R = 0: μ = 0 on a pyramidal cone): the normal row of [RB].  Soft and
+    not penetrating at the substep's start: no force.  Soft pyramidal (``options.pyramid_friction``, condim ≥ 3,
+    MuJoCo's pyramidal cone): contact_active[ci] = 1, contact_local[ci] = (r1 local, r2 local),
+    contact_edge[ci, j] = (ê (3), target Δ*/|e| [m], α̃ = R_e/|e|², 1/|e|).  Other soft contacts (elliptic cone,
+    condim 1): one compliant normal row, contact_row[ci] = (r* = ``mujoco_step_target`` [m], α̃ = R), with the
+    Coulomb friction of [RB] (``_contact_static_friction`` and the velocity pass).  ``soft``, ``pyramid``:
+    ``SubstepOptions.soft_contacts``, ``pyramid_friction``; ``cone``, ``impratio``: MuJoCo's (``GroupModel``);
+    ``cw``: the ``ContactWork``."""
+    cg, cvec, crad, cmu = contacts.group, contacts.vec, contacts.radius, contacts.mu
+    csolref, csolimp, ccondim, ctran = contacts.solref, contacts.solimp, contacts.condim, contacts.tran
+    active, clocal, edge = cw.active, cw.local, cw.edge
+    kind, row = cw.kind, cw.row
     for ci in range(cg.shape[0]):
+        active[ci] = 0
+        if not soft:
+            kind[ci] = CONTACT_RIGID
+            continue
         g2, g1 = cg[ci, 0], cg[ci, 1]
         r2l, ol, nl, t1l = _v3(cvec[ci], 0), _v3(cvec[ci], 1), _v3(cvec[ci], 2), _v3(cvec[ci], 3)
         rad, mu = crad[ci], cmu[ci]
@@ -1030,9 +1297,22 @@ def _contact_targets(X, Q, V, W, cg, cvec, crad, cmu, csolref, csolimp, ccondim,
         gap = (p[0] - X[g1, 0] - o[0]) * n[0] + (p[1] - X[g1, 1] - o[1]) * n[1] + (p[2] - X[g1, 2] - o[2]) * n[2] - rad
         kd, b, R = _contact_law(csolref[ci], csolimp[ci], ccondim[ci], ctran[ci], mu, min(gap, 0.0),
                                 cone, impratio, h)
-        active[ci] = 0
-        if gap >= 0.0:
+        if R <= 0.0:
+            kind[ci] = CONTACT_RIGID
             continue
+        if gap >= 0.0:  # MuJoCo instantiates a contact only once it penetrates (margin 0)
+            kind[ci] = CONTACT_IDLE
+            continue
+        if not (pyramid and ccondim[ci] >= 3 and cone == 0):
+            r1 = (p[0] - X[g1, 0], p[1] - X[g1, 1], p[2] - X[g1, 2])
+            va = _point_vel(V, W, g2, r2)
+            vb = _point_vel(V, W, g1, r1)
+            rate = (va[0] - vb[0]) * n[0] + (va[1] - vb[1]) * n[1] + (va[2] - vb[2]) * n[2]
+            kind[ci] = CONTACT_SOFT
+            row[ci, 0] = gap + h * rate - h * h * (b * rate + kd * gap)  # laws.mujoco_step_target
+            row[ci, 1] = R
+            continue
+        kind[ci] = CONTACT_PYRAMID
         ne = 2 * (ccondim[ci] - 1)
         r_edge = R * ne
         rel = (p[0] - rad * n[0], p[1] - rad * n[1], p[2] - rad * n[2])
@@ -1180,8 +1460,18 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
 
 
 @njit(cache=True)
-def _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, reverse, art, G, Minv):
+def _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, reverse, art, G, Minv):
+    """One pass over the candidates (``SolverXPBD._solve_contacts``; ``cw`` the ``ContactWork``, Xp, Qp the group
+    poses at the prediction): the normal rows of the non-pyramidal ones, the pyramids per body pair (``art``: with
+    the articulated response G, M⁻¹), then the static friction of every touching non-pyramidal candidate."""
+    cg = contacts.group
     nc = cg.shape[0]
+    kind = cw.kind
+    for k in range(nc):
+        ci = nc - 1 - k if reverse else k
+        if kind[ci] == CONTACT_SOFT or kind[ci] == CONTACT_RIGID:
+            _contact_normal(X, Q, IM, II, contacts, cw, ci)
+    active, clocal, edge, lam_e = cw.active, cw.local, cw.edge, cw.lam
     done = np.zeros(nc, np.bool_)
     for k in range(nc):
         ci = nc - 1 - k if reverse else k
@@ -1202,6 +1492,10 @@ def _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rever
                 done[cj] = True
                 cnt += 1
         _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, art, G, Minv)
+    for k in range(nc):
+        ci = nc - 1 - k if reverse else k
+        if cw.seen[ci]:
+            _contact_static_friction(X, Q, IM, II, contacts, cw, Xp, Qp, ci)
 
 
 # ---------------------------------------------------------------------------- the substep
@@ -1209,43 +1503,57 @@ def _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rever
 
 @njit(cache=True)
 def substep_work(ng, nj, ntl, ncap, nr):
-    """The work arrays of ``substep_core`` for ``ng`` groups, ``nj`` joints, ``ntl`` tendon limits, up to ``ncap``
+    """The ``SubstepWork`` of ``substep_core`` for ``ng`` groups, ``nj`` joints, ``ntl`` tendon limits, up to ``ncap``
     contact candidates and ``nr`` length rows (made once by a caller that runs many substeps)."""
-    return (np.zeros((nj, 3)), np.zeros(nj), np.zeros((ntl, 3)), np.zeros(ntl), np.zeros(ncap, np.int64),
-            np.zeros((ncap, 2, 3)), np.zeros((ncap, 4, 6)), np.zeros((ncap, 4)), np.zeros((ng, 3)), np.zeros((ng, 4)),
-            np.zeros((nj, 3)), np.zeros(nj + ntl), np.zeros(rows_block_work_size(nr)))
+    contacts = ContactWork(np.zeros(ncap, np.int64), np.zeros((ncap, 2, 3)), np.zeros((ncap, 4, 6)),
+                           np.zeros((ncap, 4)), np.zeros(ncap, np.int64), np.zeros((ncap, 2)), np.zeros(ncap),
+                           np.zeros(ncap), np.zeros((ncap, 2, 3)), np.zeros(ncap, np.int64), np.zeros(ncap, np.int64),
+                           np.zeros(1, np.int64), np.zeros((ncap, 4)))
+    rows = RowBlockWork(np.zeros((nr, nr)), np.zeros((nr, nr + 1)), np.zeros((3, nr)))
+    return SubstepWork(np.zeros((nj, 3)), np.zeros(nj), np.zeros((ntl, 3)), np.zeros(ntl), contacts, np.zeros((ng, 3)),
+                       np.zeros((ng, 4)), np.zeros((nj, 3)), np.zeros(nj + ntl), rows,
+                       np.zeros((ng, 6, nj)), np.zeros((nj, nj)))
 
 
 @njit(cache=True)
-def substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
-                 jt, jg, jvec, jqoff, jlim, jlo, jhi, jdamp,
-                 et, eg, evec, eqoff,
-                 rg, rvec, act, tgt, at, lo, hi, use_block, mob,
-                 use_gg, gg, F, T, use_tau, tau,
-                 cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio,
-                 lin_damp, ang_damp, lam_rows, ell, rate, art_contacts, Gc, Minv, work):
+def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work):
     """One XPBD substep of length h [s] in place on the group arrays X, Q, V, W (see module docstring).
 
-    Rows: ``act`` the active row indices, tgt/at/lo/hi per row (ℓ* [m], α̃ = α/h², bounds on λ [N·s²]),
-    ``mob`` (nrows, ngroup, 6) the articulated mobility (``use_block``).  ``gg`` (ngroup, 6) group
-    accelerations replacing gravity (``use_gg``), F/T (ngroup, 3) external world forces/torques, ``tau``
-    (njnt,) hinge torques applied as impulses (``use_tau``).  Contacts: the step's candidates
-    (cg = (body group, plane group); cvec = (r2 local, plane origin, plane normal, tangent t₁)).
-    Limits: ``jlim`` (njnt + ntendonlimits, LIMIT_COLS), ``SolverXPBD._limit_table``: soft limits (MuJoCo's law,
-    rows set up from the state at the substep's start) or, for a joint with invweight 0, the rigid projection.
-    Outputs: lam_rows (λ of every row), ell and rate (ℓ [m], dℓ/dt [m/s] of every row after the substep).
-    ``art_contacts``: the contact pyramids are solved with the articulated response of a hinge/slide tree
-    (``articulated_inverse`` at the predicted pose, into the work arrays Gc (ngroup, 6, njnt) and Minv
-    (njnt, njnt)); otherwise (or for other joints) with the free-body response of the touching groups.
-    ``work``: the tuple of ``substep_work`` (for at least this substep's contacts and rows), overwritten.
+    ``model``: the ``GroupModel``; ``rows``: the ``SubstepRows`` (``active`` the rows solved, target/compliance/
+    lower/upper per row: ℓ* [m], α̃ = α/h², bounds on λ [N·s²]; ``mobility`` (nrows, ngroup, 6) the articulated
+    mobility, used with ``use_block``).  ``loads``: the ``SubstepLoads`` (group accelerations replacing gravity,
+    external world forces/torques, hinge torques applied as impulses).  ``contacts``: the step's candidates
+    (``ContactRows``).  Limits: ``model.jlim`` (``SolverXPBD._limit_table``): soft limits (MuJoCo's law, rows set
+    up from the state at the substep's start) or, for a joint with invweight 0, the rigid projection.
+    ``out``: the ``RowOutputs`` (λ of every row, ℓ [m], dℓ/dt [m/s] of every row after the substep).
+    With ``options.articulated_contacts`` the contact pyramids are solved with the articulated response of a
+    hinge/slide tree (``articulated_inverse`` at the predicted pose, into ``work.G`` (ngroup, 6, njnt) and
+    ``work.Minv`` (njnt, njnt)); otherwise (or for other joints) with the free-body response of the touching
+    groups.  ``work``: the ``SubstepWork`` of ``substep_work`` (for at least this substep's contacts and rows),
+    overwritten.
     """
+    IM, II, GI, gravity = model.IM, model.II, model.GI, model.gravity
+    jt, jg, jvec, jqoff, jlim = model.jt, model.jg, model.jvec, model.jqoff, model.jlim
+    jlo, jhi, jdamp = model.jlo, model.jhi, model.jdamp
+    et, eg, evec, eqoff = model.et, model.eg, model.evec, model.eqoff
+    rg, rvec, act, tgt, at, lo, hi = rows.group, rows.vec, rows.active, rows.target, rows.compliance, rows.lower, rows.upper
+    use_block, mob = rows.use_block, rows.mobility
+    use_gg, gg, F, T = loads.use_group_acceleration, loads.group_acceleration, loads.force, loads.torque
+    use_tau, tau = loads.use_joint_torque, loads.joint_torque
+    iterations, symmetric, art_contacts = options.iterations, options.symmetric, options.articulated_contacts
+    lam_rows, ell, rate = out.lam, out.length, out.rate
+    Gc, Minv = work.G, work.Minv
     ng = X.shape[0]
     nr = rg.shape[0]
-    nc = cg.shape[0]
+    nc = contacts.group.shape[0]
+    cg = contacts.group
     # soft joint limit rows of the substep, from the state at its start (before the torque impulses)
     nj = jt.shape[0]
     ntl = jlim.shape[0] - nj
-    jsoft, jlam, tsoft, tlam, active_w, clocal_w, edge_w, lam_e_w, Xp, Qp, bsoft, mu, rwork = work
+    jsoft, jlam, tsoft, tlam = work.joint_soft, work.joint_lam, work.tendon_soft, work.tendon_lam
+    cw = work.contacts
+    active_w, clocal_w, edge_w, lam_e_w = cw.active, cw.local, cw.edge, cw.lam
+    Xp, Qp, bsoft, mu = work.X_start, work.Q_start, work.block_soft, work.block_mu
     jsoft[:, :] = 0.0
     jlam[:] = 0.0
     tsoft[:, :] = 0.0
@@ -1288,9 +1596,13 @@ def substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
     clocal[:, :, :] = 0.0
     edge[:, :, :] = 0.0
     lam_e[:, :] = 0.0
+    cw.normal_lam[:nc] = 0.0
+    cw.friction_lam[:nc] = 0.0
+    cw.seen[:nc] = 0
+    cw.count[0] = 0
     if nc:
-        _contact_targets(X, Q, V, W, cg, cvec, crad, cmu, csolref, csolimp, ccondim, ctran, cone, impratio, h,
-                         active, clocal, edge)
+        _contact_targets(X, Q, V, W, contacts, model.contact_cone, model.contact_impratio, options.soft_contacts,
+                         options.pyramid_friction, h, cw)
     for g in range(ng):
         for c in range(3):
             Xp[g, c] = X[g, c]
@@ -1345,17 +1657,17 @@ def substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)
                 if act.shape[0]:
                     if use_block:
-                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, rwork)
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work.rows)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 if nc:
-                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rev, cart, Gc, Minv)
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, rev, cart, Gc, Minv)
             else:
                 if nc:
-                    _solve_contacts(X, Q, Xp, Qp, IM, II, cg, active, clocal, edge, lam_e, rev, cart, Gc, Minv)
+                    _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, rev, cart, Gc, Minv)
                 if act.shape[0]:
                     if use_block:
-                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, rwork)
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work.rows)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)
@@ -1372,7 +1684,9 @@ def substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
         dq = _qmul(_q4(Q, g), _qconj(_q4(Qp, g)))
         s = 2.0 * ih if dq[0] >= 0.0 else -2.0 * ih
         W[g, 0], W[g, 1], W[g, 2] = s * dq[1], s * dq[2], s * dq[3]
-    # velocity pass: soft pyramidal contacts have none; implicit joint damping
+    # velocity pass: the touching non-pyramidal contacts (soft pyramidal ones have none); implicit joint damping
+    if cw.count[0] > 0:
+        _contact_velocities(V, W, Q, IM, II, contacts, cw, h, options.velocity_sweeps)
     for j in range(jt.shape[0]):
         b = jdamp[j]
         t = jt[j]
@@ -1410,8 +1724,8 @@ def substep_core(X, Q, V, W, IM, II, GI, gravity, h, iterations, symmetric,
             p = (jimp * n[0], jimp * n[1], jimp * n[2])
             _apply_vel(V, W, Q, IM, II, g2, zero, p, -1.0)
             _apply_vel(V, W, Q, IM, II, g1, r1w, p, 1.0)
-    cl = 1.0 / (1.0 + lin_damp * h)
-    ca = 1.0 / (1.0 + ang_damp * h)
+    cl = 1.0 / (1.0 + options.linear_damping * h)
+    ca = 1.0 / (1.0 + options.angular_damping * h)
     for g in range(1, ng):
         if cl != 1.0:
             for c in range(3):
@@ -1532,10 +1846,12 @@ def body_frames(x, q, iquat, ipos, xb, qb):
 
 
 @_leaf
-def qpos_qvel(x, q, v, w, hint, iquat, ipos, body_parent, body_quat, body_pos, jnt_type, jnt_body,
-                 jnt_qposadr, jnt_dofadr, jnt_axis, qpos0, xb, qb, qpos, qvel):
+def qpos_qvel(x, q, v, w, hint, tree, xb, qb, qpos, qvel):
     """MuJoCo generalized coordinates from the body state (``XpbdModel.qpos_qvel``; also fills the body
-    frames ``xb``, ``qb``).  Joint types: 0 free, 1 ball, 2 slide, 3 hinge."""
+    frames ``xb``, ``qb``) on the ``BodyTree`` ``tree``.  Joint types: 0 free, 1 ball, 2 slide, 3 hinge."""
+    iquat, ipos, body_parent, body_quat, body_pos = tree.iquat, tree.ipos, tree.parent, tree.body_quat, tree.body_pos
+    jnt_type, jnt_body, jnt_qposadr, jnt_dofadr = tree.jnt_type, tree.jnt_body, tree.jnt_qposadr, tree.jnt_dofadr
+    jnt_axis, qpos0 = tree.jnt_axis, tree.qpos0
     body_frames(x, q, iquat, ipos, xb, qb)
     for k in range(qpos.shape[0]):
         qpos[k] = qpos0[k]

@@ -227,7 +227,7 @@ class XpbdModel:
     contact_cone: int = 0                         # mjCONE_PYRAMIDAL (0) or mjCONE_ELLIPTIC (1)
     contact_impratio: float = 1.0
     contact_timestep: float = 0.0                 # MJCF timestep [s] (MuJoCo's timeconst ≥ 2·timestep safety)
-    # MuJoCo soft joint limits (``SolverXPBD(soft_limits=True)``): per joint solref/solimp of the limit and
+    # MuJoCo soft joint limits (``XpbdOptions(soft_limits=True)``): per joint solref/solimp of the limit and
     # MuJoCo's diagonal approximation of its effective inverse inertia (dof_invweight0 [1/(kg·m²)] for a
     # hinge, [1/kg] for a slide); None = rigid limits (a model built without them)
     # rotor inertia [kg·m²] of each joint as modelled (MuJoCo's dof_armature on hinges whose parent is static, in
@@ -695,6 +695,7 @@ class XpbdModel:
                      from_root_pos=f(self.group_from_root_pos, -1, 3), group_mass=f(self.group_mass, -1),
                      group_inertia=f(self.group_inertia, -1, 3), gravity=f(self.gravity, 3),
                      body_frames=compiled.body_frames, qpos_qvel=compiled.qpos_qvel, energies=compiled.energies)
+            a["tree"] = compiled.BodyTree(*(a[name] for name in compiled.BodyTree._fields))
             self.__dict__["_nb"] = a
         return a
 
@@ -727,8 +728,7 @@ class XpbdModel:
             xb, qb = np.empty((self.nbody, 3)), np.empty((self.nbody, 4))
             qpos, qvel = np.empty(len(a["qpos0"])), np.empty(self.nv)
             a["qpos_qvel"](_f64(state.x), _f64(state.q), _f64(state.v), _f64(state.w), _f64(state.qpos_hint),
-                         a["iquat"], a["ipos"], a["parent"], a["body_quat"], a["body_pos"], a["jnt_type"],
-                         a["jnt_body"], a["jnt_qposadr"], a["jnt_dofadr"], a["jnt_axis"], a["qpos0"], xb, qb, qpos, qvel)
+                           a["tree"], xb, qb, qpos, qvel)
             return qpos, qvel
         return self._qpos_qvel_numpy(state)
 
