@@ -39,6 +39,7 @@ sys.path.insert(0, str(ROOT))
 
 from sim.tools.compare import RunSpec, compare_runs, default_modes, parse_runs, summary_table  # noqa: E402
 from sim.tools.reference import Tolerance  # noqa: E402
+from sim.io.scenario import as_scenario  # noqa: E402
 from sim.tools.tradeoff import pareto_table, stability_statements, tradeoff  # noqa: E402
 
 SEED = ROOT / "models/seed_cylinder/closed.scenario.toml"
@@ -113,8 +114,8 @@ def main(argv=None) -> int:
             continue
         started = time.perf_counter()
         tout = args.out / f"{name}-tradeoff"
-        t = tradeoff(scenario, tout, scheduler=args.scheduler, workers=args.workers, quick=not args.full,
-                     duration=duration, progress=True)
+        t = tradeoff(as_scenario(scenario, duration=duration), tout, scheduler=args.scheduler, workers=args.workers,
+                     quick=not args.full, progress=True)
         print(f"\n## {name}: tradeoff, {len(t.rows)} settings ({time.perf_counter() - started:.0f} s)")
         for kind in ("stroke", "pressure"):
             for s in t.statements[kind]:

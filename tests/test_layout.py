@@ -2,7 +2,7 @@
 
 * ``sim/xpbd`` is the rigid-body solver alone: none of its modules imports :mod:`hydraulics`;
   :mod:`hydraulics` imports nothing from :mod:`sim` (the coupling lives in ``sim/plants``).
-* No function of ``sim/xpbd`` or ``sim/plants`` takes more than ``MAX_PARAMETERS`` parameters
+* No function of ``hydraulics`` or ``sim`` takes more than ``MAX_PARAMETERS`` parameters
   (``self``/``cls`` not counted): the compiled kernels take named layouts (namedtuples of arrays)
   instead of long positional lists.
 """
@@ -75,7 +75,7 @@ def test_no_import_across_the_layers(package, forbidden):
     assert offenders == [], f"{package} modules importing {forbidden}: {offenders}"
 
 
-@pytest.mark.parametrize("package", ["sim/xpbd", "sim/plants"])
+@pytest.mark.parametrize("package", ["hydraulics", "sim"])
 def test_no_function_takes_more_than_15_parameters(package):
     """Kernels and methods take named layouts, not long positional lists."""
     too_many = [(count, where) for count, where in parameter_counts(package) if count > MAX_PARAMETERS]

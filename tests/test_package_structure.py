@@ -1,7 +1,5 @@
-"""Structure of the ``hydraulics`` package: short signatures and no import cycles.
+"""Structure of the ``hydraulics`` package: no import cycles (short signatures: ``test_layout.py``).
 
-* No function takes more than 15 parameters: kernels take named tuples of arrays (``_compiled.StepStart``,
-  ``StepOut``, ``LinearizationOut``) and the packed network, not long positional lists.
 * The module-level imports of ``hydraulics`` form no cycle (imports inside functions are deferred and not
   counted), and ``hydraulics`` imports nothing from ``sim``.
 """
@@ -12,7 +10,6 @@ import ast
 
 from conftest import ROOT
 
-MAX_PARAMETERS = 15
 PACKAGE = ROOT / "hydraulics"
 
 
@@ -45,20 +42,6 @@ def _module_level_imports(name, path, is_package):
             found.add(base)
             found.update(f"{base}.{a.name}" for a in node.names)
     return found
-
-
-def test_no_function_takes_more_than_15_parameters():
-    """Every function of the package (compiled kernels included) has at most MAX_PARAMETERS parameters."""
-    long = []
-    for path in PACKAGE.rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
-                a = node.args
-                count = (len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs) + (a.vararg is not None)
-                         + (a.kwarg is not None))
-                if count > MAX_PARAMETERS:
-                    long.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name} ({count})")
-    assert not long, long
 
 
 def test_no_import_cycle_and_no_import_of_sim():

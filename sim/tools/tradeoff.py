@@ -63,6 +63,7 @@ DEFAULT_REPEATS = 3
 QUICK_REPEATS = 1
 WARM_UP_STEPS = 20  # steps of the untimed warm-up run per worker process, mode and coupling
 REPEAT_BELOW_S = 10.0  # s of wall time: a run longer than this is timed once, not `repeats` times
+FRESH_CACHES = frozenset({"reference", "sweep"})  # the caches `tradeoff(fresh=...)` can ignore
 KIND_SCALE = {"joint": (1e3, "mrad"), "stroke": (1e3, "mm"), "pressure": (1e-5, "bar")}  # display factor, unit
 ERROR_COLUMNS = ("status", "diverged_at_s", "joint_max", "joint_rms", "stroke_max_m", "stroke_rms_m",
                  "pressure_max_pa", "pressure_rms_pa", "energy_drift_rel")
@@ -496,30 +497,34 @@ def evaluate(scenario, settings: list[dict], reference_log, *, repeats: int = DE
     return error_rows(points, results, log_signals(read_log(reference_log)), filter_window)
 
 
-def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = False, duration=None, modes=None,
-             repeats=None, tolerance=None, cache_dir=None, sweep_cache=None, fresh_reference: bool = False,
+def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = False, modes=None,
+             repeats=None, tolerance=None, cache_dir=None, sweep_cache=None, fresh=frozenset(),
              progress: bool = False, fidelities=None, reference_fidelity: str | None = None,
-             filter_window: float | None = None, fresh: bool = False) -> TradeoffResult:
+             filter_window: float | None = None) -> TradeoffResult:
     """The full sweep of a scenario; writes ``tradeoff.csv``, ``pareto.png`` and ``tradeoff.md`` into ``out_dir``.
 
     ``fidelities`` are the levels swept (see :func:`sweep_settings`); ``reference_fidelity`` the level of
     the reference (default: the scenario's own, per-actuator overrides included). ``filter_window`` [s]
     compares the signals averaged over a centred moving window, for the reference's convergence and the
     errors alike (for runs whose point-wise signals never converge, e.g. the whole excavator dig with
-    the teeth's stick-slip in the soil). ``fresh``: ignore the reference and sweep caches (results are
-    still written to them).
+    the teeth's stick-slip in the soil). ``fresh``: the caches to ignore, any of ``"reference"`` and
+    ``"sweep"`` (results are still written to them).  ``scenario``: a :class:`~sim.io.scenario.Scenario`
+    or its path (``as_scenario(path, duration=...)`` for a shorter run).
     """
     from sim.tools.reference import DEFAULT_CACHE_DIR, compute_reference
     from sim.io.scenario import as_scenario
 
-    scenario = as_scenario(scenario, duration=duration)
+    scenario = as_scenario(scenario)
+    unknown = set(fresh) - FRESH_CACHES
+    if unknown:
+        raise ValueError(f"fresh: {sorted(unknown)} not among {sorted(FRESH_CACHES)}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     reference_scenario = scenario
     if reference_fidelity is not None and reference_fidelity != scenario.fidelity:
         reference_scenario = scenario.with_overrides(fidelity=reference_fidelity, actuator_fidelity={})
     reference = compute_reference(reference_scenario, tolerance=tolerance, cache_dir=cache_dir or DEFAULT_CACHE_DIR,
-                                  fresh=fresh_reference or fresh, progress=progress, filter_window=filter_window)
+                                  fresh="reference" in fresh, progress=progress, filter_window=filter_window)
     settings = sweep_settings(scenario, quick=quick, modes=modes, fidelities=fidelities)
     repeats = repeats or (QUICK_REPEATS if quick else DEFAULT_REPEATS)
 
@@ -532,7 +537,7 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
 
     cache = Path(sweep_cache) if sweep_cache else Path(".cache/sweeps") / f"{scenario.scene_name}-{scenario.name}"
     rows = evaluate(scenario, settings, reference.log_path, repeats=repeats, scheduler=scheduler, workers=workers,
-                    cache_dir=cache, progress=report, filter_window=filter_window, fresh=fresh)
+                    cache_dir=cache, progress=report, filter_window=filter_window, fresh="sweep" in fresh)
     title = f"{scenario.scene_name}/{scenario.name}, {scenario.duration:g} s"
     csv_path = write_csv(rows, out_dir / "tradeoff.csv")
     fig = pareto_figure(rows, out_dir / "pareto.png", title=title)
@@ -632,14 +637,15 @@ def main(args) -> int:
             raise CircuitError(f"--fidelities: {bad or args.fidelities!r} not in {list(FIDELITIES)}")
     if args.reference_fidelity is not None and args.reference_fidelity not in FIDELITIES:
         raise CircuitError(f"--reference-fidelity: {args.reference_fidelity!r} is not one of {list(FIDELITIES)}")
-    from sim.io.scenario import load_scenario
+    from sim.io.scenario import as_scenario, load_scenario
 
     scenario = load_scenario(args.scenario)
     out = args.out or Path("logs") / f"tradeoff-{scenario.scene_name}-{scenario.name}"
-    result = tradeoff(scenario, out, scheduler=args.scheduler, workers=args.workers, quick=args.quick,
-                      duration=args.duration, modes=modes, repeats=args.repeats,
+    fresh = FRESH_CACHES if args.fresh else {"reference"} if args.fresh_reference else frozenset()
+    result = tradeoff(as_scenario(scenario, duration=args.duration), out, scheduler=args.scheduler,
+                      workers=args.workers, quick=args.quick, modes=modes, repeats=args.repeats,
                       tolerance=Tolerance(relative=args.tolerance) if args.tolerance else None,
-                      fresh_reference=args.fresh_reference, fresh=args.fresh, progress=True, fidelities=fidelities,
+                      fresh=fresh, progress=True, fidelities=fidelities,
                       reference_fidelity=args.reference_fidelity, filter_window=args.filter_window)
     for kind in ("stroke", "pressure"):
         for s in result.statements[kind]:
