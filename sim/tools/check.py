@@ -133,13 +133,12 @@ def driving_joint(ck: Checker, a: int):
     return best[:2]
 
 
-def relief_for(scene, a: int, side: str) -> tuple:
-    """(name, cracking pressure [Pa]) of the relief on the chamber's net, else the circuit's highest relief."""
-    circuit = scene.network.circuit
-    chamber = circuit.component(scene.network.actuator_names[a]).ports.get(side)
-    reliefs = circuit.by_kind("relief_valve")
-    # nets joined to the chamber through hoses
-    nets, changed = {chamber}, True
+def hose_joined(circuit, net) -> set:
+    """The nets joined to ``net`` through hoses (a hose has the same pressure at both ends), ``net`` included.
+
+    Example: ``hose_joined(circuit, valve.ports["A"])`` holds the chamber nets the valve's A port feeds.
+    """
+    nets, changed = {net}, True
     while changed:
         changed = False
         for c in circuit.by_kind("hose"):
@@ -147,6 +146,15 @@ def relief_for(scene, a: int, side: str) -> tuple:
             if ends & nets and not ends <= nets:
                 nets |= ends
                 changed = True
+    return nets
+
+
+def relief_for(scene, a: int, side: str) -> tuple:
+    """(name, cracking pressure [Pa]) of the relief on the chamber's net, else the circuit's highest relief."""
+    circuit = scene.network.circuit
+    chamber = circuit.component(scene.network.actuator_names[a]).ports.get(side)
+    reliefs = circuit.by_kind("relief_valve")
+    nets = hose_joined(circuit, chamber)
     on_side = [r for r in reliefs if r.ports.get("inlet") in nets]
     pick = on_side or reliefs
     if not pick:
@@ -161,14 +169,7 @@ def valve_for(scene, a: int):
     cyl = circuit.component(scene.network.actuator_names[a])
     for valve in circuit.by_kind("valve_4_3"):
         for port, sign in (("A", 1), ("B", -1)):
-            nets, changed = {valve.ports[port]}, True
-            while changed:
-                changed = False
-                for c in circuit.by_kind("hose"):
-                    ends = set(c.ports.values())
-                    if ends & nets and not ends <= nets:
-                        nets |= ends
-                        changed = True
+            nets = hose_joined(circuit, valve.ports[port])
             if cyl.ports.get("cap") in nets:
                 return valve.name, sign
             if cyl.ports.get("rod") in nets:
