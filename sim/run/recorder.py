@@ -162,26 +162,17 @@ class RunRecorder:
 
         self.joints = frame.joint_states_channel("/hydroplant/joint_states", plant.joint_names,
                                                  columns=np.arange(block["joints"].start, block["joints"].stop), metadata=si)
-        self.cylinders = [
-            frame.channel(f"/hydroplant/cylinders/{net.actuator_names[a]}", CYLINDER_STATE, fields=list(CYLINDER_FIELDS),
-                          columns=columns("cylinders", i, len(CYLINDER_FIELDS)), metadata=si)
-            for i, a in enumerate(net.cylinder_actuator)
-        ]
-        self.motors = [
-            frame.channel(f"/hydroplant/motors/{net.actuator_names[a]}", MOTOR_STATE, fields=list(MOTOR_FIELDS),
-                          columns=columns("motors", i, len(MOTOR_FIELDS)), metadata=si)
-            for i, a in enumerate(net.motor_actuator)
-        ]
-        self.valves = [
-            frame.channel(f"/hydroplant/valves/{name}", VALVE_STATE, fields=list(VALVE_FIELDS),
-                          columns=columns("valves", i, len(VALVE_FIELDS)), metadata=si)
-            for i, name in enumerate(net.valve_names)
-        ]
-        self.pumps = [
-            frame.channel(f"/hydroplant/pumps/{name}", PUMP_STATE, fields=list(PUMP_FIELDS),
-                          columns=columns("pumps", i, len(PUMP_FIELDS)), metadata=si)
-            for i, name in enumerate(net.pump_names)
-        ]
+        def per_item(kind, schema, fields, names):
+            """One channel /hydroplant/<kind>/<name> per named item, on its columns of block ``kind``."""
+            return [frame.channel(f"/hydroplant/{kind}/{name}", schema, fields=list(fields),
+                                  columns=columns(kind, i, len(fields)), metadata=si)
+                    for i, name in enumerate(names)]
+
+        self.cylinders = per_item("cylinders", CYLINDER_STATE, CYLINDER_FIELDS,
+                                  [net.actuator_names[a] for a in net.cylinder_actuator])
+        self.motors = per_item("motors", MOTOR_STATE, MOTOR_FIELDS, [net.actuator_names[a] for a in net.motor_actuator])
+        self.valves = per_item("valves", VALVE_STATE, VALVE_FIELDS, net.valve_names)
+        self.pumps = per_item("pumps", PUMP_STATE, PUMP_FIELDS, net.pump_names)
         self.nodes = frame.channel("/hydroplant/nodes", flat_schema("hydroplant_msgs/msg/NodePressures", node_fields),
                                    fields=list(node_fields), columns=columns("nodes", 0, nnode), metadata=si)
         self.flows = (
