@@ -323,11 +323,7 @@ class Channel:
             Field values in the order of the channel's ``fields`` (SI units); NaN and inf
             are stored as they are (float64).
         """
-        n = self._count
-        if n == self._capacity or step_index >= self._writer._next_flush_step:
-            n = self._prepare(step_index)
-        if step_index < self._last_step:
-            raise ValueError(f"{self.topic}: step_index {step_index} is before the previous one {self._last_step}")
+        n = self._next_row(step_index)
         self._values[n] = values
         self._steps[n] = step_index
         self._last_step = step_index
@@ -350,11 +346,7 @@ class Channel:
         ndarray, shape (column_count,)
             Writable view of the next buffer row.
         """
-        n = self._count
-        if n == self._capacity or step_index >= self._writer._next_flush_step:
-            n = self._prepare(step_index)
-        if step_index < self._last_step:
-            raise ValueError(f"{self.topic}: step_index {step_index} is before the previous one {self._last_step}")
+        n = self._next_row(step_index)
         self._steps[n] = step_index
         return self._values[n]
 
@@ -405,6 +397,16 @@ class Channel:
         self._last_step = step_index
 
     # -- internals -------------------------------------------------------------------
+
+    def _next_row(self, step_index: int) -> int:
+        """Index of the buffer row for a sample at ``step_index`` (after any flush it needs); ValueError if
+        ``step_index`` is before the channel's previous sample."""
+        n = self._count
+        if n == self._capacity or step_index >= self._writer._next_flush_step:
+            n = self._prepare(step_index)
+        if step_index < self._last_step:
+            raise ValueError(f"{self.topic}: step_index {step_index} is before the previous one {self._last_step}")
+        return n
 
     def _prepare(self, step_index: int) -> int:
         """Flush before a new sample when the buffer is full or a periodic flush is due."""
