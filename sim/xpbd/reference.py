@@ -549,24 +549,21 @@ class ReferenceSubstep:
         if pl > _EPS:
             solve_positional(X, Q, IM, II, g1, g2, (x2[0] - x1[0], x2[1] - x1[1], x2[2] - x1[2]),
                              zero, (perp[0] / pl, perp[1] / pl, perp[2] / pl), pl)
+        if sl is None and not limited:
+            return
+        # the axial position after the perpendicular row moved the bodies
+        q1 = Q[g1]
+        x1, x2 = X[g1], X[g2]
+        r1w = quat_rotate(q1, r1)
+        aw = quat_rotate(q1, a1)
+        dist = (x2[0] - x1[0] - r1w[0]) * aw[0] + (x2[1] - x1[1] - r1w[1]) * aw[1] + \
+            (x2[2] - x1[2] - r1w[2]) * aw[2]
         if sl is not None:
             side, target, at = sl
-            q1 = Q[g1]
-            x1, x2 = X[g1], X[g2]
-            r1w = quat_rotate(q1, r1)
-            aw = quat_rotate(q1, a1)
-            dist = (x2[0] - x1[0] - r1w[0]) * aw[0] + (x2[1] - x1[1] - r1w[1]) * aw[1] + \
-                (x2[2] - x1[2] - r1w[2]) * aw[2]
             sw.joint_lam[j] += solve_positional(X, Q, IM, II, g1, g2, (x2[0] - x1[0], x2[1] - x1[1], x2[2] - x1[2]),
                                               zero, aw, dist - target, at, sw.joint_lam[j],
                                               -_INF if side > 0.0 else 0.0, 0.0 if side > 0.0 else _INF)
-        elif limited:
-            q1 = Q[g1]
-            x1, x2 = X[g1], X[g2]
-            r1w = quat_rotate(q1, r1)
-            aw = quat_rotate(q1, a1)
-            dist = (x2[0] - x1[0] - r1w[0]) * aw[0] + (x2[1] - x1[1] - r1w[1]) * aw[1] + \
-                (x2[2] - x1[2] - r1w[2]) * aw[2]
+        else:
             viol = limit_violation(dist, lo, hi)
             if viol != 0.0:
                 solve_positional(X, Q, IM, II, g1, g2,
