@@ -141,7 +141,7 @@ def dense_strokes(path, dt, duration, out):
     default 100 Hz log, the linear interpolant between 10 ms samples doubled the excavator's pre-contact errors
     of the rows whose samples fall between them (PBD 4 ms × 4: 4.4e-5 of stroke, 2.2e-5 against a dense log).
     """
-    result = run(path, out=out, overrides={"mode": "mujoco", "dt": dt, "duration": duration, "log_rate_hz": 1.0 / dt})
+    result = run(path, out=out, overrides={"mode": "mujoco", "dt": dt, "duration": duration, "log_rate_hz": 1.0 / dt}, overwrite=True)
     return strokes(result), result.status
 
 
@@ -273,7 +273,7 @@ def paired_rtf_ratios(path, duration, mujoco_overrides, pbd_overrides, reps, out
         rtf = {}
         for side in (("mujoco", "pbd") if k % 2 == 0 else ("pbd", "mujoco")):
             overrides = {**(mujoco_overrides if side == "mujoco" else pbd_overrides), "duration": duration}
-            result = run(path, out=out / f"pair-{side}.mcap", overrides=overrides)
+            result = run(path, out=out / f"pair-{side}.mcap", overrides=overrides, overwrite=True)
             rtf[side] = result.real_time_factor if result.status == "complete" else np.nan
         ratios.append(rtf["pbd"] / rtf["mujoco"])
     return np.array(ratios)
@@ -320,17 +320,17 @@ def bench_scene(name, spec, substeps, quick, out, pure_substeps=(), pair_reps=0)
     rows += [(label, dt, n, 1) for label in ("pbd-rb", "pbd-rb-θ") for dt, n in spec.get("coarse", ())]  # coarser frames
     rows += [("pbd-pure", spec["pbd_dt"], n, 1) for n in pure_substeps]  # the pure-Python XPBD path, for the speed-up
     for label, dt in {(label, dt) for label, dt, _, _ in rows}:  # warm-up (numba cache, first calls)
-        run(path, out=out / "warmup.mcap", overrides={**VARIANTS[label], "dt": dt, "duration": 5 * dt}, fast=label != "mujoco")
+        run(path, out=out / "warmup.mcap", overrides={**VARIANTS[label], "dt": dt, "duration": 5 * dt}, fast=label != "mujoco", overwrite=True)
     results = []
     for label, dt, n, iterations in rows:
         mode = VARIANTS[label]["mode"]
         overrides = {**VARIANTS[label], "dt": dt, "duration": duration, "pbd_substeps": n if mode == "pbd" else None,
                      "pbd_iterations": iterations if mode == "pbd" else None}
-        result = run(path, out=out / f"{name}-{label}-{n}-{iterations}-{dt:.6g}.mcap", overrides=overrides, fast=label != "mujoco")
+        result = run(path, out=out / f"{name}-{label}-{n}-{iterations}-{dt:.6g}.mcap", overrides=overrides, fast=label != "mujoco", overwrite=True)
         err, err_early = stroke_error(result, reference, scale, early, early_reference)
         rtf = result.real_time_factor
         for _ in range(spec.get("reps", 1) - 1):  # short runs: the best of a few (deterministic, only the wall time varies)
-            again = run(path, out=out / "rep.mcap", overrides=overrides, fast=label != "mujoco")
+            again = run(path, out=out / "rep.mcap", overrides=overrides, fast=label != "mujoco", overwrite=True)
             rtf = max(rtf, again.real_time_factor)
         results.append((label, dt, n, rtf if result.status == "complete" else np.nan, err, result.log_path, iterations,
                         err_early))
