@@ -296,6 +296,17 @@ def _views(ctx):
 
 
 @_kernel
+def _widen(values, high, low, n):
+    """Running extremes of ``values[:n]``: ``high[i]`` rises to ``values[i]`` where it is above, ``low[i]`` falls to it
+    where it is below (a NaN changes neither)."""
+    for i in range(n):
+        if values[i] > high[i]:
+            high[i] = values[i]
+        if values[i] < low[i]:
+            low[i] = values[i]
+
+
+@_kernel
 def _finish_pending(ctx, pnet, V):
     """Finish the pending step with the realised velocities J_prev·q̇ (MujocoPlant.step after mj_step2)."""
     if ctx[C_PENDING] == 0:
@@ -394,18 +405,8 @@ def _finish_pending(ctx, pnet, V):
         oil_change = V.oil_change  # and actuator coordinates
         for i in range(n):
             oil_change[i] = oil[i] - mstart[i]
-        pmax, pmin = V.pmax, V.pmin
-        for i in range(n):
-            if pres[i] > pmax[i]:
-                pmax[i] = pres[i]
-            if pres[i] < pmin[i]:
-                pmin[i] = pres[i]
-        xmax, xmin = V.xmax, V.xmin
-        for i in range(na):
-            if pos[i] > xmax[i]:
-                xmax[i] = pos[i]
-            if pos[i] < xmin[i]:
-                xmin[i] = pos[i]
+        _widen(pres, V.pmax, V.pmin, n)
+        _widen(pos, V.xmax, V.xmin, na)
     # applied effort: law(v⁺)
     const, slope, effort = V.const, V.slope, V.effort
     for i in range(na):
