@@ -119,6 +119,19 @@ _begin_temporaries_nb = _kernel(_begin_temporaries)
 
 
 @_kernel
+def _kept(pnet, buffers):
+    """The sizes (nodes n, actuators na, branches nb, valves nvalve) and the head of ``buffers.S`` that begin and
+    finish share (see :func:`keep_size`): the last substep's oil change [m³], then what begin leaves for finish
+    (``C._take_linearization``: guess, linearisation oil, spools and oil slopes); ``o`` is the offset after them."""
+    ic = C._deref(pnet).ic
+    n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
+    nvalve = buffers.spool.size
+    oil_change, o = C._take(buffers.S, 0, n)
+    guess, lin_oil, lin_spool, doil, o = C._take_linearization(buffers.S, o, n, na, nvalve)
+    return n, na, nb, nvalve, oil_change, guess, lin_oil, lin_spool, doil, o
+
+
+@_kernel
 def _begin_core(pnet, buffers, cmd, speed, x, v, h, scheme, blend, effective_mass):
     """CouplingImplicit.begin at the start velocities ``v`` as the velocity guess (``start_velocity_guess``): the effort
     law (``buffers.constant``, ``buffers.slope``) and its θ per actuator (``buffers.theta``), on the
@@ -127,12 +140,7 @@ def _begin_core(pnet, buffers, cmd, speed, x, v, h, scheme, blend, effective_mas
     from the state's pressures ``pres`` [Pa], which belong to ``oil`` at ``x``), else θ = 1."""
     W, S, istats, oil, pres, spool = buffers.W, buffers.S, buffers.istats, buffers.oil, buffers.pressure, buffers.spool
     const, slope, theta = buffers.constant, buffers.slope, buffers.theta
-    net = C._deref(pnet)
-    ic = net.ic
-    n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
-    nvalve = spool.size
-    oil_change, o = C._take(S, 0, n)
-    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, nvalve)
+    n, na, nb, nvalve, oil_change, guess, lin_oil, lin_spool, doil, o = _kept(pnet, buffers)
     fg, o = C._take(S, o, na)
     fsg, o = C._take(S, o, na)
     end_const, o = C._take(S, o, na)
@@ -172,12 +180,7 @@ def _finish_core(pnet, buffers, cmd, speed, x_end, v_end, h, scheme):
     W, S, istats, ledger, quad = buffers.W, buffers.S, buffers.istats, buffers.ledger, buffers.quad
     oil, pres, spool, pos, vel, flow = (buffers.oil, buffers.pressure, buffers.spool, buffers.position, buffers.velocity,
                                         buffers.flow)
-    net = C._deref(pnet)
-    ic = net.ic
-    n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
-    nvalve = spool.size
-    oil_change, o = C._take(S, 0, n)
-    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, nvalve)
+    n, na, nb, nvalve, oil_change, guess, lin_oil, lin_spool, doil, o = _kept(pnet, buffers)
     o += _begin_temporaries_nb(n, na, nb, nvalve)
     mpred, o = C._take(S, o, n)
     o2, o = C._take(S, o, n)
