@@ -60,6 +60,10 @@ BENCHES = (
           "The 20 s excavator dig at 1 kHz, 11 interleaved runs per configuration; each logged run against the no-log "
           "run just before it (paired median and quartiles). Targets T3: logging ≤ 10 % at the default 100 Hz, "
           "≤ 50 % logging every step; T4: `hydroplant run` of one step in a fresh process < 2 s."),
+    Bench("bench_monitor", (), "The plausibility monitor's cost",
+          "The excavator dig at 1 kHz with the monitor on and off in alternating pairs, in the fast MuJoCo plant and "
+          "the PBD block path: the paired median and spread, and the time inside its checks per step. Target: "
+          "≤ 2 % of the step."),
     Bench("bench_startup", (), "Start-up in fresh processes",
           "Import, scene load with the plant (cached kernels) and first step, in fresh interpreters."),
     Bench("bench_memory", (), "Memory of long runs",
