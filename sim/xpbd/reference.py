@@ -111,6 +111,16 @@ def _solve_dense(A, b):
     return x
 
 
+def substep_inputs(before, k: int, h: float, state, inputs):
+    """The inputs of substep ``k`` (of ``h`` [s]): what the ``before_substep`` hook ``before`` returns for it, or the
+    step's ``inputs`` when there is no hook or it returns ``None``."""
+    if before is not None:
+        given = before(k, h, state)
+        if given is not None:
+            return given
+    return inputs
+
+
 class ReferenceSubstep:
     """The pure substep passes of :class:`~sim.xpbd.solver.SolverXPBD` (a base class: they read the solver's
     model tables ``_IM``, ``_II``, ``_joints``, ``_eqs``, ``_rows``, ``_jlaw``, ``_tlaw`` and options)."""
@@ -136,11 +146,7 @@ class ReferenceSubstep:
         ca = 1.0 / (1.0 + self.angular_damping * h)
         P0 = self._transport_start(X, Q)
         for k in range(self.substeps):
-            inp = inputs
-            if before is not None:
-                r = before(k, h, state)
-                if r is not None:
-                    inp = r
+            inp = substep_inputs(before, k, h, state, inputs)
             if P0 is not None and k:
                 inp = self._transported(inp, X, Q, P0)
             rowdata = self._row_setup(inp, h)

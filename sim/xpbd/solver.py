@@ -26,7 +26,7 @@ import numpy as np
 from sim.xpbd import kernels as K
 from sim.xpbd.kernels import cross, np_cross, quat_rotate
 from sim.xpbd.laws import mujoco_contact_law, mujoco_impedance, mujoco_limit_law, mujoco_step_target  # noqa: F401
-from sim.xpbd.reference import ReferenceSubstep, SubstepWork  # noqa: F401
+from sim.xpbd.reference import ReferenceSubstep, SubstepWork, substep_inputs  # noqa: F401
 from sim.xpbd.model import JNT_FREE, JNT_HINGE, JNT_SLIDE, XpbdModel, XpbdState
 
 __all__ = ["LengthConstraint", "SubstepInputs", "SubstepForces", "SubstepHooks", "SolverXPBD", "XpbdOptions",
@@ -648,11 +648,7 @@ class SolverXPBD(ReferenceSubstep):
             if not (group_jacobian(X, Q, fm.IM, fm.jt, fm.jg, fm.jvec, Gk) and jacobian_pinv(Gk, P0)):
                 P0 = None
         for k in range(self.substeps):
-            inp = inputs
-            if before is not None:
-                r = before(k, h, state)
-                if r is not None:
-                    inp = r
+            inp = substep_inputs(before, k, h, state, inputs)
             if P0 is not None and k and inp is not None and (inp.row_mobility is not None or inp.group_gravity is not None):
                 group_jacobian(X, Q, fm.IM, fm.jt, fm.jg, fm.jvec, Gk)
                 mob = None
