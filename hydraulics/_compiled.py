@@ -1,8 +1,9 @@
-"""Compiled (numba) backward-Euler stepper: :class:`StepperImplicitEulerCompiled`.
+"""Compiled (numba) kernels of the hydraulic network: the backward-Euler Newton solve of
+:class:`~hydraulics.steppers.StepperImplicitEuler`, its linearisations and the pieces of the implicit couplings.
 
-Same equations, Newton logic, trust region, line search, tolerances and
-iteration limits as :class:`~hydraulics.steppers.StepperImplicitEuler`; the
-results agree with it to round-off.  The :class:`~hydraulics.network.NetworkModel`
+These kernels are the only implementation of these equations in the package; ``NUMBA_DISABLE_JIT=1`` runs
+them as plain Python (for debugging).  The numpy formulations kept in ``tests/reference`` are the oracles
+the tests compare them with, to round-off.  The :class:`~hydraulics.network.NetworkModel`
 (immutable) is packed once, at construction, into one flat float64 and one
 int64 array; a whole (sub)step — spool update, Newton solve, end pressures — or
 a whole linearisation is then one call of a ``@njit`` kernel.
@@ -11,12 +12,12 @@ The component laws are the compiled scalar functions of their modules
 (:mod:`hydraulics.components`, e.g. :func:`hydraulics.components.orifice.flow_with_derivative`), each
 packed into its table by the module's ``pack``; the fluid law (:func:`fill_ratio_nb`), the node relations
 and the flow assembly are here.  Tuning constants (Newton tolerances, trust region, inversion limits …)
-are imported from :mod:`hydraulics.steppers`, :mod:`hydraulics.network`, :mod:`hydraulics.fluid` and the
-component modules and passed to the kernels in the packed arrays at run time (named layouts
-:data:`SCALAR_LAYOUT`, :data:`INT_LAYOUT`, the modules' ``COLUMNS``).  Importing this module compiles
-nothing: the two entry points the stepper calls are cached on disk under the digest of every kernel source
-(:data:`hydraulics._jit.SOURCES`); they are compiled on first use (≈ 15–20 s) and later processes load
-them from the cache.
+are read from :mod:`hydraulics.steppers`, :mod:`hydraulics.coupling`, :mod:`hydraulics.network`,
+:mod:`hydraulics.fluid` and the component modules when a network is packed and passed to the kernels in
+the packed arrays at run time (named layouts :data:`SCALAR_LAYOUT`, :data:`INT_LAYOUT`, the modules'
+``COLUMNS``).  Importing this module compiles nothing: the entry points called from Python are cached on
+disk under the digest of every kernel source (:data:`hydraulics._jit.SOURCES`); they are compiled on first
+use (≈ 15–20 s) and later processes load them from the cache.
 
 **Hot path, without allocation or reference counting.**  The ``*_core``
 functions (:func:`_step_core`, :func:`_linearize_core`, :func:`_solve_core`)
@@ -28,49 +29,47 @@ allocation.  Every function that allocates nothing is compiled with
 ``net`` (a tuple of 22 arrays) otherwise costs a pair of ``NRT_incref`` /
 ``NRT_decref`` calls, which cost more than the arithmetic in the Newton loops.
 Such functions may not create arrays (numba refuses), only views of arrays
-passed in; ``_unpack`` and the two Python entry points :func:`_step_kernel` and
-:func:`_linearize_kernel` (which allocate their outputs and scratch) keep the
-reference counting.  The kernels take ``net`` by reference: the entry points
-make it once per call (``net = _unpack(F, I)``) and pass ``pnet = _ref(net)``,
+passed in; ``_unpack`` and the Python entry points (:func:`_step_kernel`,
+:func:`_linearize_kernel` and the coupling entries of :func:`_coupling_entries`,
+which allocate their outputs and scratch) keep the reference counting.  The kernels take ``net`` by
+reference: the entry points make it once per call (``net = _unpack(F, I)``) and pass ``pnet = _ref(net)``,
 one machine word, where the tuple itself was ~170 copied onto the stack per
 call; each kernel reads it through ``net = _deref(pnet)``.
 
 **Newton start and ∂m⁺/∂v.**  :func:`_solve_core` / :func:`_step_core` take
-the Newton start ``oil_init`` (the pure path's ``oil_guess``; the implicit
+the Newton start ``oil_init`` (``StepperImplicitEuler.step``'s ``oil_guess``; the implicit
 coupling's finish passes its linearised prediction), and
-:func:`_linearize_core` also returns ∂m⁺/∂v (``doil``, the pure
+:func:`_linearize_core` also returns ∂m⁺/∂v (``doil``,
 ``Linearization.oil_velocity_gradient``), which the linearly implicit finish
 (coupling ``implicit-linear``) uses.
 
-**Pieces of the implicit coupling's step** (:func:`_effort_law_terms`,
-:func:`_predicted_oil`, :func:`_commit_if_finite`, :func:`_account`, …) are
-here too, allocation-free on the packed network: the two compiled coupled
-steps (``sim.plants.mujoco_fast``'s control callback and
-``sim.plants.pbd_hydraulics``'s PBD hooks) both call them.  Both fingerprint this
-file into their cached entry points, so a change here recompiles them.
+**Pieces of the implicit coupling's step** (:func:`_linearize_at_guess`, :func:`_effort_law_terms`,
+:func:`_blended_law`, :func:`_predicted_oil`, :func:`_linear_finish`, :func:`_commit_if_finite`,
+:func:`_account`, …) are here too, allocation-free on the packed network: the couplings of
+:mod:`hydraulics.coupling` call them through the cached entries of :func:`_coupling_entries`, and the two
+compiled coupled steps (``sim.plants.mujoco_fast``'s control callback and ``sim.plants.pbd_hydraulics``'s
+PBD hooks) call them directly.  Both fingerprint this file into their cached entry points, so a change
+here recompiles them.
 
-**Round-off-level differences from the pure path** (same iterations, same
-decisions): ``sqrt`` instead of ``pow`` for s**0.25 and a**1.5 in the orifice
-laws; for pure oil (no entrained air) the compliant-node inversion solves
-ln(1 + V_wall(p)/V_g) + (p − p_rigid)/β = 0, which is ln(V·φ/m) = 0 rewritten
-with ln φ = (p − p_ref)/β and p_rigid = p_ref + β·ln(m/V_g) (one log1p per
-iteration instead of two logs and an exp); and β_eff = V/(∂V/∂p + V/β) with φ
-cancelled.
+**Numerical choices** (the oracles in ``tests/reference`` agree to round-off): ``sqrt`` instead of ``pow``
+for s**0.25 and a**1.5 in the orifice laws; for pure oil (no entrained air) the compliant-node inversion
+solves ln(1 + V_wall(p)/V_g) + (p − p_rigid)/β = 0, which is ln(V·φ/m) = 0 rewritten with
+ln φ = (p − p_ref)/β and p_rigid = p_ref + β·ln(m/V_g) (one log1p per iteration instead of two logs and an
+exp); β_eff = V/(∂V/∂p + V/β) with φ cancelled; dense solves by Gaussian elimination with partial pivoting
+(:func:`_lu_solve`); net inflows and flow Jacobians scattered per branch.
 """
 
 from __future__ import annotations
 
 import math
+import weakref
 from collections import namedtuple
 
 import numpy as np
 
-from . import coupling as _coupling
 from . import fluid as _fluid
 from . import network as _network
-from . import steppers as _steppers
-from .network import BranchFlows, NetworkModel, NetworkState
-from .steppers import Linearization, StepperImplicitEuler, StepReport, StepStatus
+from .network import NetworkModel
 
 from ._jit import FINGERPRINT, JIT_ENABLED, SOURCES, borrowed, compiled_available, source_sha256
 from ._jit import clip as _clip
@@ -187,6 +186,9 @@ def pack_network(model: NetworkModel):
     if np.any(model.actuator_rigid):
         raise ValueError("the compiled kernels do not model rigid (incompressible among compressible) actuators; "
                          "step this network on the numpy path")
+    from . import coupling as _coupling  # (deferred: both import this module; their constants are read here)
+    from . import steppers as _steppers
+
     fl = model.fluid
     n = model.node_count
     sl = model.branch_slices
@@ -196,7 +198,7 @@ def pack_network(model: NetworkModel):
     sc = _table(SCALAR_LAYOUT, 1,
                 reference_pressure=fl.reference_pressure, bulk_modulus=fl.bulk_modulus, air_fraction=fl.air_fraction,
                 polytropic_index=fl.polytropic_index, pressure_floor=fl.pressure_floor,
-                fill_floor=fl.fill_ratio(max(fl.pressure_floor, -fl.bulk_modulus))[0],  # as StepperImplicitEuler._trust_step
+                fill_floor=fl.fill_ratio(max(fl.pressure_floor, -fl.bulk_modulus))[0],  # the trust region's vapour-void fill ratio
                 newton_pressure_tolerance=_steppers.NEWTON_PRESSURE_TOLERANCE,
                 newton_relative_tolerance=_steppers.NEWTON_RELATIVE_TOLERANCE,
                 sufficient_decrease=_steppers.SUFFICIENT_DECREASE, trust_pressure=_steppers.TRUST_PRESSURE,
@@ -1346,10 +1348,8 @@ def _clip_to_stroke(pnet, x, h, v):
 
 
 @_kernel
-def _linearization_usable(istats, p, gradient):
-    """coupling._usable: the linearisation converged to finite pressures ``p`` and gradients (and was not singular)."""
-    if istats[IS_STATUS] != _OK or istats[IS_SINGULAR]:
-        return False
+def _finite_linearization(p, gradient):
+    """Whether the predicted pressures ``p`` [Pa] and the effort gradient ``gradient`` are all finite."""
     for i in range(p.size):
         if not np.isfinite(p[i]):
             return False
@@ -1361,10 +1361,20 @@ def _linearization_usable(istats, p, gradient):
 
 
 @_kernel
-def _start_velocity_guess(pnet, x, v, dt, guess):
-    """coupling.start_velocity_guess, clipped into the stroke as CouplingImplicit.begin does: ``guess`` = the start
-    velocities ``v`` [m/s or rad/s], 0 for a cylinder whose chord dt·|v| would change a chamber volume by more than
-    GUESS_VOLUME_FRACTION (``S_GUESS``); returns whether every actuator is held (guess 0)."""
+def _linearization_usable(istats, p, gradient):
+    """A usable linearisation: its Newton solve converged (and was not singular) to finite pressures ``p`` and
+    gradients (:func:`_finite_linearization`)."""
+    if istats[IS_STATUS] != _OK or istats[IS_SINGULAR]:
+        return False
+    return _finite_linearization(p, gradient)
+
+
+@_kernel
+def _short_chord_guess(pnet, x, v, dt, guess):
+    """The start velocities ``v`` [m/s or rad/s] as the linearisation's guess of v⁺, into ``guess``: v, or 0 for a
+    cylinder whose guessed displacement dt·|v| [m] would change a chamber volume (at positions ``x``) by more
+    than GUESS_VOLUME_FRACTION (``S_GUESS``) — a long chord of the pressure law, as in an unresolved
+    oscillation, where the start velocity is a bad guess of v⁺."""
     net = _deref(pnet)
     for a in range(v.size):
         guess[a] = v[a]
@@ -1377,6 +1387,13 @@ def _start_velocity_guess(pnet, x, v, dt, guess):
         swept = dt * abs(guess[a])
         if not (swept * cyl[c, CYL_CAP_AREA] <= fraction * vcap and swept * cyl[c, CYL_ROD_AREA] <= fraction * vrod):
             guess[a] = 0.0
+
+
+@_kernel
+def _start_velocity_guess(pnet, x, v, dt, guess):
+    """:func:`_short_chord_guess` clipped into the stroke (:func:`_clipped_guess_is_held`); returns whether every
+    actuator is held (guess 0)."""
+    _short_chord_guess(pnet, x, v, dt, guess)
     return _clipped_guess_is_held(pnet, x, dt, guess)
 
 
@@ -1392,26 +1409,38 @@ def _clipped_guess_is_held(pnet, x, dt, guess):
 
 
 @_kernel
-def _linearize_at_start_velocity(newton, pnet, W, start, dt, guess, out, oil_warm):
-    """CouplingImplicit.begin's linearisation (:func:`_linearize_any`, into ``out``) at :func:`_start_velocity_guess`
-    of the start velocities ``v`` of ``start`` (:class:`StepStart`), written to ``guess``; where that guess is not held and its linearisation is not usable (an
-    unresolved oscillation: x + dt·v can empty a chamber), again at the held actuators.  Returns whether the
-    linearisation is at the held actuators (its first evaluation, ``p_first``, is then at the start oil and
-    positions).  Where the guess is not held, Newton starts from ``oil_warm`` (coupling.secant_oil_guess; ``oil0``
-    when there is none), and again from ``oil0`` if that linearisation is not usable; else from ``oil0``;
-    ``istats[IS_SINGULAR]`` tells a singular linearisation."""
-    oil0, spool0, command, speed, x0, v = start
-    at_guess = StepStart(oil0, spool0, command, speed, x0, guess)
+def _linearize_at_guess(newton, pnet, W, start, dt, out, oil_warm):
+    """The implicit coupling's linearisation (:func:`_linearize_any`, into ``out``) at the velocity guess of ``start``
+    (:class:`StepStart`; its velocities, clipped in place into the stroke by :func:`_clipped_guess_is_held`).
+    Where the guess is not held, Newton starts from ``oil_warm`` (the secant prediction; ``oil0`` when there is
+    none), and again from ``oil0`` if that linearisation is not usable (:func:`_linearization_usable`: the warm
+    start changes iterations only); if it is still not usable (an unresolved oscillation: x + dt·v can empty a
+    chamber, e.g. the seed at 1200 Hz reverses ~1900 m/s each step) the guess is replaced by the held actuators
+    (zero, clipped) and linearised from ``oil0``.  Returns whether the linearisation is at the held actuators
+    (its first evaluation, ``p_first``, is then at the start oil and positions); ``istats[IS_SINGULAR]`` tells a
+    singular linearisation, and the second value returned is the residual norm of the last Newton solve [Pa]
+    (0 for an accepted one-step linearisation)."""
+    oil0, x0, guess = start.oil, start.position, start.velocity
     istats, p, gradient = out.istats, out.pressure, out.gradient
-    held = _start_velocity_guess(pnet, x0, v, dt, guess)
-    _linearize_any(newton, pnet, W, at_guess, dt, out, oil0 if held else oil_warm)
-    if not held and not _linearization_usable(istats, p, gradient):  # the warm start changes iterations only
-        _linearize_any(newton, pnet, W, at_guess, dt, out, oil0)
+    held = _clipped_guess_is_held(pnet, x0, dt, guess)
+    norm = _linearize_any(newton, pnet, W, start, dt, out, oil0 if held else oil_warm)
+    if not held and not _linearization_usable(istats, p, gradient):
+        norm = _linearize_any(newton, pnet, W, start, dt, out, oil0)
     if not held and not _linearization_usable(istats, p, gradient):
         for a in range(guess.size):
             guess[a] = 0.0
         held = _clipped_guess_is_held(pnet, x0, dt, guess)
-        _linearize_any(newton, pnet, W, at_guess, dt, out, oil0)
+        norm = _linearize_any(newton, pnet, W, start, dt, out, oil0)
+    return held, norm
+
+
+@_kernel
+def _linearize_at_start_velocity(newton, pnet, W, start, dt, guess, out, oil_warm):
+    """:func:`_linearize_at_guess` at :func:`_short_chord_guess` of the start velocities ``v`` of ``start``
+    (:class:`StepStart`), written to ``guess``; returns whether the linearisation is at the held actuators."""
+    oil0, spool0, command, speed, x0, v = start
+    _short_chord_guess(pnet, x0, v, dt, guess)
+    held, _ = _linearize_at_guess(newton, pnet, W, StepStart(oil0, spool0, command, speed, x0, guess), dt, out, oil_warm)
     return held
 
 
@@ -1437,6 +1466,17 @@ def _effort_law_terms(pnet, guess, p_end, v, gradient, fg, fsg, end_const, end_s
 
 
 @_kernel
+def _blend_factor(stiffness_slope, effective_mass, dt):
+    """θ of the implicit coupling's θ-rule: clip(1 − 2/w, 0, 1), w = (ω·h)² = max(−slope, 0)·h/m_eff, from the
+    pressure part ``stiffness_slope`` [N·s/m or N·m·s/rad] of ∂effort/∂v⁺, the ``effective_mass`` [kg or kg·m²]
+    and the step ``dt`` [s] (see :mod:`hydraulics.coupling`)."""
+    w = _maximum(-stiffness_slope, 0.0) * dt / effective_mass
+    if w == 0.0:  # 1 − 2/w → −∞ (written out: plain Python under NUMBA_DISABLE_JIT would raise)
+        return 0.0
+    return _clip(1.0 - 2.0 / w, 0.0, 1.0)
+
+
+@_kernel
 def _blended_law(blend, end_const, end_slope, pressure_start, friction, damping, v, effective_mass, dt, theta, const,
                  slope):
     """The effort law c + s·v⁺ of CouplingImplicit.begin from :func:`_effort_law_terms`' terms at θ per actuator:
@@ -1445,10 +1485,7 @@ def _blended_law(blend, end_const, end_slope, pressure_start, friction, damping,
     start of the step (finite).
     c = (1 − θ)·pressure_start + θ·end_const + friction − damping·v, s = θ·end_slope + damping."""
     for i in range(theta.size):
-        th = 1.0
-        if blend:
-            w = _maximum(-end_slope[i], 0.0) * dt / effective_mass[i]
-            th = _clip(1.0 - 2.0 / w, 0.0, 1.0)
+        th = _blend_factor(end_slope[i], effective_mass[i], dt) if blend else 1.0
         theta[i] = th
         const[i] = (1.0 - th) * pressure_start[i] + th * end_const[i] + friction[i] - damping[i] * v[i]
         slope[i] = th * end_slope[i] + damping[i]
@@ -1552,8 +1589,6 @@ def _cached_entries(fingerprint):
             raise ValueError("no fingerprint")
         return _linearize_python_entry(F, I, oil0, spool0, command, speed, x0, velocity, dt, newton, oil_init)
 
-    if not _NUMBA:  # pragma: no cover
-        return step_kernel, linearize_kernel
     return tuple(_numba_cached(f) for f in (step_kernel, linearize_kernel))
 
 
@@ -1568,92 +1603,167 @@ _step_kernel, _linearize_kernel = _cached_entries(FINGERPRINT)
 
 
 # ----------------------------------------------------------------------------
-# The stepper
+# Python entries of the implicit couplings' pieces (hydraulics.coupling) and of the spool law
 # ----------------------------------------------------------------------------
+@_jit
+def _linearize_at_guess_python_entry(F, I, oil0, spool0, command, speed, x0, guess, dt, newton, oil_warm):
+    """:func:`_linearize_at_guess` with allocated outputs: (oil, p, spool, x, flow, istats, effort, gradient, doil,
+    guess, norm); ``guess`` is a copy, clipped or replaced by the held actuators as the kernel decided."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    ic = net.ic
+    n, na, nb = ic[IC_N], ic[IC_NA], ic[IC_NB]
+    W = np.empty(_linearize_work_size(ic))
+    oil, p, spool, x, flow = np.empty(n), np.empty(n), np.empty(spool0.size), np.empty(na), np.empty(nb)
+    istats = np.zeros(6, np.int64)
+    effort, gradient, p_first, doil = np.empty(na), np.empty((na, na)), np.empty(n), np.empty((n, na))
+    v = guess.copy()
+    _, norm = _linearize_at_guess(newton, pnet, W, StepStart(oil0, spool0, command, speed, x0, v), dt,
+                                  LinearizationOut(oil, p, spool, x, flow, istats, effort, gradient, p_first, doil),
+                                  oil_warm)
+    return oil, p, spool, x, flow, istats, effort, gradient, doil, v, norm
+
+
+@_jit
+def _effort_law_python_entry(F, I, guess, p_end, v, gradient, pressure_start, effective_mass, dt, blend):
+    """:func:`_effort_law_terms` then :func:`_blended_law`: (constant [N or N·m], slope [N·s/m or N·m·s/rad], θ)."""
+    pnet = _ref(_unpack(F, I))
+    na = v.size
+    fg, fsg, end_const, end_slope = np.empty(na), np.empty(na), np.empty(na), np.empty(na)
+    friction, damping, theta, const, slope = np.empty(na), np.empty(na), np.empty(na), np.empty(na), np.empty(na)
+    _effort_law_terms(pnet, guess, p_end, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
+    _blended_law(blend, end_const, end_slope, pressure_start, friction, damping, v, effective_mass, dt, theta, const,
+                 slope)
+    return const, slope, theta
+
+
+@_jit
+def _start_velocity_guess_python_entry(F, I, x, v, dt):
+    """:func:`_short_chord_guess` with an allocated output."""
+    guess = np.empty(v.size)
+    _short_chord_guess(_ref(_unpack(F, I)), x, v, dt, guess)
+    return guess
+
+
+@_jit
+def _linear_finish_python_entry(F, I, oil, spool, x, v, speed):
+    """:func:`_linear_finish` with allocated outputs: (end pressures [Pa], branch flows [m³/s])."""
+    net = _unpack(F, I)
+    ic = net.ic
+    n, nb = ic[IC_N], ic[IC_NB]
+    W = np.empty(ic[IC_O1] - ic[IC_O0] + 2 * n)
+    p, flow, dflow = np.empty(n), np.empty(nb), np.empty((nb, _W_BR))
+    _linear_finish(_ref(net), W, oil, spool, x, v, speed, p, flow, dflow)
+    return p, flow
+
+
+@_jit
+def _predicted_oil_python_entry(lin_oil, doil, guess, v_end):
+    """:func:`_predicted_oil` with an allocated output [m³]."""
+    out, dv = np.empty(lin_oil.size), np.empty(guess.size)
+    _predicted_oil(lin_oil, doil, guess, v_end, dv, out)
+    return out
+
+
+@_jit
+def _secant_oil_guess_python_entry(oil, oil_change):
+    """:func:`_secant_oil_guess` with an allocated output [m³]."""
+    out = np.empty(oil.size)
+    _secant_oil_guess(oil, oil_change, out)
+    return out
+
+
+@_jit
+def _blend_factor_python_entry(stiffness_slope, effective_mass, dt):
+    """:func:`_blend_factor` per actuator."""
+    theta = np.empty(stiffness_slope.size)
+    for i in range(theta.size):
+        theta[i] = _blend_factor(stiffness_slope[i], effective_mass[i], dt)
+    return theta
+
+
+@_jit
+def _spool_steps_python_entry(spool, command, tau, dt):
+    """:func:`hydraulics.components.valve_4_3.spool_step` per valve, the commands clipped to [−1, 1]."""
+    out = np.empty(spool.size)
+    for i in range(out.size):
+        out[i] = _valve.spool_step(spool[i], _clip(command[i], -1.0, 1.0), tau[i], dt)
+    return out
+
+
+def _coupling_entries(fingerprint):
+    """The entries :mod:`hydraulics.coupling` and :class:`hydraulics.steppers.Stepper` call from Python, cached on
+    disk under a key that includes ``fingerprint`` (see :func:`_cached_entries`)."""
+
+    def linearize_at_guess(F, I, oil0, spool0, command, speed, x0, guess, dt, newton, oil_warm):
+        if fingerprint is None:  # never (see _cached_entries)
+            raise ValueError("no fingerprint")
+        return _linearize_at_guess_python_entry(F, I, oil0, spool0, command, speed, x0, guess, dt, newton, oil_warm)
+
+    def effort_law(F, I, guess, p_end, v, gradient, pressure_start, effective_mass, dt, blend):
+        if fingerprint is None:  # never
+            raise ValueError("no fingerprint")
+        return _effort_law_python_entry(F, I, guess, p_end, v, gradient, pressure_start, effective_mass, dt, blend)
+
+    def start_velocity_guess(F, I, x, v, dt):
+        if fingerprint is None:  # never
+            raise ValueError("no fingerprint")
+        return _start_velocity_guess_python_entry(F, I, x, v, dt)
+
+    def linear_finish(F, I, oil, spool, x, v, speed):
+        if fingerprint is None:  # never
+            raise ValueError("no fingerprint")
+        return _linear_finish_python_entry(F, I, oil, spool, x, v, speed)
+
+    def predicted_oil(lin_oil, doil, guess, v_end):
+        if fingerprint is None:  # never
+            raise ValueError("no fingerprint")
+        return _predicted_oil_python_entry(lin_oil, doil, guess, v_end)
+
+    def secant_oil_guess(oil, oil_change):
+        if fingerprint is None:  # never
+            raise ValueError("no fingerprint")
+        return _secant_oil_guess_python_entry(oil, oil_change)
+
+    def blend_factor(stiffness_slope, effective_mass, dt):
+        if fingerprint is None:  # never
+            raise ValueError("no fingerprint")
+        return _blend_factor_python_entry(stiffness_slope, effective_mass, dt)
+
+    def spool_steps(spool, command, tau, dt):
+        if fingerprint is None:  # never
+            raise ValueError("no fingerprint")
+        return _spool_steps_python_entry(spool, command, tau, dt)
+
+    functions = (linearize_at_guess, effort_law, start_velocity_guess, linear_finish, predicted_oil, secant_oil_guess,
+                 blend_factor, spool_steps)
+    return tuple(_numba_cached(f) for f in functions)
+
+
+(linearize_at_guess_kernel, effort_law_kernel, start_velocity_guess_kernel, linear_finish_kernel, predicted_oil_kernel,
+ secant_oil_guess_kernel, blend_factor_kernel, _spool_steps_kernel) = _coupling_entries(FINGERPRINT)
+
+
 def _f64(a):
     """A C-contiguous, writeable float64 array (the one type the kernels are compiled for: no recompilation)."""
     a = np.ascontiguousarray(a, dtype=np.float64)
     return a if a.flags.writeable else a.copy()
 
 
-class StepperImplicitEulerCompiled(StepperImplicitEuler):
-    """:class:`~hydraulics.steppers.StepperImplicitEuler` with its substep, Newton solve and linearisation compiled by numba.
+def spool_steps(spool, command, tau, dt):
+    """Spool positions [-] after ``dt`` [s] of τ·ds/dt = u − s from ``spool`` with the ``command`` u clipped to
+    [−1, 1] held, per valve (time constants ``tau`` [s]; τ = 0: s = u).  Shapes (valve_count,).
 
-    Same results to round-off (same Newton iterations, trust region, line
-    search, tolerances and limits), all node kinds included: rigid, elastic
-    walls, accumulators, entrained air, cavitation floor.  The model is
-    packed once at construction (:func:`pack_network`); the first call in a
-    process loads the kernels from numba's disk cache (≈ 0.2 s), or compiles
-    them when the cache is cold or this file changed (≈ 15–20 s, once).
-    Without numba (:func:`compiled_available` False) every method falls back to
-    the pure numpy parent.
+    Example: ``spool_steps(np.zeros(1), np.ones(1), np.array([0.05]), 0.05)`` → [1 − e⁻¹]."""
+    return _spool_steps_kernel(_f64(spool), _f64(command), _f64(tau), float(dt))
 
-    Differences (round-off only): dense solves use an in-house Gaussian
-    elimination with partial pivoting instead of LAPACK; the net inflow and
-    flow Jacobian are scattered per branch instead of ``incidence @ …``;
-    exp/log/pow come from libm instead of numpy's vector loops.
-    """
 
-    name = "implicit_euler_compiled"
+_PACKED = weakref.WeakKeyDictionary()  # model -> (F, I)
 
-    def __init__(self, model: NetworkModel, *, substeps: int = 1):
-        super().__init__(model, substeps=substeps)
-        self._F, self._I = pack_network(model)
 
-    def _make_report(self, istats, norm, flow) -> StepReport:
-        report = StepReport(
-            newton_iterations=int(istats[IS_NEWTON]),
-            rhs_evaluations=int(istats[IS_RHS]),
-            jacobian_evaluations=int(istats[IS_JAC]),
-            residual=float(norm),
-            branch_flow=flow,
-        )
-        if istats[IS_STATUS] == _NEWTON_FAILED:
-            worst = self.model.node_names[int(istats[IS_WORST])] if istats[IS_WORST] >= 0 else "?"
-            report.status = StepStatus.NEWTON_FAILED
-            report.message = f"{StepStatus.NEWTON_FAILED.value} (worst node '{worst}', residual {norm:.3g} Pa)"
-        self.rhs_count += report.rhs_evaluations
-        self.jacobian_count += report.jacobian_evaluations
-        return report
-
-    def _substep(self, state, control, motion, h, oil_guess=None):
-        if not _NUMBA:  # pragma: no cover
-            return super()._substep(state, control, motion, h, oil_guess)
-        oil0 = _f64(state.node_oil)
-        oil, pressure, spool, flow, _, istats, norm = _step_kernel(
-            self._F, self._I, oil0, _f64(state.valve_spool), _f64(control.valve_command),
-            _f64(control.pump_speed), _f64(motion.position_end), _f64(motion.velocity_end), float(h), True,
-            oil0 if oil_guess is None else _f64(oil_guess),
-        )
-        report = self._make_report(istats, norm, flow)
-        new = NetworkState(oil, pressure, spool, np.array(motion.position_end, float), np.array(motion.velocity_end, float),
-                           state.time + h)
-        return new, report
-
-    def _solve(self, state, control, position, velocity, spool, h, oil_guess=None):
-        if not _NUMBA:  # pragma: no cover
-            return super()._solve(state, control, position, velocity, spool, h, oil_guess)
-        oil0 = _f64(state.node_oil)
-        oil, _, _, flow, dflow, istats, norm = _step_kernel(
-            self._F, self._I, oil0, _f64(spool), _f64(control.valve_command), _f64(control.pump_speed),
-            _f64(position), _f64(velocity), float(h), False, oil0 if oil_guess is None else _f64(oil_guess),
-        )
-        return (oil, BranchFlows(flow, dflow[:, T_FROM].copy(), dflow[:, T_TO].copy(), dflow[:, T_PILOT].copy()),
-                self._make_report(istats, norm, flow))
-
-    def linearize(self, state: NetworkState, control, velocity, dt: float, *, newton: bool = True,
-                  oil_guess=None) -> Linearization:
-        if not _NUMBA:  # pragma: no cover
-            return super().linearize(state, control, velocity, dt, newton=newton, oil_guess=oil_guess)
-        velocity = _f64(np.asarray(velocity, float).reshape(self.model.actuator_count))
-        oil0 = _f64(state.node_oil)
-        oil, pressure, spool, position, flow, istats, norm, effort, gradient, doil = _linearize_kernel(
-            self._F, self._I, oil0, _f64(state.valve_spool), _f64(control.valve_command),
-            _f64(control.pump_speed), _f64(state.actuator_position), velocity, float(dt), bool(newton),
-            oil0 if oil_guess is None else _f64(oil_guess),
-        )
-        report = self._make_report(istats, norm, flow)
-        if istats[IS_SINGULAR]:
-            raise np.linalg.LinAlgError("Matrix is singular.")
-        predicted = NetworkState(oil, pressure, spool, position, velocity.copy(), state.time + dt)
-        return Linearization(velocity.copy(), effort, gradient, predicted, report, doil)
+def packed(model: NetworkModel):
+    """``pack_network(model)``, packed once per model (the model is immutable) and kept while it lives."""
+    found = _PACKED.get(model)
+    if found is None:
+        found = _PACKED[model] = pack_network(model)
+    return found

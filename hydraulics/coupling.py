@@ -90,7 +90,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import laws
+from . import _compiled, laws
 from .network import NetworkControl, NetworkModel, NetworkState
 from .steppers import ActuatorMotion, StepperImplicitEuler, StepReport, StepStatus, make_stepper
 
@@ -117,11 +117,14 @@ def blend_factor(stiffness_slope, effective_mass, dt):
     """θ per actuator: clip(1 − 2/w, 0, 1) with w = (ω·h)² = −slope·h/m_eff (see module docstring).
 
     ``stiffness_slope`` [N·s/m] is the pressure part of ∂effort/∂v⁺ (≤ 0),
-    ``effective_mass`` [kg] the inertia the actuator sees (1/(J·M⁻¹·Jᵀ)).
+    ``effective_mass`` [kg] the inertia the actuator sees (1/(J·M⁻¹·Jᵀ)), ``dt`` [s] the step
+    (the compiled law: :func:`hydraulics._compiled._blend_factor`).
+
+    Example: ``blend_factor([-4e6], [1e3], 1e-3)`` → w = 4, θ = 0.5.
     """
-    w = np.maximum(-np.asarray(stiffness_slope, float), 0.0) * dt / np.asarray(effective_mass, float)
-    with np.errstate(divide="ignore"):
-        return np.clip(1.0 - 2.0 / w, 0.0, 1.0)
+    slope = _compiled._f64(np.asarray(stiffness_slope, float).ravel())
+    mass = _compiled._f64(np.broadcast_to(np.asarray(effective_mass, float), np.shape(stiffness_slope)).ravel())
+    return _compiled.blend_factor_kernel(slope, mass, float(dt)).reshape(np.shape(stiffness_slope))
 
 
 class Coupling:
@@ -176,32 +179,21 @@ GUESS_VOLUME_FRACTION = 0.01  # [-]
 
 def start_velocity_guess(model: NetworkModel, position, velocity, dt: float) -> np.ndarray:
     """``velocity_guess`` from the start-of-step velocities [m/s or rad/s]: v, or 0 for a cylinder whose guessed
-    displacement dt·|v| [m] would change a chamber volume by more than :data:`GUESS_VOLUME_FRACTION`."""
-    position = np.asarray(position, float)
-    guess = np.array(velocity, float)
-    c = model.cylinder_actuator
-    if len(c):
-        cap, rod, _, _ = model.chamber_volumes(position)
-        swept = dt * np.abs(guess[c])
-        short = (swept * model.cylinder_cap_area <= GUESS_VOLUME_FRACTION * cap) & (
-            swept * model.cylinder_rod_area <= GUESS_VOLUME_FRACTION * rod)
-        guess[c] = np.where(short, guess[c], 0.0)
-    return guess
+    displacement dt·|v| [m] would change a chamber volume by more than :data:`GUESS_VOLUME_FRACTION`
+    (the compiled rule: :func:`hydraulics._compiled._short_chord_guess`)."""
+    F, I = _compiled.packed(model)
+    return _compiled.start_velocity_guess_kernel(F, I, _compiled._f64(position), _compiled._f64(velocity), float(dt))
 
 
 def secant_oil_guess(state: NetworkState):
     """Where the implicit couplings start a step's linearisation Newton solve [m³]: the secant prediction
     m + (m − m_prev) = ``node_oil + node_oil_change`` (error O(h²) where the oil moves smoothly, against O(h) for
-    the start oil itself), or None (start from the start oil) for a state without a last step.  The compiled steps'
-    form: ``_compiled._secant_oil_guess`` on :meth:`NetworkState.flat_oil_change`."""
-    return None if state.node_oil_change is None else state.node_oil + state.node_oil_change
-
-
-def _usable(lin) -> bool:
-    """A linearisation (not None) whose Newton solve converged to finite pressures and gradients."""
-    return lin is not None and bool(
-        lin.report.success and np.all(np.isfinite(lin.state.node_pressure)) and np.all(np.isfinite(lin.effort_velocity_gradient))
-    )
+    the start oil itself), or None (start from the start oil) for a state without a last step
+    (:func:`hydraulics._compiled._secant_oil_guess`, which the compiled steps call on
+    :meth:`NetworkState.flat_oil_change`)."""
+    if state.node_oil_change is None:
+        return None
+    return _compiled.secant_oil_guess_kernel(_compiled._f64(state.node_oil), _compiled._f64(state.node_oil_change))
 
 
 # How an implicit coupling linearises and finishes its step (``CouplingImplicit.scheme``; the compiled coupled
@@ -211,7 +203,15 @@ SCHEME_NEWTON, SCHEME_LINEAR_FINISH, SCHEME_ROSENBROCK = range(3)
 
 
 class CouplingImplicit(Coupling):
-    """Linearly implicit coupling through :meth:`StepperImplicitEuler.linearize`."""
+    """Linearly implicit coupling through :meth:`StepperImplicitEuler.linearize_at_guess` (see module docstring).
+
+    Example
+    -------
+    >>> coupling = make_coupling("implicit", model)                           # doctest: +SKIP
+    >>> law = coupling.begin(state, control, x, v, 1e-3, effective_mass=m_eff)  # doctest: +SKIP
+    >>> # ... the plant steps with effort = law.constant + law.slope·v⁺ ...
+    >>> state, report = coupling.finish(state, control, x, x_end, v, v_end, 1e-3)  # doctest: +SKIP
+    """
 
     name = "implicit"
     newton = True  # the linearisation solves its backward-Euler step by Newton (False: one Newton step, ``rosenbrock``)
@@ -227,58 +227,29 @@ class CouplingImplicit(Coupling):
         model = self.model
         position = np.asarray(position, float).copy()
         start_velocity = np.asarray(velocity, float)
-        velocity = np.zeros_like(position) if velocity_guess is None else np.array(velocity_guess, float)
-        # keep the predicted cylinder positions inside the stroke (the end stops will)
-        c = model.cylinder_actuator
-        velocity[c] = np.clip(velocity[c], -position[c] / dt, (model.cylinder_stroke - position[c]) / dt)
-        start = NetworkState(state.node_oil, state.node_pressure, state.valve_spool, position, velocity, state.time)
-        # Newton starts from the secant prediction where the guess moves the actuators (held actuators keep the start
-        # oil: the compiled steps take the start pressures from that first evaluation)
-        warm = secant_oil_guess(state) if np.any(velocity) else None
-        lin = self._linearize_or_none(start, control, velocity, dt, warm)
-        if warm is not None and not _usable(lin):  # the warm start changes iterations only: else from the start oil
-            lin = self._linearize_or_none(start, control, velocity, dt, None)
-        if np.any(velocity) and not _usable(lin):
-            # an unresolved oscillation can make the guess useless (e.g. the seed at 1200 Hz reverses ~1900 m/s
-            # each step, so x + h·v_guess empties a chamber): linearise at the held actuators instead
-            velocity = np.zeros_like(velocity)
-            velocity[c] = np.clip(velocity[c], -position[c] / dt, (model.cylinder_stroke - position[c]) / dt)
-            start = NetworkState(state.node_oil, state.node_pressure, state.valve_spool, position, velocity, state.time)
-            lin = self.predictor.linearize(start, control, velocity, dt, newton=self.newton)
+        guess = np.zeros_like(position) if velocity_guess is None else np.array(velocity_guess, float)
+        start = NetworkState(state.node_oil, state.node_pressure, state.valve_spool, position, guess, state.time)
+        # Newton starts from the secant prediction where the guess moves the actuators (the compiled rule
+        # _compiled._linearize_at_guess: then again from the start oil, then at the held actuators if unusable)
+        lin = self.predictor.linearize_at_guess(start, control, guess, dt, newton=self.newton,
+                                                oil_warm=secant_oil_guess(state))
         self.last_linearization = lin
         self._begun = (state, dt)  # finish() uses the linearisation only for this state and step
-        # pressure part: backward-Euler law around the guess, blended with the start force by θ
-        _, friction_slope_at_guess = model.friction_effort(velocity)
-        pressure_slope = np.diag(lin.effort_velocity_gradient) - friction_slope_at_guess
-        pressure_end = model.pressure_effort(lin.state.node_pressure)
         # the state's pressures already belong to its oil at this position (PBD mode); MuJoCo's tendon
         # lengths differ from the network's x + h·v⁺ by round-off, so there they are recomputed
         same_position = np.array_equal(position, state.actuator_position)
         pressure_start = model.pressure_effort(state.node_pressure if same_position else model.pressure(state.node_oil, position)[0])
-        theta = np.ones_like(pressure_slope) if effective_mass is None else blend_factor(pressure_slope, effective_mass, dt)
+        # pressure part: backward-Euler law around the guess, blended with the start force by θ; friction
+        # linearised at the start velocity with its dissipative slope only (_compiled._effort_law_terms)
+        blend = effective_mass is not None
+        mass = np.ones_like(position) if effective_mass is None else np.broadcast_to(np.asarray(effective_mass, float), position.shape)
+        C = _compiled
+        F, I = self.predictor._F, self.predictor._I
+        constant, slope, theta = C.effort_law_kernel(
+            F, I, C._f64(lin.velocity), C._f64(lin.state.node_pressure), C._f64(start_velocity),
+            C._f64(lin.effort_velocity_gradient), C._f64(pressure_start), C._f64(mass), float(dt), blend)
         self.last_theta = theta
-        # friction depends on velocity only: linearise it at the start velocity, the best guess of v⁺.
-        # Its Stribeck region has a positive slope (negative damping); folded into the plant's
-        # implicit mass matrix it can make it indefinite for light loads, so only the
-        # dissipative part of the slope is taken implicitly.
-        friction, friction_slope = model.friction_effort(start_velocity)
-        friction_slope = np.minimum(friction_slope, 0.0)
-        constant = (
-            (1.0 - theta) * pressure_start
-            + theta * (pressure_end - pressure_slope * velocity)
-            + friction - friction_slope * start_velocity
-        )
-        return EffortLaw(constant, theta * pressure_slope + friction_slope)
-
-    def _linearize_or_none(self, start, control, velocity, dt, oil_guess):
-        """The predictor's linearisation at ``velocity``, or None where it is singular and the actuators move (the
-        caller then linearises at the held actuators); a singular one at the held actuators raises."""
-        try:
-            return self.predictor.linearize(start, control, velocity, dt, newton=self.newton, oil_guess=oil_guess)
-        except np.linalg.LinAlgError:
-            if not np.any(velocity):
-                raise
-            return None
+        return EffortLaw(constant, slope)
 
     def predicted_oil(self, state, velocity_end, dt):
         """m_lin + (∂m/∂v)·(v⁺ − v_guess) [m³] from the linearisation of this step, or None if there is none."""
@@ -286,7 +257,9 @@ class CouplingImplicit(Coupling):
         begun = getattr(self, "_begun", None)
         if lin is None or lin.oil_velocity_gradient is None or begun is None or begun[0] is not state or begun[1] != dt:
             return None
-        return lin.state.node_oil + lin.oil_velocity_gradient @ (np.asarray(velocity_end, float) - lin.velocity)
+        C = _compiled
+        return C.predicted_oil_kernel(C._f64(lin.state.node_oil), C._f64(lin.oil_velocity_gradient), C._f64(lin.velocity),
+                                      C._f64(velocity_end))
 
     def finish(self, state, control, position_start, position_end, velocity_start, velocity_end, dt):
         motion = ActuatorMotion(
@@ -321,11 +294,11 @@ class CouplingImplicitLinear(CouplingImplicit):
         lin = self.last_linearization
         position_end = np.asarray(position_end, float).copy()
         velocity_end = np.asarray(velocity_end, float).copy()
-        with np.errstate(all="ignore"):
-            pressure, _ = m.pressure(oil, position_end)
-            spool = lin.state.valve_spool
-            flows = m.branch_flows(pressure, m.valve_areas(spool), control.pump_speed, velocity_end)
-        report = StepReport(rhs_evaluations=1, branch_flow=flows.flow)
+        spool = lin.state.valve_spool
+        C = _compiled
+        pressure, flow = C.linear_finish_kernel(self.predictor._F, self.predictor._I, C._f64(oil), C._f64(spool),
+                                                C._f64(position_end), C._f64(velocity_end), C._f64(control.pump_speed))
+        report = StepReport(rhs_evaluations=1, branch_flow=flow)
         if not np.all(np.isfinite(pressure)):
             bad = m.node_names[int(np.flatnonzero(~np.isfinite(pressure))[0])]
             report.status = StepStatus.NONFINITE
@@ -656,16 +629,15 @@ DEFAULT_STEPPER = {
 """The hydraulic stepper each coupling uses unless told otherwise."""
 
 
-def make_coupling(name: str, model: NetworkModel, *, stepper=None, substeps: int = 1, compiled: bool = False) -> Coupling:
+def make_coupling(name: str, model: NetworkModel, *, stepper=None, substeps: int = 1) -> Coupling:
     """Build a coupling scheme with its finishing stepper (default per :data:`DEFAULT_STEPPER`).
 
-    ``compiled`` selects the numba-compiled backward Euler where it applies.  A network
-    with rigid actuators (``incompressible`` among compressible ones) gets the named
-    coupling wrapped in :class:`CouplingMixed`.
+    A network with rigid actuators (``incompressible`` among compressible ones) gets the named
+    coupling wrapped in :class:`CouplingMixed`.  Example: ``make_coupling("rosenbrock", model)``.
     """
     if name not in COUPLINGS:
         raise ValueError(f"unknown coupling {name!r}; choose from {sorted(COUPLINGS)}")
-    stepper = make_stepper(stepper or DEFAULT_STEPPER[name], model, substeps=substeps, compiled=compiled)
+    stepper = make_stepper(stepper or DEFAULT_STEPPER[name], model, substeps=substeps)
     coupling = COUPLINGS[name](model, stepper)
     if name != "incompressible" and np.any(model.actuator_rigid):
         return CouplingMixed(model, coupling)

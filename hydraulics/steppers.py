@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import laws
-from .network import NetworkControl, NetworkModel, NetworkState
+from . import _compiled
+from .network import BranchFlows, NetworkControl, NetworkModel, NetworkState
 
 NEWTON_MAX_ITERATIONS = 30  # per (sub)step; the excavator needs 2–4
 NEWTON_PRESSURE_TOLERANCE = 1e-2  # Pa: largest pressure change of the last Newton update
@@ -228,8 +228,9 @@ class Stepper:
         return current, report
 
     def _spool_end(self, state, control, h):
-        m = self.model
-        return laws.spool_step(state.valve_spool, np.clip(control.valve_command, -1.0, 1.0), m.valve_time_constant, h)
+        """Spools [-] after ``h`` [s] of τ·ds/dt = u − s with the commands u clipped to [−1, 1] held
+        (:func:`hydraulics.components.valve_4_3.spool_step`)."""
+        return _compiled.spool_steps(state.valve_spool, control.valve_command, self.model.valve_time_constant, h)
 
     def _net_inflow(self, flows):
         return self.model.incidence @ flows.flow
@@ -267,106 +268,92 @@ class StepperExplicitEuler(Stepper):
 
 
 class StepperImplicitEuler(Stepper):
-    """Backward Euler: m⁺ = m + h·ΣQ(p(m⁺, x_end), v_end), solved by Newton's method.
+    """Backward Euler: m⁺ = m + h·ΣQ(p(m⁺, x_end), v_end), solved by Newton's method in compiled kernels.
 
-    Order 1, L-stable: bounded for any step, bulk modulus and dead volume.  The
-    Jacobian I − h·(∂Q/∂p)·diag(∂p/∂m) is analytic; a backtracking line search
-    guards the first iterations after a valve slam.  Cavitating nodes have
-    ∂p/∂m = 0 (their pressure is pinned at the floor).
+    Order 1, L-stable: bounded for any step, bulk modulus and dead volume.  On the free nodes,
+
+        r(m⁺) = m⁺ − m − h·ΣQ(p(m⁺, x⁺), v⁺) = 0,   J = I − h·(∂Q/∂p)·diag(∂p/∂m),
+
+    with the analytic Jacobian (cavitating nodes have ∂p/∂m = 0: their pressure is pinned at the floor).
+    Each Newton update Δ = −J⁻¹·r is cut to the trust region (a node may fill its vapour void and then move
+    by at most max(TRUST_PRESSURE, TRUST_FRACTION·|p|)) and halved (at most LINE_SEARCH_HALVINGS times)
+    until the residual scaled to pressure, max|r·β_eff/V| [Pa], falls by the factor 1 − SUFFICIENT_DECREASE·step.
+    Converged when that norm, or the pressure change of a full update, is below
+    NEWTON_PRESSURE_TOLERANCE + NEWTON_RELATIVE_TOLERANCE·max|p|; then the oil moves by the converged flows
+    only, m⁺ = m + h·ΣQ (a closed network conserves oil to round-off).  References: Hairer & Wanner, *Solving
+    ODEs II*, §IV.8 (Newton for implicit Runge–Kutta); Dennis & Schnabel, *Numerical Methods for
+    Unconstrained Optimization*, §6.3 (backtracking).
+
+    The network is packed once at construction (:func:`hydraulics._compiled.pack_network`, with the tuning
+    constants of this module as they are then); a whole (sub)step — spool update, Newton solve, end
+    pressures — or a whole linearisation is one call of a compiled kernel
+    (:func:`hydraulics._compiled._step_core`, :func:`hydraulics._compiled._linearize_core`,
+    :func:`hydraulics._compiled._linearize_one_step_core`), loaded from numba's disk cache (≈ 0.2 s per
+    process) or compiled when the cache is cold (≈ 15–20 s, once).  ``NUMBA_DISABLE_JIT=1`` runs the same
+    kernels as Python.  Dense solves use Gaussian elimination with partial pivoting with the free nodes
+    numbered hub last (:func:`hydraulics._compiled.elimination_order`: no fill-in on an arrowhead circuit).
+
+    **Limitations**: order 1 (the step error is O(h²) per step); a failed Newton solve (after
+    NEWTON_MAX_ITERATIONS) is reported, not retried with a smaller step.
+
+    Example
+    -------
+    >>> from hydraulics.circuit import load_circuit                          # doctest: +SKIP
+    >>> model = NetworkModel.from_circuit(load_circuit("models/boom/boom.circuit.toml"))  # doctest: +SKIP
+    >>> stepper = StepperImplicitEuler(model)                                # doctest: +SKIP
+    >>> state = model.state()                                                # doctest: +SKIP
+    >>> state, report = stepper.step(state, model.control(), ActuatorMotion.held(state.actuator_position), 1e-3)  # doctest: +SKIP
     """
 
     name = "implicit_euler"
     order = 1
     implicit = True
 
-    def _solve(self, state, control, position, velocity, spool, h, oil_guess=None):
-        """Newton solve of the backward-Euler oil balance from ``oil_guess`` (default: the start contents);
-        returns (oil, flows, report)."""
-        m = self.model
-        free = self.free
-        areas = m.valve_areas(spool)
-        oil0 = state.node_oil
-        oil = oil0.copy() if oil_guess is None else np.array(oil_guess, float)
-        report = StepReport()
+    def __init__(self, model: NetworkModel, *, substeps: int = 1):
+        super().__init__(model, substeps=substeps)
+        self._F, self._I = _compiled.pack_network(model)
 
-        def evaluate(oil):
-            pressure, dpdm = m.pressure(oil, position)
-            flows = m.branch_flows(pressure, areas, control.pump_speed, velocity)
-            residual = oil[free] - oil0[free] - h * self._net_inflow(flows)[free]
-            report.rhs_evaluations += 1
-            return pressure, dpdm, flows, residual
-
-        pressure, dpdm, flows, residual = evaluate(oil)
-        scale = self._pressure_scale(position, pressure)
-        norm = np.max(np.abs(residual * scale), initial=0.0)
-
-        def tolerance(pressure):
-            return NEWTON_PRESSURE_TOLERANCE + NEWTON_RELATIVE_TOLERANCE * np.max(np.abs(pressure[free]), initial=0.0)
-
-        converged = not len(free) or norm < tolerance(pressure)
-        for iteration in range(NEWTON_MAX_ITERATIONS):
-            if converged:
-                break
-            jq = m.flow_jacobian(flows)[np.ix_(free, free)]
-            jacobian = np.eye(len(free)) - h * jq * dpdm[free][None, :]
-            report.jacobian_evaluations += 1
-            try:
-                delta = np.linalg.solve(jacobian, -residual)
-            except (np.linalg.LinAlgError, ValueError):
-                break
-            report.newton_iterations += 1
-            step = self._trust_step(oil, delta, position, pressure)
-            for halving in range(LINE_SEARCH_HALVINGS):
-                trial = oil.copy()
-                trial[free] += step * delta
-                t_pressure, t_dpdm, t_flows, t_residual = evaluate(trial)
-                t_norm = np.max(np.abs(t_residual * scale))
-                if np.isfinite(t_norm) and (t_norm <= (1.0 - SUFFICIENT_DECREASE * step) * norm or halving == LINE_SEARCH_HALVINGS - 1):
-                    break
-                step *= 0.5
-            full = step == 1.0
-            change = np.max(np.abs(t_pressure[free] - pressure[free]), initial=0.0)
-            oil, pressure, dpdm, flows, residual, norm = trial, t_pressure, t_dpdm, t_flows, t_residual, t_norm
-            converged = norm < tolerance(pressure) or (change < tolerance(pressure) and full)
-        report.residual = float(norm)
-        if not converged:
-            worst = self.model.node_names[int(free[np.argmax(np.abs(residual * scale))])] if len(free) else "?"
+    def _make_report(self, istats, norm, flow) -> StepReport:
+        C = _compiled
+        report = StepReport(
+            newton_iterations=int(istats[C.IS_NEWTON]),
+            rhs_evaluations=int(istats[C.IS_RHS]),
+            jacobian_evaluations=int(istats[C.IS_JAC]),
+            residual=float(norm),
+            branch_flow=flow,
+        )
+        if istats[C.IS_STATUS] != C._OK:
+            worst = self.model.node_names[int(istats[C.IS_WORST])] if istats[C.IS_WORST] >= 0 else "?"
             report.status = StepStatus.NEWTON_FAILED
             report.message = f"{StepStatus.NEWTON_FAILED.value} (worst node '{worst}', residual {norm:.3g} Pa)"
-        # Oil moves only by the converged flows: exact conservation whatever the tolerance.
-        oil = oil0.copy()
-        oil[free] += h * self._net_inflow(flows)[free]
-        report.branch_flow = flows.flow
         self.rhs_count += report.rhs_evaluations
         self.jacobian_count += report.jacobian_evaluations
-        return oil, flows, report
-
-    def _trust_step(self, oil, delta, position, pressure):
-        """Largest fraction ≤ 1 of the Newton update that keeps every node inside the trust region."""
-        m = self.model
-        free = self.free
-        fluid = m.fluid
-        volume, _ = m.node_volume_at(position, pressure)
-        phi_floor = fluid.fill_ratio(max(fluid.pressure_floor, -fluid.bulk_modulus))[0]
-        void = np.maximum(volume[free] * phi_floor - oil[free], 0.0)
-        allowed = void + volume[free] * np.maximum(TRUST_PRESSURE, TRUST_FRACTION * np.abs(pressure[free])) / (
-            m.effective_bulk_modulus(pressure, position)[free]
-        )
-        with np.errstate(divide="ignore"):
-            ratio = np.where(np.abs(delta) > 0, allowed / np.abs(delta), np.inf)
-        return float(min(1.0, np.min(ratio, initial=np.inf)))
-
-    def _pressure_scale(self, position, pressure):
-        """β_eff/V of each free node [Pa/m³]: converts an oil residual to a pressure."""
-        m = self.model
-        volume, _ = m.node_volume_at(position, pressure)
-        beta = m.effective_bulk_modulus(pressure, position)
-        return beta[self.free] / volume[self.free]
+        return report
 
     def _substep(self, state, control, motion, h, oil_guess=None):
-        spool_end = self._spool_end(state, control, h)
-        oil, flows, report = self._solve(state, control, motion.position_end, motion.velocity_end, spool_end, h, oil_guess)
-        return self._finish(state, oil, spool_end, motion, h, flows), report
+        f64 = _compiled._f64
+        oil0 = f64(state.node_oil)
+        oil, pressure, spool, flow, _, istats, norm = _compiled._step_kernel(
+            self._F, self._I, oil0, f64(state.valve_spool), f64(control.valve_command),
+            f64(control.pump_speed), f64(motion.position_end), f64(motion.velocity_end), float(h), True,
+            oil0 if oil_guess is None else f64(oil_guess),
+        )
+        report = self._make_report(istats, norm, flow)
+        new = NetworkState(oil, pressure, spool, np.array(motion.position_end, float), np.array(motion.velocity_end, float),
+                           state.time + h)
+        return new, report
+
+    def _solve(self, state, control, position, velocity, spool, h, oil_guess=None):
+        """Newton solve of the backward-Euler oil balance at the end ``position``, ``velocity`` and ``spool`` from
+        ``oil_guess`` (default: the start contents); returns (oil [m³], :class:`BranchFlows`, report)."""
+        C = _compiled
+        oil0 = C._f64(state.node_oil)
+        oil, _, _, flow, dflow, istats, norm = C._step_kernel(
+            self._F, self._I, oil0, C._f64(spool), C._f64(control.valve_command), C._f64(control.pump_speed),
+            C._f64(position), C._f64(velocity), float(h), False, oil0 if oil_guess is None else C._f64(oil_guess),
+        )
+        flows = BranchFlows(flow, dflow[:, C.T_FROM].copy(), dflow[:, C.T_TO].copy(), dflow[:, C.T_PILOT].copy())
+        return oil, flows, self._make_report(istats, norm, flow)
 
     def linearize(self, state: NetworkState, control: NetworkControl, velocity, dt: float, *,
                   newton: bool = True, oil_guess=None) -> Linearization:
@@ -375,7 +362,8 @@ class StepperImplicitEuler(Stepper):
         The actuators are assumed to end at x = x_state + dt·v.  Returns the
         efforts at ``velocity`` and ∂effort/∂v (pressure part through the
         network, including the oil-column stiffness h·β·A²/V and valve terms,
-        plus the friction slope).
+        plus the friction slope), and ∂m⁺/∂v = −J⁻¹·∂r/∂v,
+        ∂r/∂v = −dt·((∂Q/∂p)·dt·∂p/∂x + ∂Q/∂v).
 
         ``newton=False`` is the **Rosenbrock–Euler (W-method) linearisation**: no Newton
         iteration, one step of it from the start oil m, the residual at x = x₀ + dt·v linearised
@@ -398,64 +386,48 @@ class StepperImplicitEuler(Stepper):
         (``newton=True``), whose line search handles such a switch.
 
         ``oil_guess`` (shape (node_count,) [m³]) is where the Newton solve starts (default: the
-        start oil); like :meth:`step`'s, it changes only the iterations.
+        start oil); like :meth:`step`'s, it changes only the iterations.  Raises
+        ``numpy.linalg.LinAlgError`` where the Newton-solved step's matrix is singular.
         """
-        m = self.model
-        free = self.free
-        velocity = np.asarray(velocity, float)
-        position = state.actuator_position + dt * velocity
-        spool = self._spool_end(state, control, dt)
-        areas = m.valve_areas(spool)
-        # where the Jacobian is taken: the end of the Newton solve, or the start of the step (one step)
-        at = position if newton else state.actuator_position
-        if newton:
-            oil, _, report = self._solve(state, control, position, velocity, spool, dt, oil_guess)
-            pressure, dpdm = m.pressure(oil, position)
-            flows = m.branch_flows(pressure, areas, control.pump_speed, velocity)
-        else:
-            oil = state.node_oil.copy()
-            pressure, dpdm = m.pressure(oil, at)
-            flows = m.branch_flows(pressure, areas, control.pump_speed, velocity)
-            report = StepReport(newton_iterations=1 if len(free) else 0, rhs_evaluations=1, jacobian_evaluations=1,
-                                branch_flow=flows.flow)
-            self.rhs_count += 1
-            self.jacobian_count += 1
-        phi, _ = m.fluid.fill_ratio(pressure)
-        # ∂p/∂x at fixed oil: −φ·∂V/∂x·∂p/∂m
-        dpdx = -(dpdm * phi)[:, None] * m.volume_position_gradient(at)
-        jq = m.flow_jacobian(flows)
-        drdv = -dt * (jq @ (dt * dpdx) + m.flow_velocity_gradient(areas))[free]
-        jacobian = np.eye(len(free)) - dt * jq[np.ix_(free, free)] * dpdm[free][None, :]
-        dpdv = dt * dpdx
-        oil_gradient = np.zeros((len(oil), m.actuator_count))
-        if len(free):
-            if newton:
-                columns = -drdv
-            else:  # dt·ΣQ(p₀, v) + dt·(∂Q/∂p)·(dt·∂p/∂x)·v
-                shift = dt * (jq @ (dt * dpdx))[free] @ velocity
-                columns = np.column_stack([dt * self._net_inflow(flows)[free] + shift, -drdv])
-            try:
-                solution = np.linalg.solve(jacobian, columns)
-            except np.linalg.LinAlgError:
-                if newton:
-                    raise
-                return self.linearize(state, control, velocity, dt, newton=True, oil_guess=oil_guess)
-            if not newton:
-                delta, solution = solution[:, 0], solution[:, 1:]
-                if self._trust_step(oil, delta, at, pressure) < 1.0:
-                    return self.linearize(state, control, velocity, dt, newton=True, oil_guess=oil_guess)
-                start = pressure
-                oil[free] += delta
-                pressure = pressure + dt * dpdx @ velocity
-                pressure[free] += dpdm[free] * delta
-                if not np.array_equal(m.law_pieces(start), m.law_pieces(pressure)):  # a kink of a valve law crossed
-                    return self.linearize(state, control, velocity, dt, newton=True, oil_guess=oil_guess)
-            dpdv[free] += dpdm[free][:, None] * solution
-            oil_gradient[free] = solution
-        effort, friction_slope = m.actuator_effort(pressure, velocity)
-        gradient = m.effort_pressure_gradient() @ dpdv + np.diag(friction_slope)
+        C = _compiled
+        velocity = C._f64(np.asarray(velocity, float).reshape(self.model.actuator_count))
+        oil0 = C._f64(state.node_oil)
+        oil, pressure, spool, position, flow, istats, norm, effort, gradient, doil = C._linearize_kernel(
+            self._F, self._I, oil0, C._f64(state.valve_spool), C._f64(control.valve_command),
+            C._f64(control.pump_speed), C._f64(state.actuator_position), velocity, float(dt), bool(newton),
+            oil0 if oil_guess is None else C._f64(oil_guess),
+        )
+        report = self._make_report(istats, norm, flow)
+        if istats[C.IS_SINGULAR]:
+            raise np.linalg.LinAlgError("Matrix is singular.")
         predicted = NetworkState(oil, pressure, spool, position, velocity.copy(), state.time + dt)
-        return Linearization(velocity.copy(), effort, gradient, predicted, report, oil_gradient)
+        return Linearization(velocity.copy(), effort, gradient, predicted, report, doil)
+
+    def linearize_at_guess(self, state: NetworkState, control: NetworkControl, velocity_guess, dt: float, *,
+                           newton: bool = True, oil_warm=None) -> Linearization:
+        """:meth:`linearize` at the implicit couplings' velocity guess, guarded (one compiled call,
+        :func:`hydraulics._compiled._linearize_at_guess`).
+
+        The guess [m/s or rad/s] is first clipped so that x + dt·v stays inside each cylinder's stroke.  Where it
+        moves an actuator, Newton starts from ``oil_warm`` [m³] (e.g. the secant prediction; None: the start
+        oil) and, if that linearisation is not usable (not converged, singular, or not finite), again from the
+        start oil; if still not usable (an unresolved oscillation can make x + dt·v empty a chamber) the
+        step is linearised at the held actuators (guess 0, clipped) instead.  The returned ``velocity`` is the
+        guess used.  Raises ``numpy.linalg.LinAlgError`` where the last linearisation is singular.
+        """
+        C = _compiled
+        oil0 = C._f64(state.node_oil)
+        guess = C._f64(np.asarray(velocity_guess, float).reshape(self.model.actuator_count))
+        oil, pressure, spool, position, flow, istats, effort, gradient, doil, used, norm = C.linearize_at_guess_kernel(
+            self._F, self._I, oil0, C._f64(state.valve_spool), C._f64(control.valve_command),
+            C._f64(control.pump_speed), C._f64(state.actuator_position), guess, float(dt), bool(newton),
+            oil0 if oil_warm is None else C._f64(oil_warm),
+        )
+        report = self._make_report(istats, norm, flow)
+        if istats[C.IS_SINGULAR]:
+            raise np.linalg.LinAlgError("Matrix is singular.")
+        predicted = NetworkState(oil, pressure, spool, position, used.copy(), state.time + dt)
+        return Linearization(used, effort, gradient, predicted, report, doil)
 
 
 class StepperReference(Stepper):
@@ -474,13 +446,12 @@ class StepperReference(Stepper):
     def _substep(self, state, control, motion, h, oil_guess=None):  # oil_guess: not used (solve_ivp)
         m = self.model
         free = self.free
-        command = np.clip(control.valve_command, -1.0, 1.0)
         tau = m.valve_time_constant
         oil = state.node_oil.copy()
         report = StepReport()
 
         def spool_at(t):
-            return laws.spool_step(state.valve_spool, command, tau, t) if t > 0 else state.valve_spool
+            return _compiled.spool_steps(state.valve_spool, control.valve_command, tau, t) if t > 0 else state.valve_spool
 
         def evaluate(t, y):
             x, v = motion.hermite(t / h, h)
@@ -523,22 +494,13 @@ STEPPERS = {cls.name: cls for cls in (StepperExplicitEuler, StepperImplicitEuler
 """Stable names → stepper classes; any :class:`Stepper` subclass is accepted too."""
 
 
-def make_stepper(name_or_class, model: NetworkModel, *, compiled: bool = False, **options) -> Stepper:
-    """Instantiate a stepper from its registry name or class.
+def make_stepper(name_or_class, model: NetworkModel, **options) -> Stepper:
+    """Instantiate a stepper from its registry name (:data:`STEPPERS`) or class; ``options`` go to its constructor.
 
-    ``compiled=True`` picks the numba-compiled backward Euler
-    (:class:`hydraulics._compiled.StepperImplicitEulerCompiled`, same results to
-    round-off) for ``"implicit_euler"`` when numba is available and the network
-    has no rigid actuators.
+    Example: ``make_stepper("implicit_euler", model, substeps=2)``.
     """
     if isinstance(name_or_class, str):
         if name_or_class not in STEPPERS:
             raise ValueError(f"unknown stepper {name_or_class!r}; choose from {sorted(STEPPERS)}")
         name_or_class = STEPPERS[name_or_class]
-    if compiled and name_or_class is StepperImplicitEuler and not np.any(model.actuator_rigid):
-        # (the compiled kernels know no rigid branches: a network with rigid actuators steps on the numpy path)
-        from ._compiled import StepperImplicitEulerCompiled, compiled_available  # imports this module
-
-        if compiled_available():
-            name_or_class = StepperImplicitEulerCompiled
     return name_or_class(model, **options)

@@ -6,7 +6,7 @@ flow control valve, each one module plus its registry line (``hydraulics/compone
   central finite differences, on closed, opening and fully open poppets in both flow directions.
 * A load-holding cylinder: with the valve centred the pilot-operated check valve holds the load (no sinking
   beyond the oil column's compression); commanded to lower, the pilot opens it and the load goes down.  The
-  numpy stepper and the compiled stepper give the same trajectory to round-off (the pilot terminal enters both
+  numpy oracle stepper (tests/reference/newton.py) and the package stepper give the same trajectory to round-off (the pilot terminal enters both
   Jacobians).
 * Nothing outside the component's module and the registry names it.
 """
@@ -180,22 +180,22 @@ def _load_holding(stepper, command):
 
 @pytest.fixture(scope="module")
 def runs():
-    from hydraulics._compiled import StepperImplicitEulerCompiled
+    from reference.newton import StepperImplicitEulerOracle
 
     return {(name, command): _load_holding(stepper, command)
-            for name, stepper in (("numpy", "implicit_euler"), ("compiled", StepperImplicitEulerCompiled))  # 4 substeps: the poppet opens within a step
+            for name, stepper in (("numpy", StepperImplicitEulerOracle), ("compiled", "implicit_euler"))  # 4 substeps: the poppet opens within a step
             for command in (0.0, -1.0)}
 
 
 def test_pilot_check_holds_a_load_and_lowers_it_when_piloted(runs):
     """Valve centred: the cylinder creeps less than 1 µm over 0.5 s (leakage 1e-12 m²); valve at −1 (P→B, A→T):
     the rod-side pressure pilots the valve open and the load descends by more than 1 cm in 0.5 s."""
-    model, held = runs["numpy", 0.0]
+    model, held = runs["compiled", 0.0]
     assert held.status == "complete"
     settled = np.searchsorted(held.time, 0.1)
     assert abs(held.position[-1] - held.position[settled]) < 1e-6
     assert held.pressure(model, "cap")[-1] > 4e6 and held.pressure(model, "line_b")[-1] < 2e5  # held, not piloted
-    model, lowered = runs["numpy", -1.0]
+    model, lowered = runs["compiled", -1.0]
     assert lowered.status == "complete"
     assert lowered.position[-1] < lowered.position[settled] - 0.01
     assert lowered.pressure(model, "line_b")[-1] > 1e6  # the pilot pressure that opened it
@@ -212,7 +212,7 @@ def test_numpy_and_compiled_steppers_agree_with_a_pilot_terminal(runs, command):
 
 def test_flow_jacobian_has_the_pilot_column(runs):
     """NetworkModel.flow_jacobian against central differences of the net inflow, pilot column included."""
-    model, lowered = runs["numpy", -1.0]
+    model, lowered = runs["compiled", -1.0]
     p = lowered.node_pressure[np.searchsorted(lowered.time, 0.2)].copy()
     pilot, cap, line_a = model.node("line_b"), model.node("cap"), model.node("line_a")
     # the pilot pressure that opens the poppet half-way (z = 1/2): ∂Q/∂p_pilot ≠ 0 there

@@ -1,17 +1,17 @@
-"""The compiled backward-Euler stepper agrees with the pure numpy one to round-off, step by step."""
+"""The backward-Euler stepper (compiled kernels) agrees with its numpy oracle (``tests/reference/newton.py``) to
+round-off, step by step."""
 
 import numpy as np
 import pytest
 
 from conftest import MODELS, network_from_toml
-from hydraulics._compiled import StepperImplicitEulerCompiled, compiled_available, elimination_order
+from hydraulics._compiled import elimination_order
 from hydraulics.circuit import load_circuit
 from hydraulics.network import NetworkModel
 from hydraulics import steppers
 from hydraulics.steppers import ActuatorMotion, StepperImplicitEuler
+from reference.newton import StepperImplicitEulerOracle
 from test_network import ALL_KINDS
-
-pytestmark = pytest.mark.skipif(not compiled_available(), reason="numba is not installed")
 
 DT = 1e-3  # s
 CIRCUITS = {
@@ -75,8 +75,8 @@ def assert_states_close(a, b, where):
 
 def run_both(name, steps=300, amplitude=0.05, substeps=1):
     m = model(name)
-    pure = StepperImplicitEuler(m, substeps=substeps)
-    fast = StepperImplicitEulerCompiled(m, substeps=substeps)
+    pure = StepperImplicitEulerOracle(m, substeps=substeps)
+    fast = StepperImplicitEuler(m, substeps=substeps)
     sa = sb = start_state(m)
     control = m.control()
     floor_hit = relief_flow = 0.0
@@ -106,7 +106,7 @@ _histories = {}
 
 
 @pytest.mark.parametrize("name", list(CIRCUITS))
-def test_steps_match_pure_stepper(name):
+def test_steps_match_oracle(name):
     m, _histories[name], floor_hit, relief_flow = run_both(name)
     if name != "seed_cylinder":  # the seed has no cavitation floor and no relief valve
         assert floor_hit, "the scenario should make a chamber cavitate"
@@ -121,10 +121,10 @@ def test_hard_motion_and_substeps_match():
 
 @pytest.mark.parametrize("newton", [True, False], ids=["newton", "one-step"])
 @pytest.mark.parametrize("name", list(CIRCUITS))
-def test_linearize_matches_pure_stepper(name, newton):
+def test_linearize_matches_oracle(name, newton):
     m = model(name)
     history = _histories.get(name) or run_both(name)[1]
-    pure, fast = StepperImplicitEuler(m), StepperImplicitEulerCompiled(m)
+    pure, fast = StepperImplicitEulerOracle(m), StepperImplicitEuler(m)
     control = m.control()
     for state, command, velocity in history[::25]:
         control.valve_command[:] = command
@@ -146,7 +146,7 @@ def test_linearize_matches_pure_stepper(name, newton):
 
 
 @pytest.mark.parametrize("name", ["excavator", "lift"])
-def test_warm_started_steps_match_pure_stepper(name):
+def test_warm_started_steps_match_oracle(name):
     """Newton started from a prediction of the end oil (as the implicit coupling's finish does), 1 and 2 substeps:
     same iterations and states in both paths, and within the Newton tolerance of the cold start.  (Along these
     valve slams the prediction at v = 0 is poor; along the coupled dig it halves the finish's iterations, see
@@ -155,7 +155,7 @@ def test_warm_started_steps_match_pure_stepper(name):
     history = _histories.get(name) or run_both(name)[1]
     control = m.control()
     for substeps in (1, 2):
-        pure, fast = StepperImplicitEuler(m, substeps=substeps), StepperImplicitEulerCompiled(m, substeps=substeps)
+        pure, fast = StepperImplicitEulerOracle(m, substeps=substeps), StepperImplicitEuler(m, substeps=substeps)
         for n, (state, command, velocity) in enumerate(history[::10]):
             control.valve_command[:] = command
             lin = pure.linearize(state, control, np.zeros(m.actuator_count), DT)
@@ -175,10 +175,11 @@ def test_warm_started_steps_match_pure_stepper(name):
 
 
 def test_newton_failure_reported_alike(monkeypatch):
-    """With the iteration limit cut to 1 (read from hydraulics.steppers by both) a valve slam fails alike."""
+    """With the iteration limit cut to 1 (read from hydraulics.steppers by both: the stepper when it packs the
+    network) a valve slam fails alike."""
     monkeypatch.setattr(steppers, "NEWTON_MAX_ITERATIONS", 1)
     m = model("excavator")
-    pure, fast = StepperImplicitEuler(m), StepperImplicitEulerCompiled(m)
+    pure, fast = StepperImplicitEulerOracle(m), StepperImplicitEuler(m)
     state = start_state(m)
     control = m.control(boom_valve=1.0, stick_valve=-1.0)
     motion = ActuatorMotion.held(state.actuator_position)

@@ -126,7 +126,7 @@ from hydraulics import _compiled as C
 from hydraulics.coupling import SCHEME_ROSENBROCK, CouplingImplicit
 from hydraulics.fluid import POTENTIAL_QUADRATURE_POINTS, potential_quadrature
 from hydraulics.network import NetworkState
-from hydraulics.steppers import StepReport, StepStatus
+from hydraulics.steppers import StepperImplicitEuler, StepReport, StepStatus
 
 from sim.plants.inputs import input_plan, sample_inputs
 from sim.plants.mujoco import MujocoPlant, mark_reset, mujoco_resets
@@ -676,7 +676,7 @@ class MujocoPlantFast(MujocoPlant):
         stepper = self.coupling.stepper
         self.fast = bool(
             _NUMBA and C.compiled_available() and isinstance(self.coupling, CouplingImplicit)
-            and isinstance(stepper, C.StepperImplicitEulerCompiled) and self.coupling.predictor is stepper
+            and isinstance(stepper, StepperImplicitEuler) and self.coupling.predictor is stepper
         )
         if not self.fast:
             return

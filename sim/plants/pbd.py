@@ -194,7 +194,7 @@ class PbdPlant(PlantBase):
         self.dt = scenario.dt
         self.coupling = make_coupling(
             "explicit" if naive else "incompressible" if self.incompressible else scenario.coupling, net,
-            stepper="explicit_euler" if naive else scenario.stepper, substeps=1, compiled=scenario.compiled,
+            stepper="explicit_euler" if naive else scenario.stepper, substeps=1,
         )
         # θ-rule of MuJoCo mode (scenario pbd_blend) or θ = 1 (backward Euler, the pressure is the row's multiplier)
         self.blend = bool(scenario.pbd_blend) and not naive

@@ -5,7 +5,7 @@
 ``CouplingImplicit.finish`` (one backward-Euler step of the network with the
 realised motion, Newton started from the linearisation's predicted oil) and
 ``PlantBase._account`` (pump/motor work, hydraulic and friction losses).  In
-Python with :class:`~hydraulics._compiled.StepperImplicitEulerCompiled` these
+Python with :class:`~hydraulics.steppers.StepperImplicitEuler` these
 cost ≈ 300 µs per substep, most of it Python and numpy call overhead.
 :class:`FastHydraulics` does the same arithmetic in two numba calls per
 substep with buffers allocated once, calling the allocation-free cores of
@@ -44,7 +44,7 @@ from hydraulics import _compiled as C
 from hydraulics.coupling import SCHEME_NEWTON, SCHEME_ROSENBROCK
 from hydraulics.fluid import potential_quadrature
 from hydraulics.network import NetworkState
-from hydraulics.steppers import StepReport, StepStatus
+from hydraulics.steppers import StepperImplicitEuler, StepReport, StepStatus
 
 try:  # pragma: no branch
     import numba
@@ -64,7 +64,7 @@ ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
 # The network's buffers for the compiled hooks, made once per plant (:class:`FastHydraulics`); n nodes,
 # na actuators, nb branches, nvalve valves.
 HydraulicBuffers = namedtuple("HydraulicBuffers", [
-    "F", "I",  # the packed network (``StepperImplicitEulerCompiled``'s float64 and int64 arrays)
+    "F", "I",  # the packed network (``StepperImplicitEuler``'s float64 and int64 arrays)
     "W",  # the kernels' scratch (``_compiled.work_size``)
     "S",  # what persists between begin and finish (:func:`keep_size`)
     "istats",  # int counters, (NI,) (``I_*``)
@@ -91,7 +91,7 @@ def eligible(plant) -> bool:
     return bool(
         _NUMBA and not plant.naive and not plant.incompressible
         and type(coupling) in (CouplingImplicit, CouplingImplicitLinear, CouplingRosenbrock)
-        and isinstance(stepper, C.StepperImplicitEulerCompiled) and stepper.substeps == 1
+        and isinstance(stepper, StepperImplicitEuler) and stepper.substeps == 1
         and coupling.predictor is stepper
     )
 
