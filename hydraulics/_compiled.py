@@ -110,9 +110,9 @@ _NUMBA = compiled_available()
 # I starts with the float-field offsets (len(_FLOAT_FIELDS) + 1, into F) and the
 # int-field offsets (len(_INT_FIELDS) + 1, into I).
 # ----------------------------------------------------------------------------
-_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "lam", "rel", "chk", "pump", "law")
+_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "lam", "rel", "chk", "pump", "law", "rig")
 _INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act",
-               "law_kind")
+               "law_kind", "rig_i", "mot_br_i")
 _NFF = len(_FLOAT_FIELDS)
 _NIF = len(_INT_FIELDS)
 _Net = namedtuple("_Net", _FLOAT_FIELDS + _INT_FIELDS)
@@ -125,13 +125,14 @@ SCALAR_LAYOUT = ("reference_pressure", "bulk_modulus", "air_fraction", "polytrop
 (S_PREF, S_BETA, S_AIR, S_NPOLY, S_FLOOR, S_PHI_FLOOR, S_NEWTON_PTOL, S_NEWTON_RTOL, S_SUFFICIENT, S_TRUST_P, S_TRUST_F,
  S_PINV_TOL, S_FILL_TOL, S_VREG, S_GUESS) = range(len(SCALAR_LAYOUT))
 # ic: int scalars, by name: sizes, then each branch kind's [start, stop) (NetworkModel.branch_slices), then limits
-BRANCH_KINDS = ("orifice", "laminar", "relief", "check", "pump", "motor", "law")
+BRANCH_KINDS = ("orifice", "laminar", "relief", "check", "pump", "motor", "law", "rigid")
 INT_LAYOUT = (("node_count", "free_count", "actuator_count", "branch_count", "cylinder_count", "motor_count",
                "accumulator_count", "valve_count", "pump_count")
               + tuple(f"{kind}_{end}" for kind in BRANCH_KINDS for end in ("start", "stop"))
               + ("newton_max_iterations", "line_search_halvings", "inversion_max_iterations", "fill_max_iterations"))
 (IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_NPUMP, IC_O0, IC_O1, IC_L0, IC_L1, IC_R0, IC_R1, IC_C0,
- IC_C1, IC_P0, IC_P1, IC_M0, IC_M1, IC_W0, IC_W1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX, IC_FILL_MAX) = range(len(INT_LAYOUT))
+ IC_C1, IC_P0, IC_P1, IC_M0, IC_M1, IC_W0, IC_W1, IC_G0, IC_G1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX,
+ IC_FILL_MAX) = range(len(INT_LAYOUT))
 # node table columns
 NODE_COLUMNS = ("fixed_pressure", "volume", "wall_compliance")
 NODE_FIXED_P, NODE_VOLUME, NODE_WALL = range(len(NODE_COLUMNS))
@@ -145,6 +146,14 @@ TERMINAL_COLUMNS = ("from", "to", "pilot")
 T_FROM, T_TO, T_PILOT = range(len(TERMINAL_COLUMNS))
 _W_BR = len(TERMINAL_COLUMNS)
 _W_LAW = LAW_WIDTH
+# rigid branches (a rigid actuator's displaced flow from its valve's P to T, NetworkModel.rigid_rates): float columns
+# (cap area or D/2π feeding the extension, rod area or D/2π feeding the retraction [m² or m³/rad], +1 when a positive
+# spool feeds the cap) and int columns (valve, actuator)
+RIGID_COLUMNS = ("extend_area", "retract_area", "sign")
+G_EXTEND, G_RETRACT, G_SIGN = range(len(RIGID_COLUMNS))
+RIGID_INDEX_COLUMNS = ("valve", "actuator")
+GI_VALVE, GI_ACT = range(len(RIGID_INDEX_COLUMNS))
+_W_RIG, _W_RIG_I = len(RIGID_COLUMNS), len(RIGID_INDEX_COLUMNS)
 
 # status codes returned by the kernels
 _OK, _NEWTON_FAILED = 0, 1
@@ -183,9 +192,6 @@ def elimination_order(model: NetworkModel) -> np.ndarray:
 
 def pack_network(model: NetworkModel):
     """Flat float64 / int64 arrays (F, I) holding everything the kernels need from ``model``."""
-    if np.any(model.actuator_rigid):
-        raise ValueError("the compiled kernels do not model rigid (incompressible among compressible) actuators; "
-                         "step this network on the numpy path")
     from . import coupling as _coupling  # (deferred: both import this module; their constants are read here)
     from . import steppers as _steppers
 
@@ -229,6 +235,8 @@ def pack_network(model: NetworkModel):
         chk=_check_valve.pack(model),
         pump=_pumps.pack(model),
         law=model.law_table,
+        rig=_table(RIGID_COLUMNS, len(model.rigid_branch_actuator), extend_area=model.rigid_extend_area,
+                   retract_area=model.rigid_retract_area, sign=model.rigid_sign),
     )
     ints = dict(
         ic=ic,
@@ -243,6 +251,8 @@ def pack_network(model: NetworkModel):
         or_valve=model.orifice_valve,
         mot_br_act=model.motor_branch_actuator,
         law_kind=model.law_kind,
+        rig_i=np.column_stack((model.rigid_valve, model.rigid_branch_actuator)).reshape(-1, _W_RIG_I),
+        mot_br_i=np.searchsorted(model.motor_actuator, model.motor_branch_actuator),  # motor of each motor branch
     )
     fparts = [np.ascontiguousarray(floats[k], float).ravel() for k in _FLOAT_FIELDS]
     iparts = [np.ascontiguousarray(ints[k]).astype(np.int64).ravel() for k in _INT_FIELDS]
@@ -261,7 +271,7 @@ def _unpack(F, I):
     ic = I[I[o]:I[o + 1]]
     n, ncyl, nmot, nacc, nv, nb = ic[IC_N], ic[IC_NCYL], ic[IC_NMOT], ic[IC_NACC], ic[IC_NV], ic[IC_NB]
     nor, nrel, nchk, npump = ic[IC_O1] - ic[IC_O0], ic[IC_R1] - ic[IC_R0], ic[IC_C1] - ic[IC_C0], ic[IC_P1] - ic[IC_P0]
-    nlaw = ic[IC_W1] - ic[IC_W0]
+    nlaw, nrig = ic[IC_W1] - ic[IC_W0], ic[IC_G1] - ic[IC_G0]
     return _Net(
         F[I[0]:I[1]],
         _matrix(F[I[1]:I[2]], n, _W_NODE),
@@ -275,6 +285,7 @@ def _unpack(F, I):
         _matrix(F[I[9]:I[10]], nchk, _W_CHK),
         _matrix(F[I[10]:I[11]], npump, _W_PUMP),
         _matrix(F[I[11]:I[12]], nlaw, _W_LAW),
+        _matrix(F[I[12]:I[13]], nrig, _W_RIG),
         ic,
         I[I[o + 1]:I[o + 2]],
         I[I[o + 2]:I[o + 3]],
@@ -287,6 +298,8 @@ def _unpack(F, I):
         I[I[o + 9]:I[o + 10]],
         I[I[o + 10]:I[o + 11]],
         I[I[o + 11]:I[o + 12]],
+        _matrix(I[I[o + 12]:I[o + 13]], nrig, _W_RIG_I),
+        I[I[o + 13]:I[o + 14]],
     )
 
 
@@ -520,12 +533,28 @@ def _pressure(pnet, oil, x, geo, p, dpdm):
 
 
 @_kernel
+def _area_count(ic):
+    """Entries of :func:`_valve_areas`' output: the orifice branches, then the rigid branches."""
+    return (ic[IC_O1] - ic[IC_O0]) + (ic[IC_G1] - ic[IC_G0])
+
+
+@_kernel
 def _valve_areas(pnet, spool, area):
-    # NetworkModel.valve_areas
+    """NetworkModel.valve_areas: open area [m²] of every orifice-law branch at the spools ``spool``, followed by the
+    displacement rate [m² or m³/rad] of every rigid branch (NetworkModel.rigid_rates: the extending area when the
+    metering direction d = sign(s)·[opening(|s|) > 0] of s = sign·spool is +1, −retracting area for −1, 0 closed)."""
     net = _deref(pnet)
     ori, ov = net.ori, net.or_valve
     has_valves = net.ic[IC_NV] > 0
-    for i in range(area.size):
+    nor = net.ic[IC_O1] - net.ic[IC_O0]
+    rig, gi = net.rig, net.rig_i
+    for i in range(rig.shape[0]):
+        s = rig[i, G_SIGN] * spool[gi[i, GI_VALVE]]
+        rate = 0.0
+        if _valve.metering_opening(abs(s), net.valve[gi[i, GI_VALVE], V_OVERLAP]) > 0.0:
+            rate = rig[i, G_EXTEND] if s > 0.0 else (-rig[i, G_RETRACT] if s < 0.0 else 0.0)
+        area[nor + i] = rate
+    for i in range(nor):
         a = ori[i, O_BASE]
         if has_valves:
             vi = ov[i]
@@ -569,7 +598,11 @@ def _branch_flows(pnet, p, area, speed, velocity, flow, dflow):
         dflow[b, T_TO] = _pumps.flow(ddisp, speed[i], pump[i, P_EFF])
     for b in range(ic[IC_M0], ic[IC_M1]):
         i = b - ic[IC_M0]
-        flow[b] = _motor.flow(net.mot[i], velocity[net.mot_br_act[i]])
+        flow[b] = _motor.flow(net.mot[net.mot_br_i[i]], velocity[net.mot_br_act[i]])
+    nor = ic[IC_O1] - ic[IC_O0]
+    for b in range(ic[IC_G0], ic[IC_G1]):  # rigid branches: Q = rate·v, no pressure dependence
+        i = b - ic[IC_G0]
+        flow[b] = area[nor + i] * velocity[net.rig_i[i, GI_ACT]]
     law = net.law
     for b in range(ic[IC_W0], ic[IC_W1]):
         i = b - ic[IC_W0]
@@ -677,7 +710,7 @@ def _lu_solve(a, b):
 
 @_kernel
 def _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dflow, inflow, residual):
-    # StepperImplicitEuler._solve.evaluate
+    # pressures, ∂p/∂m, branch flows and the backward-Euler residual r = m − m₀ − h·ΣQ(p(m, x), v) (free nodes)
     net = _deref(pnet)
     _pressure(pnet, oil, x, geo, p, dpdm)
     _branch_flows(pnet, p, area, speed, v, flow, dflow)
@@ -702,7 +735,8 @@ def _volume_and_modulus(pnet, k, geometric, p):
 
 @_kernel
 def _trust_step(pnet, oil, delta, geo, p):
-    # StepperImplicitEuler._trust_step
+    # largest fraction ≤ 1 of the Newton update ``delta`` that keeps every free node inside the trust region: it may
+    # fill its vapour void, then move by at most max(TRUST_PRESSURE, TRUST_FRACTION·|p|) [Pa]
     net = _deref(pnet)
     sc = net.sc
     free = net.free
@@ -767,7 +801,7 @@ def _take2(W, offset, rows, cols):
 def _solve_work_size(ic):
     """Scratch entries _solve_core needs (float64)."""
     n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
-    return (ic[IC_O1] - ic[IC_O0]) + 8 * n + (2 + 2 * _W_BR) * nb + 4 * nf + nf * nf
+    return _area_count(ic) + 8 * n + (2 + 2 * _W_BR) * nb + 4 * nf + nf * nf
 
 
 @_kernel
@@ -780,7 +814,7 @@ def _step_work_size(ic):
 def _linearize_work_size(ic):
     """Scratch entries _linearize_core needs (float64)."""
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
-    return (_solve_work_size(ic) + (1 + _W_BR) * nb + 2 * n + 5 * n * na + (ic[IC_O1] - ic[IC_O0]) + n * n + nf * na + nf * nf
+    return (_solve_work_size(ic) + (1 + _W_BR) * nb + 2 * n + 5 * n * na + _area_count(ic) + n * n + nf * na + nf * nf
             + na)
 
 
@@ -793,7 +827,8 @@ def work_size(F, I) -> int:
 
 @_kernel
 def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out, istats, W, p_first, oil_init):
-    """StepperImplicitEuler._solve; returns the scaled residual norm, counters in ``istats``.
+    """The backward-Euler Newton solve of :class:`~hydraulics.steppers.StepperImplicitEuler` (equations, trust region,
+    line search and tolerances in its docstring); returns the scaled residual norm, counters in ``istats``.
 
     ``W`` is scratch (at least ``_solve_work_size``); ``p_first`` receives the
     pressures of the first evaluation (at ``oil_init``, ``x``).  Newton starts
@@ -805,7 +840,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out,
     n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
     halvings = ic[IC_HALVINGS]
     o = 0
-    area, o = _take(W, o, ic[IC_O1] - ic[IC_O0])
+    area, o = _take(W, o, _area_count(ic))
     geo, o = _take(W, o, n)
     inflow, o = _take(W, o, n)
     oil, o = _take(W, o, n)
@@ -997,10 +1032,11 @@ def _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt):
 
 
 @_kernel
-def _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, col):
+def _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, col):
     """−∂r/∂v of the backward-Euler residual r = m⁺ − m − dt·ΣQ(p(m⁺, x + dt·v), v) on the free nodes,
     dt·((∂Q/∂p)·dt·∂p/∂x + ∂Q/∂v) [m³·s/m or m³·s/rad], into columns ``col`` … ``col + na − 1`` of ``rhs`` (nf rows);
-    ``jq``: the node × node flow Jacobian ∂(net inflow)/∂p, ``mg`` (n × na): scratch (the motors' ∂Q/∂v)."""
+    ``jq``: the node × node flow Jacobian ∂(net inflow)/∂p, ``area``: :func:`_valve_areas` (the rigid branches' rates),
+    ``mg`` (n × na): scratch (∂Q/∂v of the motor and rigid branches)."""
     net = _deref(pnet)
     ic, free = net.ic, net.free
     na = mg.shape[1]
@@ -1008,9 +1044,15 @@ def _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, col):
     br = net.br
     for b in range(ic[IC_M0], ic[IC_M1]):
         i = b - ic[IC_M0]
-        rate = net.mot[i] / (2.0 * np.pi)
+        rate = net.mot[net.mot_br_i[i]] / (2.0 * np.pi)
         mg[br[b, 0], net.mot_br_act[i]] += -rate
         mg[br[b, 1], net.mot_br_act[i]] += rate
+    nor = ic[IC_O1] - ic[IC_O0]
+    for b in range(ic[IC_G0], ic[IC_G1]):  # rigid branches: ∂Q/∂v = rate
+        i = b - ic[IC_G0]
+        rate = area[nor + i]
+        mg[br[b, 0], net.rig_i[i, GI_ACT]] += -rate
+        mg[br[b, 1], net.rig_i[i, GI_ACT]] += rate
     for j in range(free.size):
         k = free[j]
         for a in range(na):
@@ -1063,8 +1105,8 @@ def _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope):
 @_kernel
 def _linearize_core(pnet, W, start, dt, out, oil_init):
     """StepperImplicitEuler.linearize from ``start`` (:class:`StepStart`, its velocities the linearisation point) into
-    ``out`` (:class:`LinearizationOut`), its Newton solve started from ``oil_init`` (the pure ``oil_guess``; the start
-    oil for a cold start); returns the residual norm.
+    ``out`` (:class:`LinearizationOut`), its Newton solve started from ``oil_init`` (``StepperImplicitEuler.step``'s
+    ``oil_guess``; the start oil for a cold start); returns the residual norm.
 
     ``W``: scratch of ``_linearize_work_size`` entries; ``p_first`` receives
     the pressures at (``oil_init``, x0 + dt·velocity), the Newton solve's first evaluation;
@@ -1087,7 +1129,7 @@ def _linearize_core(pnet, W, start, dt, out, oil_init):
     _pressure(pnet, oil, x, geo, p, dpdm)
     dvdx, o = _take2(W, o, n, na)
     dpdx_dt, o = _take2(W, o, n, na)  # dt·∂p/∂x
-    area, o = _take(W, o, ic[IC_O1] - ic[IC_O0])
+    area, o = _take(W, o, _area_count(ic))
     jq, o = _take2(W, o, n, n)
     mg, o = _take2(W, o, n, na)
     rhs, o = _take2(W, o, nf, na)
@@ -1099,7 +1141,7 @@ def _linearize_core(pnet, W, start, dt, out, oil_init):
     _valve_areas(pnet, spool, area)
     _branch_flows(pnet, p, area, speed, velocity, flow2, dflow)
     _flow_jacobian(pnet, dflow, jq)
-    _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, 0)
+    _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, 0)
     _newton_matrix_of(pnet, jq, dpdm, dt, jac)
     _copy2(dpdv, dpdx_dt)
     singular = False
@@ -1148,7 +1190,7 @@ def _linearize_one_step_core(pnet, W, start, dt, out):
         x[a] = x0[a] + dt * velocity[a]
     _spool_end(pnet, spool0, command, dt, spool)
     o = 0
-    area, o = _take(W, o, ic[IC_O1] - ic[IC_O0])
+    area, o = _take(W, o, _area_count(ic))
     geo, o = _take(W, o, n)
     inflow, o = _take(W, o, n)
     dpdm, o = _take(W, o, n)
@@ -1167,7 +1209,7 @@ def _linearize_one_step_core(pnet, W, start, dt, out):
     _evaluate(pnet, oil0, oil0, x0, velocity, area, speed, dt, geo, p_first, dpdm, flow, dflow, inflow, residual)
     _position_pressure_gradient(pnet, x0, geo, p_first, dpdm, dt, dvdx, dpdx_dt)
     _flow_jacobian(pnet, dflow, jq)
-    _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, mg, rhs, 1)
+    _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, 1)
     for j in range(nf):  # dt·ΣQ(p₀, v) (= −residual) + dt·(∂Q/∂p)·(dt·∂p/∂x)·v (= (−∂r/∂v − dt·∂Q_motor/∂v)·v)
         k = free[j]
         s = -residual[j]
@@ -1517,11 +1559,11 @@ def _linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow):
     """CouplingImplicitLinear.finish after the prediction: end pressures p = p(m⁺, x⁺) [Pa] of the predicted oil
     ``oil`` (m⁺ [m³]) at the end positions ``x``, and the branch flows ``flow`` [m³/s] at the linearisation's
     spools ``spool``, pump speeds ``speed`` and end velocities ``v`` (no Newton solve).  ``W``: scratch of at least
-    (orifices + 2·nodes) entries; ``dflow``: scratch (branches × terminals)."""
+    (:func:`_area_count` + 2·nodes) entries; ``dflow``: scratch (branches × terminals)."""
     net = _deref(pnet)
     n = oil.size
     o = 0
-    area, o = _take(W, o, net.ic[IC_O1] - net.ic[IC_O0])
+    area, o = _take(W, o, _area_count(net.ic))
     geo, o = _take(W, o, n)
     dpdm, o = _take(W, o, n)
     _pressure(pnet, oil, x, geo, p, dpdm)
@@ -1651,7 +1693,7 @@ def _linear_finish_python_entry(F, I, oil, spool, x, v, speed):
     net = _unpack(F, I)
     ic = net.ic
     n, nb = ic[IC_N], ic[IC_NB]
-    W = np.empty(ic[IC_O1] - ic[IC_O0] + 2 * n)
+    W = np.empty(_area_count(ic) + 2 * n)
     p, flow, dflow = np.empty(n), np.empty(nb), np.empty((nb, _W_BR))
     _linear_finish(_ref(net), W, oil, spool, x, v, speed, p, flow, dflow)
     return p, flow

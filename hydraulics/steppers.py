@@ -11,7 +11,9 @@ scipy's ``OdeSolver`` family).
   a node of volume V behind an orifice of slope G is stable only for
   h < 2V/(β·G).  Kept as the baseline the seed report used.
 * :class:`StepperImplicitEuler` — backward Euler with Newton's method on the
-  node oil contents and the analytic Jacobian, order 1, L-stable.  Also
+  node oil contents and the analytic Jacobian, order 1, L-stable, in compiled
+  kernels (:mod:`hydraulics._compiled`; ``NUMBA_DISABLE_JIT=1`` runs them as
+  Python, and ``tests/reference/newton.py`` keeps a numpy oracle).  Also
   provides :meth:`StepperImplicitEuler.linearize`, the sensitivity of the
   actuator efforts (and of the end oil contents, ∂m⁺/∂v) to the actuator
   velocities used by implicit coupling; the linearly implicit finish built
