@@ -102,8 +102,6 @@ from .components.valve_4_3 import V_OVERLAP, V_TAU
 from .components.parameters import table as _table
 from .components import BRANCH_LAWS, LAW_WIDTH
 
-_NUMBA = compiled_available()
-
 
 # ----------------------------------------------------------------------------
 # Packed layout.  F (float64) and I (int64) hold the fields below in this order;

@@ -5,9 +5,11 @@ ramps, as ``tests/test_fast_plant.py``) on the fast MuJoCo plant (coupled steps 
 callback as a Python function) and on the PBD plant's block path (``PbdPlant.advance``); this process steps the
 same scenes compiled.  Same code, same operations in the same order: the end states (joint positions, node
 pressures, actuator positions and efforts, energy ledger) agree to round-off, 1e-12 of each quantity's largest
-magnitude (measured: bit-identical on x86-64 with numba 0.68).
+magnitude (measured: bit-identical on x86-64 with numba 0.68).  Likewise the per-step MuJoCo plant on the boom
+lift with each implicit coupling: :class:`hydraulics.steppers.StepperImplicitEuler` and the couplings' compiled
+entries called from Python.
 
-Run by hand: ``NUMBA_DISABLE_JIT=1 python tests/test_disable_jit.py out.npz``.
+Run by hand: ``NUMBA_DISABLE_JIT=1 python tests/test_disable_jit.py out.npz [per-step]``.
 """
 
 from __future__ import annotations
@@ -109,6 +111,49 @@ def test_disable_jit_run_agrees_with_compiled_run(tmp_path):
     assert moved == 6  # every scene pressurised in both modes
 
 
+PER_STEP_STEPS = 60  # of the per-step MuJoCo plant (1 ms): the boom's valve opens from 20 ms
+
+
+def run_per_step() -> dict[str, np.ndarray]:
+    """End states of the boom lift on the per-step MuJoCo plant (:class:`hydraulics.coupling.CouplingImplicit` and its
+    variants calling the compiled stepper and coupling entries from Python), one per implicit coupling."""
+    from sim.io.scenario import load_scenario
+    from sim.io.scene import load_scene
+    from sim.plants.mujoco import MujocoPlant
+
+    path, inputs, _ = _scenes()["boom"]
+    out = {}
+    for coupling in ("implicit", "implicit-linear", "rosenbrock"):
+        scenario = load_scenario(path)
+        scenario = scenario.with_overrides(inputs={**scenario.inputs, **inputs}, coupling=coupling)
+        plant = MujocoPlant(load_scene(scenario))
+        for _ in range(PER_STEP_STEPS):
+            report = plant.step()
+            assert report.success, report.message
+        out[f"boom/{coupling}/joints"] = np.asarray(plant.joint_state()[0], float)
+        out[f"boom/{coupling}/pressure"] = plant.net_state.node_pressure
+        out[f"boom/{coupling}/effort"] = np.asarray(plant.effort, float)
+    return out
+
+
+def test_disable_jit_per_step_plant_agrees_with_compiled(tmp_path):
+    """The backward-Euler stepper and the implicit couplings' entries called from Python (per-step MuJoCo plant) run
+    as plain Python under NUMBA_DISABLE_JIT=1 and end where the compiled run ends, to round-off."""
+    target = tmp_path / "per_step.npz"
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1")
+    done = subprocess.run([sys.executable, __file__, str(target), "per-step"], env=env, capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    python = dict(np.load(target))
+    compiled = run_per_step()
+    assert sorted(python) == sorted(compiled)
+    for key, value in compiled.items():
+        scale = max(float(np.max(np.abs(value), initial=0.0)), 1e-300)
+        error = float(np.max(np.abs(python[key] - value), initial=0.0))
+        assert error <= RTOL * scale, f"{key}: Python and compiled runs differ by {error:.3e} (scale {scale:.3e})"
+    assert np.max(compiled["boom/implicit/pressure"]) > 1e6  # pressurised
+
+
 if __name__ == "__main__":
     from hydraulics._compiled import JIT_ENABLED
 
@@ -117,6 +162,12 @@ if __name__ == "__main__":
     from sim.plants import mujoco_fast, pbd_block
 
     assert not JIT_ENABLED, "run with NUMBA_DISABLE_JIT=1"
+    if sys.argv[2:] == ["per-step"]:
+        from hydraulics import _compiled
+
+        np.savez(sys.argv[1], **run_per_step())
+        assert inspect.isfunction(_compiled.effort_law_kernel) and inspect.isfunction(_compiled._step_kernel)  # plain Python
+        sys.exit(0)
     result = run_scenes()
     # the coupled steps ran as Python functions (no compiled entry point was made)
     assert inspect.isfunction(mujoco_fast._CALLBACK) and all(map(inspect.isfunction, pbd_block._BLOCK.values()))

@@ -34,7 +34,7 @@ from .newton import StepperImplicitEulerOracle
 def blend_factor(stiffness_slope, effective_mass, dt):
     """θ per actuator: clip(1 − 2/w, 0, 1) with w = −slope·h/m_eff (slope [N·s/m], mass [kg], dt [s])."""
     w = np.maximum(-np.asarray(stiffness_slope, float), 0.0) * dt / np.asarray(effective_mass, float)
-    with np.errstate(divide="ignore"):
+    with np.errstate(divide="ignore", over="ignore"):
         return np.clip(1.0 - 2.0 / w, 0.0, 1.0)
 
 
