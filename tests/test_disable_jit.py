@@ -21,15 +21,11 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from conftest import MODELS  # noqa: E402
-from hydraulics._compiled import compiled_available  # noqa: E402
-
-pytestmark = pytest.mark.skipif(not compiled_available(), reason="numba is not installed")
 
 RTOL = 1e-12  # of each quantity's largest magnitude: round-off of a few hundred steps
 
