@@ -225,27 +225,6 @@ def test_elimination_order_makes_no_fill_in(name):
         assert _fill_in(_newton_pattern(m, m.free_nodes)) > 0  # the supply is node 1, eliminated first in the model's order
 
 
-@pytest.mark.parametrize(
-    "scenario, duration",
-    [("seed_cylinder/closed.scenario.toml", 0.02), ("boom/lift.scenario.toml", 1.5), ("excavator/dig.scenario.toml", 1.5)],
-)
-def test_compiled_and_pure_paths_agree_on_scenes(scenario, duration, tmp_path):
-    """MuJoCo mode with the compiled kernels and with the pure numpy path: same trajectories to round-off."""
-    from sim.io.mcap_log import read_log
-    from sim.run.runner import run
-
-    path = MODELS / scenario
-    pure = read_log(run(path, out=tmp_path / "pure.mcap", overrides={"duration": duration, "compiled": False}).log_path)
-    fast = read_log(run(path, out=tmp_path / "fast.mcap", overrides={"duration": duration, "compiled": True}).log_path)
-    assert pure.metadata["hydroplant.run"]["compiled"] == "False" and fast.metadata["hydroplant.run"]["compiled"] == "True"
-    for topic in pure.topics:
-        if not topic.startswith("/hydroplant/cylinders/"):
-            continue
-        a, b = pure.topic(topic), fast.topic(topic)
-        for field in ("position_m", "p_cap_pa", "p_rod_pa", "force_n"):
-            np.testing.assert_allclose(b[field], a[field], rtol=1e-7, atol=1e-6 * np.max(np.abs(a[field])))
-
-
 @pytest.mark.parametrize("name", ["excavator", "all_kinds"])
 def test_law_pieces_compiled_matches_pure(name):
     """_same_law_pieces(pa, pb) ⇔ NetworkModel.law_pieces(pa) == law_pieces(pb), on pressure pairs that move the

@@ -75,7 +75,7 @@ class MujocoPlant(PlantBase):
         self.dt = scenario.dt
         self.coupling = make_coupling(
             "incompressible" if self.network.fidelity == "incompressible" else (coupling or scenario.coupling),
-            self.network, stepper=scenario.stepper, substeps=scenario.hydraulic_substeps, compiled=scenario.compiled,
+            self.network, stepper=scenario.stepper, substeps=scenario.hydraulic_substeps, compiled=True,
         )
         m = self.model
         self.scalar_joints = np.array([j for j in range(m.njnt) if int(m.jnt_type[j]) in SCALAR_JOINTS], int)
