@@ -126,7 +126,7 @@ hinges whose parent is static (the excavator swing's 320 kg·m² is modelled: a 
 inertia of the upper group, and on the joint-space diagonal; elsewhere a warning says so),
 frictionloss, joint stiffness, contacts other than sphere/capsule/box against
 planes; its joint and two-site tendon limits follow MuJoCo's soft limit law; its contacts are soft in the normal
-direction with MuJoCo's law for the scene's solref/solimp (``sim.xpbd.laws.mujoco_contact_law``),
+direction with MuJoCo's law for the scene's solref/solimp (``sim.xpbd.compiled._contact_law``),
 with friction from the same soft pyramid, and each contact sees the articulated response of the
 whole mechanism (J·M⁻¹·Jᵀ, as MuJoCo's contact problem), not that of the touching body alone
 (``XpbdOptions(articulated_contacts=True)``; a hinged arm striking the ground peaks at 24.91 mm

@@ -94,7 +94,7 @@ class SubstepInputs:
                    vector [rad] (world frame) per unit multiplier of the row [1/(N·s²)], i.e.
                    the body motion of Δq = M⁻¹ Jᵀ (J: row length rates per joint velocity, M:
                    joint-space mass matrix); rows 0 for static groups.  When given, the active
-                   rows are solved together (``_solve_rows_block``): W = ∂C/∂λ is formed from
+                   rows are solved together (``compiled._solve_rows_block``): W = ∂C/∂λ is formed from
                    these displacements at the current geometry, Δλ = −(W + α̃)⁻¹ (C + α̃ λ)
                    ([XPBD] eq. 16 restricted to the rows), and the groups are moved by
                    Σ mobility·Δλ, which keeps the joints satisfied to first order (the joint
@@ -171,21 +171,21 @@ class SolverXPBD:
 
     * ``symmetric`` (default True): each iteration is a forward + backward Gauss-Seidel
       pass.  Forward-only sweeps can be unstable with light bodies between joints
-      (see ``_solve_positions``); it costs about 2× per iteration.
+      (see ``compiled.substep_core``); it costs about 2× per iteration.
     * Pin/connect attachments are projected with the 3×3 block form of the XPBD update
       (``compiled._attach``: Δλ = −K⁻¹·d with K the 3×3 point mobility of the pair) rather than the
       scalar projection along the error direction: less pin drift (double pendulum at 60 Hz × 20:
       4.0e-5 m against 5.5e-5 m; ``tests/test_xpbd_rigid.py``).
     * ``soft_limits`` (default True): joint limits (hinge, slide) and the limits of straight two-site
       spatial tendons follow MuJoCo's soft-constraint law of the MJCF (solreflimit/solimplimit,
-      R = (1 − d)/d·dof_invweight0 or tendon_invweight0; ``mujoco_limit_law``), taken over the substep as
-      MuJoCo takes it over its step, as the soft contacts are (``mujoco_step_target``; ``_soft_limit_targets``,
+      R = (1 − d)/d·dof_invweight0 or tendon_invweight0; ``compiled._contact_law``), taken over the substep as
+      MuJoCo takes it over its step, as the soft contacts are (r* = r + h·ṙ − h²·(b·ṙ + k·d·r); ``compiled._soft_limit_target``,
       ``_tendon_limit_targets``): a limit
       acts in a substep that starts beyond it, as a one-sided compliant row.  A hinge beyond its soft
       limit is solved as one 6-row block (pin and axis rigid, the angle compliant,
       ``compiled._hinge_soft_limit``); when a tendon limit is active too (the boom's cylinder end stop,
       where MuJoCo activates the joint and the tendon limit together) all active limits of a hinge/slide
-      tree are solved as one articulated block (``_solve_limits_block``: W = J·M⁻¹·Jᵀ + α̃, active set),
+      tree are solved as one articulated block (``compiled._solve_limits_block``: W = J·M⁻¹·Jᵀ + α̃, active set),
       which Gauss-Seidel over the two nearly parallel rows does not reproduce (13 % too deep statically).
       A boom pressed into its end stop then rests at MuJoCo's penetration (within 0.01 %) and an impact
       overtravels as in MuJoCo (``tests/test_xpbd_soft_limit.py``); the boom lift's stroke error against
@@ -201,7 +201,7 @@ class SolverXPBD:
       pyramidal contacts are solved with the response of the whole mechanism, as MuJoCo's
       contact problem is (its a = J·M⁻¹·Jᵀ·f + a₀): W = J·M⁻¹·Jᵀ of the edge rows and every
       group moved by G·M⁻¹·Jᵀ·Δλ (G the group Jacobian, M the joint-space mass matrix of the
-      group masses and inertias at the predicted pose, ``_articulated_inverse``).  With the
+      group masses and inertias at the predicted pose, ``compiled.articulated_inverse``).  With the
       free-body response of the touching body (``False``, the behaviour before), the edge rows
       see the body as if it were free and the joint projection takes part of the correction
       back; for MuJoCo's stiff soft contact (R ≈ 5–10 % of the effective inverse mass) this
@@ -214,7 +214,7 @@ class SolverXPBD:
       (``row_mobility``, ``group_gravity``; world-frame group motions a plant computes once per
       step at the step's start pose) are carried to every later substep's pose through joint
       space, R_k = G_k·G₀⁺·R₀ (G the group Jacobian of a tree of hinges and slides,
-      ``_transport``), as the response of the same joint-space motion Δq = M⁻¹·Jᵀ.  Without it
+      ``compiled.transport``), as the response of the same joint-space motion Δq = M⁻¹·Jᵀ.  Without it
       a 60 Hz frame applies the row and gravity responses in directions up to one frame old: a
       swinging machine (≈ 1 rad/s, 17 mrad per frame) then gets cylinder and gravity
       corrections tilted out of its moving boom plane, and its pressures converge with the
@@ -238,8 +238,8 @@ class SolverXPBD:
     rate ← rate/(1 + b h w), w the generalized inverse mass of the joint pair.
     Contacts (``soft_contacts``, default True) are compliant in the normal direction with
     MuJoCo's soft-contact law of the geom pair (solref/solimp/condim/cone from the compiled
-    MjModel, effective mass from its ``body_invweight0``; ``mujoco_contact_law``,
-    ``_soft_contact_targets``): a resting body sinks by the same static penetration as in
+    MjModel, effective mass from its ``body_invweight0``; ``compiled._contact_law``,
+    ``compiled._contact_targets``): a resting body sinks by the same static penetration as in
     MuJoCo and an impact has the same time constant.  Friction stays Coulomb (static and
     dynamic, [RB] Sec. 3.5–3.6), not MuJoCo's soft pyramid.  ``soft_contacts=False`` gives
     the rigid contacts of [RB].
@@ -508,7 +508,7 @@ class SolverXPBD:
                 t, g1, g2 = self._joints[j][0], self._joints[j][1], self._joints[j][2]
                 aw = np_quat_rotate(q[g1], np.asarray(self._joints[j][5]))
                 if t == JNT_HINGE:
-                    continue  # applied as a joint-space impulse, see _apply_hinge_torques
+                    continue  # applied as a joint-space impulse, the compiled substep's hinge torque impulses
                 elif t == JNT_SLIDE:
                     f = jf[j] * aw
                     F[g2] += f
