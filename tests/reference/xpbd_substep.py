@@ -9,7 +9,8 @@ Sign conventions and references as in :mod:`sim.xpbd.solver`.
 
 ``ReferenceSolver(model, options, length_constraints=..., block_attach=False)`` projects pin/connect
 attachments with the scalar XPBD update along the error direction instead of the 3×3 block update the
-package uses (about 5× more pin drift; ``tests/test_xpbd_rigid.py``), kept here for that comparison.
+package uses (more pin drift: 5.5e-5 against 4.0e-5 m on a double pendulum at 60 Hz × 20,
+``tests/test_xpbd_rigid.py``), kept here for that comparison.
 
 Example
 -------
