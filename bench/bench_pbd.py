@@ -93,12 +93,11 @@ SCENES = {
 }
 # Row labels: MuJoCo mode with the Python-orchestrated plant (mujoco) or the coupled step in MuJoCo's callback
 # (mujoco-fast; "-rb": the rosenbrock coupling); PBD mode with the scenario's implicit coupling at θ = 1 (pbd),
-# with MuJoCo mode's θ-rule (pbd-θ: ``pbd_blend``), rosenbrock at θ = 1 / with the θ-rule (pbd-rb, pbd-rb-θ),
-# and the pure-Python XPBD path (pbd-pure).
+# with MuJoCo mode's θ-rule (pbd-θ: ``pbd_blend``), rosenbrock at θ = 1 / with the θ-rule (pbd-rb, pbd-rb-θ).
 VARIANTS = {
     "mujoco": dict(mode="mujoco"), "mujoco-fast": dict(mode="mujoco"), "mujoco-fast-rb": dict(mode="mujoco", coupling="rosenbrock"),
     "pbd": dict(mode="pbd"), "pbd-θ": dict(mode="pbd", pbd_blend=True), "pbd-rb": dict(mode="pbd", coupling="rosenbrock"),
-    "pbd-rb-θ": dict(mode="pbd", coupling="rosenbrock", pbd_blend=True), "pbd-pure": dict(mode="pbd", compiled=False),
+    "pbd-rb-θ": dict(mode="pbd", coupling="rosenbrock", pbd_blend=True),
 }
 # Pressure errors of the excavator rows against the converged full-dig reference (bench/bench_tradeoff.py
 # --full-dig): 0.1 s centred moving averages and point-wise, % of the highest relief setting, per phase.
@@ -253,7 +252,7 @@ def print_full_dig_pressures(path, results):
           + "  ".join(f"{f'{a:g}-{b:g} s':>15}" for a, b in FULL_DIG_PHASES) + "  worst (filtered)")
     filtered = {}
     for label, dt, n, rtf, _, log_path, iterations, _ in results:
-        if label == "pbd-pure" or not np.isfinite(rtf):
+        if not np.isfinite(rtf):
             continue
         sub = f"{n}" + (f"×{iterations}it" if iterations != 1 else "") if label.startswith("pbd") else "-"
         err = pressure_errors(ref_log, log_path)
@@ -279,7 +278,7 @@ def paired_rtf_ratios(path, duration, mujoco_overrides, pbd_overrides, reps, out
     return np.array(ratios)
 
 
-def bench_scene(name, spec, substeps, quick, out, pure_substeps=(), pair_reps=0):
+def bench_scene(name, spec, substeps, quick, out, pair_reps=0):
     path = spec["path"]
     duration = QUICK_DURATION.get(name, spec["duration"]) if quick else spec["duration"]
     net = load_scene(load_scenario(path)).network
@@ -318,7 +317,6 @@ def bench_scene(name, spec, substeps, quick, out, pure_substeps=(), pair_reps=0)
     rows += [("pbd", dt, n, it) for dt, n, it in spec.get("fine", ())]  # fine: many substeps, finer frames, iterations
     rows += [(label, dt, n, 1) for label in ("pbd-θ", "pbd-rb-θ") for dt, n in spec.get("blend", ())]  # the θ-rule
     rows += [(label, dt, n, 1) for label in ("pbd-rb", "pbd-rb-θ") for dt, n in spec.get("coarse", ())]  # coarser frames
-    rows += [("pbd-pure", spec["pbd_dt"], n, 1) for n in pure_substeps]  # the pure-Python XPBD path, for the speed-up
     for label, dt in {(label, dt) for label, dt, _, _ in rows}:  # warm-up (numba cache, first calls)
         run(path, out=out / "warmup.mcap", overrides={**VARIANTS[label], "dt": dt, "duration": 5 * dt}, fast=label != "mujoco", overwrite=True)
     results = []
@@ -338,11 +336,7 @@ def bench_scene(name, spec, substeps, quick, out, pure_substeps=(), pair_reps=0)
         line = (f"  {label:<14} {dt * 1e3:8.4g} {sub:>8} {dt / n * 1e3:8.4g} {result.status:>9} "
                 f"{rtf:7.3f} {err:11.3%}")
         print(line + (f" {err_early:11.3%}" if early else ""), flush=True)
-    pbd_rows = [r for r in results if r[0].startswith("pbd") and r[0] != "pbd-pure" and np.isfinite(r[3])]
-    for label, dt, n, rtf, err, _, _, _ in results:
-        same = [r for r in pbd_rows if r[0] == "pbd" and r[2] == n and r[1] == dt and r[6] == 1]
-        if label == "pbd-pure" and same and np.isfinite(rtf):
-            print(f"  compiled vs pure XPBD at {n} substeps: RTF {same[0][3]:.3f} vs {rtf:.3f} = {same[0][3] / rtf:.2f}× faster")
+    pbd_rows = [r for r in results if r[0].startswith("pbd") and np.isfinite(r[3])]
     # matched accuracy: on the whole run, before the first contact (where the error converges) and, with the
     # full-dig reference, before contact and in every phase's pressures together
     criteria = [("", lambda r: (r[4],))]
@@ -396,16 +390,13 @@ def main(argv=None):
     parser.add_argument("--substeps", nargs="+", type=int, default=[5, 10, 20, 40], help="XPBD substeps per 60 Hz frame")
     parser.add_argument("--pair-reps", type=int, default=7,
                         help="alternating MuJoCo/PBD runs per matched pair against mujoco-fast (0: skip)")
-    parser.add_argument("--pure-substeps", nargs="*", type=int, default=[10],
-                        help="also run the pure-Python XPBD path (``compiled = false``) at these substeps, for the speed-up")
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore", message="XpbdModel:")
     print(f"machine: {platform.processor() or platform.machine()}, {platform.python_implementation()} {platform.python_version()}, "
           f"mujoco {mujoco.__version__}, numpy {np.__version__}")
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.scenes:
-            pure = [n for n in args.pure_substeps if n in (SCENES[name].get("pbd_substeps") or args.substeps)]
-            bench_scene(name, SCENES[name], args.substeps, args.quick, Path(tmp), pure, args.pair_reps)
+            bench_scene(name, SCENES[name], args.substeps, args.quick, Path(tmp), args.pair_reps)
 
 
 if __name__ == "__main__":

@@ -166,7 +166,6 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-monitor", action="store_true",
                      help="a state beyond the plausibility bounds (stroke, pressure, energy residual, loop closures, joint "
                           "ranges) is logged as a warning and the run goes on, instead of stopping it with exit status 3")
-    run.add_argument("--pure", action="store_true", help="pure numpy hydraulics instead of the compiled kernels (same results to round-off)")
 
     sub.add_parser("examples", help="list the shipped example scenes")
     sub.add_parser("demo", help="hydraulics-only demo: pump, valve and cylinder lifting a 1-DOF mass")
@@ -216,7 +215,6 @@ def _run(args) -> int:
         "pbd_substeps": args.pbd_substeps,
         "pbd_iterations": args.iterations,
         "pbd_blend": True if args.pbd_blend else None,
-        "compiled": False if args.pure else None,
         "monitor": False if args.no_monitor else None,
     }
     if (args.scenario is None) == (args.example is None):

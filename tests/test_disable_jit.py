@@ -66,7 +66,7 @@ def run_scenes() -> dict[str, np.ndarray]:
             scenario = load_scenario(path)
             scenario = scenario.with_overrides(inputs={**scenario.inputs, **inputs})
             mujoco_plant = MujocoPlantFast(load_scene(scenario))
-            pbd = scenario.with_overrides(mode="pbd", compiled=True, **pbd_overrides)
+            pbd = scenario.with_overrides(mode="pbd", **pbd_overrides)
             pbd_plant = PbdPlant(load_scene(pbd), frame=True, block=True)
             for mode, plant, steps in (("mujoco", mujoco_plant, MUJOCO_STEPS), ("pbd", pbd_plant, PBD_STEPS)):
                 assert plant.fast, f"{name}/{mode}: the compiled path is not in use"

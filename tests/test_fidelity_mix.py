@@ -109,7 +109,7 @@ def test_lines_on_two_cylinders_move_them_like_the_all_lines_model(dig_runs):
 def test_pbd_mode_steps_the_mixed_network(tmp_path):
     """PBD mode builds the same mixed network (11 pressure nodes) and stays with the MuJoCo-mode strokes."""
     base = load_scenario(MODELS / "excavator" / "dig.scenario.toml").with_overrides(
-        duration=0.005, compiled=False, actuator_fidelity={"boom_cyl": "lines"})
+        duration=0.005, actuator_fidelity={"boom_cyl": "lines"})
     strokes = {}
     for mode in ("pbd", "mujoco"):
         r = run(base.with_overrides(mode=mode), out=tmp_path / f"{mode}.mcap")

@@ -127,6 +127,20 @@ def test_wrong_type_in_scenario(tmp_path, capsys, old, new, field, allowed):
     assert "closed.scenario.toml" in err and field in err and allowed in err
 
 
+@pytest.mark.parametrize("value", ["false", "true"])
+def test_compiled_key_is_refused_with_what_to_do(tmp_path, capsys, value):
+    """``[run] compiled`` selects nothing (the kernels always run compiled): one line naming the file and the field
+    and pointing to NUMBA_DISABLE_JIT=1, exit 2; the ``--pure`` flag does not exist."""
+    err = one_edit_error(tmp_path, capsys, "seed_cylinder", "closed.scenario.toml", 'mode = "mujoco"',
+                         f'mode = "mujoco"\ncompiled = {value}')
+    assert len(err.strip().splitlines()) == 1
+    assert "closed.scenario.toml" in err and "run.compiled" in err and "NUMBA_DISABLE_JIT=1" in err
+    d = scene_dir(tmp_path, "seed_cylinder")
+    edit(d / "closed.scenario.toml", f"compiled = {value}\n", "")
+    err = run_bad(d / "closed.scenario.toml", capsys, "--pure")
+    assert "--pure" in err
+
+
 @pytest.mark.parametrize("old, new, field, allowed", [
     ("bore = 0.033851375012865375", "bore = 0.0", "bore", "(0, 1] m"),
     ("bore = 0.033851375012865375", "bore = -0.05", "bore", "(0, 1] m"),

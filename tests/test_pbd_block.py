@@ -36,7 +36,7 @@ def _quiet_xpbd_notes():
 
 
 def _plant(path, block, **overrides):
-    scenario = load_scenario(path).with_overrides(mode="pbd", compiled=True, **overrides)
+    scenario = load_scenario(path).with_overrides(mode="pbd", **overrides)
     return PbdPlant(load_scene(scenario), frame=True, block=block)
 
 

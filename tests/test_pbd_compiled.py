@@ -1,6 +1,7 @@
-"""The compiled XPBD substep (numba, ``sim/xpbd/compiled.py``, the default) against the pure path (the reference).
+"""The package's XPBD substep (numba, ``sim/xpbd/compiled.py``) against the pure substep of the tests (the oracle,
+``tests/reference/xpbd_substep.py``; its plant: ``tests/reference/xpbd_plant.py``).
 
-Both paths evaluate the same equations in the same order, so runs of a few dozen steps must agree to
+Both evaluate the same equations in the same order, so runs of a few dozen steps must agree to
 round-off: positions, orientations and velocities to 1e-9 of max(|value|, 1) in SI units, chamber pressures
 and actuator efforts to 1e-9 of their largest magnitude.  Scenes: the seed cylinder, the boom lift, the
 excavator dig (start of the cycle) and the excavator with its teeth in the ground (soft pyramidal contacts),
@@ -21,6 +22,8 @@ from sim.plants.pbd import PbdPlant
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdOptions
+from tests.reference.xpbd_plant import pure_plant
+from tests.reference.xpbd_substep import ReferenceSolver
 from test_xpbd_rigid import BOX, EXC_Q0, EXC_V0, EXCAVATOR, FOURBAR, PENDULUM, SLIDER, G, build
 
 RTOL = 1e-9
@@ -54,8 +57,9 @@ def assert_states_close(sa, sb, what):
 
 
 def _plant(path, compiled, **overrides):
-    scenario = load_scenario(path).with_overrides(mode="pbd", compiled=compiled, **overrides)
-    return PbdPlant(load_scene(scenario))
+    """The package's plant (``compiled``) or the pure plant of the oracles."""
+    scene = load_scene(load_scenario(path).with_overrides(mode="pbd", **overrides))
+    return PbdPlant(scene) if compiled else pure_plant(PbdPlant(scene, fast_hydraulics=False, frame=False))
 
 
 @pytest.mark.parametrize("path, steps, overrides", [
@@ -68,7 +72,7 @@ def _plant(path, compiled, **overrides):
 ], ids=["seed", "boom", "excavator", "excavator-contact"])
 def test_compiled_plant_agrees_with_pure(path, steps, overrides):
     pure, fast = _plant(path, False, **overrides), _plant(path, True, **overrides)
-    assert not pure.solver.compiled and fast.solver.compiled
+    assert isinstance(pure.solver, ReferenceSolver) and type(fast.solver) is SolverXPBD
     contacts = 0
     for _ in range(steps):
         pure.step()
@@ -78,7 +82,6 @@ def test_compiled_plant_agrees_with_pure(path, steps, overrides):
         assert_close(p, fast.net_state.node_pressure, "node pressures", floor=np.max(np.abs(p)))
         assert_close(pure.effort, fast.effort, "efforts", floor=np.max(np.abs(pure.effort)))
         contacts = max(contacts, len(fast.solver._cidx))
-    assert fast.solver.compiled_steps == steps  # no fallback to the pure path
     if "qpos" in overrides:
         assert contacts > 0
         # the teeth really pushed: the bucket was lifted out of its 1 cm penetration against gravity
@@ -91,8 +94,8 @@ def test_compiled_plant_agrees_with_pure(path, steps, overrides):
 def _run_pair(xml, n, dt, substeps, *, qpos=None, qvel=None, inputs=None, rows=(), **kw):
     m, xm = build(xml)
     out = []
-    for compiled in (False, True):
-        solver = SolverXPBD(xm, XpbdOptions(substeps=substeps, compiled=compiled, **kw), length_constraints=rows)
+    for kind in (ReferenceSolver, SolverXPBD):
+        solver = kind(xm, XpbdOptions(substeps=substeps, **kw), length_constraints=rows)
         st = xm.state_from_qpos(qpos, qvel)
         forces = []
         for _ in range(n):
@@ -100,7 +103,6 @@ def _run_pair(xml, n, dt, substeps, *, qpos=None, qvel=None, inputs=None, rows=(
             forces += [f.row_force.copy() for f in solver.last_forces]
         out.append((st, solver, np.array(forces)))
     (sa, _, fa), (sb, solver, fb) = out
-    assert solver.compiled_steps == n
     assert_states_close(sa, sb, xml[:40])
     if len(rows):
         assert_close(fa, fb, "row forces", floor=np.max(np.abs(fa)))
@@ -161,7 +163,7 @@ ELLIPTIC = BOX.replace("<mujoco>", '<mujoco><option cone="elliptic"/>', 1)
 def test_compiled_box_lands_on_every_other_contact_kind(xml, options):
     """The tilted box dropped on the floor with the contacts that are not soft pyramidal: a soft normal row with
     Coulomb friction (elliptic cone, condim 1, pyramids off), rigid rows (μ = 0 on the pyramidal cone: R = 0; soft
-    contacts off); compiled and pure agree to round-off, every step compiled, and the box comes to rest on its
+    contacts off); the package's solver and the oracle agree to round-off, and the box comes to rest on its
     largest face (within its soft penetration)."""
     xm, st = _run_pair(xml, 40, 1 / 60, 20, **options)
     b = xm.body_id("box")

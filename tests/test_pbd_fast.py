@@ -1,19 +1,21 @@
 """The PBD plant's compiled hydraulic hooks (``sim/plants/pbd_hydraulics.py``) against the Python hooks.
 
 Both run the compiled XPBD substep; only the coupling (effort law, network finish, energy ledger) differs:
-``FastHydraulics`` (the default on the compiled path) or ``CouplingImplicit.begin/finish`` + ``PlantBase._account``
-(the reference, also what ``--pure`` runs).  Same equations and Newton iterations, so a few dozen steps must
+``FastHydraulics`` (the default where it applies) or ``CouplingImplicit.begin/finish`` + ``PlantBase._account``
+(the reference).  Same equations and Newton iterations, so a few dozen steps must
 agree to round-off: body states to 1e-9 of max(|value|, 1) SI, pressures, efforts, oil and the energy ledger to
 1e-9 of their largest magnitude, identical Newton counts.  Scenes: seed, boom lift, excavator dig.
 
 The compiled per-step conversions outside the frame (``sim/xpbd/compiled.py``: ``gather``, ``contact_candidates``,
-``qpos_qvel``, ``body_frames``, ``energies``) against their numpy reference, to 1e-12 SI, on the
-excavator through its first ground contact and on a chain of free, ball, slide and hinge joints (round trip
+``qpos_qvel``, ``body_frames``, ``energies``) and ``PbdPlant.articulated`` (``pbd_frame._articulated``) against
+their numpy oracles (``tests/reference/xpbd_model.py``, ``xpbd_substep.py``, ``xpbd_plant.py``), to 1e-12 SI, on
+the excavator through its first ground contact and on a chain of free, ball, slide and hinge joints (round trip
 qpos/qvel → body state → qpos/qvel).
 """
 
 from __future__ import annotations
 
+import copy
 import warnings
 
 import numpy as np
@@ -24,6 +26,9 @@ from hydraulics.coupling import SCHEME_NEWTON
 from sim.plants.pbd import PbdPlant
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
+from tests.reference import xpbd_model as oracle
+from tests.reference.xpbd_plant import articulated as articulated_numpy
+from tests.reference.xpbd_substep import ReferenceSolver
 
 FLOW_FLOOR = 1e-4  # m³/s (6 L/min, the circuits' flow scale): near-closed valves' tiny flows carry the pressures' round-off
 # A linear finish (implicit-linear, rosenbrock) has no Newton solve that smooths the round-off of the predicted oil:
@@ -39,14 +44,14 @@ def _quiet_xpbd_notes():
         yield
 
 
-def _plant(path, fast, compiled=True, **overrides):
-    scenario = load_scenario(path).with_overrides(mode="pbd", compiled=compiled, **overrides)
+def _plant(path, fast, **overrides):
+    scenario = load_scenario(path).with_overrides(mode="pbd", **overrides)
     return PbdPlant(load_scene(scenario), fast_hydraulics=fast, frame=False)
 
 
-def test_fast_hooks_are_the_default_only_on_the_compiled_path():
+def test_fast_hooks_are_the_default_where_they_apply():
     assert _plant(BOOM, None)._fast is not None
-    assert _plant(BOOM, None, compiled=False)._fast is None
+    assert _plant(BOOM, False)._fast is None
     assert _plant(BOOM, None, coupling="explicit")._fast is None  # another coupling keeps the Python hooks
 
 
@@ -75,7 +80,7 @@ def test_fast_hooks_agree_with_python_hooks(path, steps, overrides):
 def test_compiled_frame_agrees_with_python_hooks(path, steps, overrides):
     """The whole step in one compiled call (``sim/plants/pbd_frame.py``) against the Python hooks."""
     ref = _plant(path, False, **overrides)
-    scenario = load_scenario(path).with_overrides(mode="pbd", compiled=True, **overrides)
+    scenario = load_scenario(path).with_overrides(mode="pbd", **overrides)
     fast = PbdPlant(load_scene(scenario), frame=True)
     assert ref._fast is None and fast.frame_compiled
     for _ in range(steps):
@@ -122,35 +127,31 @@ def _observations_agree(xm, solver, state, dt, what):
     flat rows, generalized coordinates, body frames, energies (1e-12 of max(|value|, 1) SI)."""
     tol = dict(rtol=0.0, atol=1e-12)
     qpos, qvel = xm.qpos_qvel(state)
-    qpos_ref, qvel_ref = xm._qpos_qvel_numpy(state)
+    qpos_ref, qvel_ref = oracle.qpos_qvel(xm, state)
     scale = max(1.0, np.max(np.abs(qvel_ref), initial=0.0))
     np.testing.assert_allclose(qpos, qpos_ref, err_msg=f"{what} qpos", **tol)
     np.testing.assert_allclose(qvel / scale, qvel_ref / scale, err_msg=f"{what} qvel", **tol)
-    for a, b in zip(xm.body_frames(state), xm._body_frames_numpy(state)):
+    for a, b in zip(xm.body_frames(state), oracle.body_frames(xm, state)):
         np.testing.assert_allclose(a, b, err_msg=f"{what} body frames", **tol)
     kin, pot = xm.energies(state)
-    kin_ref, pot_ref = xm._kinetic_energy_numpy(state), xm._potential_energy_numpy(state)
+    kin_ref, pot_ref = oracle.kinetic_energy(xm, state), oracle.potential_energy(xm, state)
     e_scale = max(1.0, abs(kin_ref), abs(pot_ref))
     assert abs(kin - kin_ref) <= 1e-12 * e_scale and abs(pot - pot_ref) <= 1e-12 * e_scale, what
     assert (xm.kinetic_energy(state), xm.potential_energy(state)) == (kin, pot)
-    compiled = solver.compiled
-    try:
-        out = []
-        for flag in (True, False):
-            solver.compiled = flag
-            g = solver._gather(state)
-            cands = solver._collect_contacts(*g, dt)
-            out.append((g, cands, list(solver._cidx), solver._flat_contacts(cands)))
-    finally:
-        solver.compiled = compiled
-    (g1, c1, i1, f1), (g2, c2, i2, f2) = out
+    out = []
+    for s in (solver, ReferenceSolver(xm, solver.options, length_constraints=solver.rows)):
+        g = s._gather(state)
+        cands = s._collect_contacts(*g, dt)
+        out.append((g, cands, list(s._cidx)))
+    (g1, c1, i1), (g2, c2, i2) = out
     for a, b in zip(g1, g2):
         np.testing.assert_allclose(a, b, err_msg=f"{what} gather", **tol)
     assert c1 == c2 and i1 == i2, what
-    assert (f1 is None) == (f2 is None), what
-    if f1 is not None:
-        for a, b in zip(f1, f2):
-            assert a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b), what
+    mine, ref = copy.deepcopy(state), copy.deepcopy(state)
+    solver._scatter(*g1, mine)  # compiled.scatter against the numpy oracle's
+    ReferenceSolver._scatter(solver, *g1, ref)
+    for f in ("x", "q", "v", "w"):
+        np.testing.assert_allclose(getattr(mine, f), getattr(ref, f), err_msg=f"{what} scatter {f}", **tol)
     return len(i1)
 
 
@@ -159,13 +160,28 @@ def test_compiled_observations_agree_with_numpy_through_contact():
     conversions give the numpy reference's values at every 5th step."""
     plant = PbdPlant(load_scene(load_scenario(DIG).with_overrides(mode="pbd", dt=1 / 60, pbd_substeps=10)))
     xm = plant.xmodel
-    assert xm.compiled_observations and plant.solver.compiled
     candidates = 0
     for k in range(150):
         assert plant.step().success
         if k % 5 == 0:
             candidates += _observations_agree(xm, plant.solver, plant.state, plant.dt, f"t={plant.time:.3f}")
+            _articulated_agrees(plant, f"t={plant.time:.3f}")
     assert candidates > 0  # contact candidates were compared
+
+
+def _articulated_agrees(plant, what):
+    """``PbdPlant.articulated`` (compiled) against the numpy oracle at the plant's state (1e-12 relative)."""
+    names = ("_mobility", "_group_gravity", "_effective_mass", "_motor_response", "_motor_inverse_inertia")
+    plant.articulated()
+    got = [getattr(plant, n) for n in names]
+    articulated_numpy(plant)
+    ref = [getattr(plant, n) for n in names]
+    plant.articulated()  # the plant's own data again
+    for name, a, b in zip(names, got, ref):
+        assert (a is None) == (b is None), f"{what} {name}"
+        if a is not None:
+            scale = max(1.0, float(np.max(np.abs(b[np.isfinite(b)]), initial=0.0)))
+            np.testing.assert_allclose(a / scale, b / scale, rtol=0, atol=1e-12, err_msg=f"{what} {name}")
 
 
 _JOINTS_MJCF = """
@@ -209,7 +225,7 @@ def test_compiled_generalized_coordinates_round_trip_every_joint_type():
         qvel = rng.normal(size=xm.nv)
         state = xm.state_from_qpos(qpos, qvel)
         got = xm.qpos_qvel(state)
-        ref = xm._qpos_qvel_numpy(state)
+        ref = oracle.qpos_qvel(xm, state)
         for a, b, c, name in zip(got, ref, (qpos, qvel), ("qpos", "qvel")):
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-12, err_msg=f"trial {trial} {name} compiled vs numpy")
             np.testing.assert_allclose(a, c, rtol=0, atol=1e-9, err_msg=f"trial {trial} {name} round trip")

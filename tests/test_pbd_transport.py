@@ -29,6 +29,8 @@ from sim.plants.pbd import PbdPlant
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 from sim.xpbd import compiled as XC
+from tests.reference.xpbd_plant import pure_plant
+from tests.reference.xpbd_substep import ReferenceSolver
 from sim.plants.pbd_frame import frame
 
 SWING = {"swing": 0.5}  # rad/s: the dig's swing speed (≈ 90° in ~3 s)
@@ -42,8 +44,12 @@ def _quiet_xpbd_notes():
 
 
 def _plant(transport, *, compiled=True, frame_path=True, **overrides):
-    scenario = load_scenario(DIG).with_overrides(mode="pbd", compiled=compiled, **overrides)
-    plant = PbdPlant(load_scene(scenario), frame=frame_path)
+    """The package's plant or (``compiled=False``) the pure plant of the oracles (``tests/reference``)."""
+    scenario = load_scenario(DIG).with_overrides(mode="pbd", **overrides)
+    if compiled:
+        plant = PbdPlant(load_scene(scenario), frame=frame_path)
+    else:
+        plant = pure_plant(PbdPlant(load_scene(scenario), fast_hydraulics=False, frame=False))
     plant.solver.transport_response = transport
     if plant.frame_compiled:
         plant._frame_context()["kernel"] = frame(transport=transport)
@@ -59,6 +65,13 @@ def _jacobian(plant, state):
     return G, x, q
 
 
+def _oracle(plant):
+    """The pure solver of the oracles on the plant's model, with the articulated response transport."""
+    ref = ReferenceSolver(plant.xmodel, plant.solver.options, length_constraints=plant.solver.rows)
+    ref.transport_response = True
+    return ref
+
+
 def _responses(plant):
     plant.articulated()
     return [*plant._mobility, plant._group_gravity, *plant._motor_response]
@@ -69,7 +82,7 @@ def test_group_jacobian_is_the_derivative_of_the_forward_kinematics():
     xm = plant.xmodel
     qpos = plant.joint_state()[0].copy()
     G, _, _ = _jacobian(plant, plant.state)
-    G_pure = plant.solver._group_jacobian(*[a.tolist() for a in plant.solver._gather(plant.state)[:2]])
+    G_pure = _oracle(plant)._group_jacobian(*[a.tolist() for a in plant.solver._gather(plant.state)[:2]])
     np.testing.assert_allclose(G_pure, G, rtol=0, atol=1e-12)
     eps = 1e-6
     for j in range(xm.njnt):
@@ -106,7 +119,7 @@ def test_transport_of_a_rigid_swing_is_the_response_at_the_rotated_pose():
     P0 = np.zeros((G0.shape[2], G0.shape[0] * 6))
     assert XC.jacobian_pinv(G0, P0)
     G1, _, _ = _jacobian(rotated, rotated.state)
-    P_pure = start.solver._transport_start(x0.tolist(), q0.tolist())
+    P_pure = _oracle(start)._transport_start(x0.tolist(), q0.tolist())
     np.testing.assert_allclose(P_pure, P0, rtol=0, atol=1e-9 * np.max(np.abs(P0)))
     for r0, r1 in zip(_responses(start), _responses(rotated)):
         out = np.zeros_like(r0)
@@ -149,7 +162,7 @@ def test_transported_frame_agrees_with_hooks_and_pure():
     hooks = _plant(True, frame_path=False, **overrides)
     pure = _plant(True, compiled=False, frame_path=False, **overrides)
     plain = _plant(False, **overrides)
-    assert fast.frame_compiled and not hooks.frame_compiled and not pure.solver.compiled
+    assert fast.frame_compiled and not hooks.frame_compiled and isinstance(pure.solver, ReferenceSolver)
     for _ in range(frames):
         r_fast, r_hooks, r_pure = fast.step(), hooks.step(), pure.step()
         plain.step()

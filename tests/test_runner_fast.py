@@ -81,11 +81,6 @@ def test_block_and_per_step_paths_log_the_same_values(tmp_path, path, overrides)
         assert fast.final_joints[joint] == pytest.approx(q, rel=0, abs=1e-9)
 
 
-def test_pure_flag_selects_the_per_step_path(tmp_path):
-    result = run(LIFT, out=tmp_path / "pure.mcap", overrides={"duration": 0.02, "dt": 2e-3, "compiled": False})
-    assert read_log(result.log_path).metadata["hydroplant.run"]["stepping"] == "per-step"
-
-
 def test_pressure_extremes_of_the_block_path(tmp_path):
     """Boom lift: the supply and cap pressures jump while the valve opens (1.0-1.3 s)."""
     overrides = {"duration": 1.6, "dt": 2e-3}

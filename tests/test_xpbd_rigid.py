@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel, XpbdOptions
+from tests.reference.xpbd_substep import ReferenceSolver
 
 G = 9.81
 
@@ -170,6 +171,27 @@ def test_joint_drift_double_pendulum_20s():
     assert swing > 0.5  # it really swung
     e1 = xm.kinetic_energy(st) + xm.potential_energy(st)
     assert e1 <= e0 + 1e-6  # XPBD may dissipate, never create energy
+
+
+def test_block_attachment_drifts_less_than_the_scalar_projection():
+    """The pins projected with the 3×3 block update (the package's ``compiled._attach``) against the scalar XPBD
+    projection along the error direction (the oracle's ``block_attach=False``): double pendulum, 3 s at 60 Hz × 20,
+    worst pin separation 4.0e-5 m vs 5.5e-5 m; the oracle with the block update follows the package's solver."""
+    m, xm = build(DOUBLE)
+    ids = [xm.site_id(s) for s in ("w_pin", "l1_top", "l1_pin", "l2_top")]
+    drift, end = {}, {}
+    for name, solver in (("package", SolverXPBD(xm, XpbdOptions(substeps=20))),
+                         ("block", ReferenceSolver(xm, XpbdOptions(substeps=20))),
+                         ("scalar", ReferenceSolver(xm, XpbdOptions(substeps=20), block_attach=False))):
+        st = xm.state_from_qpos([1.2, -0.8], [0.0, 2.0])
+        worst = 0.0
+        for _ in range(3 * 60):
+            solver.step(st, 1 / 60)
+            p = xm.site_positions(st)[ids]
+            worst = max(worst, np.linalg.norm(p[0] - p[1]), np.linalg.norm(p[2] - p[3]))
+        drift[name], end[name] = worst, st.x.copy()
+    np.testing.assert_allclose(end["block"], end["package"], rtol=0, atol=1e-9)
+    assert drift["block"] < 1e-4 and drift["scalar"] > 1.25 * drift["block"], drift
 
 
 EXCAVATOR = """

@@ -95,7 +95,6 @@ class Scenario:
     pbd_blend: bool = False  # PBD mode: blend each row's pressure force by θ = blend_factor (as MuJoCo mode); False: θ = 1
     fidelity: str = "compressible"
     actuator_fidelity: dict = field(default_factory=dict)  # actuator name -> level overriding `fidelity`
-    compiled: bool = True
     qpos: dict = field(default_factory=dict)
     qvel: dict = field(default_factory=dict)
     equilibrium: bool = True
@@ -144,9 +143,16 @@ class Scenario:
     def with_overrides(self, **changes) -> "Scenario":
         """A copy with some run settings replaced (None values are ignored) and re-validated."""
         changes = {k: v for k, v in changes.items() if v is not None}
+        if "compiled" in changes:
+            _error(f"{self.path} (override)", COMPILED_KEY_MESSAGE)
         new = replace(self, **changes)
         _validate_run(new, f"{self.path} (command-line override)")
         return new
+
+
+COMPILED_KEY_MESSAGE = (
+    "field 'run.compiled': the kernels always run compiled, there is no other path to select; remove the field "
+    "(to run the same kernels as plain Python for debugging, set the environment variable NUMBA_DISABLE_JIT=1)")
 
 
 def _error(where, message):
@@ -308,10 +314,12 @@ def load_scenario(path) -> Scenario:
     allowed_keys = {
         "scene": {"mjcf", "circuit"},
         "run": {"mode", "coupling", "stepper", "dt", "duration", "hydraulic_substeps", "pbd_substeps", "pbd_iterations",
-                "pbd_blend", "fidelity", "compiled"},
+                "pbd_blend", "fidelity"},
         "initial": {"qpos", "qvel", "equilibrium", "base_pressure", "pressures"},
         "log": {"rate_hz", "tf_rate_hz"},
     }
+    if "compiled" in run:
+        _error(where, COMPILED_KEY_MESSAGE)
     for name, table in (("scene", scene), ("run", run), ("initial", initial), ("log", log)):
         unknown = sorted(set(table) - allowed_keys[name])
         if unknown:
@@ -374,7 +382,6 @@ def load_scenario(path) -> Scenario:
         pbd_iterations=_number(run, "pbd_iterations", w, low=1, high=1e5, low_open=False, default=1, integer=True),
         fidelity=fidelity,
         actuator_fidelity=actuator_fidelity,
-        compiled=_flag(run, "compiled", w, True),
         pbd_blend=_flag(run, "pbd_blend", w, False),
         qpos=joint_table("qpos"),
         qvel=joint_table("qvel"),

@@ -1,7 +1,7 @@
 """One whole PBD frame (all XPBD substeps of one plant step, with the hydraulic coupling) in one compiled call.
 
 Per substep, in the order of :meth:`sim.plants.pbd.PbdPlant.before_substep`,
-:meth:`sim.xpbd.SolverXPBD._step_compiled` and
+:meth:`sim.xpbd.SolverXPBD.step` and
 :meth:`~sim.plants.pbd.PbdPlant.after_substep`:
 
 1. the effort law c + s·v⁺ of every actuator (``hydraulics_nb._begin_core``:

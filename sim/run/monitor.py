@@ -415,7 +415,7 @@ class _ConstraintErrors:
         return self._pbd_worst()
 
     def _pbd_worst(self):
-        from sim.xpbd.kernels import np_quat_rotate
+        from sim.xpbd.quat import np_quat_rotate
 
         xm, plant = self.xmodel, self.plant
         X, Q, _, _ = plant.solver._gather(plant.state)

@@ -16,8 +16,7 @@ compiled loop straight into the recorder's ring
 (``MujocoPlantFast.advance(n, record, every)``), so a block runs one step past
 its last sample; a sample that ends a block (every-step logging, the run's
 last step) is captured from Python (:meth:`RunRecorder.capture`).  Every
-other configuration, ``compiled = false`` (``hydroplant run --pure``) and
-``run(..., fast=False)`` step one step at a time.  Both paths log the same
+other configuration and ``run(..., fast=False)`` step one step at a time.  Both paths log the same
 values to round-off (``tests/test_runner_fast.py``), and recorded and
 captured samples are bit-identical.
 
@@ -301,7 +300,6 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
         "pbd_substeps": str(scenario.pbd_substeps),
         "pbd_iterations": str(scenario.pbd_iterations),
         "fidelity": scenario.fidelity_label,  # the level, with per-actuator overrides
-        "compiled": str(scenario.compiled),
         "log_rate_hz": repr(scenario.log_rate_hz),
         "tf_rate_hz": repr(scenario.tf_rate_hz),
         "hydroplant_version": version(),
@@ -323,8 +321,7 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     attached to the log (:func:`input_files`).
 
     ``fast=False`` forces the per-step path (:class:`~sim.plants.mujoco.MujocoPlant`
-    in MuJoCo mode); the scenario's ``compiled = false`` (``hydroplant run --pure``)
-    also selects it, with the numpy hydraulics.
+    in MuJoCo mode).
 
     Raises :class:`RunInterrupted` (a :class:`KeyboardInterrupt`) naming the log when interrupted
     while the log is written.

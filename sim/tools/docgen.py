@@ -159,7 +159,6 @@ def scenario_keys() -> tuple:
          "mode's θ-rule instead of backward Euler (θ = 1)."),
         ("run", "fidelity", "", "FIDELITIES", "fidelity", "Default fidelity level of every actuator (see "
          "[fidelity.md](fidelity.md))."),
-        ("run", "compiled", "", "true, false", "compiled", "Use the compiled kernels."),
         ("initial", "qpos", "rad or m", "table joint = number", "qpos", "Start position of named joints; the "
          "others start at the MJCF's `qpos0`."),
         ("initial", "qvel", "rad/s or m/s", "table joint = number", "qvel", "Start velocity of named joints."),

@@ -1,4 +1,4 @@
-"""Compiled (numba ``nopython``) XPBD substep: the same equations as ``reference.py``/``kernels.py``.
+"""Compiled (numba ``nopython``) XPBD substep of :class:`sim.xpbd.solver.SolverXPBD`.
 
 ``substep_core`` advances the rigid groups by one substep h in place, on flat arrays:
 prediction (gravity or given group accelerations, external forces, gyroscopic term,
@@ -9,15 +9,18 @@ in one articulated block when a tendon limit is active), connect/weld equalities
 length rows — as one block with their articulated mobility or by Gauss-Seidel — and soft
 pyramidal plane contacts solved per body pair with an active set, with the articulated
 response of a hinge/slide tree (``articulated_inverse``) or the free-body one), the velocity update,
-implicit joint damping and global damping.  It is a line-by-line port of
-``SolverXPBD.step``'s substep (the pure path, which stays the reference); the results agree
-to round-off (``tests/test_pbd_compiled.py``).  Units and sign conventions as in
-``solver.py``: positions [m], quaternions (w, x, y, z), velocities [m/s], [rad/s],
-multipliers λ [N·s²] (row force λ/h² [N], + pushes the sites apart).
+implicit joint damping and global damping.  An independent pure-Python substep with the same
+order of operations (``tests/reference/xpbd_substep.py``) is its oracle in the tests; the results
+agree to round-off (``tests/test_pbd_compiled.py``).  ``NUMBA_DISABLE_JIT=1`` runs these kernels
+as Python.  Units and sign conventions as in ``solver.py``: positions [m], quaternions (w, x, y, z),
+velocities [m/s], [rad/s], multipliers λ [N·s²] (row force λ/h² [N], + pushes the sites apart).
 
-Contacts as the pure path: MuJoCo's soft pyramidal edge rows (pyramidal cone, condim ≥ 3), a soft
+Contacts: MuJoCo's soft pyramidal edge rows (pyramidal cone, condim ≥ 3), a soft
 normal row with [RB]'s Coulomb friction (elliptic cone, condim 1), or rigid rows (``soft_contacts``
 off, or μ = 0 on a pyramidal cone) with [RB]'s velocity pass.
+
+Names in brackets like ``ReferenceSubstep._solve_joints``, ``xpbd_kernels.point_mobility`` or
+``xpbd_laws.mujoco_step_target`` point to the same equation in the oracle of the tests (``tests/reference/``).
 
 Arguments come in named layouts (namedtuples of arrays, built once per solver or plant): the
 static ``GroupModel`` and ``BodyTree``, per substep ``SubstepRows``, ``SubstepLoads``,
@@ -178,7 +181,7 @@ def _cross(a, b):
 @njit(cache=True, inline="always")
 def _mat_from_quat(q):
     """Rotation matrix of the unit quaternion q = (w, x, y, z) as three row tuples, ``R[i][j]``
-    (``kernels._mat_from_quat``; tuples, so the per-constraint helpers allocate nothing)."""
+    (``xpbd_kernels._mat_from_quat``; tuples, so the per-constraint helpers allocate nothing)."""
     w, x, y, z = q
     return ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
             (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
@@ -395,7 +398,7 @@ _ZERO33 = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
 
 @_leaf
 def _mobility(invm, invI, q, r):
-    """Point mobility (1/m) E − [r]× I⁻¹ [r]× (``kernels.point_mobility``) as three row tuples, and False
+    """Point mobility (1/m) E − [r]× I⁻¹ [r]× (``xpbd_kernels.point_mobility``) as three row tuples, and False
     (with zeros) if the body is static."""
     if invm == 0.0:
         return False, _ZERO33
@@ -442,7 +445,7 @@ def _pair_mobility(IM, II, Q, b1, b2, r1, r2):
 
 @njit(cache=True)
 def _solve_dense(A, b, x):
-    """A x = b by Gaussian elimination with partial pivoting (``reference._solve_dense``); False if singular."""
+    """A x = b by Gaussian elimination with partial pivoting (``xpbd_substep._solve_dense``); False if singular."""
     n = b.shape[0]
     return _solve_dense_in(A, b, x, np.empty((n, n + 1)))
 
@@ -527,7 +530,7 @@ def _fix_orientation(Q, IM, II, g1, g2, qoff):
 
 @_leaf
 def _body_block(K, invm, invI, q, r):
-    """K += 6×6 response of body point r to (positional impulse, angular impulse) (``kernels._body_block``)."""
+    """K += 6×6 response of body point r to (positional impulse, angular impulse) (``xpbd_kernels._body_block``)."""
     Ii = _sandwich(_mat_from_quat(q), invI[0], 0.0, 0.0, invI[1], 0.0, invI[2])  # R diag(I⁻¹) Rᵀ
     # S = [r]×: rows (0, −r2, r1), (r2, 0, −r0), (−r1, r0, 0); SI = S·Ii, IS = Ii·S, SIS = SI·S
     S = ((0.0, -r[2], r[1]), (r[2], 0.0, -r[0]), (-r[1], r[0], 0.0))
@@ -614,7 +617,7 @@ def _twist(Q, g1, g2, aw, qoff):
 
 @_leaf
 def _limit_targets(X, Q, V, W, jt, jg, jvec, jqoff, jlim, jlo, jhi, h, jsoft):
-    """``SolverXPBD._soft_limit_targets``: jsoft[j] = (side ±1 or 0 = inactive, q*, α̃) of each soft limit."""
+    """``ReferenceSubstep._soft_limit_targets``: jsoft[j] = (side ±1 or 0 = inactive, q*, α̃) of each soft limit."""
     for j in range(jt.shape[0]):
         jsoft[j, 0] = 0.0
         if jlim[j, 0] == 0.0 or not (jlim[j, 8] > 0.0) or (jt[j] != JNT_HINGE and jt[j] != JNT_SLIDE):
@@ -647,7 +650,7 @@ def _soft_limit_target(params, value, rate, lo, hi, h, out):
     else:
         return
     kd, b, R = _contact_law(params[1:3], params[3:8], 1, params[8], 0.0, r, 0, 1.0, h)
-    rs = r + h * rd - h * h * (b * rd + kd * r)  # MuJoCo's semi-implicit step (laws.mujoco_step_target)
+    rs = r + h * rd - h * h * (b * rd + kd * r)  # MuJoCo's semi-implicit step (xpbd_laws.mujoco_step_target)
     out[0] = side
     out[1] = hi - rs if side > 0.0 else lo + rs
     out[2] = R
@@ -667,7 +670,7 @@ def _tendon_geometry(X, Q, jlim, i):
 
 @_leaf
 def _tendon_limit_targets(X, Q, V, W, nj, jlim, h, tsoft):
-    """``SolverXPBD._tendon_limit_targets``: tsoft[t] = (side ±1 or 0, ℓ* [m], α̃) of each tendon limit."""
+    """``ReferenceSubstep._tendon_limit_targets``: tsoft[t] = (side ±1 or 0, ℓ* [m], α̃) of each tendon limit."""
     for t in range(jlim.shape[0] - nj):
         i = nj + t
         tsoft[t, 0] = 0.0
@@ -682,7 +685,7 @@ def _tendon_limit_targets(X, Q, V, W, nj, jlim, h, tsoft):
 
 @njit(cache=True)
 def _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, art, G, Minv, reverse):
-    """Soft tendon limit rows (``SolverXPBD._solve_tendon_limits``): C = ℓ − ℓ*, compliance α̃, λ ≤ 0 at an
+    """Soft tendon limit rows (``ReferenceSubstep._solve_tendon_limits``): C = ℓ − ℓ*, compliance α̃, λ ≤ 0 at an
     upper limit (≥ 0 at a lower one); with the articulated response (``art``: W = J·M⁻¹·Jᵀ, the groups
     moved by G·M⁻¹·Jᵀ·Δλ) or the free-body one of the two groups."""
     nt = jlim.shape[0] - nj
@@ -749,7 +752,7 @@ def _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, art, G, Minv, reve
 @njit(cache=True)
 def _solve_limits_block(X, Q, IM, jt, jg, jvec, jqoff, jlim, bsoft, tsoft, mu, G, Minv):
     """All active soft limits (joints' and tendons') of a hinge/slide tree together
-    (``SolverXPBD._solve_limits_block``): rows C = q − q* (joint) or ℓ − ℓ* (tendon) taken in their pushing
+    (``ReferenceSubstep._solve_limits_block``): rows C = q − q* (joint) or ℓ − ℓ* (tendon) taken in their pushing
     direction, W = J·M⁻¹·Jᵀ + diag(α̃), Δμ = W⁻¹(−C − α̃μ) with an active set over μ ≥ 0, every group moved
     by G·M⁻¹·Jᵀ·Δμ."""
     nj = jt.shape[0]
@@ -858,7 +861,7 @@ def _axis_basis(a):
 @njit(cache=True)
 def _lock_system(X, Q, IM, II, g1, g2, r1, r2, aw, target, qt):
     """A hinge held at angle ``target``: world lever arms, pin error [m], rotation error [rad] (axis·angle) and
-    the 6×6 effective-mass block of pin + rotation (``SolverXPBD._lock_errors`` and the kernels' lock blocks)."""
+    the 6×6 effective-mass block of pin + rotation (``ReferenceSubstep._lock_errors`` and the oracle's lock blocks)."""
     r1w = _rot(_q4(Q, g1), r1)
     r2w = _rot(_q4(Q, g2), r2)
     c_pin = (X[g2, 0] + r2w[0] - X[g1, 0] - r1w[0], X[g2, 1] + r2w[1] - X[g1, 1] - r1w[1],
@@ -884,7 +887,7 @@ def _lock_system(X, Q, IM, II, g1, g2, r1, r2, aw, target, qt):
 
 @njit(cache=True)
 def _hinge_soft_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, side, target, at, lam):
-    """``SolverXPBD._hinge_soft_limit`` / ``kernels.solve_soft_lock_block``; returns Δλ."""
+    """``ReferenceSubstep._hinge_soft_limit`` / ``xpbd_kernels.solve_soft_lock_block``; returns Δλ."""
     q1 = _q4(Q, g1)
     aw = _rot(q1, a1)
     qt = _qmul(q1, qoff)
@@ -922,7 +925,7 @@ def _hinge_soft_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, side, target, at, 
 
 @_leaf
 def _slide_soft_limit(X, Q, IM, II, g1, g2, r1, a1, side, target, at, lam):
-    """The soft limit row of a slide (``SolverXPBD._slide_axis`` with ``sl``); returns Δλ."""
+    """The soft limit row of a slide (``ReferenceSubstep._slide_axis`` with ``sl``); returns Δλ."""
     q1 = _q4(Q, g1)
     r1w = _rot(q1, r1)
     aw = _rot(q1, a1)
@@ -936,7 +939,7 @@ def _slide_soft_limit(X, Q, IM, II, g1, g2, r1, a1, side, target, at, lam):
 
 @njit(cache=True)
 def _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, reverse, jsoft, jlam):
-    """Joint rows (``SolverXPBD._solve_joints``); jvec[j] = (r1, r2, a1, a2) as (4, 3).  A soft limit
+    """Joint rows (``ReferenceSubstep._solve_joints``); jvec[j] = (r1, r2, a1, a2) as (4, 3).  A soft limit
     (jlim[j, 8] > 0) acts where jsoft[j, 0] ≠ 0 (its multiplier accumulates in jlam[j]); a rigid one is
     projected."""
     nj = jt.shape[0]
@@ -1086,6 +1089,9 @@ def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob, wo
 
 @_leaf
 def _impedance(solimp, pos):
+    """MuJoCo's constraint impedance d(r) ∈ (0, 1) at violation ``pos`` [m or rad] (``getimpedance`` in
+    engine_core_constraint.c, margin 0): dmin at r = 0 rising to dmax at |r| ≥ width along the sigmoid of
+    (midpoint, power) of ``solimp`` = (dmin, dmax, width, midpoint, power)."""
     dmin, dmax, width, mid, power = solimp[0], solimp[1], solimp[2], solimp[3], solimp[4]
     dmin, dmax = min(max(dmin, 1e-4), 0.9999), min(max(dmax, 1e-4), 0.9999)
     mid, power = min(max(mid, 1e-4), 0.9999), max(power, 1.0)
@@ -1105,7 +1111,20 @@ def _impedance(solimp, pos):
 
 @_leaf
 def _contact_law(solref, solimp, condim, tran, mu, pos, cone, impratio, timestep):
-    """``laws.mujoco_contact_law``: (k·d, b, R)."""
+    """Normal law of one MuJoCo soft contact, (k·d [1/s²], b [1/s], R [1/kg]), such that R·f = −(a + b·v + k·d·r),
+    f [N] the normal force (+ pushes apart), r [m] the gap (< 0 penetrating), v, a its rate and acceleration
+    (MuJoCo's soft-constraint model, Computation chapter; ``mj_makeImpedance``/``mj_diagApprox``):
+
+    * solref = (timeconst, dampratio) > 0, timeconst ≥ 2·``timestep``: k = 1/(dmax²·timeconst²·dampratio²),
+      b = 2/(dmax·timeconst); direct format (−stiffness, −damping): k = stiffness/dmax², b = damping/dmax;
+    * impedance d = d(r) (``_impedance``); R = (1 − d)/d·Â with Â = ``tran`` (Σ of the bodies' translational
+      ``body_invweight0``), the effective inverse mass of the contact;
+    * condim 1 or the elliptic cone (``cone`` = 1): R = (1 − d)/d·tran.  Pyramidal cone: 2(condim − 1) edge rows
+      n ± μ·t share Rpy = 2·μ_r²·R₀, R₀ = (1 − d)/d·tran·(1 + μ²), μ_r = μ/√impratio; returned is their sum's
+      R = Rpy/(2(condim − 1)) (0, rigid, for μ = 0).
+
+    A limit row is the frictionless case with Â = dof_invweight0 (``_soft_limit_target``).  Static load F:
+    penetration r = −F·R/(k·d)."""
     tc, zeta = solref[0], solref[1]
     d = _impedance(solimp, pos)
     dmax = min(max(solimp[1], 1e-4), 0.9999)
@@ -1127,7 +1146,7 @@ def _contact_law(solref, solimp, condim, tran, mu, pos, cone, impratio, timestep
 
 @_leaf
 def _contact_normal(X, Q, IM, II, contacts, cw, ci):
-    """Normal row of a soft (non-pyramidal) or rigid candidate ``ci`` ([RB] Sec. 3.5; ``SolverXPBD._contact_normal``):
+    """Normal row of a soft (non-pyramidal) or rigid candidate ``ci`` ([RB] Sec. 3.5; ``ReferenceSubstep._contact_normal``):
     C = d ≥ 0 at the deepest point (rigid), or the compliant C = d − r* with α̃ = R and λ ≥ 0 (soft).  The first time
     it acts in the substep its body-fixed points are kept for friction and the velocity pass."""
     cg, cvec = contacts.group, contacts.vec
@@ -1169,7 +1188,7 @@ def _contact_normal(X, Q, IM, II, contacts, cw, ci):
 
 @_leaf
 def _contact_static_friction(X, Q, IM, II, contacts, cw, Xp, Qp, ci):
-    """Static friction of a touching candidate ([RB] Sec. 3.5; ``SolverXPBD._contact_static_friction``): cancel the
+    """Static friction of a touching candidate ([RB] Sec. 3.5; ``ReferenceSubstep._contact_static_friction``): cancel the
     relative tangential motion of its points over the substep while the multiplier stays inside the cone
     λ_t < μ λ_n."""
     mu, ln = contacts.mu[ci], cw.normal_lam[ci]
@@ -1203,7 +1222,7 @@ def _contact_static_friction(X, Q, IM, II, contacts, cw, Xp, Qp, ci):
 
 @_leaf
 def _contact_velocities(V, W, Q, IM, II, contacts, cw, h, sweeps):
-    """Velocity pass of the touching non-pyramidal candidates ([RB] Sec. 3.6; ``SolverXPBD._solve_velocities``):
+    """Velocity pass of the touching non-pyramidal candidates ([RB] Sec. 3.6; ``ReferenceSubstep._solve_velocities``):
     ``sweeps`` projected Gauss-Seidel sweeps, in the order the candidates first acted, of dynamic friction (the
     accumulated impulse clamped to μ·λ_n/h) and, on rigid rows, restitution e = 0 (accumulated normal impulse
     ≥ −λ_n/h; a soft row's damping is in its position law)."""
@@ -1267,7 +1286,7 @@ def _contact_velocities(V, W, Q, IM, II, contacts, cw, h, sweeps):
 @_leaf
 def _contact_targets(X, Q, V, W, contacts, cone, impratio, soft, pyramid, h, cw):
     """The kind (``CONTACT_*``) and rows of every candidate (``ContactRows``) for the substep
-    (``SolverXPBD._soft_contact_targets``), into ``cw`` (``ContactWork``).
+    (``ReferenceSubstep._soft_contact_targets``), into ``cw`` (``ContactWork``).
 
     Rigid (``options.soft_contacts`` off, or R = 0: μ = 0 on a pyramidal cone): the normal row of [RB].  Soft and
     not penetrating at the substep's start: no force.  Soft pyramidal (``options.pyramid_friction``, condim ≥ 3,
@@ -1309,7 +1328,7 @@ def _contact_targets(X, Q, V, W, contacts, cone, impratio, soft, pyramid, h, cw)
             vb = _point_vel(V, W, g1, r1)
             rate = (va[0] - vb[0]) * n[0] + (va[1] - vb[1]) * n[1] + (va[2] - vb[2]) * n[2]
             kind[ci] = CONTACT_SOFT
-            row[ci, 0] = gap + h * rate - h * h * (b * rate + kd * gap)  # laws.mujoco_step_target
+            row[ci, 0] = gap + h * rate - h * h * (b * rate + kd * gap)  # xpbd_laws.mujoco_step_target
             row[ci, 1] = R
             continue
         kind[ci] = CONTACT_PYRAMID
@@ -1350,7 +1369,7 @@ def _contact_targets(X, Q, V, W, contacts, cone, impratio, soft, pyramid, h, cw)
 @njit(cache=True)
 def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, art, G, Minv):
     """All edge rows of the candidates ``cis`` between groups g1 (plane) and g2, solved together with an
-    active set over λ ≥ 0 (``SolverXPBD._contact_pyramids``).  ``art``: with the articulated response of
+    active set over λ ≥ 0 (``ReferenceSubstep._contact_pyramids``).  ``art``: with the articulated response of
     the mechanism (group Jacobian G, joint-space M⁻¹): W = J·M⁻¹·Jᵀ and the groups move by G·M⁻¹·Jᵀ·Δλ."""
     npt = cis.shape[0]
     n = 4 * npt
@@ -1461,7 +1480,7 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
 
 @njit(cache=True)
 def _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, reverse, art, G, Minv):
-    """One pass over the candidates (``SolverXPBD._solve_contacts``; ``cw`` the ``ContactWork``, Xp, Qp the group
+    """One pass over the candidates (``ReferenceSubstep._solve_contacts``; ``cw`` the ``ContactWork``, Xp, Qp the group
     poses at the prediction): the normal rows of the non-pyramidal ones, the pyramids per body pair (``art``: with
     the articulated response G, M⁻¹), then the static friction of every touching non-pyramidal candidate."""
     cg = contacts.group
@@ -1564,7 +1583,7 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
     for t in range(ntl):
         if tsoft[t, 0] != 0.0:
             tact = True
-    # hinge torques: angular impulse τ h a plus the workless pin impulse (kernels.apply_joint_torque_impulse)
+    # hinge torques: angular impulse τ h a plus the workless pin impulse (xpbd_kernels.apply_joint_torque_impulse)
     if use_tau:
         for j in range(jt.shape[0]):
             if tau[j] == 0.0 or jt[j] != JNT_HINGE:
@@ -1747,7 +1766,7 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
 
 @_leaf
 def scatter(X, Q, V, W, body_group, in_group_quat, in_group_pos, x, q, v, w):
-    """Group poses/velocities → every body's COM pose and velocity (``SolverXPBD._scatter``), in place."""
+    """Group poses/velocities → every body's COM pose and velocity (the oracle: ``ReferenceSolver._scatter``), in place."""
     for b in range(body_group.shape[0]):
         g = body_group[b]
         qg = _q4(Q, g)
@@ -1767,7 +1786,7 @@ def scatter(X, Q, V, W, body_group, in_group_quat, in_group_pos, x, q, v, w):
 # The conversions done once per step outside the substep, fused per body / joint / group /
 # contact: the group gather (inverse of ``scatter``), the contact-candidate test, generalized
 # coordinates, body frames and energies.  Same equations and operation order as the numpy
-# reference (``SolverXPBD._gather`` / ``_collect_contacts``, ``XpbdModel._qpos_qvel_numpy`` etc.);
+# oracles (``ReferenceSolver._gather`` / ``_collect_contacts``, ``xpbd_model.qpos_qvel`` etc.);
 # agreement to round-off in ``tests/test_pbd_fast.py``.
 
 
@@ -1784,7 +1803,7 @@ def _vsub(a, b):
 @_leaf
 def gather(x, q, v, w, root, from_root_quat, from_root_pos, X, Q, V, W):
     """Rigid-group poses and velocities (centre of mass [m], principal-frame quaternion, [m/s], [rad/s])
-    from the body rows of their root bodies (``SolverXPBD._gather``); group 0 is the static world."""
+    from the body rows of their root bodies (the oracle: ``ReferenceSolver._gather``); group 0 is the static world."""
     for g in range(root.shape[0]):
         r = root[g]
         qr = _q4(q, r)
@@ -1810,7 +1829,7 @@ def gather(x, q, v, w, root, from_root_quat, from_root_pos, X, Q, V, W):
 def contact_candidates(X, Q, V, W, group, plane, plane_group, local, radius, plane_origin, plane_normal,
                           margin0, dt, out):
     """Indices of the contact points whose gap to their plane is below margin0 + 2·dt·|v_rel| [m]
-    (``SolverXPBD._collect_contacts``), written to ``out``; returns their number."""
+    (the oracle: ``ReferenceSolver._collect_contacts``), written to ``out``; returns their number."""
     n = 0
     for i in range(group.shape[0]):
         g = group[i]
@@ -1931,7 +1950,7 @@ def energies(x, q, v, w, root, from_root_quat, from_root_pos, group_mass, group_
 # ``group_gravity``: group displacements / accelerations in the world frame, from
 # Δq = M⁻¹·Jᵀ at the step's start pose) are carried to each substep's pose through the joint
 # space: dq = G₀⁺·R₀ (G the group Jacobian of the hinge/slide tree, exact since R₀ lies in
-# G₀'s range), R_k = G_k·dq.  ``solver.SolverXPBD._transport`` is the numpy reference.
+# G₀'s range), R_k = G_k·dq.  ``ReferenceSubstep._transported`` is the numpy oracle.
 
 
 @njit(cache=True)

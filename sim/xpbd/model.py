@@ -34,17 +34,7 @@ from typing import Optional
 import mujoco
 import numpy as np
 
-from sim.xpbd.kernels import (
-    np_cross,
-    np_quat_conj,
-    np_quat_mul,
-    np_quat_rotate,
-    np_quat_rotate_inv,
-    quat_conj,
-    quat_mul,
-    quat_rotate,
-    quat_rotate_inv,
-)
+from sim.xpbd.quat import np_cross, np_quat_conj, np_quat_mul, np_quat_rotate
 
 __all__ = ["XpbdModel", "XpbdState", "JNT_FREE", "JNT_BALL", "JNT_SLIDE", "JNT_HINGE"]
 
@@ -65,11 +55,13 @@ _IDQ = np.array([1.0, 0.0, 0.0, 0.0])
 
 
 def _rot(q, v):
-    return np.asarray(quat_rotate(q, v))
+    """R(q)·v of one quaternion and vector (``quat.np_quat_rotate``)."""
+    return np_quat_rotate(np.asarray(q, dtype=float), np.asarray(v, dtype=float))
 
 
 def _qmul(a, b):
-    return np.asarray(quat_mul(a, b))
+    """The quaternion product a ⊗ b (``quat.np_quat_mul``)."""
+    return np_quat_mul(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
 
 
 def _compose(pa, qa, pb, qb):
@@ -78,7 +70,7 @@ def _compose(pa, qa, pb, qb):
 
 
 def _inverse(p, q):
-    qc = np.asarray(quat_conj(q))
+    qc = np_quat_conj(q)
     return -_rot(qc, p), qc
 
 
@@ -91,10 +83,6 @@ def _mat2quat(mat):
 def _f64(a):
     """``a`` as a C-contiguous float64 array (no copy when it already is one)."""
     return np.ascontiguousarray(a, dtype=np.float64)
-
-
-def _wrap(a):
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def _frozen(a, dtype=float):
@@ -443,7 +431,7 @@ class XpbdModel:
                     r2 = point_in_group(b2, data[0:3])
                     r1 = point_in_group(b1, data[3:6])
                     qoff = _qmul(_qmul(T_GB_quat[b1], data[6:10] / np.linalg.norm(data[6:10])),
-                                 quat_conj(T_GB_quat[b2]))
+                                 np_quat_conj(T_GB_quat[b2]))
                     kind = EQ_WELD
                 else:
                     notes.append(f"equality {e} of type {et} not supported: ignored")
@@ -458,7 +446,7 @@ class XpbdModel:
         s_group = np.zeros((nsite, 3))
         for s in range(nsite):
             b = sb[s]
-            s_inert[s] = _rot(quat_conj(iquat[b]), m.site_pos[s] - ipos[b])
+            s_inert[s] = _rot(np_quat_conj(iquat[b]), m.site_pos[s] - ipos[b])
             s_group[s] = point_in_group(b, m.site_pos[s])
 
         # ---- tendons
@@ -670,14 +658,8 @@ class XpbdModel:
             vo[b] = vo[p] + np.cross(w[p], xpos[b] - xpos[p]) + vj
         return xpos, xquat, vo, w
 
-    # The per-step observations below (body frames, generalized coordinates, energies) run as
-    # compiled kernels (``compiled.body_frames``, ``qpos_qvel``, ``energies``) unless ``set_compiled_observations(False)``; the numpy
-    # versions (``_*_numpy``) stay the reference (agreement to round-off: tests/test_pbd_fast.py).
-    compiled_observations = True
-
-    def set_compiled_observations(self, flag: bool) -> None:
-        """Use the compiled (True, default) or numpy (False) observation kernels for this model."""
-        self.__dict__["compiled_observations"] = bool(flag)
+    # The per-step observations below (body frames, generalized coordinates, energies) are compiled kernels
+    # (``compiled.body_frames``, ``qpos_qvel``, ``energies``); under NUMBA_DISABLE_JIT=1 they run as Python.
 
     def _nb_arrays(self):
         """Contiguous int64/float64 copies of the model arrays the compiled observations read (made once)."""
@@ -701,16 +683,9 @@ class XpbdModel:
 
     def body_frames(self, state: XpbdState):
         """World poses of the MuJoCo body frames (xpos [m] (nbody, 3), xquat (nbody, 4)) from a state."""
-        if self.compiled_observations:
-            a = self._nb_arrays()
-            xb, qb = np.empty((self.nbody, 3)), np.empty((self.nbody, 4))
-            a["body_frames"](_f64(state.x), _f64(state.q), a["iquat"], a["ipos"], xb, qb)
-            return xb, qb
-        return self._body_frames_numpy(state)
-
-    def _body_frames_numpy(self, state: XpbdState):
-        qb = np_quat_mul(state.q, np_quat_conj(self.body_iquat))
-        xb = state.x - np_quat_rotate(qb, self.body_ipos)
+        a = self._nb_arrays()
+        xb, qb = np.empty((self.nbody, 3)), np.empty((self.nbody, 4))
+        a["body_frames"](_f64(state.x), _f64(state.q), a["iquat"], a["ipos"], xb, qb)
         return xb, qb
 
     def qpos_qvel(self, state: XpbdState):
@@ -723,50 +698,11 @@ class XpbdModel:
         Ball: relative quaternion / child-frame relative angular velocity.  Free: body
         origin + body quaternion / world linear velocity of the origin + local ω.
         """
-        if self.compiled_observations:
-            a = self._nb_arrays()
-            xb, qb = np.empty((self.nbody, 3)), np.empty((self.nbody, 4))
-            qpos, qvel = np.empty(len(a["qpos0"])), np.empty(self.nv)
-            a["qpos_qvel"](_f64(state.x), _f64(state.q), _f64(state.v), _f64(state.w), _f64(state.qpos_hint),
-                           a["tree"], xb, qb, qpos, qvel)
-            return qpos, qvel
-        return self._qpos_qvel_numpy(state)
-
-    def _qpos_qvel_numpy(self, state: XpbdState):
-        xb, qb = self._body_frames_numpy(state)
-        qpos = np.array(self.qpos0, dtype=float)
-        qvel = np.zeros(self.nv)
-        hint = state.qpos_hint
-        for j in range(self.njnt):
-            b = self.jnt_body[j]
-            p = self.body_parent[b]
-            t, qa, da = self.jnt_type[j], self.jnt_qposadr[j], self.jnt_dofadr[j]
-            vob = state.v[b] + np_cross(state.w[b], xb[b] - state.x[b])
-            if t == JNT_FREE:
-                qpos[qa:qa + 3] = xb[b]
-                qpos[qa + 3:qa + 7] = qb[b]
-                qvel[da:da + 3] = vob
-                qvel[da + 3:da + 6] = np.asarray(quat_rotate_inv(qb[b], state.w[b]))
-                continue
-            zq = _qmul(qb[p], self.body_quat[b])            # child frame at zero
-            if t == JNT_SLIDE:
-                zp = xb[p] + _rot(qb[p], self.body_pos[b])
-                ax = _rot(qb[b], self.jnt_axis[j])
-                qpos[qa] = self.qpos0[qa] + (xb[b] - zp) @ ax
-                vp = state.v[p] + np_cross(state.w[p], xb[b] - state.x[p])
-                qvel[da] = (vob - vp) @ ax
-                continue
-            qloc = _qmul(quat_conj(zq), qb[b])
-            if t == JNT_HINGE:
-                ang = 2.0 * math.atan2(qloc[1:] @ self.jnt_axis[j], qloc[0])
-                ref = hint[qa] - self.qpos0[qa]
-                ang = ref + _wrap(ang - ref)
-                qpos[qa] = self.qpos0[qa] + ang
-                ax = _rot(qb[b], self.jnt_axis[j])
-                qvel[da] = (state.w[b] - state.w[p]) @ ax
-            else:  # ball
-                qpos[qa:qa + 4] = qloc if qloc[0] >= 0 else -qloc
-                qvel[da:da + 3] = np.asarray(quat_rotate_inv(qb[b], state.w[b] - state.w[p]))
+        a = self._nb_arrays()
+        xb, qb = np.empty((self.nbody, 3)), np.empty((self.nbody, 4))
+        qpos, qvel = np.empty(len(a["qpos0"])), np.empty(self.nv)
+        a["qpos_qvel"](_f64(state.x), _f64(state.q), _f64(state.v), _f64(state.w), _f64(state.qpos_hint),
+                       a["tree"], xb, qb, qpos, qvel)
         return qpos, qvel
 
     def site_positions(self, state: XpbdState) -> np.ndarray:
@@ -782,49 +718,17 @@ class XpbdModel:
 
     def energies(self, state: XpbdState) -> tuple[float, float]:
         """(kinetic, potential) energy of the dynamic groups [J] in one pass (see the two methods below)."""
-        if self.compiled_observations:
-            a = self._nb_arrays()
-            return a["energies"](_f64(state.x), _f64(state.q), _f64(state.v), _f64(state.w), a["root"],
-                               a["from_root_quat"], a["from_root_pos"], a["group_mass"], a["group_inertia"], a["gravity"])
-        return self._kinetic_energy_numpy(state), self._potential_energy_numpy(state)
+        a = self._nb_arrays()
+        return a["energies"](_f64(state.x), _f64(state.q), _f64(state.v), _f64(state.w), a["root"],
+                             a["from_root_quat"], a["from_root_pos"], a["group_mass"], a["group_inertia"], a["gravity"])
 
     def kinetic_energy(self, state: XpbdState) -> float:
         """Σ ½ m v² + ½ ωᵀ I ω over dynamic groups [J] (all groups at once)."""
-        return self.energies(state)[0] if self.compiled_observations else self._kinetic_energy_numpy(state)
+        return self.energies(state)[0]
 
     def potential_energy(self, state: XpbdState) -> float:
         """Gravitational potential −Σ m g·x over dynamic groups [J] (all groups at once)."""
-        return self.energies(state)[1] if self.compiled_observations else self._potential_energy_numpy(state)
-
-    def _kinetic_energy_numpy(self, state: XpbdState) -> float:
-        if self.ngroup <= 1:
-            return 0.0
-        r = np.asarray(self.group_root[1:])
-        qr = state.q[r]
-        qg = np_quat_mul(qr, np.asarray(self.group_from_root_quat[1:]))
-        w = state.w[r]
-        wl = np_quat_rotate_inv(qg, w)
-        xg = state.x[r] + np_quat_rotate(qr, np.asarray(self.group_from_root_pos[1:]))
-        vg = state.v[r] + np_cross(w, xg - state.x[r])
-        m = np.asarray(self.group_mass[1:])
-        inertia = np.asarray(self.group_inertia[1:])
-        return float(np.sum(0.5 * m * np.einsum("gk,gk->g", vg, vg) + 0.5 * np.einsum("gk,gk->g", inertia, wl * wl)))
-
-    def _potential_energy_numpy(self, state: XpbdState) -> float:
-        if self.ngroup <= 1:
-            return 0.0
-        r = np.asarray(self.group_root[1:])
-        xg = state.x[r] + np_quat_rotate(state.q[r], np.asarray(self.group_from_root_pos[1:]))
-        return float(-np.sum(np.asarray(self.group_mass[1:]) * (xg @ np.asarray(self.gravity))))
-
-    def _group_quat(self, state, g):
-        r = self.group_root[g]
-        return _qmul(state.q[r], self.group_from_root_quat[g])
-
-    def _group_com(self, state, g):
-        r = self.group_root[g]
-        xg = state.x[r] + _rot(state.q[r], self.group_from_root_pos[g])
-        return xg, state.v[r] + np_cross(state.w[r], xg - state.x[r])
+        return self.energies(state)[1]
 
 
 # ---------------------------------------------------------------------------

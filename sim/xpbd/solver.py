@@ -23,15 +23,10 @@ from typing import Optional, Protocol, Sequence
 
 import numpy as np
 
-from sim.xpbd import kernels as K
-from sim.xpbd.kernels import cross, np_cross, quat_rotate
-from sim.xpbd.laws import mujoco_contact_law, mujoco_impedance, mujoco_limit_law, mujoco_step_target  # noqa: F401
-from sim.xpbd.reference import ReferenceSubstep, SubstepWork, substep_inputs  # noqa: F401
 from sim.xpbd.model import JNT_FREE, JNT_HINGE, JNT_SLIDE, XpbdModel, XpbdState
+from sim.xpbd.quat import np_cross, np_quat_rotate
 
-__all__ = ["LengthConstraint", "SubstepInputs", "SubstepForces", "SubstepHooks", "SolverXPBD", "XpbdOptions",
-           "mujoco_contact_law", "mujoco_impedance", "mujoco_limit_law"]
-
+__all__ = ["LengthConstraint", "SubstepInputs", "SubstepForces", "SubstepHooks", "SolverXPBD", "XpbdOptions"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -54,8 +49,6 @@ class XpbdOptions:
     """Global angular damping c of ω ← ω/(1 + c·h) [1/s]."""
     contact_margin: float = 1e-3
     """Contact candidate distance added to 2·dt·|v_rel| [m]."""
-    block_attach: bool = True
-    """Project pin/connect attachments with the 3×3 block update."""
     velocity_sweeps: int = 4
     """Projected Gauss-Seidel sweeps of the contact velocity pass [-]."""
     symmetric: bool = True
@@ -64,8 +57,6 @@ class XpbdOptions:
     """MuJoCo's soft-contact law (else the rigid contacts of [RB])."""
     pyramid_friction: bool = True
     """Soft pyramidal friction rows (MuJoCo's default cone) on soft contacts."""
-    compiled: bool = True
-    """Run the substeps in ``compiled.substep_core``."""
     transport_response: bool = False
     """Carry the articulated responses to each substep's pose."""
     articulated_contacts: bool = True
@@ -103,7 +94,7 @@ class SubstepInputs:
                    vector [rad] (world frame) per unit multiplier of the row [1/(N·s²)], i.e.
                    the body motion of Δq = M⁻¹ Jᵀ (J: row length rates per joint velocity, M:
                    joint-space mass matrix); rows 0 for static groups.  When given, the active
-                   rows are solved together (``_solve_rows_block``): W = ∂C/∂λ is formed from
+                   rows are solved together (``compiled._solve_rows_block``): W = ∂C/∂λ is formed from
                    these displacements at the current geometry, Δλ = −(W + α̃)⁻¹ (C + α̃ λ)
                    ([XPBD] eq. 16 restricted to the rows), and the groups are moved by
                    Σ mobility·Δλ, which keeps the joints satisfied to first order (the joint
@@ -155,7 +146,17 @@ class SubstepHooks(Protocol):
     def after_substep(self, k: int, h: float, state: XpbdState, forces: SubstepForces) -> None: ...
 
 
-class SolverXPBD(ReferenceSubstep):
+def substep_inputs(before, k: int, h: float, state, inputs):
+    """The inputs of substep ``k`` (of ``h`` [s]): what the ``before_substep`` hook ``before`` returns for it, or the
+    step's ``inputs`` when there is no hook or it returns ``None``."""
+    if before is not None:
+        given = before(k, h, state)
+        if given is not None:
+            return given
+    return inputs
+
+
+class SolverXPBD:
     """Substepped rigid-body XPBD ([RB] Algorithm 2).
 
     Per step: contact candidates are gathered once; then for each of ``substeps``
@@ -170,20 +171,21 @@ class SolverXPBD(ReferenceSubstep):
 
     * ``symmetric`` (default True): each iteration is a forward + backward Gauss-Seidel
       pass.  Forward-only sweeps can be unstable with light bodies between joints
-      (see ``_solve_positions``); it costs about 2× per iteration.
-    * ``block_attach`` (default True): pin/connect attachments are projected with the
-      3×3 block form of the XPBD update (``kernels.solve_attachment_block``) instead of
-      the scalar projection along the error direction; about 5× smaller pin drift.
+      (see ``compiled.substep_core``); it costs about 2× per iteration.
+    * Pin/connect attachments are projected with the 3×3 block form of the XPBD update
+      (``compiled._attach``: Δλ = −K⁻¹·d with K the 3×3 point mobility of the pair) rather than the
+      scalar projection along the error direction: less pin drift (double pendulum at 60 Hz × 20:
+      4.0e-5 m against 5.5e-5 m; ``tests/test_xpbd_rigid.py``).
     * ``soft_limits`` (default True): joint limits (hinge, slide) and the limits of straight two-site
       spatial tendons follow MuJoCo's soft-constraint law of the MJCF (solreflimit/solimplimit,
-      R = (1 − d)/d·dof_invweight0 or tendon_invweight0; ``mujoco_limit_law``), taken over the substep as
-      MuJoCo takes it over its step, as the soft contacts are (``mujoco_step_target``; ``_soft_limit_targets``,
+      R = (1 − d)/d·dof_invweight0 or tendon_invweight0; ``compiled._contact_law``), taken over the substep as
+      MuJoCo takes it over its step, as the soft contacts are (r* = r + h·ṙ − h²·(b·ṙ + k·d·r); ``compiled._soft_limit_target``,
       ``_tendon_limit_targets``): a limit
       acts in a substep that starts beyond it, as a one-sided compliant row.  A hinge beyond its soft
       limit is solved as one 6-row block (pin and axis rigid, the angle compliant,
-      ``kernels.solve_soft_lock_block``); when a tendon limit is active too (the boom's cylinder end stop,
+      ``compiled._hinge_soft_limit``); when a tendon limit is active too (the boom's cylinder end stop,
       where MuJoCo activates the joint and the tendon limit together) all active limits of a hinge/slide
-      tree are solved as one articulated block (``_solve_limits_block``: W = J·M⁻¹·Jᵀ + α̃, active set),
+      tree are solved as one articulated block (``compiled._solve_limits_block``: W = J·M⁻¹·Jᵀ + α̃, active set),
       which Gauss-Seidel over the two nearly parallel rows does not reproduce (13 % too deep statically).
       A boom pressed into its end stop then rests at MuJoCo's penetration (within 0.01 %) and an impact
       overtravels as in MuJoCo (``tests/test_xpbd_soft_limit.py``); the boom lift's stroke error against
@@ -199,7 +201,7 @@ class SolverXPBD(ReferenceSubstep):
       pyramidal contacts are solved with the response of the whole mechanism, as MuJoCo's
       contact problem is (its a = J·M⁻¹·Jᵀ·f + a₀): W = J·M⁻¹·Jᵀ of the edge rows and every
       group moved by G·M⁻¹·Jᵀ·Δλ (G the group Jacobian, M the joint-space mass matrix of the
-      group masses and inertias at the predicted pose, ``_articulated_inverse``).  With the
+      group masses and inertias at the predicted pose, ``compiled.articulated_inverse``).  With the
       free-body response of the touching body (``False``, the behaviour before), the edge rows
       see the body as if it were free and the joint projection takes part of the correction
       back; for MuJoCo's stiff soft contact (R ≈ 5–10 % of the effective inverse mass) this
@@ -212,7 +214,7 @@ class SolverXPBD(ReferenceSubstep):
       (``row_mobility``, ``group_gravity``; world-frame group motions a plant computes once per
       step at the step's start pose) are carried to every later substep's pose through joint
       space, R_k = G_k·G₀⁺·R₀ (G the group Jacobian of a tree of hinges and slides,
-      ``_transport``), as the response of the same joint-space motion Δq = M⁻¹·Jᵀ.  Without it
+      ``compiled.transport``), as the response of the same joint-space motion Δq = M⁻¹·Jᵀ.  Without it
       a 60 Hz frame applies the row and gravity responses in directions up to one frame old: a
       swinging machine (≈ 1 rad/s, 17 mrad per frame) then gets cylinder and gravity
       corrections tilted out of its moving boom plane, and its pressures converge with the
@@ -224,22 +226,20 @@ class SolverXPBD(ReferenceSubstep):
       numerical damping (swing phase 14 % / 4.6 % with them, 24 % / 7.7 % without), so the
       coarse settings' errors grow while the fine ones' shrink; the plant's compiled frame
       selects the same behaviour with ``frame_nb.frame(transport=...)``.
-    * ``compiled`` (default True): every substep runs in ``compiled.substep_core`` (numba,
-      ``cache=True``, one signature), a port of the pure substep (:mod:`sim.xpbd.reference`, a base of
-      this class) on flat arrays with the same operations in the same order; the hooks are still called per
-      substep.  The pure substep stays the reference (``compiled=False``; agreement to round-off in
-      ``tests/test_pbd_compiled.py``) and is used with ``block_attach=False``.  Every contact kind
-      (soft pyramidal, soft normal with Coulomb friction on an elliptic cone or condim 1, rigid) runs compiled.
-      ``compiled_steps`` counts the steps the compiled path took.  On the compiled path the
-      per-step group gather and contact-candidate test are compiled too (``compiled.gather``,
-      ``compiled.contact_candidates``; same values as the numpy code, tests/test_pbd_fast.py).
+    * Every substep runs in ``compiled.substep_core`` (numba, ``cache=True``, one signature) on flat
+      arrays; the hooks are still called per substep.  The per-step group gather and contact-candidate
+      test are compiled too (``compiled.gather``, ``compiled.contact_candidates``).  Every contact kind
+      (soft pyramidal, soft normal with Coulomb friction on an elliptic cone or condim 1, rigid) runs
+      compiled.  ``NUMBA_DISABLE_JIT=1`` runs the same kernels as plain Python (for debugging).  An
+      independent pure-Python substep in the tests (``tests/reference/xpbd_substep.py``) is the oracle:
+      both agree to round-off (``tests/test_pbd_compiled.py``).
 
     Joint damping (MJCF ``damping``) is applied implicitly at the velocity level:
     rate ← rate/(1 + b h w), w the generalized inverse mass of the joint pair.
     Contacts (``soft_contacts``, default True) are compliant in the normal direction with
     MuJoCo's soft-contact law of the geom pair (solref/solimp/condim/cone from the compiled
-    MjModel, effective mass from its ``body_invweight0``; ``mujoco_contact_law``,
-    ``_soft_contact_targets``): a resting body sinks by the same static penetration as in
+    MjModel, effective mass from its ``body_invweight0``; ``compiled._contact_law``,
+    ``compiled._contact_targets``): a resting body sinks by the same static penetration as in
     MuJoCo and an impact has the same time constant.  Friction stays Coulomb (static and
     dynamic, [RB] Sec. 3.5–3.6), not MuJoCo's soft pyramid.  ``soft_contacts=False`` gives
     the rigid contacts of [RB].
@@ -254,12 +254,12 @@ class SolverXPBD(ReferenceSubstep):
         if not isinstance(o, XpbdOptions):
             raise TypeError(f"`options` must be an XpbdOptions, got {type(o).__name__}")
         self.model = model
+        self.options = o
         self.substeps = int(o.substeps)
         self.iterations = int(o.iterations)
         self.linear_damping = float(o.linear_damping)
         self.angular_damping = float(o.angular_damping)
         self.contact_margin = float(o.contact_margin)
-        self.block_attach = bool(o.block_attach)
         self.velocity_sweeps = int(o.velocity_sweeps)
         self.symmetric = bool(o.symmetric)
         self.soft_contacts = bool(o.soft_contacts) and model.contact_solref is not None
@@ -312,11 +312,7 @@ class SolverXPBD(ReferenceSubstep):
                                    float(m.tendon_limit_range[k][1]), tup(m.tendon_limit_solref[k]),
                                    tup(m.tendon_limit_solimp[k]), float(m.tendon_limit_invweight[k])))
         self.last_forces: list[SubstepForces] = []
-        # compiled path (numba, ``compiled.substep_core``): same equations on flat arrays; the pure
-        # substep (sim.xpbd.reference) stays the reference (``tests/test_pbd_compiled.py``)
-        self.compiled = bool(o.compiled) and self.block_attach
-        self._flat = self._flat_model() if self.compiled else None
-        self.compiled_steps = 0  # steps taken by the compiled path (the others fell back to the pure one)
+        self._flat = self._flat_model()  # the model on flat arrays for ``compiled.substep_core``
 
     def _flat_model(self):
         """Writable contiguous copies of the model for ``compiled.substep_core`` (one numba signature): the
@@ -368,7 +364,8 @@ class SolverXPBD(ReferenceSubstep):
             tab[nj + k, 9:11], tab[nj + k, 11:13], tab[nj + k, 13:16], tab[nj + k, 16:19] = (lo, hi), (ga, gb), ra, rb
         return tab
 
-    def _scatter_compiled(self, X, Q, V, W, state):
+    def _scatter(self, X, Q, V, W, state):
+        """Write the group state X, Q, V, W back to ``state``'s bodies (``compiled.scatter``)."""
         from sim.xpbd.compiled import scatter
 
         fm = self._flat
@@ -428,24 +425,10 @@ class SolverXPBD(ReferenceSubstep):
         nc = len(cands)
         if nc == 0:
             return ContactRows(*_NO_CONTACTS)
-        if self.compiled:  # rows of the per-contact arrays made once (same values as below)
-            c = self._contact_arrays()
-            idx = np.array(self._cidx, dtype=np.int64)
-            return ContactRows(c["cg"][idx], c["cvec"][idx], c["crad"][idx], c["mu"][idx], c["solref"][idx],
-                               c["solimp"][idx], c["condim"][idx], c["tran"][idx])
+        c = self._contact_arrays()  # rows of the per-contact arrays made once
         idx = np.array(self._cidx, dtype=np.int64)
-        soft = m.contact_solref is not None
-        condim = np.array(m.contact_condim if soft else np.ones(len(m.contact_mu)), dtype=np.int64)[idx]
-        mu = np.array(m.contact_mu, dtype=np.float64)[idx]
-        tran = np.array(m.contact_tran if soft else np.zeros(len(m.contact_mu)), dtype=np.float64)[idx]
-        cg = np.array([[c[0], c[3]] for c in cands], dtype=np.int64)
-        planes = np.asarray(m.contact_plane)[idx]
-        cvec = np.array([[c[1], c[4], c[5], self._plane_tangent[int(pl)]] for c, pl in zip(cands, planes)], dtype=np.float64)
-        crad = np.array([c[2] for c in cands], dtype=np.float64)
-        solref = np.array(m.contact_solref, dtype=np.float64)[idx] if soft else np.zeros((nc, 2))
-        solimp = np.array(m.contact_solimp, dtype=np.float64)[idx] if soft else np.zeros((nc, 5))
-        return ContactRows(cg, cvec, crad, mu, np.ascontiguousarray(solref.reshape(nc, 2)),
-                           np.ascontiguousarray(solimp.reshape(nc, 5)), condim, tran)
+        return ContactRows(c["cg"][idx], c["cvec"][idx], c["crad"][idx], c["mu"][idx], c["solref"][idx],
+                           c["solimp"][idx], c["condim"][idx], c["tran"][idx])
 
     # ------------------------------------------------------------------ rows
     def add_length_constraint(self, lc: LengthConstraint) -> int:
@@ -479,33 +462,16 @@ class SolverXPBD(ReferenceSubstep):
 
     # ------------------------------------------------------------------ gather / scatter
     def _gather(self, state):
-        if self.compiled:  # one compiled pass (compiled.gather, same equations)
-            from sim.xpbd.compiled import gather
+        """The rigid groups' state (X, Q, V, W) at their centres of mass from the bodies of ``state``
+        (``compiled.gather``); group 0 (static) at rest at the origin."""
+        from sim.xpbd.compiled import gather
 
-            m, a = self.model, self.model._nb_arrays()
-            ng = len(a["root"])
-            x, q, v, w = np.empty((ng, 3)), np.empty((ng, 4)), np.empty((ng, 3)), np.empty((ng, 3))
-            gather(_f64(state.x), _f64(state.q), _f64(state.v), _f64(state.w), a["root"], a["from_root_quat"],
-                        a["from_root_pos"], x, q, v, w)
-            return x, q, v, w
-        m = self.model
-        r = m.group_root
-        qr = state.q[r]
-        q = K.np_quat_mul(qr, m.group_from_root_quat)
-        x = state.x[r] + K.np_quat_rotate(qr, m.group_from_root_pos)
-        w = state.w[r].copy()
-        v = state.v[r] + np_cross(w, x - state.x[r])
-        x[0], q[0], v[0], w[0] = 0.0, (1.0, 0.0, 0.0, 0.0), 0.0, 0.0
+        a = self.model._nb_arrays()
+        ng = len(a["root"])
+        x, q, v, w = np.empty((ng, 3)), np.empty((ng, 4)), np.empty((ng, 3)), np.empty((ng, 3))
+        gather(_f64(state.x), _f64(state.q), _f64(state.v), _f64(state.w), a["root"], a["from_root_quat"],
+               a["from_root_pos"], x, q, v, w)
         return x, q, v, w
-
-    def _scatter(self, x, q, v, w, state):
-        m = self.model
-        g = m.body_group
-        qg = q[g]
-        state.q[:] = K.np_quat_mul(qg, m.body_in_group_quat)
-        state.x[:] = x[g] + K.np_quat_rotate(qg, m.body_in_group_pos)
-        state.w[:] = w[g]
-        state.v[:] = v[g] + np_cross(w[g], state.x - x[g])
 
     # ------------------------------------------------------------------ contacts
     def _collect_contacts(self, x, q, v, w, dt):
@@ -514,31 +480,15 @@ class SolverXPBD(ReferenceSubstep):
         self._cidx = []
         if len(m.contact_group) == 0:
             return []
-        if self.compiled:  # the candidate test in one compiled pass (compiled.contact_candidates)
-            from sim.xpbd.compiled import contact_candidates
+        from sim.xpbd.compiled import contact_candidates
 
-            c = self._contact_arrays()
-            n = contact_candidates(_f64(x), _f64(q), _f64(v), _f64(w), c["group"], c["plane"], c["plane_group"],
-                                        c["local"], c["radius"], c["plane_origin"], c["plane_normal"],
-                                        self.contact_margin, float(dt), c["out"])
-            idx = c["out"][:n].tolist()
-            self._cidx = idx
-            return [c["tuples"][i] for i in idx]
-        g = m.contact_group
-        pl = m.contact_plane
-        pg = m.plane_group[pl]
-        P = x[g] + K.np_quat_rotate(q[g], m.contact_local)
-        n = K.np_quat_rotate(q[pg], m.plane_normal[pl])
-        o = x[pg] + K.np_quat_rotate(q[pg], m.plane_origin[pl])
-        d = np.einsum("ij,ij->i", P - o, n) - m.contact_radius
-        vrel = (v[g] + np_cross(w[g], P - x[g])) - (v[pg] + np_cross(w[pg], P - x[pg]))
-        margin = self.contact_margin + 2.0 * dt * np.linalg.norm(vrel, axis=1)
-        idx = np.nonzero(d < margin)[0]
-        self._cidx = [int(i) for i in idx]
-        return [(int(g[i]), tuple(map(float, m.contact_local[i])), float(m.contact_radius[i]),
-                 int(pg[i]), tuple(map(float, m.plane_origin[pl[i]])),
-                 tuple(map(float, m.plane_normal[pl[i]])), float(m.contact_mu[i]))
-                for i in idx]
+        c = self._contact_arrays()
+        n = contact_candidates(_f64(x), _f64(q), _f64(v), _f64(w), c["group"], c["plane"], c["plane_group"],
+                               c["local"], c["radius"], c["plane_origin"], c["plane_normal"],
+                               self.contact_margin, float(dt), c["out"])
+        idx = c["out"][:n].tolist()
+        self._cidx = idx
+        return [c["tuples"][i] for i in idx]
 
     # ------------------------------------------------------------------ external forces
     def _external(self, inp, X, Q):
@@ -556,44 +506,35 @@ class SolverXPBD(ReferenceSubstep):
             jf = np.asarray(inp.joint_force, dtype=float)
             for j in np.nonzero(jf)[0]:
                 t, g1, g2 = self._joints[j][0], self._joints[j][1], self._joints[j][2]
-                aw = np.asarray(quat_rotate(Q[g1], self._joints[j][5]))
+                aw = np_quat_rotate(q[g1], np.asarray(self._joints[j][5]))
                 if t == JNT_HINGE:
-                    continue  # applied as a joint-space impulse, see _apply_hinge_torques
+                    continue  # applied as a joint-space impulse, the compiled substep's hinge torque impulses
                 elif t == JNT_SLIDE:
                     f = jf[j] * aw
                     F[g2] += f
                     F[g1] -= f
-                    T[g1] -= cross(x[g2] - x[g1], f)
+                    T[g1] -= np_cross(x[g2] - x[g1], f)
                 else:
                     raise ValueError("joint_force only supported for hinge and slide joints")
         if inp.row_force is not None and self._rows:
             rf = np.asarray(inp.row_force, dtype=float)
             for i in np.nonzero(rf)[0]:
                 ga, gb, ra, rb = self._rows[i][:4]
-                ra = np.asarray(quat_rotate(Q[ga], ra))
-                rb = np.asarray(quat_rotate(Q[gb], rb))
+                ra = np_quat_rotate(q[ga], np.asarray(ra))
+                rb = np_quat_rotate(q[gb], np.asarray(rb))
                 d = (x[gb] + rb) - (x[ga] + ra)
                 f = rf[i] * d / np.linalg.norm(d)
                 F[gb] += f
-                T[gb] += cross(rb, f)
+                T[gb] += np_cross(rb, f)
                 F[ga] -= f
-                T[ga] -= cross(ra, f)
+                T[ga] -= np_cross(ra, f)
         if inp.body_wrench is not None:
             bw = np.asarray(inp.body_wrench, dtype=float)
             g = m.body_group
-            com = x[g] + K.np_quat_rotate(q[g], m.body_in_group_pos)
+            com = x[g] + np_quat_rotate(q[g], m.body_in_group_pos)
             np.add.at(F, g, bw[:, :3])
             np.add.at(T, g, bw[:, 3:] + np_cross(com - x[g], bw[:, :3]))
         return F.tolist(), T.tolist()
-
-
-    # ------------------------------------------------------------------ position solve
-
-
-    # ------------------------------------------------------------------ velocity solve
-
-    # ------------------------------------------------------------------ articulated response transport
-
 
     # ------------------------------------------------------------------ step
     def step(self, state: XpbdState, dt: float, *, hooks: Optional[SubstepHooks] = None,
@@ -605,18 +546,10 @@ class SolverXPBD(ReferenceSubstep):
         state, forces)`` receives the updated state and the row forces.  The per-substep
         ``SubstepForces`` of the last step are also kept in ``self.last_forces``.
         """
-        x, q, v, w = self._gather(state)
-        cands = self._collect_contacts(x, q, v, w, dt)
-        if self.compiled:
-            flat_contacts = self._flat_contacts(cands)
-            if flat_contacts is not None:
-                return self._step_compiled(state, dt, hooks, inputs, x, q, v, w, flat_contacts)
-        return self._step_reference(state, dt, hooks, inputs, x, q, v, w, cands)
-
-    def _step_compiled(self, state, dt, hooks, inputs, x, q, v, w, contacts):
-        """``step`` with every substep in ``compiled.substep_core`` (same order of operations as the pure loop)."""
         from sim.xpbd.compiled import RowOutputs, SubstepLoads, SubstepOptions, SubstepRows, substep_core, substep_work
 
+        x, q, v, w = self._gather(state)
+        contacts = self._flat_contacts(self._collect_contacts(x, q, v, w, dt))
         m = self.model
         fm = self._flat
         h = dt / self.substeps
@@ -674,7 +607,7 @@ class SolverXPBD(ReferenceSubstep):
                 tgt = at = lo = hi = zeros_r
             use_block = len(act) > 0 and inp.row_mobility is not None
             mob = _f64(inp.row_mobility) if use_block else no_mob
-            F, T = self._external(inp, X.tolist(), Q.tolist()) if inp is not None else (None, None)
+            F, T = self._external(inp, X, Q) if inp is not None else (None, None)
             F = zeros_g if F is None else np.array(F, dtype=np.float64)
             T = zeros_g if T is None else np.array(T, dtype=np.float64)
             use_tau = inp is not None and inp.joint_force is not None
@@ -690,16 +623,15 @@ class SolverXPBD(ReferenceSubstep):
                 active = np.zeros(nr, dtype=bool)
                 active[act] = True
                 if after is not None:
-                    self._scatter_compiled(X, Q, V, W, state)
+                    self._scatter(X, Q, V, W, state)
                     state.time = t0 + (k + 1) * h
                 forces = SubstepForces(lam / (h * h), lam, ell, rate, active)
                 self.last_forces.append(forces)
                 if after is not None:
                     after(k, h, state, forces)
-        self._scatter_compiled(X, Q, V, W, state)
+        self._scatter(X, Q, V, W, state)
         state.time = t0 + dt
         state.qpos_hint = m.qpos_qvel(state)[0]
-        self.compiled_steps += 1
         return state
 
 

@@ -2,8 +2,9 @@
 
 MuJoCo's constraint regulariser (impedance d(r) from ``solimp``, stiffness k and damping b from ``solref``,
 R = (1 − d)/d·invweight) for contacts and limits, and the compliant XPBD row that takes the law over a step
-h as MuJoCo's semi-implicit step does (``mujoco_step_target``).  Used by the pure substep
-(:mod:`sim.xpbd.reference`) and by the tests; ``compiled.py`` holds the same law for the compiled substep.
+h as MuJoCo's semi-implicit step does (``mujoco_step_target``), written independently of the compiled
+substep's ``compiled._impedance``, ``_contact_law`` and ``_soft_limit_target``: the oracle of those kernels
+(``tests/test_xpbd_soft_limit.py``) and the law of the pure substep (``xpbd_substep.py``).
 
 References: MuJoCo documentation, Computation, "Soft constraints" (impedance, reference acceleration).
 """

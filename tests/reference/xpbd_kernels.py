@@ -1,4 +1,7 @@
-"""Constraint-projection kernels for rigid-body XPBD.
+"""Constraint-projection kernels for rigid-body XPBD on Python tuples: the oracle of ``sim/xpbd/compiled.py``.
+
+The same equations as the compiled substep's kernels, written independently on Python floats and tuples for
+the pure substep of ``tests/reference/xpbd_substep.py``; the tests compare the package's solver with it.
 
 References
 ----------
@@ -26,7 +29,7 @@ Two kinds of functions live here:
   Python lists ``X`` (positions), ``Q`` (quaternions), ``V``, ``W`` (velocities) with
   per-body inverse mass ``IM`` and inverse inertia diagonals ``II``.  Python lists of
   floats are used in the substep loop because per-element numpy access on tiny arrays
-  is much slower; vectorized numpy helpers (``np_*``) serve the per-step conversions.
+  is much slower; the vectorized numpy helpers (``np_*``) are the package's (``sim.xpbd.quat``).
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 
 __all__ = [
     "cross",
@@ -58,11 +62,6 @@ __all__ = [
     "solve_attachment_block",
     "solve_lock_block",
     "apply_joint_torque_impulse",
-    "np_cross",
-    "np_quat_mul",
-    "np_quat_conj",
-    "np_quat_rotate",
-    "np_quat_rotate_inv",
     "predict_body",
     "update_velocity_body",
 ]
@@ -332,54 +331,6 @@ def apply_angular_velocity_impulse(W, Q, IM, II, b, p, sign=1.0):
 
 # ---------------------------------------------------------------------------
 # batched per-body steps (numpy, shape (n, 3) / (n, 4))
-
-
-def np_cross(a, b):
-    """Row-wise cross product (much faster than ``np.cross`` for small arrays)."""
-    if np.ndim(a) == 1 and np.ndim(b) == 1:  # one vector pair: scalar arithmetic, one array
-        a0, a1, a2 = float(a[0]), float(a[1]), float(a[2])
-        b0, b1, b2 = float(b[0]), float(b[1]), float(b[2])
-        return np.array((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0))
-    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    c0 = a1 * b2 - a2 * b1
-    out = np.empty(c0.shape + (3,), dtype=np.result_type(c0, float))
-    out[..., 0] = c0
-    out[..., 1] = a2 * b0 - a0 * b2
-    out[..., 2] = a0 * b1 - a1 * b0
-    return out
-
-
-def np_quat_mul(a, b):
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack(
-        (
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ),
-        axis=-1,
-    )
-
-
-def np_quat_conj(q):
-    out = np.array(q, dtype=float, copy=True)
-    out[..., 1:] *= -1.0
-    return out
-
-
-def np_quat_rotate(q, v):
-    u = q[..., 1:]
-    t = 2.0 * np_cross(u, v)
-    return v + q[..., :1] * t + np_cross(u, t)
-
-
-def np_quat_rotate_inv(q, v):
-    u = -q[..., 1:]
-    t = 2.0 * np_cross(u, v)
-    return v + q[..., :1] * t + np_cross(u, t)
 
 
 # ---------------------------------------------------------------------------
