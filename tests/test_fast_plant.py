@@ -220,6 +220,13 @@ OTHER_CASES = {
                                           {"fidelity": "incompressible", "dt": 1 / 30}, {}, None, 60),
     "push/incompressible": (MODELS / "excavator" / "push.scenario.toml", {"dt": 1e-2}, {}, None, 200),
     "excavator/lines": (MODELS / "excavator" / "dig.scenario.toml", {"fidelity": "lines"}, DIG_INPUTS, None, 150),
+    # rigid stick, bucket and swing among compressible actuators, around the explicit coupling
+    "excavator/explicit+rigid": (
+        MODELS / "excavator" / "dig.scenario.toml",
+        {"dt": 2e-5, "actuator_fidelity": {"stick_cyl": "incompressible", "bucket_cyl": "incompressible",
+                                           "swing_motor": "incompressible"}},
+        {"boom_valve": ramp(0.0, 0.001, -0.35), "stick_valve": ramp(0.0, 0.001, 0.8),
+         "bucket_valve": ramp(0.0, 0.002, 0.5), "swing_valve": ramp(0.0, 0.001, 1.0)}, "explicit", 200),
 }
 
 

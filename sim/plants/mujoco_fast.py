@@ -138,7 +138,8 @@ import numpy as np
 
 from hydraulics import _compiled as C
 from hydraulics import _compiled_rigid as K
-from hydraulics.coupling import SCHEME_ROSENBROCK, CouplingExplicit, CouplingImplicit, CouplingIncompressible
+from hydraulics.coupling import (SCHEME_ROSENBROCK, CouplingExplicit, CouplingImplicit, CouplingIncompressible,
+                                 CouplingMixed)
 from hydraulics.fluid import POTENTIAL_QUADRATURE_POINTS, potential_quadrature
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepperExplicitEuler, StepReport, StepStatus
@@ -170,9 +171,9 @@ except ImportError:  # pragma: no cover
     P_WORK, P_SCRATCH, P_ISTATS, P_PMAX, P_PMIN, C_LINEAR,
     C_NQ, C_NBODY, C_REC_ROWS, C_REC_EVERY, C_REC_FIRST, C_REC_COUNT, C_REC_BAD, C_END_FINITE, C_REC_WIDTH,
     P_QPOS, P_BXPOS, P_BXQUAT, P_ENERGY, P_REC, P_OIL_CHANGE, P_XMAX, P_XMIN,
-    C_KIND, C_NTF, C_NTI, P_TF, P_TI, P_LOWER, P_UPPER, P_FLIMITED, P_FRANGE,
+    C_KIND, C_NTF, C_NTI, P_TF, P_TI, P_LOWER, P_UPPER, P_FLIMITED, P_FRANGE, C_NR,
     NCTX,
-) = range(92)
+) = range(93)
 # C_KIND: the coupling the callback steps
 KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(3)
 
@@ -419,6 +420,11 @@ def _finish_pending(ctx, pnet, V, T, R):
         status, worst, rhs = _finish_explicit(ctx, pnet, V, R, x_end, vs, cmd, speed,
                                               (o2, p2, sp2, fl, dfl, istats, xe, ve), W)
         substeps = 0
+        if R.actuator.size:  # CouplingMixed.finish: rigid chambers carry the clamped effort less friction
+            C._friction_effort(pnet, v_end, ve, xe)
+            for i in range(na):
+                x_end[i] = C._clip(V.const[i] + V.slope[i] * v_end[i], V.lower[i], V.upper[i]) - ve[i]
+            K.chamber_pressures(pnet, x_end, pres, R.rigid, False)
     elif kind == KIND_INCOMPRESSIBLE:  # CouplingIncompressible.finish: pressures and oil from the clamped effort
         K.incompressible_finish(pnet, V.const, V.slope, V.lower, V.upper, v_end, x_end, W[:n], V.effort, pres, oil)
         C._copy(spool, lin_spool)
@@ -480,6 +486,19 @@ def _finish_pending(ctx, pnet, V, T, R):
         effort[i] = C._clip(const[i] + slope[i] * v_end[i], V.lower[i], V.upper[i])
     # energy ledger (PlantBase._account, MujocoPlant._account); xe, ve are free again
     C._account(pnet, fs, FS_PUMP, dt, pres, flow_out, v_end, V.quad, mu, xe, ve)
+    if R.actuator.size:  # rigid branches (PlantBase._account): their delivery less the hydraulic force's work
+        rigid = 0.0
+        br = C._deref(pnet).br
+        for j in range(R.actuator.size):
+            b = nb - R.actuator.size + j
+            rigid += flow_out[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+        if rigid != 0.0:
+            work = 0.0
+            for i in range(na):
+                if R.rigid[i]:
+                    work += (effort[i] - xe[i]) * v_end[i]
+            fs[FS_MOTOR] += dt * rigid
+            fs[FS_DISS_H] += dt * (rigid - work)
     passive, constraint = V.passive_saved, V.constraint
     mw = 0.0
     for j in range(nv):
@@ -503,7 +522,19 @@ def _prepare(ctx, V):
 
 
 @_kernel
-def _begin(ctx, pnet, V, T):
+def _write_bounds(act, lower, upper, flimited, frange):
+    """MujocoPlant.step: the actuators with a finite bound are force-limited to [lower, upper] (MuJoCo clamps within
+    its step), the others not."""
+    for i in range(lower.size):
+        a = act[i]
+        bounded = math.isfinite(lower[i]) or math.isfinite(upper[i])
+        flimited[a] = 1 if bounded else 0
+        frange[2 * a] = lower[i] if bounded else 0.0
+        frange[2 * a + 1] = upper[i] if bounded else 0.0
+
+
+@_kernel
+def _begin(ctx, pnet, V, T, R):
     """After M⁻¹·Jᵀ: the effort law of the step (CouplingImplicit.begin; CouplingExplicit.begin or
     CouplingIncompressible.begin with the table ``T`` by ``C_KIND``), written to ctrl and biasprm (and the
     incompressible law's bounds to MuJoCo's force ranges)."""
@@ -564,18 +595,24 @@ def _begin(ctx, pnet, V, T):
             for i in range(na):
                 const[i] += friction[i]
                 slope[i] = 0.0
+            nr = ctx[C_NR]
+            if nr > 0:  # CouplingMixed around it: the rigid actuators' law at the start supply pressure
+                p_supply, o = C._take(W, 0, nr)
+                held, o = C._take(W, o, nr)
+                for j in range(nr):
+                    p_supply[j] = V.pres[R.supply[j]]
+                    held[j] = 0.0
+                K.mixed_law(pnet, R, spool, cmd, vs, meff, dt, (p_supply, held, held), (const, slope),
+                            (V.lower, V.upper), W[o:o + 4 * na])
+                _write_bounds(act, V.lower, V.upper, V.flimited, V.frange)
+                for i in range(na):
+                    theta[i] = 1.0
         else:  # CouplingIncompressible.begin: end spools (kept for the finish) and the bounded law
             C._spool_end(pnet, spool, cmd, dt, lin_spool)
             ic = C._deref(pnet).ic
             K.incompressible_law(pnet, T, lin_spool, speed, vs, meff, dt, W[:ic[C.IC_O1] - ic[C.IC_O0]], (const, slope),
                                  (V.lower, V.upper))
-            flimited, frange = V.flimited, V.frange
-            for i in range(na):  # MujocoPlant.step: MuJoCo clamps within its step
-                a = act[i]
-                bounded = math.isfinite(V.lower[i]) or math.isfinite(V.upper[i])
-                flimited[a] = 1 if bounded else 0
-                frange[2 * a] = V.lower[i] if bounded else 0.0
-                frange[2 * a + 1] = V.upper[i] if bounded else 0.0
+            _write_bounds(act, V.lower, V.upper, V.flimited, V.frange)
         for i in range(na):
             ctrl[act[i]] = const[i]
             bias[act[i] * ctx[C_NBIAS] + 2] = slope[i]
@@ -679,8 +716,8 @@ def _coupled_step(address, m, d):
     na = ctx[C_NA]
     TF = carray(_pf64(ctx[P_TF]), (ctx[C_NTF],))
     TI = carray(_pi64(ctx[P_TI]), (ctx[C_NTI],))
-    T = K.unflatten_incompressible(TF, TI, na)  # (explicit: the rigid table, here without rigid branches)
-    R = K.unflatten_rigid(TF, TI, na, 0)
+    T = K.unflatten_incompressible(TF, TI, na)  # (TF, TI hold the table of C_KIND's coupling: T or R)
+    R = K.unflatten_rigid(TF, TI, na, ctx[C_NR])
     _finish_pending(ctx, pnet, V, T, R)
     if ctx[C_MODE] == MODE_FINISH:  # called from Python after the block: finish its last step only
         ctx[C_END_FINITE] = _state_finite(ctx, V)
@@ -689,7 +726,7 @@ def _coupled_step(address, m, d):
         _record(ctx, V)
     _prepare(ctx, V)
     _mj_solveM_nb(m, d, _pvoid(ctx[P_MINVJ]), _pvoid(ctx[P_J]), np.int32(ctx[C_NA]))
-    _begin(ctx, pnet, V, T)
+    _begin(ctx, pnet, V, T, R)
 
 
 def _callback_function(fingerprint):
@@ -779,7 +816,8 @@ class MujocoPlantFast(MujocoPlant):
         if (isinstance(coupling, CouplingImplicit) and isinstance(stepper, C.StepperImplicitEulerCompiled)
                 and coupling.predictor is stepper):
             kind, (self._F, self._I) = KIND_IMPLICIT, (stepper._F, stepper._I)
-        elif type(coupling) is CouplingExplicit and type(stepper) is StepperExplicitEuler:
+        elif (type(coupling) is CouplingExplicit or type(coupling) is CouplingMixed
+              and type(coupling.inner) is CouplingExplicit) and type(stepper) is StepperExplicitEuler:
             kind, (self._F, self._I) = KIND_EXPLICIT, stepper.packed
         elif type(coupling) is CouplingIncompressible:
             kind, (self._F, self._I) = KIND_INCOMPRESSIBLE, coupling.packed
@@ -790,8 +828,16 @@ class MujocoPlantFast(MujocoPlant):
         na, nv = net.actuator_count, m.nv
         if kind == KIND_INCOMPRESSIBLE:
             self._TF, self._TI = K.flatten_incompressible(coupling.table)
-        else:  # (an empty rigid table for the explicit step: a network with rigid actuators is not stepped here)
-            self._TF, self._TI = np.zeros(8 * na + len(K.INCOMPRESSIBLE_SCALARS)), np.full(4 * na, -1, np.int64)
+        elif kind == KIND_EXPLICIT:  # its rigid actuators (none without CouplingMixed)
+            self._TF, self._TI = K.flatten_rigid(stepper.table)
+        else:  # (not read)
+            self._TF, self._TI = np.zeros(0), np.zeros(0, np.int64)
+        # the callback views both tables in these arrays (only C_KIND's is read): long enough for either
+        nr = len(net.rigid_branch_actuator)
+        nf = max(8 * na + len(K.INCOMPRESSIBLE_SCALARS), 2 * na + 6 * nr + len(K.RIGID_SCALARS))
+        self._TF = np.concatenate([self._TF, np.zeros(max(nf - self._TF.size, 0))])
+        ni = max(4 * na, na + 4 * nr)
+        self._TI = np.concatenate([self._TI, np.full(max(ni - self._TI.size, 0), -1, np.int64)])
         self._lower, self._upper = np.full(na, -np.inf), np.full(na, np.inf)
         self._act = np.ascontiguousarray(self.binding.actuator_id, np.int64)
         self._closed = np.ascontiguousarray(self.binding.closed_length, np.float64)
@@ -825,6 +871,7 @@ class MujocoPlantFast(MujocoPlant):
         ctx[C_SUBSTEPS], ctx[C_NCYL] = stepper.substeps, len(net.cylinder_actuator)
         ctx[C_LINEAR] = self.coupling.scheme if kind == KIND_IMPLICIT else 0  # hydraulics.coupling.SCHEME_*
         ctx[C_KIND], ctx[C_NTF], ctx[C_NTI] = kind, self._TF.size, self._TI.size
+        ctx[C_NR] = len(net.rigid_branch_actuator) if kind == KIND_EXPLICIT else 0
         self._record_width = self.record_width
         ctx[C_NQ], ctx[C_NBODY], ctx[C_REC_WIDTH] = m.nq, m.nbody, self._record_width
         ctx[C_NF], ctx[C_NI], ctx[C_NW], ctx[C_NS] = self._F.size, self._I.size, self._work.size, self._scratch.size
