@@ -230,7 +230,9 @@ def metered_force(direction, area_in, area_out, orifice_in, orifice_out, supply_
                   ambient_pressure):
     """Valve-metered actuator with rigid oil (Merritt §5.2): (F_d [N | N·m], R [N·s²/m² | N·m·s²/rad²]) of
     F(v) = F_d − R·v·|v| (see module docstring); ``orifice_*`` are the effective edge areas C_d·a [m²]."""
-    resistance = 0.5 * density * (area_in ** 3 / orifice_in ** 2 + area_out ** 3 / orifice_out ** 2)
+    # (products, not powers: compiled and Python runs then round alike)
+    resistance = 0.5 * density * (area_in * area_in * area_in / (orifice_in * orifice_in)
+                                  + area_out * area_out * area_out / (orifice_out * orifice_out))
     return direction * ((supply_pressure - ambient_pressure) * area_in - (tank_pressure - ambient_pressure) * area_out), resistance
 
 
