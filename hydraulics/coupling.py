@@ -90,7 +90,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _compiled, laws
+from . import _compiled
 from .network import NetworkControl, NetworkModel, NetworkState
 from .steppers import ActuatorMotion, StepperImplicitEuler, StepReport, StepStatus, make_stepper
 
@@ -321,55 +321,31 @@ class CouplingRosenbrock(CouplingImplicitLinear):
     scheme = SCHEME_ROSENBROCK
 
 
-# Incompressible fidelity: the rod follows its metered flow with this stiffness relative to
-# m_eff/h (the velocity error left after one step is about 1/(1 + gain) of the demand change).
-INCOMPRESSIBLE_TRACKING_GAIN = 100.0  # [-]
-# Force bound of an incompressible actuator in a circuit without relief valves, as a pressure.
-INCOMPRESSIBLE_UNBOUNDED_PRESSURE = 1e12  # Pa
+def _f64(a):
+    """A C-contiguous, writeable float64 copy-or-view of ``a`` (the one type the compiled kernels are built for)."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
 
 
-def _tracking_gain(effective_mass, like, dt):
-    """Stiffness [N·s/m or N·m·s/rad] of a velocity tracker: INCOMPRESSIBLE_TRACKING_GAIN·m_eff/h (m_eff = 1 if unknown)."""
-    mass = np.ones_like(like) if effective_mass is None else np.where(np.isfinite(effective_mass), effective_mass, 1.0)
-    return INCOMPRESSIBLE_TRACKING_GAIN * mass / dt
+def _masses(effective_mass, count):
+    """Effective masses as the kernels take them: NaN (unknown, the tracker then takes m_eff = 1) without any."""
+    return np.full(count, np.nan) if effective_mass is None else _f64(np.broadcast_to(effective_mass, (count,)))
 
 
-def _free_speed(drive, resist):
-    """Speed [m/s or rad/s] of a metered rigid actuator without load: √(|F_d|/R)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.sqrt(np.abs(drive) / resist)
-
-
-def _bounded_tracker(target, velocity, gain, lower, upper):
-    """Velocity tracker F = K·(target − v⁺) as (constant, slope), K = ``gain`` lowered so that F at the start
-    ``velocity`` stays within [``lower``, ``upper``]: MuJoCo applies a force clamped at the start of its step
-    explicitly, and the bound force over a long step would throw a light link far past its target."""
-    error = target - velocity
-    bound = np.where(error >= 0, upper, -lower)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        gain = np.where(np.abs(error) > 0, np.clip(bound / np.abs(error), 0.0, gain), gain)
-    return gain * target, -gain
-
-
-def _quadratic_damper(drive, resist, velocity):
-    """F_d − R·v⁺·|v⁺| linearised at ``velocity``: (constant, slope) of constant + slope·v⁺."""
-    return drive + resist * velocity * np.abs(velocity), -2.0 * resist * np.abs(velocity)
-
-
-def derive_chamber_pressures(model: NetworkModel, effort, pressure, actuators) -> None:
+def derive_chamber_pressures(model: NetworkModel, effort, pressure, actuators, *, packed=None) -> None:
     """Write into ``pressure`` [Pa] the chamber (motor port) pressures of the masked ``actuators`` that carry
-    ``effort`` [N or N·m] with rigid oil: the loaded side at p_ref + |effort|/area, the other at p_ref."""
-    ref = model.fluid.reference_pressure
-    for i, a in enumerate(model.cylinder_actuator):
-        if actuators[a]:
-            cap, rod = model.cylinder_cap_node[i], model.cylinder_rod_node[i]
-            pressure[cap] = ref + max(effort[a], 0.0) / model.cylinder_cap_area[i]
-            pressure[rod] = ref + max(-effort[a], 0.0) / model.cylinder_rod_area[i]
-    for i, a in enumerate(model.motor_actuator):
-        if actuators[a]:
-            rate = model.motor_displacement[i] / (2.0 * np.pi)
-            pressure[model.motor_a_node[i]] = ref + max(effort[a], 0.0) / rate
-            pressure[model.motor_b_node[i]] = ref + max(-effort[a], 0.0) / rate
+    ``effort`` [N or N·m] with rigid oil: the loaded side at p_ref + |effort|/area, the other at p_ref
+    (:func:`hydraulics._compiled_rigid.chamber_pressures`).  ``packed``: the model's packed (F, I), when the
+    caller keeps them.
+
+    >>> derive_chamber_pressures(model, effort, pressure, model.actuator_rigid)  # doctest: +SKIP
+    """
+    from . import _compiled_rigid as K
+
+    F, I = packed if packed is not None else K.pack_network(model)
+    out = _f64(pressure)
+    K.chamber_pressures_entry(F, I, _f64(effort), out, np.ascontiguousarray(actuators, np.int64))
+    pressure[...] = out
 
 
 class CouplingIncompressible(Coupling):
@@ -391,106 +367,54 @@ class CouplingIncompressible(Coupling):
     share of the pumps' delivery is tracked at that share.  The effort is bounded
     by the highest relief setting (``EffortLaw.lower/upper``; the plant clamps
     within its step, so the actuator stalls there).  Logged pressures are derived
-    from the force.  **Limitations**: no oil-column compliance (no pressure peaks
-    or oscillation), no leakage, energy terms of the network are not computed.
+    from the force.  The equations are compiled once, in
+    :func:`hydraulics._compiled_rigid.incompressible_law` and
+    :func:`hydraulics._compiled_rigid.incompressible_finish` (the fast MuJoCo plant
+    calls them inside its step too).  **Limitations**: no oil-column compliance (no
+    pressure peaks or oscillation), no leakage, energy terms of the network are not
+    computed.
+
+    >>> coupling = make_coupling("incompressible", model)  # doctest: +SKIP
+    >>> law = coupling.begin(state, control, x, v, 1e-3, effective_mass=m_eff)  # doctest: +SKIP
     """
 
     name = "incompressible"
 
     def __init__(self, model, stepper=None):
-        super().__init__(model, stepper)
-        n = model.actuator_count
-        self.edges = np.full((n, 4), -1)  # per actuator: orifice branches P→in, out→T (extend), P→out, in→T (retract)
-        for a in range(n):
-            if model.actuator_kind[a] == 0:
-                i = list(model.cylinder_actuator).index(a)
-                inlet, outlet = model.cylinder_cap_node[i], model.cylinder_rod_node[i]
-            else:
-                i = list(model.motor_actuator).index(a)
-                inlet, outlet = model.motor_a_node[i], model.motor_b_node[i]
-            for b in range(model.branch_slices["orifice"].stop):
-                if model.orifice_valve[b] < 0 or model.orifice_sign[b] == 0:
-                    continue
-                frm, to = model.branch_from[b], model.branch_to[b]
-                if to == inlet:
-                    self.edges[a, 0 if model.orifice_sign[b] > 0 else 2] = b
-                elif frm == outlet:
-                    self.edges[a, 1 if model.orifice_sign[b] > 0 else 3] = b
-                elif to == outlet:
-                    self.edges[a, 2 if model.orifice_sign[b] < 0 else 0] = b
-                elif frm == inlet:
-                    self.edges[a, 3 if model.orifice_sign[b] < 0 else 1] = b
-        # without a relief valve nothing limits the force but the plant: bound it far beyond any load
-        relief = np.max(model.relief_cracking) if len(model.relief_cracking) else INCOMPRESSIBLE_UNBOUNDED_PRESSURE
-        compensators = model.pump_compensator[np.isfinite(model.pump_compensator)]
-        self.supply_pressure = model.fluid.reference_pressure + (np.max(compensators) if len(compensators) else relief)
-        self.extend_area = np.zeros(n)
-        self.retract_area = np.zeros(n)
-        self.extend_area[model.cylinder_actuator] = model.cylinder_cap_area
-        self.retract_area[model.cylinder_actuator] = model.cylinder_rod_area
-        rate = model.motor_displacement / (2.0 * np.pi)
-        self.extend_area[model.motor_actuator] = rate
-        self.retract_area[model.motor_actuator] = rate
-        self.force_upper = relief * self.extend_area
-        self.force_lower = -relief * self.retract_area
+        from . import _compiled_rigid as K
 
-    def law(self, spool, pump_speed, velocity, effective_mass, dt) -> EffortLaw:
-        """Effort law for the step (see class docstring)."""
-        m = self.model
-        rho = m.fluid.density
-        p_s, p_t = self.supply_pressure, m.fluid.reference_pressure
-        gain = _tracking_gain(effective_mass, velocity, dt)
-        if not np.any(self.edges >= 0):  # no metering valve reaches any actuator: rigid oil locks them all
-            return EffortLaw(np.zeros_like(velocity), -gain, self.force_lower, self.force_upper)
-        areas = m.valve_areas(spool)
-        edge = np.maximum(self.edges, 0)
-        coefficient = np.where(self.edges >= 0, m.orifice_cd[edge] * areas[edge], 0.0)
-        valve = m.orifice_valve[edge[:, 0]]
-        opening = np.where(self.edges[:, 0] >= 0, spool[np.maximum(valve, 0)] if len(spool) else 0.0, 0.0)
-        direction = np.sign(opening) * (laws.metering_opening(np.abs(opening), m.valve_overlap[np.maximum(valve, 0)]) > 0)
-        a_in = np.where(direction >= 0, self.extend_area, self.retract_area)
-        a_out = np.where(direction >= 0, self.retract_area, self.extend_area)
-        c_in = np.where(direction >= 0, coefficient[:, 0], coefficient[:, 2])
-        c_out = np.where(direction >= 0, coefficient[:, 1], coefficient[:, 3])
-        drive, resist = laws.metered_actuator_force(direction, a_in, a_out, c_in, c_out, p_s, p_t, rho, p_t)
-        constant, slope = _quadratic_damper(drive, resist, velocity)
-        # flow share of the pumps: demands beyond the delivery are scaled down together
-        free_speed = _free_speed(drive, resist)
-        demand = np.where(direction != 0, free_speed * a_in, 0.0)
-        supply = float(np.sum(laws.pump_flow(m.pump_displacement, pump_speed, m.pump_efficiency)))
-        share = demand * min(1.0, supply / demand.sum()) if demand.sum() > 0 else demand
-        cap = np.where(a_in > 0, share / a_in, 0.0)
-        # pump-limited (its share is slower than its valve would let it run unloaded): track the share speed with
-        # at most the force the metering edges pass at the current speed, so a load the valve cannot carry at that
-        # speed slows it to the valve's speed (a damper below the share would overshoot it within one step)
-        pump_limited = (direction != 0) & np.isfinite(resist) & (cap < free_speed)
-        track = (direction == 0) | ~np.isfinite(resist) | pump_limited | (np.abs(velocity) >= cap)
-        target = direction * np.where(direction == 0, 0.0, cap)
-        damper_now = constant + slope * velocity  # F_d − R·v·|v| at the start speed
-        lower, upper = self.force_lower.copy(), self.force_upper.copy()
-        upper = np.where(pump_limited & (direction > 0), np.maximum(np.minimum(upper, damper_now), lower), upper)
-        lower = np.where(pump_limited & (direction < 0), np.minimum(np.maximum(lower, damper_now), upper), lower)
-        tracker_constant, tracker_slope = _bounded_tracker(target, velocity, gain, lower, upper)
-        constant = np.where(track, tracker_constant, constant)
-        slope = np.where(track, tracker_slope, slope)
-        return EffortLaw(constant, slope, lower, upper)
+        super().__init__(model, stepper)
+        self.packed = K.pack_network(model)
+        self.table = K.pack_incompressible(model)
+        self.edges = self.table.edges  # per actuator: orifice branches (columns K.EDGE_COLUMNS)
+        self.supply_pressure = float(self.table.scalars[K.IS_SUPPLY])
+        self.force_lower, self.force_upper = self.table.force_lower, self.table.force_upper
+
+    def law(self, spool0, command, pump_speed, velocity, effective_mass, dt):
+        """End spools [-] of the step and its effort law (see class docstring), from the start spools ``spool0``."""
+        from . import _compiled_rigid as K
+
+        F, I = self.packed
+        velocity = _f64(velocity)
+        spool, constant, slope, lower, upper = K.incompressible_law_entry(
+            F, I, self.table, _f64(spool0), _f64(command), _f64(pump_speed), velocity,
+            _masses(effective_mass, len(velocity)), float(dt))
+        return spool, EffortLaw(constant, slope, lower, upper)
 
     def begin(self, state, control, position, velocity, dt, *, effective_mass=None, velocity_guess=None):
-        self._spool = laws.spool_step(state.valve_spool, np.clip(control.valve_command, -1.0, 1.0), self.model.valve_time_constant, dt)
-        self._law = self.law(self._spool, control.pump_speed, np.asarray(velocity, float), effective_mass, dt)
+        self._spool, self._law = self.law(state.valve_spool, control.valve_command, control.pump_speed, velocity,
+                                          effective_mass, dt)
         return self._law
 
     def finish(self, state, control, position_start, position_end, velocity_start, velocity_end, dt):
-        m = self.model
-        effort = np.clip(self._law(np.asarray(velocity_end, float)), self._law.lower, self._law.upper)
-        ref = m.fluid.reference_pressure
-        pressure = np.full(m.node_count, ref)
-        pressure[m.node_fixed] = m.node_fixed_pressure[m.node_fixed]
-        derive_chamber_pressures(m, effort, pressure, np.ones(m.actuator_count, bool))
-        new = NetworkState(
-            m.oil_from_pressure(pressure, np.asarray(position_end, float)), pressure, self._spool,
-            np.asarray(position_end, float).copy(), np.asarray(velocity_end, float).copy(), state.time + dt,
-        )
+        from . import _compiled_rigid as K
+
+        m, law = self.model, self._law
+        F, I = self.packed
+        position_end, velocity_end = _f64(position_end), _f64(velocity_end)
+        _, pressure, oil = K.incompressible_finish_entry(F, I, law.constant, law.slope, law.lower, law.upper,
+                                                         velocity_end, position_end)
+        new = NetworkState(oil, pressure, self._spool, position_end.copy(), velocity_end.copy(), state.time + dt)
         return new, StepReport(branch_flow=np.zeros(len(m.branch_names)))
 
 
@@ -502,7 +426,7 @@ class CouplingMixed(Coupling):
     flow its rod displaces, Q = r(spool)·v (:meth:`NetworkModel.rigid_rates`), so the supply it
     shares with the compressible actuators sees every drop of its demand.  The compressible
     actuators get the ``inner`` coupling's law unchanged.  A rigid actuator's law is the metered
-    rigid-oil force of :func:`hydraulics.laws.metered_actuator_force` with the *live* supply
+    rigid-oil force of :func:`hydraulics._compiled_rigid.metered_force` with the *live* supply
     pressure p_P instead of a fixed setting, plus its seal friction:
 
         F(v⁺) = d·(p_P(v⁺)·A_in − p_T·A_out) − R·v⁺·|v⁺| + F_friction(v⁺),
@@ -514,31 +438,29 @@ class CouplingMixed(Coupling):
     :class:`CouplingIncompressible`; the effort is bounded by the highest relief setting on its
     areas.  The flow share of the pumps needs no rule here: an over-demanded supply loses pressure.
     Logged chamber pressures of rigid actuators are derived from their effort
-    (:func:`derive_chamber_pressures`).
+    (:func:`derive_chamber_pressures`).  The law is compiled once
+    (:func:`hydraulics._compiled_rigid.mixed_law`).
+
+    >>> coupling = make_coupling("implicit", model_with_rigid_actuators)  # doctest: +SKIP
+    >>> coupling.name
+    'implicit+rigid'
     """
 
     name = "mixed"
 
     def __init__(self, model, inner: Coupling):
+        from . import _compiled_rigid as K
+
         super().__init__(model, inner.stepper)
         self.inner = inner
         self.name = f"{inner.name}+rigid"
         self.rigid = np.asarray(model.actuator_rigid, bool)
-        self.branch = {int(a): k for k, a in enumerate(model.rigid_branch_actuator)}  # actuator -> rigid branch
-        s = model.branch_slices["rigid"]
-        self.supply_node = model.branch_from[s]
-        self.tank_node = model.branch_to[s]
-        relief = np.max(model.relief_cracking) if len(model.relief_cracking) else INCOMPRESSIBLE_UNBOUNDED_PRESSURE
-        n = model.actuator_count
-        extend, retract = np.zeros(n), np.zeros(n)
-        extend[model.cylinder_actuator] = model.cylinder_cap_area
-        retract[model.cylinder_actuator] = model.cylinder_rod_area
-        extend[model.motor_actuator] = retract[model.motor_actuator] = model.motor_displacement / (2.0 * np.pi)
-        self.supply_top = model.fluid.reference_pressure + relief  # Pa, highest supply pressure the reliefs allow
-        self.force_upper = np.where(self.rigid, relief * extend, np.inf)
-        self.force_lower = np.where(self.rigid, -relief * retract, -np.inf)
+        self.packed = K.pack_network(model)
+        self.table = K.pack_rigid(model)
+        self.supply_node = self.table.supply
+        self.force_lower, self.force_upper = self.table.force_lower, self.table.force_upper
         self.blend = True  # pass effective masses to the inner coupling's θ-rule (the PBD plant turns this off)
-        self.last_theta = np.ones(n)
+        self.last_theta = np.ones(model.actuator_count)
 
     def _supply(self, state, control, dt):
         """Supply pressure p_P [Pa] of every rigid branch at the linearisation's velocities, its gradient
@@ -547,12 +469,14 @@ class CouplingMixed(Coupling):
         lin = getattr(self.inner, "last_linearization", None)
         a = m.rigid_branch_actuator
         if lin is None or lin.oil_velocity_gradient is None:  # explicit inner coupling: the start pressure
-            return state.node_pressure[self.supply_node], np.zeros(len(a)), np.zeros(len(a))
+            return _f64(state.node_pressure[self.supply_node]), np.zeros(len(a)), np.zeros(len(a))
         _, dpdm = m.pressure(lin.state.node_oil, lin.state.actuator_position)
         gradient = dpdm[self.supply_node] * lin.oil_velocity_gradient[self.supply_node, a]
-        return lin.state.node_pressure[self.supply_node], gradient, lin.velocity[a]
+        return _f64(lin.state.node_pressure[self.supply_node]), _f64(gradient), _f64(lin.velocity[a])
 
     def begin(self, state, control, position, velocity, dt, *, effective_mass=None, velocity_guess=None):
+        from . import _compiled_rigid as K
+
         m = self.model
         if velocity_guess is None:
             # the rigid actuators' supply pressure is linearised about this guess: at the held actuators a supply
@@ -561,49 +485,12 @@ class CouplingMixed(Coupling):
         law = self.inner.begin(state, control, position, velocity, dt,
                                effective_mass=effective_mass if self.blend else None, velocity_guess=velocity_guess)
         self.last_theta = np.where(self.rigid, 1.0, getattr(self.inner, "last_theta", np.ones(m.actuator_count)))
-        velocity = np.asarray(velocity, float)
-        constant, slope = law.constant.copy(), law.slope.copy()
-        lower, upper = self.force_lower.copy(), self.force_upper.copy()
-        # velocity trackers: rigid actuators without a valve or with a closed spool hold still (target 0)
-        tracking = self.rigid.copy()
-        target = np.zeros(m.actuator_count)
-        if len(m.rigid_branch_actuator):
-            spool = laws.spool_step(state.valve_spool, np.clip(control.valve_command, -1.0, 1.0), m.valve_time_constant, dt)
-            a = m.rigid_branch_actuator
-            direction = m.rigid_direction(spool)
-            a_in = np.where(direction >= 0, m.rigid_extend_area, m.rigid_retract_area)
-            a_out = np.where(direction >= 0, m.rigid_retract_area, m.rigid_extend_area)
-            edge = m.rigid_cd * m.rigid_metering_area(spool)
-            p_supply, dp_dv, v_guess = self._supply(state, control, dt)
-            p_tank = m.node_fixed_pressure[self.tank_node]
-
-            def metered(p):
-                return laws.metered_actuator_force(direction, a_in, a_out, edge, edge, p, p_tank, m.fluid.density,
-                                                   m.fluid.reference_pressure)
-
-            drive, resist = metered(p_supply)
-            c, k = _quadratic_damper(drive, resist, velocity[a])
-            # live supply: + d·A_in·∂p_P/∂v·(v⁺ − v_g), a (negative) stiffness of the supply's oil column
-            supply_slope = direction * a_in * dp_dv
-            friction, friction_slope = m.friction_effort(velocity)
-            friction_slope = np.minimum(friction_slope, 0.0)
-            c = c - supply_slope * v_guess + friction[a] - friction_slope[a] * velocity[a]
-            k = k + supply_slope + friction_slope[a]
-            # beyond its free speed (e.g. a spool just past its overlap) the actuator tracks that speed
-            free = _free_speed(drive, resist)
-            damper = (direction != 0) & np.isfinite(resist) & (np.abs(velocity[a]) < free)
-            constant[a], slope[a] = np.where(damper, c, 0.0), np.where(damper, k, 0.0)
-            tracking[a] = ~damper
-            target[a] = np.where(direction != 0, direction * np.nan_to_num(free), 0.0)
-            # an open valve: the force the supply can give, F at p_P in [cavitation floor, highest relief]
-            ends = [metered(p)[0] for p in (m.fluid.pressure_floor, self.supply_top)]
-            offset = c + k * velocity[a] - drive  # damper and friction at the start velocity
-            lower[a] = np.where(damper, np.minimum(*ends) + offset, lower[a])
-            upper[a] = np.where(damper, np.maximum(*ends) + offset, upper[a])
-        tracker_constant, tracker_slope = _bounded_tracker(target, velocity, _tracking_gain(effective_mass, velocity, dt),
-                                                           lower, upper)
-        constant = np.where(tracking, tracker_constant, constant)
-        slope = np.where(tracking, tracker_slope, slope)
+        velocity = _f64(velocity)
+        F, I = self.packed
+        constant, slope, lower, upper = K.mixed_law_entry(
+            F, I, self.table, _f64(state.valve_spool), _f64(control.valve_command), velocity,
+            _masses(effective_mass, len(velocity)), float(dt), self._supply(state, control, dt),
+            _f64(law.constant).copy(), _f64(law.slope).copy())
         self._law = EffortLaw(constant, slope, lower, upper)
         return self._law
 
@@ -612,7 +499,7 @@ class CouplingMixed(Coupling):
         effort = np.clip(self._law(np.asarray(velocity_end, float)), self._law.lower, self._law.upper)
         hydraulic = effort - self.model.friction_effort(np.asarray(velocity_end, float))[0]
         new = new.copy()
-        derive_chamber_pressures(self.model, hydraulic, new.node_pressure, self.rigid)
+        derive_chamber_pressures(self.model, hydraulic, new.node_pressure, self.rigid, packed=self.packed)
         return new, report
 
 

@@ -250,23 +250,41 @@ class StepperExplicitEuler(Stepper):
     """Forward Euler on the oil contents: m⁺ = m + h·ΣQ(p(m, x_start), v_start).
 
     Order 1.  Inputs held over the step (zero-order hold), which is what a
-    weak co-simulation does.  **Limitations**: unstable for stiff nodes
-    (small volumes, large bulk modulus, large orifice slopes).
+    weak co-simulation does: flows at the start spools, positions and
+    velocities, end pressures p(m⁺, x_end), spools advanced exactly.  Rigid
+    branches (rigid actuators of a compressible network) carry r(s)·v.  One
+    compiled kernel (:func:`hydraulics._compiled_rigid.explicit_substep`, also
+    stepped inside the fast MuJoCo plant's callback).  **Limitations**:
+    unstable for stiff nodes (small volumes, large bulk modulus, large orifice
+    slopes): a node of volume V behind an orifice of slope G needs h < 2V/(β·G).
+
+    >>> stepper = make_stepper("explicit_euler", model)  # doctest: +SKIP
+    >>> state, report = stepper.step(state, control, ActuatorMotion.held(x), 1e-5)  # doctest: +SKIP
     """
 
     name = "explicit_euler"
     order = 1
 
+    def __init__(self, model: NetworkModel, *, substeps: int = 1):
+        from . import _compiled_rigid as K
+
+        super().__init__(model, substeps=substeps)
+        self.packed = K.pack_network(model)
+        self.table = K.pack_rigid(model)
+
     def _substep(self, state, control, motion, h, oil_guess=None):  # oil_guess: not needed (explicit)
-        m = self.model
-        spool_end = self._spool_end(state, control, h)
-        pressure, _ = m.pressure(state.node_oil, motion.position_start)
-        flows = m.branch_flows(pressure, m.valve_areas(state.valve_spool), control.pump_speed, motion.velocity_start)
-        oil = state.node_oil.copy()
-        oil[self.free] += h * self._net_inflow(flows)[self.free]
+        from . import _compiled as C
+        from . import _compiled_rigid as K
+
+        F, I = self.packed
+        f64 = C._f64
+        start = C.StepStart(f64(state.node_oil), f64(state.valve_spool), f64(control.valve_command),
+                            f64(control.pump_speed), f64(motion.position_start), f64(motion.velocity_start))
+        oil, pressure, spool, flow = K.explicit_step_entry(F, I, self.table, start, f64(motion.position_end), float(h))
         self.rhs_count += 1
-        end = ActuatorMotion(motion.position_start, motion.position_end, motion.velocity_start, motion.velocity_start)
-        return self._finish(state, oil, spool_end, end, h, flows), StepReport(rhs_evaluations=1, branch_flow=flows.flow)
+        new = NetworkState(oil, pressure, spool, np.array(motion.position_end, float),
+                           np.array(motion.velocity_start, float), state.time + h)
+        return new, StepReport(rhs_evaluations=1, branch_flow=flow)
 
 
 class StepperImplicitEuler(Stepper):

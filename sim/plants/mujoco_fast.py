@@ -1,9 +1,20 @@
 """MuJoCo plant whose coupled step runs entirely inside ``mj_step``: :class:`MujocoPlantFast`.
 
 Same physics as :class:`~sim.plants.mujoco.MujocoPlant` with the implicit
-coupling and the compiled backward-Euler stepper, but the per-step Python
-orchestration is replaced by a numba ``cfunc`` installed as MuJoCo's control
-callback, so ``mj_step(m, d, nstep=N)`` advances N coupled steps in C.
+couplings and the compiled backward-Euler stepper, the ``explicit`` coupling
+(forward Euler, :class:`~hydraulics.steppers.StepperExplicitEuler`) or the
+``incompressible`` fidelity, but the per-step Python orchestration is replaced
+by a numba ``cfunc`` installed as MuJoCo's control callback, so
+``mj_step(m, d, nstep=N)`` advances N coupled steps in C.  The coupling the
+callback steps is ``C_KIND`` (``KIND_*``); the steps below are the implicit
+one's.  ``explicit``: the law is the start pressures' effort plus friction
+(slope 0) and the finish is :func:`hydraulics._compiled_rigid.explicit_substep`
+from the network's own positions at the held start velocities.
+``incompressible``: the law of :func:`hydraulics._compiled_rigid.incompressible_law`,
+its bounds written to MuJoCo's ``actuator_forcerange`` (``actuator_forcelimited``
+where finite, as :meth:`MujocoPlant.step` does: MuJoCo clamps within its step),
+and the finish :func:`hydraulics._compiled_rigid.incompressible_finish`
+(pressures derived from the clamped effort).
 
 MuJoCo calls the control callback once per ``mj_step``, after positions,
 velocities, actuator lengths/moments and the factorised mass matrix are
@@ -106,15 +117,18 @@ allowed, :meth:`advance` continues from the assigned values), and in the same wa
   :class:`MujocoPlant`; MuJoCo's bodies, however, have been integrated to the
   end of the block (with the last effort law held), so ``qpos`` may be up to
   ``n − 1`` steps ahead of ``step_index`` after a failure.
-* Only the implicit couplings (``implicit``, ``implicit-linear``, ``rosenbrock``) with the
-  compiled implicit-Euler stepper are accelerated; any other configuration (explicit / incompressible coupling,
-  ``compiled = false``, another stepper, no numba) falls back to
-  :meth:`MujocoPlant.step` in a Python loop (``fast`` is then False).
+* Accelerated: the implicit couplings (``implicit``, ``implicit-linear``, ``rosenbrock``) with the
+  compiled implicit-Euler stepper, the ``explicit`` coupling with the explicit-Euler stepper and the
+  ``incompressible`` fidelity.  Any other configuration (rigid actuators among compressible ones, i.e.
+  ``CouplingMixed``: the compiled backward Euler has no rigid branches; an implicit coupling with
+  ``compiled = false``; another
+  stepper) falls back to :meth:`MujocoPlant.step` in a Python loop (``fast`` is then False).
 """
 
 from __future__ import annotations
 
 import ctypes
+import math
 import os
 import threading
 from collections import namedtuple
@@ -123,10 +137,12 @@ import mujoco
 import numpy as np
 
 from hydraulics import _compiled as C
-from hydraulics.coupling import SCHEME_ROSENBROCK, CouplingImplicit
+from hydraulics import _compiled_rigid as K
+from hydraulics.coupling import (SCHEME_ROSENBROCK, CouplingExplicit, CouplingImplicit, CouplingIncompressible,
+                                 CouplingMixed)
 from hydraulics.fluid import POTENTIAL_QUADRATURE_POINTS, potential_quadrature
 from hydraulics.network import NetworkState
-from hydraulics.steppers import StepperImplicitEuler, StepReport, StepStatus
+from hydraulics.steppers import StepperExplicitEuler, StepperImplicitEuler, StepReport, StepStatus
 
 from sim.plants.inputs import input_plan, sample_inputs
 from sim.plants.mujoco import MujocoPlant, mark_reset, mujoco_resets
@@ -155,8 +171,11 @@ except ImportError:  # pragma: no cover
     P_WORK, P_SCRATCH, P_ISTATS, P_PMAX, P_PMIN, C_LINEAR,
     C_NQ, C_NBODY, C_REC_ROWS, C_REC_EVERY, C_REC_FIRST, C_REC_COUNT, C_REC_BAD, C_END_FINITE, C_REC_WIDTH,
     P_QPOS, P_BXPOS, P_BXQUAT, P_ENERGY, P_REC, P_OIL_CHANGE, P_XMAX, P_XMIN,
+    C_KIND, C_NTF, C_NTI, P_TF, P_TI, P_LOWER, P_UPPER, P_FLIMITED, P_FRANGE, C_NR,
     NCTX,
-) = range(83)
+) = range(93)
+# C_KIND: the coupling the callback steps
+KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(3)
 
 # float scalars (P_FS): step, residual of the last step, ledger terms
 FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD = range(8)  # ledger: C._account's order
@@ -200,6 +219,7 @@ if _JIT:
     _pf64 = _pointer_cast(types.CPointer(types.float64))
     _pi64 = _pointer_cast(types.CPointer(types.int64))
     _pi32 = _pointer_cast(types.CPointer(types.int32))
+    _pu8 = _pointer_cast(types.CPointer(types.uint8))
     _pvoid = _pointer_cast(types.voidptr)
 
     @intrinsic
@@ -238,6 +258,7 @@ else:  # the same callback as Python (NUMBA_DISABLE_JIT=1, for debugging): ctype
     _pf64 = _pointer_cast(ctypes.c_double)
     _pi64 = _pointer_cast(ctypes.c_int64)
     _pi32 = _pointer_cast(ctypes.c_int32)
+    _pu8 = _pointer_cast(ctypes.c_uint8)
 
     def _pvoid(addr):
         return int(addr)
@@ -279,7 +300,12 @@ def _vi64(ctx, slot, n):
     return carray(_pi64(ctx[slot]), (n,))
 
 
-_Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W', 'istats', 'cmd', 'speed', 'oil', 'pres', 'spool', 'pos', 'vel', 'flow', 'const', 'slope', 'effort', 'quad', 'passive_saved', 'constraint', 'passive', 'act', 'closed', 'length', 'avel', 'meff', 'theta', 'ctrl', 'bias', 'rowadr', 'rownnz', 'colind', 'moment', 'pmax', 'pmin', 'oil_change', 'xmax', 'xmin'))
+@_jit  # returns a view of foreign memory (no NRT reference to drop)
+def _vu8(ctx, slot, n):
+    return carray(_pu8(ctx[slot]), (n,))
+
+
+_Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W', 'istats', 'cmd', 'speed', 'oil', 'pres', 'spool', 'pos', 'vel', 'flow', 'const', 'slope', 'effort', 'quad', 'passive_saved', 'constraint', 'passive', 'act', 'closed', 'length', 'avel', 'meff', 'theta', 'ctrl', 'bias', 'rowadr', 'rownnz', 'colind', 'moment', 'pmax', 'pmin', 'oil_change', 'xmax', 'xmin', 'lower', 'upper', 'flimited', 'frange'))
 
 
 @_jit
@@ -292,7 +318,7 @@ def _views(ctx):
     nnz = 0
     for a in range(nu):
         nnz = max(nnz, rowadr[a] + rownnz[a])
-    return _Views(_vf(ctx, P_FS, NFS), _mf(ctx, P_J, na, nv), _mf(ctx, P_MINVJ, na, nv), _vf(ctx, P_QVEL, nv), _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na), _vf(ctx, P_SCRATCH, ctx[C_NS]), _vf(ctx, P_WORK, ctx[C_NW]), _vi64(ctx, P_ISTATS, 6), _mf(ctx, P_CMD, ctx[C_ROWS], nvalve), _mf(ctx, P_SPEED, ctx[C_ROWS], npump), _vf(ctx, P_OIL, n), _vf(ctx, P_PRESSURE, n), _vf(ctx, P_SPOOL, nvalve), _vf(ctx, P_XPOS, na), _vf(ctx, P_XVEL, na), _vf(ctx, P_FLOW, nb), _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na), _vf(ctx, P_EFFORT, na), _vf(ctx, P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, P_PASSIVE_SAVED, nv), _vf(ctx, P_CONSTRAINT, nv), _vf(ctx, P_PASSIVE, nv), _vi64(ctx, P_ACT, na), _vf(ctx, P_CLOSED, na), _vf(ctx, P_LENGTH, nu), _vf(ctx, P_AVEL, nu), _vf(ctx, P_MEFF, na), _vf(ctx, P_THETA, na), _vf(ctx, P_CTRL, nu), _vf(ctx, P_BIASPRM, nu * ctx[C_NBIAS]), _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu), _vi32(ctx, P_COLIND, nnz), _vf(ctx, P_MOMENT, nnz), _vf(ctx, P_PMAX, n), _vf(ctx, P_PMIN, n), _vf(ctx, P_OIL_CHANGE, n), _vf(ctx, P_XMAX, na), _vf(ctx, P_XMIN, na))
+    return _Views(_vf(ctx, P_FS, NFS), _mf(ctx, P_J, na, nv), _mf(ctx, P_MINVJ, na, nv), _vf(ctx, P_QVEL, nv), _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na), _vf(ctx, P_SCRATCH, ctx[C_NS]), _vf(ctx, P_WORK, ctx[C_NW]), _vi64(ctx, P_ISTATS, 6), _mf(ctx, P_CMD, ctx[C_ROWS], nvalve), _mf(ctx, P_SPEED, ctx[C_ROWS], npump), _vf(ctx, P_OIL, n), _vf(ctx, P_PRESSURE, n), _vf(ctx, P_SPOOL, nvalve), _vf(ctx, P_XPOS, na), _vf(ctx, P_XVEL, na), _vf(ctx, P_FLOW, nb), _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na), _vf(ctx, P_EFFORT, na), _vf(ctx, P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, P_PASSIVE_SAVED, nv), _vf(ctx, P_CONSTRAINT, nv), _vf(ctx, P_PASSIVE, nv), _vi64(ctx, P_ACT, na), _vf(ctx, P_CLOSED, na), _vf(ctx, P_LENGTH, nu), _vf(ctx, P_AVEL, nu), _vf(ctx, P_MEFF, na), _vf(ctx, P_THETA, na), _vf(ctx, P_CTRL, nu), _vf(ctx, P_BIASPRM, nu * ctx[C_NBIAS]), _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu), _vi32(ctx, P_COLIND, nnz), _vf(ctx, P_MOMENT, nnz), _vf(ctx, P_PMAX, n), _vf(ctx, P_PMIN, n), _vf(ctx, P_OIL_CHANGE, n), _vf(ctx, P_XMAX, na), _vf(ctx, P_XMIN, na), _vf(ctx, P_LOWER, na), _vf(ctx, P_UPPER, na), _vu8(ctx, P_FLIMITED, nu), _vf(ctx, P_FRANGE, 2 * nu))
 
 
 @_kernel
@@ -307,7 +333,35 @@ def _widen(values, high, low, n):
 
 
 @_kernel
-def _finish_pending(ctx, pnet, V):
+def _finish_explicit(ctx, pnet, V, R, x_start, v_start, cmd, speed, out, W):
+    """CouplingExplicit.finish: the network advanced by forward Euler from its own actuator positions with the
+    start velocities held (``Stepper._step``'s substeps, ``ActuatorMotion.linear``/``part``); returns
+    (status, worst node, right-hand sides).  ``out`` = (end oil, pressures, spools, flows, their derivatives,
+    counters, substep end positions, substep start positions) (scratch)."""
+    o2, p2, sp2, fl, dfl, istats, xe, xb = out
+    dt = V.fs[FS_DT]
+    substeps = ctx[C_SUBSTEPS]
+    h = dt / substeps
+    na = x_start.size
+    oil, pres, spool, pos, vel = V.oil, V.pres, V.spool, V.pos, V.vel
+    rhs = 0
+    for s in range(substeps):
+        for i in range(na):  # ActuatorMotion.at(k/S), at((k+1)/S) of x → x + dt·v
+            x_end = x_start[i] + dt * v_start[i]
+            xb[i] = x_start[i] + (s / substeps) * (x_end - x_start[i]) if substeps > 1 else x_start[i]
+            xe[i] = x_start[i] + ((s + 1) / substeps) * (x_end - x_start[i]) if substeps > 1 else x_end
+        K.explicit_substep(pnet, R, W, C.StepStart(oil, spool, cmd, speed, xb, v_start), xe, h,
+                           C.StepOut(o2, p2, sp2, fl, dfl, istats))
+        rhs += 1
+        C._copy(V.flow, fl)
+        bad = C._commit_if_finite(oil, pres, spool, pos, vel, o2, p2, sp2, xe, v_start)
+        if bad >= 0:
+            return ST_NONFINITE, bad, rhs
+    return ST_OK, -1, rhs
+
+
+@_kernel
+def _finish_pending(ctx, pnet, V, T, R):
     """Finish the pending step with the realised velocities J_prev·q̇ (MujocoPlant.step after mj_step2)."""
     if ctx[C_PENDING] == 0:
         return
@@ -360,7 +414,26 @@ def _finish_pending(ctx, pnet, V):
     residual = 0.0
     status, worst = ST_OK, -1
     C._copy(mstart, oil)
-    if ctx[C_LINEAR]:  # implicit-linear, rosenbrock: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
+    kind = ctx[C_KIND]
+    if kind == KIND_EXPLICIT:  # CouplingExplicit.finish (xe, ve: free until the ledger)
+        C._copy(x_end, pos)  # the motion starts from the network's own positions (x_end: free in this branch)
+        status, worst, rhs = _finish_explicit(ctx, pnet, V, R, x_end, vs, cmd, speed,
+                                              (o2, p2, sp2, fl, dfl, istats, xe, ve), W)
+        substeps = 0
+        if R.actuator.size:  # CouplingMixed.finish: rigid chambers carry the clamped effort less friction
+            C._friction_effort(pnet, v_end, ve, xe)
+            for i in range(na):
+                x_end[i] = C._clip(V.const[i] + V.slope[i] * v_end[i], V.lower[i], V.upper[i]) - ve[i]
+            K.chamber_pressures(pnet, x_end, pres, R.rigid, False)
+    elif kind == KIND_INCOMPRESSIBLE:  # CouplingIncompressible.finish: pressures and oil from the clamped effort
+        K.incompressible_finish(pnet, V.const, V.slope, V.lower, V.upper, v_end, x_end, W[:n], V.effort, pres, oil)
+        C._copy(spool, lin_spool)
+        C._copy(pos, x_end)
+        C._copy(vel, v_end)
+        for b in range(nb):
+            flow_out[b] = 0.0
+        substeps = 0
+    elif ctx[C_LINEAR]:  # implicit-linear, rosenbrock: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
         substeps = 0
         C._copy(sp2, lin_spool)
         C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfl)
@@ -403,16 +476,29 @@ def _finish_pending(ctx, pnet, V):
         ctx[C_FAILED] = k
     else:  # the step's oil change (NetworkState.node_oil_change), running extremes of the end-of-step pressures
         oil_change = V.oil_change  # and actuator coordinates
-        for i in range(n):
-            oil_change[i] = oil[i] - mstart[i]
+        for i in range(n):  # (none from the incompressible coupling: it has no oil states)
+            oil_change[i] = oil[i] - mstart[i] if kind != KIND_INCOMPRESSIBLE else 0.0
         _widen(pres, V.pmax, V.pmin, n)
         _widen(pos, V.xmax, V.xmin, na)
     # applied effort: law(v⁺)
     const, slope, effort = V.const, V.slope, V.effort
-    for i in range(na):
-        effort[i] = const[i] + slope[i] * v_end[i]
+    for i in range(na):  # (bounds ±inf but for the incompressible law)
+        effort[i] = C._clip(const[i] + slope[i] * v_end[i], V.lower[i], V.upper[i])
     # energy ledger (PlantBase._account, MujocoPlant._account); xe, ve are free again
     C._account(pnet, fs, FS_PUMP, dt, pres, flow_out, v_end, V.quad, mu, xe, ve)
+    if R.actuator.size:  # rigid branches (PlantBase._account): their delivery less the hydraulic force's work
+        rigid = 0.0
+        br = C._deref(pnet).br
+        for j in range(R.actuator.size):
+            b = nb - R.actuator.size + j
+            rigid += flow_out[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+        if rigid != 0.0:
+            work = 0.0
+            for i in range(na):
+                if R.rigid[i]:
+                    work += (effort[i] - xe[i]) * v_end[i]
+            fs[FS_MOTOR] += dt * rigid
+            fs[FS_DISS_H] += dt * (rigid - work)
     passive, constraint = V.passive_saved, V.constraint
     mw = 0.0
     for j in range(nv):
@@ -436,8 +522,22 @@ def _prepare(ctx, V):
 
 
 @_kernel
-def _begin(ctx, pnet, V):
-    """After M⁻¹·Jᵀ: the effort law of CouplingImplicit.begin, written to ctrl and biasprm."""
+def _write_bounds(act, lower, upper, flimited, frange):
+    """MujocoPlant.step: the actuators with a finite bound are force-limited to [lower, upper] (MuJoCo clamps within
+    its step), the others not."""
+    for i in range(lower.size):
+        a = act[i]
+        bounded = math.isfinite(lower[i]) or math.isfinite(upper[i])
+        flimited[a] = 1 if bounded else 0
+        frange[2 * a] = lower[i] if bounded else 0.0
+        frange[2 * a + 1] = upper[i] if bounded else 0.0
+
+
+@_kernel
+def _begin(ctx, pnet, V, T, R):
+    """After M⁻¹·Jᵀ: the effort law of the step (CouplingImplicit.begin; CouplingExplicit.begin or
+    CouplingIncompressible.begin with the table ``T`` by ``C_KIND``), written to ctrl and biasprm (and the
+    incompressible law's bounds to MuJoCo's force ranges)."""
     k = ctx[C_K]
     ctx[C_K] = k + 1
     if ctx[C_FAILED] >= 0:
@@ -486,6 +586,39 @@ def _begin(ctx, pnet, V):
     cmd = V.cmd[k]
     speed = V.speed[k]
     oil, spool = V.oil, V.spool
+    ctrl, bias = V.ctrl, V.bias
+    kind = ctx[C_KIND]
+    if kind != KIND_IMPLICIT:
+        if kind == KIND_EXPLICIT:  # CouplingExplicit.begin: the start pressures' effort and friction, slope 0
+            C._pressure_effort(pnet, V.pres, const)
+            C._friction_effort(pnet, vs, friction, damping)
+            for i in range(na):
+                const[i] += friction[i]
+                slope[i] = 0.0
+            nr = ctx[C_NR]
+            if nr > 0:  # CouplingMixed around it: the rigid actuators' law at the start supply pressure
+                p_supply, o = C._take(W, 0, nr)
+                held, o = C._take(W, o, nr)
+                for j in range(nr):
+                    p_supply[j] = V.pres[R.supply[j]]
+                    held[j] = 0.0
+                K.mixed_law(pnet, R, spool, cmd, vs, meff, dt, (p_supply, held, held), (const, slope),
+                            (V.lower, V.upper), W[o:o + 4 * na])
+                _write_bounds(act, V.lower, V.upper, V.flimited, V.frange)
+                for i in range(na):
+                    theta[i] = 1.0
+        else:  # CouplingIncompressible.begin: end spools (kept for the finish) and the bounded law
+            C._spool_end(pnet, spool, cmd, dt, lin_spool)
+            ic = C._deref(pnet).ic
+            K.incompressible_law(pnet, T, lin_spool, speed, vs, meff, dt, W[:ic[C.IC_O1] - ic[C.IC_O0]], (const, slope),
+                                 (V.lower, V.upper))
+            _write_bounds(act, V.lower, V.upper, V.flimited, V.frange)
+        for i in range(na):
+            ctrl[act[i]] = const[i]
+            bias[act[i] * ctx[C_NBIAS] + 2] = slope[i]
+        C._copy(V.passive_saved, V.passive)
+        ctx[C_PENDING] = 1
+        return
     C._secant_oil_guess(oil, V.oil_change, oil_warm)
     # predicted end velocities: the start velocities where their chord is short (coupling.start_velocity_guess),
     # clipped so the cylinders stay inside their stroke; the held actuators where that linearisation is useless
@@ -503,7 +636,6 @@ def _begin(ctx, pnet, V):
         # (rosenbrock's one step evaluates at x itself)
         C._pressure(pnet, oil, xs, geo, p0, dpdm)
     C._pressure_effort(pnet, p0, pressure_start)
-    ctrl, bias = V.ctrl, V.bias
     C._blended_law(True, end_const, end_slope, pressure_start, friction, damping, vs, meff, dt, theta, const, slope)
     for i in range(na):
         ctrl[act[i]] = const[i]
@@ -581,7 +713,12 @@ def _coupled_step(address, m, d):
     net = C._unpack(F, I)
     pnet = C._ref(net)
     V = _views(ctx)
-    _finish_pending(ctx, pnet, V)
+    na = ctx[C_NA]
+    TF = carray(_pf64(ctx[P_TF]), (ctx[C_NTF],))
+    TI = carray(_pi64(ctx[P_TI]), (ctx[C_NTI],))
+    T = K.unflatten_incompressible(TF, TI, na)  # (TF, TI hold the table of C_KIND's coupling: T or R)
+    R = K.unflatten_rigid(TF, TI, na, ctx[C_NR])
+    _finish_pending(ctx, pnet, V, T, R)
     if ctx[C_MODE] == MODE_FINISH:  # called from Python after the block: finish its last step only
         ctx[C_END_FINITE] = _state_finite(ctx, V)
         return
@@ -589,7 +726,7 @@ def _coupled_step(address, m, d):
         _record(ctx, V)
     _prepare(ctx, V)
     _mj_solveM_nb(m, d, _pvoid(ctx[P_MINVJ]), _pvoid(ctx[P_J]), np.int32(ctx[C_NA]))
-    _begin(ctx, pnet, V)
+    _begin(ctx, pnet, V, T, R)
 
 
 def _callback_function(fingerprint):
@@ -673,16 +810,35 @@ class MujocoPlantFast(MujocoPlant):
         self.recorded, self.recorded_finite, self.end_finite = 0, True, True
         super().__init__(scene, coupling=coupling)
         scenario = scene.scenario
-        stepper = self.coupling.stepper
-        self.fast = bool(
-            _NUMBA and C.compiled_available() and isinstance(self.coupling, CouplingImplicit)
-            and isinstance(stepper, StepperImplicitEuler) and self.coupling.predictor is stepper
-        )
+        coupling = self.coupling
+        stepper = coupling.stepper
+        kind = None
+        if (isinstance(coupling, CouplingImplicit) and isinstance(stepper, StepperImplicitEuler)
+                and coupling.predictor is stepper):
+            kind, (self._F, self._I) = KIND_IMPLICIT, (stepper._F, stepper._I)
+        elif (type(coupling) is CouplingExplicit or type(coupling) is CouplingMixed
+              and type(coupling.inner) is CouplingExplicit) and type(stepper) is StepperExplicitEuler:
+            kind, (self._F, self._I) = KIND_EXPLICIT, stepper.packed
+        elif type(coupling) is CouplingIncompressible:
+            kind, (self._F, self._I) = KIND_INCOMPRESSIBLE, coupling.packed
+        self.fast = bool(_NUMBA and kind is not None)
         if not self.fast:
             return
         m, d, net = self.model, self.data, self.network
         na, nv = net.actuator_count, m.nv
-        self._F, self._I = stepper._F, stepper._I
+        if kind == KIND_INCOMPRESSIBLE:
+            self._TF, self._TI = K.flatten_incompressible(coupling.table)
+        elif kind == KIND_EXPLICIT:  # its rigid actuators (none without CouplingMixed)
+            self._TF, self._TI = K.flatten_rigid(stepper.table)
+        else:  # (not read)
+            self._TF, self._TI = np.zeros(0), np.zeros(0, np.int64)
+        # the callback views both tables in these arrays (only C_KIND's is read): long enough for either
+        nr = len(net.rigid_branch_actuator)
+        nf = max(8 * na + len(K.INCOMPRESSIBLE_SCALARS), 2 * na + 6 * nr + len(K.RIGID_SCALARS))
+        self._TF = np.concatenate([self._TF, np.zeros(max(nf - self._TF.size, 0))])
+        ni = max(4 * na, na + 4 * nr)
+        self._TI = np.concatenate([self._TI, np.full(max(ni - self._TI.size, 0), -1, np.int64)])
+        self._lower, self._upper = np.full(na, -np.inf), np.full(na, np.inf)
         self._act = np.ascontiguousarray(self.binding.actuator_id, np.int64)
         self._closed = np.ascontiguousarray(self.binding.closed_length, np.float64)
         self._J = np.zeros((na, nv))
@@ -695,7 +851,7 @@ class MujocoPlantFast(MujocoPlant):
         self._const, self._slope, self._theta, self._meff, self._effort = (np.zeros(na) for _ in range(5))
         self._flow = np.zeros(len(net.branch_names))
         self._passive = np.zeros(nv)
-        self._work = np.zeros(C.work_size(self._F, self._I))
+        self._work = np.zeros(max(C.work_size(self._F, self._I), 4 * n + len(net.branch_names)))
         self._scratch = np.zeros(scratch_size(na, n, len(net.branch_names), len(net.valve_names)))
         self._istats = np.zeros(6, np.int64)
         self._pmax, self._pmin = np.zeros(n), np.zeros(n)
@@ -713,7 +869,9 @@ class MujocoPlantFast(MujocoPlant):
         ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N], ctx[C_NB] = na, nv, m.nu, n, len(net.branch_names)
         ctx[C_NVALVE], ctx[C_NPUMP], ctx[C_NBIAS] = len(net.valve_names), len(net.pump_names), m.actuator_biasprm.shape[1]
         ctx[C_SUBSTEPS], ctx[C_NCYL] = stepper.substeps, len(net.cylinder_actuator)
-        ctx[C_LINEAR] = self.coupling.scheme  # hydraulics.coupling.SCHEME_*
+        ctx[C_LINEAR] = self.coupling.scheme if kind == KIND_IMPLICIT else 0  # hydraulics.coupling.SCHEME_*
+        ctx[C_KIND], ctx[C_NTF], ctx[C_NTI] = kind, self._TF.size, self._TI.size
+        ctx[C_NR] = len(net.rigid_branch_actuator) if kind == KIND_EXPLICIT else 0
         self._record_width = self.record_width
         ctx[C_NQ], ctx[C_NBODY], ctx[C_REC_WIDTH] = m.nq, m.nbody, self._record_width
         ctx[C_NF], ctx[C_NI], ctx[C_NW], ctx[C_NS] = self._F.size, self._I.size, self._work.size, self._scratch.size
@@ -727,7 +885,11 @@ class MujocoPlantFast(MujocoPlant):
             P_MEFF: self._meff, P_EFFORT: self._effort, P_FLOW: self._flow, P_PASSIVE_SAVED: self._passive, P_FS: self._fs,
             P_QUAD: self._quad, P_WORK: self._work, P_SCRATCH: self._scratch, P_ISTATS: self._istats,
             P_PMAX: self._pmax, P_PMIN: self._pmin, P_XMAX: self._xmax, P_XMIN: self._xmin, P_OIL_CHANGE: self._oil_change, P_QPOS: d.qpos, P_BXPOS: d.xpos, P_BXQUAT: d.xquat, P_ENERGY: d.energy,
+            P_TF: self._TF, P_TI: self._TI, P_LOWER: self._lower, P_UPPER: self._upper,
+            P_FLIMITED: m.actuator_forcelimited, P_FRANGE: m.actuator_forcerange,
         }
+        assert m.actuator_forcelimited.dtype.itemsize == 1 and m.actuator_forcelimited.flags.c_contiguous  # bool (mjtByte)
+        assert m.actuator_forcerange.dtype == np.float64 and m.actuator_forcerange.flags.c_contiguous
         for a in (d.qpos, d.xpos, d.xquat, d.energy):
             assert a.flags.c_contiguous and a.dtype == np.float64
         assert d.moment_rowadr.dtype == np.int32 and d.moment_colind.dtype == np.int32
@@ -879,6 +1041,7 @@ class MujocoPlantFast(MujocoPlant):
         self._pmin[:] = self.node_pressure_min
         self._xmax[:] = self.actuator_position_max
         self._xmin[:] = self.actuator_position_min
+        self._theta[:] = self.theta  # (only the implicit law sets θ; the others keep it)
         e = self.energy
         fs = self._fs
         fs[FS_PUMP], fs[FS_MOTOR], fs[FS_DISS_H] = e.pump_work, e.motor_work, e.dissipated_hydraulic

@@ -1,0 +1,633 @@
+"""Compiled (numba) kernels of the explicit, incompressible and rigid-actuator couplings.
+
+The one implementation of the equations of :class:`~hydraulics.steppers.StepperExplicitEuler`,
+:class:`~hydraulics.coupling.CouplingIncompressible`, :class:`~hydraulics.coupling.CouplingMixed` and
+:func:`~hydraulics.coupling.derive_chamber_pressures`; the per-step classes call the cached entry points below,
+and ``sim.plants.mujoco_fast``'s control callback calls the allocation-free kernels directly.  They work on the
+packed network of :mod:`hydraulics._compiled` (``pnet``) plus the per-actuator constants packed here as named
+layouts (:class:`IncompressibleTable`, :class:`RigidTable`, scalar columns :data:`INCOMPRESSIBLE_SCALARS`,
+:data:`RIGID_SCALARS`).
+
+Equations (SI units; a motor's "area" is its displacement per radian D/2π [m³/rad]):
+
+* **Explicit Euler** (forward Euler on the oil, zero-order hold, :func:`explicit_substep`):
+  m⁺ = m + h·ΣQ(p(m, x), s, v) on the free nodes, with the start spools s, the start positions x and the
+  held velocities v; p⁺ = p(m⁺, x⁺); the spools advance exactly (``valve_4_3.spool_step``).  A rigid branch
+  (P → T of a rigid actuator's valve) carries Q = r(s)·v (:func:`rigid_rate`).
+* **Metered rigid-oil force** (Merritt §5.2, quasi-static, :func:`metered_force`):
+  F(v) = F_d − R·v·|v|, F_d = d·((p_s − p_a)·A_in − (p_t − p_a)·A_out),
+  R = (ρ/2)·(A_in³/(C_d·a_in)² + A_out³/(C_d·a_out)²) (inf where an edge is shut), linearised at the start
+  speed (:func:`quadratic_damper`).
+* **Velocity tracker** (:func:`bounded_tracker`): F = K·(v_t − v⁺), K = G·m_eff/h (:func:`tracking_gain`,
+  G = ``INCOMPRESSIBLE_TRACKING_GAIN``) lowered so that F at the start speed stays within the effort bounds.
+* **Incompressible law** (:func:`incompressible_law`): the metered damper per actuator with supply p_s (the
+  highest compensator setting, else the highest relief setting), a lock (tracker to v = 0) for a closed valve,
+  the pumps' delivery shared among the demands A_in·√(|F_d|/R), trackers where the share is slower, bounds
+  ±p_relief·A.
+* **Rigid actuators in a compressible network** (:func:`mixed_law`): the metered damper at the live supply
+  pressure p_P(v⁺) = p_P,lin + (∂p_P/∂v)·(v⁺ − v_g), plus seal friction; the bounds are the forces at p_P on
+  [cavitation floor, highest relief].
+* **Chamber pressures of rigid oil** (:func:`chamber_pressures`): p_loaded = p_ref + |F|/A, the other side p_ref.
+
+Under ``NUMBA_DISABLE_JIT=1`` everything runs as Python.  **Limitations**: as the couplings (see
+:mod:`hydraulics.coupling`); the tables are built once per model (:func:`pack_incompressible`,
+:func:`pack_rigid`).
+
+Example
+-------
+>>> drive, resist = metered_force(1.0, 2e-3, 1e-3, 1e-5, 1e-5, 2e7, 1e5, 850.0, 1e5)
+>>> round(drive), resist > 0
+(39800, True)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import namedtuple
+
+import numpy as np
+
+from . import _compiled as C
+from ._jit import FINGERPRINT, clip, kernel, maximum, minimum
+from .components import pumps as _pumps
+from .components import valve_4_3 as _valve
+from .components.cylinder import CI_ACT, CI_CAP, CI_ROD
+from .components.motor import MI_A, MI_ACT, MI_B
+from .components.parameters import table
+from .components.pumps import P_DISP, P_EFF
+from .components.valve_4_3 import V_OVERLAP, V_TAU
+
+# Incompressible fidelity: the rod follows its metered flow with this stiffness relative to
+# m_eff/h (the velocity error left after one step is about 1/(1 + gain) of the demand change).
+INCOMPRESSIBLE_TRACKING_GAIN = 100.0  # [-]
+# Force bound of an incompressible actuator in a circuit without relief valves, as a pressure.
+INCOMPRESSIBLE_UNBOUNDED_PRESSURE = 1e12  # Pa
+
+# ----------------------------------------------------------------------------
+# Named layouts
+# ----------------------------------------------------------------------------
+EDGE_COLUMNS = ("extend_supply", "extend_return", "retract_supply", "retract_return")
+"""Metering edges of an incompressible actuator's valve (orifice-branch index, −1: none): P → inlet and outlet → T
+opening with spool > 0 (extend), P → outlet and inlet → T opening with spool < 0 (retract)."""
+E_EXTEND_SUPPLY, E_EXTEND_RETURN, E_RETRACT_SUPPLY, E_RETRACT_RETURN = range(len(EDGE_COLUMNS))
+INCOMPRESSIBLE_SCALARS = ("supply_pressure", "density", "tracking_gain")
+"""Scalars of :class:`IncompressibleTable`: supply pressure p_s [Pa] (absolute), oil density ρ [kg/m³], G [-]."""
+IS_SUPPLY, IS_DENSITY, IS_GAIN = range(len(INCOMPRESSIBLE_SCALARS))
+RIGID_SCALARS = ("supply_top", "density", "tracking_gain")
+"""Scalars of :class:`RigidTable`: highest supply pressure the reliefs allow [Pa] (absolute), ρ [kg/m³], G [-]."""
+RS_TOP, RS_DENSITY, RS_GAIN = range(len(RIGID_SCALARS))
+
+IncompressibleTable = namedtuple("IncompressibleTable", ("edges", "edge_cd", "extend_area", "retract_area",
+                                                         "force_lower", "force_upper", "scalars"))
+IncompressibleTable.__doc__ = """Per-actuator constants of the incompressible law: metering edges (actuators × :data:`EDGE_COLUMNS`,
+int64) and their discharge coefficients, areas A extending / retracting [m² | m³/rad], effort bounds [N | N·m],
+scalars (:data:`INCOMPRESSIBLE_SCALARS`)."""
+RigidTable = namedtuple("RigidTable", ("rigid", "force_lower", "force_upper", "actuator", "valve", "sign", "extend_area",
+                                       "retract_area", "cd", "base_area", "max_area", "supply", "tank", "scalars"))
+RigidTable.__doc__ = """Rigid actuators of a compressible network: per actuator the rigid flag (int64) and effort bounds
+(±inf for compressible ones); per rigid branch (in the model's order) its actuator, valve, sign (+1: spool > 0 feeds the
+cap), areas extending / retracting, C_d, leakage and full metering area [m²], supply and tank nodes; scalars
+(:data:`RIGID_SCALARS`)."""
+
+
+def _relief_pressure(model) -> float:
+    """Highest relief setting [Pa] (gauge), or INCOMPRESSIBLE_UNBOUNDED_PRESSURE without relief valves."""
+    return float(np.max(model.relief_cracking)) if len(model.relief_cracking) else INCOMPRESSIBLE_UNBOUNDED_PRESSURE
+
+
+def _actuator_areas(model):
+    """Areas A extending / retracting of every actuator [m² | m³/rad]: cap / rod, D/2π for motors."""
+    n = model.actuator_count
+    extend, retract = np.zeros(n), np.zeros(n)
+    extend[model.cylinder_actuator] = model.cylinder_cap_area
+    retract[model.cylinder_actuator] = model.cylinder_rod_area
+    extend[model.motor_actuator] = retract[model.motor_actuator] = model.motor_displacement / (2.0 * np.pi)
+    return extend, retract
+
+
+def pack_incompressible(model) -> IncompressibleTable:
+    """The :class:`IncompressibleTable` of an incompressible network: each actuator's metering edges found from the
+    orifice branches that reach its chambers (motor ports)."""
+    n = model.actuator_count
+    edges = np.full((n, len(EDGE_COLUMNS)), -1, np.int64)
+    cylinders, motors = list(model.cylinder_actuator), list(model.motor_actuator)
+    for a in range(n):
+        if a in cylinders:
+            i = cylinders.index(a)
+            inlet, outlet = model.cylinder_cap_node[i], model.cylinder_rod_node[i]
+        else:
+            i = motors.index(a)
+            inlet, outlet = model.motor_a_node[i], model.motor_b_node[i]
+        for b in range(model.branch_slices["orifice"].stop):
+            sign = model.orifice_sign[b]
+            if model.orifice_valve[b] < 0 or sign == 0:
+                continue
+            frm, to = model.branch_from[b], model.branch_to[b]
+            if to == inlet:
+                edges[a, E_EXTEND_SUPPLY if sign > 0 else E_RETRACT_SUPPLY] = b
+            elif frm == outlet:
+                edges[a, E_EXTEND_RETURN if sign > 0 else E_RETRACT_RETURN] = b
+            elif to == outlet:
+                edges[a, E_RETRACT_SUPPLY if sign < 0 else E_EXTEND_SUPPLY] = b
+            elif frm == inlet:
+                edges[a, E_RETRACT_RETURN if sign < 0 else E_EXTEND_RETURN] = b
+    relief = _relief_pressure(model)
+    compensators = model.pump_compensator[np.isfinite(model.pump_compensator)]
+    supply = model.fluid.reference_pressure + (np.max(compensators) if len(compensators) else relief)
+    extend, retract = _actuator_areas(model)
+    cd = np.where(edges >= 0, np.asarray(model.orifice_cd, float)[np.maximum(edges, 0)] if len(model.orifice_cd) else 0.0, 0.0)
+    scalars = table(INCOMPRESSIBLE_SCALARS, 1, supply_pressure=supply, density=model.fluid.density,
+                    tracking_gain=INCOMPRESSIBLE_TRACKING_GAIN)[0]
+    return IncompressibleTable(edges, np.ascontiguousarray(cd, float), extend, retract, -relief * retract, relief * extend,
+                               scalars)
+
+
+def pack_rigid(model) -> RigidTable:
+    """The :class:`RigidTable` of a network (empty branch columns without rigid actuators)."""
+    relief = _relief_pressure(model)
+    extend, retract = _actuator_areas(model)
+    rigid = np.asarray(model.actuator_rigid, bool)
+    if rigid.size != model.actuator_count:
+        rigid = np.zeros(model.actuator_count, bool)
+    s = model.branch_slices.get("rigid", slice(0, 0))
+    scalars = table(RIGID_SCALARS, 1, supply_top=model.fluid.reference_pressure + relief, density=model.fluid.density,
+                    tracking_gain=INCOMPRESSIBLE_TRACKING_GAIN)[0]
+
+    def f(a):
+        return np.ascontiguousarray(a, float)
+
+    def i(a):
+        return np.ascontiguousarray(a, np.int64)
+
+    return RigidTable(i(rigid), f(np.where(rigid, -relief * retract, -np.inf)), f(np.where(rigid, relief * extend, np.inf)),
+                      i(model.rigid_branch_actuator), i(model.rigid_valve), f(model.rigid_sign), f(model.rigid_extend_area),
+                      f(model.rigid_retract_area), f(model.rigid_cd), f(model.rigid_base_area), f(model.rigid_max_area),
+                      i(model.branch_from[s]), i(model.branch_to[s]), scalars)
+
+
+def pack_network(model):
+    """:func:`hydraulics._compiled.pack_network` of ``model`` with its rigid actuators packed as ordinary ones: the
+    kernels here add the rigid branches' flows and laws themselves (:class:`RigidTable`)."""
+    if np.any(model.actuator_rigid):
+        model = dataclasses.replace(model, actuator_rigid=np.zeros(model.actuator_count, bool))
+    return C.pack_network(model)
+
+
+_W_EDGE, _N_IS, _N_RS = len(EDGE_COLUMNS), len(INCOMPRESSIBLE_SCALARS), len(RIGID_SCALARS)
+
+
+def flatten_incompressible(T: IncompressibleTable):
+    """``T`` as one float64 and one int64 array (for a caller that passes addresses, the fast MuJoCo plant);
+    :func:`unflatten_incompressible` rebuilds the table.  Order: the fields of :class:`IncompressibleTable`."""
+    floats = np.concatenate([np.ravel(T.edge_cd), T.extend_area, T.retract_area, T.force_lower, T.force_upper, T.scalars])
+    return np.ascontiguousarray(floats, np.float64), np.ascontiguousarray(np.ravel(T.edges), np.int64)
+
+
+@C._jit
+def unflatten_incompressible(TF, TI, na):
+    """The :class:`IncompressibleTable` of ``na`` actuators held in :func:`flatten_incompressible`'s arrays (views)."""
+    o = _W_EDGE * na
+    return IncompressibleTable(C._matrix(TI[:o], na, _W_EDGE), C._matrix(TF[:o], na, _W_EDGE), TF[o:o + na],
+                               TF[o + na:o + 2 * na], TF[o + 2 * na:o + 3 * na], TF[o + 3 * na:o + 4 * na],
+                               TF[o + 4 * na:o + 4 * na + _N_IS])
+
+
+def flatten_rigid(T: RigidTable):
+    """``T`` as one float64 and one int64 array (see :func:`flatten_incompressible`); :func:`unflatten_rigid`
+    rebuilds it.  Order: per actuator, then per rigid branch, then the scalars."""
+    floats = np.concatenate([T.force_lower, T.force_upper, T.sign, T.extend_area, T.retract_area, T.cd, T.base_area,
+                             T.max_area, T.scalars])
+    ints = np.concatenate([T.rigid, T.actuator, T.valve, T.supply, T.tank])
+    return np.ascontiguousarray(floats, np.float64), np.ascontiguousarray(ints, np.int64)
+
+
+@C._jit
+def unflatten_rigid(TF, TI, na, nr):
+    """The :class:`RigidTable` of ``na`` actuators and ``nr`` rigid branches held in :func:`flatten_rigid`'s arrays."""
+    b = 2 * na
+    return RigidTable(TI[:na], TF[:na], TF[na:b], TI[na:na + nr], TI[na + nr:na + 2 * nr], TF[b:b + nr],
+                      TF[b + nr:b + 2 * nr], TF[b + 2 * nr:b + 3 * nr], TF[b + 3 * nr:b + 4 * nr],
+                      TF[b + 4 * nr:b + 5 * nr], TF[b + 5 * nr:b + 6 * nr], TI[na + 2 * nr:na + 3 * nr],
+                      TI[na + 3 * nr:na + 4 * nr], TF[b + 6 * nr:b + 6 * nr + _N_RS])
+
+
+# ----------------------------------------------------------------------------
+# Scalar laws
+# ----------------------------------------------------------------------------
+@kernel
+def sign(x):
+    """np.sign: −1, 0 or +1 (NaN stays NaN)."""
+    if x > 0.0:
+        return 1.0
+    if x < 0.0:
+        return -1.0
+    return x * 0.0
+
+
+@kernel
+def metered_force(direction, area_in, area_out, orifice_in, orifice_out, supply_pressure, tank_pressure, density,
+                  ambient_pressure):
+    """Valve-metered actuator with rigid oil (Merritt §5.2): (F_d [N | N·m], R [N·s²/m² | N·m·s²/rad²]) of
+    F(v) = F_d − R·v·|v| (see module docstring); ``orifice_*`` are the effective edge areas C_d·a [m²]."""
+    # (products, not powers: compiled and Python runs then round alike)
+    resistance = 0.5 * density * (area_in * area_in * area_in / (orifice_in * orifice_in)
+                                  + area_out * area_out * area_out / (orifice_out * orifice_out))
+    return direction * ((supply_pressure - ambient_pressure) * area_in - (tank_pressure - ambient_pressure) * area_out), resistance
+
+
+@kernel
+def quadratic_damper(drive, resist, velocity):
+    """F_d − R·v⁺·|v⁺| linearised at ``velocity``: (constant, slope) of constant + slope·v⁺."""
+    return drive + resist * velocity * abs(velocity), -2.0 * resist * abs(velocity)
+
+
+@kernel
+def free_speed(drive, resist):
+    """Speed [m/s | rad/s] of a metered rigid actuator without load: √(|F_d|/R)."""
+    return math.sqrt(abs(drive) / resist)
+
+
+@kernel
+def tracking_gain(gain, effective_mass, dt):
+    """Stiffness [N·s/m | N·m·s/rad] of a velocity tracker: gain·m_eff/h (m_eff = 1 where it is not finite)."""
+    mass = effective_mass if math.isfinite(effective_mass) else 1.0
+    return gain * mass / dt
+
+
+@kernel
+def bounded_tracker(target, velocity, gain, lower, upper):
+    """Velocity tracker F = K·(target − v⁺) as (constant, slope), K = ``gain`` lowered so that F at the start
+    ``velocity`` stays within [``lower``, ``upper``]: MuJoCo applies a force clamped at the start of its step
+    explicitly, and the bound force over a long step would throw a light link far past its target."""
+    error = target - velocity
+    bound = upper if error >= 0 else -lower
+    if abs(error) > 0:
+        gain = clip(bound / abs(error), 0.0, gain)
+    return gain * target, -gain
+
+
+@kernel
+def direction_of(spool, overlap):
+    """Metering direction [-] of a spool position: sign(s) while an edge is open beyond the overlap, else 0."""
+    return sign(spool) * (1.0 if _valve.metering_opening(abs(spool), overlap) > 0 else 0.0)
+
+
+@kernel
+def rigid_rate(direction, extend_area, retract_area):
+    """Flow drawn from P per unit actuator velocity [m² | m³/rad] of a rigid branch: A_cap extending, −A_rod
+    retracting, 0 closed (NetworkModel.rigid_rates)."""
+    if direction > 0:
+        return extend_area
+    if direction < 0:
+        return -retract_area
+    return 0.0
+
+
+# ----------------------------------------------------------------------------
+# Network kernels (allocation-free, on the packed network)
+# ----------------------------------------------------------------------------
+@kernel
+def rigid_flows(pnet, R, spool, velocity, flow, dflow):
+    """Flows [m³/s] of the rigid branches (the last branches of the network) at ``spool`` and ``velocity``; their
+    pressure derivatives are zero."""
+    net = C._deref(pnet)
+    count = R.actuator.size
+    start = net.ic[C.IC_NB] - count
+    for k in range(count):
+        valve = R.valve[k]
+        d = direction_of(R.sign[k] * spool[valve], net.valve[valve, V_OVERLAP])
+        b = start + k
+        flow[b] = rigid_rate(d, R.extend_area[k], R.retract_area[k]) * velocity[R.actuator[k]]
+        for j in range(dflow.shape[1]):
+            dflow[b, j] = 0.0
+
+
+@kernel
+def explicit_work_size(ic):
+    """Scratch entries :func:`explicit_substep` takes: geometric volumes, ∂p/∂m, net inflow, orifice areas."""
+    return 3 * ic[C.IC_N] + ic[C.IC_O1] - ic[C.IC_O0]
+
+
+@kernel
+def explicit_substep(pnet, R, W, start, x_end, h, out):
+    """One forward-Euler substep of ``h`` [s] from ``start`` (:class:`hydraulics._compiled.StepStart`; its
+    velocities held over the substep) into ``out`` (:class:`hydraulics._compiled.StepOut`): end spools, oil
+    m⁺ = m + h·ΣQ(p(m, x), s, v), flows at the start, pressures p(m⁺, ``x_end``).  ``W``: scratch of
+    :func:`explicit_work_size` entries; ``istats`` counts one right-hand side."""
+    oil0, spool0, command, speed, x, v = start
+    oil, p, spool, flow, dflow, istats = out
+    net = C._deref(pnet)
+    n = net.ic[C.IC_N]
+    geo, o = C._take(W, 0, n)
+    dpdm, o = C._take(W, o, n)
+    inflow, o = C._take(W, o, n)
+    area, o = C._take(W, o, net.ic[C.IC_O1] - net.ic[C.IC_O0])
+    C._spool_end(pnet, spool0, command, h, spool)
+    C._pressure(pnet, oil0, x, geo, p, dpdm)
+    C._valve_areas(pnet, spool0, area)
+    C._branch_flows(pnet, p, area, speed, v, flow, dflow)
+    rigid_flows(pnet, R, spool0, v, flow, dflow)
+    C._net_inflow(pnet, flow, inflow)
+    C._copy(oil, oil0)
+    free = net.free
+    for j in range(free.size):
+        k = free[j]
+        oil[k] = oil0[k] + h * inflow[k]
+    C._pressure(pnet, oil, x_end, geo, p, dpdm)
+    istats[:] = 0
+    istats[C.IS_RHS] = 1
+
+
+@kernel
+def chamber_pressures(pnet, effort, pressure, actuators, every):
+    """Write into ``pressure`` [Pa] the chamber (motor port) pressures of the actuators flagged in ``actuators``
+    (all of them if ``every``) that carry ``effort`` [N | N·m] with rigid oil: the loaded side at p_ref + |effort|/A,
+    the other at p_ref."""
+    net = C._deref(pnet)
+    ref = net.sc[C.S_PREF]
+    cyl, ci, mi = net.cyl, net.cyl_i, net.mot_i
+    for c in range(ci.shape[0]):
+        a = ci[c, CI_ACT]
+        if every or actuators[a]:
+            pressure[ci[c, CI_CAP]] = ref + maximum(effort[a], 0.0) / cyl[c, C.CYL_CAP_AREA]
+            pressure[ci[c, CI_ROD]] = ref + maximum(-effort[a], 0.0) / cyl[c, C.CYL_ROD_AREA]
+    for i in range(mi.shape[0]):
+        a = mi[i, MI_ACT]
+        if every or actuators[a]:
+            rate = net.mot[i] / (2.0 * np.pi)
+            pressure[mi[i, MI_A]] = ref + maximum(effort[a], 0.0) / rate
+            pressure[mi[i, MI_B]] = ref + maximum(-effort[a], 0.0) / rate
+
+
+@kernel
+def oil_from_pressure(pnet, pressure, x, geo, oil):
+    """Oil content m = V(x, p)·φ(p) [m³] of every node into ``oil`` (NaN for fixed nodes); ``geo``: scratch (n)."""
+    net = C._deref(pnet)
+    C._geometric_volume(pnet, x, geo)
+    for k in range(oil.size):
+        if net.fixed[k]:
+            oil[k] = math.nan
+            continue
+        extra, _ = C._node_extra(pnet, k, pressure[k])
+        phi, _ = C._fill(pnet, pressure[k])
+        oil[k] = (geo[k] + extra) * phi
+
+
+@kernel
+def incompressible_finish(pnet, const, slope, lower, upper, v_end, x_end, geo, effort, pressure, oil):
+    """End of an incompressible step: the applied ``effort`` = clip(law(v⁺), lower, upper), the node pressures
+    (fixed nodes at their pressure, chambers from the effort, others at p_ref) and the oil they hold at ``x_end``."""
+    net = C._deref(pnet)
+    for i in range(effort.size):
+        effort[i] = clip(const[i] + slope[i] * v_end[i], lower[i], upper[i])
+    ref = net.sc[C.S_PREF]
+    for k in range(pressure.size):
+        pressure[k] = net.node[k, C.NODE_FIXED_P] if net.fixed[k] else ref
+    chamber_pressures(pnet, effort, pressure, effort, True)
+    oil_from_pressure(pnet, pressure, x_end, geo, oil)
+
+
+@kernel
+def _incompressible_metering(pnet, T, a, spool, area):
+    """Direction [-], inlet area A_in and the metered force (F_d, R) of incompressible actuator ``a`` (:func:`metered_force`)."""
+    net = C._deref(pnet)
+    edges = T.edges
+    supply_edge = edges[a, E_EXTEND_SUPPLY]
+    direction = 0.0
+    if supply_edge >= 0:
+        valve = net.or_valve[supply_edge]
+        direction = direction_of(spool[valve], net.valve[valve, V_OVERLAP])
+    extend = direction >= 0
+    a_in = T.extend_area[a] if extend else T.retract_area[a]
+    a_out = T.retract_area[a] if extend else T.extend_area[a]
+    e_in = edges[a, E_EXTEND_SUPPLY] if extend else edges[a, E_RETRACT_SUPPLY]
+    e_out = edges[a, E_EXTEND_RETURN] if extend else edges[a, E_RETRACT_RETURN]
+    j_in = E_EXTEND_SUPPLY if extend else E_RETRACT_SUPPLY
+    j_out = E_EXTEND_RETURN if extend else E_RETRACT_RETURN
+    c_in = T.edge_cd[a, j_in] * area[e_in] if e_in >= 0 else 0.0
+    c_out = T.edge_cd[a, j_out] * area[e_out] if e_out >= 0 else 0.0
+    p_t = net.sc[C.S_PREF]
+    drive, resist = metered_force(direction, a_in, a_out, c_in, c_out, T.scalars[IS_SUPPLY], p_t, T.scalars[IS_DENSITY], p_t)
+    return direction, a_in, drive, resist
+
+
+@kernel
+def incompressible_law(pnet, T, spool, speed, velocity, effective_mass, dt, area, law, bounds):
+    """The incompressible effort law of a step (CouplingIncompressible; see the module docstring) into ``law`` =
+    (const, slope) (effort = const + slope·v⁺) and ``bounds`` = (lower, upper) [N | N·m], at the step's end spools
+    ``spool``, pump speeds ``speed`` [rev/s], start velocities and effective masses (NaN or inf: unknown);
+    ``area``: scratch (orifice branches)."""
+    net = C._deref(pnet)
+    const, slope = law
+    lower, upper = bounds
+    na = velocity.size
+    edges = T.edges
+    metered = False
+    for a in range(na):
+        for j in range(edges.shape[1]):
+            if edges[a, j] >= 0:
+                metered = True
+    for a in range(na):
+        lower[a], upper[a] = T.force_lower[a], T.force_upper[a]
+    gain0 = T.scalars[IS_GAIN]
+    if not metered:  # no metering valve reaches any actuator: rigid oil locks them all
+        for a in range(na):
+            const[a] = 0.0
+            slope[a] = -tracking_gain(gain0, effective_mass[a], dt)
+        return
+    C._valve_areas(pnet, spool, area)
+    demand = 0.0
+    for a in range(na):
+        direction, a_in, drive, resist = _incompressible_metering(pnet, T, a, spool, area)
+        if direction != 0:
+            demand += free_speed(drive, resist) * a_in
+    supply = 0.0
+    pump = net.pump
+    for i in range(pump.shape[0]):
+        supply += _pumps.flow(pump[i, P_DISP], speed[i], pump[i, P_EFF])
+    scale = minimum(1.0, supply / demand) if demand > 0 else 1.0
+    for a in range(na):
+        direction, a_in, drive, resist = _incompressible_metering(pnet, T, a, spool, area)
+        c, k = quadratic_damper(drive, resist, velocity[a])
+        free = free_speed(drive, resist)
+        # its share of the delivery as a speed: the free speed scaled with the others (exactly the free speed
+        # when the pumps deliver enough, so that the pump limit below never engages on round-off)
+        cap = free * scale if direction != 0 and a_in > 0 else 0.0
+        # pump-limited (its share is slower than its valve would let it run unloaded): track the share speed with
+        # at most the force the metering edges pass at the current speed, so a load the valve cannot carry at that
+        # speed slows it to the valve's speed (a damper below the share would overshoot it within one step)
+        pump_limited = direction != 0 and math.isfinite(resist) and cap < free
+        track = direction == 0 or not math.isfinite(resist) or pump_limited or abs(velocity[a]) >= cap
+        target = 0.0 if direction == 0 else direction * cap
+        damper_now = c + k * velocity[a]  # F_d − R·v·|v| at the start speed
+        if pump_limited and direction > 0:
+            upper[a] = maximum(minimum(upper[a], damper_now), lower[a])
+        if pump_limited and direction < 0:
+            lower[a] = minimum(maximum(lower[a], damper_now), upper[a])
+        if track:
+            c, k = bounded_tracker(target, velocity[a], tracking_gain(gain0, effective_mass[a], dt), lower[a], upper[a])
+        const[a], slope[a] = c, k
+
+
+@kernel
+def mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, law, bounds, scratch):
+    """The law of CouplingMixed for its rigid actuators, written over the inner coupling's law ``law`` = (const,
+    slope) (compressible actuators unchanged), with the bounds ``bounds`` = (lower, upper) [N | N·m].
+
+    ``supply`` = (p_P [Pa], ∂p_P/∂v [Pa·s/m], v_g [m/s]) per rigid branch: the supply pressure at the
+    linearisation's velocities v_g, its gradient with respect to the branch's own actuator velocity (zero for an
+    explicit inner coupling).  ``spool0``, ``command``: start spools and commands (the law takes the end spools);
+    ``scratch``: 4·actuators entries."""
+    net = C._deref(pnet)
+    const, slope = law
+    lower, upper = bounds
+    p_supply, dp_dv, v_guess = supply
+    na = velocity.size
+    friction, o = C._take(scratch, 0, na)
+    fslope, o = C._take(scratch, o, na)
+    target, o = C._take(scratch, o, na)
+    tracking, o = C._take(scratch, o, na)
+    for a in range(na):
+        lower[a], upper[a] = R.force_lower[a], R.force_upper[a]
+        tracking[a] = 1.0 if R.rigid[a] else 0.0
+        target[a] = 0.0
+    C._friction_effort(pnet, velocity, friction, fslope)
+    rho, pref, floor, top = R.scalars[RS_DENSITY], net.sc[C.S_PREF], net.sc[C.S_FLOOR], R.scalars[RS_TOP]
+    for k in range(R.actuator.size):
+        a, valve = R.actuator[k], R.valve[k]
+        overlap = net.valve[valve, V_OVERLAP]
+        s = _valve.spool_step(spool0[valve], clip(command[valve], -1.0, 1.0), net.valve[valve, V_TAU], dt)
+        direction = direction_of(R.sign[k] * s, overlap)
+        extend = direction >= 0
+        a_in = R.extend_area[k] if extend else R.retract_area[k]
+        a_out = R.retract_area[k] if extend else R.extend_area[k]
+        edge = R.cd[k] * (R.base_area[k] + R.max_area[k] * _valve.metering_opening(abs(s), overlap))
+        p_tank = net.node[R.tank[k], C.NODE_FIXED_P]
+        drive, resist = metered_force(direction, a_in, a_out, edge, edge, p_supply[k], p_tank, rho, pref)
+        c, kk = quadratic_damper(drive, resist, velocity[a])
+        # live supply: + d·A_in·∂p_P/∂v·(v⁺ − v_g), a (negative) stiffness of the supply's oil column
+        supply_slope = direction * a_in * dp_dv[k]
+        fs = minimum(fslope[a], 0.0)
+        c = c - supply_slope * v_guess[k] + friction[a] - fs * velocity[a]
+        kk = kk + supply_slope + fs
+        # beyond its free speed (e.g. a spool just past its overlap) the actuator tracks that speed
+        free = free_speed(drive, resist)
+        damper = direction != 0 and math.isfinite(resist) and abs(velocity[a]) < free
+        const[a], slope[a] = (c, kk) if damper else (0.0, 0.0)
+        tracking[a] = 0.0 if damper else 1.0
+        if direction != 0:  # direction·nan_to_num(free)
+            target[a] = direction * (0.0 if free != free else (free if free < np.inf else 1.7976931348623157e308))
+        else:
+            target[a] = 0.0
+        if damper:  # an open valve: the force the supply can give, F at p_P in [cavitation floor, highest relief]
+            low_end = metered_force(direction, a_in, a_out, edge, edge, floor, p_tank, rho, pref)[0]
+            high_end = metered_force(direction, a_in, a_out, edge, edge, top, p_tank, rho, pref)[0]
+            offset = c + kk * velocity[a] - drive  # damper and friction at the start velocity
+            lower[a] = minimum(low_end, high_end) + offset
+            upper[a] = maximum(low_end, high_end) + offset
+    gain0 = R.scalars[RS_GAIN]
+    for a in range(na):
+        if tracking[a] != 0.0:
+            const[a], slope[a] = bounded_tracker(target[a], velocity[a], tracking_gain(gain0, effective_mass[a], dt),
+                                                 lower[a], upper[a])
+
+
+# ----------------------------------------------------------------------------
+# Entry points called from Python (allocate their outputs), cached on disk under the sources' fingerprint
+# ----------------------------------------------------------------------------
+@C._jit
+def _explicit_step_python(F, I, R, start, x_end, h):
+    net = C._unpack(F, I)
+    pnet = C._ref(net)
+    n, nb = net.ic[C.IC_N], net.ic[C.IC_NB]
+    W = np.empty(explicit_work_size(net.ic))
+    oil, p, spool, flow = np.empty(n), np.empty(n), np.empty(start[1].size), np.empty(nb)
+    dflow = np.empty((nb, C._W_BR))
+    istats = np.zeros(6, np.int64)
+    explicit_substep(pnet, R, W, start, x_end, h, C.StepOut(oil, p, spool, flow, dflow, istats))
+    return oil, p, spool, flow
+
+
+@C._jit
+def _incompressible_law_python(F, I, T, spool0, command, speed, velocity, effective_mass, dt):
+    net = C._unpack(F, I)
+    pnet = C._ref(net)
+    na = velocity.size
+    const, slope, lower, upper = np.empty(na), np.empty(na), np.empty(na), np.empty(na)
+    area, spool = np.empty(net.ic[C.IC_O1] - net.ic[C.IC_O0]), np.empty(spool0.size)
+    C._spool_end(pnet, spool0, command, dt, spool)
+    incompressible_law(pnet, T, spool, speed, velocity, effective_mass, dt, area, (const, slope), (lower, upper))
+    return spool, const, slope, lower, upper
+
+
+@C._jit
+def _mixed_law_python(F, I, R, spool0, command, velocity, effective_mass, dt, supply, const, slope):
+    net = C._unpack(F, I)
+    pnet = C._ref(net)
+    na = velocity.size
+    lower, upper = np.empty(na), np.empty(na)
+    mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, (const, slope), (lower, upper),
+              np.empty(4 * na))
+    return const, slope, lower, upper
+
+
+@C._jit
+def _incompressible_finish_python(F, I, const, slope, lower, upper, v_end, x_end):
+    net = C._unpack(F, I)
+    pnet = C._ref(net)
+    n, na = net.ic[C.IC_N], v_end.size
+    effort, pressure, oil = np.empty(na), np.empty(n), np.empty(n)
+    incompressible_finish(pnet, const, slope, lower, upper, v_end, x_end, np.empty(n), effort, pressure, oil)
+    return effort, pressure, oil
+
+
+@C._jit
+def _chamber_pressures_python(F, I, effort, pressure, actuators):
+    net = C._unpack(F, I)
+    chamber_pressures(C._ref(net), effort, pressure, actuators, False)
+
+
+def _cached(fingerprint):
+    """The entry points above behind numba's disk cache, keyed (through the closure variable ``fingerprint``,
+    :data:`hydraulics._jit.FINGERPRINT`) by every kernel source they compile in."""
+
+    def explicit_step(F, I, R, start, x_end, h):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _explicit_step_python(F, I, R, start, x_end, h)
+
+    def incompressible_law_entry(F, I, T, spool0, command, speed, velocity, effective_mass, dt):
+        if fingerprint is None:  # never (see explicit_step)
+            raise ValueError("no fingerprint")
+        return _incompressible_law_python(F, I, T, spool0, command, speed, velocity, effective_mass, dt)
+
+    def mixed_law_entry(F, I, R, spool0, command, velocity, effective_mass, dt, supply, const, slope):
+        if fingerprint is None:  # never (see explicit_step)
+            raise ValueError("no fingerprint")
+        return _mixed_law_python(F, I, R, spool0, command, velocity, effective_mass, dt, supply, const, slope)
+
+    def incompressible_finish_entry(F, I, const, slope, lower, upper, v_end, x_end):
+        if fingerprint is None:  # never (see explicit_step)
+            raise ValueError("no fingerprint")
+        return _incompressible_finish_python(F, I, const, slope, lower, upper, v_end, x_end)
+
+    def chamber_pressures_entry(F, I, effort, pressure, actuators):
+        if fingerprint is None:  # never (see explicit_step)
+            raise ValueError("no fingerprint")
+        _chamber_pressures_python(F, I, effort, pressure, actuators)
+
+    entries = (explicit_step, incompressible_law_entry, mixed_law_entry, incompressible_finish_entry,
+               chamber_pressures_entry)
+    if not C.JIT_ENABLED:  # NUMBA_DISABLE_JIT=1: plain Python
+        return entries
+    return tuple(C._numba_cached(f) for f in entries)
+
+
+(explicit_step_entry, incompressible_law_entry, mixed_law_entry, incompressible_finish_entry,
+ chamber_pressures_entry) = _cached(FINGERPRINT)
+
+__all__ = ["IncompressibleTable", "RigidTable", "pack_incompressible", "pack_rigid", "pack_network",
+           "flatten_incompressible", "unflatten_incompressible", "flatten_rigid", "unflatten_rigid", "explicit_substep",
+           "incompressible_law", "mixed_law", "chamber_pressures", "incompressible_finish", "metered_force",
+           "quadratic_damper", "bounded_tracker", "free_speed", "tracking_gain"]
