@@ -1,5 +1,5 @@
 """Property tests: every compiled component law (``hydraulics/components/*``) against its independent numpy
-formulation (``hydraulics.laws``, element-wise on arrays, the oracle), on random inputs.
+formulation (``tests/reference/laws.py``, element-wise on arrays, the oracle), on random inputs.
 
 The two are written differently (array ``np.where``/``np.clip`` against scalar branches; ``s**0.25`` and
 ``a**1.5`` against nested square roots; the orifice law from C_d, ρ, ν against its packed constants k, c), so
@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hydraulics import laws
+from reference import laws
 from hydraulics._compiled import fill_ratio_nb
 from hydraulics.components import accumulator, check_valve, cylinder, motor, orifice, pumps, ramps, relief, valve_4_3
 from hydraulics.fluid import Fluid
@@ -106,6 +106,18 @@ def test_pressure_force(p_cap, p_rod, cap_area, rod_fraction, ambient):
     scale = max(abs(p_cap) * cap_area, abs(p_rod) * rod_area, ambient * cap_area)
     close((cylinder.pressure_force(p_cap, p_rod, cap_area, rod_area, ambient),),
           (laws.cylinder_pressure_force(p_cap, p_rod, cap_area, rod_area, ambient),), scale=scale)
+
+
+@EXAMPLES
+@given(st.floats(1e7, 3e9), st.floats(1e-5, 1e-1), st.floats(1e-6, 1e-1), st.floats(1e-5, 1e-1), st.floats(1e-6, 1e-1),
+       st.floats(1e-3, 1e5))
+def test_hydraulic_stiffness_and_frequency(beta, cap_area, cap_volume, rod_area, rod_volume, mass):
+    """Oil-column stiffness β·A²/V of a chamber and Merritt's frequency sqrt(Σk/m) of an actuator."""
+    k_cap = cylinder.hydraulic_stiffness(beta, cap_area, cap_volume)
+    k_rod = cylinder.hydraulic_stiffness(beta, rod_area, rod_volume)
+    close((k_cap,), (laws.hydraulic_stiffness(beta, cap_area, cap_volume),))
+    close((cylinder.hydraulic_natural_frequency(k_cap + k_rod, mass),),
+          (laws.hydraulic_natural_frequency(mass, beta, cap_area, cap_volume, beta, rod_area, rod_volume),))
 
 
 @EXAMPLES
