@@ -9,6 +9,7 @@ terms that cancel in it (a few ulp of pow against sqrt), zero slack on exact pie
 
 from __future__ import annotations
 
+import math
 
 import numpy as np
 import pytest
@@ -167,6 +168,21 @@ def test_fill_ratio(p, air, index, beta):
     fluid = Fluid(bulk_modulus=beta, air_fraction=air, polytropic_index=index)
     phi, dphi = fluid.fill_ratio(p)
     close(fill_ratio_nb(p, fluid.reference_pressure, beta, air, index), (phi, dphi))
+
+
+@EXAMPLES
+@given(st.sampled_from([-1.0, 0.0, 1.0]), st.floats(1e-4, 1e-1), st.floats(1e-4, 1e-1), st.floats(0.0, 1e-4),
+       st.floats(0.0, 1e-4), st.floats(1e5, 4e7), st.floats(0.0, 1e6), density, st.floats(0.0, 2e5))
+def test_metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out, supply, tank, rho, ambient):
+    """Rigid-oil force of a valve-metered actuator: drive force and velocity-squared resistance (inf when shut)."""
+    kernel = valve_4_3.metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out, supply, tank, rho, ambient)
+    with np.errstate(divide="ignore"):
+        oracle = laws.metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out, supply, tank, rho, ambient)
+    close(kernel[:1], oracle[:1], scale=max(supply, tank, ambient) * max(area_in, area_out))
+    if np.isfinite(oracle[1]):
+        assert kernel[1] == pytest.approx(float(oracle[1]), rel=RTOL)
+    else:
+        assert kernel[1] == math.inf and oracle[1] == math.inf
 
 
 def test_oracles_are_independent_formulations():
