@@ -177,7 +177,8 @@ def test_metered_actuator_force(direction, area_in, area_out, orifice_in, orific
     """Rigid-oil force of a valve-metered actuator: drive force and velocity-squared resistance (inf when shut)."""
     kernel = valve_4_3.metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out, supply, tank, rho, ambient)
     with np.errstate(divide="ignore"):
-        oracle = laws.metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out, supply, tank, rho, ambient)
+        oracle = laws.metered_actuator_force(direction, area_in, area_out, np.float64(orifice_in), np.float64(orifice_out),
+                                             supply, tank, rho, ambient)
     close(kernel[:1], oracle[:1], scale=max(supply, tank, ambient) * max(area_in, area_out))
     if np.isfinite(oracle[1]):
         assert kernel[1] == pytest.approx(float(oracle[1]), rel=RTOL)

@@ -173,3 +173,31 @@ def test_batches_broadcast_over_leading_axes(case):
     energy = stored_energy_at(m, oil, p, x)
     assert energy.shape == (3, 4)
     assert energy[2, 3] == pytest.approx(stored_energy_at(m, oil[2, 3], p[2, 3], x[2, 3]), rel=1e-13)
+
+
+def test_methods_agree_with_the_oracle_under_disable_jit():
+    """With NUMBA_DISABLE_JIT=1 the same kernels run as plain Python and still agree with the oracle."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parent
+    script = (
+        "import sys; sys.path.insert(0, sys.argv[1])\n"
+        "import numpy as np, test_network_oracle as T\n"
+        "from reference import network_eval as ref\n"
+        "for case in ('all_kinds', 'excavator:rigid_front', 'law_branches'):\n"
+        "    m = T.model(case); x, p, oil, spool, speed, v = T.sample(m, 3); a = m.valve_areas(spool)\n"
+        "    T.close(a, ref.valve_areas(m, spool))\n"
+        "    T.close(m.pressure(oil, x)[0], ref.pressure(m, oil, x)[0], atol=T.pressure_atol(m))\n"
+        "    T.close(m.branch_flows(p, a, speed, v).flow, ref.branch_flows(m, p, a, speed, v).flow)\n"
+        "    T.close(m.chamber_stiffness(p, x), ref.chamber_stiffness(m, p, x))\n"
+        "    T.close(m.actuator_effort(p, v)[0], ref.actuator_effort(m, p, v)[0])\n"
+        "print('agree')\n"
+    )
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1")
+    result = subprocess.run([sys.executable, "-W", "ignore", "-c", script, str(here)], env=env, capture_output=True,
+                            text=True, timeout=600)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "agree"
