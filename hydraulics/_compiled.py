@@ -1640,6 +1640,7 @@ def _effort_pressure_gradient(pnet, epg):
 
 @_jit
 def _eval_geometric_volume(F, I, X):
+    """NetworkModel.geometric_volume [m³] of every row (sample) of positions ``X``."""
     net = _unpack(F, I)
     pnet = _ref(net)
     out = np.empty((X.shape[0], net.ic[IC_N]))
@@ -1650,6 +1651,7 @@ def _eval_geometric_volume(F, I, X):
 
 @_jit
 def _eval_extra_volume(F, I, P):
+    """NetworkModel.extra_volume: wall + accumulator volume [m³] and its p-derivative at every row of pressures ``P``."""
     net = _unpack(F, I)
     pnet = _ref(net)
     extra, dextra = np.empty(P.shape), np.empty(P.shape)
@@ -1661,6 +1663,7 @@ def _eval_extra_volume(F, I, P):
 
 @_jit
 def _eval_accumulator_liquid(F, I, P):
+    """Accumulator liquid volume [m³] and derivative at every row of accumulator pressures ``P``."""
     net = _unpack(F, I)
     acc = net.acc
     liquid, dliquid = np.empty(P.shape), np.empty(P.shape)
@@ -1673,6 +1676,7 @@ def _eval_accumulator_liquid(F, I, P):
 
 @_jit
 def _eval_chamber_volumes(F, I, X):
+    """NetworkModel.chamber_volumes: (V_cap, V_rod, dV_cap/dx, dV_rod/dx) × rows × cylinders."""
     net = _unpack(F, I)
     cyl, ci = net.cyl, net.cyl_i
     out = np.empty((4, X.shape[0], cyl.shape[0]))
@@ -1686,6 +1690,7 @@ def _eval_chamber_volumes(F, I, X):
 
 @_jit
 def _eval_volume_position_gradient(F, I, x):
+    """NetworkModel.volume_position_gradient: ∂V/∂x [m²] (n × na)."""
     net = _unpack(F, I)
     dvdx = np.empty((net.ic[IC_N], net.ic[IC_NA]))
     _volume_position_gradient(_ref(net), x, dvdx)
@@ -1694,6 +1699,7 @@ def _eval_volume_position_gradient(F, I, x):
 
 @_jit
 def _eval_pressure(F, I, OIL, X):
+    """NetworkModel.pressure: p [Pa] and ∂p/∂m of every row of oil contents ``OIL`` and positions ``X``."""
     net = _unpack(F, I)
     pnet = _ref(net)
     n = net.ic[IC_N]
@@ -1705,6 +1711,7 @@ def _eval_pressure(F, I, OIL, X):
 
 @_jit
 def _eval_oil(F, I, P, X):
+    """NetworkModel.oil_from_pressure: m = V(x, p)·φ(p) [m³] per row (NaN for fixed nodes)."""
     net = _unpack(F, I)
     pnet = _ref(net)
     n = net.ic[IC_N]
@@ -1720,6 +1727,7 @@ def _eval_oil(F, I, P, X):
 
 @_jit
 def _eval_bulk_modulus(F, I, P, V, DVDP):
+    """NetworkModel.effective_bulk_modulus [Pa] per row from volumes ``V`` and ∂V/∂p ``DVDP``."""
     net = _unpack(F, I)
     pnet = _ref(net)
     beta = np.empty(P.shape)
@@ -1733,6 +1741,7 @@ def _eval_bulk_modulus(F, I, P, V, DVDP):
 
 @_jit
 def _eval_chamber_stiffness(F, I, BETA, V):
+    """NetworkModel.chamber_stiffness: β·A²/V [N/m], rows × (cap, rod) × cylinders."""
     net = _unpack(F, I)
     cyl, ci = net.cyl, net.cyl_i
     out = np.empty((BETA.shape[0], 2, cyl.shape[0]))
@@ -1746,6 +1755,7 @@ def _eval_chamber_stiffness(F, I, BETA, V):
 
 @_jit
 def _eval_valve_areas(F, I, R, RI, spool):
+    """NetworkModel.valve_areas: orifice areas [m²], then the rigid branches' rates."""
     net = _unpack(F, I)
     pnet = _ref(net)
     nor = net.ic[IC_O1] - net.ic[IC_O0]
@@ -1758,6 +1768,7 @@ def _eval_valve_areas(F, I, R, RI, spool):
 
 @_jit
 def _eval_rigid(F, I, R, RI, spool):
+    """Rigid branches' direction [-], rate [m² or m³/rad] and metering area [m²] (rows 0, 1, 2)."""
     net = _unpack(F, I)
     pnet = _ref(net)
     out = np.empty((3, R.shape[0]))
@@ -1771,6 +1782,7 @@ def _eval_rigid(F, I, R, RI, spool):
 
 @_jit
 def _eval_law_pieces(F, I, p):
+    """NetworkModel.law_pieces at node pressures ``p`` [Pa]."""
     net = _unpack(F, I)
     pnet = _ref(net)
     ic = net.ic
@@ -1782,6 +1794,7 @@ def _eval_law_pieces(F, I, p):
 
 @_jit
 def _eval_branch_flows(F, I, RI, FM, p, area, speed, velocity):
+    """NetworkModel.branch_flows: flows [m³/s] and terminal derivatives (branches × TERMINAL_COLUMNS)."""
     net = _unpack(F, I)
     pnet = _ref(net)
     ic = net.ic
@@ -1799,6 +1812,7 @@ def _eval_branch_flows(F, I, RI, FM, p, area, speed, velocity):
 
 @_jit
 def _eval_flow_jacobian(F, I, dflow):
+    """NetworkModel.flow_jacobian (n × n) from the terminal derivatives ``dflow``."""
     net = _unpack(F, I)
     n = net.ic[IC_N]
     jq = np.empty((n, n))
@@ -1808,6 +1822,7 @@ def _eval_flow_jacobian(F, I, dflow):
 
 @_jit
 def _eval_flow_velocity_gradient(F, I, RI, FM, rates):
+    """NetworkModel.flow_velocity_gradient (n × na): motors and rigid branches at ``rates``."""
     net = _unpack(F, I)
     ic, br = net.ic, net.br
     grad = np.zeros((ic[IC_N], ic[IC_NA]))
@@ -1826,6 +1841,7 @@ def _eval_flow_velocity_gradient(F, I, RI, FM, rates):
 
 @_jit
 def _eval_pressure_effort(F, I, P):
+    """NetworkModel.pressure_effort [N or N·m] of every row of pressures ``P``."""
     net = _unpack(F, I)
     pnet = _ref(net)
     out = np.empty((P.shape[0], net.ic[IC_NA]))
@@ -1836,6 +1852,7 @@ def _eval_pressure_effort(F, I, P):
 
 @_jit
 def _eval_friction_effort(F, I, V):
+    """NetworkModel.friction_effort: −F_f [N] and its slope per row of velocities ``V``."""
     net = _unpack(F, I)
     pnet = _ref(net)
     effort, slope = np.empty(V.shape), np.empty(V.shape)
@@ -1846,6 +1863,7 @@ def _eval_friction_effort(F, I, V):
 
 @_jit
 def _eval_effort_pressure_gradient(F, I):
+    """NetworkModel.effort_pressure_gradient (na × n)."""
     net = _unpack(F, I)
     epg = np.empty((net.ic[IC_NA], net.ic[IC_N]))
     _effort_pressure_gradient(_ref(net), epg)

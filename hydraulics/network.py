@@ -74,7 +74,7 @@ def _rows(values, width):
     """``values`` of shape (..., width) as a C-contiguous float64 array of rows (one sample each) and its leading shape."""
     a = np.asarray(values, dtype=np.float64)
     lead = a.shape[:-1] if a.ndim else ()
-    rows = np.ascontiguousarray(a).reshape(-1, width)
+    rows = np.ascontiguousarray(a).reshape(math.prod(lead), width)  # (not -1: width may be 0)
     return (rows if rows.flags.writeable else rows.copy()), lead
 
 
@@ -976,7 +976,9 @@ class NetworkModel:
         given ``orifice_area`` from :meth:`valve_areas`, rigid branches."""
         RI, FM = self._packed[4:6]
         count = len(self.rigid_branch_actuator)
-        rates = np.zeros(count) if orifice_area is None else _vector(np.asarray(orifice_area, float)[self.branch_slices["orifice"].stop:], count)
+        rates = np.zeros(count)
+        if orifice_area is not None:
+            rates = _vector(np.asarray(orifice_area, float)[self.branch_slices["orifice"].stop:], count)
         return self._kernel("flow_velocity_gradient", RI, FM, rates)
 
     # ----------------------------------------------------------- efforts

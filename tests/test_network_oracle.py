@@ -58,7 +58,8 @@ def model(case: str) -> NetworkModel:
 def sample(m: NetworkModel, seed: int, rows=()):
     """Random actuator positions (cylinders a little past both ends too), node pressures from near the cavitation
     floor to 40 MPa (fixed nodes at their set pressure), oil contents of those pressures (some nodes 0.2 % short:
-    ~3 MPa lower, many into cavitation), spools past ±1, pump speeds and actuator velocities of both signs; ``rows``: leading shape."""
+    ~3 MPa lower, many into cavitation), spools past ±1, pump speeds and actuator velocities of both signs;
+    ``rows``: leading shape."""
     rng = np.random.default_rng(seed)
     na, n = m.actuator_count, m.node_count
     x = rng.uniform(-np.pi, np.pi, rows + (na,))
