@@ -1614,6 +1614,455 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     ledger[at + 3] -= h * fw
 
 
+# ----------------------------------------------------------------------------
+# NetworkModel's evaluation methods (hydraulics.network): the same node relations, flows and efforts on the
+# packed network, called from Python through the cached entries of :func:`evaluation_entries`.  The ``*_rows``
+# entries evaluate one sample per row of their 2-D inputs (the model's methods broadcast over leading axes).
+# Rigid actuators (``incompressible`` among compressible ones) enter through :func:`pack_rigid`: their chamber
+# nodes are fixed nodes of the packed network, their branches are the rigid branches listed there.
+# ----------------------------------------------------------------------------
+RIGID_COLUMNS = ("sign", "extend_area", "retract_area", "base_area", "max_area")
+"""Rigid-branch table: +1 when a positive spool feeds the cap (motor port a); displaced volume per unit travel
+extending and retracting [m² or m³/rad]; leakage and fully open area of the metering edges [m²]."""
+RG_SIGN, RG_EXTEND, RG_RETRACT, RG_BASE, RG_MAX = range(len(RIGID_COLUMNS))
+RIGID_INDEX_COLUMNS = ("valve", "actuator", "branch")
+"""Rigid-branch index table: metering valve, rigid actuator, branch number."""
+RI_VALVE, RI_ACT, RI_BRANCH = range(len(RIGID_INDEX_COLUMNS))
+
+
+def pack_rigid(model: NetworkModel):
+    """The rigid-branch tables (R: columns :data:`RIGID_COLUMNS`, RI: :data:`RIGID_INDEX_COLUMNS`) of ``model`` and
+    FM, the motor (index into the motor arrays) of every motor branch (a rigid motor has none)."""
+    count = len(model.rigid_branch_actuator)
+    R = _table(RIGID_COLUMNS, count, sign=model.rigid_sign, extend_area=model.rigid_extend_area,
+               retract_area=model.rigid_retract_area, base_area=model.rigid_base_area, max_area=model.rigid_max_area)
+    start = model.branch_slices.get("rigid", slice(0, 0)).start
+    RI = np.column_stack([np.asarray(c, np.int64).reshape(count) for c in
+                          (model.rigid_valve, model.rigid_branch_actuator, start + np.arange(count))]).reshape(count, 3)
+    FM = np.searchsorted(model.motor_actuator, model.motor_branch_actuator).astype(np.int64)
+    return np.ascontiguousarray(R), np.ascontiguousarray(RI, np.int64), np.ascontiguousarray(FM)
+
+
+@_kernel
+def _rigid_direction(pnet, R, RI, spool, j):
+    """Metering direction of rigid branch ``j`` [-]: sign of the spool seen from the cap side outside the overlap, else 0."""
+    net = _deref(pnet)
+    v = RI[j, RI_VALVE]
+    s = R[j, RG_SIGN] * spool[v]
+    if not _valve.metering_opening(abs(s), net.valve[v, V_OVERLAP]) > 0.0:
+        return 0.0
+    return 1.0 if s > 0.0 else -1.0
+
+
+@_kernel
+def _rigid_rate(pnet, R, RI, spool, j):
+    """Flow drawn from P per unit actuator velocity of rigid branch ``j`` [m² or m³/rad] (see NetworkModel.rigid_rates)."""
+    direction = _rigid_direction(pnet, R, RI, spool, j)
+    if direction > 0.0:
+        return R[j, RG_EXTEND]
+    if direction < 0.0:
+        return -R[j, RG_RETRACT]
+    return 0.0
+
+
+@_kernel
+def _law_piece(pnet, j, p):
+    """Piece (0, 1, 2) of its law that the ``j``-th switching branch (reliefs, check valves, pumps in that order) is on
+    at node pressures ``p`` [Pa] (NetworkModel.law_pieces)."""
+    net = _deref(pnet)
+    ic, br = net.ic, net.br
+    nrel, nchk = ic[IC_R1] - ic[IC_R0], ic[IC_C1] - ic[IC_C0]
+    if j < nrel:
+        b, rel = ic[IC_R0] + j, net.rel
+        return _ramps.ramp_piece(p[br[b, T_FROM]] - p[br[b, T_TO]] - rel[j, R_CRACK], rel[j, R_WIDTH])
+    if j < nrel + nchk:
+        i = j - nrel
+        b, chk = ic[IC_C0] + i, net.chk
+        z = (p[br[b, T_FROM]] - p[br[b, T_TO]] - chk[i, K_CRACK]) / (chk[i, K_FULL] - chk[i, K_CRACK])
+        return _ramps.ramp_piece(z, 1.0)
+    i = j - nrel - nchk
+    b, pump = ic[IC_P0] + i, net.pump
+    return _ramps.ramp_piece((pump[i, P_COMP] + pump[i, P_BAND] - p[br[b, T_TO]]) / pump[i, P_BAND], 1.0)
+
+
+@_kernel
+def _volume_position_gradient(pnet, x, dvdx):
+    """∂V_node/∂x_actuator [m²] at actuator positions ``x`` into ``dvdx`` (n × na)."""
+    net = _deref(pnet)
+    dvdx[:, :] = 0.0
+    cyl, ci = net.cyl, net.cyl_i
+    for c in range(cyl.shape[0]):
+        _, _, dvc, dvr = _cylinder.chamber_volumes(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA],
+                                                   cyl[c, CYL_ROD_AREA], cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
+        dvdx[ci[c, CI_CAP], ci[c, CI_ACT]] += dvc
+        dvdx[ci[c, CI_ROD], ci[c, CI_ACT]] += dvr
+
+
+@_kernel
+def _effort_pressure_gradient(pnet, epg):
+    """∂effort/∂p_node [m² or m³/rad] into ``epg`` (na × n): ±piston areas of cylinders, ±D/2π of motors."""
+    net = _deref(pnet)
+    epg[:, :] = 0.0
+    cyl, ci, mi = net.cyl, net.cyl_i, net.mot_i
+    for c in range(cyl.shape[0]):
+        epg[ci[c, CI_ACT], ci[c, CI_CAP]] += cyl[c, CYL_CAP_AREA]
+        epg[ci[c, CI_ACT], ci[c, CI_ROD]] += -cyl[c, CYL_ROD_AREA]
+    for i in range(mi.shape[0]):
+        epg[mi[i, MI_ACT], mi[i, MI_A]] += net.mot[i] / (2.0 * np.pi)
+        epg[mi[i, MI_ACT], mi[i, MI_B]] += -(net.mot[i] / (2.0 * np.pi))
+
+
+@_jit
+def _eval_geometric_volume(F, I, X):
+    """NetworkModel.geometric_volume [m³] of every row (sample) of positions ``X``."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    out = np.empty((X.shape[0], net.ic[IC_N]))
+    for r in range(X.shape[0]):
+        _geometric_volume(pnet, X[r], out[r])
+    return out
+
+
+@_jit
+def _eval_extra_volume(F, I, P):
+    """NetworkModel.extra_volume: wall + accumulator volume [m³] and its p-derivative at every row of pressures ``P``."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    extra, dextra = np.empty(P.shape), np.empty(P.shape)
+    for r in range(P.shape[0]):
+        for k in range(P.shape[1]):
+            extra[r, k], dextra[r, k] = _node_extra(pnet, k, P[r, k])
+    return extra, dextra
+
+
+@_jit
+def _eval_accumulator_liquid(F, I, P):
+    """Accumulator liquid volume [m³] and derivative at every row of accumulator pressures ``P``."""
+    net = _unpack(F, I)
+    acc = net.acc
+    liquid, dliquid = np.empty(P.shape), np.empty(P.shape)
+    for r in range(P.shape[0]):
+        for a in range(P.shape[1]):
+            liquid[r, a], dliquid[r, a] = _accumulator.liquid_volume_with_derivative(P[r, a], acc[a, ACC_GAS], acc[a, ACC_PRE],
+                                                                                     acc[a, ACC_INDEX])
+    return liquid, dliquid
+
+
+@_jit
+def _eval_chamber_volumes(F, I, X):
+    """NetworkModel.chamber_volumes: (V_cap, V_rod, dV_cap/dx, dV_rod/dx) × rows × cylinders."""
+    net = _unpack(F, I)
+    cyl, ci = net.cyl, net.cyl_i
+    out = np.empty((4, X.shape[0], cyl.shape[0]))
+    for r in range(X.shape[0]):
+        for c in range(cyl.shape[0]):
+            out[0, r, c], out[1, r, c], out[2, r, c], out[3, r, c] = _cylinder.chamber_volumes(
+                X[r, ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA], cyl[c, CYL_DEAD_CAP],
+                cyl[c, CYL_DEAD_ROD])
+    return out
+
+
+@_jit
+def _eval_volume_position_gradient(F, I, x):
+    """NetworkModel.volume_position_gradient: ∂V/∂x [m²] (n × na)."""
+    net = _unpack(F, I)
+    dvdx = np.empty((net.ic[IC_N], net.ic[IC_NA]))
+    _volume_position_gradient(_ref(net), x, dvdx)
+    return dvdx
+
+
+@_jit
+def _eval_pressure(F, I, OIL, X):
+    """NetworkModel.pressure: p [Pa] and ∂p/∂m of every row of oil contents ``OIL`` and positions ``X``."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    n = net.ic[IC_N]
+    p, dpdm, geo = np.empty((OIL.shape[0], n)), np.empty((OIL.shape[0], n)), np.empty(n)
+    for r in range(OIL.shape[0]):
+        _pressure(pnet, OIL[r], X[r], geo, p[r], dpdm[r])
+    return p, dpdm
+
+
+@_jit
+def _eval_oil(F, I, P, X):
+    """NetworkModel.oil_from_pressure: m = V(x, p)·φ(p) [m³] per row (NaN for fixed nodes)."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    n = net.ic[IC_N]
+    oil, geo = np.empty((P.shape[0], n)), np.empty(n)
+    for r in range(P.shape[0]):
+        _geometric_volume(pnet, X[r], geo)
+        for k in range(n):
+            extra, _ = _node_extra(pnet, k, P[r, k])
+            phi, _ = _fill(pnet, P[r, k])
+            oil[r, k] = math.nan if net.fixed[k] else (geo[k] + extra) * phi
+    return oil
+
+
+@_jit
+def _eval_bulk_modulus(F, I, P, V, DVDP):
+    """NetworkModel.effective_bulk_modulus [Pa] per row from volumes ``V`` and ∂V/∂p ``DVDP``."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    beta = np.empty(P.shape)
+    for r in range(P.shape[0]):
+        for k in range(P.shape[1]):
+            volume = 1.0 if net.fixed[k] else V[r, k]  # tanks: the oil's own modulus
+            phi, dphi = _fill(pnet, P[r, k])
+            beta[r, k] = volume * phi / (DVDP[r, k] * phi + volume * dphi)
+    return beta
+
+
+@_jit
+def _eval_chamber_stiffness(F, I, BETA, V):
+    """NetworkModel.chamber_stiffness: β·A²/V [N/m], rows × (cap, rod) × cylinders."""
+    net = _unpack(F, I)
+    cyl, ci = net.cyl, net.cyl_i
+    out = np.empty((BETA.shape[0], 2, cyl.shape[0]))
+    for r in range(BETA.shape[0]):
+        for c in range(cyl.shape[0]):
+            cap, rod = ci[c, CI_CAP], ci[c, CI_ROD]
+            out[r, 0, c] = _cylinder.hydraulic_stiffness(BETA[r, cap], cyl[c, CYL_CAP_AREA], V[r, cap])
+            out[r, 1, c] = _cylinder.hydraulic_stiffness(BETA[r, rod], cyl[c, CYL_ROD_AREA], V[r, rod])
+    return out
+
+
+@_jit
+def _eval_valve_areas(F, I, R, RI, spool):
+    """NetworkModel.valve_areas: orifice areas [m²], then the rigid branches' rates."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    nor = net.ic[IC_O1] - net.ic[IC_O0]
+    area = np.empty(nor + R.shape[0])
+    _valve_areas(pnet, spool, area[:nor])
+    for j in range(R.shape[0]):
+        area[nor + j] = _rigid_rate(pnet, R, RI, spool, j)
+    return area
+
+
+@_jit
+def _eval_rigid(F, I, R, RI, spool):
+    """Rigid branches' direction [-], rate [m² or m³/rad] and metering area [m²] (rows 0, 1, 2)."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    out = np.empty((3, R.shape[0]))
+    for j in range(R.shape[0]):
+        v = RI[j, RI_VALVE]
+        out[0, j] = _rigid_direction(pnet, R, RI, spool, j)
+        out[1, j] = _rigid_rate(pnet, R, RI, spool, j)
+        out[2, j] = R[j, RG_BASE] + R[j, RG_MAX] * _valve.metering_opening(abs(spool[v]), net.valve[v, V_OVERLAP])
+    return out
+
+
+@_jit
+def _eval_law_pieces(F, I, p):
+    """NetworkModel.law_pieces at node pressures ``p`` [Pa]."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    ic = net.ic
+    out = np.empty((ic[IC_R1] - ic[IC_R0]) + (ic[IC_C1] - ic[IC_C0]) + (ic[IC_P1] - ic[IC_P0]), np.int64)
+    for j in range(out.size):
+        out[j] = _law_piece(pnet, j, p)
+    return out
+
+
+@_jit
+def _eval_branch_flows(F, I, RI, FM, p, area, speed, velocity):
+    """NetworkModel.branch_flows: flows [m³/s] and terminal derivatives (branches × TERMINAL_COLUMNS)."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    ic = net.ic
+    nb = ic[IC_NB]
+    flow, dflow = np.zeros(nb), np.empty((nb, _W_BR))
+    _branch_flows(pnet, p, area, speed, velocity, flow, dflow)
+    for b in range(ic[IC_M0], ic[IC_M1]):  # the motor of each branch (a rigid motor has none)
+        i = b - ic[IC_M0]
+        flow[b] = _motor.flow(net.mot[FM[i]], velocity[net.mot_br_act[i]])
+    nor = ic[IC_O1] - ic[IC_O0]
+    for j in range(RI.shape[0]):
+        flow[RI[j, RI_BRANCH]] = area[nor + j] * velocity[RI[j, RI_ACT]]
+    return flow, dflow
+
+
+@_jit
+def _eval_flow_jacobian(F, I, dflow):
+    """NetworkModel.flow_jacobian (n × n) from the terminal derivatives ``dflow``."""
+    net = _unpack(F, I)
+    n = net.ic[IC_N]
+    jq = np.empty((n, n))
+    _flow_jacobian(_ref(net), dflow, jq)
+    return jq
+
+
+@_jit
+def _eval_flow_velocity_gradient(F, I, RI, FM, rates):
+    """NetworkModel.flow_velocity_gradient (n × na): motors and rigid branches at ``rates``."""
+    net = _unpack(F, I)
+    ic, br = net.ic, net.br
+    grad = np.zeros((ic[IC_N], ic[IC_NA]))
+    for b in range(ic[IC_M0], ic[IC_M1]):
+        i = b - ic[IC_M0]
+        a = net.mot_br_act[i]
+        rate = net.mot[FM[i]] / (2.0 * np.pi)
+        grad[br[b, T_FROM], a] += -rate
+        grad[br[b, T_TO], a] += rate
+    for j in range(RI.shape[0]):
+        b, a = RI[j, RI_BRANCH], RI[j, RI_ACT]
+        grad[br[b, T_FROM], a] += -rates[j]
+        grad[br[b, T_TO], a] += rates[j]
+    return grad
+
+
+@_jit
+def _eval_pressure_effort(F, I, P):
+    """NetworkModel.pressure_effort [N or N·m] of every row of pressures ``P``."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    out = np.empty((P.shape[0], net.ic[IC_NA]))
+    for r in range(P.shape[0]):
+        _pressure_effort(pnet, P[r], out[r])
+    return out
+
+
+@_jit
+def _eval_friction_effort(F, I, V):
+    """NetworkModel.friction_effort: −F_f [N] and its slope per row of velocities ``V``."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    effort, slope = np.empty(V.shape), np.empty(V.shape)
+    for r in range(V.shape[0]):
+        _friction_effort(pnet, V[r], effort[r], slope[r])
+    return effort, slope
+
+
+@_jit
+def _eval_effort_pressure_gradient(F, I):
+    """NetworkModel.effort_pressure_gradient (na × n)."""
+    net = _unpack(F, I)
+    epg = np.empty((net.ic[IC_NA], net.ic[IC_N]))
+    _effort_pressure_gradient(_ref(net), epg)
+    return epg
+
+
+EVALUATIONS = ("geometric_volume", "extra_volume", "accumulator_liquid", "chamber_volumes", "volume_position_gradient",
+               "pressure", "oil", "bulk_modulus", "chamber_stiffness", "valve_areas", "rigid", "law_pieces",
+               "branch_flows", "flow_jacobian", "flow_velocity_gradient", "pressure_effort", "friction_effort",
+               "effort_pressure_gradient")
+"""The evaluation entries of :func:`evaluation_entries` (``_eval_<name>``), one or more per NetworkModel method."""
+
+
+def _cached_evaluations(fingerprint):
+    """The ``_eval_*`` entries, each behind a wrapper cached on disk under ``fingerprint`` (see :func:`_cached_entries`;
+    a dispatcher must not be a closure variable: its pickle differs per process).  Each wrapper takes its entry's
+    arguments as one tuple."""
+
+    def geometric_volume(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_geometric_volume(*args)
+
+    def extra_volume(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_extra_volume(*args)
+
+    def accumulator_liquid(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_accumulator_liquid(*args)
+
+    def chamber_volumes(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_chamber_volumes(*args)
+
+    def volume_position_gradient(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_volume_position_gradient(*args)
+
+    def pressure(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_pressure(*args)
+
+    def oil(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_oil(*args)
+
+    def bulk_modulus(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_bulk_modulus(*args)
+
+    def chamber_stiffness(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_chamber_stiffness(*args)
+
+    def valve_areas(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_valve_areas(*args)
+
+    def rigid(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_rigid(*args)
+
+    def law_pieces(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_law_pieces(*args)
+
+    def branch_flows(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_branch_flows(*args)
+
+    def flow_jacobian(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_flow_jacobian(*args)
+
+    def flow_velocity_gradient(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_flow_velocity_gradient(*args)
+
+    def pressure_effort(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_pressure_effort(*args)
+
+    def friction_effort(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_friction_effort(*args)
+
+    def effort_pressure_gradient(args):
+        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
+            raise ValueError("no fingerprint")
+        return _eval_effort_pressure_gradient(*args)
+
+    entries = (geometric_volume, extra_volume, accumulator_liquid, chamber_volumes, volume_position_gradient, pressure, oil,
+               bulk_modulus, chamber_stiffness, valve_areas, rigid, law_pieces, branch_flows, flow_jacobian,
+               flow_velocity_gradient, pressure_effort, friction_effort, effort_pressure_gradient)
+    return {f.__name__: _numba_cached(f) for f in entries}
+
+
+_EVALUATION_ENTRIES = {}
+
+
+def evaluation_entries() -> dict:
+    """{name: kernel} for the names of :data:`EVALUATIONS`: each kernel takes the tuple of its ``_eval_*`` entry's
+    arguments (the packed network first); cached on disk like the stepper's entries, compiled on first use."""
+    if not _EVALUATION_ENTRIES:
+        _EVALUATION_ENTRIES.update(_cached_evaluations(FINGERPRINT))
+    return _EVALUATION_ENTRIES
+
+
 def _cached_entries(fingerprint):
     """The two entry points the stepper calls from Python, cached on disk (numba's ``cache=True``) under a key
     that includes ``fingerprint`` (a closure variable; :data:`hydraulics._jit.FINGERPRINT`): numba keys a cached

@@ -17,8 +17,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import laws
-
 from .network import NetworkModel, NetworkState
 
 ACCUMULATOR_QUADRATURE_POINTS = 16  # Gauss–Legendre points for ∫ V_liquid dp
@@ -49,14 +47,10 @@ def stored_energy_at(model: NetworkModel, oil, pressure, position, volumes=None)
         pa = p.take(model.accumulator_node, axis=-1)
         p0 = np.minimum(model.accumulator_precharge, pa)
         half, mid = 0.5 * (pa - p0), 0.5 * (pa + p0)
-        liquid = laws.accumulator_liquid_volume_with_derivative(
-            mid[..., None] + half[..., None] * nodes, model.accumulator_gas_volume[:, None],
-            model.accumulator_precharge[:, None], model.accumulator_index[:, None],
-        )[0]
-        np.add.at(extra_integral, (..., model.accumulator_node), half * (liquid @ weights))
-        current = laws.accumulator_liquid_volume_with_derivative(
-            pa, model.accumulator_gas_volume, model.accumulator_precharge, model.accumulator_index
-        )[0]
+        at = mid[..., None, :] + half[..., None, :] * nodes[:, None]  # (..., point, accumulator)
+        liquid = model.accumulator_liquid_volume(at)[0]
+        np.add.at(extra_integral, (..., model.accumulator_node), half * np.einsum("...ja,j->...a", liquid, weights))
+        current = model.accumulator_liquid_volume(pa)[0]
         np.add.at(geometric, (..., model.accumulator_node), -current)
     energy = oil * fluid.pressure_potential(p) - geometric * dp - extra_integral
     return np.sum(energy[..., ~model.node_fixed], axis=-1)

@@ -34,13 +34,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
-from . import laws
 from .circuit import Circuit
 from .components import BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, CircuitError
-from .components.relief import REGULARISATION as RELIEF_REGULARISATION  # [-] C¹ blend width / cracking pressure
+from .components.hose import line_conductance
 
 # Pressure inversion of compliant nodes (elastic walls, accumulators).
 PRESSURE_INVERSION_MAX_ITERATIONS = 60  # converges in < 8 from the rigid guess
@@ -64,13 +64,27 @@ not pressure states, and a rigid branch from their valve's P net to its T net ca
 their rods displace, so the supply they share with the compressible actuators stays exact."""
 
 
-def _per_sample(values, like):
-    """A fresh copy of the per-node ``values`` for every sample of the array ``like`` (shape like.shape[:-1] + values.shape)."""
-    if like.ndim <= 1:
-        return values.copy()  # one sample: the common, per-step case
-    out = np.empty(np.shape(like)[:-1] + values.shape)
-    out[...] = values
-    return out
+def _vector(values, size):
+    """``values`` as a C-contiguous, writeable float64 array of ``size`` entries (the one type the kernels take)."""
+    a = np.ascontiguousarray(values, dtype=np.float64).reshape(size)
+    return a if a.flags.writeable else a.copy()
+
+
+def _rows(values, width):
+    """``values`` of shape (..., width) as a C-contiguous float64 array of rows (one sample each) and its leading shape."""
+    a = np.asarray(values, dtype=np.float64)
+    lead = a.shape[:-1] if a.ndim else ()
+    rows = np.ascontiguousarray(a).reshape(math.prod(lead), width)  # (not -1: width may be 0)
+    return (rows if rows.flags.writeable else rows.copy()), lead
+
+
+def _broadcast_rows(*arrays):
+    """The (values, width) pairs ``arrays`` broadcast over their leading axes, each as rows (:func:`_rows`), and the
+    common leading shape."""
+    values = [np.asarray(a, dtype=np.float64) for a, _ in arrays]
+    lead = np.broadcast_shapes(*(v.shape[:-1] for v in values))
+    return tuple(_rows(v if v.shape[:-1] == lead else np.broadcast_to(v, lead + (w,)), w)[0]
+                 for v, (_, w) in zip(values, arrays)), lead
 
 
 class _UnionFind:
@@ -554,7 +568,7 @@ class NetworkModel:
                 if c.name not in line_set:
                     continue
                 add_branch(f"{c.name}.line", node(c, "a"), node(c, "b"))
-                lam.append(laws.line_conductance(c.params.inner_diameter, c.params.length, viscosity))
+                lam.append(line_conductance(c.params.inner_diameter, c.params.length, viscosity))
         slices["laminar"] = slice(start, len(branch_names))
 
         start = len(branch_names)
@@ -796,29 +810,40 @@ class NetworkModel:
     # The node relations below broadcast over leading axes: ``position`` of shape
     # (..., actuator_count) and ``pressure`` of shape (..., node_count) give results
     # of shape (..., node_count), one row per sample (the run logger derives whole
-    # batches this way).  Columns are picked with ``take(..., axis=-1)``: ``a[..., index]``
-    # would cost a single sample, the per-step case, about 1 µs more per pick.
+    # batches this way).  Each is one call of a compiled kernel on the packed model
+    # (:func:`hydraulics._compiled.evaluation_entries`), looping over the samples.
+    @cached_property
+    def _packed(self):
+        """(entries, F, I, R, RI, FM): the compiled evaluation kernels and this model packed for them
+        (:func:`hydraulics._compiled.pack_network`, :func:`hydraulics._compiled.pack_rigid`), made on first use."""
+        from . import _compiled
+
+        F, I = _compiled.pack_network(self, rigid=True)
+        return (_compiled.evaluation_entries(), F, I) + _compiled.pack_rigid(self)
+
+    def _kernel(self, name, *args):
+        """The evaluation kernel ``name`` on this model's packed arrays followed by ``args``."""
+        entries, F, I = self._packed[:3]
+        return entries[name]((F, I) + args)
+
     def geometric_volume(self, position):
         """Node volumes at the reference pressure [m³]: fixed volumes plus cylinder chambers at ``position``."""
-        volume = _per_sample(self.node_volume, position)
-        if len(self.cylinder_cap_node):
-            vc, vr, _, _ = self.chamber_volumes(position)
-            np.add.at(volume, (..., self.cylinder_cap_node), vc)
-            np.add.at(volume, (..., self.cylinder_rod_node), vr)
-        return volume
+        X, lead = _rows(position, self.actuator_count)
+        return self._kernel("geometric_volume", X).reshape(lead + (self.node_count,))
 
     def extra_volume(self, pressure):
         """Pressure-dependent node volume [m³] (hose walls, accumulator liquid) and its derivative [m³/Pa]."""
-        extra = self.node_wall_compliance * (pressure - self.fluid.reference_pressure)
-        dextra = _per_sample(self.node_wall_compliance, pressure)
-        if len(self.accumulator_node):
-            liquid, dliquid = laws.accumulator_liquid_volume_with_derivative(
-                pressure.take(self.accumulator_node, axis=-1), self.accumulator_gas_volume, self.accumulator_precharge,
-                self.accumulator_index,
-            )
-            np.add.at(extra, (..., self.accumulator_node), liquid)
-            np.add.at(dextra, (..., self.accumulator_node), dliquid)
-        return extra, dextra
+        P, lead = _rows(pressure, self.node_count)
+        extra, dextra = self._kernel("extra_volume", P)
+        return extra.reshape(lead + (self.node_count,)), dextra.reshape(lead + (self.node_count,))
+
+    def accumulator_liquid_volume(self, pressure):
+        """Liquid volume [m³] in every accumulator and its derivative [m³/Pa] at its own pressure ``pressure`` [Pa],
+        shape (..., accumulator_count) (:func:`hydraulics.components.accumulator.liquid_volume_with_derivative`)."""
+        count = len(self.accumulator_node)
+        P, lead = _rows(pressure, count)
+        liquid, dliquid = self._kernel("accumulator_liquid", P)
+        return liquid.reshape(lead + (count,)), dliquid.reshape(lead + (count,))
 
     @property
     def compliant_nodes(self) -> np.ndarray:
@@ -829,162 +854,97 @@ class NetworkModel:
 
     def node_volume_at(self, position, pressure):
         """Node volumes V(x, p) [m³] and ∂V/∂p [m³/Pa] (chambers, walls, accumulators), each of shape (..., node_count)."""
-        extra, dextra = self.extra_volume(pressure)
-        return self.geometric_volume(position) + extra, dextra
+        (X, P), lead = _broadcast_rows((position, self.actuator_count), (pressure, self.node_count))
+        extra, dextra = self._kernel("extra_volume", P)
+        shape = lead + (self.node_count,)
+        return (self._kernel("geometric_volume", X) + extra).reshape(shape), dextra.reshape(shape)
 
     def chamber_volumes(self, position):
-        """Cap and rod chamber volumes [m³] and dV/dx [m²] of every cylinder at actuator ``position``."""
-        return laws.chamber_volumes(
-            position.take(self.cylinder_actuator, axis=-1),
-            self.cylinder_stroke,
-            self.cylinder_cap_area,
-            self.cylinder_rod_area,
-            self.cylinder_dead_cap,
-            self.cylinder_dead_rod,
-        )
+        """Cap and rod chamber volumes [m³] and dV/dx [m²] of every cylinder at actuator ``position``, each of shape
+        (..., cylinder_count) (:func:`hydraulics.components.cylinder.chamber_volumes`)."""
+        X, lead = _rows(position, self.actuator_count)
+        out = self._kernel("chamber_volumes", X)
+        return tuple(out[j].reshape(lead + (len(self.cylinder_actuator),)) for j in range(4))
 
     def volume_position_gradient(self, position) -> np.ndarray:
         """∂V_node/∂x_actuator [m²], shape (node_count, actuator_count)."""
-        grad = np.zeros((self.node_count, self.actuator_count))
-        if len(self.cylinder_cap_node):
-            _, _, dvc, dvr = self.chamber_volumes(position)
-            np.add.at(grad, (self.cylinder_cap_node, self.cylinder_actuator), dvc)
-            np.add.at(grad, (self.cylinder_rod_node, self.cylinder_actuator), dvr)
-        return grad
+        return self._kernel("volume_position_gradient", _vector(position, self.actuator_count))
 
     def oil_from_pressure(self, pressure, position):
         """Oil content m = V(x, p)·φ(p) [m³] of every node (NaN for fixed nodes)."""
-        volume, _ = self.node_volume_at(position, pressure)
-        phi, _ = self.fluid.fill_ratio(pressure)
-        return np.where(self.node_fixed, np.nan, volume * phi)
+        (P, X), lead = _broadcast_rows((pressure, self.node_count), (position, self.actuator_count))
+        return self._kernel("oil", P, X).reshape(lead + (self.node_count,))
 
     def pressure(self, oil, position):
         """Absolute node pressures [Pa] from oil content and actuator positions.
 
         Returns
         -------
-        pressure : ndarray, shape (node_count,)
+        pressure : ndarray, shape (..., node_count)
             Solves m = V(x, p)·φ(p), floored at the cavitation pressure; fixed
-            nodes at their set pressure.
-        dp_doil : ndarray, shape (node_count,)
+            nodes at their set pressure.  Compliant nodes (elastic walls,
+            accumulators) by a safeguarded Newton iteration on ln(V·φ/m) to
+            ``PRESSURE_INVERSION_TOLERANCE``.
+        dp_doil : ndarray, shape (..., node_count)
             ∂p/∂m [Pa/m³] = 1/(∂V/∂p·φ + V·φ'); 0 for fixed and cavitating nodes.
         """
-        fluid = self.fluid
-        fixed = self.node_fixed
-        geometric = self.geometric_volume(position)
-        safe = np.where(fixed, 1.0, geometric)  # fixed nodes hold no oil state
-        p = fluid.pressure_from_fill_ratio(np.where(fixed, 1.0, oil / safe))
-        compliant = self.compliant_nodes
-        if len(compliant):
-            p = self._invert_compliant(oil, geometric, p, compliant)
-        floor = fluid.pressure_floor
-        cavitating = (p < floor) & ~fixed
-        p = np.where(cavitating, floor, p)
-        p = np.where(fixed, self.node_fixed_pressure, p)
-        extra, dvdp = self.extra_volume(p)
-        phi, dphi = fluid.fill_ratio(p)
-        dp_doil = np.where(fixed | cavitating, 0.0, 1.0 / np.where(fixed, 1.0, dvdp * phi + (geometric + extra) * dphi))
-        return p, dp_doil
-
-    def _invert_compliant(self, oil, geometric, rigid, nodes):
-        """Solve ln((V_g + V_e(p))·φ(p)) = ln m on the compliant ``nodes``; other entries of ``rigid`` are kept.
-
-        Safeguarded Newton from the rigid-volume pressure, bracketing the root
-        (the function is increasing in p) and bisecting when a Newton step
-        leaves the bracket; converged entries are frozen.
-        """
-        fluid = self.fluid
-        log_oil = np.log(oil[nodes])
-        p_full = rigid.copy()
-
-        def f(p):
-            p_full[nodes] = p
-            extra, dextra = self.extra_volume(p_full)
-            volume = geometric[nodes] + extra[nodes]
-            phi, dphi = fluid.fill_ratio(p)
-            return np.log(volume * phi) - log_oil, dextra[nodes] / volume + dphi / phi
-
-        p = rigid[nodes].copy()
-        value, slope = f(p)
-        lo = np.where(value <= 0, p, -np.inf)
-        hi = np.where(value > 0, p, np.inf)
-        for _ in range(PRESSURE_INVERSION_MAX_ITERATIONS):
-            done = np.abs(value) < PRESSURE_INVERSION_TOLERANCE
-            if np.all(done):
-                break
-            newton = p - value / slope
-            # without a lower bracket, at most halve the pressure (stays in the law's domain)
-            newton = np.where(np.isfinite(lo), newton, np.maximum(newton, np.where(p > 0, 0.5 * p, p - 1e6)))
-            bracketed = np.isfinite(lo) & np.isfinite(hi)
-            outside = (newton <= lo) | (newton >= hi)
-            p = np.where(done, p, np.where(bracketed & outside, 0.5 * (lo + hi), newton))
-            value, slope = f(p)
-            lo = np.where(value <= 0, np.maximum(lo, p), lo)
-            hi = np.where(value > 0, np.minimum(hi, p), hi)
-        p_full[nodes] = p
-        return p_full
+        (M, X), lead = _broadcast_rows((oil, self.node_count), (position, self.actuator_count))
+        p, dpdm = self._kernel("pressure", M, X)
+        return p.reshape(lead + (self.node_count,)), dpdm.reshape(lead + (self.node_count,))
 
     def effective_bulk_modulus(self, pressure, position, volumes=None):
-        """Effective bulk modulus of each node [Pa]: V·φ/(∂V/∂p·φ + V·φ'), including walls and accumulators.
+        """Effective bulk modulus of each node [Pa]: V·φ/(∂V/∂p·φ + V·φ'), including walls and accumulators
+        (tanks: the oil's own modulus φ/φ').
 
         ``volumes`` may pass :meth:`node_volume_at` of the same state to save recomputing it.
         """
         volume, dvdp = self.node_volume_at(position, pressure) if volumes is None else volumes
-        volume = np.where(self.node_fixed, 1.0, volume)  # tanks: report the oil's own modulus
-        phi, dphi = self.fluid.fill_ratio(pressure)
-        return volume * phi / (dvdp * phi + volume * dphi)
+        n = self.node_count
+        (P, V, D), lead = _broadcast_rows((pressure, n), (volume, n), (dvdp, n))
+        return self._kernel("bulk_modulus", P, V, D).reshape(lead + (n,))
 
     # ------------------------------------------------------------ flows
     def valve_areas(self, spool):
         """Open area [m²] of every orifice-law branch for the given spool positions, followed (when the
         network has rigid actuators) by the displacement rate of every rigid branch (:meth:`rigid_rates`)."""
-        area = self.orifice_base_area.copy()
-        if len(self.valve_names):
-            has_valve = self.orifice_valve >= 0
-            s = np.where(has_valve, spool[np.maximum(self.orifice_valve, 0)], 0.0)
-            overlap = np.where(has_valve, self.valve_overlap[np.maximum(self.orifice_valve, 0)], 0.0)
-            area = area + self.orifice_max_area * laws.metering_opening(self.orifice_sign * s, overlap)
-            area = area + self.orifice_centre_area * laws.centre_opening(s, overlap)
-        if len(self.rigid_branch_actuator):
-            area = np.concatenate([area, self.rigid_rates(spool)])
-        return area
+        R, RI = self._packed[3:5]
+        return self._kernel("valve_areas", R, RI, _vector(spool, len(self.valve_names)))
+
+    def _rigid(self, spool):
+        R, RI = self._packed[3:5]
+        return self._kernel("rigid", R, RI, _vector(spool, len(self.valve_names)))
 
     def rigid_direction(self, spool):
         """Metering direction of every rigid branch [-]: +1 when the spool feeds the cap (motor port a) from P,
         −1 the rod (port b), 0 while the spool is inside its overlap (closed)."""
-        s = self.rigid_sign * spool[self.rigid_valve]
-        return np.sign(s) * (laws.metering_opening(np.abs(s), self.valve_overlap[self.rigid_valve]) > 0)
+        return self._rigid(spool)[0]
 
     def rigid_rates(self, spool):
         """Flow drawn from P per unit actuator velocity [m² or m³/rad] of every rigid branch: the cap area
         (D/2π) feeding the extension, −rod area feeding the retraction, 0 closed.  With rigid oil the
         flow P → actuator is this rate times the velocity, whatever its sign (an overrunning load pushes
         oil back into P)."""
-        direction = self.rigid_direction(spool)
-        return np.where(direction > 0, self.rigid_extend_area, np.where(direction < 0, -self.rigid_retract_area, 0.0))
+        return self._rigid(spool)[1]
 
     def rigid_metering_area(self, spool):
-        """Open area [m²] of each rigid branch's metering edges (P → inlet, outlet → T) at ``spool``."""
-        s = np.abs(spool[self.rigid_valve])
-        return self.rigid_base_area + self.rigid_max_area * laws.metering_opening(s, self.valve_overlap[self.rigid_valve])
+        """Open area [m²] of each rigid branch's metering edges (P → inlet, outlet → T) at ``spool``:
+        leakage area + full area·opening(|s|) (:func:`hydraulics.components.valve_4_3.metering_opening`)."""
+        return self._rigid(spool)[2]
 
     def law_pieces(self, pressure) -> np.ndarray:
         """Which piece of its piecewise law every switching branch is on at ``pressure`` [Pa] (int array:
-        relief ramps, check-valve openings, pump compensators, in that order; see :func:`laws.ramp_piece`).
+        relief ramps, check-valve openings, pump compensators, in that order; see
+        :func:`hydraulics.components.ramps.ramp_piece`).
 
         A step whose start and end differ here crosses a kink of the flow laws (a relief cracking, a check
         valve opening fully, a compensator engaging): one Jacobian of the start does not describe it.
         """
-        dp = pressure[self.branch_from] - pressure[self.branch_to]
-        sl = self.branch_slices
-        relief = laws.ramp_piece(dp[sl["relief"]] - self.relief_cracking, RELIEF_REGULARISATION * self.relief_cracking)
-        check = laws.clip_piece((dp[sl["check"]] - self.check_cracking) / (self.check_full_open - self.check_cracking))
-        outlet = pressure[self.branch_to[sl["pump"]]]
-        pump = laws.clip_piece((self.pump_compensator + self.pump_band - outlet) / self.pump_band)
-        return np.concatenate([relief, check, pump]).astype(int)
+        return self._kernel("law_pieces", _vector(pressure, self.node_count))
 
     def branch_flows(self, pressure, orifice_area, pump_speed, actuator_velocity) -> BranchFlows:
-        """Flow [m³/s] of every branch and its pressure derivatives.
+        """Flow [m³/s] of every branch and its pressure derivatives (the component laws of
+        :mod:`hydraulics.components`: orifices, leaks, reliefs, check valves, pumps, motors, law branches; rigid
+        branches carry their rate times the actuator velocity).
 
         Parameters
         ----------
@@ -995,126 +955,48 @@ class NetworkModel:
         pump_speed : ndarray, shape (pump_count,)
             [rev/s].
         actuator_velocity : ndarray, shape (actuator_count,)
-            Motor shaft speeds [rad/s] are read from it.
+            Motor shaft speeds [rad/s] (and rigid actuators' velocities) are read from it.
         """
-        fluid = self.fluid
-        dp = pressure[self.branch_from] - pressure[self.branch_to]
-        nb = len(self.branch_names)
-        flow = np.zeros(nb)
-        dfrom = np.zeros(nb)
-        dto = np.zeros(nb)
-        sl = self.branch_slices
-
-        s = sl["orifice"]
-        q, g = laws.orifice_flow_with_derivative(orifice_area[s], self.orifice_cd, dp[s], fluid.density, fluid.kinematic_viscosity)
-        flow[s], dfrom[s], dto[s] = q, g, -g
-
-        s = sl["laminar"]
-        flow[s] = self.laminar_conductance * dp[s]
-        dfrom[s], dto[s] = self.laminar_conductance, -self.laminar_conductance
-
-        s = sl["relief"]
-        q, g = laws.relief_flow_with_derivative(
-            dp[s], self.relief_cracking, self.relief_gradient, RELIEF_REGULARISATION * self.relief_cracking
-        )
-        flow[s], dfrom[s], dto[s] = q, g, -g
-
-        s = sl["check"]
-        area, darea = laws.check_valve_area_with_derivative(dp[s], self.check_cracking, self.check_full_open, self.check_area, self.check_leakage)
-        q, g = laws.orifice_flow_with_derivative(area, self.check_cd, dp[s], fluid.density, fluid.kinematic_viscosity)
-        g = g + laws.orifice_flow_area_derivative(area, self.check_cd, dp[s], fluid.density, fluid.kinematic_viscosity) * darea
-        flow[s], dfrom[s], dto[s] = q, g, -g
-
-        s = sl["pump"]
-        outlet = pressure[self.branch_to[s]]
-        displacement, ddisp = laws.compensated_displacement_with_derivative(
-            self.pump_displacement, outlet, self.pump_compensator, self.pump_band
-        )
-        flow[s] = laws.pump_flow(displacement, pump_speed, self.pump_efficiency)
-        dto[s] = laws.pump_flow(ddisp, pump_speed, self.pump_efficiency)
-
-        s = sl["motor"]
-        flow[s] = laws.motor_flow(self.motor_displacement[self._flow_motor], actuator_velocity[self.motor_branch_actuator])
-
-        s = sl["rigid"]
-        if s.stop > s.start:
-            flow[s] = orifice_area[sl["orifice"].stop:] * actuator_velocity[self.rigid_branch_actuator]
-
-        s = sl.get("law", slice(0, 0))
-        if s.stop == s.start:
-            return BranchFlows(flow, dfrom, dto)
-        dpilot = np.zeros(nb)
-        for i, b in enumerate(range(s.start, s.stop)):  # the compiled law of each component, called from Python
-            pilot = self.branch_pilot[b]
-            law = BRANCH_LAWS[self.law_kind[i]].BRANCH_LAW
-            flow[b], dfrom[b], dto[b], dpilot[b] = law(self.law_table[i], pressure[self.branch_from[b]],
-                                                       pressure[self.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0)
-        return BranchFlows(flow, dfrom, dto, dpilot)
+        RI, FM = self._packed[4:6]
+        area = _vector(orifice_area, self.branch_slices["orifice"].stop + len(self.rigid_branch_actuator))
+        flow, dflow = self._kernel("branch_flows", RI, FM, _vector(pressure, self.node_count), area,
+                                   _vector(pump_speed, len(self.pump_names)), _vector(actuator_velocity, self.actuator_count))
+        sl = self.branch_slices.get("law", slice(0, 0))
+        pilot = dflow[:, 2].copy() if sl.stop > sl.start else None
+        return BranchFlows(flow, dflow[:, 0].copy(), dflow[:, 1].copy(), pilot)
 
     def flow_jacobian(self, flows: BranchFlows) -> np.ndarray:
         """∂(net inflow)/∂p, shape (node_count, node_count) [m³/(s·Pa)]."""
-        n = self.node_count
-        d = np.zeros((len(self.branch_names), n))
-        idx = np.arange(len(self.branch_names))
-        np.add.at(d, (idx, self.branch_from), flows.dflow_dfrom)
-        np.add.at(d, (idx, self.branch_to), flows.dflow_dto)
-        if flows.dflow_dpilot is not None:
-            piloted = self.branch_pilot >= 0
-            np.add.at(d, (idx[piloted], self.branch_pilot[piloted]), flows.dflow_dpilot[piloted])
-        return self.incidence @ d
-
-    @property
-    def _flow_motor(self) -> np.ndarray:
-        """Index into the motor arrays of each motor branch (rigid motors have none)."""
-        return np.searchsorted(self.motor_actuator, self.motor_branch_actuator)
+        pilot = np.zeros(len(self.branch_names)) if flows.dflow_dpilot is None else flows.dflow_dpilot
+        dflow = np.column_stack((flows.dflow_dfrom, flows.dflow_dto, pilot)).astype(float).reshape(len(self.branch_names), 3)
+        return self._kernel("flow_jacobian", np.ascontiguousarray(dflow))
 
     def flow_velocity_gradient(self, orifice_area=None) -> np.ndarray:
         """∂(net inflow)/∂v_actuator [m² or m³/rad], shape (node_count, actuator_count): motor branches and,
         given ``orifice_area`` from :meth:`valve_areas`, rigid branches."""
-        grad = np.zeros((self.node_count, self.actuator_count))
-        s = self.branch_slices["motor"]
-        rate = self.motor_displacement[self._flow_motor] / (2.0 * np.pi)
-        np.add.at(grad, (self.branch_from[s], self.motor_branch_actuator), -rate)
-        np.add.at(grad, (self.branch_to[s], self.motor_branch_actuator), rate)
-        s = self.branch_slices.get("rigid", slice(0, 0))
-        if s.stop > s.start:
-            rate = orifice_area[self.branch_slices["orifice"].stop:]
-            np.add.at(grad, (self.branch_from[s], self.rigid_branch_actuator), -rate)
-            np.add.at(grad, (self.branch_to[s], self.rigid_branch_actuator), rate)
-        return grad
+        RI, FM = self._packed[4:6]
+        count = len(self.rigid_branch_actuator)
+        rates = np.zeros(count)
+        if orifice_area is not None:
+            rates = _vector(np.asarray(orifice_area, float)[self.branch_slices["orifice"].stop:], count)
+        return self._kernel("flow_velocity_gradient", RI, FM, rates)
 
     # ----------------------------------------------------------- efforts
     def pressure_effort(self, pressure):
-        """Effort of the pressures on every actuator, shape (actuator_count,).
+        """Effort of the pressures on every actuator, shape (..., actuator_count).
 
         Cylinders: p_cap·A_cap − p_rod·A_rod − p_amb·(A_cap − A_rod) [N], with
         the ambient pressure = the fluid's reference pressure.  Motors:
         τ = D·(p_a − p_b)/(2π) [N·m].
         """
-        effort = np.zeros(self.actuator_count)
-        if len(self.cylinder_actuator):
-            effort[self.cylinder_actuator] = laws.cylinder_pressure_force(
-                pressure[self.cylinder_cap_node], pressure[self.cylinder_rod_node],
-                self.cylinder_cap_area, self.cylinder_rod_area, self.fluid.reference_pressure,
-            )
-        if len(self.motor_actuator):
-            effort[self.motor_actuator] = laws.pump_torque(
-                self.motor_displacement, pressure[self.motor_a_node] - pressure[self.motor_b_node]
-            )
-        return effort
+        P, lead = _rows(pressure, self.node_count)
+        return self._kernel("pressure_effort", P).reshape(lead + (self.actuator_count,))
 
     def friction_effort(self, velocity):
         """Seal friction acting on every actuator (−F_f(v), opposing motion) and its velocity derivative."""
-        effort = np.zeros(self.actuator_count)
-        slope = np.zeros(self.actuator_count)
-        if len(self.cylinder_actuator):
-            friction, dfriction = laws.friction_force_with_derivative(
-                velocity[self.cylinder_actuator], self.cylinder_coulomb, self.cylinder_static,
-                self.cylinder_stribeck, self.cylinder_viscous,
-            )
-            effort[self.cylinder_actuator] = -friction
-            slope[self.cylinder_actuator] = -dfriction
-        return effort, slope
+        V, lead = _rows(velocity, self.actuator_count)
+        effort, slope = self._kernel("friction_effort", V)
+        return effort.reshape(lead + (self.actuator_count,)), slope.reshape(lead + (self.actuator_count,))
 
     def actuator_effort(self, pressure, velocity):
         """Total effort (pressure + friction) on every actuator and its derivative with respect to its own velocity.
@@ -1127,22 +1009,16 @@ class NetworkModel:
 
     def effort_pressure_gradient(self) -> np.ndarray:
         """∂effort/∂p_node, shape (actuator_count, node_count) [m² or m³/rad]."""
-        grad = np.zeros((self.actuator_count, self.node_count))
-        np.add.at(grad, (self.cylinder_actuator, self.cylinder_cap_node), self.cylinder_cap_area)
-        np.add.at(grad, (self.cylinder_actuator, self.cylinder_rod_node), -self.cylinder_rod_area)
-        rate = self.motor_displacement / (2.0 * np.pi)
-        np.add.at(grad, (self.motor_actuator, self.motor_a_node), rate)
-        np.add.at(grad, (self.motor_actuator, self.motor_b_node), -rate)
-        return grad
+        return self._kernel("effort_pressure_gradient")
 
     def chamber_stiffness(self, pressure, position, volumes=None):
-        """Hydraulic stiffness β_eff·A²/V [N/m] of every cylinder's cap and rod chamber, shape (..., 2, cylinder_count).
+        """Hydraulic stiffness β_eff·A²/V [N/m] of every cylinder's cap and rod chamber, shape (..., 2, cylinder_count)
+        (:func:`hydraulics.components.cylinder.hydraulic_stiffness`).
 
         ``volumes`` may pass :meth:`node_volume_at` of the same state to save recomputing it.
         """
         volumes = self.node_volume_at(position, pressure) if volumes is None else volumes
         beta = self.effective_bulk_modulus(pressure, position, volumes)
-        chambers = np.concatenate([self.cylinder_cap_node, self.cylinder_rod_node])  # cap row, then rod row
-        area = np.concatenate([self.cylinder_cap_area, self.cylinder_rod_area])
-        stiffness = laws.hydraulic_stiffness(beta.take(chambers, axis=-1), area, volumes[0].take(chambers, axis=-1))
-        return stiffness.reshape(stiffness.shape[:-1] + (2, len(self.cylinder_cap_node)))
+        n = self.node_count
+        (B, V), lead = _broadcast_rows((beta, n), (volumes[0], n))
+        return self._kernel("chamber_stiffness", B, V).reshape(lead + (2, len(self.cylinder_actuator)))

@@ -1,6 +1,5 @@
 """Shared fixtures: paths and small circuits written inline."""
 
-import sys
 import tomllib
 from pathlib import Path
 
@@ -10,8 +9,6 @@ from hydraulics.circuit import parse_circuit
 from hydraulics.network import NetworkModel
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:  # the test-only oracles: ``from tests.reference import ...``
-    sys.path.insert(0, str(ROOT))
 MODELS = ROOT / "models"
 
 

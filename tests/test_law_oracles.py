@@ -1,5 +1,5 @@
 """Property tests: every compiled component law (``hydraulics/components/*``) against its independent numpy
-formulation (``hydraulics.laws``, element-wise on arrays, the oracle), on random inputs.
+formulation (``tests/reference/laws.py``, element-wise on arrays, the oracle), on random inputs.
 
 The two are written differently (array ``np.where``/``np.clip`` against scalar branches; ``s**0.25`` and
 ``a**1.5`` against nested square roots; the orifice law from C_d, ρ, ν against its packed constants k, c), so
@@ -9,13 +9,14 @@ terms that cancel in it (a few ulp of pow against sqrt), zero slack on exact pie
 
 from __future__ import annotations
 
+import math
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hydraulics import laws
+from reference import laws
 from hydraulics._compiled import fill_ratio_nb
 from hydraulics.components import accumulator, check_valve, cylinder, motor, orifice, pumps, ramps, relief, valve_4_3
 from hydraulics.fluid import Fluid
@@ -109,6 +110,18 @@ def test_pressure_force(p_cap, p_rod, cap_area, rod_fraction, ambient):
 
 
 @EXAMPLES
+@given(st.floats(1e7, 3e9), st.floats(1e-5, 1e-1), st.floats(1e-6, 1e-1), st.floats(1e-5, 1e-1), st.floats(1e-6, 1e-1),
+       st.floats(1e-3, 1e5))
+def test_hydraulic_stiffness_and_frequency(beta, cap_area, cap_volume, rod_area, rod_volume, mass):
+    """Oil-column stiffness β·A²/V of a chamber and Merritt's frequency sqrt(Σk/m) of an actuator."""
+    k_cap = cylinder.hydraulic_stiffness(beta, cap_area, cap_volume)
+    k_rod = cylinder.hydraulic_stiffness(beta, rod_area, rod_volume)
+    close((k_cap,), (laws.hydraulic_stiffness(beta, cap_area, cap_volume),))
+    close((cylinder.hydraulic_natural_frequency(k_cap + k_rod, mass),),
+          (laws.hydraulic_natural_frequency(mass, beta, cap_area, cap_volume, beta, rod_area, rod_volume),))
+
+
+@EXAMPLES
 @given(st.floats(-2.0, 2.0), st.floats(0.0, 1e5), st.floats(0.0, 2.0), st.floats(1e-4, 0.5), st.floats(0.0, 1e5))
 def test_friction(v, coulomb, static_ratio, stribeck, viscous):
     """Stribeck–Coulomb–viscous friction and its velocity derivative."""
@@ -155,6 +168,22 @@ def test_fill_ratio(p, air, index, beta):
     fluid = Fluid(bulk_modulus=beta, air_fraction=air, polytropic_index=index)
     phi, dphi = fluid.fill_ratio(p)
     close(fill_ratio_nb(p, fluid.reference_pressure, beta, air, index), (phi, dphi))
+
+
+@EXAMPLES
+@given(st.sampled_from([-1.0, 0.0, 1.0]), st.floats(1e-4, 1e-1), st.floats(1e-4, 1e-1), st.floats(0.0, 1e-4),
+       st.floats(0.0, 1e-4), st.floats(1e5, 4e7), st.floats(0.0, 1e6), density, st.floats(0.0, 2e5))
+def test_metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out, supply, tank, rho, ambient):
+    """Rigid-oil force of a valve-metered actuator: drive force and velocity-squared resistance (inf when shut)."""
+    kernel = valve_4_3.metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out, supply, tank, rho, ambient)
+    with np.errstate(divide="ignore"):
+        oracle = laws.metered_actuator_force(direction, area_in, area_out, np.float64(orifice_in), np.float64(orifice_out),
+                                             supply, tank, rho, ambient)
+    close(kernel[:1], oracle[:1], scale=max(supply, tank, ambient) * max(area_in, area_out))
+    if np.isfinite(oracle[1]):
+        assert kernel[1] == pytest.approx(float(oracle[1]), rel=RTOL)
+    else:
+        assert kernel[1] == math.inf and oracle[1] == math.inf
 
 
 def test_oracles_are_independent_formulations():

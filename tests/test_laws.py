@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from hydraulics import laws
+from reference import laws
 from hydraulics.fluid import Fluid
 
 RHO = 870.0

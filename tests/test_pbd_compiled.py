@@ -22,8 +22,8 @@ from sim.plants.pbd import PbdPlant
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdOptions
-from tests.reference.xpbd_plant import pure_plant
-from tests.reference.xpbd_substep import ReferenceSolver
+from reference.xpbd_plant import pure_plant
+from reference.xpbd_substep import ReferenceSolver
 from test_xpbd_rigid import BOX, EXC_Q0, EXC_V0, EXCAVATOR, FOURBAR, PENDULUM, SLIDER, G, build
 
 RTOL = 1e-9

@@ -26,9 +26,9 @@ from hydraulics.coupling import SCHEME_NEWTON
 from sim.plants.pbd import PbdPlant
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
-from tests.reference import xpbd_model as oracle
-from tests.reference.xpbd_plant import articulated as articulated_numpy
-from tests.reference.xpbd_substep import ReferenceSolver
+from reference import xpbd_model as oracle
+from reference.xpbd_plant import articulated as articulated_numpy
+from reference.xpbd_substep import ReferenceSolver
 
 FLOW_FLOOR = 1e-4  # m³/s (6 L/min, the circuits' flow scale): near-closed valves' tiny flows carry the pressures' round-off
 # A linear finish (implicit-linear, rosenbrock) has no Newton solve that smooths the round-off of the predicted oil:

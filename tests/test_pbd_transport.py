@@ -29,8 +29,8 @@ from sim.plants.pbd import PbdPlant
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 from sim.xpbd import compiled as XC
-from tests.reference.xpbd_plant import pure_plant
-from tests.reference.xpbd_substep import ReferenceSolver
+from reference.xpbd_plant import pure_plant
+from reference.xpbd_substep import ReferenceSolver
 from sim.plants.pbd_frame import frame
 
 SWING = {"swing": 0.5}  # rad/s: the dig's swing speed (≈ 90° in ~3 s)

@@ -15,7 +15,7 @@ from hydraulics.network import NetworkModel
 from sim.io.scenario import Schedule, load_scenario
 from sim.io.scene import load_scene
 from sim.plants.mujoco import MujocoPlant
-from tests.reference import rigid_couplings as R
+from reference import rigid_couplings as R
 
 EXCAVATOR = MODELS / "excavator" / "excavator.circuit.toml"
 RIGID_FRONT = {"stick_cyl": "incompressible", "bucket_cyl": "incompressible", "swing_motor": "incompressible"}

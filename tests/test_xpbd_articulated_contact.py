@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from sim.xpbd import SolverXPBD, XpbdModel, XpbdOptions
-from tests.reference.xpbd_substep import ReferenceSolver
+from reference.xpbd_substep import ReferenceSolver
 
 # A 1 m hinged arm (40 kg rod near the pin, 2 kg sphere at the tip) released horizontally: the tip
 # strikes the ground at about 2.5 m/s, sliding (μ = 0.6, pyramidal, condim 3, default solref/solimp).

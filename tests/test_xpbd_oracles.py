@@ -19,8 +19,8 @@ from hypothesis import strategies as st
 
 from sim.xpbd import compiled as XC
 from sim.xpbd.quat import np_cross, np_quat_conj, np_quat_mul, np_quat_rotate, np_quat_rotate_inv
-from tests.reference import xpbd_kernels as K
-from tests.reference.xpbd_laws import mujoco_contact_law, mujoco_impedance, soft_limit_target
+from reference import xpbd_kernels as K
+from reference.xpbd_laws import mujoco_contact_law, mujoco_impedance, soft_limit_target
 
 PROPERTY = settings(max_examples=200, deadline=None, database=None)
 finite = dict(allow_nan=False, allow_infinity=False)

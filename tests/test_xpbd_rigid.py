@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel, XpbdOptions
-from tests.reference.xpbd_substep import ReferenceSolver
+from reference.xpbd_substep import ReferenceSolver
 
 G = 9.81
 

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from sim.xpbd import SolverXPBD, SubstepInputs, XpbdModel, XpbdOptions
-from tests.reference.xpbd_laws import mujoco_limit_law
-from tests.reference.xpbd_substep import ReferenceSolver
+from reference.xpbd_laws import mujoco_limit_law
+from reference.xpbd_substep import ReferenceSolver
 
 # a 10 kg arm along +x hinged at the origin (axis +y: gravity turns it towards +φ), upper limit at φ = 0
 ARM = """

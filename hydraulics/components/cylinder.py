@@ -7,7 +7,9 @@ With rod extension x [m] clipped to [0, stroke] (the end stops belong to the mec
 * F = p_cap·A_cap − p_rod·A_rod − p_amb·(A_cap − A_rod), absolute pressures, the rod's own cross-section at
   ambient pressure (:func:`pressure_force`);
 * F_f = [F_c + (F_s − F_c)·exp(−(v/v_s)²)]·tanh(v/v_reg) + b·v, the force on the rod being −F_f
-  (:func:`friction_force_with_derivative`, v_reg = :data:`FRICTION_REGULARISATION_VELOCITY`).
+  (:func:`friction_force_with_derivative`, v_reg = :data:`FRICTION_REGULARISATION_VELOCITY`);
+* k = β·A²/V, the oil column of one chamber as a spring, and ω_h = sqrt(Σk/m), the actuator's hydraulic
+  frequency on an inertia m (:func:`hydraulic_stiffness`, :func:`hydraulic_natural_frequency`).
 
 Packing: the cylinder table (columns :data:`COLUMNS`, :func:`pack`) and its index table (actuator, cap node, rod
 node; :data:`INDEX_COLUMNS`, :func:`pack_index`).
@@ -105,6 +107,21 @@ def friction_force_with_derivative(v, coulomb, static, stribeck_velocity, viscou
     th = math.tanh(v / v_reg)
     dth = (1.0 - th * th) / v_reg
     return level * th + viscous * v, dlevel * th + level * dth + viscous
+
+
+@kernel
+def hydraulic_stiffness(bulk_modulus, area, volume):
+    """Oil-column spring stiffness k = β·A²/V [N/m] of one chamber: β [Pa], A [m²], V [m³] (a motor port: A → D/2π
+    [m³/rad], k [N·m/rad])."""
+    return bulk_modulus * area * area / volume
+
+
+@kernel
+def hydraulic_natural_frequency(stiffness, mass):
+    """Merritt's hydraulic frequency ω_h = sqrt(k/m) [rad/s] of an actuator whose chambers sum to the stiffness
+    ``stiffness`` k = Σ β·A²/V [N/m] (:func:`hydraulic_stiffness`) on the inertia ``mass`` [kg] (H. E. Merritt,
+    *Hydraulic Control Systems*, 1967, §5.2: ω_h² = (β_c·A_c²/V_c + β_r·A_r²/V_r)/m)."""
+    return math.sqrt(stiffness / mass)
 
 
 COLUMNS = ("cap_area", "rod_area", "stroke", "dead_cap", "dead_rod", "coulomb", "static", "stribeck", "viscous")

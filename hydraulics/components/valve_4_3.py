@@ -5,7 +5,8 @@ Spool s ∈ [−1, 1] follows its command u through τ·ds/dt = u − s, advance
 P→A and B→T, s < 0 opens P→B and A→T; each edge opens linearly beyond the overlap ε,
 y = clip((s − ε)/(1 − ε), 0, 1) (:func:`metering_opening`), and its flow is the orifice law
 (:mod:`hydraulics.components.orifice`) at area A_leak + y·A_max.  Open and tandem centres add passages of
-area y_c·A_centre with y_c = clip(1 − |s|/max(ε, 0.1), 0, 1) (:func:`centre_opening`).
+area y_c·A_centre with y_c = clip(1 − |s|/max(ε, 0.1), 0, 1) (:func:`centre_opening`).  With rigid oil a
+metered actuator's force is F_d − R·v·|v| (:func:`metered_actuator_force`; Merritt §5.2).
 
 Packing: the spool table, columns :data:`COLUMNS` (:func:`pack`); the edges are orifice branches.
 
@@ -71,6 +72,26 @@ def metering_opening(spool, overlap):
 def centre_opening(spool, overlap):
     """Opening fraction of an open/tandem centre passage: 1 at s = 0, closed at |s| ≥ max(ε, 0.1)."""
     return clip(1.0 - abs(spool) / maximum(overlap, 0.1), 0.0, 1.0)
+
+
+@kernel
+def metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out, supply_pressure, tank_pressure, density,
+                           ambient_pressure):
+    """Valve-metered actuator with rigid oil (Merritt §5.2, quasi-static): F(v) = F_d − R·v·|v| [N or N·m].
+
+    With the metering edges P → inlet chamber (effective area ``orifice_in`` = C_d·a_in [m²]) and outlet chamber → T
+    (``orifice_out``), piston areas A_in, A_out [m²] (D/2π [m³/rad] for a motor) of the commanded ``direction``
+    (+1 extending: A_in = A_cap; −1 retracting: A_in = A_rod) and the ambient pressure p_a [Pa] on the rod side of
+    the piston (as :func:`hydraulics.components.cylinder.pressure_force`):
+
+        F_d = direction·((p_s − p_a)·A_in − (p_t − p_a)·A_out),
+        R = (ρ/2)·(A_in³/(C_d·a_in)² + A_out³/(C_d·a_out)²).
+
+    Returns (F_d [N], R [N·s²/m²]); R is inf where an edge is shut.  Pressures p_s, p_t [Pa], ρ [kg/m³].
+    """
+    resistance = 0.5 * density * (area_in**3 / orifice_in**2 + area_out**3 / orifice_out**2)
+    drive = direction * ((supply_pressure - ambient_pressure) * area_in - (tank_pressure - ambient_pressure) * area_out)
+    return drive, resistance
 
 
 COLUMNS = ("time_constant", "overlap")

@@ -77,11 +77,10 @@ the stiff rows with the contacts is not converged; ``tests/test_pbd_fidelity.py`
 
 Compiled path
 -------------
-With the scenario's ``compiled`` flag (default; ``--pure`` / ``compiled = false``
-selects the pure reference) every XPBD substep runs in numba
-(``sim/xpbd/compiled.py``) and the network uses the compiled backward-Euler
-stepper.  On top of that, for the implicit couplings (``implicit``, PBD mode's default,
-``implicit-linear``, ``rosenbrock``) at the compressible fidelity:
+Every XPBD substep runs in numba (``sim/xpbd/compiled.py``; ``NUMBA_DISABLE_JIT=1`` runs the same kernels as
+plain Python) and ``articulated`` is one compiled call (``pbd_frame._articulated``).  On top of that, for the
+implicit couplings (``implicit``, PBD mode's default, ``implicit-linear``, ``rosenbrock``) at the compressible
+fidelity:
 
 * the hooks' coupling law, network finish and energy ledger run in two
   compiled calls per substep with preallocated buffers
@@ -89,8 +88,7 @@ stepper.  On top of that, for the implicit couplings (``implicit``, PBD mode's d
 * on trees of hinges and slides with hinge motors and any contact kind (soft pyramidal or elliptic, rigid)
   (the seed, boom and excavator scenes), the whole step is one compiled call
   (``sim/plants/pbd_frame.py``: all substeps with the coupling, the XPBD substep
-  and the ledger; operator inputs sampled for the substeps beforehand) and
-  ``articulated`` is compiled too.  ``frame_steps`` counts these steps;
+  and the ledger; operator inputs sampled for the substeps beforehand).  ``frame_steps`` counts these steps;
   ``solver.last_forces`` is then left empty (the hooks are not called).
 
 Both give the Python hooks' results to round-off (``tests/test_pbd_fast.py``);
@@ -128,7 +126,7 @@ hinges whose parent is static (the excavator swing's 320 kg·m² is modelled: a 
 inertia of the upper group, and on the joint-space diagonal; elsewhere a warning says so),
 frictionloss, joint stiffness, contacts other than sphere/capsule/box against
 planes; its joint and two-site tendon limits follow MuJoCo's soft limit law; its contacts are soft in the normal
-direction with MuJoCo's law for the scene's solref/solimp (``sim.xpbd.laws.mujoco_contact_law``),
+direction with MuJoCo's law for the scene's solref/solimp (``sim.xpbd.compiled._contact_law``),
 with friction from the same soft pyramid, and each contact sees the articulated response of the
 whole mechanism (J·M⁻¹·Jᵀ, as MuJoCo's contact problem), not that of the touching body alone
 (``XpbdOptions(articulated_contacts=True)``; a hinged arm striking the ground peaks at 24.91 mm
@@ -156,7 +154,7 @@ from sim.io.scene import Scene, initial_qpos_qvel
 from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel, XpbdOptions
 from sim.plants.pbd_hydraulics import FastHydraulics
 from sim.plants.pbd_hydraulics import eligible as fast_eligible
-from sim.xpbd.kernels import np_cross, np_quat_rotate, np_quat_rotate_inv, quat_rotate
+from sim.xpbd.quat import np_cross, np_quat_rotate, np_quat_rotate_inv
 from sim.xpbd.model import JNT_HINGE, JNT_SLIDE
 
 # MuJoCo joint types whose coordinate is one scalar (logged as joint states).
@@ -208,9 +206,8 @@ class PbdPlant(PlantBase):
         # cylinders: one length row each, in network cylinder order
         self.cylinders = np.array([a for a in range(net.actuator_count) if net.actuator_kind[a] == ACTUATOR_CYLINDER], int)
         rows = [LengthConstraint(*xm.tendon_site_pair(int(binding.tendon_id[a])), name=net.actuator_names[a]) for a in self.cylinders]
-        options = XpbdOptions(substeps=scenario.pbd_substeps, iterations=scenario.pbd_iterations, compiled=scenario.compiled)
+        options = XpbdOptions(substeps=scenario.pbd_substeps, iterations=scenario.pbd_iterations)
         self.solver = SolverXPBD(xm, options, length_constraints=rows)
-        xm.set_compiled_observations(self.solver.compiled)  # the pure path keeps the numpy observations (reference)
         self.closed_length = binding.closed_length[self.cylinders]
         # motors: joint actuators, effort = motor torque, joint torque = gear × effort
         self.motors = np.array([a for a in range(net.actuator_count) if net.actuator_kind[a] != ACTUATOR_CYLINDER], int)
@@ -242,10 +239,8 @@ class PbdPlant(PlantBase):
         iquat_conj = np.asarray(xm.body_iquat) * np.array([1.0, -1.0, -1.0, -1.0])
         self._axis_inertial = np_quat_rotate(iquat_conj[xm.jnt_body], np.asarray(xm.jnt_axis))
         self._origin_inertial = np_quat_rotate(iquat_conj, -np.asarray(xm.body_ipos))
-        # compiled coupling hooks (sim/plants/pbd_hydraulics.py): default on the compiled path where they apply
-        if fast_hydraulics is None:
-            fast_hydraulics = bool(scenario.compiled)
-        self._fast = FastHydraulics(self) if fast_hydraulics and fast_eligible(self) else None
+        # compiled coupling hooks (sim/plants/pbd_hydraulics.py): the default where they apply
+        self._fast = FastHydraulics(self) if fast_hydraulics is not False and fast_eligible(self) else None
         # whole steps in one compiled call (sim/plants/pbd_frame.py) where they apply; else the hooks below
         self.frame_steps = 0  # steps that ran as one compiled frame
         self._record_next = None  # (rows, every) for the next advance() (record_next)
@@ -370,7 +365,7 @@ class PbdPlant(PlantBase):
         """Whether :meth:`advance` runs whole blocks of steps in one compiled call (``sim/plants/pbd_block.py``):
         the compiled-frame path on a tree of hinges and slides with hinge motors, and ``block`` not switched off.
         The runner then drives this plant in blocks (``sim.run.runner._Loop.blocks``)."""
-        return bool(self.block and self.frame_compiled and self.solver.compiled and self._tree and len(self.cylinders)
+        return bool(self.block and self.frame_compiled and self._tree and len(self.cylinders)
                     and GRAVITY_ARTICULATED and all(self._hinge[self.motor_joint]))
 
     def advance(self, n: int):
@@ -481,7 +476,6 @@ class PbdPlant(PlantBase):
         st.time = float(clock[0])
         st.qpos_hint = hint.copy()
         solver.last_forces = []
-        solver.compiled_steps += done
         self.frame_steps += done
         self.step_index += done
         return done, self._report
@@ -609,50 +603,21 @@ class PbdPlant(PlantBase):
         self._motor_inverse_inertia = np.zeros(len(self.motors))
         if not self._tree:
             return
-        if self.frame_compiled and self._articulated_compiled():
-            return
-        mass, gravity, moment, jv, jw = self.joint_space(bodies=True)
-        try:
-            dq = np.linalg.solve(mass, np.column_stack([moment.T, gravity]))  # (nv, actuators + 1)
-        except np.linalg.LinAlgError:
-            return
-        with np.errstate(divide="ignore"):
-            self._effective_mass = 1.0 / np.einsum("ai,ia->a", moment, dq[:, :-1])
-        dofs = self.xmodel.jnt_dofadr[self.motor_joint]
-        self._motor_inverse_inertia = dq[dofs, self.motors] / self.motor_gear
-        xm = self.xmodel
-        # group centre-of-mass velocity = mass-weighted body COM velocities; groups share ω
-        group_jv = np.zeros((xm.nv, xm.ngroup, 3))
-        np.add.at(group_jv, (slice(None), xm.body_group), jv * self._body_mass[None, :, None])
-        group_jv /= np.where(xm.group_mass > 0, xm.group_mass, 1.0)[None, :, None]
-        group_jw = jw[:, xm.group_root]
-        cols = np.r_[self.cylinders, self.motors, dq.shape[1] - 1]
-        response = np.concatenate([np.einsum("ir,igk->rgk", dq[:, cols], group_jv), np.einsum("ir,igk->rgk", dq[:, cols], group_jw)], axis=2)
-        response[:, ~np.asarray(xm.group_dynamic)] = 0.0
-        self._group_gravity = response[-1] if GRAVITY_ARTICULATED else None
-        ncyl = len(self.cylinders)
-        self._mobility = response[:ncyl] if ncyl else None
-        self._motor_response = response[ncyl:ncyl + len(self.motors)] if len(self.motors) and GRAVITY_ARTICULATED else None
-
-    def _articulated_compiled(self) -> bool:
-        """``articulated`` in one compiled call (``frame_nb._articulated``, same results to round-off)."""
-        ctx = self._frame_context()
+        ctx = self._articulated_context()
         a = ctx["articulated"]
-        xm, st = self.xmodel, self.state
-        ok = ctx["articulated_kernel"](_c64(st.x), _c64(st.q), ctx["articulated_model"], a)
-        if not ok:
-            return True  # singular mass matrix: no articulated data (as the numpy path)
+        st = self.state
+        if not ctx["articulated_kernel"](_c64(st.x), _c64(st.q), ctx["articulated_model"], a):
+            return  # singular mass matrix: no articulated data
         self._effective_mass = a.effective_mass.copy()
         self._motor_inverse_inertia = a.motor_inverse_inertia.copy()
         self._group_gravity = a.group_gravity.copy() if GRAVITY_ARTICULATED else None
-        self._mobility = a.mobility.copy()
+        self._mobility = a.mobility.copy() if len(self.cylinders) else None
         self._motor_response = a.motor_response.copy() if len(self.motors) and GRAVITY_ARTICULATED else None
-        return True
 
     def _frame_ready(self) -> bool:
         """True when this step can run as one compiled frame (``sim/plants/pbd_frame.py``)."""
         return bool(
-            self._fast is not None and self.solver.compiled and len(self.cylinders) and self._mobility is not None
+            self._fast is not None and len(self.cylinders) and self._mobility is not None
             and self._group_gravity is not None and (self._motor_response is not None or not len(self.motors))
             and all(self._hinge[self.motor_joint])
         )
@@ -702,11 +667,10 @@ class PbdPlant(PlantBase):
         self._x, self._v, self._ell = xs.copy(), vs.copy(), ell0.copy()
         self.effort = ctx["actuators"].effort.copy()
         self._motor_effort = ctx["actuators"].motor_effort.copy()
-        solver._scatter_compiled(Xg, Qg, Vg, Wg, st)
+        solver._scatter(Xg, Qg, Vg, Wg, st)
         st.time = st.time + self.dt
         st.qpos_hint = self._qpos_qvel()[0].copy()  # with the previous hint, as the solver; memoised for joint_state
         solver.last_forces = []
-        solver.compiled_steps += 1
         self.frame_steps += 1
         return True
 
@@ -736,8 +700,7 @@ class PbdPlant(PlantBase):
         ctx = getattr(self, "_frame_ctx", None)
         if ctx is not None:
             return ctx
-        from sim.plants.pbd_frame import (Actuation, ActuatorState, Articulated, ArticulatedModel, RigidState,
-                                          articulated, frame)
+        from sim.plants.pbd_frame import Actuation, ActuatorState, RigidState, frame
 
         xm, net = self.xmodel, self.network
         na, nsub = net.actuator_count, self.solver.substeps
@@ -761,21 +724,35 @@ class PbdPlant(PlantBase):
                               np.zeros((xm.nbody, 3))),
             work=None, work_contacts=-1,
         )
-        ctx["articulated_kernel"] = articulated()
+        ctx.update(self._articulated_context())
+        self._frame_ctx = ctx
+        return ctx
+
+    def _articulated_context(self):
+        """The compiled ``articulated`` kernel (``pbd_frame._articulated``), its ``ArticulatedModel`` and its output
+        buffers ``Articulated`` (made once)."""
+        ctx = getattr(self, "_articulated_ctx", None)
+        if ctx is not None:
+            return ctx
+        from sim.plants.pbd_frame import Articulated, ArticulatedModel, articulated
+
+        xm, na = self.xmodel, self.network.actuator_count
+        ng, nr, nm = xm.ngroup, len(self.cylinders), len(self.motors)
+        ctx = dict(articulated_kernel=articulated())
         ctx["articulated_model"] = ArticulatedModel(
             iquat=_c64(xm.body_iquat), ipos=_c64(xm.body_ipos), jnt_body=_i64(xm.jnt_body),
             jnt_axis=_c64(xm.jnt_axis), jnt_pos=_c64(xm.jnt_pos), hinge=np.ascontiguousarray(self._hinge, np.bool_),
             subtree=np.ascontiguousarray(self._subtree, np.bool_), body_mass=_c64(self._body_mass),
             inertia=_c64(self._body_inertia * (self._body_mass > 0)[:, None]), armature=_c64(xm.jnt_armature),
             gravity=_c64(xm.gravity), site_body=_i64(xm.site_body), site_pos=_c64(xm.site_pos_inertial),
-            row_sites=np.ascontiguousarray(self._row_sites, np.int64), cyl=actuation.cyl, mot=actuation.mot,
-            mot_dof=_i64(xm.jnt_dofadr[self.motor_joint]), gear=actuation.gear, body_group=_i64(xm.body_group),
+            row_sites=np.ascontiguousarray(self._row_sites, np.int64), cyl=_i64(self.cylinders), mot=_i64(self.motors),
+            mot_dof=_i64(xm.jnt_dofadr[self.motor_joint]), gear=_c64(self.motor_gear), body_group=_i64(xm.body_group),
             group_mass=_c64(xm.group_mass), group_root=_i64(xm.group_root),
             group_dynamic=np.ascontiguousarray(xm.group_dynamic, np.bool_))
         ctx["articulated"] = Articulated(mobility=np.zeros((nr, ng, 6)), group_gravity=np.zeros((ng, 6)),
                                          motor_response=np.zeros((nm, ng, 6)), motor_inverse_inertia=np.zeros(nm),
                                          effective_mass=np.zeros(na))
-        self._frame_ctx = ctx
+        self._articulated_ctx = ctx
         return ctx
 
     def before_substep(self, k, h, state):
@@ -875,11 +852,11 @@ class PbdPlant(PlantBase):
         for i, j in enumerate(joints):
             b = int(xm.jnt_body[j])
             p = int(xm.body_parent[b])
-            axis = np.asarray(quat_rotate(state.q[b], self._axis_inertial[j]))  # world axis
+            axis = np_quat_rotate(state.q[b], self._axis_inertial[j])  # world axis
             if self._hinge[j]:
                 out[i] = float((state.w[b] - state.w[p]) @ axis)
             else:  # relative velocity of the child's body-frame origin along the axis
-                origin = state.x[b] + np.asarray(quat_rotate(state.q[b], self._origin_inertial[b]))
+                origin = state.x[b] + np_quat_rotate(state.q[b], self._origin_inertial[b])
                 vb = state.v[b] + np.cross(state.w[b], origin - state.x[b])
                 vp = state.v[p] + np.cross(state.w[p], origin - state.x[p])
                 out[i] = float((vb - vp) @ axis)
@@ -954,8 +931,6 @@ def fast_path(plant: PbdPlant) -> str:
     if plant.fast:
         return "compiled blocks of steps (the fastest path)"
     why = []
-    if not plant.scene.scenario.compiled:
-        why.append("the scenario asks for the pure path (compiled = false / --pure)")
     if plant._fast is None:
         why.append("the coupling is not an implicit one at the compressible fidelity with the compiled stepper "
                    f"(mode {plant.mode}, coupling {plant.scene.scenario.coupling}, fidelity {plant.network.fidelity})")

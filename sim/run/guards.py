@@ -6,7 +6,7 @@ sees, m_eff = 1/(J·M⁻¹·Jᵀ) from MuJoCo's mass matrix at the initial pose,
 through the MJCF's equality constraints (loop closures: the inertia of the
 constrained system, :func:`inertia_seen`).  Merritt's hydraulic
 frequency is then ω_h = √(k/m_eff), see
-:func:`hydraulics.laws.hydraulic_natural_frequency`, and the two numbers that
+:func:`hydraulics.components.cylinder.hydraulic_natural_frequency`, and the two numbers that
 decide whether a step size is stable are ω_h·dt and k·dt²/m_eff = (ω_h·dt)².
 
 What is known about the schemes (``docs/stability/`` has the measured maps):
@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hydraulics import laws
+from hydraulics.components.cylinder import hydraulic_natural_frequency, hydraulic_stiffness
 from hydraulics.network import ACTUATOR_CYLINDER
 
 from sim.plants.constraints import HOLDING_RESIDUAL_WARN, actuator_moments, inverse_inertia
@@ -192,18 +192,18 @@ def oil_column_stiffness(network, pressure, position) -> np.ndarray:
     for i, a in enumerate(network.cylinder_actuator):
         for node, area in ((network.cylinder_cap_node[i], network.cylinder_cap_area[i]), (network.cylinder_rod_node[i], network.cylinder_rod_area[i])):
             if free[node]:
-                k[a] += laws.hydraulic_stiffness(beta[node], area, volume[node])
+                k[a] += hydraulic_stiffness(beta[node], area, volume[node])
     for i, a in enumerate(network.motor_actuator):
         rate = network.motor_displacement[i] / (2.0 * math.pi)
         for node in (network.motor_a_node[i], network.motor_b_node[i]):
             if free[node]:
-                k[a] += laws.hydraulic_stiffness(beta[node], rate, volume[node])
+                k[a] += hydraulic_stiffness(beta[node], rate, volume[node])
     # rigid actuators: the supply net of their rigid branch, on the larger (cap) area
     s = network.branch_slices.get("rigid", slice(0, 0))
     for b, a in zip(range(s.start, s.stop), network.rigid_branch_actuator):
         node = network.branch_from[b]
         if free[node]:
-            k[a] = laws.hydraulic_stiffness(beta[node], network.rigid_extend_area[b - s.start], volume[node])
+            k[a] = hydraulic_stiffness(beta[node], network.rigid_extend_area[b - s.start], volume[node])
     return k
 
 
@@ -250,7 +250,7 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
         if rigid and ka == 0.0:
             notes.append(f"{name}: fidelity incompressible without a valve: locked by a velocity tracker, no oil column")
             continue
-        omega = math.sqrt(ka / m) if (ka > 0 and math.isfinite(m) and m > 0) else 0.0
+        omega = hydraulic_natural_frequency(ka, m) if (ka > 0 and math.isfinite(m) and m > 0) else 0.0
         zeta = c / (2.0 * math.sqrt(ka * m)) if omega > 0 else math.inf
         limit = max(2.0 * zeta, EXPLICIT_OMEGA_DT_LIMIT) if zeta >= UNDAMPED_RATIO else 0.0
         row = GuardRow(
@@ -335,7 +335,7 @@ def local_mode_warnings(scene, qpos, stiffness, mass, dt, position) -> list:
         m_local, k = float(local[a]), float(stiffness[a])
         if not (k > 0 and 0 < m_local < LOCAL_MASS_RATIO * float(mass[a])):
             continue
-        omega = math.sqrt(k / m_local)
+        omega = hydraulic_natural_frequency(k, m_local)
         if omega * dt > LOCAL_MODE_OMEGA_DT:
             out.append(
                 f"{name}: its pins sit on bodies of {m_local:.4g} kg closed onto the links by equality constraints; at extension "

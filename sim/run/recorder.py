@@ -34,7 +34,6 @@ import re
 import numpy as np
 
 from hydraulics.energy import stored_energy_at
-from hydraulics.laws import cylinder_pressure_force
 
 from sim.io.foxglove_scene import FrameTransformsChannel, log_scene
 from sim.io.mcap_log import LogLevel, LogWriter, flat_schema, log_message, log_schema
@@ -124,7 +123,7 @@ class RunRecorder:
     of all pending samples at once (chamber volumes, stiffness, stored oil energy,
     pressure forces, pump powers, energy residual) with the same functions a
     single sample uses: the node relations of :class:`~hydraulics.network.NetworkModel`,
-    :func:`hydraulics.energy.stored_energy_at` and :mod:`hydraulics.laws` broadcast
+    :func:`hydraulics.energy.stored_energy_at`, which broadcast
     over the rows.  :meth:`push` hands the rows to the log's :class:`~sim.io.mcap_log.Frame`.
     Values equal the per-sample ones to round-off.  Pending samples are
     pushed when the log closes (:meth:`LogWriter.on_close`), so an interrupted
@@ -364,8 +363,7 @@ class RunRecorder:
             c = rows[:, block["cylinders"]].reshape(k, len(cyl), len(CYLINDER_FIELDS))
             c[:, :, 0], c[:, :, 1], c[:, :, 2], c[:, :, 3] = x[:, cyl], v[:, cyl], p[:, self._cyl_cap], p[:, self._cyl_rod]
             c[:, :, 4] = effort[:, cyl]
-            c[:, :, 5] = cylinder_pressure_force(p[:, self._cyl_cap], p[:, self._cyl_rod], net.cylinder_cap_area,
-                                                 net.cylinder_rod_area, net.fluid.reference_pressure)
+            c[:, :, 5] = net.pressure_effort(p)[:, cyl]
             c[:, :, 6] = net.chamber_stiffness(p, x, volumes).sum(axis=1)
             c[:, :, 7] = theta[:, cyl]
             rows[:, block["cylinders"]] = c.reshape(k, -1)

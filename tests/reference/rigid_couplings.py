@@ -6,7 +6,7 @@ tests (kernel vs oracle on random inputs) and the scene tests (the per-step coup
 
 Example
 -------
->>> from tests.reference.rigid_couplings import quadratic_damper
+>>> from reference.rigid_couplings import quadratic_damper
 >>> quadratic_damper(np.array([10.0]), np.array([2.0]), np.array([-1.0]))
 (array([12.]), array([-4.]))
 """

@@ -6,7 +6,7 @@ dq = M⁻¹·[Jᵀ, Q] and the group motions of dq (mobility of each cylinder ro
 the effective masses 1/(J·M⁻¹·Jᵀ)ᵢᵢ and the motors' (M⁻¹)ⱼⱼ.
 
 :func:`pure_plant` turns a ``PbdPlant`` built with ``fast_hydraulics=False, frame=False`` (the Python hooks)
-into the pure plant: every XPBD substep in :class:`~tests.reference.xpbd_substep.ReferenceSolver`, the numpy
+into the pure plant: every XPBD substep in :class:`~reference.xpbd_substep.ReferenceSolver`, the numpy
 observations of ``xpbd_model.py`` and the numpy ``articulated``.  Example::
 
     plant = pure_plant(PbdPlant(scene, fast_hydraulics=False, frame=False))

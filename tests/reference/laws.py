@@ -1,22 +1,27 @@
-"""Constitutive laws of hydraulic components, each written once as a pure function.
+"""Constitutive laws of hydraulic components in numpy, element-wise on arrays: the oracle of the compiled scalar
+laws of :mod:`hydraulics.components`.
 
-Every function takes and returns SI quantities (Pa, m³/s, m, m², N, s) and works
-element-wise on numpy arrays.  Functions named ``*_with_derivative`` return the
-value and its analytic derivative with respect to the pressure (difference) they
-depend on, so that the implicit steppers can build exact Jacobians.
+Every function takes and returns SI quantities (Pa, m³/s, m, m², N, s).  Functions named ``*_with_derivative``
+return the value and its analytic derivative with respect to the pressure (difference) they depend on.  The
+property tests (``tests/test_law_oracles.py``, ``tests/test_network_oracle.py``) compare the compiled laws with
+these on random inputs; the package itself never imports this module.
 
-Where an equation comes from the seed report (*hydraulic-pbd-report*) the docstring
-says so; this module is the one place where those equations live.
+References: H. E. Merritt, *Hydraulic Control Systems*, Wiley 1967 (orifice §2.4, valve-controlled actuator and
+hydraulic frequency §5.2); the seed report (*hydraulic-pbd-report*) where a docstring says so.
+
+Example
+-------
+>>> float(pump_flow(1e-5, 20.0))
+0.0002
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .components.cylinder import FRICTION_REGULARISATION_VELOCITY  # noqa: F401  (m/s, the friction law's)
-from .components.hose import line_conductance  # noqa: F401
-from .components.orifice import CRITICAL_REYNOLDS as ORIFICE_CRITICAL_REYNOLDS
-from .components.orifice import coefficients as orifice_coefficients
+from hydraulics.components.cylinder import FRICTION_REGULARISATION_VELOCITY  # noqa: F401  (m/s, the friction law's)
+from hydraulics.components.orifice import CRITICAL_REYNOLDS as ORIFICE_CRITICAL_REYNOLDS
+from hydraulics.components.orifice import coefficients as orifice_coefficients
 
 
 # --------------------------------------------------------------------------
@@ -272,6 +277,11 @@ def metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out
     with np.errstate(divide="ignore", invalid="ignore"):
         resistance = 0.5 * density * (area_in**3 / orifice_in**2 + area_out**3 / orifice_out**2)
     return direction * ((supply_pressure - ambient_pressure) * area_in - (tank_pressure - ambient_pressure) * area_out), resistance
+
+
+def line_conductance(inner_diameter, length, dynamic_viscosity):
+    """Hagen–Poiseuille conductance of a pipe, G = π·d⁴/(128·μ·L) [m³/(s·Pa)]; d, L [m], μ [Pa·s]."""
+    return np.pi * np.asarray(inner_diameter, dtype=float) ** 4 / (128.0 * dynamic_viscosity * length)
 
 
 def hydraulic_stiffness(bulk_modulus, area, volume):
