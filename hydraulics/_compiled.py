@@ -146,9 +146,9 @@ _W_BR = len(TERMINAL_COLUMNS)
 _W_LAW = LAW_WIDTH
 # rigid branches (a rigid actuator's displaced flow from its valve's P to T, NetworkModel.rigid_rates): float columns
 # (cap area or D/2π feeding the extension, rod area or D/2π feeding the retraction [m² or m³/rad], +1 when a positive
-# spool feeds the cap) and int columns (valve, actuator)
-RIGID_COLUMNS = ("extend_area", "retract_area", "sign")
-G_EXTEND, G_RETRACT, G_SIGN = range(len(RIGID_COLUMNS))
+# spool feeds the cap, leakage and fully open area of the metering edges [m²]) and int columns (valve, actuator)
+RIGID_COLUMNS = ("extend_area", "retract_area", "sign", "base_area", "max_area")
+G_EXTEND, G_RETRACT, G_SIGN, G_BASE, G_MAX = range(len(RIGID_COLUMNS))
 RIGID_INDEX_COLUMNS = ("valve", "actuator")
 GI_VALVE, GI_ACT = range(len(RIGID_INDEX_COLUMNS))
 _W_RIG, _W_RIG_I = len(RIGID_COLUMNS), len(RIGID_INDEX_COLUMNS)
@@ -234,7 +234,8 @@ def pack_network(model: NetworkModel):
         pump=_pumps.pack(model),
         law=model.law_table,
         rig=_table(RIGID_COLUMNS, len(model.rigid_branch_actuator), extend_area=model.rigid_extend_area,
-                   retract_area=model.rigid_retract_area, sign=model.rigid_sign),
+                   retract_area=model.rigid_retract_area, sign=model.rigid_sign, base_area=model.rigid_base_area,
+                   max_area=model.rigid_max_area),
     )
     ints = dict(
         ic=ic,
@@ -545,13 +546,8 @@ def _valve_areas(pnet, spool, area):
     ori, ov = net.ori, net.or_valve
     has_valves = net.ic[IC_NV] > 0
     nor = net.ic[IC_O1] - net.ic[IC_O0]
-    rig, gi = net.rig, net.rig_i
-    for i in range(rig.shape[0]):
-        s = rig[i, G_SIGN] * spool[gi[i, GI_VALVE]]
-        rate = 0.0
-        if _valve.metering_opening(abs(s), net.valve[gi[i, GI_VALVE], V_OVERLAP]) > 0.0:
-            rate = rig[i, G_EXTEND] if s > 0.0 else (-rig[i, G_RETRACT] if s < 0.0 else 0.0)
-        area[nor + i] = rate
+    for i in range(net.rig.shape[0]):
+        area[nor + i] = _rigid_rate(pnet, spool, i)
     for i in range(nor):
         a = ori[i, O_BASE]
         if has_valves:
@@ -1618,51 +1614,23 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
 # NetworkModel's evaluation methods (hydraulics.network): the same node relations, flows and efforts on the
 # packed network, called from Python through the cached entries of :func:`evaluation_entries`.  The ``*_rows``
 # entries evaluate one sample per row of their 2-D inputs (the model's methods broadcast over leading axes).
-# Rigid actuators (``incompressible`` among compressible ones) enter through :func:`pack_rigid`: their chamber
-# nodes are fixed nodes of the packed network, their branches are the rigid branches listed there.
+# Rigid actuators (``incompressible`` among compressible ones): their chamber nodes are fixed nodes of the packed
+# network, their branches the rigid branches of its ``rig`` table.
 # ----------------------------------------------------------------------------
-RIGID_COLUMNS = ("sign", "extend_area", "retract_area", "base_area", "max_area")
-"""Rigid-branch table: +1 when a positive spool feeds the cap (motor port a); displaced volume per unit travel
-extending and retracting [m² or m³/rad]; leakage and fully open area of the metering edges [m²]."""
-RG_SIGN, RG_EXTEND, RG_RETRACT, RG_BASE, RG_MAX = range(len(RIGID_COLUMNS))
-RIGID_INDEX_COLUMNS = ("valve", "actuator", "branch")
-"""Rigid-branch index table: metering valve, rigid actuator, branch number."""
-RI_VALVE, RI_ACT, RI_BRANCH = range(len(RIGID_INDEX_COLUMNS))
-
-
-def pack_rigid(model: NetworkModel):
-    """The rigid-branch tables (R: columns :data:`RIGID_COLUMNS`, RI: :data:`RIGID_INDEX_COLUMNS`) of ``model`` and
-    FM, the motor (index into the motor arrays) of every motor branch (a rigid motor has none)."""
-    count = len(model.rigid_branch_actuator)
-    R = _table(RIGID_COLUMNS, count, sign=model.rigid_sign, extend_area=model.rigid_extend_area,
-               retract_area=model.rigid_retract_area, base_area=model.rigid_base_area, max_area=model.rigid_max_area)
-    start = model.branch_slices.get("rigid", slice(0, 0)).start
-    RI = np.column_stack([np.asarray(c, np.int64).reshape(count) for c in
-                          (model.rigid_valve, model.rigid_branch_actuator, start + np.arange(count))]).reshape(count, 3)
-    FM = np.searchsorted(model.motor_actuator, model.motor_branch_actuator).astype(np.int64)
-    return np.ascontiguousarray(R), np.ascontiguousarray(RI, np.int64), np.ascontiguousarray(FM)
-
-
 @_kernel
-def _rigid_direction(pnet, R, RI, spool, j):
-    """Metering direction of rigid branch ``j`` [-]: sign of the spool seen from the cap side outside the overlap, else 0."""
+def _rigid_direction(pnet, spool, j):
+    """Metering direction of rigid branch ``j`` [-] (:func:`hydraulics.components.valve_4_3.metering_direction` of
+    the spool seen from the cap side)."""
     net = _deref(pnet)
-    v = RI[j, RI_VALVE]
-    s = R[j, RG_SIGN] * spool[v]
-    if not _valve.metering_opening(abs(s), net.valve[v, V_OVERLAP]) > 0.0:
-        return 0.0
-    return 1.0 if s > 0.0 else -1.0
+    v = net.rig_i[j, GI_VALVE]
+    return _valve.metering_direction(net.rig[j, G_SIGN] * spool[v], net.valve[v, V_OVERLAP])
 
 
 @_kernel
-def _rigid_rate(pnet, R, RI, spool, j):
-    """Flow drawn from P per unit actuator velocity of rigid branch ``j`` [m² or m³/rad] (see NetworkModel.rigid_rates)."""
-    direction = _rigid_direction(pnet, R, RI, spool, j)
-    if direction > 0.0:
-        return R[j, RG_EXTEND]
-    if direction < 0.0:
-        return -R[j, RG_RETRACT]
-    return 0.0
+def _rigid_rate(pnet, spool, j):
+    """Flow drawn from P per unit actuator velocity of rigid branch ``j`` [m² or m³/rad] (NetworkModel.rigid_rates)."""
+    rig = _deref(pnet).rig
+    return _valve.displaced_rate(_rigid_direction(pnet, spool, j), rig[j, G_EXTEND], rig[j, G_RETRACT])
 
 
 @_kernel
@@ -1828,29 +1796,26 @@ def _eval_chamber_stiffness(F, I, BETA, V):
 
 
 @_jit
-def _eval_valve_areas(F, I, R, RI, spool):
+def _eval_valve_areas(F, I, spool):
     """NetworkModel.valve_areas: orifice areas [m²], then the rigid branches' rates."""
     net = _unpack(F, I)
-    pnet = _ref(net)
-    nor = net.ic[IC_O1] - net.ic[IC_O0]
-    area = np.empty(nor + R.shape[0])
-    _valve_areas(pnet, spool, area[:nor])
-    for j in range(R.shape[0]):
-        area[nor + j] = _rigid_rate(pnet, R, RI, spool, j)
+    area = np.empty(_area_count(net.ic))
+    _valve_areas(_ref(net), spool, area)
     return area
 
 
 @_jit
-def _eval_rigid(F, I, R, RI, spool):
+def _eval_rigid(F, I, spool):
     """Rigid branches' direction [-], rate [m² or m³/rad] and metering area [m²] (rows 0, 1, 2)."""
     net = _unpack(F, I)
     pnet = _ref(net)
-    out = np.empty((3, R.shape[0]))
-    for j in range(R.shape[0]):
-        v = RI[j, RI_VALVE]
-        out[0, j] = _rigid_direction(pnet, R, RI, spool, j)
-        out[1, j] = _rigid_rate(pnet, R, RI, spool, j)
-        out[2, j] = R[j, RG_BASE] + R[j, RG_MAX] * _valve.metering_opening(abs(spool[v]), net.valve[v, V_OVERLAP])
+    rig = net.rig
+    out = np.empty((3, rig.shape[0]))
+    for j in range(rig.shape[0]):
+        v = net.rig_i[j, GI_VALVE]
+        out[0, j] = _rigid_direction(pnet, spool, j)
+        out[1, j] = _rigid_rate(pnet, spool, j)
+        out[2, j] = rig[j, G_BASE] + rig[j, G_MAX] * _valve.metering_opening(abs(spool[v]), net.valve[v, V_OVERLAP])
     return out
 
 
@@ -1867,20 +1832,12 @@ def _eval_law_pieces(F, I, p):
 
 
 @_jit
-def _eval_branch_flows(F, I, RI, FM, p, area, speed, velocity):
+def _eval_branch_flows(F, I, p, area, speed, velocity):
     """NetworkModel.branch_flows: flows [m³/s] and terminal derivatives (branches × TERMINAL_COLUMNS)."""
     net = _unpack(F, I)
-    pnet = _ref(net)
-    ic = net.ic
-    nb = ic[IC_NB]
+    nb = net.ic[IC_NB]
     flow, dflow = np.zeros(nb), np.empty((nb, _W_BR))
-    _branch_flows(pnet, p, area, speed, velocity, flow, dflow)
-    for b in range(ic[IC_M0], ic[IC_M1]):  # the motor of each branch (a rigid motor has none)
-        i = b - ic[IC_M0]
-        flow[b] = _motor.flow(net.mot[FM[i]], velocity[net.mot_br_act[i]])
-    nor = ic[IC_O1] - ic[IC_O0]
-    for j in range(RI.shape[0]):
-        flow[RI[j, RI_BRANCH]] = area[nor + j] * velocity[RI[j, RI_ACT]]
+    _branch_flows(_ref(net), p, area, speed, velocity, flow, dflow)
     return flow, dflow
 
 
@@ -1895,7 +1852,7 @@ def _eval_flow_jacobian(F, I, dflow):
 
 
 @_jit
-def _eval_flow_velocity_gradient(F, I, RI, FM, rates):
+def _eval_flow_velocity_gradient(F, I, rates):
     """NetworkModel.flow_velocity_gradient (n × na): motors and rigid branches at ``rates``."""
     net = _unpack(F, I)
     ic, br = net.ic, net.br
@@ -1903,11 +1860,11 @@ def _eval_flow_velocity_gradient(F, I, RI, FM, rates):
     for b in range(ic[IC_M0], ic[IC_M1]):
         i = b - ic[IC_M0]
         a = net.mot_br_act[i]
-        rate = net.mot[FM[i]] / (2.0 * np.pi)
+        rate = net.mot[net.mot_br_i[i]] / (2.0 * np.pi)
         grad[br[b, T_FROM], a] += -rate
         grad[br[b, T_TO], a] += rate
-    for j in range(RI.shape[0]):
-        b, a = RI[j, RI_BRANCH], RI[j, RI_ACT]
+    for j in range(ic[IC_G1] - ic[IC_G0]):
+        b, a = ic[IC_G0] + j, net.rig_i[j, GI_ACT]
         grad[br[b, T_FROM], a] += -rates[j]
         grad[br[b, T_TO], a] += rates[j]
     return grad

@@ -13,8 +13,8 @@ Equations (SI units; a motor's "area" is its displacement per radian D/2π [m³/
 * **Explicit Euler** (forward Euler on the oil, zero-order hold, :func:`explicit_substep`):
   m⁺ = m + h·ΣQ(p(m, x), s, v) on the free nodes, with the start spools s, the start positions x and the
   held velocities v; p⁺ = p(m⁺, x⁺); the spools advance exactly (``valve_4_3.spool_step``).  A rigid branch
-  (P → T of a rigid actuator's valve) carries Q = r(s)·v (:func:`rigid_rate`).
-* **Metered rigid-oil force** (Merritt §5.2, quasi-static, :func:`metered_force`):
+  (P → T of a rigid actuator's valve) carries Q = r(s)·v (:func:`hydraulics.components.valve_4_3.displaced_rate`).
+* **Metered rigid-oil force** (Merritt §5.2, quasi-static, :func:`hydraulics.components.valve_4_3.metered_actuator_force`):
   F(v) = F_d − R·v·|v|, F_d = d·((p_s − p_a)·A_in − (p_t − p_a)·A_out),
   R = (ρ/2)·(A_in³/(C_d·a_in)² + A_out³/(C_d·a_out)²) (inf where an edge is shut), linearised at the start
   speed (:func:`quadratic_damper`).
@@ -35,14 +35,12 @@ Under ``NUMBA_DISABLE_JIT=1`` everything runs as Python.  **Limitations**: as th
 
 Example
 -------
->>> drive, resist = metered_force(1.0, 2e-3, 1e-3, 1e-5, 1e-5, 2e7, 1e5, 850.0, 1e5)
->>> round(drive), resist > 0
-(39800, True)
+>>> round(bounded_tracker(0.1, 0.0, 1e6, -1e3, 1e3)[1])  # the gain lowered so that F(v = 0) stays within 1 kN
+-10000
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections import namedtuple
 
@@ -166,14 +164,6 @@ def pack_rigid(model) -> RigidTable:
                       i(model.branch_from[s]), i(model.branch_to[s]), scalars)
 
 
-def pack_network(model):
-    """:func:`hydraulics._compiled.pack_network` of ``model`` with its rigid actuators packed as ordinary ones: the
-    kernels here add the rigid branches' flows and laws themselves (:class:`RigidTable`)."""
-    if np.any(model.actuator_rigid):
-        model = dataclasses.replace(model, actuator_rigid=np.zeros(model.actuator_count, bool))
-    return C.pack_network(model)
-
-
 _W_EDGE, _N_IS, _N_RS = len(EDGE_COLUMNS), len(INCOMPRESSIBLE_SCALARS), len(RIGID_SCALARS)
 
 
@@ -226,17 +216,6 @@ def sign(x):
 
 
 @kernel
-def metered_force(direction, area_in, area_out, orifice_in, orifice_out, supply_pressure, tank_pressure, density,
-                  ambient_pressure):
-    """Valve-metered actuator with rigid oil (Merritt §5.2): (F_d [N | N·m], R [N·s²/m² | N·m·s²/rad²]) of
-    F(v) = F_d − R·v·|v| (see module docstring); ``orifice_*`` are the effective edge areas C_d·a [m²]."""
-    # (products, not powers: compiled and Python runs then round alike)
-    resistance = 0.5 * density * (area_in * area_in * area_in / (orifice_in * orifice_in)
-                                  + area_out * area_out * area_out / (orifice_out * orifice_out))
-    return direction * ((supply_pressure - ambient_pressure) * area_in - (tank_pressure - ambient_pressure) * area_out), resistance
-
-
-@kernel
 def quadratic_damper(drive, resist, velocity):
     """F_d − R·v⁺·|v⁺| linearised at ``velocity``: (constant, slope) of constant + slope·v⁺."""
     return drive + resist * velocity * abs(velocity), -2.0 * resist * abs(velocity)
@@ -267,50 +246,17 @@ def bounded_tracker(target, velocity, gain, lower, upper):
     return gain * target, -gain
 
 
-@kernel
-def direction_of(spool, overlap):
-    """Metering direction [-] of a spool position: sign(s) while an edge is open beyond the overlap, else 0."""
-    return sign(spool) * (1.0 if _valve.metering_opening(abs(spool), overlap) > 0 else 0.0)
-
-
-@kernel
-def rigid_rate(direction, extend_area, retract_area):
-    """Flow drawn from P per unit actuator velocity [m² | m³/rad] of a rigid branch: A_cap extending, −A_rod
-    retracting, 0 closed (NetworkModel.rigid_rates)."""
-    if direction > 0:
-        return extend_area
-    if direction < 0:
-        return -retract_area
-    return 0.0
-
-
 # ----------------------------------------------------------------------------
 # Network kernels (allocation-free, on the packed network)
 # ----------------------------------------------------------------------------
 @kernel
-def rigid_flows(pnet, R, spool, velocity, flow, dflow):
-    """Flows [m³/s] of the rigid branches (the last branches of the network) at ``spool`` and ``velocity``; their
-    pressure derivatives are zero."""
-    net = C._deref(pnet)
-    count = R.actuator.size
-    start = net.ic[C.IC_NB] - count
-    for k in range(count):
-        valve = R.valve[k]
-        d = direction_of(R.sign[k] * spool[valve], net.valve[valve, V_OVERLAP])
-        b = start + k
-        flow[b] = rigid_rate(d, R.extend_area[k], R.retract_area[k]) * velocity[R.actuator[k]]
-        for j in range(dflow.shape[1]):
-            dflow[b, j] = 0.0
-
-
-@kernel
 def explicit_work_size(ic):
-    """Scratch entries :func:`explicit_substep` takes: geometric volumes, ∂p/∂m, net inflow, orifice areas."""
-    return 3 * ic[C.IC_N] + ic[C.IC_O1] - ic[C.IC_O0]
+    """Scratch entries :func:`explicit_substep` takes: geometric volumes, ∂p/∂m, net inflow, valve areas."""
+    return 3 * ic[C.IC_N] + C._area_count(ic)
 
 
 @kernel
-def explicit_substep(pnet, R, W, start, x_end, h, out):
+def explicit_substep(pnet, W, start, x_end, h, out):
     """One forward-Euler substep of ``h`` [s] from ``start`` (:class:`hydraulics._compiled.StepStart`; its
     velocities held over the substep) into ``out`` (:class:`hydraulics._compiled.StepOut`): end spools, oil
     m⁺ = m + h·ΣQ(p(m, x), s, v), flows at the start, pressures p(m⁺, ``x_end``).  ``W``: scratch of
@@ -322,12 +268,11 @@ def explicit_substep(pnet, R, W, start, x_end, h, out):
     geo, o = C._take(W, 0, n)
     dpdm, o = C._take(W, o, n)
     inflow, o = C._take(W, o, n)
-    area, o = C._take(W, o, net.ic[C.IC_O1] - net.ic[C.IC_O0])
+    area, o = C._take(W, o, C._area_count(net.ic))
     C._spool_end(pnet, spool0, command, h, spool)
     C._pressure(pnet, oil0, x, geo, p, dpdm)
     C._valve_areas(pnet, spool0, area)
     C._branch_flows(pnet, p, area, speed, v, flow, dflow)
-    rigid_flows(pnet, R, spool0, v, flow, dflow)
     C._net_inflow(pnet, flow, inflow)
     C._copy(oil, oil0)
     free = net.free
@@ -390,14 +335,14 @@ def incompressible_finish(pnet, const, slope, lower, upper, v_end, x_end, geo, e
 
 @kernel
 def _incompressible_metering(pnet, T, a, spool, area):
-    """Direction [-], inlet area A_in and the metered force (F_d, R) of incompressible actuator ``a`` (:func:`metered_force`)."""
+    """Direction [-], inlet area A_in and the metered force (F_d, R) of incompressible actuator ``a`` (:func:`hydraulics.components.valve_4_3.metered_actuator_force`)."""
     net = C._deref(pnet)
     edges = T.edges
     supply_edge = edges[a, E_EXTEND_SUPPLY]
     direction = 0.0
     if supply_edge >= 0:
         valve = net.or_valve[supply_edge]
-        direction = direction_of(spool[valve], net.valve[valve, V_OVERLAP])
+        direction = _valve.metering_direction(spool[valve], net.valve[valve, V_OVERLAP])
     extend = direction >= 0
     a_in = T.extend_area[a] if extend else T.retract_area[a]
     a_out = T.retract_area[a] if extend else T.extend_area[a]
@@ -408,7 +353,7 @@ def _incompressible_metering(pnet, T, a, spool, area):
     c_in = T.edge_cd[a, j_in] * area[e_in] if e_in >= 0 else 0.0
     c_out = T.edge_cd[a, j_out] * area[e_out] if e_out >= 0 else 0.0
     p_t = net.sc[C.S_PREF]
-    drive, resist = metered_force(direction, a_in, a_out, c_in, c_out, T.scalars[IS_SUPPLY], p_t, T.scalars[IS_DENSITY], p_t)
+    drive, resist = _valve.metered_actuator_force(direction, a_in, a_out, c_in, c_out, T.scalars[IS_SUPPLY], p_t, T.scalars[IS_DENSITY], p_t)
     return direction, a_in, drive, resist
 
 
@@ -498,13 +443,13 @@ def mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, la
         a, valve = R.actuator[k], R.valve[k]
         overlap = net.valve[valve, V_OVERLAP]
         s = _valve.spool_step(spool0[valve], clip(command[valve], -1.0, 1.0), net.valve[valve, V_TAU], dt)
-        direction = direction_of(R.sign[k] * s, overlap)
+        direction = _valve.metering_direction(R.sign[k] * s, overlap)
         extend = direction >= 0
         a_in = R.extend_area[k] if extend else R.retract_area[k]
         a_out = R.retract_area[k] if extend else R.extend_area[k]
         edge = R.cd[k] * (R.base_area[k] + R.max_area[k] * _valve.metering_opening(abs(s), overlap))
         p_tank = net.node[R.tank[k], C.NODE_FIXED_P]
-        drive, resist = metered_force(direction, a_in, a_out, edge, edge, p_supply[k], p_tank, rho, pref)
+        drive, resist = _valve.metered_actuator_force(direction, a_in, a_out, edge, edge, p_supply[k], p_tank, rho, pref)
         c, kk = quadratic_damper(drive, resist, velocity[a])
         # live supply: + d·A_in·∂p_P/∂v·(v⁺ − v_g), a (negative) stiffness of the supply's oil column
         supply_slope = direction * a_in * dp_dv[k]
@@ -521,8 +466,8 @@ def mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, la
         else:
             target[a] = 0.0
         if damper:  # an open valve: the force the supply can give, F at p_P in [cavitation floor, highest relief]
-            low_end = metered_force(direction, a_in, a_out, edge, edge, floor, p_tank, rho, pref)[0]
-            high_end = metered_force(direction, a_in, a_out, edge, edge, top, p_tank, rho, pref)[0]
+            low_end = _valve.metered_actuator_force(direction, a_in, a_out, edge, edge, floor, p_tank, rho, pref)[0]
+            high_end = _valve.metered_actuator_force(direction, a_in, a_out, edge, edge, top, p_tank, rho, pref)[0]
             offset = c + kk * velocity[a] - drive  # damper and friction at the start velocity
             lower[a] = minimum(low_end, high_end) + offset
             upper[a] = maximum(low_end, high_end) + offset
@@ -537,7 +482,7 @@ def mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, la
 # Entry points called from Python (allocate their outputs), cached on disk under the sources' fingerprint
 # ----------------------------------------------------------------------------
 @C._jit
-def _explicit_step_python(F, I, R, start, x_end, h):
+def _explicit_step_python(F, I, start, x_end, h):
     net = C._unpack(F, I)
     pnet = C._ref(net)
     n, nb = net.ic[C.IC_N], net.ic[C.IC_NB]
@@ -545,7 +490,7 @@ def _explicit_step_python(F, I, R, start, x_end, h):
     oil, p, spool, flow = np.empty(n), np.empty(n), np.empty(start[1].size), np.empty(nb)
     dflow = np.empty((nb, C._W_BR))
     istats = np.zeros(6, np.int64)
-    explicit_substep(pnet, R, W, start, x_end, h, C.StepOut(oil, p, spool, flow, dflow, istats))
+    explicit_substep(pnet, W, start, x_end, h, C.StepOut(oil, p, spool, flow, dflow, istats))
     return oil, p, spool, flow
 
 
@@ -555,7 +500,7 @@ def _incompressible_law_python(F, I, T, spool0, command, speed, velocity, effect
     pnet = C._ref(net)
     na = velocity.size
     const, slope, lower, upper = np.empty(na), np.empty(na), np.empty(na), np.empty(na)
-    area, spool = np.empty(net.ic[C.IC_O1] - net.ic[C.IC_O0]), np.empty(spool0.size)
+    area, spool = np.empty(C._area_count(net.ic)), np.empty(spool0.size)
     C._spool_end(pnet, spool0, command, dt, spool)
     incompressible_law(pnet, T, spool, speed, velocity, effective_mass, dt, area, (const, slope), (lower, upper))
     return spool, const, slope, lower, upper
@@ -592,10 +537,10 @@ def _cached(fingerprint):
     """The entry points above behind numba's disk cache, keyed (through the closure variable ``fingerprint``,
     :data:`hydraulics._jit.FINGERPRINT`) by every kernel source they compile in."""
 
-    def explicit_step(F, I, R, start, x_end, h):
+    def explicit_step(F, I, start, x_end, h):
         if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
             raise ValueError("no fingerprint")
-        return _explicit_step_python(F, I, R, start, x_end, h)
+        return _explicit_step_python(F, I, start, x_end, h)
 
     def incompressible_law_entry(F, I, T, spool0, command, speed, velocity, effective_mass, dt):
         if fingerprint is None:  # never (see explicit_step)
@@ -627,7 +572,7 @@ def _cached(fingerprint):
 (explicit_step_entry, incompressible_law_entry, mixed_law_entry, incompressible_finish_entry,
  chamber_pressures_entry) = _cached(FINGERPRINT)
 
-__all__ = ["IncompressibleTable", "RigidTable", "pack_incompressible", "pack_rigid", "pack_network",
+__all__ = ["IncompressibleTable", "RigidTable", "pack_incompressible", "pack_rigid",
            "flatten_incompressible", "unflatten_incompressible", "flatten_rigid", "unflatten_rigid", "explicit_substep",
-           "incompressible_law", "mixed_law", "chamber_pressures", "incompressible_finish", "metered_force",
+           "incompressible_law", "mixed_law", "chamber_pressures", "incompressible_finish",
            "quadratic_damper", "bounded_tracker", "free_speed", "tracking_gain"]

@@ -342,7 +342,7 @@ def derive_chamber_pressures(model: NetworkModel, effort, pressure, actuators, *
     """
     from . import _compiled_rigid as K
 
-    F, I = packed if packed is not None else K.pack_network(model)
+    F, I = packed if packed is not None else _compiled.pack_network(model)
     out = _f64(pressure)
     K.chamber_pressures_entry(F, I, _f64(effort), out, np.ascontiguousarray(actuators, np.int64))
     pressure[...] = out
@@ -384,7 +384,7 @@ class CouplingIncompressible(Coupling):
         from . import _compiled_rigid as K
 
         super().__init__(model, stepper)
-        self.packed = K.pack_network(model)
+        self.packed = _compiled.pack_network(model)
         self.table = K.pack_incompressible(model)
         self.edges = self.table.edges  # per actuator: orifice branches (columns K.EDGE_COLUMNS)
         self.supply_pressure = float(self.table.scalars[K.IS_SUPPLY])
@@ -455,7 +455,7 @@ class CouplingMixed(Coupling):
         self.inner = inner
         self.name = f"{inner.name}+rigid"
         self.rigid = np.asarray(model.actuator_rigid, bool)
-        self.packed = K.pack_network(model)
+        self.packed = _compiled.pack_network(model)
         self.table = K.pack_rigid(model)
         self.supply_node = self.table.supply
         self.force_lower, self.force_upper = self.table.force_lower, self.table.force_upper

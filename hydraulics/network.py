@@ -814,12 +814,11 @@ class NetworkModel:
     # (:func:`hydraulics._compiled.evaluation_entries`), looping over the samples.
     @cached_property
     def _packed(self):
-        """(entries, F, I, R, RI, FM): the compiled evaluation kernels and this model packed for them
-        (:func:`hydraulics._compiled.pack_network`, :func:`hydraulics._compiled.pack_rigid`), made on first use."""
+        """(entries, F, I): the compiled evaluation kernels and this model packed for them
+        (:func:`hydraulics._compiled.pack_network`), made on first use."""
         from . import _compiled
 
-        F, I = _compiled.pack_network(self, rigid=True)
-        return (_compiled.evaluation_entries(), F, I) + _compiled.pack_rigid(self)
+        return (_compiled.evaluation_entries(),) + _compiled.pack_network(self)
 
     def _kernel(self, name, *args):
         """The evaluation kernel ``name`` on this model's packed arrays followed by ``args``."""
@@ -907,12 +906,10 @@ class NetworkModel:
     def valve_areas(self, spool):
         """Open area [m²] of every orifice-law branch for the given spool positions, followed (when the
         network has rigid actuators) by the displacement rate of every rigid branch (:meth:`rigid_rates`)."""
-        R, RI = self._packed[3:5]
-        return self._kernel("valve_areas", R, RI, _vector(spool, len(self.valve_names)))
+        return self._kernel("valve_areas", _vector(spool, len(self.valve_names)))
 
     def _rigid(self, spool):
-        R, RI = self._packed[3:5]
-        return self._kernel("rigid", R, RI, _vector(spool, len(self.valve_names)))
+        return self._kernel("rigid", _vector(spool, len(self.valve_names)))
 
     def rigid_direction(self, spool):
         """Metering direction of every rigid branch [-]: +1 when the spool feeds the cap (motor port a) from P,
@@ -957,9 +954,8 @@ class NetworkModel:
         actuator_velocity : ndarray, shape (actuator_count,)
             Motor shaft speeds [rad/s] (and rigid actuators' velocities) are read from it.
         """
-        RI, FM = self._packed[4:6]
         area = _vector(orifice_area, self.branch_slices["orifice"].stop + len(self.rigid_branch_actuator))
-        flow, dflow = self._kernel("branch_flows", RI, FM, _vector(pressure, self.node_count), area,
+        flow, dflow = self._kernel("branch_flows", _vector(pressure, self.node_count), area,
                                    _vector(pump_speed, len(self.pump_names)), _vector(actuator_velocity, self.actuator_count))
         sl = self.branch_slices.get("law", slice(0, 0))
         pilot = dflow[:, 2].copy() if sl.stop > sl.start else None
@@ -974,12 +970,11 @@ class NetworkModel:
     def flow_velocity_gradient(self, orifice_area=None) -> np.ndarray:
         """∂(net inflow)/∂v_actuator [m² or m³/rad], shape (node_count, actuator_count): motor branches and,
         given ``orifice_area`` from :meth:`valve_areas`, rigid branches."""
-        RI, FM = self._packed[4:6]
         count = len(self.rigid_branch_actuator)
         rates = np.zeros(count)
         if orifice_area is not None:
             rates = _vector(np.asarray(orifice_area, float)[self.branch_slices["orifice"].stop:], count)
-        return self._kernel("flow_velocity_gradient", RI, FM, rates)
+        return self._kernel("flow_velocity_gradient", rates)
 
     # ----------------------------------------------------------- efforts
     def pressure_effort(self, pressure):

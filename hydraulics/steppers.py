@@ -266,11 +266,8 @@ class StepperExplicitEuler(Stepper):
     order = 1
 
     def __init__(self, model: NetworkModel, *, substeps: int = 1):
-        from . import _compiled_rigid as K
-
         super().__init__(model, substeps=substeps)
-        self.packed = K.pack_network(model)
-        self.table = K.pack_rigid(model)
+        self.packed = _compiled.pack_network(model)
 
     def _substep(self, state, control, motion, h, oil_guess=None):  # oil_guess: not needed (explicit)
         from . import _compiled as C
@@ -280,7 +277,7 @@ class StepperExplicitEuler(Stepper):
         f64 = C._f64
         start = C.StepStart(f64(state.node_oil), f64(state.valve_spool), f64(control.valve_command),
                             f64(control.pump_speed), f64(motion.position_start), f64(motion.velocity_start))
-        oil, pressure, spool, flow = K.explicit_step_entry(F, I, self.table, start, f64(motion.position_end), float(h))
+        oil, pressure, spool, flow = K.explicit_step_entry(F, I, start, f64(motion.position_end), float(h))
         self.rhs_count += 1
         new = NetworkState(oil, pressure, spool, np.array(motion.position_end, float),
                            np.array(motion.velocity_start, float), state.time + h)

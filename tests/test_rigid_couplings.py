@@ -85,7 +85,7 @@ def test_mixed_law_matches_oracle(models, data):
     dp_dv = data.draw(floats(nr, -1e10, 0.0))
     v_guess = data.draw(floats(nr, -1.0, 1.0))
     dt = data.draw(st.sampled_from([1e-4, 1e-3, 1e-2]))
-    F, I = K.pack_network(m)
+    F, I = C.pack_network(m)
     got = K.mixed_law_entry(F, I, K.pack_rigid(m), spool0, command, velocity, mass, dt, (p_supply, dp_dv, v_guess),
                             constant.copy(), slope.copy())
     want = R.mixed_law(m, constant, slope, spool0, command, velocity, mass, dt, p_supply, dp_dv, v_guess)
@@ -108,9 +108,9 @@ def test_explicit_substep_matches_oracle(models, data):
     speed = data.draw(floats(npump, 0.0, 40.0))
     h = data.draw(st.sampled_from([1e-6, 1e-5]))
     x_end = x + h * velocity
-    F, I = K.pack_network(m)
+    F, I = C.pack_network(m)
     start = C.StepStart(state.node_oil, spool, command, speed, x, velocity)
-    got = K.explicit_step_entry(F, I, K.pack_rigid(m), start, x_end, h)
+    got = K.explicit_step_entry(F, I, start, x_end, h)
     want = R.explicit_substep(m, state.node_oil, spool, command, speed, x, x_end, velocity, h)
     free = m.free_nodes
     close(got[0][free], want[0][free], rtol=1e-13)

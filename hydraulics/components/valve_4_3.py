@@ -89,9 +89,31 @@ def metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out
 
     Returns (F_d [N], R [N·s²/m²]); R is inf where an edge is shut.  Pressures p_s, p_t [Pa], ρ [kg/m³].
     """
-    resistance = 0.5 * density * (area_in**3 / orifice_in**2 + area_out**3 / orifice_out**2)
+    # (products, not powers: compiled and Python runs then round alike)
+    resistance = 0.5 * density * (area_in * area_in * area_in / (orifice_in * orifice_in)
+                                  + area_out * area_out * area_out / (orifice_out * orifice_out))
     drive = direction * ((supply_pressure - ambient_pressure) * area_in - (tank_pressure - ambient_pressure) * area_out)
     return drive, resistance
+
+
+@kernel
+def metering_direction(spool, overlap):
+    """Metering direction [-] of a spool position s: sign(s) while an edge is open beyond the overlap ε, else 0
+    (+1: P feeds the cap side / motor port a)."""
+    if metering_opening(abs(spool), overlap) > 0.0:
+        return 1.0 if spool > 0.0 else (-1.0 if spool < 0.0 else 0.0)
+    return 0.0 if spool == spool else spool
+
+
+@kernel
+def displaced_rate(direction, extend_area, retract_area):
+    """Flow the valve meters per unit actuator velocity with rigid oil [m² | m³/rad]: A_cap (D/2π) extending,
+    −A_rod retracting, 0 closed (``direction`` from :func:`metering_direction`)."""
+    if direction > 0.0:
+        return extend_area
+    if direction < 0.0:
+        return -retract_area
+    return 0.0
 
 
 COLUMNS = ("time_constant", "overlap")

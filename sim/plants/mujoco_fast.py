@@ -350,7 +350,7 @@ def _finish_explicit(ctx, pnet, V, R, x_start, v_start, cmd, speed, out, W):
             x_end = x_start[i] + dt * v_start[i]
             xb[i] = x_start[i] + (s / substeps) * (x_end - x_start[i]) if substeps > 1 else x_start[i]
             xe[i] = x_start[i] + ((s + 1) / substeps) * (x_end - x_start[i]) if substeps > 1 else x_end
-        K.explicit_substep(pnet, R, W, C.StepStart(oil, spool, cmd, speed, xb, v_start), xe, h,
+        K.explicit_substep(pnet, W, C.StepStart(oil, spool, cmd, speed, xb, v_start), xe, h,
                            C.StepOut(o2, p2, sp2, fl, dfl, istats))
         rhs += 1
         C._copy(V.flow, fl)
@@ -610,7 +610,7 @@ def _begin(ctx, pnet, V, T, R):
         else:  # CouplingIncompressible.begin: end spools (kept for the finish) and the bounded law
             C._spool_end(pnet, spool, cmd, dt, lin_spool)
             ic = C._deref(pnet).ic
-            K.incompressible_law(pnet, T, lin_spool, speed, vs, meff, dt, W[:ic[C.IC_O1] - ic[C.IC_O0]], (const, slope),
+            K.incompressible_law(pnet, T, lin_spool, speed, vs, meff, dt, W[:C._area_count(ic)], (const, slope),
                                  (V.lower, V.upper))
             _write_bounds(act, V.lower, V.upper, V.flimited, V.frange)
         for i in range(na):
