@@ -333,7 +333,7 @@ def _widen(values, high, low, n):
 
 
 @_kernel
-def _finish_explicit(ctx, pnet, V, R, x_start, v_start, cmd, speed, out, W):
+def _finish_explicit(ctx, pnet, V, x_start, v_start, cmd, speed, out, W):
     """CouplingExplicit.finish: the network advanced by forward Euler from its own actuator positions with the
     start velocities held (``Stepper._step``'s substeps, ``ActuatorMotion.linear``/``part``); returns
     (status, worst node, right-hand sides).  ``out`` = (end oil, pressures, spools, flows, their derivatives,
@@ -417,7 +417,7 @@ def _finish_pending(ctx, pnet, V, T, R):
     kind = ctx[C_KIND]
     if kind == KIND_EXPLICIT:  # CouplingExplicit.finish (xe, ve: free until the ledger)
         C._copy(x_end, pos)  # the motion starts from the network's own positions (x_end: free in this branch)
-        status, worst, rhs = _finish_explicit(ctx, pnet, V, R, x_end, vs, cmd, speed,
+        status, worst, rhs = _finish_explicit(ctx, pnet, V, x_end, vs, cmd, speed,
                                               (o2, p2, sp2, fl, dfl, istats, xe, ve), W)
         substeps = 0
         if R.actuator.size:  # CouplingMixed.finish: rigid chambers carry the clamped effort less friction
@@ -829,7 +829,7 @@ class MujocoPlantFast(MujocoPlant):
         if kind == KIND_INCOMPRESSIBLE:
             self._TF, self._TI = K.flatten_incompressible(coupling.table)
         elif kind == KIND_EXPLICIT:  # its rigid actuators (none without CouplingMixed)
-            self._TF, self._TI = K.flatten_rigid(stepper.table)
+            self._TF, self._TI = K.flatten_rigid(K.pack_rigid(net))
         else:  # (not read)
             self._TF, self._TI = np.zeros(0), np.zeros(0, np.int64)
         # the callback views both tables in these arrays (only C_KIND's is read): long enough for either
