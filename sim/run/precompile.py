@@ -24,6 +24,11 @@ Groups (each group's kernels depend on each other, so one group is one process):
     the PBD plant's per-substep path: the compiled XPBD substep called from Python and the compiled
     coupling hooks (``xpbd/hydraulics_nb``), whose hydraulic kernels the ``mujoco`` group has
     cached by the time a second process takes it.
+``hydraulics``
+    the entries Python calls one at a time: every :class:`~hydraulics.network.NetworkModel` evaluation
+    (``_compiled.evaluation_entries``) on a network with and without rigid actuators, and the per-step
+    :class:`~sim.plants.mujoco.MujocoPlant` with each coupling (the implicit couplings' rules, the explicit
+    step, the incompressible and rigid-actuator laws of ``_compiled_rigid``).
 
     hydroplant compile [--jobs N] [--groups pbd mujoco pbd-hooks]
 """
@@ -84,7 +89,36 @@ def _pbd_hooks() -> None:
     _pbd_plant(frame=False).step()
 
 
-GROUPS = {"pbd": _pbd, "mujoco": _mujoco, "pbd-hooks": _pbd_hooks}  # in the order they are started
+def _evaluations(model) -> None:
+    """Every evaluation method of ``model`` once, at its start state."""
+    state, control = model.state(), model.control()
+    x, p = state.actuator_position, state.node_pressure
+    volumes = model.node_volume_at(x, p)
+    model.extra_volume(p), model.accumulator_liquid_volume(p[model.accumulator_node]), model.chamber_volumes(x)
+    model.volume_position_gradient(x), model.oil_from_pressure(p, x), model.pressure(state.node_oil, x)
+    model.effective_bulk_modulus(p, x, volumes), model.chamber_stiffness(p, x, volumes)
+    area = model.valve_areas(control.valve_command)
+    model.rigid_direction(control.valve_command), model.law_pieces(p)
+    flows = model.branch_flows(p, area, control.pump_speed, state.actuator_velocity)
+    model.flow_jacobian(flows), model.flow_velocity_gradient(area)
+    model.actuator_effort(p, state.actuator_velocity), model.effort_pressure_gradient()
+
+
+def _hydraulics() -> None:
+    from sim.plants.mujoco import MujocoPlant
+    from sim.io.scenario import load_scenario
+    from sim.io.scene import load_scene
+
+    scenario = load_scenario(EXCAVATOR)
+    for fidelity in ({}, {"actuator_fidelity": {"boom_cyl": "incompressible"}}):
+        for coupling in ("implicit", "implicit-linear", "rosenbrock", "explicit"):
+            plant = MujocoPlant(load_scene(scenario.with_overrides(coupling=coupling, **fidelity)))
+            plant.step()
+        _evaluations(plant.network)
+    MujocoPlant(load_scene(scenario.with_overrides(fidelity="incompressible"))).step()
+
+
+GROUPS = {"pbd": _pbd, "mujoco": _mujoco, "pbd-hooks": _pbd_hooks, "hydraulics": _hydraulics}  # in the order they are started
 
 
 def _compile_group(name: str) -> float:
