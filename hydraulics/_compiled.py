@@ -1002,16 +1002,7 @@ def _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt):
     ``dvdx`` (n × na) receives ∂V/∂x [m²].
     For pure oil φ·∂p/∂m = 1/(∂V/∂p + V/β) (φ cancels: no exp)."""
     net = _deref(pnet)
-    dvdx[:, :] = 0.0
-    cyl, ci = net.cyl, net.cyl_i
-    for c in range(cyl.shape[0]):
-        _, _, dvc, _ = _cylinder.chamber_volumes(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
-                                          cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
-        dvdx[ci[c, CI_CAP], ci[c, CI_ACT]] += dvc
-    for c in range(cyl.shape[0]):
-        _, _, _, dvr = _cylinder.chamber_volumes(x[ci[c, CI_ACT]], cyl[c, CYL_STROKE], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
-                                          cyl[c, CYL_DEAD_CAP], cyl[c, CYL_DEAD_ROD])
-        dvdx[ci[c, CI_ROD], ci[c, CI_ACT]] += dvr
+    _volume_position_gradient(pnet, x, dvdx)
     na = x.size
     pure = net.sc[S_AIR] == 0.0
     for k in range(p.size):
@@ -1061,33 +1052,16 @@ def _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope):
     """NetworkModel.actuator_effort at pressures ``p`` [Pa] and velocities ``velocity`` into ``effort`` [N or N·m],
     and ∂effort/∂v⁺ = (∂f/∂p)·(∂p/∂v⁺) + diag(friction slope) into ``gradient`` (na × na) from ``dpdv`` (n × na);
     ``epg`` (na × n), ``slope`` (na): scratch."""
-    net = _deref(pnet)
-    sc = net.sc
-    cyl, ci, mi = net.cyl, net.cyl_i, net.mot_i
     na = effort.size
-    effort[:] = 0.0
-    slope[:] = 0.0
-    for c in range(cyl.shape[0]):
-        a = ci[c, CI_ACT]
-        effort[a] = _cylinder.pressure_force(p[ci[c, CI_CAP]], p[ci[c, CI_ROD]], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA], sc[S_PREF])
-    for i in range(mi.shape[0]):
-        effort[mi[i, MI_ACT]] = _pumps.torque(net.mot[i], p[mi[i, MI_A]] - p[mi[i, MI_B]])
-    for c in range(cyl.shape[0]):
-        a = ci[c, CI_ACT]
-        f, df = _cylinder.friction_force_with_derivative(velocity[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC], cyl[c, CYL_STRIBECK],
-                                                  cyl[c, CYL_VISCOUS], sc[S_VREG])
-        effort[a] = effort[a] + -f
-        slope[a] = -df
+    if na == 0:
+        return
+    _pressure_effort(pnet, p, effort)
+    friction = gradient[0]  # (scratch until the gradient is written below)
+    _friction_effort(pnet, velocity, friction, slope)
+    for a in range(na):
+        effort[a] = effort[a] + friction[a]
     # effort_pressure_gradient @ dpdv + diag(friction slope)
-    epg[:, :] = 0.0
-    for c in range(cyl.shape[0]):
-        epg[ci[c, CI_ACT], ci[c, CI_CAP]] += cyl[c, CYL_CAP_AREA]
-    for c in range(cyl.shape[0]):
-        epg[ci[c, CI_ACT], ci[c, CI_ROD]] += -cyl[c, CYL_ROD_AREA]
-    for i in range(mi.shape[0]):
-        epg[mi[i, MI_ACT], mi[i, MI_A]] += net.mot[i] / (2.0 * np.pi)
-    for i in range(mi.shape[0]):
-        epg[mi[i, MI_ACT], mi[i, MI_B]] += -(net.mot[i] / (2.0 * np.pi))
+    _effort_pressure_gradient(pnet, epg)
     for a in range(na):
         for b in range(na):
             s = 0.0
@@ -1247,27 +1221,9 @@ def _linearize_one_step_core(pnet, W, start, dt, out):
 def _same_law_pieces(pnet, pa, pb):
     """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no relief, check valve or pump compensator
     changes the piece of its law between the node pressures ``pa`` and ``pb`` [Pa]."""
-    net = _deref(pnet)
-    ic, br = net.ic, net.br
-    rel, chk, pump = net.rel, net.chk, net.pump
-    for b in range(ic[IC_R0], ic[IC_R1]):
-        i = b - ic[IC_R0]
-        za = pa[br[b, 0]] - pa[br[b, 1]] - rel[i, R_CRACK]
-        zb = pb[br[b, 0]] - pb[br[b, 1]] - rel[i, R_CRACK]
-        if _ramps.ramp_piece(za, rel[i, R_WIDTH]) != _ramps.ramp_piece(zb, rel[i, R_WIDTH]):
-            return False
-    for b in range(ic[IC_C0], ic[IC_C1]):
-        i = b - ic[IC_C0]
-        span = chk[i, K_FULL] - chk[i, K_CRACK]
-        za = (pa[br[b, 0]] - pa[br[b, 1]] - chk[i, K_CRACK]) / span
-        zb = (pb[br[b, 0]] - pb[br[b, 1]] - chk[i, K_CRACK]) / span
-        if _ramps.ramp_piece(za, 1.0) != _ramps.ramp_piece(zb, 1.0):
-            return False
-    for b in range(ic[IC_P0], ic[IC_P1]):
-        i = b - ic[IC_P0]
-        za = (pump[i, P_COMP] + pump[i, P_BAND] - pa[br[b, 1]]) / pump[i, P_BAND]
-        zb = (pump[i, P_COMP] + pump[i, P_BAND] - pb[br[b, 1]]) / pump[i, P_BAND]
-        if _ramps.ramp_piece(za, 1.0) != _ramps.ramp_piece(zb, 1.0):
+    ic = _deref(pnet).ic
+    for j in range((ic[IC_R1] - ic[IC_R0]) + (ic[IC_C1] - ic[IC_C0]) + (ic[IC_P1] - ic[IC_P0])):
+        if _law_piece(pnet, j, pa) != _law_piece(pnet, j, pb):
             return False
     return True
 
