@@ -395,7 +395,7 @@ def _invert_wall_node(geometric, rigid, wall, pref, beta, tol, max_iterations):
     same safeguarded Newton as _invert_node, started from the root of the series of the log to second order
     in a·u (a = w/V_g, u = p − p_ref): u₁ = u_r/(1 + a·β), u₂ = u₁ + β·a²·u₁²/(2·(1 + a·β)), whose residual is
     O((a·u)³), so the tolerance is met in one or two iterations instead of up to eight from ``rigid``
-    (the same root to the tolerance; the pure path starts from ``rigid``).
+    (the same root to the tolerance; the numpy oracle of the tests starts from ``rigid``).
     """
     inv_geometric, inv_beta = 1.0 / geometric, 1.0 / beta  # (multiplications instead of divisions in the loop)
     au = wall * inv_geometric

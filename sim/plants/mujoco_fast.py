@@ -119,10 +119,9 @@ allowed, :meth:`advance` continues from the assigned values), and in the same wa
   ``n − 1`` steps ahead of ``step_index`` after a failure.
 * Accelerated: the implicit couplings (``implicit``, ``implicit-linear``, ``rosenbrock``) with the
   compiled implicit-Euler stepper, the ``explicit`` coupling with the explicit-Euler stepper and the
-  ``incompressible`` fidelity.  Any other configuration (rigid actuators among compressible ones, i.e.
-  ``CouplingMixed``: the compiled backward Euler has no rigid branches; an implicit coupling with
-  ``compiled = false``; another
-  stepper) falls back to :meth:`MujocoPlant.step` in a Python loop (``fast`` is then False).
+  ``incompressible`` fidelity, and rigid actuators around the ``explicit`` coupling.  Rigid actuators around an
+  implicit coupling, and any other stepper, fall back to :meth:`MujocoPlant.step` in a Python loop (``fast`` is
+  then False); the per-step plant calls the same kernels.
 """
 
 from __future__ import annotations
