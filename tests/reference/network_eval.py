@@ -227,19 +227,7 @@ def law_pieces(model, pressure) -> np.ndarray:
 
 
 def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -> BranchFlows:
-    """Flow [m³/s] of every branch and its pressure derivatives.
-
-    Parameters
-    ----------
-    pressure : ndarray, shape (node_count,)
-        Absolute node pressures [Pa].
-    orifice_area : ndarray, shape (orifice branches [+ rigid branches],)
-        From :meth:`valve_areas`.
-    pump_speed : ndarray, shape (pump_count,)
-        [rev/s].
-    actuator_velocity : ndarray, shape (actuator_count,)
-        Motor shaft speeds [rad/s] are read from it.
-    """
+    """Flow [m³/s] of every branch and its pressure derivatives (arguments as ``NetworkModel.branch_flows``)."""
     fluid = model.fluid
     dp = pressure[model.branch_from] - pressure[model.branch_to]
     nb = len(model.branch_names)

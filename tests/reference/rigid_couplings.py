@@ -66,13 +66,10 @@ def quadratic_damper(drive, resist, velocity):
 
 
 def areas(model):
-    """Areas extending / retracting of every actuator (cap / rod, D/2π)."""
-    n = model.actuator_count
-    extend, retract = np.zeros(n), np.zeros(n)
-    extend[model.cylinder_actuator] = model.cylinder_cap_area
-    retract[model.cylinder_actuator] = model.cylinder_rod_area
-    extend[model.motor_actuator] = retract[model.motor_actuator] = model.motor_displacement / (2.0 * np.pi)
-    return extend, retract
+    """Areas extending / retracting of every actuator (cap / rod, D/2π): model data, read as the package packs it."""
+    from hydraulics._compiled_rigid import _actuator_areas
+
+    return _actuator_areas(model)
 
 
 def relief_pressure(model):
