@@ -45,6 +45,8 @@ def _scenes():
                           "explicit", 300),
         "excavator/explicit+rigid": (MODELS / "excavator" / "dig.scenario.toml",
                                      {"dt": 2e-5, "actuator_fidelity": RIGID_FRONT}, fast_dig, "explicit", 200),
+        "excavator/implicit+rigid": (MODELS / "excavator" / "dig.scenario.toml", {"actuator_fidelity": RIGID_FRONT},
+                                     dig, None, 200),
     }
 
 

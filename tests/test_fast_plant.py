@@ -205,8 +205,10 @@ def test_recorded_rows_are_the_state_after_each_step(every):
 
 
 # The explicit coupling, the incompressible fidelity (its effort bounds are MuJoCo's force ranges, set inside the
-# callback) and a `lines` network step inside the callback too: (scenario, overrides, inputs, coupling, steps).
+# callback), rigid actuators around the explicit and implicit couplings and a `lines` network step inside the
+# callback too: (scenario, overrides, inputs, coupling, steps).
 DIG_INPUTS = CASES["excavator"][1]
+RIGID_FRONT = {"stick_cyl": "incompressible", "bucket_cyl": "incompressible", "swing_motor": "incompressible"}
 OTHER_CASES = {
     "boom/explicit": (MODELS / "boom" / "lift.scenario.toml", {"dt": 2e-5}, {"boom_valve": ramp(0.0, 0.002, 1.0)},
                       "explicit", 300),
@@ -222,11 +224,17 @@ OTHER_CASES = {
     "excavator/lines": (MODELS / "excavator" / "dig.scenario.toml", {"fidelity": "lines"}, DIG_INPUTS, None, 150),
     # rigid stick, bucket and swing among compressible actuators, around the explicit coupling
     "excavator/explicit+rigid": (
-        MODELS / "excavator" / "dig.scenario.toml",
-        {"dt": 2e-5, "actuator_fidelity": {"stick_cyl": "incompressible", "bucket_cyl": "incompressible",
-                                           "swing_motor": "incompressible"}},
+        MODELS / "excavator" / "dig.scenario.toml", {"dt": 2e-5, "actuator_fidelity": RIGID_FRONT},
         {"boom_valve": ramp(0.0, 0.001, -0.35), "stick_valve": ramp(0.0, 0.001, 0.8),
          "bucket_valve": ramp(0.0, 0.002, 0.5), "swing_valve": ramp(0.0, 0.001, 1.0)}, "explicit", 200),
+    # the same rigid front around the implicit couplings: the supply pressure from the inner linearisation
+    "excavator/implicit+rigid": (MODELS / "excavator" / "dig.scenario.toml", {"actuator_fidelity": RIGID_FRONT},
+                                 DIG_INPUTS, None, 300),
+    "excavator/rosenbrock+rigid": (MODELS / "excavator" / "dig.scenario.toml", {"actuator_fidelity": RIGID_FRONT},
+                                   DIG_INPUTS, "rosenbrock", 300),
+    "boom/implicit-linear, rigid boom": (MODELS / "boom" / "lift.scenario.toml",
+                                         {"actuator_fidelity": {"boom_cyl": "incompressible"}},
+                                         {"boom_valve": ramp(0.02, 0.08, 1.0)}, "implicit-linear", 300),
 }
 
 
@@ -244,7 +252,7 @@ def other_plants(case):
 
 
 @pytest.mark.parametrize("case", list(OTHER_CASES))
-def test_fast_plant_matches_python_plant_for_explicit_incompressible_and_lines(case):
+def test_fast_plant_matches_python_plant_for_the_other_couplings(case):
     """As test_fast_plant_matches_python_plant, and the force ranges MuJoCo clamps the efforts to agree."""
     reference, fast, steps = other_plants(case)
     blocks = [1, 7, 50, 1, 13, 100]

@@ -118,10 +118,10 @@ allowed, :meth:`advance` continues from the assigned values), and in the same wa
   end of the block (with the last effort law held), so ``qpos`` may be up to
   ``n − 1`` steps ahead of ``step_index`` after a failure.
 * Accelerated: the implicit couplings (``implicit``, ``implicit-linear``, ``rosenbrock``) with the
-  compiled implicit-Euler stepper, the ``explicit`` coupling with the explicit-Euler stepper and the
-  ``incompressible`` fidelity, and rigid actuators around the ``explicit`` coupling.  Rigid actuators around an
-  implicit coupling, and any other stepper, fall back to :meth:`MujocoPlant.step` in a Python loop (``fast`` is
-  then False); the per-step plant calls the same kernels.
+  compiled implicit-Euler stepper, the ``explicit`` coupling with the explicit-Euler stepper, either with
+  rigid actuators around it (:class:`~hydraulics.coupling.CouplingMixed`: the law of :func:`_rigid_law`
+  over the inner one's), and the ``incompressible`` fidelity.  Any other stepper falls back to
+  :meth:`MujocoPlant.step` in a Python loop (``fast`` is then False); the per-step plant calls the same kernels.
 """
 
 from __future__ import annotations
@@ -419,11 +419,6 @@ def _finish_pending(ctx, pnet, V, T, R):
         status, worst, rhs = _finish_explicit(ctx, pnet, V, x_end, vs, cmd, speed,
                                               (o2, p2, sp2, fl, dfl, istats, xe, ve), W)
         substeps = 0
-        if R.actuator.size:  # CouplingMixed.finish: rigid chambers carry the clamped effort less friction
-            C._friction_effort(pnet, v_end, ve, xe)
-            for i in range(na):
-                x_end[i] = C._clip(V.const[i] + V.slope[i] * v_end[i], V.lower[i], V.upper[i]) - ve[i]
-            K.chamber_pressures(pnet, x_end, pres, R.rigid, False)
     elif kind == KIND_INCOMPRESSIBLE:  # CouplingIncompressible.finish: pressures and oil from the clamped effort
         K.incompressible_finish(pnet, V.const, V.slope, V.lower, V.upper, v_end, x_end, W[:n], V.effort, pres, oil)
         C._copy(spool, lin_spool)
@@ -468,6 +463,11 @@ def _finish_pending(ctx, pnet, V, T, R):
         if bad >= 0:
             status, worst = ST_NONFINITE, bad
             break
+    if R.actuator.size and status == ST_OK:  # CouplingMixed.finish: rigid chambers carry the clamped effort less friction
+        C._friction_effort(pnet, v_end, ve, xe)  # (x_end, xe, ve: free again)
+        for i in range(na):
+            x_end[i] = C._clip(V.const[i] + V.slope[i] * v_end[i], V.lower[i], V.upper[i]) - ve[i]
+        K.chamber_pressures(pnet, x_end, pres, R.rigid, False)
     ctx[C_NEWTON], ctx[C_RHS], ctx[C_JAC] = newton, rhs, jac
     ctx[C_STATUS], ctx[C_WORST] = status, worst
     fs[FS_NORM] = residual
@@ -533,6 +533,39 @@ def _write_bounds(act, lower, upper, flimited, frange):
 
 
 @_kernel
+def _rigid_law(pnet, V, R, cmd, dt, lin, implicit, W):
+    """CouplingMixed.begin: the rigid actuators' law (:func:`hydraulics._compiled_rigid.mixed_law`) written over
+    the step's law in ``V``, its bounds to MuJoCo's force ranges and θ = 1 on the rigid actuators.
+
+    ``lin`` = (pressures [Pa], oil [m³], positions [m | rad], ∂m⁺/∂v, velocities [m/s | rad/s]) of the inner
+    coupling's linearisation: with ``implicit`` the supply pressure p_P is its end pressure, with the gradient
+    ∂p_P/∂v = (∂p/∂m)·(∂m⁺/∂v) at its oil and positions, about its velocities; otherwise (the explicit coupling)
+    the start pressure, held (the other members are not read).  ``W``: scratch (3·rigid branches + 3·nodes +
+    4·actuators)."""
+    nr, n, na = R.actuator.size, V.pres.size, V.xs.size
+    p_supply, o = C._take(W, 0, nr)
+    gradient, o = C._take(W, o, nr)
+    v_guess, o = C._take(W, o, nr)
+    geo, o = C._take(W, o, n)
+    p, o = C._take(W, o, n)
+    dpdm, o = C._take(W, o, n)
+    pressure, oil, position, doil, velocity = lin
+    if implicit:
+        C._pressure(pnet, oil, position, geo, p, dpdm)
+    for k in range(nr):
+        node, a = R.supply[k], R.actuator[k]
+        p_supply[k] = pressure[node]
+        gradient[k] = dpdm[node] * doil[node, a] if implicit else 0.0
+        v_guess[k] = velocity[a] if implicit else 0.0
+    K.mixed_law(pnet, R, V.spool, cmd, V.vs, V.meff, dt, (p_supply, gradient, v_guess), (V.const, V.slope),
+                (V.lower, V.upper), W[o:o + 4 * na])
+    _write_bounds(V.act, V.lower, V.upper, V.flimited, V.frange)
+    for a in range(na):
+        if R.rigid[a]:
+            V.theta[a] = 1.0
+
+
+@_kernel
 def _begin(ctx, pnet, V, T, R):
     """After M⁻¹·Jᵀ: the effort law of the step (CouplingImplicit.begin; CouplingExplicit.begin or
     CouplingIncompressible.begin with the table ``T`` by ``C_KIND``), written to ctrl and biasprm (and the
@@ -594,16 +627,8 @@ def _begin(ctx, pnet, V, T, R):
             for i in range(na):
                 const[i] += friction[i]
                 slope[i] = 0.0
-            nr = ctx[C_NR]
-            if nr > 0:  # CouplingMixed around it: the rigid actuators' law at the start supply pressure
-                p_supply, o = C._take(W, 0, nr)
-                held, o = C._take(W, o, nr)
-                for j in range(nr):
-                    p_supply[j] = V.pres[R.supply[j]]
-                    held[j] = 0.0
-                K.mixed_law(pnet, R, spool, cmd, vs, meff, dt, (p_supply, held, held), (const, slope),
-                            (V.lower, V.upper), W[o:o + 4 * na])
-                _write_bounds(act, V.lower, V.upper, V.flimited, V.frange)
+            if R.actuator.size:  # CouplingMixed around it: the rigid actuators' law at the start supply pressure
+                _rigid_law(pnet, V, R, cmd, dt, (V.pres, oil, xs, doil, xs), False, W)
                 for i in range(na):
                     theta[i] = 1.0
         else:  # CouplingIncompressible.begin: end spools (kept for the finish) and the bounded law
@@ -636,6 +661,8 @@ def _begin(ctx, pnet, V, T, R):
         C._pressure(pnet, oil, xs, geo, p0, dpdm)
     C._pressure_effort(pnet, p0, pressure_start)
     C._blended_law(True, end_const, end_slope, pressure_start, friction, damping, vs, meff, dt, theta, const, slope)
+    if R.actuator.size:  # CouplingMixed around it: the rigid actuators' law at the linearisation's supply pressure
+        _rigid_law(pnet, V, R, cmd, dt, (lin_p, lin_oil, lin_x, doil, guess), True, W)
     for i in range(na):
         ctrl[act[i]] = const[i]
         bias[act[i] * ctx[C_NBIAS] + 2] = slope[i]
@@ -812,11 +839,11 @@ class MujocoPlantFast(MujocoPlant):
         coupling = self.coupling
         stepper = coupling.stepper
         kind = None
-        if (isinstance(coupling, CouplingImplicit) and isinstance(stepper, StepperImplicitEuler)
-                and coupling.predictor is stepper):
+        inner = coupling.inner if type(coupling) is CouplingMixed else coupling  # rigid actuators around it
+        if (isinstance(inner, CouplingImplicit) and isinstance(stepper, StepperImplicitEuler)
+                and inner.predictor is stepper):
             kind, (self._F, self._I) = KIND_IMPLICIT, (stepper._F, stepper._I)
-        elif (type(coupling) is CouplingExplicit or type(coupling) is CouplingMixed
-              and type(coupling.inner) is CouplingExplicit) and type(stepper) is StepperExplicitEuler:
+        elif type(inner) is CouplingExplicit and type(stepper) is StepperExplicitEuler:
             kind, (self._F, self._I) = KIND_EXPLICIT, stepper.packed
         elif type(coupling) is CouplingIncompressible:
             kind, (self._F, self._I) = KIND_INCOMPRESSIBLE, coupling.packed
@@ -827,10 +854,8 @@ class MujocoPlantFast(MujocoPlant):
         na, nv = net.actuator_count, m.nv
         if kind == KIND_INCOMPRESSIBLE:
             self._TF, self._TI = K.flatten_incompressible(coupling.table)
-        elif kind == KIND_EXPLICIT:  # its rigid actuators (none without CouplingMixed)
+        else:  # its rigid actuators (none without CouplingMixed)
             self._TF, self._TI = K.flatten_rigid(K.pack_rigid(net))
-        else:  # (not read)
-            self._TF, self._TI = np.zeros(0), np.zeros(0, np.int64)
         # the callback views both tables in these arrays (only C_KIND's is read): long enough for either
         nr = len(net.rigid_branch_actuator)
         nf = max(8 * na + len(K.INCOMPRESSIBLE_SCALARS), 2 * na + 6 * nr + len(K.RIGID_SCALARS))
@@ -850,7 +875,7 @@ class MujocoPlantFast(MujocoPlant):
         self._const, self._slope, self._theta, self._meff, self._effort = (np.zeros(na) for _ in range(5))
         self._flow = np.zeros(len(net.branch_names))
         self._passive = np.zeros(nv)
-        self._work = np.zeros(max(C.work_size(self._F, self._I), 4 * n + len(net.branch_names)))
+        self._work = np.zeros(max(C.work_size(self._F, self._I), 4 * n + len(net.branch_names), 3 * nr + 3 * n + 4 * na))
         self._scratch = np.zeros(scratch_size(na, n, len(net.branch_names), len(net.valve_names)))
         self._istats = np.zeros(6, np.int64)
         self._pmax, self._pmin = np.zeros(n), np.zeros(n)
@@ -868,9 +893,9 @@ class MujocoPlantFast(MujocoPlant):
         ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N], ctx[C_NB] = na, nv, m.nu, n, len(net.branch_names)
         ctx[C_NVALVE], ctx[C_NPUMP], ctx[C_NBIAS] = len(net.valve_names), len(net.pump_names), m.actuator_biasprm.shape[1]
         ctx[C_SUBSTEPS], ctx[C_NCYL] = stepper.substeps, len(net.cylinder_actuator)
-        ctx[C_LINEAR] = self.coupling.scheme if kind == KIND_IMPLICIT else 0  # hydraulics.coupling.SCHEME_*
+        ctx[C_LINEAR] = inner.scheme if kind == KIND_IMPLICIT else 0  # hydraulics.coupling.SCHEME_*
         ctx[C_KIND], ctx[C_NTF], ctx[C_NTI] = kind, self._TF.size, self._TI.size
-        ctx[C_NR] = len(net.rigid_branch_actuator) if kind == KIND_EXPLICIT else 0
+        ctx[C_NR] = nr if kind != KIND_INCOMPRESSIBLE else 0
         self._record_width = self.record_width
         ctx[C_NQ], ctx[C_NBODY], ctx[C_REC_WIDTH] = m.nq, m.nbody, self._record_width
         ctx[C_NF], ctx[C_NI], ctx[C_NW], ctx[C_NS] = self._F.size, self._I.size, self._work.size, self._scratch.size
