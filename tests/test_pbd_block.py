@@ -1,12 +1,12 @@
 """The PBD plant's block path (``PbdPlant.advance``: many steps in one compiled call, ``sim/plants/pbd_block.py``)
-against its per-frame path (``step()``: one compiled frame per step, the reference), and the runner driving it.
+against steps one at a time (``block=False``: ``step()``, a block of one step), and the runner driving it.
 
 * Seed, boom lift and excavator dig (through the teeth's first ground contact): after every block, body
   states, network state, efforts, the energy ledger, the last step's Newton counts, the controls, the clocks,
-  the hinge hint and the per-step pressure extremes equal the per-frame path's to round-off (1e-9 of the
+  the hinge hint and the per-step pressure extremes equal those of single steps to round-off (1e-9 of the
   largest magnitude, as ``tests/test_pbd_fast.py``), for blocks of several lengths.
 * A block stops before a step the compiled frame does not cover (here: contacts marked so); ``advance`` takes
-  that step on the per-frame path, and the runner replays such a block step by step (same log).
+  that step with the coupling hooks, and the runner replays such a block step by step (same log).
 * ``snapshot``/``restore`` (the runner's replay of a failed block) give back the same trajectory.
 * The runner logs the same values through blocks (samples recorded inside them) as step by step
   (``tests/test_runner_fast.py``'s comparison).
@@ -19,7 +19,7 @@ import warnings
 import numpy as np
 import pytest
 
-from test_pbd_compiled import BOOM, DIG, SEED, assert_close
+from test_pbd_compiled import BOOM, DIG, SEED, assert_close, contact_candidates
 from test_pbd_fast import _compare
 from test_runner_fast import assert_logs_agree
 from sim.plants.pbd import PbdPlant
@@ -42,7 +42,7 @@ def _plant(path, block, **overrides):
 
 def _compare_block(ref, blk, r1, r2, what):
     _compare(ref, blk, r1, r2, what)
-    assert ref.step_index == blk.step_index and ref.frame_steps == blk.frame_steps, what
+    assert ref.step_index == blk.step_index, what
     assert ref.state.time == pytest.approx(blk.state.time, rel=1e-12, abs=1e-12), what
     assert_close(ref.state.qpos_hint, blk.state.qpos_hint, f"{what} hint")
     assert_close(ref.control.pump_speed, blk.control.pump_speed, f"{what} pump speeds")
@@ -60,17 +60,17 @@ def _compare_block(ref, blk, r1, r2, what):
     (DIG, (1, 10, 10, 33, 50, 16), dict(dt=1 / 60, pbd_substeps=10)),  # 120 steps: the teeth touch at ≈ 1.6 s
     (DIG, (1, 30, 89), dict(dt=1 / 60, pbd_substeps=10, coupling="rosenbrock", pbd_blend=True)),
 ], ids=["seed", "boom", "excavator", "excavator-rosenbrock-blend"])
-def test_block_path_agrees_with_per_frame_path(path, blocks, overrides):
+def test_blocks_agree_with_single_steps(path, blocks, overrides):
     ref, blk = _plant(path, False, **overrides), _plant(path, True, **overrides)
     assert blk.fast and not ref.fast
     contacts = 0
     for n in blocks:
         for _ in range(n):
             r1 = ref.advance(1)
-            contacts += len(ref.solver._cidx)
+            contacts += contact_candidates(ref)
         r2 = blk.advance(n)
         _compare_block(ref, blk, r1, r2, f"{path.name} t={ref.time:.4f}")
-    assert blk.frame_steps == sum(blocks)  # every step ran in the compiled block
+    assert blk.frame_steps == ref.frame_steps == sum(blocks)  # every step ran compiled
     assert ref.node_pressure_max.max() > ref.node_pressure_min.max()  # the extremes moved
     if path == DIG:
         assert contacts > 0  # ground contacts were inside the compared blocks
@@ -78,14 +78,14 @@ def test_block_path_agrees_with_per_frame_path(path, blocks, overrides):
 
 def _no_block_contacts(plant):
     """Mark every contact point as one the compiled frame does not cover: a step with contact candidates then
-    stops the block and is taken by ``step()`` (the per-frame path's own fallback)."""
+    stops the block and is taken by ``step()`` with the coupling hooks."""
     plant._block_context()["eligible"][:] = False  # the array the compiled block reads
     return plant
 
 
 def test_block_stops_before_a_step_it_does_not_cover():
     """Excavator through its first ground contact with contacts the block may not take: the steps with candidates
-    run on the per-frame path inside ``advance``, the results still equal the per-frame path's."""
+    run with the coupling hooks inside ``advance``, the results still equal those of compiled single steps."""
     overrides = dict(dt=1 / 60, pbd_substeps=10)
     ref, blk = _plant(DIG, False, **overrides), _no_block_contacts(_plant(DIG, True, **overrides))
     fallbacks = []
@@ -96,8 +96,8 @@ def test_block_stops_before_a_step_it_does_not_cover():
             r1 = ref.advance(1)
         r2 = blk.advance(n)
         _compare_block(ref, blk, r1, r2, f"t={ref.time:.4f}")
-    assert blk.frame_steps == ref.frame_steps == 120
-    assert len(ref.solver._cidx) > 0 and len(fallbacks) > 0  # in contact at the end: those steps ran on step()
+    assert ref.frame_steps == 120 and blk.frame_steps == 120 - len(fallbacks)
+    assert contact_candidates(ref) > 0 and len(fallbacks) > 0  # in contact at the end: those steps took the hooks
 
 
 def test_runner_replays_a_block_that_stopped_early(tmp_path, monkeypatch):

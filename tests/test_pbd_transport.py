@@ -1,5 +1,5 @@
 """Articulated responses carried to every substep's pose (``XpbdOptions(transport_response=True)``,
-``sim.plants.pbd_frame.frame(transport=True)``, ``sim.xpbd.compiled.transport``).
+``sim.plants.pbd_block.block(transport=True)``, ``sim.xpbd.compiled.transport``).
 
 The PBD plant computes the articulated response of the mechanism (row mobilities, group gravity,
 motor responses: the group motions of Δq = M⁻¹·Jᵀ, world frame) once per step.  With transport,
@@ -31,7 +31,6 @@ from sim.io.scene import load_scene
 from sim.xpbd import compiled as XC
 from reference.xpbd_plant import pure_plant
 from reference.xpbd_substep import ReferenceSolver
-from sim.plants.pbd_frame import frame
 
 SWING = {"swing": 0.5}  # rad/s: the dig's swing speed (≈ 90° in ~3 s)
 
@@ -50,9 +49,7 @@ def _plant(transport, *, compiled=True, frame_path=True, **overrides):
         plant = PbdPlant(load_scene(scenario), frame=frame_path)
     else:
         plant = pure_plant(PbdPlant(load_scene(scenario), fast_hydraulics=False, frame=False))
-    plant.solver.transport_response = transport
-    if plant.frame_compiled:
-        plant._frame_context()["kernel"] = frame(transport=transport)
+    plant.solver.transport_response = transport  # (the compiled block of the plant's steps follows it)
     return plant
 
 

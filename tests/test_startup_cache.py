@@ -65,11 +65,12 @@ PBD_PROBE = """
 import json, sys, warnings
 warnings.filterwarnings("ignore")
 from sim.plants.pbd import PbdPlant
+from sim.plants.pbd_block import block
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 plant = PbdPlant(load_scene(load_scenario(sys.argv[1]).with_overrides(mode="pbd", dt=1 / 60, pbd_substeps=2)))
 plant.advance(2)
-kernel = plant._block_context()["kernel"]
+kernel = block(plant.solver.transport_response, plant.solver.articulated_contacts)
 print(json.dumps({"blocks": plant.frame_steps, "hits": sum(kernel.stats.cache_hits.values()),
                   "misses": sum(kernel.stats.cache_misses.values())}))
 """

@@ -86,23 +86,23 @@ fidelity:
   compiled calls per substep with preallocated buffers
   (``sim/plants/pbd_hydraulics.py``: ``_compiled._linearize_core`` / ``_step_core``);
 * on trees of hinges and slides with hinge motors and any contact kind (soft pyramidal or elliptic, rigid)
-  (the seed, boom and excavator scenes), the whole step is one compiled call
-  (``sim/plants/pbd_frame.py``: all substeps with the coupling, the XPBD substep
-  and the ledger; operator inputs sampled for the substeps beforehand).  ``frame_steps`` counts these steps;
-  ``solver.last_forces`` is then left empty (the hooks are not called).
+  (the seed, boom and excavator scenes), whole steps run in one compiled call
+  (``sim/plants/pbd_block.py``: per step the articulated data, contacts, all substeps with the
+  coupling, the XPBD substep (``sim/plants/pbd_frame.py``), the clocks, the mechanical ledger and
+  the pressure and actuator-coordinate extremes; operator inputs sampled for every substep
+  beforehand).  ``frame_steps`` counts these steps; ``solver.last_forces`` is then left empty (the
+  hooks are not called).
 
 Both give the Python hooks' results to round-off (``tests/test_pbd_fast.py``);
 the constructor's ``fast_hydraulics`` / ``frame`` (default: on where they apply)
 select the paths for tests.
 
 :meth:`advance` (n) steps n times with the :class:`~sim.plants.mujoco_fast.MujocoPlantFast`
-interface.  Where the compiled frame applies (:attr:`fast`), whole blocks of steps run in one
-compiled call (``sim/plants/pbd_block.py``: per step the articulated data, contacts, the frame,
-the clocks, the mechanical ledger and the pressure and actuator-coordinate extremes; operator inputs sampled for every
-substep of the block beforehand), and the log samples inside a block are recorded from it into
-the runner's ring (:meth:`record_next`), so the runner drives this plant in blocks like the
-fast MuJoCo plant.  :meth:`step` stays the per-frame path the blocks are tested against
-(``tests/test_pbd_block.py``); ``block=False`` (``run(..., fast=False)``) keeps ``advance`` per step.
+interface.  Where the compiled steps apply (:attr:`fast`), n steps are one compiled call, and the
+log samples inside it are recorded from it into the runner's ring (:meth:`record_next`), so the
+runner drives this plant in blocks like the fast MuJoCo plant; :meth:`step` is a block of one
+step (``tests/test_pbd_block.py`` compares blocks of many and of one); ``block=False``
+(``run(..., fast=False)``) keeps ``advance`` per step.
 
 ``pbd-naive`` (the seed report's scheme)
 ----------------------------------------
@@ -241,8 +241,8 @@ class PbdPlant(PlantBase):
         self._origin_inertial = np_quat_rotate(iquat_conj, -np.asarray(xm.body_ipos))
         # compiled coupling hooks (sim/plants/pbd_hydraulics.py): the default where they apply
         self._fast = FastHydraulics(self) if fast_hydraulics is not False and fast_eligible(self) else None
-        # whole steps in one compiled call (sim/plants/pbd_frame.py) where they apply; else the hooks below
-        self.frame_steps = 0  # steps that ran as one compiled frame
+        # whole steps in compiled calls (sim/plants/pbd_block.py) where they apply; else the hooks below
+        self.frame_steps = 0  # steps that ran compiled whole
         self._record_next = None  # (rows, every) for the next advance() (record_next)
         self.recorded, self.recorded_finite, self.end_finite = 0, True, True
         self.frame_compiled = self._fast is not None if frame is None else bool(frame) and self._fast is not None
@@ -345,13 +345,18 @@ class PbdPlant(PlantBase):
 
     # -------------------------------------------------------------------- step
     def step(self):
-        """Advance one step of ``dt`` (``pbd_substeps`` XPBD substeps, one hydraulic step each); returns the report."""
+        """Advance one step of ``dt`` (``pbd_substeps`` XPBD substeps, one hydraulic step each); returns the report.
+
+        A compiled block of one step where the compiled steps apply (:attr:`compiled_steps`) and cover this
+        one; otherwise the XPBD substeps with the coupling hooks."""
+        if self.compiled_steps:
+            done, report = self._advance_block(1)
+            if done:
+                return report
         self.apply_inputs()
         self._report = StepReport()
         self._work = 0.0
         self.articulated()
-        if self.frame_compiled and self._step_frame():
-            return self._end_step()
         fast = self._fast
         if fast is not None:
             fast.load(self.net_state, self.energy)
@@ -361,18 +366,24 @@ class PbdPlant(PlantBase):
         return self._end_step()
 
     @property
+    def compiled_steps(self) -> bool:
+        """Whether whole steps run compiled (``sim/plants/pbd_block.py``): the compiled coupling hooks apply
+        (``fast_hydraulics``) and ``frame`` is not switched off, on a tree of hinges and slides with cylinders
+        and hinge motors.  A step the compiled block does not cover (a singular mass matrix) takes the hooks."""
+        return bool(self.frame_compiled and self._tree and len(self.cylinders) and GRAVITY_ARTICULATED
+                    and all(self._hinge[self.motor_joint]))
+
+    @property
     def fast(self) -> bool:
-        """Whether :meth:`advance` runs whole blocks of steps in one compiled call (``sim/plants/pbd_block.py``):
-        the compiled-frame path on a tree of hinges and slides with hinge motors, and ``block`` not switched off.
-        The runner then drives this plant in blocks (``sim.run.runner._Loop.blocks``)."""
-        return bool(self.block and self.frame_compiled and self._tree and len(self.cylinders)
-                    and GRAVITY_ARTICULATED and all(self._hinge[self.motor_joint]))
+        """Whether :meth:`advance` runs whole blocks of steps in one compiled call: :attr:`compiled_steps`, and
+        ``block`` not switched off.  The runner then drives this plant in blocks (``sim.run.runner._Loop.blocks``)."""
+        return bool(self.block and self.compiled_steps)
 
     def advance(self, n: int):
         """``n`` steps (stops at the first failed one); returns the last step's report (MujocoPlantFast's interface).
 
         With :attr:`fast`, in blocks of one compiled call (:meth:`_advance_block`); a step the
-        compiled frame does not cover (a singular mass matrix) is taken by :meth:`step`.  Otherwise one :meth:`step` at a time.
+        compiled block does not cover (a singular mass matrix) is taken by :meth:`step`.  Otherwise one :meth:`step` at a time.
         """
         n = int(n)
         record, every = self._record_next if self._record_next is not None else (None, 1)
@@ -452,7 +463,10 @@ class PbdPlant(PlantBase):
         from sim.plants.pbd_block import BlockTrack, Recording
         from sim.plants.pbd_frame import RigidState
 
-        done, status = ctx["kernel"](n, float(self.dt), cmd, speed, fast.buffers, RigidState(st.x, st.q, st.v, st.w),
+        from sim.plants.pbd_block import block
+
+        kernel = block(solver.transport_response, solver.articulated_contacts)  # (a dict lookup once compiled)
+        done, status = kernel(n, float(self.dt), cmd, speed, fast.buffers, RigidState(st.x, st.q, st.v, st.w),
                                      fc["actuators"], BlockTrack(clock, hint, pmax, pmin, xmax, xmin), ctx["plant"], ctx["buffers"],
                                      self._frame_settings(h), Recording(ctx["no_record"] if record is None else record, rec))
         self.recorded, self.recorded_finite = int(rec[3]), not rec[4]
@@ -460,7 +474,7 @@ class PbdPlant(PlantBase):
             raise np.linalg.LinAlgError("Matrix is singular.")
         if done == 0:
             return 0, None
-        last = done * nsub - 1  # the controls of the last substep taken (as after the per-frame path)
+        last = done * nsub - 1  # the controls of the last substep taken (as after the hooks)
         self.control.valve_command[:] = cmd[last]
         self.control.pump_speed[:] = speed[last]
         fast._time = float(clock[1])
@@ -482,7 +496,7 @@ class PbdPlant(PlantBase):
 
     def _block_inputs(self, ctx, n, h):
         """Rows of valve commands and pump speeds for every substep of the next ``n`` steps (step k, substep s:
-        row k·substeps + s, at time (step_index + k)·dt + s·h, as ``apply_inputs`` + :meth:`_sample_inputs`)."""
+        row k·substeps + s, at time (step_index + k)·dt + s·h, as ``apply_inputs`` and :meth:`before_substep`)."""
         nsub = self.solver.substeps
         rows = n * nsub
         if rows > len(ctx["cmd"]):
@@ -504,7 +518,7 @@ class PbdPlant(PlantBase):
         ctx = getattr(self, "_block_ctx", None)
         if ctx is not None:
             return ctx
-        from sim.plants.pbd_block import BlockBuffers, BlockPlant, ContactCandidates, block
+        from sim.plants.pbd_block import BlockBuffers, BlockPlant, ContactCandidates
         from sim.plants.pbd_frame import Articulated, RigidState
         from sim.xpbd.compiled import ContactRows
 
@@ -537,7 +551,7 @@ class PbdPlant(PlantBase):
             ContactRows(*(np.zeros_like(r) for r in rows)), np.zeros(nc, np.int64),
             Articulated(*(np.zeros_like(getattr(a, name)) for name in Articulated._fields)),
             np.zeros((xm.nbody, 3)), np.zeros((xm.nbody, 4)), np.zeros(nq), np.zeros(xm.nv))
-        ctx = dict(kernel=block(solver.transport_response, solver.articulated_contacts), frame=fc, plant=plant,
+        ctx = dict(frame=fc, plant=plant,
                    buffers=buffers, eligible=eligible,
                    cmd=np.zeros((0, len(self.network.valve_names))), speed=np.zeros((0, len(self.network.pump_names))),
                    clock=np.zeros(4), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
@@ -614,66 +628,6 @@ class PbdPlant(PlantBase):
         self._mobility = a.mobility.copy() if len(self.cylinders) else None
         self._motor_response = a.motor_response.copy() if len(self.motors) and GRAVITY_ARTICULATED else None
 
-    def _frame_ready(self) -> bool:
-        """True when this step can run as one compiled frame (``sim/plants/pbd_frame.py``)."""
-        return bool(
-            self._fast is not None and len(self.cylinders) and self._mobility is not None
-            and self._group_gravity is not None and (self._motor_response is not None or not len(self.motors))
-            and all(self._hinge[self.motor_joint])
-        )
-
-    def _step_frame(self) -> bool:
-        """The whole step in one compiled call (same results as the hooks to round-off); False if it does not apply."""
-        from sim.plants.pbd_frame import Articulated, RigidState
-
-        if not self._frame_ready():
-            return False
-        solver, xm, st = self.solver, self.xmodel, self.state
-        x, q, v, w = solver._gather(st)
-        flat = solver._flat_contacts(solver._collect_contacts(x, q, v, w, self.dt))
-        if flat is None:
-            return False
-        ctx = self._frame_context()
-        nsub = solver.substeps
-        h = self.dt / nsub
-        cmd, speed = ctx["cmd"], ctx["speed"]
-        self._sample_inputs(ctx, h)
-        fast = self._fast
-        fast.load(self.net_state, self.energy)
-        Xg, Qg, Vg, Wg = (np.ascontiguousarray(a, dtype=np.float64) for a in (x, q, v, w))
-        fm = solver._flat
-        xs, vs, ell0 = ctx["x"], ctx["v"], ctx["ell"]
-        xs[:], vs[:], ell0[:] = self._x, self._v, self._ell
-        out = ctx["out"]
-        ncand = len(flat.group)
-        if ctx["work_contacts"] < ncand:  # the frame's work arrays, made again only for more contact candidates
-            from sim.plants.pbd_frame import frame_work
-
-            ctx["work"] = frame_work(len(self.cylinders), len(xs), Xg.shape[0], len(fm.jt), self._mobility.shape,
-                                     len(fm.jlim) - len(fm.jt), ncand)
-            ctx["work_contacts"] = ncand
-        articulated = Articulated(
-            _c64(self._mobility), _c64(self._group_gravity),
-            _c64(self._motor_response) if len(self.motors) else ctx["no_response"], _c64(self._motor_inverse_inertia),
-            _c64(self._effective_mass) if fast.blend else fast.theta)  # (the masses are not read without blend)
-        status = ctx["kernel"](fast.buffers, cmd, speed, RigidState(Xg, Qg, Vg, Wg), ctx["bodies"], fm, articulated, flat,
-                               ctx["actuation"], ctx["actuators"], self._frame_settings(h), ctx["work"])
-        if status != 0:
-            raise np.linalg.LinAlgError("Matrix is singular.")
-        for _ in range(int(out[1])):  # network time: + h per successful substep (as the hooks)
-            fast._time += h
-        self.net_state, self._report = fast.store(self.energy)
-        self._work = float(out[0])
-        self._x, self._v, self._ell = xs.copy(), vs.copy(), ell0.copy()
-        self.effort = ctx["actuators"].effort.copy()
-        self._motor_effort = ctx["actuators"].motor_effort.copy()
-        solver._scatter(Xg, Qg, Vg, Wg, st)
-        st.time = st.time + self.dt
-        st.qpos_hint = self._qpos_qvel()[0].copy()  # with the previous hint, as the solver; memoised for joint_state
-        solver.last_forces = []
-        self.frame_steps += 1
-        return True
-
     def _frame_settings(self, h):
         """The compiled frame's ``pbd_frame.FrameSettings`` for substeps of ``h`` [s]."""
         from sim.plants.pbd_frame import FrameSettings
@@ -683,28 +637,15 @@ class PbdPlant(PlantBase):
                              solver.angular_damping, solver.soft_contacts, solver.pyramid_friction,
                              solver.velocity_sweeps, fast.scheme, fast.blend)
 
-    def _sample_inputs(self, ctx, h):
-        """The schedules at every substep's start time t + k·h (rows of ctx's cmd/speed), as ``before_substep``
-        sets them one by one; ``self.control`` ends at the last substep's values (as after the hooks)."""
-        cmd, speed, ks = ctx["cmd"], ctx["speed"], ctx["substep_numbers"]
-        control = self.control
-        cmd[:] = control.valve_command  # row 0: step() applied the inputs at the frame's start
-        speed[:] = control.pump_speed
-        if len(ks) > 1:
-            sample_inputs(ctx["inputs"], self.time + ks[1:] * h, cmd[1:], speed[1:])
-            control.valve_command[:] = cmd[-1]
-            control.pump_speed[:] = speed[-1]
-
     def _frame_context(self):
-        """Buffers of the compiled frame (allocated once)."""
+        """The actuators' layout and state of the compiled frame and the input plan (made once)."""
         ctx = getattr(self, "_frame_ctx", None)
         if ctx is not None:
             return ctx
-        from sim.plants.pbd_frame import Actuation, ActuatorState, RigidState, frame
+        from sim.plants.pbd_frame import Actuation, ActuatorState
 
         xm, net = self.xmodel, self.network
-        na, nsub = net.actuator_count, self.solver.substeps
-        ng, nr, nm = xm.ngroup, len(self.cylinders), len(self.motors)
+        na, nr, nm = net.actuator_count, len(self.cylinders), len(self.motors)
         rg, rvec = self.solver._flat_rows()
         mb = np.array([int(xm.jnt_body[j]) for j in self.motor_joint], np.int64)
         actuation = Actuation(
@@ -714,16 +655,8 @@ class PbdPlant(PlantBase):
             maxis=_c64(np.asarray(self._axis_inertial).reshape(-1, 3)[self.motor_joint].reshape(-1, 3)))
         actuators = ActuatorState(x=np.zeros(na), v=np.zeros(na), ell=np.zeros(nr), effort=np.zeros(na),
                                   motor_effort=np.zeros(nm), out=np.zeros(2))
-        ctx = dict(
-            kernel=frame(self.solver.transport_response, self.solver.articulated_contacts),
-            inputs=input_plan(net, self.control, self.scene.scenario.inputs), substep_numbers=np.arange(nsub),
-            cmd=np.zeros((nsub, len(net.valve_names))), speed=np.zeros((nsub, len(net.pump_names))),
-            x=actuators.x, v=actuators.v, ell=actuators.ell, out=actuators.out, actuators=actuators,
-            actuation=actuation, no_response=np.zeros((0, ng, 6)),
-            bodies=RigidState(np.zeros((xm.nbody, 3)), np.zeros((xm.nbody, 4)), np.zeros((xm.nbody, 3)),
-                              np.zeros((xm.nbody, 3))),
-            work=None, work_contacts=-1,
-        )
+        ctx = dict(inputs=input_plan(net, self.control, self.scene.scenario.inputs), x=actuators.x, v=actuators.v,
+                   ell=actuators.ell, actuators=actuators, actuation=actuation)
         ctx.update(self._articulated_context())
         self._frame_ctx = ctx
         return ctx
@@ -923,13 +856,14 @@ def _i64(a):
 def fast_path(plant: PbdPlant) -> str:
     """Which PBD path steps ``plant`` and, when it is not the fastest, why not (one line, MJCF names).
 
-    Fastest first: compiled blocks of steps (``sim/plants/pbd_block.py``), one compiled
-    call per step (``sim/plants/pbd_frame.py``), compiled coupling hooks
+    Fastest first: compiled blocks of steps (``sim/plants/pbd_block.py``), compiled coupling hooks
     (``sim/plants/pbd_hydraulics.py``), the Python hooks.
     """
     xm = plant.xmodel
     if plant.fast:
         return "compiled blocks of steps (the fastest path)"
+    if plant.compiled_steps:
+        return "compiled steps one at a time; not the compiled blocks because blocks are switched off (block=False)"
     why = []
     if plant._fast is None:
         why.append("the coupling is not an implicit one at the compressible fidelity with the compiled stepper "
@@ -943,11 +877,8 @@ def fast_path(plant: PbdPlant) -> str:
     bad_motors = [f"'{xm.jnt_names[j]}'" for j in plant.motor_joint if not plant._hinge[j]]
     if bad_motors:
         why.append(f"motor joints {', '.join(bad_motors)} are not hinges")
-    if not plant.block:
-        why.append("blocks switched off (block=False)")
-    path = ("one compiled call per step" if plant.frame_compiled and plant._tree else
-            "compiled coupling hooks around the XPBD substeps" if plant._fast is not None else "Python hooks")
-    return f"{path}; not the compiled blocks because " + "; ".join(why or ["the compiled frame does not apply"])
+    path = "compiled coupling hooks around the XPBD substeps" if plant._fast is not None else "Python hooks"
+    return f"{path}; not the compiled blocks because " + "; ".join(why or ["the compiled steps do not apply"])
 
 
 def make_pbd_plant(scene: Scene, *, block: bool = True) -> PbdPlant:

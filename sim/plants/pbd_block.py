@@ -1,8 +1,7 @@
 """Many PBD frames (plant steps) in one compiled call: :meth:`sim.plants.pbd.PbdPlant.advance`'s block path.
 
-Per frame, in the order of :meth:`~sim.plants.pbd.PbdPlant.step` on its compiled-frame path
-(``articulated`` → ``_step_frame`` → ``_end_step``), each piece the same compiled function
-the per-frame path calls from Python:
+Per frame, in the order of the hooks path of :meth:`~sim.plants.pbd.PbdPlant.step`
+(``articulated`` → the substeps → ``_end_step``):
 
 1. the articulated data at the frame's pose (``frame_nb._articulated_into``, on work arrays made once per block);
 2. the rigid-group state (``compiled.gather``) and the frame's contact candidates
@@ -18,8 +17,9 @@ the per-frame path calls from Python:
 
 The block stops after a frame whose hydraulic step failed (as ``advance`` stops at the first
 failed step), and before a frame the compiled frame does not cover (singular mass matrix, a
-contact point marked not ``eligible``: the plant steps that frame on its per-frame path).
-Results equal the per-frame path to round-off (``tests/test_pbd_block.py``).
+contact point marked not ``eligible``: the plant steps that frame with the hooks).
+Blocks of many steps equal blocks of one and the hooks to round-off (``tests/test_pbd_block.py``,
+``tests/test_pbd_fast.py``).
 
 Recording (as ``MujocoPlantFast.advance(n, record, every)``, the ``Recording`` layout): after every step but
 the block's last whose step index becomes a multiple of ``rec[1]`` (``rec[2]``: the step index at the block's
@@ -34,8 +34,8 @@ step: the plant reads the status from ``istats``), ``BLOCK_SINGULAR`` (the coupl
 linearisation was singular), ``BLOCK_INELIGIBLE`` (stopped before a frame the compiled frame
 does not cover).
 
-Caching as :mod:`sim.plants.pbd_frame`: the entry point carries the sources' sha256 (this file,
-``frame_nb.py`` and what that covers) as a closure variable.
+Caching: the entry point carries the sources' sha256 (this file, ``pbd_frame.py`` and what that covers)
+as a closure variable, part of numba's cache key.
 """
 
 from __future__ import annotations
@@ -237,15 +237,19 @@ _block_jit = None
 
 
 def block(transport: bool = False, articulated_contacts: bool = True):
-    """The compiled block (numba's disk cache, or compiled on first use; one signature per variant),
-    ``transport``/``articulated_contacts`` as :func:`sim.plants.pbd_frame.frame`."""
+    """The compiled block (numba's disk cache, or compiled on first use; one signature per variant).
+
+    ``transport`` (as ``XpbdOptions(transport_response=...)``): carry the step's articulated responses to each
+    substep's pose (``compiled.transport``); False keeps them as given for the whole step.
+    ``articulated_contacts`` (as ``XpbdOptions(articulated_contacts=...)``): solve the contact pyramids with the
+    mechanism's articulated response."""
     global _block_jit
     key = (bool(transport), bool(articulated_contacts))
     if key not in _BLOCK:
         import numba
 
-        FN.frame(*key)  # makes frame_nb's compiled helpers (_frame_jit, _frame_work_jit, _articulated_*_jit) exist
-        FN.articulated()
+        FN.compile_helpers()  # the frame's jitted functions (_frame_jit, _frame_work_jit)
+        FN.articulated()  # and the articulated response's (_articulated_*_jit)
         if _block_jit is None:
             _block_jit = numba.njit(error_model="numpy")(_block)
         fingerprint = SOURCE_SHA256

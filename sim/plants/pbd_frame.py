@@ -8,7 +8,7 @@ Per substep, in the order of :meth:`sim.plants.pbd.PbdPlant.before_substep`,
    ``CouplingImplicit.begin`` at the start-velocity guess; ``scheme``: the coupling's
    ``hydraulics.coupling.SCHEME_*``; θ = 1, or with ``blend`` from the step's effective masses
    ``meff``, written to ``theta``);
-   With ``frame(transport=True)``, from the second substep on, the step's articulated
+   With ``transport`` (``sim.plants.pbd_block.block(transport=True)``), from the second substep on, the step's articulated
    responses (row mobilities, group gravity + motor responses) are carried to the substep's
    pose through joint space (``compiled.transport``, as ``SolverXPBD.transport_response``);
 2. cylinder rows: compliant rows α = −h/s, ℓ* = ℓ₀ − h·c/s where s < −1e-9,
@@ -23,14 +23,14 @@ Per substep, in the order of :meth:`sim.plants.pbd.PbdPlant.before_substep`,
    efforts' work on the bodies h·f·(v₀ + v⁺)/2.
 
 The operator inputs are sampled for every substep beforehand (rows of
-``cmd``/``speed``).  Only the case the plant's frame path checks is covered
-(:meth:`sim.plants.pbd.PbdPlant._frame_ready`): fast hydraulics, a tree of
-hinges/slides with the articulated response, hinge motors, any contact kind
+``cmd``/``speed``).  Only the case :attr:`sim.plants.pbd.PbdPlant.compiled_steps` checks is covered:
+fast hydraulics, a tree of hinges/slides with the articulated response, hinge motors, any contact kind
 of ``compiled.substep_core``.  Results equal the per-substep hooks to round-off.
 
-Caching as :mod:`sim.plants.pbd_hydraulics`: the entry point carries a sha256 of
-this file, ``hydraulics_nb.py``, ``compiled.py`` and
-the hydraulic kernel sources (``hydraulics._jit.SOURCES``, and numba's version) as a closure variable.
+The frame is compiled into the block's entry point (:mod:`sim.plants.pbd_block`, :func:`compile_helpers`);
+the articulated response's own entry point (:func:`articulated`, called by the hooks path) is cached as
+:mod:`sim.plants.pbd_hydraulics`' are: it carries a sha256 of this file, ``pbd_hydraulics.py``, ``compiled.py``
+and the hydraulic kernel sources (``hydraulics._jit.SOURCES``, and numba's version) as a closure variable.
 """
 
 from __future__ import annotations
@@ -119,7 +119,7 @@ FrameWork = namedtuple("FrameWork", [
 
 
 def frame_work(nr, na, ng, nj, mob_shape, ntl, ncap):
-    """The ``FrameWork`` of ``_frame`` (made once per block by ``pbd_block``, once per plant by the per-frame path)
+    """The ``FrameWork`` of ``_frame`` (made once per block by ``pbd_block``)
     for ``nr`` length rows, ``na`` actuators, ``ng`` groups, ``nj`` joints, the row mobility's shape, ``ntl`` tendon
     limits and up to ``ncap`` contact candidates."""
     return FrameWork(np.empty(nr), np.empty(nr), np.full(nr, -np.inf), np.full(nr, np.inf), np.empty(nr, np.int64),
@@ -276,45 +276,23 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
     return FRAME_OK
 
 
-# every source compiled into the frame (this file, hydraulics_nb.py, compiled.py, the hydraulic kernel sources), taken at
+# every source compiled into the frame (this file, pbd_hydraulics.py, compiled.py, the hydraulic kernel sources), taken at
 # import: part of the cache key
 SOURCE_SHA256 = C.source_sha256(__file__, H.__file__, XC.__file__, *C.SOURCES)
 
 
-def _entry(fingerprint, transport, articulated_contacts):
-    import numba
-
-    def frame(*args):
-        if fingerprint is None:  # never: only makes the fingerprint a closure variable (numba's cache key)
-            return -1
-        return _frame_jit(*args, transport, articulated_contacts)
-
-    return numba.njit(cache=True, error_model="numpy")(frame)
-
-
-_FRAME = {}
 _frame_jit = _frame_work_jit = None
 
 
-def frame(transport: bool = False, articulated_contacts: bool = True):
-    """The compiled frame (numba's disk cache, or compiled on first use: one signature per variant).
-
-    ``transport`` (as ``XpbdOptions(transport_response=...)``): carry the step's articulated
-    responses to each substep's pose (``compiled.transport``); False keeps them as given for the
-    whole step.  ``articulated_contacts`` (as ``XpbdOptions(articulated_contacts=...)``): solve the
-    contact pyramids with the mechanism's articulated response (default True, as the solver);
-    ``transport`` defaults to False (see ``SolverXPBD``).
-    """
+def compile_helpers() -> None:
+    """Make ``_frame_jit`` and ``_frame_work_jit`` exist: the frame compiled into the block's entry point
+    (:func:`sim.plants.pbd_block.block`), not cached on its own (the block's cache key covers this file)."""
     global _frame_jit, _frame_work_jit
-    key = (bool(transport), bool(articulated_contacts))
-    if key not in _FRAME:
+    if _frame_jit is None:
         import numba
 
-        if _frame_jit is None:  # not cached on their own: only inside the entries (this one's, block_nb's)
-            _frame_jit = numba.njit(error_model="numpy")(_frame)
-            _frame_work_jit = numba.njit(error_model="numpy")(frame_work)
-        _FRAME[key] = _entry(SOURCE_SHA256, *key)
-    return _FRAME[key]
+        _frame_jit = numba.njit(error_model="numpy")(_frame)
+        _frame_work_jit = numba.njit(error_model="numpy")(frame_work)
 
 
 # ---------------------------------------------------------------------------- articulated response

@@ -16,13 +16,12 @@ Groups (each group's kernels depend on each other, so one group is one process):
     (``log_writer._fill_records``), and the per-step :class:`~sim.plants.mujoco.MujocoPlant` with the
     compiled stepper (``_compiled._step_kernel``, ``_linearize_kernel``).
 ``pbd``
-    :class:`~sim.plants.pbd.PbdPlant` on the excavator: the block path (``xpbd/block_nb``, with the
-    frame and the XPBD substep inside), the per-frame path (``xpbd/frame_nb``, with and without
-    the transported responses) and the compiled observations: the longest group (one chain of
-    callers and callees), so it is started first.
+    :class:`~sim.plants.pbd.PbdPlant` on the excavator: the compiled block (``plants/pbd_block``, with
+    the frame and the XPBD substep inside), with and without the transported responses, and the
+    compiled observations: the longest group (one chain of callers and callees), so it is started first.
 ``pbd-hooks``
     the PBD plant's per-substep path: the compiled XPBD substep called from Python and the compiled
-    coupling hooks (``xpbd/hydraulics_nb``), whose hydraulic kernels the ``mujoco`` group has
+    coupling hooks (``plants/pbd_hydraulics``), whose hydraulic kernels the ``mujoco`` group has
     cached by the time a second process takes it.
 ``hydraulics``
     the entries Python calls one at a time: every :class:`~hydraulics.network.NetworkModel` evaluation
@@ -75,14 +74,10 @@ def _pbd_plant(**options):
 
 
 def _pbd() -> None:
-    from sim.plants.pbd_frame import frame
-
-    _pbd_plant().advance(2)  # block path
     plant = _pbd_plant()
-    plant.step()  # per-frame path
-    plant.solver.transport_response = True
-    plant._frame_context()["kernel"] = frame(transport=True)
-    plant.step()
+    plant.advance(2)  # the compiled block
+    plant.solver.transport_response = True  # and its variant that carries the responses through the substeps
+    plant.advance(2)
 
 
 def _pbd_hooks() -> None:

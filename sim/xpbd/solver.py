@@ -224,8 +224,8 @@ class SolverXPBD:
       swing angle).  Other joint types or a singular Jacobian: no transport.  Off by default:
       at 60 Hz × 10–40 the frame-old responses happen to offset part of backward Euler's
       numerical damping (swing phase 14 % / 4.6 % with them, 24 % / 7.7 % without), so the
-      coarse settings' errors grow while the fine ones' shrink; the plant's compiled frame
-      selects the same behaviour with ``frame_nb.frame(transport=...)``.
+      coarse settings' errors grow while the fine ones' shrink; the plant's compiled block
+      selects the same behaviour from ``transport_response`` (``pbd_block.block(transport=...)``).
     * Every substep runs in ``compiled.substep_core`` (numba, ``cache=True``, one signature) on flat
       arrays; the hooks are still called per substep.  The per-step group gather and contact-candidate
       test are compiled too (``compiled.gather``, ``compiled.contact_candidates``).  Every contact kind
