@@ -21,7 +21,9 @@ signal number (130, 143, 129).  Each signal is recorded, then SIGINT raises
 :class:`KeyboardInterrupt` (:func:`_interrupt`) and SIGTERM and SIGHUP are routed to the SIGINT
 handler in force (:func:`_forward_signal`), so the log writer's deferral of Ctrl-C while a record
 is half written holds for all three.  A signal before any log is open (start-up, imports; also
-when a library turns the interrupt into another error, as MuJoCo's import does) exits quietly.
+when a library turns the interrupt into another error, as MuJoCo's import does) exits quietly; a
+run asks whether a signal arrived before it opens its log and before every block, so an interrupt a
+library swallowed still stops it there.
 """
 
 from __future__ import annotations
@@ -220,7 +222,8 @@ def _run(args) -> int:
     if (args.scenario is None) == (args.example is None):
         raise CircuitError("run: give either a SCENARIO file or --example NAME (see 'hydroplant examples')")
     scenario = example_path(args.example) if args.example else args.scenario
-    result = run(scenario, out=args.out, overrides=overrides, progress=not args.no_progress, overwrite=args.overwrite)
+    result = run(scenario, out=args.out, overrides=overrides, progress=not args.no_progress, overwrite=args.overwrite,
+                 stop=_received.__len__)  # a signal whose interrupt a library swallowed still stops the run
     print(result.summary_text())
     return 0 if result.status == "complete" else EXIT_DIVERGED
 

@@ -197,10 +197,11 @@ def test_sigterm_and_sighup_mid_run_finish_the_log_marked_incomplete(scene, tmp_
     before = user_files(scene)
     proc = start("run", scene / SCENARIO, "--duration", "1000", "--no-progress", "--out", out, cwd=tmp_path)
     partial = tmp_path / "long.mcap.partial"
-    deadline = time.monotonic() + 60
-    while not partial.exists() and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.05)
-    time.sleep(0.5)  # mid-run
+    deadline = time.monotonic() + 120
+    # mid-run: chunks of samples written (the header and the attached inputs are ~22 kB, a second of samples ~1 MB)
+    while (not partial.exists() or partial.stat().st_size < 100_000) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.01)
+    assert proc.poll() is None, proc.communicate()  # still running: the signal lands mid-run
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == code, err
@@ -212,11 +213,40 @@ def test_sigterm_and_sighup_mid_run_finish_the_log_marked_incomplete(scene, tmp_
     assert not partial.exists() and user_files(scene) == before
 
 
+def test_a_stop_request_ends_a_run_as_ctrl_c_does(scene, tmp_path):
+    """``run(stop=...)`` (what ``hydroplant run`` passes, so that an interrupt a library swallowed still counts):
+    asked before the log is opened (no log then) and before every block (the log finished, marked interrupted)."""
+    from sim.run.runner import RunInterrupted, run
+
+    with pytest.raises(KeyboardInterrupt):
+        run(scene / SCENARIO, out=tmp_path / "early.mcap", overrides={"duration": 1.0}, stop=lambda: True)
+    assert not list(tmp_path.glob("early.mcap*"))
+    asked = []
+
+    def later():
+        asked.append(1)
+        return len(asked) > 5  # before the log, then before each of the first blocks
+
+    with pytest.raises(RunInterrupted):
+        run(scene / SCENARIO, out=tmp_path / "late.mcap", overrides={"duration": 100.0}, stop=later)
+    result = read_log(tmp_path / "late.mcap").metadata["hydroplant.result"]
+    assert result["status"] == "incomplete" and result["reason"] == "interrupted"
+    assert 0 < float(result["end_time_s"]) < 100.0 and not list(tmp_path.glob("*.partial"))
+
+
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_a_signal_during_start_up_exits_quietly(scene, tmp_path, sig, code):
     proc = start("run", scene / SCENARIO, "--duration", "0.01", "--no-progress", "--out", tmp_path / "x.mcap", cwd=tmp_path)
-    time.sleep(0.3)  # still importing
+    # During start-up: once MuJoCo's library is mapped (the command's imports), long before the scene is loaded and
+    # the plant's kernels are read, the child is frozen, signalled and let go, whatever the machine's load.
+    maps = Path(f"/proc/{proc.pid}/maps")
+    deadline = time.monotonic() + 60
+    while "libmujoco" not in maps.read_text() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.002)
+    proc.send_signal(signal.SIGSTOP)
+    assert not list(tmp_path.glob("x.mcap*"))  # no log opened yet: still starting up
     proc.send_signal(sig)
+    proc.send_signal(signal.SIGCONT)
     out, err = proc.communicate(timeout=60)
     # A signal that lands before the interpreter runs the command's code ends it by the signal's default
     # action, as quietly (the shell reports the same 128 + signal).

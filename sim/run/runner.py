@@ -311,7 +311,7 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
 
 
 def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = False, overwrite: bool = False,
-        fast: bool = True) -> RunResult:
+        fast: bool = True, stop=None) -> RunResult:
     """Run a scenario (path or :class:`Scenario`) and write its MCAP log; see the module docstring.
 
     ``out``: the log file (default :func:`default_log_path`).  Before the run starts it is checked
@@ -322,6 +322,11 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
 
     ``fast=False`` forces the per-step path (:class:`~sim.plants.mujoco.MujocoPlant`
     in MuJoCo mode).
+
+    ``stop``: a callable without arguments, the caller's request to stop (``hydroplant run`` passes
+    whether a signal arrived, in case a library turned its interrupt into an error and handled it);
+    asked before the log is opened and before every step or block, and when it returns True the run
+    stops as on Ctrl-C (:class:`KeyboardInterrupt`: before the log is opened, no log is written).
 
     Raises :class:`RunInterrupted` (a :class:`KeyboardInterrupt`) naming the log when interrupted
     while the log is written.
@@ -343,6 +348,8 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
             print(f"hydroplant: warning: {text}", file=sys.stderr)
     attachments = [(name, media, data) for name, media, _, data in inputs]
     net = plant.network
+    if stop is not None and stop():
+        raise KeyboardInterrupt
     if out is not None:
         log_path.parent.mkdir(parents=True, exist_ok=True)
         writer = LogWriter(log_path, dt=scenario.dt, run_metadata=run_metadata(scenario, plant), attachments=attachments,
@@ -351,7 +358,7 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
         log_path, writer = _default_writer(scenario, plant, attachments)
     try:
         with writer as log:
-            loop, wall = _run_loop(log, plant, scenario, guard, progress)
+            loop, wall = _run_loop(log, plant, scenario, guard, (progress, stop))
     except KeyboardInterrupt:
         raise RunInterrupted(log_path) from None
     except OSError as exc:  # a full disk, a folder gone or made read-only during the run
@@ -410,12 +417,15 @@ def _default_writer(scenario: Scenario, plant, attachments):
     raise CircuitError(f"{path.parent}: no free default log name after {DEFAULT_NAME_TRIES} tries; name one with --out")
 
 
-def _run_loop(log: LogWriter, plant, scenario: Scenario, guard, progress: bool):
-    """Step the plant through the run, logging to ``log``: the finished :class:`_Loop` and the wall time [s]."""
+def _run_loop(log: LogWriter, plant, scenario: Scenario, guard, caller):
+    """Step the plant through the run, logging to ``log``: the finished :class:`_Loop` and the wall time [s].
+    ``caller`` = (progress line shown, stop request or None), as :func:`run` takes them."""
+    progress, stop = caller
     recorder = RunRecorder(log, plant, tf_every=scenario.tf_every)
     for text in guard.warnings:
         recorder.event(0, LogLevel.WARNING, "stability guard: " + text)
     loop = _Loop(plant, recorder, log, scenario, progress)
+    loop.stop = stop
     if getattr(plant, "fast", False):
         loop.blocks()
     else:
@@ -474,6 +484,7 @@ class _Loop:
         self.per_step_extremes = all(hasattr(plant, name) for name in _PLANT_EXTREMES)
         self.extremes_every_step = not getattr(plant, "fast", False) or self.per_step_extremes or self.every == 1
         self.stop_step = None  # the step where energy growth was found (the plant may have run past it)
+        self.stop = None  # the caller's stop request (run(stop=...))
         # blocks of several log samples, recorded by the plant inside its compiled loop (MujocoPlantFast)
         self.record_blocks = bool(getattr(plant, "fast", False)) and recorder.records
         self.start = _time.perf_counter()
@@ -500,11 +511,17 @@ class _Loop:
         return self.accept(found or monitor.check_constraints(plant.time), capture=False)
 
     # ----------------------------------------------------------------- drivers
+    def check_stop(self) -> None:
+        """Raise :class:`KeyboardInterrupt` when the caller asked to stop (``run(stop=...)``)."""
+        if self.stop is not None and self.stop():
+            raise KeyboardInterrupt
+
     def per_step(self) -> None:
         plant = self.plant
         if not self.running:
             return
         for _ in range(self.steps):
+            self.check_stop()
             if not self.after_step(plant.step()):
                 return
             self.show_progress()
@@ -538,6 +555,7 @@ class _Loop:
             return
         snapshot = _Snapshot(plant)
         while plant.step_index < steps:
+            self.check_stop()
             k = plant.step_index
             end = self.block_end(k)
             n = end - k
