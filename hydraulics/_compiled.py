@@ -814,9 +814,7 @@ def _linearize_work_size(ic):
 
 def work_size(F, I) -> int:
     """Length of the float64 scratch buffer the ``*_core`` kernels need for the packed network (F, I)."""
-    o = _NFF + 1
-    ic = I[I[o]:I[o + 1]]
-    return int(max(_step_work_size(ic), _linearize_work_size(ic)))
+    return int(_work_size_kernel(I))
 
 
 @_kernel
@@ -2085,6 +2083,14 @@ def _blend_factor_python_entry(stiffness_slope, effective_mass, dt):
 
 
 @_jit
+def _work_size_python_entry(I):
+    """The larger of :func:`_step_work_size` and :func:`_linearize_work_size` for the packed integers ``I``."""
+    o = _NFF + 1
+    ic = I[I[o]:I[o + 1]]
+    return max(_step_work_size(ic), _linearize_work_size(ic))
+
+
+@_jit
 def _spool_steps_python_entry(spool, command, tau, dt):
     """:func:`hydraulics.components.valve_4_3.spool_step` per valve, the commands clipped to [−1, 1]."""
     out = np.empty(spool.size)
@@ -2137,13 +2143,18 @@ def _coupling_entries(fingerprint):
             raise ValueError("no fingerprint")
         return _spool_steps_python_entry(spool, command, tau, dt)
 
+    def work_sizes(I):
+        if fingerprint is None:  # never
+            raise ValueError("no fingerprint")
+        return _work_size_python_entry(I)
+
     functions = (linearize_at_guess, effort_law, start_velocity_guess, linear_finish, predicted_oil, secant_oil_guess,
-                 blend_factor, spool_steps)
+                 blend_factor, spool_steps, work_sizes)
     return tuple(_numba_cached(f) for f in functions)
 
 
 (linearize_at_guess_kernel, effort_law_kernel, start_velocity_guess_kernel, linear_finish_kernel, predicted_oil_kernel,
- secant_oil_guess_kernel, blend_factor_kernel, _spool_steps_kernel) = _coupling_entries(FINGERPRINT)
+ secant_oil_guess_kernel, blend_factor_kernel, _spool_steps_kernel, _work_size_kernel) = _coupling_entries(FINGERPRINT)
 
 
 def _f64(a):
