@@ -425,7 +425,7 @@ def _run_loop(log: LogWriter, plant, scenario: Scenario, guard, caller):
     for text in guard.warnings:
         recorder.event(0, LogLevel.WARNING, "stability guard: " + text)
     loop = _Loop(plant, recorder, log, scenario, progress)
-    loop.stop = stop
+    loop.stop_request = stop
     if getattr(plant, "fast", False):
         loop.blocks()
     else:
@@ -484,7 +484,7 @@ class _Loop:
         self.per_step_extremes = all(hasattr(plant, name) for name in _PLANT_EXTREMES)
         self.extremes_every_step = not getattr(plant, "fast", False) or self.per_step_extremes or self.every == 1
         self.stop_step = None  # the step where energy growth was found (the plant may have run past it)
-        self.stop = None  # the caller's stop request (run(stop=...))
+        self.stop_request = None  # the caller's request to stop (run(stop=...))
         # blocks of several log samples, recorded by the plant inside its compiled loop (MujocoPlantFast)
         self.record_blocks = bool(getattr(plant, "fast", False)) and recorder.records
         self.start = _time.perf_counter()
@@ -513,7 +513,7 @@ class _Loop:
     # ----------------------------------------------------------------- drivers
     def check_stop(self) -> None:
         """Raise :class:`KeyboardInterrupt` when the caller asked to stop (``run(stop=...)``)."""
-        if self.stop is not None and self.stop():
+        if self.stop_request is not None and self.stop_request():
             raise KeyboardInterrupt
 
     def per_step(self) -> None:
