@@ -460,10 +460,8 @@ class PbdPlant(PlantBase):
         pmax, pmin, xmax, xmin = ctx["pmax"], ctx["pmin"], ctx["xmax"], ctx["xmin"]
         pmax[:], pmin[:] = self.node_pressure_max, self.node_pressure_min
         xmax[:], xmin[:] = self.actuator_position_max, self.actuator_position_min
-        from sim.plants.pbd_block import BlockTrack, Recording
+        from sim.plants.pbd_block import BlockTrack, Recording, block
         from sim.plants.pbd_frame import RigidState
-
-        from sim.plants.pbd_block import block
 
         kernel = block(solver.transport_response, solver.articulated_contacts)  # (a dict lookup once compiled)
         done, status = kernel(n, float(self.dt), cmd, speed, fast.buffers, RigidState(st.x, st.q, st.v, st.w),

@@ -17,11 +17,10 @@ Groups (each group's kernels depend on each other, so one group is one process):
     compiled stepper (``_compiled._step_kernel``, ``_linearize_kernel``).
 ``pbd``
     :class:`~sim.plants.pbd.PbdPlant` on the excavator: the compiled block (``plants/pbd_block``, with
-    the frame and the XPBD substep inside) and the compiled observations: the longest group (one chain
-    of callers and callees), so it is started first.
-``pbd-transport``
-    the compiled block's variant that carries the articulated responses through the substeps
-    (``SolverXPBD.transport_response``, off by default), in a process of its own beside ``pbd``.
+    the frame and the XPBD substep inside), then its variant that carries the articulated responses
+    through the substeps (``SolverXPBD.transport_response``: in the same process it reuses the compiled
+    callees, a few seconds), and the compiled observations: the longest group (one chain of callers and
+    callees), so it is started first.
 ``pbd-hooks``
     the PBD plant's per-substep path: the compiled XPBD substep called from Python and the compiled
     coupling hooks (``plants/pbd_hydraulics``), whose hydraulic kernels the ``mujoco`` group has
@@ -77,12 +76,9 @@ def _pbd_plant(**options):
 
 
 def _pbd() -> None:
-    _pbd_plant().advance(2)  # the compiled block
-
-
-def _pbd_transport() -> None:
     plant = _pbd_plant()
-    plant.solver.transport_response = True
+    plant.advance(2)  # the compiled block
+    plant.solver.transport_response = True  # and its variant that carries the responses through the substeps
     plant.advance(2)
 
 
@@ -119,8 +115,7 @@ def _hydraulics() -> None:
     MujocoPlant(load_scene(scenario.with_overrides(fidelity="incompressible"))).step()
 
 
-GROUPS = {"pbd": _pbd, "mujoco": _mujoco, "pbd-transport": _pbd_transport, "pbd-hooks": _pbd_hooks,
-          "hydraulics": _hydraulics}  # in the order they are started
+GROUPS = {"pbd": _pbd, "mujoco": _mujoco, "pbd-hooks": _pbd_hooks, "hydraulics": _hydraulics}  # in the order they are started
 
 
 def _compile_group(name: str) -> float:
