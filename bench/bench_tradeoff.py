@@ -10,7 +10,7 @@
    open onto its end stop, first contact at 1.58 s), at the scenario's 1 kHz: the same runs.
    Longer spans include the teeth stick-slipping through the soil, where the implicit MuJoCo
    reference does not converge point-wise at any step: below 31 µs every halving still moves
-   the bucket cap pressure by ~4.7 bar (README: halving table); see ``--full-dig``.
+   the bucket cap pressure by ~4.7 bar (halving table in docs/validation.md); see ``--full-dig``.
 2b. ``--full-dig``: the excavator comparison over the whole 20 s dig instead: reference proven on
    0.1 s moving averages (:data:`FULL_DIG_TOLERANCE`, ladder from :data:`FULL_DIG_START_DT`),
    runs :data:`FULL_DIG_RUNS` (MuJoCo implicit / implicit-linear / rosenbrock / explicit at 1 ms, PBD at
@@ -48,7 +48,7 @@ DIG_DURATION = 1.75  # s: up to just after the first contact (see the module doc
 DOCS = ROOT / "docs/figures"
 FULL_DIG_WINDOW = 0.1  # s: the reference of the full dig is proven on moving averages over this window
 # Filtered changes: joints and strokes 1e-3 of their range; pressures 2 bar (0.54 % of the 373 bar port relief),
-# above the step-independent ~1 bar spread of the 0.1 s averages during the stick-slip (halving table in the README).
+# above the step-independent ~1 bar spread of the 0.1 s averages during the stick-slip (halving table in docs/validation.md).
 FULL_DIG_TOLERANCE = Tolerance(relative=1e-3, pressure=2e5)
 FULL_DIG_START_DT = 1e-3 / 2**7  # s: ladder 7.8 µs → 3.9 µs (coarser pairs: see the halving table)
 FULL_DIG_MAX_STEPS = 6_000_000
