@@ -71,7 +71,8 @@ def main(argv=None) -> int:
             target = args.out / png.name
             shutil.copyfile(png, target)
             size = target.stat().st_size
-            print(f"figure   {target}  ({size / 1000:.0f} kB)")
+            shown = target.relative_to(ROOT) if target.is_relative_to(ROOT) else target.name  # no machine's paths in the docs
+            print(f"figure   {shown}  ({size / 1000:.0f} kB)")
             if size > PNG_LIMIT:
                 print(f"warning: {target} is larger than {PNG_LIMIT / 1000:.0f} kB", file=sys.stderr)
         shutil.copyfile(work / "stability.csv", args.out / f"{scene}.csv")
