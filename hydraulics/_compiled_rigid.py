@@ -479,6 +479,122 @@ def mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, la
 
 
 # ----------------------------------------------------------------------------
+# The coupled steps' pieces (the plants' compiled steps call these between their own motion updates)
+# ----------------------------------------------------------------------------
+@kernel
+def explicit_law(pnet, pressure, velocity, law, scratch):
+    """CouplingExplicit.begin: the effort of the start ``pressure`` [Pa] plus the seal friction at the start
+    ``velocity`` into ``law`` = (const, slope), slope 0 (the effort is held over the step); ``scratch``: 2·actuators."""
+    const, slope = law
+    na = velocity.size
+    friction, o = C._take(scratch, 0, na)
+    damping, o = C._take(scratch, o, na)
+    C._pressure_effort(pnet, pressure, const)
+    C._friction_effort(pnet, velocity, friction, damping)
+    for a in range(na):
+        const[a] += friction[a]
+        slope[a] = 0.0
+
+
+@kernel
+def explicit_finish(pnet, W, state, flow, v_start, control, dt, substeps, out):
+    """CouplingExplicit.finish: ``substeps`` forward-Euler substeps of dt/substeps [s] from the network's own
+    actuator positions with the start velocities ``v_start`` held (``ActuatorMotion.linear``), committed substep by
+    substep into ``state`` = (oil, pressures, spools, positions, velocities) while the pressures stay finite.
+    ``control`` = (valve commands, pump speeds); ``flow``: the last substep's branch flows [m³/s]; ``out`` = (end
+    oil, pressures, spools, flows, their derivatives, counters, and three actuator scratch arrays).  Returns (the
+    first node whose pressure is not finite or −1, right-hand sides evaluated)."""
+    oil, pres, spool, pos, vel = state
+    o2, p2, sp2, fl, dfl, istats, x_start, xb, xe = out
+    h = dt / substeps
+    C._copy(x_start, pos)
+    for s in range(substeps):
+        for i in range(x_start.size):  # ActuatorMotion.at(s/S), at((s+1)/S) of x → x + dt·v
+            x_end = x_start[i] + dt * v_start[i]
+            xb[i] = x_start[i] + (s / substeps) * (x_end - x_start[i]) if substeps > 1 else x_start[i]
+            xe[i] = x_start[i] + ((s + 1) / substeps) * (x_end - x_start[i]) if substeps > 1 else x_end
+        explicit_substep(pnet, W, C.StepStart(oil, spool, control[0], control[1], xb, v_start), xe, h,
+                         C.StepOut(o2, p2, sp2, fl, dfl, istats))
+        C._copy(flow, fl)
+        bad = C._commit_if_finite(oil, pres, spool, pos, vel, o2, p2, sp2, xe, v_start)
+        if bad >= 0:
+            return bad, s + 1
+    return -1, substeps
+
+
+@kernel
+def rigid_law(pnet, R, spool0, command, velocity, effective_mass, dt, lin, implicit, law, bounds, theta, W):
+    """CouplingMixed.begin around the inner coupling's law ``law`` = (const, slope): the rigid actuators' law
+    (:func:`mixed_law`) written over it, ``bounds`` = (lower, upper) [N | N·m] and θ = 1 on the rigid actuators.
+
+    ``lin`` = (pressures [Pa], oil [m³], positions [m | rad], ∂m⁺/∂v, velocities [m/s | rad/s]) of the inner
+    coupling's linearisation: with ``implicit`` the supply pressure p_P is its end pressure, with the gradient
+    ∂p_P/∂v = (∂p/∂m)·(∂m⁺/∂v) at its oil and positions, about its velocities; otherwise (the explicit coupling)
+    the start pressure, held (the other members are not read).  ``W``: scratch (3·rigid branches + 3·nodes +
+    4·actuators)."""
+    nr, n, na = R.actuator.size, lin[0].size, velocity.size
+    p_supply, o = C._take(W, 0, nr)
+    gradient, o = C._take(W, o, nr)
+    v_guess, o = C._take(W, o, nr)
+    geo, o = C._take(W, o, n)
+    p, o = C._take(W, o, n)
+    dpdm, o = C._take(W, o, n)
+    pressure, oil, position, doil, guess = lin
+    if implicit:
+        C._pressure(pnet, oil, position, geo, p, dpdm)
+    for k in range(nr):
+        node, a = R.supply[k], R.actuator[k]
+        p_supply[k] = pressure[node]
+        gradient[k] = dpdm[node] * doil[node, a] if implicit else 0.0
+        v_guess[k] = guess[a] if implicit else 0.0
+    mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, (p_supply, gradient, v_guess), law, bounds,
+              W[o:o + 4 * na])
+    for a in range(na):
+        if R.rigid[a]:
+            theta[a] = 1.0
+
+
+@kernel
+def rigid_finish(pnet, R, law, bounds, v_end, pressure, scratch):
+    """CouplingMixed.finish after a successful inner finish: the rigid actuators' chamber pressures [Pa] carry the
+    applied effort clip(const + slope·v⁺, lower, upper) less the seal friction at ``v_end``; ``scratch``:
+    3·actuators."""
+    const, slope = law
+    lower, upper = bounds
+    na = v_end.size
+    friction, o = C._take(scratch, 0, na)
+    fslope, o = C._take(scratch, o, na)
+    hydraulic, o = C._take(scratch, o, na)
+    C._friction_effort(pnet, v_end, friction, fslope)
+    for a in range(na):
+        hydraulic[a] = clip(const[a] + slope[a] * v_end[a], lower[a], upper[a]) - friction[a]
+    chamber_pressures(pnet, hydraulic, pressure, R.rigid, False)
+
+
+@kernel
+def rigid_account(pnet, R, ledger, at, h, flow, potential, effort, friction, velocity):
+    """PlantBase._account's rigid term over a step ``h`` [s]: what the rigid branches deliver (flow × the drop of
+    ``potential``, the node potentials :func:`hydraulics._compiled._account` leaves) is motor work ``ledger[at + 1]``,
+    and less the work of the rigid actuators' hydraulic force (``effort`` − ``friction``)·``velocity`` it is
+    hydraulic dissipation ``ledger[at + 2]`` [J]."""
+    nr = R.actuator.size
+    br = C._deref(pnet).br
+    nb = flow.size
+    delivered = 0.0
+    for j in range(nr):
+        b = nb - nr + j
+        delivered += flow[b] * (potential[br[b, 0]] - potential[br[b, 1]])
+    if delivered == 0.0:
+        return
+    work = 0.0
+    for a in range(velocity.size):
+        if R.rigid[a]:
+            work += (effort[a] - friction[a]) * velocity[a]
+    ledger[at + 1] += h * delivered
+    ledger[at + 2] += h * (delivered - work)
+
+
+# ----------------------------------------------------------------------------
 # Entry points called from Python (allocate their outputs), cached on disk under the sources' fingerprint
 # ----------------------------------------------------------------------------
 @C._jit
@@ -574,5 +690,6 @@ def _cached(fingerprint):
 
 __all__ = ["IncompressibleTable", "RigidTable", "pack_incompressible", "pack_rigid",
            "flatten_incompressible", "unflatten_incompressible", "flatten_rigid", "unflatten_rigid", "explicit_substep",
-           "incompressible_law", "mixed_law", "chamber_pressures", "incompressible_finish",
+           "incompressible_law", "mixed_law", "chamber_pressures", "incompressible_finish", "explicit_law",
+           "explicit_finish", "rigid_law", "rigid_finish", "rigid_account",
            "quadratic_damper", "bounded_tracker", "free_speed", "tracking_gain"]

@@ -1,10 +1,13 @@
-"""The PBD plant's compiled hydraulic hooks (``sim/plants/pbd_hydraulics.py``) against the Python hooks.
+"""The PBD plant's compiled steps (``sim/plants/pbd_block.py``) against its Python hooks.
 
-Both run the compiled XPBD substep; only the coupling (effort law, network finish, energy ledger) differs:
-``FastHydraulics`` (the default where it applies) or ``CouplingImplicit.begin/finish`` + ``PlantBase._account``
-(the reference).  Same equations and Newton iterations, so a few dozen steps must
-agree to round-off: body states to 1e-9 of max(|value|, 1) SI, pressures, efforts, oil and the energy ledger to
-1e-9 of their largest magnitude, identical Newton counts.  Scenes: seed, boom lift, excavator dig.
+The compiled steps run each coupling's begin and finish (``sim/plants/pbd_hydraulics.py``) and the XPBD substep
+(``sim/plants/pbd_frame.py``) in one call; the Python hooks call the couplings' Python methods around
+``SolverXPBD.step`` (the reference).  Same equations and Newton iterations, so a few dozen steps must agree to
+round-off: body states to 1e-9 of max(|value|, 1) SI, pressures, efforts, oil and the energy ledger to 1e-9 of
+their largest magnitude, identical Newton counts.  Every compiled coupling (implicit, implicit-linear, rosenbrock
+with and without the θ-rule, explicit, the seed's pbd-naive, incompressible, rigid actuators around implicit and
+explicit) on the seed, boom and excavator, and mechanisms unlike them: a free base welded to the world (H-link),
+a connect loop closure, a motor on a slide joint with and without a pendulum on a ball joint.
 
 The compiled per-step conversions outside the frame (``sim/xpbd/compiled.py``: ``gather``, ``contact_candidates``,
 ``qpos_qvel``, ``body_frames``, ``energies``) and ``PbdPlant.articulated`` (``pbd_frame._articulated``) against
@@ -17,19 +20,21 @@ from __future__ import annotations
 
 import copy
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from test_pbd_compiled import BOOM, DIG, SEED, assert_close, assert_states_close
 from hydraulics.coupling import SCHEME_NEWTON
-from sim.plants.pbd import PbdPlant
-from sim.io.scenario import load_scenario
+from sim.plants.pbd import PbdPlant, fast_path
+from sim.io.scenario import Schedule, load_scenario
 from sim.io.scene import load_scene
 from reference import xpbd_model as oracle
 from reference.xpbd_plant import articulated as articulated_numpy
 from reference.xpbd_substep import ReferenceSolver
 
+SCENES = Path(__file__).parent / "scenes"
 FLOW_FLOOR = 1e-4  # m³/s (6 L/min, the circuits' flow scale): near-closed valves' tiny flows carry the pressures' round-off
 # A linear finish (implicit-linear, rosenbrock) has no Newton solve that smooths the round-off of the predicted oil:
 # 5e-13 m³/s seen on the excavator, so its flows are compared on the pumps' flow scale (60 L/min).
@@ -49,43 +54,67 @@ def _plant(path, fast, **overrides):
     return PbdPlant(load_scene(scenario), fast_hydraulics=fast, frame=False)
 
 
-def test_fast_hooks_are_the_default_where_they_apply():
-    assert _plant(BOOM, None)._fast is not None
+def test_compiled_steps_are_the_default_for_every_compiled_coupling():
+    for overrides in ({}, dict(coupling="explicit"), dict(fidelity="incompressible"), dict(coupling="rosenbrock")):
+        assert _plant(BOOM, None, **overrides)._fast is not None and PbdPlant(load_scene(
+            load_scenario(BOOM).with_overrides(mode="pbd", **overrides))).fast, overrides
     assert _plant(BOOM, False)._fast is None
-    assert _plant(BOOM, None, coupling="explicit")._fast is None  # another coupling keeps the Python hooks
+    # a coupling with another stepper than its own keeps the Python hooks, and says why
+    other = PbdPlant(load_scene(load_scenario(BOOM).with_overrides(mode="pbd", coupling="explicit",
+                                                                    stepper="implicit_euler")))
+    assert other._fast is None and not other.fast
+    assert "Python hooks; not the compiled steps because the coupling 'explicit'" in fast_path(other)
 
 
-@pytest.mark.parametrize("path, steps, overrides", [
-    (SEED, 40, {}),
-    (BOOM, 30, dict(dt=1 / 60, pbd_substeps=10)),
-    (DIG, 30, dict(dt=1 / 60, pbd_substeps=10)),
-    (BOOM, 30, dict(dt=1e-3, pbd_substeps=2, coupling="rosenbrock", pbd_blend=True)),
-    (DIG, 30, dict(dt=1 / 60, pbd_substeps=10, coupling="implicit-linear", pbd_blend=True)),
-], ids=["seed", "boom", "excavator", "boom-rosenbrock-blend", "excavator-linear-blend"])
-def test_fast_hooks_agree_with_python_hooks(path, steps, overrides):
-    ref, fast = _plant(path, False, **overrides), _plant(path, True, **overrides)
-    assert ref._fast is None and fast._fast is not None
+def _ramp(t0, t1, value):
+    return Schedule(np.array([0.0, t0, t1]), np.array([0.0, 0.0, value]))
+
+
+RIGID_FRONT = {"stick_cyl": "incompressible", "bucket_cyl": "incompressible", "swing_motor": "incompressible"}
+DIG_INPUTS = {"boom_valve": _ramp(0.01, 0.05, -0.35), "stick_valve": _ramp(0.01, 0.06, 0.8),
+              "bucket_valve": _ramp(0.02, 0.07, 0.5), "swing_valve": _ramp(0.01, 0.05, 1.0)}
+WINCH, WINCH_PENDULUM = SCENES / "winch.scenario.toml", SCENES / "winch_pendulum.scenario.toml"
+COMPILED_CASES = {  # scenario, overrides, inputs, steps
+    "seed": (SEED, {}, None, 40),
+    "boom": (BOOM, dict(dt=1 / 60, pbd_substeps=10), None, 30),
+    "excavator": (DIG, dict(dt=1 / 60, pbd_substeps=10), None, 30),
+    "boom-rosenbrock-blend": (BOOM, dict(dt=1e-3, pbd_substeps=2, coupling="rosenbrock", pbd_blend=True), None, 30),
+    "excavator-linear-blend": (DIG, dict(dt=1 / 60, pbd_substeps=10, coupling="implicit-linear", pbd_blend=True),
+                               None, 30),
+    "excavator-rosenbrock-blend": (DIG, dict(dt=1 / 60, pbd_substeps=10, coupling="rosenbrock", pbd_blend=True),
+                                   None, 30),
+    "seed-naive": (SEED, dict(mode="pbd-naive", dt=1e-5), None, 40),
+    "boom-explicit": (BOOM, dict(dt=2e-5, coupling="explicit"), {"boom_valve": _ramp(0.0, 0.002, 1.0)}, 40),
+    "excavator-incompressible": (DIG, dict(fidelity="incompressible", dt=1 / 60, pbd_substeps=10), DIG_INPUTS, 12),
+    "excavator-implicit+rigid": (DIG, dict(actuator_fidelity=RIGID_FRONT, dt=1e-3, pbd_substeps=2), DIG_INPUTS, 80),
+    "excavator-explicit+rigid": (DIG, dict(actuator_fidelity=RIGID_FRONT, dt=2e-5, coupling="explicit"), DIG_INPUTS,
+                                 40),
+    # other mechanisms: a free base welded to the world (H-link), a connect loop closure, slide motors
+    "hlink": (SCENES / "hlink.scenario.toml", dict(dt=1 / 60, pbd_substeps=10), None, 12),
+    "loop-closure": (SCENES / "hold.scenario.toml", dict(dt=1 / 60, pbd_substeps=10), None, 12),
+    "winch": (WINCH, {}, None, 200),
+    "winch-pendulum": (WINCH_PENDULUM, {}, None, 200),
+    "winch-pendulum-incompressible": (WINCH_PENDULUM, dict(fidelity="incompressible", dt=1 / 60, pbd_substeps=10),
+                                      None, 12),
+}
+
+
+@pytest.mark.parametrize("case", list(COMPILED_CASES))
+def test_compiled_steps_agree_with_python_hooks(case):
+    """Whole steps in one compiled call (``sim/plants/pbd_block.py``) against the Python hooks with the
+    couplings' Python methods, for every coupling the compiled steps cover and mechanisms unlike ours."""
+    path, overrides, inputs, steps = COMPILED_CASES[case]
+    overrides = dict(overrides)
+    scenario = load_scenario(path).with_overrides(mode=overrides.pop("mode", "pbd"), **overrides)
+    if inputs:
+        scenario = scenario.with_overrides(inputs={**scenario.inputs, **inputs})
+    naive = scenario.mode == "pbd-naive"
+    ref = PbdPlant(load_scene(scenario), naive=naive, fast_hydraulics=False)
+    fast = PbdPlant(load_scene(scenario), naive=naive)
+    assert ref._fast is None and fast.fast
     for _ in range(steps):
         r1, r2 = ref.step(), fast.step()
-        _compare(ref, fast, r1, r2, f"{path.name} t={ref.time:.4f}")
-    assert fast.frame_steps == 0
-
-
-@pytest.mark.parametrize("path, steps, overrides", [
-    (SEED, 40, {}),
-    (BOOM, 30, dict(dt=1 / 60, pbd_substeps=10)),
-    (DIG, 30, dict(dt=1 / 60, pbd_substeps=10)),
-    (DIG, 30, dict(dt=1 / 60, pbd_substeps=10, coupling="rosenbrock", pbd_blend=True)),
-], ids=["seed", "boom", "excavator", "excavator-rosenbrock-blend"])
-def test_compiled_frame_agrees_with_python_hooks(path, steps, overrides):
-    """The whole step in one compiled call (``sim/plants/pbd_frame.py``) against the Python hooks."""
-    ref = _plant(path, False, **overrides)
-    scenario = load_scenario(path).with_overrides(mode="pbd", **overrides)
-    fast = PbdPlant(load_scene(scenario), frame=True)
-    assert ref._fast is None and fast.frame_compiled
-    for _ in range(steps):
-        r1, r2 = ref.step(), fast.step()
-        _compare(ref, fast, r1, r2, f"{path.name} t={ref.time:.4f}")
+        _compare(ref, fast, r1, r2, f"{case} t={ref.time:.4f}")
     assert fast.frame_steps == steps
 
 
@@ -102,8 +131,9 @@ def _compare(ref, fast, r1, r2, what):
     assert np.array_equal(free, np.isfinite(b.node_oil)), what
     assert_close(a.node_oil[free], b.node_oil[free], f"{what} oil", floor=np.max(np.abs(a.node_oil[free])))
     # the warm start is one step's oil change, dt·(net inflow): compared on the flows' scale times the step
-    change = a.node_oil_change[free]
-    assert_close(change, b.node_oil_change[free], f"{what} oil change",
+    # (none: no oil states at the incompressible fidelity)
+    change, other = (np.broadcast_to(state.flat_oil_change(), state.node_oil.shape)[free] for state in (a, b))
+    assert_close(change, other, f"{what} oil change",
                  floor=max(np.max(np.abs(change)), ref.dt * floor))
     assert_close(a.valve_spool, b.valve_spool, f"{what} spools")
     assert_close(a.actuator_position, b.actuator_position, f"{what} positions")

@@ -13,7 +13,7 @@ each substep applies the same joint-space motion at its own pose, R_k = G_kÂ·Gâ‚
 * swinging at 0.5 rad/s, a 60 Hz frame with 50 substeps gives the pressures of 3 kHz frames with
   the same substep much more closely with transport than without (the frame-old responses tilt
   the cylinder and gravity corrections out of the moving boom plane);
-* compiled frame, compiled hooks and the pure reference agree to round-off with transport on.
+* compiled steps, Python hooks and the pure reference agree to round-off with transport on.
 """
 
 from __future__ import annotations

@@ -332,34 +332,6 @@ def _widen(values, high, low, n):
 
 
 @_kernel
-def _finish_explicit(ctx, pnet, V, x_start, v_start, cmd, speed, out, W):
-    """CouplingExplicit.finish: the network advanced by forward Euler from its own actuator positions with the
-    start velocities held (``Stepper._step``'s substeps, ``ActuatorMotion.linear``/``part``); returns
-    (status, worst node, right-hand sides).  ``out`` = (end oil, pressures, spools, flows, their derivatives,
-    counters, substep end positions, substep start positions) (scratch)."""
-    o2, p2, sp2, fl, dfl, istats, xe, xb = out
-    dt = V.fs[FS_DT]
-    substeps = ctx[C_SUBSTEPS]
-    h = dt / substeps
-    na = x_start.size
-    oil, pres, spool, pos, vel = V.oil, V.pres, V.spool, V.pos, V.vel
-    rhs = 0
-    for s in range(substeps):
-        for i in range(na):  # ActuatorMotion.at(k/S), at((k+1)/S) of x → x + dt·v
-            x_end = x_start[i] + dt * v_start[i]
-            xb[i] = x_start[i] + (s / substeps) * (x_end - x_start[i]) if substeps > 1 else x_start[i]
-            xe[i] = x_start[i] + ((s + 1) / substeps) * (x_end - x_start[i]) if substeps > 1 else x_end
-        K.explicit_substep(pnet, W, C.StepStart(oil, spool, cmd, speed, xb, v_start), xe, h,
-                           C.StepOut(o2, p2, sp2, fl, dfl, istats))
-        rhs += 1
-        C._copy(V.flow, fl)
-        bad = C._commit_if_finite(oil, pres, spool, pos, vel, o2, p2, sp2, xe, v_start)
-        if bad >= 0:
-            return ST_NONFINITE, bad, rhs
-    return ST_OK, -1, rhs
-
-
-@_kernel
 def _finish_pending(ctx, pnet, V, T, R):
     """Finish the pending step with the realised velocities J_prev·q̇ (MujocoPlant.step after mj_step2)."""
     if ctx[C_PENDING] == 0:
@@ -414,10 +386,10 @@ def _finish_pending(ctx, pnet, V, T, R):
     status, worst = ST_OK, -1
     C._copy(mstart, oil)
     kind = ctx[C_KIND]
-    if kind == KIND_EXPLICIT:  # CouplingExplicit.finish (xe, ve: free until the ledger)
-        C._copy(x_end, pos)  # the motion starts from the network's own positions (x_end: free in this branch)
-        status, worst, rhs = _finish_explicit(ctx, pnet, V, x_end, vs, cmd, speed,
-                                              (o2, p2, sp2, fl, dfl, istats, xe, ve), W)
+    if kind == KIND_EXPLICIT:  # CouplingExplicit.finish (x_end, xe, ve: free in this branch and until the ledger)
+        worst, rhs = K.explicit_finish(pnet, W, (oil, pres, spool, pos, vel), flow_out, vs, (cmd, speed), dt,
+                                       substeps, (o2, p2, sp2, fl, dfl, istats, x_end, xe, ve))
+        status = ST_NONFINITE if worst >= 0 else ST_OK
         substeps = 0
     elif kind == KIND_INCOMPRESSIBLE:  # CouplingIncompressible.finish: pressures and oil from the clamped effort
         K.incompressible_finish(pnet, V.const, V.slope, V.lower, V.upper, v_end, x_end, W[:n], V.effort, pres, oil)
@@ -464,10 +436,7 @@ def _finish_pending(ctx, pnet, V, T, R):
             status, worst = ST_NONFINITE, bad
             break
     if R.actuator.size and status == ST_OK:  # CouplingMixed.finish: rigid chambers carry the clamped effort less friction
-        C._friction_effort(pnet, v_end, ve, xe)  # (x_end, xe, ve: free again)
-        for i in range(na):
-            x_end[i] = C._clip(V.const[i] + V.slope[i] * v_end[i], V.lower[i], V.upper[i]) - ve[i]
-        K.chamber_pressures(pnet, x_end, pres, R.rigid, False)
+        K.rigid_finish(pnet, R, (V.const, V.slope), (V.lower, V.upper), v_end, pres, W[:3 * na])
     ctx[C_NEWTON], ctx[C_RHS], ctx[C_JAC] = newton, rhs, jac
     ctx[C_STATUS], ctx[C_WORST] = status, worst
     fs[FS_NORM] = residual
@@ -486,18 +455,7 @@ def _finish_pending(ctx, pnet, V, T, R):
     # energy ledger (PlantBase._account, MujocoPlant._account); xe, ve are free again
     C._account(pnet, fs, FS_PUMP, dt, pres, flow_out, v_end, V.quad, mu, xe, ve)
     if R.actuator.size:  # rigid branches (PlantBase._account): their delivery less the hydraulic force's work
-        rigid = 0.0
-        br = C._deref(pnet).br
-        for j in range(R.actuator.size):
-            b = nb - R.actuator.size + j
-            rigid += flow_out[b] * (mu[br[b, 0]] - mu[br[b, 1]])
-        if rigid != 0.0:
-            work = 0.0
-            for i in range(na):
-                if R.rigid[i]:
-                    work += (effort[i] - xe[i]) * v_end[i]
-            fs[FS_MOTOR] += dt * rigid
-            fs[FS_DISS_H] += dt * (rigid - work)
+        K.rigid_account(pnet, R, fs, FS_PUMP, dt, flow_out, mu, effort, xe, v_end)
     passive, constraint = V.passive_saved, V.constraint
     mw = 0.0
     for j in range(nv):
@@ -534,35 +492,11 @@ def _write_bounds(act, lower, upper, flimited, frange):
 
 @_kernel
 def _rigid_law(pnet, V, R, cmd, dt, lin, implicit, W):
-    """CouplingMixed.begin: the rigid actuators' law (:func:`hydraulics._compiled_rigid.mixed_law`) written over
-    the step's law in ``V``, its bounds to MuJoCo's force ranges and θ = 1 on the rigid actuators.
-
-    ``lin`` = (pressures [Pa], oil [m³], positions [m | rad], ∂m⁺/∂v, velocities [m/s | rad/s]) of the inner
-    coupling's linearisation: with ``implicit`` the supply pressure p_P is its end pressure, with the gradient
-    ∂p_P/∂v = (∂p/∂m)·(∂m⁺/∂v) at its oil and positions, about its velocities; otherwise (the explicit coupling)
-    the start pressure, held (the other members are not read).  ``W``: scratch (3·rigid branches + 3·nodes +
-    4·actuators)."""
-    nr, n, na = R.actuator.size, V.pres.size, V.xs.size
-    p_supply, o = C._take(W, 0, nr)
-    gradient, o = C._take(W, o, nr)
-    v_guess, o = C._take(W, o, nr)
-    geo, o = C._take(W, o, n)
-    p, o = C._take(W, o, n)
-    dpdm, o = C._take(W, o, n)
-    pressure, oil, position, doil, velocity = lin
-    if implicit:
-        C._pressure(pnet, oil, position, geo, p, dpdm)
-    for k in range(nr):
-        node, a = R.supply[k], R.actuator[k]
-        p_supply[k] = pressure[node]
-        gradient[k] = dpdm[node] * doil[node, a] if implicit else 0.0
-        v_guess[k] = velocity[a] if implicit else 0.0
-    K.mixed_law(pnet, R, V.spool, cmd, V.vs, V.meff, dt, (p_supply, gradient, v_guess), (V.const, V.slope),
-                (V.lower, V.upper), W[o:o + 4 * na])
+    """CouplingMixed.begin (:func:`hydraulics._compiled_rigid.rigid_law`) over the step's law in ``V``, its bounds
+    written to MuJoCo's force ranges."""
+    K.rigid_law(pnet, R, V.spool, cmd, V.vs, V.meff, dt, lin, implicit, (V.const, V.slope), (V.lower, V.upper),
+                V.theta, W)
     _write_bounds(V.act, V.lower, V.upper, V.flimited, V.frange)
-    for a in range(na):
-        if R.rigid[a]:
-            V.theta[a] = 1.0
 
 
 @_kernel
@@ -622,11 +556,7 @@ def _begin(ctx, pnet, V, T, R):
     kind = ctx[C_KIND]
     if kind != KIND_IMPLICIT:
         if kind == KIND_EXPLICIT:  # CouplingExplicit.begin: the start pressures' effort and friction, slope 0
-            C._pressure_effort(pnet, V.pres, const)
-            C._friction_effort(pnet, vs, friction, damping)
-            for i in range(na):
-                const[i] += friction[i]
-                slope[i] = 0.0
+            K.explicit_law(pnet, V.pres, vs, (const, slope), W)
             if R.actuator.size:  # CouplingMixed around it: the rigid actuators' law at the start supply pressure
                 _rigid_law(pnet, V, R, cmd, dt, (V.pres, oil, xs, doil, xs), False, W)
                 for i in range(na):

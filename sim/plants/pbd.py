@@ -77,25 +77,21 @@ the stiff rows with the contacts is not converged; ``tests/test_pbd_fidelity.py`
 
 Compiled path
 -------------
-Every XPBD substep runs in numba (``sim/xpbd/compiled.py``; ``NUMBA_DISABLE_JIT=1`` runs the same kernels as
-plain Python) and ``articulated`` is one compiled call (``pbd_frame._articulated``).  On top of that, for the
-implicit couplings (``implicit``, PBD mode's default, ``implicit-linear``, ``rosenbrock``) at the compressible
-fidelity:
+Whole steps run in one compiled call (``sim/plants/pbd_block.py``: per step the articulated data, contacts,
+all substeps with the coupling and the XPBD substep (``sim/plants/pbd_frame.py``, the coupling's begin and
+finish in ``sim/plants/pbd_hydraulics.py``), the clocks, the mechanical ledger and the pressure and
+actuator-coordinate extremes; operator inputs sampled for every substep beforehand) for every coupling the
+compiled steps reproduce (``pbd_hydraulics.coupling_kind``: the implicit couplings, ``explicit`` and
+``pbd-naive``, the ``incompressible`` fidelity, rigid actuators in a compressible network), any mechanism
+(trees of hinges and slides with the articulated response, other joints and loop closures with plain XPBD's
+free-body response), hinge and slide motors and any contact kind (soft pyramidal or elliptic, rigid).
+``frame_steps`` counts these steps; ``solver.last_forces`` is then left empty.  ``NUMBA_DISABLE_JIT=1`` runs
+the same kernels as plain Python.
 
-* the hooks' coupling law, network finish and energy ledger run in two
-  compiled calls per substep with preallocated buffers
-  (``sim/plants/pbd_hydraulics.py``: ``_compiled._linearize_core`` / ``_step_core``);
-* on trees of hinges and slides with hinge motors and any contact kind (soft pyramidal or elliptic, rigid)
-  (the seed, boom and excavator scenes), whole steps run in one compiled call
-  (``sim/plants/pbd_block.py``: per step the articulated data, contacts, all substeps with the
-  coupling, the XPBD substep (``sim/plants/pbd_frame.py``), the clocks, the mechanical ledger and
-  the pressure and actuator-coordinate extremes; operator inputs sampled for every substep
-  beforehand).  ``frame_steps`` counts these steps; ``solver.last_forces`` is then left empty (the
-  hooks are not called).
-
-Both give the Python hooks' results to round-off (``tests/test_pbd_fast.py``);
-the constructor's ``fast_hydraulics`` / ``frame`` (default: on where they apply)
-select the paths for tests.
+The Python hooks (:meth:`before_substep`, :meth:`after_substep` around ``SolverXPBD.step``, with the
+coupling's Python methods) step a coupling without compiled steps (the ``reference`` stepper, a coupling with
+another stepper than its own) and are the compiled steps' reference: both agree to round-off
+(``tests/test_pbd_fast.py``); the constructor's ``fast_hydraulics=False`` / ``frame=False`` select them.
 
 :meth:`advance` (n) steps n times with the :class:`~sim.plants.mujoco_fast.MujocoPlantFast`
 interface.  Where the compiled steps apply (:attr:`fast`), n steps are one compiled call, and the
@@ -239,9 +235,9 @@ class PbdPlant(PlantBase):
         iquat_conj = np.asarray(xm.body_iquat) * np.array([1.0, -1.0, -1.0, -1.0])
         self._axis_inertial = np_quat_rotate(iquat_conj[xm.jnt_body], np.asarray(xm.jnt_axis))
         self._origin_inertial = np_quat_rotate(iquat_conj, -np.asarray(xm.body_ipos))
-        # compiled coupling hooks (sim/plants/pbd_hydraulics.py): the default where they apply
+        # whole steps in compiled calls (sim/plants/pbd_block.py, the network's buffers in pbd_hydraulics.py) for the
+        # couplings they reproduce; else the Python hooks below
         self._fast = FastHydraulics(self) if fast_hydraulics is not False and fast_eligible(self) else None
-        # whole steps in compiled calls (sim/plants/pbd_block.py) where they apply; else the hooks below
         self.frame_steps = 0  # steps that ran compiled whole
         self._record_next = None  # (rows, every) for the next advance() (record_next)
         self.recorded, self.recorded_finite, self.end_finite = 0, True, True
@@ -348,7 +344,7 @@ class PbdPlant(PlantBase):
         """Advance one step of ``dt`` (``pbd_substeps`` XPBD substeps, one hydraulic step each); returns the report.
 
         A compiled block of one step where the compiled steps apply (:attr:`compiled_steps`) and cover this
-        one; otherwise the XPBD substeps with the coupling hooks."""
+        one; otherwise the XPBD substeps with the Python hooks."""
         if self.compiled_steps:
             done, report = self._advance_block(1)
             if done:
@@ -357,21 +353,15 @@ class PbdPlant(PlantBase):
         self._report = StepReport()
         self._work = 0.0
         self.articulated()
-        fast = self._fast
-        if fast is not None:
-            fast.load(self.net_state, self.energy)
         self.solver.step(self.state, self.dt, hooks=self)
-        if fast is not None:
-            self.net_state, self._report = fast.store(self.energy)
         return self._end_step()
 
     @property
     def compiled_steps(self) -> bool:
-        """Whether whole steps run compiled (``sim/plants/pbd_block.py``): the compiled coupling hooks apply
-        (``fast_hydraulics``) and ``frame`` is not switched off, on a tree of hinges and slides with cylinders
-        and hinge motors.  A step the compiled block does not cover (a singular mass matrix) takes the hooks."""
-        return bool(self.frame_compiled and self._tree and len(self.cylinders) and GRAVITY_ARTICULATED
-                    and all(self._hinge[self.motor_joint]))
+        """Whether whole steps run compiled (``sim/plants/pbd_block.py``): the coupling is one the compiled steps
+        reproduce (``pbd_hydraulics.coupling_kind``) and neither ``fast_hydraulics`` nor ``frame`` is switched
+        off."""
+        return bool(self.frame_compiled)
 
     @property
     def fast(self) -> bool:
@@ -542,7 +532,7 @@ class PbdPlant(PlantBase):
             _c64(c["plane_origin"]), _c64(c["plane_normal"]), float(solver.contact_margin), eligible)
         plant = BlockPlant(solver._flat, nb["tree"], nb["root"], nb["from_root_quat"], nb["from_root_pos"],
                            nb["group_mass"], nb["group_inertia"], candidates, ContactRows(*rows), fc["articulated_model"],
-                           fc["actuation"], _i64(xm.jnt_qposadr[self.scalar_joints]),
+                           bool(self._tree), fc["actuation"], _i64(xm.jnt_qposadr[self.scalar_joints]),
                            _i64(xm.jnt_dofadr[self.scalar_joints]))
         buffers = BlockBuffers(
             RigidState(np.zeros((ng, 3)), np.zeros((ng, 4)), np.zeros((ng, 3)), np.zeros((ng, 3))),
@@ -576,7 +566,7 @@ class PbdPlant(PlantBase):
         self.__dict__.pop("_observation_memo", None)
 
     def _end_step(self):
-        self.theta = self._fast.theta.copy() if self._fast is not None else getattr(self.coupling, "last_theta", self.theta)
+        self.theta = getattr(self.coupling, "last_theta", self.theta)
         self.last_report = self._report
         mechanical = sum(self.mechanical_energy())
         self.energy.dissipated_mechanical += self._work - (mechanical - self._mechanical)
@@ -633,7 +623,7 @@ class PbdPlant(PlantBase):
         solver, fast = self.solver, self._fast
         return FrameSettings(float(h), solver.substeps, solver.iterations, solver.symmetric, solver.linear_damping,
                              solver.angular_damping, solver.soft_contacts, solver.pyramid_friction,
-                             solver.velocity_sweeps, fast.scheme, fast.blend)
+                             solver.velocity_sweeps, fast.kind, fast.scheme, fast.blend, self.naive)
 
     def _frame_context(self):
         """The actuators' layout and state of the compiled frame and the input plan (made once)."""
@@ -648,9 +638,11 @@ class PbdPlant(PlantBase):
         mb = np.array([int(xm.jnt_body[j]) for j in self.motor_joint], np.int64)
         actuation = Actuation(
             cyl=_i64(self.cylinders), closed=_c64(self.closed_length), row_group=rg, row_vec=_c64(rvec),
-            mot=_i64(self.motors), gear=_c64(self.motor_gear), mbody=mb,
+            mot=_i64(self.motors), gear=_c64(self.motor_gear), mjoint=_i64(self.motor_joint),
+            mhinge=np.ascontiguousarray(self._hinge[self.motor_joint], np.bool_), mbody=mb,
             mparent=np.array([int(xm.body_parent[b]) for b in mb], np.int64),
-            maxis=_c64(np.asarray(self._axis_inertial).reshape(-1, 3)[self.motor_joint].reshape(-1, 3)))
+            maxis=_c64(np.asarray(self._axis_inertial).reshape(-1, 3)[self.motor_joint].reshape(-1, 3)),
+            morigin=_c64(np.asarray(self._origin_inertial).reshape(-1, 3)[mb].reshape(-1, 3)))
         actuators = ActuatorState(x=np.zeros(na), v=np.zeros(na), ell=np.zeros(nr), effort=np.zeros(na),
                                   motor_effort=np.zeros(nm), out=np.zeros(2))
         ctx = dict(inputs=input_plan(net, self.control, self.scene.scenario.inputs), x=actuators.x, v=actuators.v,
@@ -691,25 +683,22 @@ class PbdPlant(PlantBase):
         if k:  # the scenario's schedules at the substep's time (step() set them at the frame's start)
             apply_inputs(self.network, self.control, self.scene.scenario.inputs, self.time + k * h)
         x, v = self._x, self._v
-        if self._fast is not None:  # the same law, compiled (θ = 1 or the θ-rule, no effort bounds)
-            law_constant, law_slope = self._fast.begin(self.control, x, v, h, self._effective_mass)
-            law_lower = law_upper = None
-        else:
-            law = self.coupling.begin(self.net_state, self.control, x, v, h,
-                                      effective_mass=self._effective_mass if self.incompressible or self.rigid or self.blend
-                                      else None, velocity_guess=start_velocity_guess(self.network, x, v, h))
-            law_constant, law_slope, law_lower, law_upper = law.constant, law.slope, law.lower, law.upper
+        law = self.coupling.begin(self.net_state, self.control, x, v, h,
+                                  effective_mass=self._effective_mass if self.incompressible or self.rigid or self.blend
+                                  else None, velocity_guess=start_velocity_guess(self.network, x, v, h))
+        law_constant, law_slope, law_lower, law_upper = law.constant, law.slope, law.lower, law.upper
         cyl = self.cylinders
         c, s = law_constant[cyl], law_slope[cyl]
         implicit = (s < IMPLICIT_SLOPE_LIMIT) & (not self.naive)
         with np.errstate(divide="ignore", invalid="ignore"):
             target = np.where(implicit, self._ell - h * c / s, np.nan)  # ℓ* = ℓ₀ − h·c/s
             compliance = np.where(implicit, -h / s, 0.0)  # α = −h/s
-        force = np.where(implicit, 0.0, c + s * v[cyl])
+        force = c + s * v[cyl]
         lower = upper = None
-        if law_lower is not None:
+        if law_lower is not None:  # (an implicit row's bounds bound its multiplier, not an explicit force)
             lower, upper = law_lower[cyl], law_upper[cyl]
             force = np.clip(force, lower, upper)
+        force = np.where(implicit, 0.0, force)
         self._implicit, self._row_explicit = implicit, force
         # motors: backward Euler on the joint alone, ω⁺ = ω + h·w·τ with w = (M⁻¹)ⱼⱼ, τ = gear·(c + s·gear·ω⁺)
         mot = self.motors
@@ -756,12 +745,8 @@ class PbdPlant(PlantBase):
         v_end[cyl] = (ell - self._ell) / h
         v_end[mot] = self.motor_gear * self._joint_rates(state, self.motor_joint)
         x_end[mot] = x[mot] + h * v_end[mot]
-        fast = self._fast
-        if fast is not None:  # network step and energy ledger compiled; net_state/report written back by step()
-            fast.finish(self.control, x_end, v_end, h)
-        else:
-            self.net_state, report = self.coupling.finish(self.net_state, self.control, x, x_end, v, v_end, h)
-            self._report.absorb(report)
+        self.net_state, report = self.coupling.finish(self.net_state, self.control, x, x_end, v, v_end, h)
+        self._report.absorb(report)
         effort = np.zeros(self.network.actuator_count)
         effort[cyl] = np.where(self._implicit, forces.row_force, self._row_explicit)
         effort[mot] = self._motor_effort
@@ -771,8 +756,7 @@ class PbdPlant(PlantBase):
         v_next[cyl] = forces.row_rate
         # work of the efforts on the bodies, trapezoidal in the actuator speeds (exact for a free mass)
         self._work += 0.5 * h * float(effort @ (v + v_next))
-        if fast is None:
-            self._account(report, v_end, h)
+        self._account(report, v_end, h)
         self._ell = ell
         self._x, self._v = x_end, v_next
 
@@ -852,31 +836,30 @@ def _i64(a):
 
 
 def fast_path(plant: PbdPlant) -> str:
-    """Which PBD path steps ``plant`` and, when it is not the fastest, why not (one line, MJCF names).
+    """Which PBD path steps ``plant`` and, when it is not the fastest, why not; and whether the mechanism has the
+    articulated (joint-space) response (one line, MJCF names).
 
-    Fastest first: compiled blocks of steps (``sim/plants/pbd_block.py``), compiled coupling hooks
-    (``sim/plants/pbd_hydraulics.py``), the Python hooks.
+    Fastest first: compiled blocks of steps (``sim/plants/pbd_block.py``), compiled steps one at a time, the
+    Python hooks around the XPBD substeps.
     """
     xm = plant.xmodel
     if plant.fast:
-        return "compiled blocks of steps (the fastest path)"
-    if plant.compiled_steps:
-        return "compiled steps one at a time; not the compiled blocks because blocks are switched off (block=False)"
-    why = []
-    if plant._fast is None:
-        why.append("the coupling is not an implicit one at the compressible fidelity with the compiled stepper "
-                   f"(mode {plant.mode}, coupling {plant.scene.scenario.coupling}, fidelity {plant.network.fidelity})")
+        path = "compiled blocks of steps (the fastest path)"
+    elif plant.compiled_steps:
+        path = "compiled steps one at a time; not the compiled blocks because blocks are switched off (block=False)"
+    elif fast_eligible(plant):
+        path = "Python hooks; the compiled steps are switched off (fast_hydraulics=False or frame=False)"
+    else:
+        stepper = type(getattr(plant.coupling, "stepper", None)).__name__
+        path = (f"Python hooks; not the compiled steps because the coupling {plant.coupling.name!r} with the stepper "
+                f"{stepper} has none (compiled: the implicit couplings with implicit_euler, explicit with "
+                "explicit_euler, the incompressible fidelity, one hydraulic substep)")
     if not plant._tree:
         other = [f"'{xm.jnt_names[j]}'" for j in range(xm.njnt) if int(xm.jnt_type[j]) not in SCALAR_JOINTS]
-        why.append(f"joints {', '.join(other)} are not hinges or slides: no joint-space (articulated) path" if other
-                   else "the joints do not form a tree of hinges and slides")
-    if not len(plant.cylinders):
-        why.append("no cylinders")
-    bad_motors = [f"'{xm.jnt_names[j]}'" for j in plant.motor_joint if not plant._hinge[j]]
-    if bad_motors:
-        why.append(f"motor joints {', '.join(bad_motors)} are not hinges")
-    path = "compiled coupling hooks around the XPBD substeps" if plant._fast is not None else "Python hooks"
-    return f"{path}; not the compiled blocks because " + "; ".join(why or ["the compiled steps do not apply"])
+        path += ("; joints " + ", ".join(other) + " are not hinges or slides" if other
+                 else "; the joints do not form a tree of hinges and slides")
+        path += ": free-body (plain XPBD) response, no articulated one"
+    return path
 
 
 def make_pbd_plant(scene: Scene, *, block: bool = True) -> PbdPlant:

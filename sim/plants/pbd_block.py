@@ -69,6 +69,7 @@ BlockPlant = namedtuple("BlockPlant", [  # what stays fixed over the plant's lif
     "candidates",  # ``ContactCandidates``
     "contacts",  # ``compiled.ContactRows`` of every contact point of the model
     "articulated",  # ``pbd_frame.ArticulatedModel``
+    "joint_space",  # the joints form a tree of hinges and slides: the articulated response applies, bool
     "actuation",  # ``pbd_frame.Actuation``
     "record_qpos", "record_qvel",  # qpos / qvel addresses of the recorded scalar joints
 ])
@@ -123,8 +124,9 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
     awork = FN._articulated_work_jit(bx.shape[0], amodel.jnt_body.shape[0], art.effective_mass.size,
                                      amodel.group_mass.size)
     for k in range(nframe):
-        if not FN._articulated_into_jit(C.borrowed(awork), bx, bq, amodel, art):
-            return k, BLOCK_INELIGIBLE
+        joint_space = plant.joint_space and FN._articulated_into_jit(C.borrowed(awork), bx, bq, amodel, art)
+        if not joint_space:  # plain XPBD this frame (PbdPlant.articulated: no joint-space data)
+            art.motor_inverse_inertia[:] = 0.0
         XC.gather(bx, bq, bv, bw, plant.root, plant.from_root_quat, plant.from_root_pos, Xg, Qg, Vg, Wg)
         nc = XC.contact_candidates(Xg, Qg, Vg, Wg, cand.group, cand.plane, cand.plane_group, cand.local, cand.radius,
                                    cand.plane_origin, cand.plane_normal, cand.margin, dt, c_out)
@@ -146,7 +148,7 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
                                   b.condim[:nc], b.tran[:nc])
         status = FN._frame_jit(hyd, cmd[k * substeps:(k + 1) * substeps], speed[k * substeps:(k + 1) * substeps],
                                groups, bodies, model, art, contacts, actuation, actuators, settings,
-                               C.borrowed(work), transport, art_contacts)
+                               C.borrowed(work), (transport, art_contacts, joint_space))
         if status != FN.FRAME_OK:
             return k, BLOCK_SINGULAR
         for _ in range(int(fout[1])):  # network time: + h per successful substep (FastHydraulics.finish)

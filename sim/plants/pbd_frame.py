@@ -1,36 +1,34 @@
 """One whole PBD frame (all XPBD substeps of one plant step, with the hydraulic coupling) in one compiled call.
 
 Per substep, in the order of :meth:`sim.plants.pbd.PbdPlant.before_substep`,
-:meth:`sim.xpbd.SolverXPBD.step` and
-:meth:`~sim.plants.pbd.PbdPlant.after_substep`:
+:meth:`sim.xpbd.SolverXPBD.step` and :meth:`~sim.plants.pbd.PbdPlant.after_substep` (the Python hooks, whose
+results the frame equals to round-off):
 
-1. the effort law c + s·v⁺ of every actuator (``hydraulics_nb._begin_core``:
-   ``CouplingImplicit.begin`` at the start-velocity guess; ``scheme``: the coupling's
-   ``hydraulics.coupling.SCHEME_*``; θ = 1, or with ``blend`` from the step's effective masses
-   ``meff``, written to ``theta``);
-   With ``transport`` (``sim.plants.pbd_block.block(transport=True)``), from the second substep on, the step's articulated
-   responses (row mobilities, group gravity + motor responses) are carried to the substep's
-   pose through joint space (``compiled.transport``, as ``SolverXPBD.transport_response``);
-2. cylinder rows: compliant rows α = −h/s, ℓ* = ℓ₀ − h·c/s where s < −1e-9,
-   otherwise explicit row forces c + s·v₀, applied through the articulated response
-   (group accelerations f·mobility, added to gravity's); motors:
-   backward Euler on the joint, effort (c + s·v)/(1 + max(−s, 0)·gear²·h·(M⁻¹)ⱼⱼ),
-   applied through the articulated response with gravity (group accelerations);
-3. the XPBD substep (``compiled.substep_core``) and the body write-back
-   (``compiled.scatter``);
-4. realised ℓ, v⁺ = (ℓ − ℓ₀)/h and motor joint rates finish the network step
-   and the energy ledger (``hydraulics_nb._finish_core``); the actuator
-   efforts' work on the bodies h·f·(v₀ + v⁺)/2.
+1. the effort law c + s·v⁺ of every actuator and its bounds (``pbd_hydraulics._begin_core``, by the coupling's
+   kind; θ = 1, or with ``blend`` from the step's effective masses, written to ``theta``).  With ``transport``
+   (``sim.plants.pbd_block.block(transport=True)``), from the second substep on, the step's articulated
+   responses (row mobilities, group gravity + motor responses) are carried to the substep's pose through joint
+   space (``compiled.transport``, as ``SolverXPBD.transport_response``);
+2. cylinder rows: compliant rows α = −h/s, ℓ* = ℓ₀ − h·c/s where s < −1e-9, their multipliers bounded by the law's
+   effort bounds; otherwise (and every row in the seed's ``naive`` scheme) explicit row forces
+   clip(c + s·v₀, lower, upper); motors: backward Euler on the joint, effort
+   (c + s·v)/(1 + max(−s, 0)·gear²·h·(M⁻¹)ⱼⱼ), clipped to the bounds;
+3. the loads: with the step's joint-space data (trees of hinges and slides with a regular mass matrix), gravity,
+   the motor efforts and the explicit row forces enter as group accelerations through the articulated response
+   (the naive scheme's row forces as forces on the rows' two groups); without it (other joints, a singular mass
+   matrix) plain XPBD: gravity on every body, hinge motors as torque impulses, slide motors and explicit row
+   forces as forces on the two groups, effective masses unknown (θ = 1);
+4. the XPBD substep (``compiled.substep_core``) and the body write-back (``compiled.scatter``);
+5. realised ℓ, v⁺ = (ℓ − ℓ₀)/h and motor joint rates (hinges: relative angular velocity along the axis;
+   slides: relative velocity of the child's frame origin along it) finish the network step and the energy
+   ledger (``pbd_hydraulics._finish_core``); the actuator efforts' work on the bodies h·f·(v₀ + v⁺)/2.
 
-The operator inputs are sampled for every substep beforehand (rows of
-``cmd``/``speed``).  Only the case :attr:`sim.plants.pbd.PbdPlant.compiled_steps` checks is covered:
-fast hydraulics, a tree of hinges/slides with the articulated response, hinge motors, any contact kind
-of ``compiled.substep_core``.  Results equal the per-substep hooks to round-off.
+The operator inputs are sampled for every substep beforehand (rows of ``cmd``/``speed``).
 
 The frame is compiled into the block's entry point (:mod:`sim.plants.pbd_block`, :func:`compile_helpers`);
-the articulated response's own entry point (:func:`articulated`, called by the hooks path) is cached as
-:mod:`sim.plants.pbd_hydraulics`' are: it carries a sha256 of this file, ``pbd_hydraulics.py``, ``compiled.py``
-and the hydraulic kernel sources (``hydraulics._jit.SOURCES``, and numba's version) as a closure variable.
+the articulated response's own entry point (:func:`articulated`, called by the hooks path) is cached under a
+sha256 of this file, ``pbd_hydraulics.py``, ``compiled.py`` and the hydraulic kernel sources
+(``hydraulics._jit.SOURCES``, and numba's version) as a closure variable.
 """
 
 from __future__ import annotations
@@ -38,6 +36,7 @@ from __future__ import annotations
 from collections import namedtuple
 
 import numpy as np
+from numba import njit
 
 from hydraulics import _compiled as C
 
@@ -63,9 +62,12 @@ Actuation = namedtuple("Actuation", [
     "row_vec",  # site offsets in the group frames [m], (nr, 2, 3)
     "mot",  # actuator of each motor, (nm,)
     "gear",  # motor gear [-], (nm,)
+    "mjoint",  # joint of each motor, (nm,)
+    "mhinge",  # the motor's joint is a hinge (else a slide), (nm,)
     "mbody",  # body of each motor joint, (nm,)
     "mparent",  # its parent body, (nm,)
     "maxis",  # motor joint axis in the body's inertial frame, (nm, 3)
+    "morigin",  # the motor body's frame origin in its inertial frame [m] (slides: the point whose rate counts), (nm, 3)
 ])
 
 ActuatorState = namedtuple("ActuatorState", [
@@ -104,8 +106,10 @@ FrameSettings = namedtuple("FrameSettings", [
     "substeps",  # substeps per frame, int
     "iterations", "symmetric", "linear_damping", "angular_damping",  # as ``compiled.SubstepOptions``
     "soft_contacts", "pyramid_friction", "velocity_sweeps",  # as ``compiled.SubstepOptions``
-    "scheme",  # the coupling's ``hydraulics.coupling.SCHEME_*``
+    "kind",  # the coupling's ``pbd_hydraulics.KIND_*``
+    "scheme",  # the implicit coupling's ``hydraulics.coupling.SCHEME_*``
     "blend",  # θ from the effective masses (else θ = 1), bool
+    "naive",  # the seed's scheme: every cylinder row an explicit force on its two rigid groups, bool
 ])
 
 FrameWork = namedtuple("FrameWork", [
@@ -115,6 +119,7 @@ FrameWork = namedtuple("FrameWork", [
     "x_end", "v_end",  # actuator end states
     "G", "P0", "mobility",  # transport: group Jacobian, its pseudo-inverse at the start, transported mobility
     "substep",  # ``compiled.SubstepWork``
+    "unknown_mass",  # NaN per actuator: the effective masses of a frame without joint-space data, (na,)
 ])
 
 
@@ -126,11 +131,24 @@ def frame_work(nr, na, ng, nj, mob_shape, ntl, ncap):
                      np.empty(nr, np.bool_), np.zeros(nr), np.zeros((ng, 3)), np.zeros((ng, 3)), np.empty((ng, 6)),
                      np.zeros(nj), np.empty(nr), np.empty(nr), np.empty(nr), np.empty(na), np.empty(na),
                      np.zeros((ng, 6, nj)), np.zeros((nj, ng * 6)), np.empty(mob_shape),
-                     XC.substep_work(ng, nj, ntl, ncap, nr))
+                     XC.substep_work(ng, nj, ntl, ncap, nr), np.full(na, np.nan))
+
+
+@njit(inline="always")
+def _pair_force(g1, g2, r1, r2, f, Fe, Te):
+    """The world force ``f`` [N] on group ``g2`` at its offset ``r2`` and −``f`` on ``g1`` at ``r1`` (world offsets
+    from the groups' centres of mass [m]) added to the per-group forces and torques ``Fe``, ``Te``."""
+    t2 = XC._cross(r2, f)
+    t1 = XC._cross(r1, f)
+    for c in range(3):
+        Fe[g2, c] += f[c]
+        Te[g2, c] += t2[c]
+        Fe[g1, c] -= f[c]
+        Te[g1, c] -= t1[c]
 
 
 def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuation, actuators, settings, fwork,
-           transport, art_contacts):
+           variant):
     """One frame (see the module docstring).
 
     ``hyd``: the network's ``pbd_hydraulics.HydraulicBuffers``; ``cmd``/``speed``: valve commands and pump speeds
@@ -138,58 +156,69 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
     the bodies (written in place); ``model``: ``compiled.GroupModel``; ``articulated``: the step's ``Articulated``
     data; ``contacts``: the frame's candidates (``compiled.ContactRows``); ``actuation``, ``actuators``: the
     ``Actuation`` layout and the ``ActuatorState`` (updated); ``settings``: ``FrameSettings``; ``fwork``: the
-    ``FrameWork`` (:func:`frame_work`, for at least this frame's contacts; overwritten).  Returns ``FRAME_OK`` or
-    ``FRAME_SINGULAR``."""
+    ``FrameWork`` (:func:`frame_work`, for at least this frame's contacts; overwritten); ``variant`` = (transport,
+    articulated contacts, joint space): carry the articulated responses to each substep's pose, solve the contacts
+    with the articulated response, and whether ``articulated`` holds this frame's joint-space data (else the
+    free-body response of plain XPBD: gravity per body, explicit forces and motor efforts on the groups).
+    Returns ``FRAME_OK`` or ``FRAME_SINGULAR``."""
+    transport, art_contacts, joint_space = variant
     net = C._unpack(hyd.F, hyd.I)
     pnet = C._ref(net)
     Xg, Qg, Vg, Wg = groups.x, groups.q, groups.v, groups.w
-    bq, bw = bodies.q, bodies.w
+    bx, bq, bv, bw = bodies.x, bodies.q, bodies.v, bodies.w
     IM, jt, jg, jvec = model.IM, model.jt, model.jg, model.jvec
     h, substeps = settings.h, settings.substeps
+    coupling = (settings.kind, settings.scheme, settings.blend and joint_space)
+    naive = settings.naive
     mob, gg0, mresp, minv = (articulated.mobility, articulated.group_gravity, articulated.motor_response,
                              articulated.motor_inverse_inertia)
+    meff = articulated.effective_mass if joint_space else fwork.unknown_mass
     cyl, closed, mot, gear = actuation.cyl, actuation.closed, actuation.mot, actuation.gear
-    mbody, mparent, maxis = actuation.mbody, actuation.mparent, actuation.maxis
+    mjoint, mhinge, mbody, mparent = actuation.mjoint, actuation.mhinge, actuation.mbody, actuation.mparent
+    maxis, morigin, rgroup, rvec = actuation.maxis, actuation.morigin, actuation.row_group, actuation.row_vec
     x, v, ell0, effort, motor_effort, out = (actuators.x, actuators.v, actuators.ell, actuators.effort,
                                              actuators.motor_effort, actuators.out)
-    const, slope, istats = hyd.constant, hyd.slope, hyd.istats
+    const, slope, lower, upper, istats = hyd.constant, hyd.slope, hyd.lower, hyd.upper, hyd.istats
     options = XC.SubstepOptions(settings.iterations, settings.symmetric, settings.linear_damping,
                                 settings.angular_damping, art_contacts, settings.soft_contacts,
                                 settings.pyramid_friction, settings.velocity_sweeps)
     na = x.size
-    # group accelerations on, joint torques off, as runtime bools: compiled.substep_core then has the one signature
-    # the per-substep path (Python bools) uses too (literal True/False compile a second specialisation)
-    always, never = substeps > 0, substeps < 0
     nr = cyl.size
     nm = mot.size
     ng = Xg.shape[0]
-    # Fe, Te: no per-group forces (explicit row forces go through the articulated response); tau: no joint torques
     tgt, at, lo, hi, act, implicit, rforce = (fwork.target, fwork.compliance, fwork.lower, fwork.upper, fwork.active,
                                               fwork.implicit, fwork.row_force)
     Fe, Te, gg, tau = fwork.force, fwork.torque, fwork.group_acceleration, fwork.joint_torque
     lam, ell, rate, x_end, v_end = fwork.lam, fwork.length, fwork.rate, fwork.x_end, fwork.v_end
     Gk, P0, mobk, swork = fwork.G, fwork.P0, fwork.mobility, fwork.substep
     Gc, Minv = swork.G, swork.Minv
-    loads = XC.SubstepLoads(always, gg, Fe, Te, never, tau)
+    # hinge motors' torques as impulses where there is no joint-space response (a runtime bool: one signature)
+    use_tau = False
+    if not joint_space:
+        for i in range(nm):
+            if mhinge[i]:
+                use_tau = True
+    loads = XC.SubstepLoads(joint_space, gg, Fe, Te, use_tau, tau)
     row_out = XC.RowOutputs(lam, ell, rate)
     for r in range(nr):
         lo[r], hi[r], rforce[r] = -np.inf, np.inf, 0.0
-    Fe[:, :] = 0.0
-    Te[:, :] = 0.0
     tau[:] = 0.0
     Gk[:, :, :] = 0.0
     P0[:, :] = 0.0
     Gc[:, :, :] = 0.0
     Minv[:, :] = 0.0
+    if not joint_space:
+        gg[:, :] = 0.0
     hh = h * h
     work = 0.0
     out[1] = 0.0
-    # articulated responses carried to each substep's pose (SolverXPBD.transport_response, default on)
+    # articulated responses carried to each substep's pose (SolverXPBD.transport_response)
     nj = jt.shape[0]
-    carry = transport and nj > 0 and substeps > 1 and XC.group_jacobian(Xg, Qg, IM, jt, jg, jvec, Gk) and XC.jacobian_pinv(Gk, P0)
+    carry = (joint_space and transport and nj > 0 and substeps > 1 and XC.group_jacobian(Xg, Qg, IM, jt, jg, jvec, Gk)
+             and XC.jacobian_pinv(Gk, P0))
     for k in range(substeps):
-        if not H._begin_core(pnet, hyd, cmd[k], speed[k], x, v, h, settings.scheme, settings.blend,
-                             articulated.effective_mass):
+        control = (cmd[k], speed[k])
+        if not H._begin_core(pnet, hyd, control, x, v, h, coupling, meff):
             out[0] = work
             return FRAME_SINGULAR
         nact = 0
@@ -197,46 +226,72 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
         for r in range(nr):
             a = cyl[r]
             c, s = const[a], slope[a]
-            implicit[r] = s < IMPLICIT_SLOPE_LIMIT
+            implicit[r] = s < IMPLICIT_SLOPE_LIMIT and not naive
             if implicit[r]:
                 tgt[r] = ell0[r] - h * c / s
                 at[r] = (-h / s) / hh
+                lo[r], hi[r] = lower[a] * hh, upper[a] * hh
                 rforce[r] = 0.0
                 act[nact] = r
                 nact += 1
             else:
                 tgt[r] = np.nan
                 at[r] = 0.0
-                rforce[r] = c + s * v[a]
+                rforce[r] = C._clip(c + s * v[a], lower[a], upper[a])
                 if rforce[r] != 0.0:
                     any_force = True
         for i in range(nm):
             a = mot[i]
             damping = max(-slope[a], 0.0) * gear[i] ** 2 * h * minv[i]
-            motor_effort[i] = (const[a] + slope[a] * v[a]) / (1.0 + damping)
-        for g in range(ng):
-            for c in range(6):
-                s = 0.0
-                for i in range(nm):
-                    s += motor_effort[i] * mresp[i, g, c]
-                gg[g, c] = gg0[g, c] + s if nm else gg0[g, c]
-        if any_force:  # explicit row forces through the articulated response (PbdPlant.before_substep)
+            motor_effort[i] = C._clip((const[a] + slope[a] * v[a]) / (1.0 + damping), lower[a], upper[a])
+        if joint_space:  # motor efforts through the articulated response, with gravity
+            for g in range(ng):
+                for c in range(6):
+                    s = 0.0
+                    for i in range(nm):
+                        s += motor_effort[i] * mresp[i, g, c]
+                    gg[g, c] = gg0[g, c] + s if nm else gg0[g, c]
+        Fe[:, :] = 0.0
+        Te[:, :] = 0.0
+        if not joint_space:  # as joint forces: hinge torques as impulses, slide forces on the two groups
+            for i in range(nm):
+                j = mjoint[i]
+                if mhinge[i]:
+                    tau[j] = gear[i] * motor_effort[i]
+                    continue
+                g1, g2 = jg[j, 0], jg[j, 1]
+                axis = XC._rot(XC._q4(Qg, g1), XC._v3(jvec[j], 2))
+                f = gear[i] * motor_effort[i]
+                d = (Xg[g2, 0] - Xg[g1, 0], Xg[g2, 1] - Xg[g1, 1], Xg[g2, 2] - Xg[g1, 2])
+                _pair_force(g1, g2, d, (0.0, 0.0, 0.0), (f * axis[0], f * axis[1], f * axis[2]), Fe, Te)
+        if any_force and joint_space and not naive:  # explicit row forces through the articulated response
             for g in range(ng):
                 for c in range(6):
                     s = 0.0
                     for r in range(nr):
                         s += rforce[r] * mob[r, g, c]
                     gg[g, c] += s
+        elif any_force:  # explicit row forces on the rows' two groups (plain XPBD, the seed's scheme)
+            for r in range(nr):
+                if rforce[r] == 0.0:
+                    continue
+                ga, gb = rgroup[r, 0], rgroup[r, 1]
+                ra = XC._rot(XC._q4(Qg, ga), XC._v3(rvec[r], 0))
+                rb = XC._rot(XC._q4(Qg, gb), XC._v3(rvec[r], 1))
+                d = (Xg[gb, 0] + rb[0] - Xg[ga, 0] - ra[0], Xg[gb, 1] + rb[1] - Xg[ga, 1] - ra[1],
+                     Xg[gb, 2] + rb[2] - Xg[ga, 2] - ra[2])
+                f = rforce[r] / np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+                _pair_force(ga, gb, ra, rb, (f * d[0], f * d[1], f * d[2]), Fe, Te)
         if carry and k > 0:
             XC.group_jacobian(Xg, Qg, IM, jt, jg, jvec, Gk)
             for r in range(nr):
                 XC.transport(Gk, P0, mob[r], mobk[r])
             XC.transport(Gk, P0, gg, gg)
-        else:
+        elif joint_space:
             mobk[:, :, :] = mob
-        rows = XC.SubstepRows(actuation.row_group, actuation.row_vec, act[:nact], tgt, at, lo, hi, nact > 0, mobk)
+        rows = XC.SubstepRows(rgroup, rvec, act[:nact], tgt, at, lo, hi, nact > 0 and joint_space, mobk)
         XC.substep_core(Xg, Qg, Vg, Wg, model, rows, contacts, loads, options, h, row_out, swork)
-        XC.scatter(Xg, Qg, Vg, Wg, model.body_group, model.in_group_quat, model.in_group_pos, bodies.x, bq, bodies.v, bw)
+        XC.scatter(Xg, Qg, Vg, Wg, model.body_group, model.in_group_quat, model.in_group_pos, bx, bq, bv, bw)
         # end of the substep: realised motion (PbdPlant.after_substep)
         for a in range(na):
             x_end[a] = x[a]
@@ -248,18 +303,28 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
         for i in range(nm):
             b, p = mbody[i], mparent[i]
             ax = XC._rot(XC._q4(bq, b), XC._v3(maxis, i))
-            rate_j = (bw[b, 0] - bw[p, 0]) * ax[0] + (bw[b, 1] - bw[p, 1]) * ax[1] + (bw[b, 2] - bw[p, 2]) * ax[2]
+            if mhinge[i]:
+                rate_j = (bw[b, 0] - bw[p, 0]) * ax[0] + (bw[b, 1] - bw[p, 1]) * ax[1] + (bw[b, 2] - bw[p, 2]) * ax[2]
+            else:  # relative velocity of the child's body-frame origin along the axis
+                o = XC._rot(XC._q4(bq, b), XC._v3(morigin, i))
+                rb = (o[0], o[1], o[2])
+                rp = (bx[b, 0] + o[0] - bx[p, 0], bx[b, 1] + o[1] - bx[p, 1], bx[b, 2] + o[2] - bx[p, 2])
+                wb = XC._cross(XC._v3(bw, b), rb)
+                wp = XC._cross(XC._v3(bw, p), rp)
+                rate_j = 0.0
+                for c in range(3):
+                    rate_j += ((bv[b, c] + wb[c]) - (bv[p, c] + wp[c])) * ax[c]
             a = mot[i]
             v_end[a] = gear[i] * rate_j
             x_end[a] = x[a] + h * v_end[a]
-        H._finish_core(pnet, hyd, cmd[k], speed[k], x_end, v_end, h, settings.scheme)
-        out[1] += istats[H.I_LAST_OK]
         for a in range(na):
             effort[a] = 0.0
         for r in range(nr):
             effort[cyl[r]] = lam[r] / hh if implicit[r] else rforce[r]
         for i in range(nm):
             effort[mot[i]] = motor_effort[i]
+        H._finish_core(pnet, hyd, control, (x_end, v_end, v), h, coupling, effort)
+        out[1] += istats[H.I_LAST_OK]
         # v_next: cylinder speeds as the bodies now move; work trapezoidal in the actuator speeds
         for r in range(nr):
             v_end[cyl[r]] = rate[r]

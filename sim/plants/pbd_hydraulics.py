@@ -1,37 +1,24 @@
-"""Compiled hydraulic hooks of the PBD plant: the implicit coupling's begin/finish and the energy ledger per substep.
+"""The network's side of the PBD plant's compiled steps: each coupling's begin and finish per XPBD substep.
 
-:class:`sim.plants.pbd.PbdPlant` calls, per XPBD substep,
-``CouplingImplicit.begin`` (the effort law c + s·v⁺ of every actuator),
-``CouplingImplicit.finish`` (one backward-Euler step of the network with the
-realised motion, Newton started from the linearisation's predicted oil) and
-``PlantBase._account`` (pump/motor work, hydraulic and friction losses).  In
-Python with :class:`~hydraulics.steppers.StepperImplicitEuler` these
-cost ≈ 300 µs per substep, most of it Python and numpy call overhead.
-:class:`FastHydraulics` does the same arithmetic in two numba calls per
-substep with buffers allocated once, calling the allocation-free cores of
-:mod:`hydraulics._compiled` (``_linearize_core``, ``_step_core``) and the
-pieces of the coupled step it shares with :mod:`sim.plants.mujoco_fast`
-(``_take_linearization``, ``_linearize_at_start_velocity``, ``_effort_law_terms``,
-``_predicted_oil``, ``_commit_if_finite``, ``_account``).  Same
-equations, same Newton iterations; the results agree with the Python hooks to
-round-off (summation orders of the ledger and of the oil prediction).
+Per XPBD substep the compiled frame (:mod:`sim.plants.pbd_frame`) calls :func:`_begin_core` (the effort law
+c + s·v⁺ of every actuator and its bounds) before the position solve and :func:`_finish_core` (the network's step
+with the realised motion, and the energy ledger ``PlantBase._account``) after it, on the buffers of
+:class:`FastHydraulics`.  The couplings (:func:`coupling_kind`), each the kernels of :mod:`hydraulics._compiled`
+and :mod:`hydraulics._compiled_rigid` that the fast MuJoCo plant's callback calls too:
 
-Scope: the ``implicit`` coupling (PBD mode's default) and its linear variants
-``implicit-linear`` and ``rosenbrock`` (finish m⁺ = m_lin + (∂m/∂v)·(v⁺ − v_guess),
-``_compiled._linear_finish``; rosenbrock also linearises by one Newton step, the
-``scheme`` argument) at the ``compressible`` fidelity with the compiled
-implicit-Euler stepper and one hydraulic substep per XPBD substep, where θ = 1
-or, with the plant's ``blend`` (scenario ``pbd_blend``), the θ-rule from the
-articulated effective masses, and the linearisation is at the substep's start velocities
-where their chord is short (``coupling.start_velocity_guess``, as MuJoCo mode; else at the
-held actuators), clipped into the stroke.  Any other configuration keeps the Python
-hooks (:func:`eligible`).
+* ``implicit`` (PBD mode's default) and its linear variants ``implicit-linear`` and ``rosenbrock`` (finish
+  m⁺ = m_lin + (∂m/∂v)·(v⁺ − v_guess), ``_compiled._linear_finish``; rosenbrock also linearises by one Newton
+  step) with the implicit-Euler stepper: θ = 1 or, with the plant's ``blend`` (scenario ``pbd_blend``), the θ-rule
+  from the articulated effective masses; linearised at the substep's start velocities where their chord is short
+  (``coupling.start_velocity_guess``, as MuJoCo mode; else at the held actuators), clipped into the stroke;
+* ``explicit`` with the explicit-Euler stepper (and the seed's ``pbd-naive``): the start pressures' effort held,
+  the network advanced by forward Euler from its own positions at the start velocities;
+* the ``incompressible`` fidelity: the bounded metered law, pressures derived from the applied effort;
+* rigid actuators in a compressible network around the first two (``CouplingMixed``).
 
-Caching: numba caches a function by its own file only, so the two entry points
-carry a sha256 of this file and of the hydraulic kernel sources (``hydraulics._jit.SOURCES``, and the numba
-version) as a closure variable, which is part of numba's cache key (as
-:mod:`sim.plants.mujoco_fast` does); the helpers below are not cached on their
-own and exist only inside the entry points.  One signature each.
+One hydraulic substep per XPBD substep.  Any other stepper (the ``reference`` stepper, a coupling with another
+stepper than its own) keeps the plant's Python hooks (:func:`eligible`).  Same equations and Newton iterations as
+the Python couplings; the compiled steps agree with the Python hooks to round-off (``tests/test_pbd_fast.py``).
 """
 
 from __future__ import annotations
@@ -41,10 +28,12 @@ from collections import namedtuple
 import numpy as np
 
 from hydraulics import _compiled as C
-from hydraulics.coupling import SCHEME_NEWTON, SCHEME_ROSENBROCK
+from hydraulics import _compiled_rigid as K
+from hydraulics.coupling import (SCHEME_NEWTON, SCHEME_ROSENBROCK, CouplingExplicit, CouplingImplicit,
+                                 CouplingIncompressible, CouplingMixed)
 from hydraulics.fluid import potential_quadrature
 from hydraulics.network import NetworkState
-from hydraulics.steppers import StepperImplicitEuler, StepReport, StepStatus
+from hydraulics.steppers import StepperExplicitEuler, StepperImplicitEuler, StepReport, StepStatus
 
 try:  # pragma: no branch
     import numba
@@ -60,8 +49,10 @@ NI = 12
 (L_PUMP, L_MOTOR, L_DISS_H, L_DISS_F, L_RESIDUAL, L_FAIL_NORM) = range(6)  # the first four in C._account's order
 NL = 6
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
+# the coupling the compiled steps take (:func:`coupling_kind`)
+KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(3)
 
-# The network's buffers for the compiled hooks, made once per plant (:class:`FastHydraulics`); n nodes,
+# The network's buffers for the compiled steps, made once per plant (:class:`FastHydraulics`); n nodes,
 # na actuators, nb branches, nvalve valves.
 HydraulicBuffers = namedtuple("HydraulicBuffers", [
     "F", "I",  # the packed network (``StepperImplicitEuler``'s float64 and int64 arrays)
@@ -79,21 +70,34 @@ HydraulicBuffers = namedtuple("HydraulicBuffers", [
     "constant",  # effort law constant c [N or N·m], (na,)
     "slope",  # effort law slope s [N·s/m or N·m·s/rad], (na,)
     "theta",  # θ of the last begin per actuator [-], (na,)
+    "lower", "upper",  # effort bounds of the law [N or N·m] (±inf where unbounded), (na,)
+    "incompressible",  # ``_compiled_rigid.IncompressibleTable`` (read by the incompressible coupling only)
+    "rigid",  # ``_compiled_rigid.RigidTable`` of the rigid actuators (none: no rigid branch)
 ])
 
 
-def eligible(plant) -> bool:
-    """True when the plant's coupling is the one :class:`FastHydraulics` reproduces (see module docstring)."""
-    from hydraulics.coupling import CouplingImplicit, CouplingImplicitLinear, CouplingRosenbrock
-
+def coupling_kind(plant):
+    """The ``KIND_*`` of the plant's coupling when :class:`FastHydraulics` reproduces it, else None: the implicit
+    couplings with the compiled implicit-Euler stepper as their predictor, the explicit coupling with the
+    explicit-Euler stepper (PBD mode's ``explicit`` and the seed's ``pbd-naive``), either with rigid actuators around
+    it (``CouplingMixed``), and the ``incompressible`` fidelity; one hydraulic substep per XPBD substep."""
     coupling = plant.coupling
+    inner = coupling.inner if type(coupling) is CouplingMixed else coupling
     stepper = getattr(coupling, "stepper", None)
-    return bool(
-        _NUMBA and not plant.naive and not plant.incompressible
-        and type(coupling) in (CouplingImplicit, CouplingImplicitLinear, CouplingRosenbrock)
-        and isinstance(stepper, StepperImplicitEuler) and stepper.substeps == 1
-        and coupling.predictor is stepper
-    )
+    if not _NUMBA or getattr(stepper, "substeps", 1) != 1:
+        return None
+    if isinstance(inner, CouplingImplicit) and isinstance(stepper, StepperImplicitEuler) and inner.predictor is stepper:
+        return KIND_IMPLICIT
+    if type(inner) is CouplingExplicit and type(stepper) is StepperExplicitEuler:
+        return KIND_EXPLICIT
+    if type(coupling) is CouplingIncompressible:
+        return KIND_INCOMPRESSIBLE
+    return None
+
+
+def eligible(plant) -> bool:
+    """True when the plant's coupling is one :class:`FastHydraulics` reproduces (:func:`coupling_kind`)."""
+    return coupling_kind(plant) is not None
 
 
 if _NUMBA:
@@ -112,7 +116,14 @@ def keep_size(n, na, nb, nvalve):
     """Length of the float64 buffer S: the last substep's oil change [m³] (``NetworkState.node_oil_change``, the
     next substep's warm start, which persists across substeps and steps; :meth:`FastHydraulics.load` / ``store``
     move it), what begin leaves for finish (``C._take_linearization``), then begin's and finish's temporaries."""
-    return n + (na + n + nvalve + n * na) + _begin_temporaries(n, na, nb, nvalve) + (5 * n + 2 * na + (1 + C._W_BR) * nb + nvalve)
+    return n + (na + n + nvalve + n * na) + _begin_temporaries(n, na, nb, nvalve) + (5 * n + 5 * na + (1 + C._W_BR) * nb + nvalve)
+
+
+def work_size(F, I, n, na, nb, nr):
+    """Length of the float64 scratch W for ``n`` nodes, ``na`` actuators, ``nb`` branches and ``nr`` rigid branches:
+    the Newton kernels' (``_compiled.work_size``), the explicit substep's (3·n + valve areas ≤ 4·n + nb) and the
+    rigid actuators' law's, whichever is longest."""
+    return max(C.work_size(F, I), 4 * n + nb, 3 * nr + 3 * n + 4 * na)
 
 
 _begin_temporaries_nb = _kernel(_begin_temporaries)
@@ -132,15 +143,42 @@ def _kept(pnet, buffers):
 
 
 @_kernel
-def _begin_core(pnet, buffers, cmd, speed, x, v, h, scheme, blend, effective_mass):
-    """CouplingImplicit.begin at the start velocities ``v`` as the velocity guess (``start_velocity_guess``): the effort
-    law (``buffers.constant``, ``buffers.slope``) and its θ per actuator (``buffers.theta``), on the
-    ``HydraulicBuffers`` ``buffers``; returns False if singular.  ``scheme``: the coupling's ``hydraulics.coupling.SCHEME_*`` (rosenbrock linearises
-    by one Newton step); ``blend``: θ from ``effective_mass`` [kg or kg·m²] (``blend_factor``, the start force
-    from the state's pressures ``pres`` [Pa], which belong to ``oil`` at ``x``), else θ = 1."""
+def _begin_core(pnet, buffers, control, x, v, h, coupling, effective_mass):
+    """The effort law c + s·v⁺ of every actuator for a substep of ``h`` [s] from the actuator positions ``x`` and
+    velocities ``v`` (``buffers.constant``, ``buffers.slope``, bounds ``buffers.lower``/``upper``, θ per actuator
+    ``buffers.theta``) on the ``HydraulicBuffers`` ``buffers``; returns False if singular.  ``control`` = (valve
+    commands, pump speeds); ``coupling`` = (``KIND_*``, the implicit coupling's ``hydraulics.coupling.SCHEME_*``,
+    blend): by kind
+
+    * implicit: CouplingImplicit.begin at the start velocities ``v`` as the velocity guess
+      (``start_velocity_guess``); rosenbrock linearises by one Newton step; with ``blend`` θ from
+      ``effective_mass`` [kg or kg·m²] (``blend_factor``, the start force from the state's pressures, which belong
+      to its oil at ``x``), else θ = 1;
+    * explicit: CouplingExplicit.begin (:func:`hydraulics._compiled_rigid.explicit_law`), θ = 1;
+    * incompressible: CouplingIncompressible.begin (:func:`hydraulics._compiled_rigid.incompressible_law` at the
+      end spools, kept for the finish), θ = 1;
+
+    and around the first two CouplingMixed.begin for the rigid actuators (``rigid_law``; NaN effective masses:
+    unknown)."""
     W, S, istats, oil, pres, spool = buffers.W, buffers.S, buffers.istats, buffers.oil, buffers.pressure, buffers.spool
-    const, slope, theta = buffers.constant, buffers.slope, buffers.theta
+    const, slope, theta, lower, upper = buffers.constant, buffers.slope, buffers.theta, buffers.lower, buffers.upper
+    cmd, speed = control
+    kind, scheme, blend = coupling
+    R = buffers.rigid
     n, na, nb, nvalve, oil_change, guess, lin_oil, lin_spool, doil, o = _kept(pnet, buffers)
+    if kind == KIND_INCOMPRESSIBLE:
+        C._spool_end(pnet, spool, cmd, h, lin_spool)
+        K.incompressible_law(pnet, buffers.incompressible, lin_spool, speed, v, effective_mass, h,
+                             W[:C._area_count(C._deref(pnet).ic)], (const, slope), (lower, upper))
+        theta[:] = 1.0
+        return True
+    if kind == KIND_EXPLICIT:
+        K.explicit_law(pnet, pres, v, (const, slope), W)
+        theta[:] = 1.0
+        if R.actuator.size:  # the rigid actuators' law at the start supply pressure
+            K.rigid_law(pnet, R, spool, cmd, v, effective_mass, h, (pres, oil, x, doil, x), False, (const, slope),
+                        (lower, upper), theta, W)
+        return True
     fg, o = C._take(S, o, na)
     fsg, o = C._take(S, o, na)
     end_const, o = C._take(S, o, na)
@@ -168,99 +206,94 @@ def _begin_core(pnet, buffers, cmd, speed, x, v, h, scheme, blend, effective_mas
     C._pressure_effort(pnet, pres, pressure_start)
     C._blended_law(blend, end_const, end_slope, pressure_start, friction, damping, v, effective_mass, h, theta, const,
                    slope)
+    if R.actuator.size:  # the rigid actuators' law at the linearisation's supply pressure
+        K.rigid_law(pnet, R, spool, cmd, v, effective_mass, h, (lin_p, lin_oil, lin_x, doil, guess), True,
+                    (const, slope), (lower, upper), theta, W)
     return True
 
 
 @_kernel
-def _finish_core(pnet, buffers, cmd, speed, x_end, v_end, h, scheme):
-    """CouplingImplicit.finish (``scheme`` SCHEME_NEWTON) or CouplingImplicitLinear.finish (the linear finishes)
-    + PlantBase._account on the ``HydraulicBuffers`` ``buffers``: on success the state arrays (oil, pressure, spool,
-    position, velocity) become the end of the substep; counters and failure in ``istats``, ledger terms in
-    ``ledger``, the branch flows in ``flow``."""
+def _finish_core(pnet, buffers, control, motion, h, coupling, effort):
+    """The network's step over the substep with the realised ``motion`` = (end positions, end velocities, start
+    velocities) of the actuators, by the ``coupling`` (``KIND_*``, scheme, blend) of :func:`_begin_core`:
+    CouplingImplicit.finish (``SCHEME_NEWTON``: backward Euler, Newton from the linearisation's predicted oil) or
+    CouplingImplicitLinear.finish (the linear finishes), CouplingExplicit.finish (forward Euler from the network's own
+    positions at the held start velocities) or CouplingIncompressible.finish (pressures and oil from the bounded
+    effort), CouplingMixed.finish's rigid chamber pressures, then PlantBase._account with the applied ``effort``
+    [N or N·m] (the rigid actuators' term).  On success the state arrays (oil, pressure, spool, position, velocity)
+    become the end of the substep; counters and failure in ``istats``, ledger terms in ``ledger``, the branch
+    flows in ``flow``."""
     W, S, istats, ledger, quad = buffers.W, buffers.S, buffers.istats, buffers.ledger, buffers.quad
     oil, pres, spool, pos, vel, flow = (buffers.oil, buffers.pressure, buffers.spool, buffers.position, buffers.velocity,
                                         buffers.flow)
+    const, slope, lower, upper, R = buffers.constant, buffers.slope, buffers.lower, buffers.upper, buffers.rigid
+    cmd, speed = control
+    x_end, v_end, v_start = motion
+    kind, scheme = coupling[0], coupling[1]
     n, na, nb, nvalve, oil_change, guess, lin_oil, lin_spool, doil, o = _kept(pnet, buffers)
     o += _begin_temporaries_nb(n, na, nb, nvalve)
     mpred, o = C._take(S, o, n)
     o2, o = C._take(S, o, n)
     p2, o = C._take(S, o, n)
     mu, o = C._take(S, o, n)
+    start, o = C._take(S, o, n)
     dv, o = C._take(S, o, na)
     fric, o = C._take(S, o, na)
+    xs, o = C._take(S, o, na)
+    xb, o = C._take(S, o, na)
+    xe, o = C._take(S, o, na)
     dflow, o = C._take2(S, o, nb, C._W_BR)  # branches × terminals
     fl, o = C._take(S, o, nb)
     sp2, o = C._take(S, o, nvalve)
-    change, o = C._take(S, o, n)
-    C._predicted_oil(lin_oil, doil, guess, v_end, dv, mpred)
-    if scheme == SCHEME_NEWTON:
-        norm = C._step_core(pnet, W, C.StepStart(oil, spool, cmd, speed, x_end, v_end), h, True,
-                            C.StepOut(o2, p2, sp2, fl, dflow, istats), mpred)
-        istats[I_NEWTON] += istats[C.IS_NEWTON]
-        istats[I_RHS] += istats[C.IS_RHS]
-        istats[I_JAC] += istats[C.IS_JAC]
-    else:  # m⁺ = the prediction, at the linearisation's spools
-        C._copy(o2, mpred)
-        C._copy(sp2, lin_spool)
-        C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dflow)
-        norm = 0.0
-        istats[C.IS_STATUS] = C._OK
-        istats[I_RHS] += 1
-    if norm > ledger[L_RESIDUAL]:
-        ledger[L_RESIDUAL] = norm
-    C._copy(flow, fl)
+    C._copy(start, oil)
+    norm = 0.0
     istats[I_LAST_OK] = 0
-    if istats[C.IS_STATUS] != C._OK:
-        istats[I_STATUS], istats[I_WORST] = ST_NEWTON, istats[C.IS_WORST]
-        ledger[L_FAIL_NORM] = norm
+    bad = -1
+    if kind == KIND_INCOMPRESSIBLE:
+        K.incompressible_finish(pnet, const, slope, lower, upper, v_end, x_end, W[:n], dv, pres, oil)
+        C._copy(spool, lin_spool)
+        C._copy(pos, x_end)
+        C._copy(vel, v_end)
+        flow[:] = 0.0
+    elif kind == KIND_EXPLICIT:
+        bad, rhs = K.explicit_finish(pnet, W, (oil, pres, spool, pos, vel), flow, v_start, control, h, 1,
+                                     (o2, p2, sp2, fl, dflow, istats[:I_NEWTON], xs, xb, xe))
+        istats[I_RHS] += rhs
     else:
-        for i in range(n):
-            change[i] = o2[i] - oil[i]
-        bad = C._commit_if_finite(oil, pres, spool, pos, vel, o2, p2, sp2, x_end, v_end)
-        if bad >= 0:
-            istats[I_STATUS], istats[I_WORST] = ST_NONFINITE, bad
+        C._predicted_oil(lin_oil, doil, guess, v_end, dv, mpred)
+        if scheme == SCHEME_NEWTON:
+            norm = C._step_core(pnet, W, C.StepStart(oil, spool, cmd, speed, x_end, v_end), h, True,
+                                C.StepOut(o2, p2, sp2, fl, dflow, istats), mpred)
+            istats[I_NEWTON] += istats[C.IS_NEWTON]
+            istats[I_RHS] += istats[C.IS_RHS]
+            istats[I_JAC] += istats[C.IS_JAC]
+        else:  # m⁺ = the prediction, at the linearisation's spools
+            C._copy(o2, mpred)
+            C._copy(sp2, lin_spool)
+            C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dflow)
+            istats[C.IS_STATUS] = C._OK
+            istats[I_RHS] += 1
+        if norm > ledger[L_RESIDUAL]:
+            ledger[L_RESIDUAL] = norm
+        C._copy(flow, fl)
+        if istats[C.IS_STATUS] != C._OK:
+            istats[I_STATUS], istats[I_WORST] = ST_NEWTON, istats[C.IS_WORST]
+            ledger[L_FAIL_NORM] = norm
+            bad = -2
         else:
-            istats[I_LAST_OK] = 1
-            C._copy(oil_change, change)
+            bad = C._commit_if_finite(oil, pres, spool, pos, vel, o2, p2, sp2, x_end, v_end)
+    if bad >= 0:
+        istats[I_STATUS], istats[I_WORST] = ST_NONFINITE, bad
+    elif bad == -1:
+        istats[I_LAST_OK] = 1
+        for i in range(n):  # (none from the incompressible coupling: it has no oil states)
+            oil_change[i] = oil[i] - start[i] if kind != KIND_INCOMPRESSIBLE else 0.0
+        if R.actuator.size:  # CouplingMixed.finish: rigid chambers carry the clamped effort less friction
+            K.rigid_finish(pnet, R, (const, slope), (lower, upper), v_end, pres, W[:3 * na])
     # energy ledger (PlantBase._account, energy.branch_powers) at the state's pressures
     C._account(pnet, ledger, L_PUMP, h, pres, flow, v_end, quad, mu, fric, dv)
-
-
-# this file and the hydraulic kernel sources (everything compiled into the entry points), taken at import: part of the
-# cache key
-SOURCE_SHA256 = C.source_sha256(__file__, *C.SOURCES)
-
-
-def _entry_points(fingerprint):
-    """The two cached entry points; ``fingerprint`` is a closure variable, hence part of numba's cache key."""
-
-    def begin(buffers, cmd, speed, x, v, h, scheme, blend, effective_mass):
-        if fingerprint is None:  # never: only makes the fingerprint a closure variable
-            return False
-        net = C._unpack(buffers.F, buffers.I)
-        pnet = C._ref(net)
-        return _begin_core(pnet, buffers, cmd, speed, x, v, h, scheme, blend, effective_mass)
-
-    def finish(buffers, cmd, speed, x_end, v_end, h, scheme):
-        if fingerprint is None:
-            return
-        net = C._unpack(buffers.F, buffers.I)
-        pnet = C._ref(net)
-        _finish_core(pnet, buffers, cmd, speed, x_end, v_end, h, scheme)
-
-    jit = numba.njit(cache=True, error_model="numpy", nogil=True)
-    return jit(begin), jit(finish)
-
-
-_ENTRIES = None
-
-
-def entry_points():
-    """(begin, finish), compiled or loaded from numba's disk cache on first use."""
-    global _ENTRIES
-    if _ENTRIES is None:
-        _ENTRIES = _entry_points(SOURCE_SHA256)
-    return _ENTRIES
+    if R.actuator.size:
+        K.rigid_account(pnet, R, ledger, L_PUMP, h, flow, mu, effort, fric, v_end)
 
 
 def _f64(a):
@@ -269,21 +302,31 @@ def _f64(a):
 
 
 class FastHydraulics:
-    """The PBD plant's per-substep hydraulics in compiled code (see module docstring).
+    """The network's side of the PBD plant's compiled steps: its buffers (``HydraulicBuffers``), moved from and to
+    the plant's ``net_state`` and ``energy`` around each block of steps (see module docstring).
 
-    Usage per step: :meth:`load` (from ``plant.net_state`` / ``plant.energy``),
-    then per substep :meth:`begin` and :meth:`finish`, then :meth:`store`
-    (back to ``net_state``, ``energy`` and the step's :class:`StepReport`).
+    Usage: :meth:`load` (from ``plant.net_state`` / ``plant.energy``), the compiled steps
+    (``sim.plants.pbd_block``), then :meth:`store` (back to ``net_state``, ``energy`` and the last step's
+    :class:`StepReport`).
     """
 
     def __init__(self, plant):
         net = plant.network
-        stepper = plant.coupling.stepper
+        coupling = plant.coupling
+        self.kind = kind = coupling_kind(plant)
+        inner = coupling.inner if type(coupling) is CouplingMixed else coupling
+        stepper = coupling.stepper
         self.network = net
-        self._F, self._I = stepper._F, stepper._I
+        if kind == KIND_IMPLICIT:
+            self._F, self._I = stepper._F, stepper._I
+        elif kind == KIND_EXPLICIT:
+            self._F, self._I = stepper.packed
+        else:
+            self._F, self._I = coupling.packed
         n, na = net.node_count, net.actuator_count
         nb, nvalve = len(net.branch_names), len(net.valve_names)
-        self._W = np.zeros(C.work_size(self._F, self._I))
+        rigid = K.pack_rigid(net)
+        self._W = np.zeros(work_size(self._F, self._I, n, na, nb, len(rigid.actuator)))
         self._S = np.zeros(keep_size(n, na, nb, nvalve))
         self._istats = np.zeros(NI, np.int64)
         self._ledger = np.zeros(NL)
@@ -292,13 +335,14 @@ class FastHydraulics:
         self.position, self.velocity = np.zeros(na), np.zeros(na)
         self.flow = np.zeros(nb)
         self.constant, self.slope = np.zeros(na), np.zeros(na)
+        self.lower, self.upper = np.full(na, -np.inf), np.full(na, np.inf)
         self.theta = np.ones(na)  # the last begin's θ per actuator
         self.blend = bool(plant.blend)  # θ from the articulated effective masses (else θ = 1)
-        self.scheme = plant.coupling.scheme  # hydraulics.coupling.SCHEME_*
+        self.scheme = inner.scheme if kind == KIND_IMPLICIT else SCHEME_NEWTON  # hydraulics.coupling.SCHEME_*
+        table = coupling.table if kind == KIND_INCOMPRESSIBLE else K.pack_incompressible(net)
         self.buffers = HydraulicBuffers(self._F, self._I, self._W, self._S, self._istats, self._ledger, self._quad,
                                         self.oil, self.pressure, self.spool, self.position, self.velocity, self.flow,
-                                        self.constant, self.slope, self.theta)
-        self._begin, self._finish = entry_points()
+                                        self.constant, self.slope, self.theta, self.lower, self.upper, table, rigid)
         self._time = 0.0
 
     def load(self, state: NetworkState, energy) -> None:
@@ -316,24 +360,6 @@ class FastHydraulics:
         L[L_PUMP], L[L_MOTOR] = energy.pump_work, energy.motor_work
         L[L_DISS_H], L[L_DISS_F] = energy.dissipated_hydraulic, energy.dissipated_friction
         L[L_RESIDUAL] = L[L_FAIL_NORM] = 0.0
-
-    def begin(self, control, x, v, h, effective_mass=None):
-        """The effort law (constant [N or N·m], slope [N·s/m or N·m·s/rad]) of this substep (arrays reused);
-        θ from ``effective_mass`` [kg or kg·m², per actuator] where the plant blends (and it is given)."""
-        blend = self.blend and effective_mass is not None
-        meff = _f64(effective_mass) if blend else self.theta  # (not read without blend)
-        ok = self._begin(self.buffers, _f64(control.valve_command), _f64(control.pump_speed), _f64(x), _f64(v), float(h),
-                         self.scheme, blend, meff)
-        if not ok:
-            raise np.linalg.LinAlgError("Matrix is singular.")
-        return self.constant, self.slope
-
-    def finish(self, control, x_end, v_end, h) -> None:
-        """Finish the substep with the realised end positions and velocities; ledger included."""
-        self._finish(self.buffers, _f64(control.valve_command), _f64(control.pump_speed), _f64(x_end), _f64(v_end),
-                     float(h), self.scheme)
-        if self._istats[I_LAST_OK]:
-            self._time += h
 
     def store(self, energy) -> tuple[NetworkState, StepReport]:
         """The network state after the step, the step's report; the ledger written back to ``energy``."""

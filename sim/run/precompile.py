@@ -22,9 +22,8 @@ Groups (each group's kernels depend on each other, so one group is one process):
     callees, a few seconds), and the compiled observations: the longest group (one chain of callers and
     callees), so it is started first.
 ``pbd-hooks``
-    the PBD plant's per-substep path: the compiled XPBD substep called from Python and the compiled
-    coupling hooks (``plants/pbd_hydraulics``), whose hydraulic kernels the ``mujoco`` group has
-    cached by the time a second process takes it.
+    the PBD plant's Python hooks (the reference path, and the couplings without compiled steps): the compiled
+    XPBD substep and the articulated response called from Python.
 ``hydraulics``
     the entries Python calls one at a time: every :class:`~hydraulics.network.NetworkModel` evaluation
     (``_compiled.evaluation_entries``) on a network with and without rigid actuators, and the per-step
