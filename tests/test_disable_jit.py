@@ -67,7 +67,7 @@ def run_scenes() -> dict[str, np.ndarray]:
             scenario = scenario.with_overrides(inputs={**scenario.inputs, **inputs})
             mujoco_plant = MujocoPlantFast(load_scene(scenario))
             pbd = scenario.with_overrides(mode="pbd", **pbd_overrides)
-            pbd_plant = PbdPlant(load_scene(pbd), frame=True, block=True)
+            pbd_plant = PbdPlant(load_scene(pbd), block=True)
             for mode, plant, steps in (("mujoco", mujoco_plant, MUJOCO_STEPS), ("pbd", pbd_plant, PBD_STEPS)):
                 assert plant.fast, f"{name}/{mode}: the compiled path is not in use"
                 report = plant.advance(steps)

@@ -5,8 +5,6 @@ against steps one at a time (``block=False``: ``step()``, a block of one step), 
   states, network state, efforts, the energy ledger, the last step's Newton counts, the controls, the clocks,
   the hinge hint and the per-step pressure extremes equal those of single steps to round-off (1e-9 of the
   largest magnitude, as ``tests/test_pbd_fast.py``), for blocks of several lengths.
-* A block stops before a step the compiled frame does not cover (here: contacts marked so); ``advance`` takes
-  that step with the coupling hooks, and the runner replays such a block step by step (same log).
 * ``snapshot``/``restore`` (the runner's replay of a failed block) give back the same trajectory.
 * The runner logs the same values through blocks (samples recorded inside them) as step by step
   (``tests/test_runner_fast.py``'s comparison).
@@ -37,7 +35,7 @@ def _quiet_xpbd_notes():
 
 def _plant(path, block, **overrides):
     scenario = load_scenario(path).with_overrides(mode="pbd", **overrides)
-    return PbdPlant(load_scene(scenario), frame=True, block=block)
+    return PbdPlant(load_scene(scenario), block=block)
 
 
 def _compare_block(ref, blk, r1, r2, what):
@@ -74,52 +72,6 @@ def test_blocks_agree_with_single_steps(path, blocks, overrides):
     assert ref.node_pressure_max.max() > ref.node_pressure_min.max()  # the extremes moved
     if path == DIG:
         assert contacts > 0  # ground contacts were inside the compared blocks
-
-
-def _no_block_contacts(plant):
-    """Mark every contact point as one the compiled frame does not cover: a step with contact candidates then
-    stops the block and is taken by ``step()`` with the coupling hooks."""
-    plant._block_context()["eligible"][:] = False  # the array the compiled block reads
-    return plant
-
-
-def test_block_stops_before_a_step_it_does_not_cover():
-    """Excavator through its first ground contact with contacts the block may not take: the steps with candidates
-    run with the coupling hooks inside ``advance``, the results still equal those of compiled single steps."""
-    overrides = dict(dt=1 / 60, pbd_substeps=10)
-    ref, blk = _plant(DIG, False, **overrides), _no_block_contacts(_plant(DIG, True, **overrides))
-    fallbacks = []
-    step = blk.step
-    blk.step = lambda: (fallbacks.append(blk.step_index), step())[1]
-    for n in (40, 40, 40):
-        for _ in range(n):
-            r1 = ref.advance(1)
-        r2 = blk.advance(n)
-        _compare_block(ref, blk, r1, r2, f"t={ref.time:.4f}")
-    assert ref.frame_steps == 120 and blk.frame_steps == 120 - len(fallbacks)
-    assert contact_candidates(ref) > 0 and len(fallbacks) > 0  # in contact at the end: those steps took the hooks
-
-
-def test_runner_replays_a_block_that_stopped_early(tmp_path, monkeypatch):
-    """A block that stops before a step it does not cover leaves fewer recorded samples than asked: the runner
-    replays it step by step and logs the same values as the per-step path."""
-    context, restore = PbdPlant._block_context, PbdPlant.restore
-    restores = []
-    monkeypatch.setattr(PbdPlant, "_block_context", lambda self: (_no_block_contacts_ctx(context(self))))
-    monkeypatch.setattr(PbdPlant, "restore", lambda self, snap: (restores.append(self.step_index), restore(self, snap)))
-    overrides = {"mode": "pbd", "duration": 2.0, "dt": 1 / 60, "pbd_substeps": 10}
-    fast = run(DIG, out=tmp_path / "blocks.mcap", overrides=overrides)
-    assert restores  # a block was rewound (the teeth touch at ≈ 1.6 s)
-    slow = run(DIG, out=tmp_path / "steps.mcap", overrides=overrides, fast=False)
-    assert fast.status == slow.status == "complete" and fast.steps == slow.steps
-    assert_logs_agree(fast.log_path, slow.log_path)
-    for key in ("pump_work", "dissipated", "delta"):
-        assert fast.energy[key] == pytest.approx(slow.energy[key], rel=1e-9, abs=1e-9)
-
-
-def _no_block_contacts_ctx(ctx):
-    ctx["eligible"][:] = False
-    return ctx
 
 
 def test_snapshot_restore_replays_the_same_steps():

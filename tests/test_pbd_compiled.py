@@ -22,6 +22,7 @@ from sim.plants.pbd import PbdPlant
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdOptions
+from reference.pbd_hooks import HooksPlant
 from reference.xpbd_plant import pure_plant
 from reference.xpbd_substep import ReferenceSolver
 from test_xpbd_rigid import BOX, EXC_Q0, EXC_V0, EXCAVATOR, FOURBAR, PENDULUM, SLIDER, G, build
@@ -59,7 +60,7 @@ def assert_states_close(sa, sb, what):
 def _plant(path, compiled, **overrides):
     """The package's plant (``compiled``) or the pure plant of the oracles."""
     scene = load_scene(load_scenario(path).with_overrides(mode="pbd", **overrides))
-    return PbdPlant(scene) if compiled else pure_plant(PbdPlant(scene, fast_hydraulics=False, frame=False))
+    return PbdPlant(scene) if compiled else pure_plant(HooksPlant(scene))
 
 
 def contact_candidates(plant):

@@ -27,10 +27,11 @@ import pytest
 
 from test_pbd_compiled import BOOM, DIG, SEED, assert_close, assert_states_close
 from hydraulics.coupling import SCHEME_NEWTON
-from sim.plants.pbd import PbdPlant, fast_path
-from sim.io.scenario import Schedule, load_scenario
+from sim.plants.pbd import PbdPlant
+from sim.io.scenario import Schedule, ScenarioError, load_scenario
 from sim.io.scene import load_scene
 from reference import xpbd_model as oracle
+from reference.pbd_hooks import HooksPlant
 from reference.xpbd_plant import articulated as articulated_numpy
 from reference.xpbd_substep import ReferenceSolver
 
@@ -49,21 +50,35 @@ def _quiet_xpbd_notes():
         yield
 
 
-def _plant(path, fast, **overrides):
-    scenario = load_scenario(path).with_overrides(mode="pbd", **overrides)
-    return PbdPlant(load_scene(scenario), fast_hydraulics=fast, frame=False)
-
-
-def test_compiled_steps_are_the_default_for_every_compiled_coupling():
+def test_compiled_steps_take_every_compiled_coupling_and_refuse_the_others():
     for overrides in ({}, dict(coupling="explicit"), dict(fidelity="incompressible"), dict(coupling="rosenbrock")):
-        assert _plant(BOOM, None, **overrides)._fast is not None and PbdPlant(load_scene(
-            load_scenario(BOOM).with_overrides(mode="pbd", **overrides))).fast, overrides
-    assert _plant(BOOM, False)._fast is None
-    # a coupling with another stepper than its own keeps the Python hooks, and says why
-    other = PbdPlant(load_scene(load_scenario(BOOM).with_overrides(mode="pbd", coupling="explicit",
-                                                                    stepper="implicit_euler")))
-    assert other._fast is None and not other.fast
-    assert "Python hooks; not the compiled steps because the coupling 'explicit'" in fast_path(other)
+        plant = PbdPlant(load_scene(load_scenario(BOOM).with_overrides(mode="pbd", **overrides)))
+        assert plant.fast and plant._fast is not None, overrides
+    # a coupling with another stepper than its own has no PBD step: refused, naming the file and the field
+    scenario = load_scenario(BOOM).with_overrides(mode="pbd", coupling="explicit", stepper="implicit_euler")
+    with pytest.raises(ScenarioError, match=r"lift\.scenario\.toml, field 'run\.stepper': PBD mode steps"):
+        PbdPlant(load_scene(scenario))
+    assert HooksPlant(load_scene(scenario)).step().success  # (the Python hooks take it)
+
+
+def test_cli_refuses_a_stepper_pbd_mode_has_no_step_for(tmp_path, capsys):
+    """``hydroplant run`` in PBD mode with the ``reference`` stepper: exit 2, one line naming the file and the
+    field, no log written."""
+    from sim import cli
+
+    for f in BOOM.parent.iterdir():
+        if f.is_file():
+            (tmp_path / f.name).write_bytes(f.read_bytes())
+    scenario = tmp_path / BOOM.name
+    scenario.write_text(scenario.read_text().replace("[run]\n", '[run]\nstepper = "reference"\n', 1))
+    try:
+        code = cli.main(["run", str(scenario), "--mode", "pbd", "--out", str(tmp_path / "run.mcap")])
+    except SystemExit as exc:
+        code = exc.code
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1, (code, err)
+    assert f"{scenario}, field 'run.stepper'" in err[0] and "'reference' has no PBD step" in err[0]
+    assert not list(tmp_path.glob("*.mcap*"))
 
 
 def _ramp(t0, t1, value):
@@ -109,9 +124,9 @@ def test_compiled_steps_agree_with_python_hooks(case):
     if inputs:
         scenario = scenario.with_overrides(inputs={**scenario.inputs, **inputs})
     naive = scenario.mode == "pbd-naive"
-    ref = PbdPlant(load_scene(scenario), naive=naive, fast_hydraulics=False)
+    ref = HooksPlant(load_scene(scenario), naive=naive)
     fast = PbdPlant(load_scene(scenario), naive=naive)
-    assert ref._fast is None and fast.fast
+    assert not ref.fast and fast.fast
     for _ in range(steps):
         r1, r2 = ref.step(), fast.step()
         _compare(ref, fast, r1, r2, f"{case} t={ref.time:.4f}")

@@ -29,6 +29,7 @@ from sim.plants.pbd import PbdPlant
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 from sim.xpbd import compiled as XC
+from reference.pbd_hooks import HooksPlant
 from reference.xpbd_plant import pure_plant
 from reference.xpbd_substep import ReferenceSolver
 
@@ -42,13 +43,16 @@ def _quiet_xpbd_notes():
         yield
 
 
-def _plant(transport, *, compiled=True, frame_path=True, **overrides):
-    """The package's plant or (``compiled=False``) the pure plant of the oracles (``tests/reference``)."""
+def _plant(transport, *, path="compiled", **overrides):
+    """The package's plant (``path`` "compiled"), its Python hooks ("hooks") or the pure plant of the oracles
+    ("pure", ``tests/reference``)."""
     scenario = load_scenario(DIG).with_overrides(mode="pbd", **overrides)
-    if compiled:
-        plant = PbdPlant(load_scene(scenario), frame=frame_path)
+    if path == "compiled":
+        plant = PbdPlant(load_scene(scenario))
+    elif path == "hooks":
+        plant = HooksPlant(load_scene(scenario))
     else:
-        plant = pure_plant(PbdPlant(load_scene(scenario), fast_hydraulics=False, frame=False))
+        plant = pure_plant(HooksPlant(load_scene(scenario)))
     plant.solver.transport_response = transport  # (the compiled block of the plant's steps follows it)
     return plant
 
@@ -156,10 +160,10 @@ def test_transported_frame_agrees_with_hooks_and_pure():
     frames = 24
     overrides = dict(dt=1 / 60, pbd_substeps=10, qvel={"swing": 0.02, "boom": 0.05})
     fast = _plant(True, **overrides)
-    hooks = _plant(True, frame_path=False, **overrides)
-    pure = _plant(True, compiled=False, frame_path=False, **overrides)
+    hooks = _plant(True, path="hooks", **overrides)
+    pure = _plant(True, path="pure", **overrides)
     plain = _plant(False, **overrides)
-    assert fast.frame_compiled and not hooks.frame_compiled and isinstance(pure.solver, ReferenceSolver)
+    assert fast.fast and not hooks.fast and isinstance(pure.solver, ReferenceSolver)
     for _ in range(frames):
         r_fast, r_hooks, r_pure = fast.step(), hooks.step(), pure.step()
         plain.step()

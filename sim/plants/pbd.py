@@ -88,10 +88,10 @@ free-body response), hinge and slide motors and any contact kind (soft pyramidal
 ``frame_steps`` counts these steps; ``solver.last_forces`` is then left empty.  ``NUMBA_DISABLE_JIT=1`` runs
 the same kernels as plain Python.
 
-The Python hooks (:meth:`before_substep`, :meth:`after_substep` around ``SolverXPBD.step``, with the
-coupling's Python methods) step a coupling without compiled steps (the ``reference`` stepper, a coupling with
-another stepper than its own) and are the compiled steps' reference: both agree to round-off
-(``tests/test_pbd_fast.py``); the constructor's ``fast_hydraulics=False`` / ``frame=False`` select them.
+A coupling the compiled steps do not reproduce (the ``reference`` stepper, a coupling with another stepper
+than its own) is refused with the scenario's field named.  The same steps written in numpy around
+``SolverXPBD.step``'s substep hooks, with the couplings' Python methods, are the oracle in
+``tests/reference/pbd_hooks.py``: both agree to round-off (``tests/test_pbd_fast.py``).
 
 :meth:`advance` (n) steps n times with the :class:`~sim.plants.mujoco_fast.MujocoPlantFast`
 interface.  Where the compiled steps apply (:attr:`fast`), n steps are one compiled call, and the
@@ -137,17 +137,15 @@ import math
 
 import numpy as np
 
-from hydraulics.coupling import make_coupling, start_velocity_guess
-from hydraulics.load import apply_inputs
+from hydraulics.coupling import make_coupling
 from hydraulics.network import ACTUATOR_CYLINDER
-from hydraulics.steppers import StepReport
 
 from sim.plants.inputs import input_plan, sample_inputs
 from sim.plants.base import PlantBase
 from sim.plants.mujoco_fast import MujocoPlantFast
 from sim.io.scenario import ScenarioError
 from sim.io.scene import Scene, initial_qpos_qvel
-from sim.xpbd import LengthConstraint, SolverXPBD, SubstepInputs, XpbdModel, XpbdOptions
+from sim.xpbd import LengthConstraint, SolverXPBD, XpbdModel, XpbdOptions
 from sim.plants.pbd_hydraulics import FastHydraulics
 from sim.plants.pbd_hydraulics import eligible as fast_eligible
 from sim.xpbd.quat import np_cross, np_quat_rotate, np_quat_rotate_inv
@@ -168,10 +166,9 @@ class PbdPlant(PlantBase):
 
     mode = "pbd"
 
-    def __init__(self, scene: Scene, *, naive: bool = False, fast_hydraulics: bool | None = None,
-                 frame: bool | None = None, block: bool = True):
+    def __init__(self, scene: Scene, *, naive: bool = False, block: bool = True):
         self.scene = scene
-        self.block = bool(block)  # advance(n) in compiled blocks where the compiled frame applies (see ``fast``)
+        self.block = bool(block)  # advance(n) in compiled blocks of many steps (see ``fast``)
         scenario = scene.scenario
         self.incompressible = scene.network.fidelity == "incompressible"
         self.rigid = bool(np.any(scene.network.actuator_rigid))  # some actuators incompressible (CouplingMixed)
@@ -214,7 +211,6 @@ class PbdPlant(PlantBase):
                 raise ScenarioError(f"{scenario.mjcf}: motor joint '{xm.jnt_names[j]}' must be a hinge or slide joint in PBD mode")
         self.scalar_joints = np.array([j for j in range(xm.njnt) if int(xm.jnt_type[j]) in SCALAR_JOINTS], int)
         self.joint_names = tuple(scene.joint_names[j] for j in self.scalar_joints)
-        self._joint_force = np.zeros(xm.njnt)
         # joint-space kinematics (hinge/slide trees): subtree membership of every body per joint
         nb = xm.nbody
         below = np.zeros((nb, nb), bool)  # below[a, b]: body b is a or hangs below a
@@ -235,13 +231,11 @@ class PbdPlant(PlantBase):
         iquat_conj = np.asarray(xm.body_iquat) * np.array([1.0, -1.0, -1.0, -1.0])
         self._axis_inertial = np_quat_rotate(iquat_conj[xm.jnt_body], np.asarray(xm.jnt_axis))
         self._origin_inertial = np_quat_rotate(iquat_conj, -np.asarray(xm.body_ipos))
-        # whole steps in compiled calls (sim/plants/pbd_block.py, the network's buffers in pbd_hydraulics.py) for the
-        # couplings they reproduce; else the Python hooks below
-        self._fast = FastHydraulics(self) if fast_hydraulics is not False and fast_eligible(self) else None
+        # whole steps in compiled calls (sim/plants/pbd_block.py, the network's buffers in pbd_hydraulics.py)
+        self._fast = self._network_buffers()
         self.frame_steps = 0  # steps that ran compiled whole
         self._record_next = None  # (rows, every) for the next advance() (record_next)
         self.recorded, self.recorded_finite, self.end_finite = 0, True, True
-        self.frame_compiled = self._fast is not None if frame is None else bool(frame) and self._fast is not None
         self.reset()
 
     # ------------------------------------------------------------------ setup
@@ -340,57 +334,43 @@ class PbdPlant(PlantBase):
         return effort
 
     # -------------------------------------------------------------------- step
+    def _network_buffers(self):
+        """The network's buffers of the compiled steps (``pbd_hydraulics.FastHydraulics``); a coupling they do not
+        reproduce is refused (:class:`ScenarioError`, naming the scenario's fields)."""
+        if not fast_eligible(self):
+            scenario = self.scene.scenario
+            stepper = getattr(getattr(self.coupling, "stepper", None), "name", "its stepper")
+            raise ScenarioError(
+                f"{scenario.path}, field 'run.stepper': PBD mode steps the implicit couplings and the incompressible "
+                "fidelity with 'implicit_euler' and the explicit coupling with 'explicit_euler'; coupling "
+                f"{scenario.coupling!r} with {stepper!r} has no PBD step (unset 'run.stepper', or use mode \"mujoco\")")
+        return FastHydraulics(self)
+
     def step(self):
-        """Advance one step of ``dt`` (``pbd_substeps`` XPBD substeps, one hydraulic step each); returns the report.
-
-        A compiled block of one step where the compiled steps apply (:attr:`compiled_steps`) and cover this
-        one; otherwise the XPBD substeps with the Python hooks."""
-        if self.compiled_steps:
-            done, report = self._advance_block(1)
-            if done:
-                return report
-        self.apply_inputs()
-        self._report = StepReport()
-        self._work = 0.0
-        self.articulated()
-        self.solver.step(self.state, self.dt, hooks=self)
-        return self._end_step()
-
-    @property
-    def compiled_steps(self) -> bool:
-        """Whether whole steps run compiled (``sim/plants/pbd_block.py``): the coupling is one the compiled steps
-        reproduce (``pbd_hydraulics.coupling_kind``) and neither ``fast_hydraulics`` nor ``frame`` is switched
-        off."""
-        return bool(self.frame_compiled)
+        """Advance one step of ``dt`` (``pbd_substeps`` XPBD substeps, one hydraulic step each) in one compiled call;
+        returns the report."""
+        return self._advance_block(1)[1]
 
     @property
     def fast(self) -> bool:
-        """Whether :meth:`advance` runs whole blocks of steps in one compiled call: :attr:`compiled_steps`, and
-        ``block`` not switched off.  The runner then drives this plant in blocks (``sim.run.runner._Loop.blocks``)."""
-        return bool(self.block and self.compiled_steps)
+        """Whether :meth:`advance` runs whole blocks of many steps in one compiled call (``block`` not switched off).
+        The runner then drives this plant in blocks (``sim.run.runner._Loop.blocks``)."""
+        return bool(self.block)
 
     def advance(self, n: int):
         """``n`` steps (stops at the first failed one); returns the last step's report (MujocoPlantFast's interface).
 
-        With :attr:`fast`, in blocks of one compiled call (:meth:`_advance_block`); a step the
-        compiled block does not cover (a singular mass matrix) is taken by :meth:`step`.  Otherwise one :meth:`step` at a time.
+        With :attr:`fast`, in one compiled call (:meth:`_advance_block`); otherwise one :meth:`step` at a time.
         """
         n = int(n)
         record, every = self._record_next if self._record_next is not None else (None, 1)
         self._record_next = None
         self.recorded, self.recorded_finite = 0, True
-        report = None
-        while n > 0:
-            done = 0
-            if self.fast:
-                done, report = self._advance_block(n, record, every)
-                record = None  # a later block does not record: the runner sees too few rows and replays step by step
-                n -= done
-                if done and not report.success:
-                    break
-            if n > 0 and (not done or report.success):
+        if self.fast:
+            report = self._advance_block(n, record, every)[1]
+        else:
+            for _ in range(n):
                 report = self.step()
-                n -= 1
                 if not report.success:
                     break
         self.end_finite = self.finite()
@@ -425,7 +405,8 @@ class PbdPlant(PlantBase):
         self._record_next = (record, int(every))
 
     def _advance_block(self, n: int, record=None, every: int = 1):
-        """Up to ``n`` steps in one compiled call (``block_nb``); returns (steps done, last step's report or None).
+        """Up to ``n`` steps in one compiled call (``pbd_block``: it stops after a failed step); returns (steps done,
+        the last step's report or None for no step).
 
         Same results as ``n`` calls of :meth:`step` to round-off (``tests/test_pbd_block.py``); with ``record``
         the samples of :meth:`record_next`.
@@ -450,7 +431,7 @@ class PbdPlant(PlantBase):
         pmax, pmin, xmax, xmin = ctx["pmax"], ctx["pmin"], ctx["xmax"], ctx["xmin"]
         pmax[:], pmin[:] = self.node_pressure_max, self.node_pressure_min
         xmax[:], xmin[:] = self.actuator_position_max, self.actuator_position_min
-        from sim.plants.pbd_block import BlockTrack, Recording, block
+        from sim.plants.pbd_block import BLOCK_SINGULAR, BlockTrack, Recording, block
         from sim.plants.pbd_frame import RigidState
 
         kernel = block(solver.transport_response, solver.articulated_contacts)  # (a dict lookup once compiled)
@@ -458,7 +439,7 @@ class PbdPlant(PlantBase):
                                      fc["actuators"], BlockTrack(clock, hint, pmax, pmin, xmax, xmin), ctx["plant"], ctx["buffers"],
                                      self._frame_settings(h), Recording(ctx["no_record"] if record is None else record, rec))
         self.recorded, self.recorded_finite = int(rec[3]), not rec[4]
-        if status == 1:  # block_nb.BLOCK_SINGULAR
+        if status == BLOCK_SINGULAR:
             raise np.linalg.LinAlgError("Matrix is singular.")
         if done == 0:
             return 0, None
@@ -484,7 +465,7 @@ class PbdPlant(PlantBase):
 
     def _block_inputs(self, ctx, n, h):
         """Rows of valve commands and pump speeds for every substep of the next ``n`` steps (step k, substep s:
-        row k·substeps + s, at time (step_index + k)·dt + s·h, as ``apply_inputs`` and :meth:`before_substep`)."""
+        row k·substeps + s, at time (step_index + k)·dt + s·h, as ``apply_inputs`` at every substep's start)."""
         nsub = self.solver.substeps
         rows = n * nsub
         if rows > len(ctx["cmd"]):
@@ -522,14 +503,13 @@ class PbdPlant(PlantBase):
                      local=np.zeros((0, 3)), radius=np.zeros(0), plane_origin=np.zeros((0, 3)), plane_normal=np.zeros((0, 3)),
                      out=np.zeros(0, np.int64))
         known = "cg" in c
-        eligible = np.array(c["eligible"] if known else np.zeros(nc, bool), np.bool_)  # the block's own copy
         rows = [c["cg"], c["cvec"], c["crad"], c["mu"], c["solref"], c["solimp"], c["condim"], c["tran"]] if known else [
             np.zeros((nc, 2), np.int64), np.zeros((nc, 4, 3)), np.zeros(nc), np.zeros(nc), np.zeros((nc, 2)),
             np.zeros((nc, 5)), np.zeros(nc, np.int64), np.zeros(nc)]
         rows = [np.ascontiguousarray(r) for r in rows]
         candidates = ContactCandidates(
             _i64(c["group"]), _i64(c["plane"]), _i64(c["plane_group"]), _c64(c["local"]), _c64(c["radius"]),
-            _c64(c["plane_origin"]), _c64(c["plane_normal"]), float(solver.contact_margin), eligible)
+            _c64(c["plane_origin"]), _c64(c["plane_normal"]), float(solver.contact_margin))
         plant = BlockPlant(solver._flat, nb["tree"], nb["root"], nb["from_root_quat"], nb["from_root_pos"],
                            nb["group_mass"], nb["group_inertia"], candidates, ContactRows(*rows), fc["articulated_model"],
                            bool(self._tree), fc["actuation"], _i64(xm.jnt_qposadr[self.scalar_joints]),
@@ -540,7 +520,7 @@ class PbdPlant(PlantBase):
             Articulated(*(np.zeros_like(getattr(a, name)) for name in Articulated._fields)),
             np.zeros((xm.nbody, 3)), np.zeros((xm.nbody, 4)), np.zeros(nq), np.zeros(xm.nv))
         ctx = dict(frame=fc, plant=plant,
-                   buffers=buffers, eligible=eligible,
+                   buffers=buffers,
                    cmd=np.zeros((0, len(self.network.valve_names))), speed=np.zeros((0, len(self.network.pump_names))),
                    clock=np.zeros(4), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
                    pmin=np.zeros(self.network.node_count), xmax=np.zeros(self.network.actuator_count),
@@ -564,21 +544,6 @@ class PbdPlant(PlantBase):
         st.x[:], st.q[:], st.v[:], st.w[:] = x, q, v, w
         st.qpos_hint = hint.copy()
         self.__dict__.pop("_observation_memo", None)
-
-    def _end_step(self):
-        self.theta = getattr(self.coupling, "last_theta", self.theta)
-        self.last_report = self._report
-        mechanical = sum(self.mechanical_energy())
-        self.energy.dissipated_mechanical += self._work - (mechanical - self._mechanical)
-        self._mechanical = mechanical
-        if self._report.success:  # running extremes of every successful step (new arrays: the runner keeps references)
-            p, x = self.net_state.node_pressure, self.net_state.actuator_position
-            self.node_pressure_max = np.maximum(self.node_pressure_max, p)
-            self.node_pressure_min = np.minimum(self.node_pressure_min, p)
-            self.actuator_position_max = np.maximum(self.actuator_position_max, x)
-            self.actuator_position_min = np.minimum(self.actuator_position_min, x)
-        self.step_index += 1
-        return self._report
 
     def articulated(self):
         """Per-step joint-space data for the solver and the coupling (trees of hinges and slides; else None).
@@ -678,105 +643,6 @@ class PbdPlant(PlantBase):
         self._articulated_ctx = ctx
         return ctx
 
-    def before_substep(self, k, h, state):
-        """XPBD hook: the coupling's effort law for this substep as compliant rows (or explicit row forces) and joint torques."""
-        if k:  # the scenario's schedules at the substep's time (step() set them at the frame's start)
-            apply_inputs(self.network, self.control, self.scene.scenario.inputs, self.time + k * h)
-        x, v = self._x, self._v
-        law = self.coupling.begin(self.net_state, self.control, x, v, h,
-                                  effective_mass=self._effective_mass if self.incompressible or self.rigid or self.blend
-                                  else None, velocity_guess=start_velocity_guess(self.network, x, v, h))
-        law_constant, law_slope, law_lower, law_upper = law.constant, law.slope, law.lower, law.upper
-        cyl = self.cylinders
-        c, s = law_constant[cyl], law_slope[cyl]
-        implicit = (s < IMPLICIT_SLOPE_LIMIT) & (not self.naive)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            target = np.where(implicit, self._ell - h * c / s, np.nan)  # ℓ* = ℓ₀ − h·c/s
-            compliance = np.where(implicit, -h / s, 0.0)  # α = −h/s
-        force = c + s * v[cyl]
-        lower = upper = None
-        if law_lower is not None:  # (an implicit row's bounds bound its multiplier, not an explicit force)
-            lower, upper = law_lower[cyl], law_upper[cyl]
-            force = np.clip(force, lower, upper)
-        force = np.where(implicit, 0.0, force)
-        self._implicit, self._row_explicit = implicit, force
-        # motors: backward Euler on the joint alone, ω⁺ = ω + h·w·τ with w = (M⁻¹)ⱼⱼ, τ = gear·(c + s·gear·ω⁺)
-        mot = self.motors
-        damping = np.maximum(-law_slope[mot], 0.0) * self.motor_gear**2 * h * self._motor_inverse_inertia
-        self._motor_effort = (law_constant[mot] + law_slope[mot] * v[mot]) / (1.0 + damping)
-        if law_lower is not None:
-            self._motor_effort = np.clip(self._motor_effort, law_lower[mot], law_upper[mot])
-        jf = self._joint_force
-        group_acceleration = self._group_gravity
-        if self._motor_response is not None:
-            # motor torques act on the whole mechanism (q̈ = M⁻¹·Jᵀ·effort, like gravity): the implicit
-            # joint damping above uses the articulated (M⁻¹)ⱼⱼ, so the response must be the articulated one
-            group_acceleration = group_acceleration + np.einsum("m,mgk->gk", self._motor_effort, self._motor_response)
-            joint_force = None
-        else:
-            jf[self.motor_joint] = self.motor_gear * self._motor_effort
-            joint_force = jf if len(mot) else None
-        row_force = force if np.any(force) else None
-        if row_force is not None and self._articulated_rows():
-            # explicit row forces act on the whole mechanism too (q̈ = M⁻¹·Jᵀ·f, the rows' mobilities): as
-            # per-body forces projected by one joint iteration, a row switching between its compliant and
-            # its explicit form (a friction slope crossing zero) kicked the mechanism
-            group_acceleration = group_acceleration + np.einsum("r,rgk->gk", force, self._mobility)
-            row_force = None
-        return SubstepInputs(
-            target_length=target if len(cyl) else None, compliance=compliance, force_min=lower, force_max=upper,
-            row_force=row_force, joint_force=joint_force,
-            row_mobility=self._mobility, group_gravity=group_acceleration,
-        )
-
-    def _articulated_rows(self) -> bool:
-        """Whether explicit cylinder-row forces enter through the articulated response (group accelerations
-        f·M⁻¹·Jᵀ, as the motors' efforts and gravity) rather than as forces on the two rigid groups: whenever the
-        step has the articulated data, except in the seed's ``pbd-naive`` scheme (per-body forces, classic PBD)."""
-        return self._mobility is not None and self._group_gravity is not None and not self.naive
-
-    def after_substep(self, k, h, state, forces):
-        """XPBD hook: finish the hydraulic step with the realised cylinder lengths and motor speeds."""
-        x, v = self._x, self._v
-        cyl, mot = self.cylinders, self.motors
-        ell = forces.row_length
-        x_end, v_end = x.copy(), v.copy()
-        x_end[cyl] = ell - self.closed_length
-        v_end[cyl] = (ell - self._ell) / h
-        v_end[mot] = self.motor_gear * self._joint_rates(state, self.motor_joint)
-        x_end[mot] = x[mot] + h * v_end[mot]
-        self.net_state, report = self.coupling.finish(self.net_state, self.control, x, x_end, v, v_end, h)
-        self._report.absorb(report)
-        effort = np.zeros(self.network.actuator_count)
-        effort[cyl] = np.where(self._implicit, forces.row_force, self._row_explicit)
-        effort[mot] = self._motor_effort
-        self.effort = effort
-        # next substep starts here; cylinder speeds as the bodies now move (after the velocity pass)
-        v_next = v_end.copy()
-        v_next[cyl] = forces.row_rate
-        # work of the efforts on the bodies, trapezoidal in the actuator speeds (exact for a free mass)
-        self._work += 0.5 * h * float(effort @ (v + v_next))
-        self._account(report, v_end, h)
-        self._ell = ell
-        self._x, self._v = x_end, v_next
-
-    def _joint_rates(self, state, joints):
-        """Rates of hinge [rad/s] / slide [m/s] joints from the XPBD state (child relative to parent)."""
-        xm = self.xmodel
-        out = np.zeros(len(joints))
-        for i, j in enumerate(joints):
-            b = int(xm.jnt_body[j])
-            p = int(xm.body_parent[b])
-            axis = np_quat_rotate(state.q[b], self._axis_inertial[j])  # world axis
-            if self._hinge[j]:
-                out[i] = float((state.w[b] - state.w[p]) @ axis)
-            else:  # relative velocity of the child's body-frame origin along the axis
-                origin = state.x[b] + np_quat_rotate(state.q[b], self._origin_inertial[b])
-                vb = state.v[b] + np.cross(state.w[b], origin - state.x[b])
-                vp = state.v[p] + np.cross(state.w[p], origin - state.x[p])
-                out[i] = float((vb - vp) @ axis)
-        return out
-
     # ------------------------------------------------------------- observation
     def _state_key(self):
         """Identity of the current body state (the observations below are memoised on it: the step and the
@@ -836,24 +702,12 @@ def _i64(a):
 
 
 def fast_path(plant: PbdPlant) -> str:
-    """Which PBD path steps ``plant`` and, when it is not the fastest, why not; and whether the mechanism has the
-    articulated (joint-space) response (one line, MJCF names).
-
-    Fastest first: compiled blocks of steps (``sim/plants/pbd_block.py``), compiled steps one at a time, the
-    Python hooks around the XPBD substeps.
-    """
+    """How ``plant`` is stepped (one line, MJCF names): compiled blocks of steps or compiled steps one at a time
+    (``block=False``), and whether the mechanism has the articulated (joint-space) response or plain XPBD's
+    free-body one, and why."""
     xm = plant.xmodel
-    if plant.fast:
-        path = "compiled blocks of steps (the fastest path)"
-    elif plant.compiled_steps:
-        path = "compiled steps one at a time; not the compiled blocks because blocks are switched off (block=False)"
-    elif fast_eligible(plant):
-        path = "Python hooks; the compiled steps are switched off (fast_hydraulics=False or frame=False)"
-    else:
-        stepper = type(getattr(plant.coupling, "stepper", None)).__name__
-        path = (f"Python hooks; not the compiled steps because the coupling {plant.coupling.name!r} with the stepper "
-                f"{stepper} has none (compiled: the implicit couplings with implicit_euler, explicit with "
-                "explicit_euler, the incompressible fidelity, one hydraulic substep)")
+    path = ("compiled blocks of steps (the fastest path)" if plant.fast
+            else "compiled steps one at a time (blocks switched off: block=False)")
     if not plant._tree:
         other = [f"'{xm.jnt_names[j]}'" for j in range(xm.njnt) if int(xm.jnt_type[j]) not in SCALAR_JOINTS]
         path += ("; joints " + ", ".join(other) + " are not hinges or slides" if other

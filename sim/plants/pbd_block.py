@@ -1,24 +1,24 @@
 """Many PBD frames (plant steps) in one compiled call: :meth:`sim.plants.pbd.PbdPlant.advance`'s block path.
 
-Per frame, in the order of the hooks path of :meth:`~sim.plants.pbd.PbdPlant.step`
-(``articulated`` → the substeps → ``_end_step``):
+Per frame, in the order of the Python hooks (``tests/reference/pbd_hooks.py``: ``articulated`` → the substeps →
+the end of the step):
 
-1. the articulated data at the frame's pose (``frame_nb._articulated_into``, on work arrays made once per block);
+1. the articulated data at the frame's pose (``pbd_frame._articulated_into``, on work arrays made once per block)
+   where the joints form a tree of hinges and slides (``BlockPlant.joint_space``) and the mass matrix is regular;
+   otherwise the frame runs without it (plain XPBD's free-body response);
 2. the rigid-group state (``compiled.gather``) and the frame's contact candidates
    (``compiled.contact_candidates``), their rows copied from the per-contact arrays
    (``SolverXPBD._contact_arrays``, as ``SolverXPBD._flat_contacts``);
 3. the network's per-step counters reset (``FastHydraulics.load``), then all substeps
-   (``frame_nb._frame``, the body rows written in place, operator inputs sampled for every
+   (``pbd_frame._frame``, the body rows written in place, operator inputs sampled for every
    substep of the block beforehand: rows ``k·substeps .. (k+1)·substeps − 1`` of ``cmd``/``speed``);
 4. the network time (+ h per successful substep), body time (+ dt), the hinge-unwrapping hint
    (``compiled.qpos_qvel`` with the previous hint), the mechanical ledger (work of the efforts minus
    Δ(kinetic + potential), ``compiled.energies``) and the running extremes of the node pressures
    (``pmax``/``pmin`` [Pa]) and actuator coordinates (``xmax``/``xmin`` [m | rad]).
 
-The block stops after a frame whose hydraulic step failed (as ``advance`` stops at the first
-failed step), and before a frame the compiled frame does not cover (singular mass matrix, a
-contact point marked not ``eligible``: the plant steps that frame with the hooks).
-Blocks of many steps equal blocks of one and the hooks to round-off (``tests/test_pbd_block.py``,
+The block stops after a frame whose hydraulic step failed (as ``advance`` stops at the first failed step).
+Blocks of many steps equal blocks of one and the Python hooks to round-off (``tests/test_pbd_block.py``,
 ``tests/test_pbd_fast.py``).
 
 Recording (as ``MujocoPlantFast.advance(n, record, every)``, the ``Recording`` layout): after every step but
@@ -30,9 +30,8 @@ is 1 when one of them had a non-finite pressure or joint.
 ``track.clock`` (float64, 4): body time [s], network time [s], dissipated mechanical energy [J],
 kinetic + potential energy [J] at the start of the block; updated in place.
 Returns (frames done, status): ``BLOCK_OK`` (all frames, or stopped after a failed hydraulic
-step: the plant reads the status from ``istats``), ``BLOCK_SINGULAR`` (the coupling's
-linearisation was singular), ``BLOCK_INELIGIBLE`` (stopped before a frame the compiled frame
-does not cover).
+step: the plant reads the status from ``istats``) or ``BLOCK_SINGULAR`` (the coupling's linearisation was
+singular).
 
 Caching: the entry point carries the sources' sha256 (this file, ``pbd_frame.py`` and what that covers)
 as a closure variable, part of numba's cache key.
@@ -51,14 +50,13 @@ from sim.xpbd import compiled as XC
 from sim.plants import pbd_frame as FN
 from sim.plants import pbd_hydraulics as H
 
-BLOCK_OK, BLOCK_SINGULAR, BLOCK_INELIGIBLE = 0, 1, 2
+BLOCK_OK, BLOCK_SINGULAR = 0, 1
 
 # ---------------------------------------------------------------------------- named layouts
 
 ContactCandidates = namedtuple("ContactCandidates", [
     "group", "plane", "plane_group", "local", "radius", "plane_origin", "plane_normal",  # ``compiled.contact_candidates``
     "margin",  # candidate distance margin [m]
-    "eligible",  # the compiled frame covers the contact point (all do; a test clears it), (contacts,)
 ])
 
 BlockPlant = namedtuple("BlockPlant", [  # what stays fixed over the plant's life
@@ -131,9 +129,6 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
         nc = XC.contact_candidates(Xg, Qg, Vg, Wg, cand.group, cand.plane, cand.plane_group, cand.local, cand.radius,
                                    cand.plane_origin, cand.plane_normal, cand.margin, dt, c_out)
         for i in range(nc):
-            if not cand.eligible[c_out[i]]:
-                return k, BLOCK_INELIGIBLE
-        for i in range(nc):
             j = c_out[i]
             b.group[i, 0], b.group[i, 1] = crows.group[j, 0], crows.group[j, 1]
             b.vec[i, :, :] = crows.vec[j]
@@ -158,7 +153,7 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
         hint[:] = qpos
         kin, pot = XC.energies(bx, bq, bv, bw, plant.root, plant.from_root_quat, plant.from_root_pos, plant.group_mass,
                                plant.group_inertia, model.gravity)
-        mechanical = 0 + kin + pot  # sum((kinetic, potential)), as PbdPlant._end_step
+        mechanical = 0 + kin + pot  # sum((kinetic, potential)), as the Python hooks
         clock[2] += fout[0] - (mechanical - clock[3])
         clock[3] = mechanical
         if istats[H.I_STATUS] != H.ST_OK:

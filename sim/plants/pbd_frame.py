@@ -1,8 +1,7 @@
 """One whole PBD frame (all XPBD substeps of one plant step, with the hydraulic coupling) in one compiled call.
 
-Per substep, in the order of :meth:`sim.plants.pbd.PbdPlant.before_substep`,
-:meth:`sim.xpbd.SolverXPBD.step` and :meth:`~sim.plants.pbd.PbdPlant.after_substep` (the Python hooks, whose
-results the frame equals to round-off):
+Per substep, in the order of the Python hooks around :meth:`sim.xpbd.SolverXPBD.step`
+(``tests/reference/pbd_hooks.py``, whose results the frame equals to round-off):
 
 1. the effort law c + s·v⁺ of every actuator and its bounds (``pbd_hydraulics._begin_core``, by the coupling's
    kind; θ = 1, or with ``blend`` from the step's effective masses, written to ``theta``).  With ``transport``
@@ -49,7 +48,7 @@ IMPLICIT_SLOPE_LIMIT = -1e-9  # must match sim.plants.pbd.IMPLICIT_SLOPE_LIMIT
 FRAME_OK, FRAME_SINGULAR = 0, 1
 
 # ---------------------------------------------------------------------------- named layouts
-# nb bodies, ng rigid groups, nj joints (= DOFs), na actuators, nr cylinder rows, nm hinge motors.
+# nb bodies, ng rigid groups, nj joints (= DOFs), na actuators, nr cylinder rows, nm motors (hinge or slide).
 
 RigidState = namedtuple("RigidState", [
     "x", "q", "v", "w",  # COM position [m], orientation (w, x, y, z), velocity [m/s], angular velocity [rad/s]
@@ -292,7 +291,7 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
         rows = XC.SubstepRows(rgroup, rvec, act[:nact], tgt, at, lo, hi, nact > 0 and joint_space, mobk)
         XC.substep_core(Xg, Qg, Vg, Wg, model, rows, contacts, loads, options, h, row_out, swork)
         XC.scatter(Xg, Qg, Vg, Wg, model.body_group, model.in_group_quat, model.in_group_pos, bx, bq, bv, bw)
-        # end of the substep: realised motion (PbdPlant.after_substep)
+        # end of the substep: realised motion
         for a in range(na):
             x_end[a] = x[a]
             v_end[a] = v[a]

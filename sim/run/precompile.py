@@ -21,16 +21,16 @@ Groups (each group's kernels depend on each other, so one group is one process):
     through the substeps (``SolverXPBD.transport_response``: in the same process it reuses the compiled
     callees, a few seconds), and the compiled observations: the longest group (one chain of callers and
     callees), so it is started first.
-``pbd-hooks``
-    the PBD plant's Python hooks (the reference path, and the couplings without compiled steps): the compiled
-    XPBD substep and the articulated response called from Python.
+``xpbd``
+    the XPBD solver stepped from Python (``SolverXPBD.step``: the compiled substep on its own) and the PBD plant's
+    articulated response (``PbdPlant.articulated``).
 ``hydraulics``
     the entries Python calls one at a time: every :class:`~hydraulics.network.NetworkModel` evaluation
     (``_compiled.evaluation_entries``) on a network with and without rigid actuators, and the per-step
     :class:`~sim.plants.mujoco.MujocoPlant` with each coupling (the implicit couplings' rules, the explicit
     step, the incompressible and rigid-actuator laws of ``_compiled_rigid``).
 
-    hydroplant compile [--jobs N] [--groups pbd mujoco pbd-hooks]
+    hydroplant compile [--jobs N] [--groups pbd mujoco xpbd]
 """
 
 from __future__ import annotations
@@ -42,6 +42,8 @@ import warnings
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
+
+import numpy as np
 
 from sim.io.examples import example_path
 
@@ -81,8 +83,10 @@ def _pbd() -> None:
     plant.advance(2)
 
 
-def _pbd_hooks() -> None:
-    _pbd_plant(frame=False).step()
+def _xpbd() -> None:
+    plant = _pbd_plant()
+    plant.articulated()
+    plant.solver.step(plant.xmodel.state_from_qpos(plant.model.qpos0, np.zeros(plant.model.nv)), plant.dt)
 
 
 def _evaluations(model) -> None:
@@ -114,7 +118,7 @@ def _hydraulics() -> None:
     MujocoPlant(load_scene(scenario.with_overrides(fidelity="incompressible"))).step()
 
 
-GROUPS = {"pbd": _pbd, "mujoco": _mujoco, "pbd-hooks": _pbd_hooks, "hydraulics": _hydraulics}  # in the order they are started
+GROUPS = {"pbd": _pbd, "mujoco": _mujoco, "xpbd": _xpbd, "hydraulics": _hydraulics}  # in the order they are started
 
 
 def _compile_group(name: str) -> float:

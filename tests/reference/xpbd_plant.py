@@ -5,11 +5,11 @@ from the joint-space mass matrix M, gravity force Q and actuator moments J of ``
 dq = M⁻¹·[Jᵀ, Q] and the group motions of dq (mobility of each cylinder row, motor responses, group gravity),
 the effective masses 1/(J·M⁻¹·Jᵀ)ᵢᵢ and the motors' (M⁻¹)ⱼⱼ.
 
-:func:`pure_plant` turns a ``PbdPlant`` built with ``fast_hydraulics=False, frame=False`` (the Python hooks)
+:func:`pure_plant` turns a :class:`~reference.pbd_hooks.HooksPlant` (the Python hooks)
 into the pure plant: every XPBD substep in :class:`~reference.xpbd_substep.ReferenceSolver`, the numpy
 observations of ``xpbd_model.py`` and the numpy ``articulated``.  Example::
 
-    plant = pure_plant(PbdPlant(scene, fast_hydraulics=False, frame=False))
+    plant = pure_plant(HooksPlant(scene))
     plant.step()
 """
 
@@ -22,6 +22,7 @@ import numpy as np
 
 from sim.plants.pbd import GRAVITY_ARTICULATED
 
+from .pbd_hooks import HooksPlant
 from .xpbd_model import body_frames, kinetic_energy, potential_energy, qpos_qvel
 from .xpbd_substep import ReferenceSolver
 
@@ -63,9 +64,9 @@ def articulated(plant):
 
 
 def pure_plant(plant, *, block_attach: bool = True):
-    """``plant`` (Python hooks: built with ``fast_hydraulics=False, frame=False``) on the oracles, reset to its
-    initial state; returns it."""
-    assert plant._fast is None and not plant.frame_compiled, "build the plant with fast_hydraulics=False, frame=False"
+    """``plant`` (a :class:`~reference.pbd_hooks.HooksPlant`) on the oracles, reset to its initial state; returns
+    it."""
+    assert isinstance(plant, HooksPlant), "pure_plant steps the Python hooks: pass a HooksPlant"
     xm = plant.xmodel
     xm.__dict__["body_frames"] = partial(body_frames, xm)
     xm.__dict__["qpos_qvel"] = partial(qpos_qvel, xm)
