@@ -82,7 +82,8 @@ def test_incompressible_stalls_at_pressure_limit_when_bucket_pushes_into_ground(
     """Boom-down valve open, teeth on the ground: the boom cylinder stalls at the supply's pressure limit.
 
     The excavator's pump is pressure-compensated at 320 bar, below the 343 bar main
-    relief, so the limit is F = p_s·A_rod − p_t·A_cap with p_s the compensator setting.
+    relief, so the limit is F = −(p_s − p_t)·A_rod with p_s the compensator setting (rod chamber at the supply,
+    cap at tank = ambient pressure): within 1e-4 (measured 2e-5 at 30 Hz, 2e-8 at 1 ms).
     """
     result = run(PUSH, out=tmp_path / "push.mcap", overrides={"dt": dt})
     assert result.status == "complete"
@@ -92,10 +93,9 @@ def test_incompressible_stalls_at_pressure_limit_when_bucket_pushes_into_ground(
     circuit = load_circuit(MODELS / "excavator" / "excavator.circuit.toml")
     p_t = circuit.fluid.reference_pressure
     p_s = circuit.component("pump").params.compensator_pressure + p_t
-    cylinder = circuit.component("boom_cyl").params
-    stall = -(p_s * cylinder.rod_area - p_t * cylinder.cap_area)
+    stall = -(p_s - p_t) * circuit.component("boom_cyl").params.rod_area
     late = cyl.t > 1.5
-    assert np.allclose(cyl["force_n"][late], stall, rtol=0.01)
+    assert np.allclose(cyl["force_n"][late], stall, rtol=1e-4)
     assert np.all(cyl["p_rod_pa"][late] < max(r.params.cracking_pressure for r in circuit.by_kind("relief_valve")) + p_t)
     # stopped on the teeth; at 30 Hz MuJoCo's contact is soft (time constant ≥ 2·dt) and the
     # 360 kN push makes the teeth settle and rock by a few hundredths of a radian

@@ -69,11 +69,9 @@ joint damping −gear²·s, exact for the swing drive, which no other joint move
 End stops are the joint limits and the cylinder tendons' limits, both soft
 with MuJoCo's law from the MJCF's solreflimit/solimplimit (``SolverXPBD.soft_limits``);
 at the boom's end stop both act and are solved together, as in MuJoCo.  At the ``incompressible`` fidelity the
-rows are stiff velocity trackers bounded at the relief force; a mechanism
-jammed against its ground contacts (``push.scenario.toml``) then needs
-``pbd_iterations`` ≥ 4 to hold still (with 1–2 the stall force is right but the
-locked stick and bucket cylinders creep at 1–4 cm/s: the Gauss-Seidel coupling of
-the stiff rows with the contacts is not converged; ``tests/test_pbd_fidelity.py``).
+rows are stiff velocity trackers whose multipliers are bounded by the supply-limited force; a mechanism
+jammed against its ground contacts (``push.scenario.toml``) holds the stall force and comes to rest with one
+Gauss-Seidel iteration (``tests/test_pbd_fidelity.py``).
 
 Compiled path
 -------------
