@@ -53,7 +53,7 @@ def _quiet_xpbd_notes():
 def test_compiled_steps_take_every_compiled_coupling_and_refuse_the_others():
     for overrides in ({}, dict(coupling="explicit"), dict(fidelity="incompressible"), dict(coupling="rosenbrock")):
         plant = PbdPlant(load_scene(load_scenario(BOOM).with_overrides(mode="pbd", **overrides)))
-        assert plant.fast and plant._fast is not None, overrides
+        assert plant.fast and plant._net.kind is not None, overrides
     # a coupling with another stepper than its own has no PBD step: refused, naming the file and the field
     scenario = load_scenario(BOOM).with_overrides(mode="pbd", coupling="explicit", stepper="implicit_euler")
     with pytest.raises(ScenarioError, match=r"lift\.scenario\.toml, field 'run\.stepper': PBD mode steps"):

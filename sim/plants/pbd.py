@@ -144,7 +144,7 @@ from sim.plants.mujoco_fast import MujocoPlantFast
 from sim.io.scenario import ScenarioError
 from sim.io.scene import Scene, initial_qpos_qvel
 from sim.xpbd import LengthConstraint, SolverXPBD, XpbdModel, XpbdOptions
-from sim.plants.pbd_hydraulics import FastHydraulics
+from sim.plants.pbd_hydraulics import NetworkBuffers
 from sim.plants.pbd_hydraulics import eligible as fast_eligible
 from sim.xpbd.quat import np_cross, np_quat_rotate, np_quat_rotate_inv
 from sim.xpbd.model import JNT_HINGE, JNT_SLIDE
@@ -230,7 +230,7 @@ class PbdPlant(PlantBase):
         self._axis_inertial = np_quat_rotate(iquat_conj[xm.jnt_body], np.asarray(xm.jnt_axis))
         self._origin_inertial = np_quat_rotate(iquat_conj, -np.asarray(xm.body_ipos))
         # whole steps in compiled calls (sim/plants/pbd_block.py, the network's buffers in pbd_hydraulics.py)
-        self._fast = self._network_buffers()
+        self._net = self._network_buffers()
         self.frame_steps = 0  # steps that ran compiled whole
         self._record_next = None  # (rows, every) for the next advance() (record_next)
         self.recorded, self.recorded_finite, self.end_finite = 0, True, True
@@ -333,7 +333,7 @@ class PbdPlant(PlantBase):
 
     # -------------------------------------------------------------------- step
     def _network_buffers(self):
-        """The network's buffers of the compiled steps (``pbd_hydraulics.FastHydraulics``); a coupling they do not
+        """The network's buffers of the compiled steps (``pbd_hydraulics.NetworkBuffers``); a coupling they do not
         reproduce is refused (:class:`ScenarioError`, naming the scenario's fields)."""
         if not fast_eligible(self):
             scenario = self.scene.scenario
@@ -342,7 +342,7 @@ class PbdPlant(PlantBase):
                 f"{scenario.path}, field 'run.stepper': PBD mode steps the implicit couplings and the incompressible "
                 "fidelity with 'implicit_euler' and the explicit coupling with 'explicit_euler'; coupling "
                 f"{scenario.coupling!r} with {stepper!r} has no PBD step (unset 'run.stepper', or use mode \"mujoco\")")
-        return FastHydraulics(self)
+        return NetworkBuffers(self)
 
     def step(self):
         """Advance one step of ``dt`` (``pbd_substeps`` XPBD substeps, one hydraulic step each) in one compiled call;
@@ -416,7 +416,7 @@ class PbdPlant(PlantBase):
             raise ValueError(f"`record` has {len(record)} rows, {rows} needed")
         rec[:] = (rows, every, self.step_index, 0, 0)
         fc = ctx["frame"]
-        solver, st, fast, e = self.solver, self.state, self._fast, self.energy
+        solver, st, fast, e = self.solver, self.state, self._net, self.energy
         nsub = solver.substeps
         h = self.dt / nsub
         cmd, speed = self._block_inputs(ctx, n, h)
@@ -583,7 +583,7 @@ class PbdPlant(PlantBase):
         """The compiled frame's ``pbd_frame.FrameSettings`` for substeps of ``h`` [s]."""
         from sim.plants.pbd_frame import FrameSettings
 
-        solver, fast = self.solver, self._fast
+        solver, fast = self.solver, self._net
         return FrameSettings(float(h), solver.substeps, solver.iterations, solver.symmetric, solver.linear_damping,
                              solver.angular_damping, solver.soft_contacts, solver.pyramid_friction,
                              solver.velocity_sweeps, fast.kind, fast.scheme, fast.blend, self.naive)

@@ -9,7 +9,7 @@ the end of the step):
 2. the rigid-group state (``compiled.gather``) and the frame's contact candidates
    (``compiled.contact_candidates``), their rows copied from the per-contact arrays
    (``SolverXPBD._contact_arrays``, as ``SolverXPBD._flat_contacts``);
-3. the network's per-step counters reset (``FastHydraulics.load``), then all substeps
+3. the network's per-step counters reset (``NetworkBuffers.load``), then all substeps
    (``pbd_frame._frame``, the body rows written in place, operator inputs sampled for every
    substep of the block beforehand: rows ``k·substeps .. (k+1)·substeps − 1`` of ``cmd``/``speed``);
 4. the network time (+ h per successful substep), body time (+ dt), the hinge-unwrapping hint
@@ -135,7 +135,7 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
             b.radius[i], b.mu[i], b.condim[i], b.tran[i] = crows.radius[j], crows.mu[j], crows.condim[j], crows.tran[j]
             b.solref[i, :] = crows.solref[j]
             b.solimp[i, :] = crows.solimp[j]
-        istats[:] = 0  # FastHydraulics.load: the step's counters
+        istats[:] = 0  # NetworkBuffers.load: the step's counters
         istats[H.I_WORST] = -1
         ledger[H.L_RESIDUAL] = 0.0
         ledger[H.L_FAIL_NORM] = 0.0
@@ -146,7 +146,7 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
                                C.borrowed(work), (transport, art_contacts, joint_space))
         if status != FN.FRAME_OK:
             return k, BLOCK_SINGULAR
-        for _ in range(int(fout[1])):  # network time: + h per successful substep (FastHydraulics.finish)
+        for _ in range(int(fout[1])):  # network time: + h per successful substep
             clock[1] += settings.h
         clock[0] = clock[0] + dt
         XC.qpos_qvel(bx, bq, bv, bw, hint, tree, xb, qb, qpos, qvel)

@@ -3,7 +3,7 @@
 Per XPBD substep the compiled frame (:mod:`sim.plants.pbd_frame`) calls :func:`_begin_core` (the effort law
 c + s·v⁺ of every actuator and its bounds) before the position solve and :func:`_finish_core` (the network's step
 with the realised motion, and the energy ledger ``PlantBase._account``) after it, on the buffers of
-:class:`FastHydraulics`.  The couplings (:func:`coupling_kind`), each the kernels of :mod:`hydraulics._compiled`
+:class:`NetworkBuffers`.  The couplings (:func:`coupling_kind`), each the kernels of :mod:`hydraulics._compiled`
 and :mod:`hydraulics._compiled_rigid` that the fast MuJoCo plant's callback calls too:
 
 * ``implicit`` (PBD mode's default) and its linear variants ``implicit-linear`` and ``rosenbrock`` (finish
@@ -52,7 +52,7 @@ ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
 # the coupling the compiled steps take (:func:`coupling_kind`)
 KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(3)
 
-# The network's buffers for the compiled steps, made once per plant (:class:`FastHydraulics`); n nodes,
+# The network's buffers for the compiled steps, made once per plant (:class:`NetworkBuffers`); n nodes,
 # na actuators, nb branches, nvalve valves.
 HydraulicBuffers = namedtuple("HydraulicBuffers", [
     "F", "I",  # the packed network (``StepperImplicitEuler``'s float64 and int64 arrays)
@@ -77,7 +77,7 @@ HydraulicBuffers = namedtuple("HydraulicBuffers", [
 
 
 def coupling_kind(plant):
-    """The ``KIND_*`` of the plant's coupling when :class:`FastHydraulics` reproduces it, else None: the implicit
+    """The ``KIND_*`` of the plant's coupling when the compiled steps reproduce it, else None: the implicit
     couplings with the compiled implicit-Euler stepper as their predictor, the explicit coupling with the
     explicit-Euler stepper (PBD mode's ``explicit`` and the seed's ``pbd-naive``), either with rigid actuators around
     it (``CouplingMixed``), and the ``incompressible`` fidelity; one hydraulic substep per XPBD substep."""
@@ -96,7 +96,7 @@ def coupling_kind(plant):
 
 
 def eligible(plant) -> bool:
-    """True when the plant's coupling is one :class:`FastHydraulics` reproduces (:func:`coupling_kind`)."""
+    """True when the plant's coupling is one the compiled steps reproduce (:func:`coupling_kind`)."""
     return coupling_kind(plant) is not None
 
 
@@ -114,7 +114,7 @@ def _begin_temporaries(n, na, nb, nvalve):
 
 def keep_size(n, na, nb, nvalve):
     """Length of the float64 buffer S: the last substep's oil change [m³] (``NetworkState.node_oil_change``, the
-    next substep's warm start, which persists across substeps and steps; :meth:`FastHydraulics.load` / ``store``
+    next substep's warm start, which persists across substeps and steps; :meth:`NetworkBuffers.load` / ``store``
     move it), what begin leaves for finish (``C._take_linearization``), then begin's and finish's temporaries."""
     return n + (na + n + nvalve + n * na) + _begin_temporaries(n, na, nb, nvalve) + (5 * n + 5 * na + (1 + C._W_BR) * nb + nvalve)
 
@@ -301,7 +301,7 @@ def _f64(a):
     return a if a.flags.writeable else a.copy()
 
 
-class FastHydraulics:
+class NetworkBuffers:
     """The network's side of the PBD plant's compiled steps: its buffers (``HydraulicBuffers``), moved from and to
     the plant's ``net_state`` and ``energy`` around each block of steps (see module docstring).
 
