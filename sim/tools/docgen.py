@@ -149,7 +149,7 @@ def scenario_keys() -> tuple:
         ("run", "coupling", "", "COUPLINGS", "coupling", "How the network's force enters the step: see "
          "[numerics.md](numerics.md). `implicit-linear` and `rosenbrock` need `hydraulic_substeps = 1`."),
         ("run", "stepper", "", "STEPPER_NAMES", "stepper", "Network stepper that finishes each step; unset: the "
-         "coupling's default."),
+         "coupling's default. PBD mode takes only that default (`implicit_euler`, `explicit_euler` for `explicit`)."),
         ("run", "dt", "s", closed(*sc.DT_RANGE), "dt", "Physics step (PBD mode: the frame)."),
         ("run", "duration", "s", f"(0, {sc.DURATION_MAX:g}]", "duration", "Simulated time."),
         ("run", "hydraulic_substeps", "-", "integer in [1, 100000]", "hydraulic_substeps", "Network substeps per physics step."),
