@@ -111,6 +111,8 @@ COMPILED_CASES = {  # scenario, overrides, inputs, steps
     "winch-pendulum": (WINCH_PENDULUM, {}, None, 200),
     "winch-pendulum-incompressible": (WINCH_PENDULUM, dict(fidelity="incompressible", dt=1 / 60, pbd_substeps=10),
                                       None, 12),
+    "winch-pendulum-explicit": (WINCH_PENDULUM, dict(coupling="explicit", dt=1e-4), None, 200),
+    "hlink-naive": (SCENES / "hlink.scenario.toml", dict(mode="pbd-naive", dt=1e-5), None, 40),
 }
 
 
