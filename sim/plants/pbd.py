@@ -48,7 +48,7 @@ slides): the rows are solved together with the response of the whole
 mechanism, Δq = M⁻¹·Jᵀ·Δλ (``SubstepInputs.row_mobility``), and gravity
 enters the prediction as q̈ = M⁻¹·Q_gravity (``SubstepInputs.group_gravity``),
 both from the XPBD model's own kinematics; explicit row forces (a row whose
-slope is not below ``IMPLICIT_SLOPE_LIMIT``: θ = 0 with a friction slope of zero in
+slope is not below ``pbd_frame.IMPLICIT_SLOPE_LIMIT``: θ = 0 with a friction slope of zero in
 the seal's Stribeck dip) enter the prediction the same way, q̈ = M⁻¹·Jᵀ·f, like the
 motors' efforts.  With the free-body inverse masses
 of plain XPBD, one Gauss-Seidel iteration leaves a stiff row (oil column, the
@@ -152,7 +152,6 @@ from sim.xpbd.model import JNT_HINGE, JNT_SLIDE
 # MuJoCo joint types whose coordinate is one scalar (logged as joint states).
 SCALAR_JOINTS = (JNT_HINGE, JNT_SLIDE)
 # A law slope above this (N·s/m) is applied as an explicit force rather than as a compliant row.
-IMPLICIT_SLOPE_LIMIT = -1e-9
 GRAVITY_ARTICULATED = True
 
 
@@ -364,6 +363,7 @@ class PbdPlant(PlantBase):
         record, every = self._record_next if self._record_next is not None else (None, 1)
         self._record_next = None
         self.recorded, self.recorded_finite = 0, True
+        report = None
         if self.fast:
             report = self._advance_block(n, record, every)[1]
         else:
@@ -416,14 +416,14 @@ class PbdPlant(PlantBase):
             raise ValueError(f"`record` has {len(record)} rows, {rows} needed")
         rec[:] = (rows, every, self.step_index, 0, 0)
         fc = ctx["frame"]
-        solver, st, fast, e = self.solver, self.state, self._net, self.energy
+        solver, st, net, e = self.solver, self.state, self._net, self.energy
         nsub = solver.substeps
         h = self.dt / nsub
         cmd, speed = self._block_inputs(ctx, n, h)
-        fast.load(self.net_state, e)
+        net.load(self.net_state, e)
         fc["x"][:], fc["v"][:], fc["ell"][:] = self._x, self._v, self._ell  # (the views of fc["actuators"])
         clock = ctx["clock"]
-        clock[:] = (st.time, fast._time, e.dissipated_mechanical, self._mechanical)
+        clock[:] = (st.time, net._time, e.dissipated_mechanical, self._mechanical)
         hint = ctx["hint"]
         hint[:] = st.qpos_hint
         pmax, pmin, xmax, xmin = ctx["pmax"], ctx["pmin"], ctx["xmax"], ctx["xmin"]
@@ -433,7 +433,7 @@ class PbdPlant(PlantBase):
         from sim.plants.pbd_frame import RigidState
 
         kernel = block(solver.transport_response, solver.articulated_contacts)  # (a dict lookup once compiled)
-        done, status = kernel(n, float(self.dt), cmd, speed, fast.buffers, RigidState(st.x, st.q, st.v, st.w),
+        done, status = kernel(n, float(self.dt), cmd, speed, net.buffers, RigidState(st.x, st.q, st.v, st.w),
                                      fc["actuators"], BlockTrack(clock, hint, pmax, pmin, xmax, xmin), ctx["plant"], ctx["buffers"],
                                      self._frame_settings(h), Recording(ctx["no_record"] if record is None else record, rec))
         self.recorded, self.recorded_finite = int(rec[3]), not rec[4]
@@ -444,14 +444,14 @@ class PbdPlant(PlantBase):
         last = done * nsub - 1  # the controls of the last substep taken (as after the hooks)
         self.control.valve_command[:] = cmd[last]
         self.control.pump_speed[:] = speed[last]
-        fast._time = float(clock[1])
-        self.net_state, self._report = fast.store(e)
+        net._time = float(clock[1])
+        self.net_state, self._report = net.store(e)
         self.last_report = self._report
         e.dissipated_mechanical, self._mechanical = float(clock[2]), float(clock[3])
         self._x, self._v, self._ell = fc["x"].copy(), fc["v"].copy(), fc["ell"].copy()
         self.effort = fc["actuators"].effort.copy()
         self._motor_effort = fc["actuators"].motor_effort.copy()
-        self.theta = fast.theta.copy()
+        self.theta = net.theta.copy()
         self.node_pressure_max, self.node_pressure_min = pmax.copy(), pmin.copy()
         self.actuator_position_max, self.actuator_position_min = xmax.copy(), xmin.copy()
         st.time = float(clock[0])
@@ -583,10 +583,10 @@ class PbdPlant(PlantBase):
         """The compiled frame's ``pbd_frame.FrameSettings`` for substeps of ``h`` [s]."""
         from sim.plants.pbd_frame import FrameSettings
 
-        solver, fast = self.solver, self._net
+        solver, net = self.solver, self._net
         return FrameSettings(float(h), solver.substeps, solver.iterations, solver.symmetric, solver.linear_damping,
                              solver.angular_damping, solver.soft_contacts, solver.pyramid_friction,
-                             solver.velocity_sweeps, fast.kind, fast.scheme, fast.blend, self.naive)
+                             solver.velocity_sweeps, net.kind, net.scheme, net.blend, self.naive)
 
     def _frame_context(self):
         """The actuators' layout and state of the compiled frame and the input plan (made once)."""

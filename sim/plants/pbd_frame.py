@@ -42,7 +42,7 @@ from hydraulics import _compiled as C
 from sim.xpbd import compiled as XC
 from sim.plants import pbd_hydraulics as H
 
-IMPLICIT_SLOPE_LIMIT = -1e-9  # must match sim.plants.pbd.IMPLICIT_SLOPE_LIMIT
+IMPLICIT_SLOPE_LIMIT = -1e-9  # [N·s/m]: a law slope above this is an explicit row force, not a compliant row
 
 # frame status
 FRAME_OK, FRAME_SINGULAR = 0, 1

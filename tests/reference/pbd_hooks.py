@@ -22,7 +22,8 @@ import numpy as np
 from hydraulics.coupling import start_velocity_guess
 from hydraulics.load import apply_inputs
 from hydraulics.steppers import StepReport
-from sim.plants.pbd import IMPLICIT_SLOPE_LIMIT, PbdPlant
+from sim.plants.pbd import PbdPlant
+from sim.plants.pbd_frame import IMPLICIT_SLOPE_LIMIT
 from sim.xpbd import SubstepInputs
 from sim.xpbd.quat import np_quat_rotate
 
