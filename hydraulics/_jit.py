@@ -170,9 +170,16 @@ if JIT_ENABLED:
         Numba passes a tuple argument by value, field by field: the packed network ``net`` (22 arrays, ~170 machine
         words) would be copied onto the stack at every call of every kernel that takes it, which under ``perf`` is
         the largest single cost of a small network's step.  The kernels take this pointer (``pnet``) instead and read
-        the fields they use through :func:`deref`."""
+        the fields they use through :func:`deref`.
+
+        The slot is allocated in the entry block without numba's customary zero fill (``cgutils.alloca_once``
+        always stores zeros there): the value is stored before the pointer exists, and the zero fill of a
+        ~1.7 kB tuple is a ``memset`` per call that LLVM keeps once the pointer escapes."""
         def codegen(context, builder, signature, llargs):
-            return _cgutils.alloca_once_value(builder, llargs[0])
+            with builder.goto_entry_block():
+                slot = builder.alloca(llargs[0].type)
+            builder.store(llargs[0], slot)
+            return slot
 
         return _numba.types.CPointer(value)(value), codegen
 

@@ -247,6 +247,12 @@ if _JIT:
 
     def _kernel(function):
         return numba.njit(error_model="numpy", nogil=True, _nrt=False)(function)
+
+    def _inline(function):
+        """:func:`_jit` inlined into its callers at numba IR level: for the helpers of the callback that return a
+        tuple of views (numba returns a tuple through a zero-filled stack slot, a ``memset`` of kilobytes per step
+        when LLVM does not inline the call)."""
+        return numba.njit(error_model="numpy", nogil=True, inline="always")(getattr(function, "py_func", function))
 else:  # the same callback as Python (NUMBA_DISABLE_JIT=1, for debugging): ctypes pointers, mujoco.mj_solveM
     def _pointer_cast(ctype):
         def cast(addr):
@@ -273,7 +279,7 @@ else:  # the same callback as Python (NUMBA_DISABLE_JIT=1, for debugging): ctype
     def _jit(f):
         return f
 
-    _kernel = _jit
+    _kernel = _inline = _jit
 
 
 _finish_scratch_nb = _kernel(_finish_scratch)
@@ -307,7 +313,7 @@ def _vu8(ctx, slot, n):
 _Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W', 'istats', 'cmd', 'speed', 'oil', 'pres', 'spool', 'pos', 'vel', 'flow', 'const', 'slope', 'effort', 'quad', 'passive_saved', 'constraint', 'passive', 'act', 'closed', 'length', 'avel', 'meff', 'theta', 'ctrl', 'bias', 'rowadr', 'rownnz', 'colind', 'moment', 'pmax', 'pmin', 'oil_change', 'xmax', 'xmin', 'lower', 'upper', 'flimited', 'frange'))
 
 
-@_jit
+@_inline
 def _views(ctx):
     """The arrays of the pointer table as views (built here, in reference-counted code: the kernels below
     run without numba's reference counting and cannot create arrays)."""
@@ -660,20 +666,26 @@ def _state_finite(ctx, V):
     return s == 0.0
 
 
+# the packed network and the coupling tables as views, built inline in the callback (see _inline)
+_unpack = _inline(C._unpack)
+_unflatten_incompressible = _inline(K.unflatten_incompressible)
+_unflatten_rigid = _inline(K.unflatten_rigid)
+
+
 @_jit
 def _coupled_step(address, m, d):
     """The whole callback: finish step k−1, moments, M⁻¹·Jᵀ (MuJoCo's mj_solveM), effort law of step k."""
     ctx = carray(_pi64(address), (NCTX,))
     F = carray(_pf64(ctx[P_F]), (ctx[C_NF],))
     I = carray(_pi64(ctx[P_I]), (ctx[C_NI],))
-    net = C._unpack(F, I)
+    net = _unpack(F, I)
     pnet = C._ref(net)
     V = _views(ctx)
     na = ctx[C_NA]
     TF = carray(_pf64(ctx[P_TF]), (ctx[C_NTF],))
     TI = carray(_pi64(ctx[P_TI]), (ctx[C_NTI],))
-    T = K.unflatten_incompressible(TF, TI, na)  # (TF, TI hold the table of C_KIND's coupling: T or R)
-    R = K.unflatten_rigid(TF, TI, na, ctx[C_NR])
+    T = _unflatten_incompressible(TF, TI, na)  # (TF, TI hold the table of C_KIND's coupling: T or R)
+    R = _unflatten_rigid(TF, TI, na, ctx[C_NR])
     _finish_pending(ctx, pnet, V, T, R)
     if ctx[C_MODE] == MODE_FINISH:  # called from Python after the block: finish its last step only
         ctx[C_END_FINITE] = _state_finite(ctx, V)
