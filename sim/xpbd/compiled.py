@@ -137,6 +137,7 @@ ContactWork = namedtuple("ContactWork", [  # per contact candidate, for up to nc
     "seen",  # 1 once the normal row acted in this substep, (ncap,)
     "order", "count",  # the touching candidates in the order they first acted, (ncap,), (1,)
     "impulse",  # velocity pass: accumulated friction (3) and normal (1) impulses [N·s], (ncap, 4)
+    "grouped", "members",  # pyramid pass: 1 once a candidate joined its body pair's block; that block's candidates
 ])
 
 RowBlockWork = namedtuple("RowBlockWork", [  # the length rows' block system, for up to nr active rows
@@ -162,8 +163,11 @@ BodyTree = namedtuple("BodyTree", [
 # Kernels that allocate nothing are compiled without numba's reference counting (``_nrt=False``): in a
 # reference-counted function every array argument and view costs an NRT_incref/NRT_decref pair.  On the excavator
 # at 1 ms × 1 substep those pairs are 24 % of a PBD step's samples (perf) if every helper counts, 15 % if these do not.
-# A function that allocates (or calls one that does) keeps the counting.
+# A function that allocates keeps the counting and says so (``_counted``): numba compiles a callee with its caller's
+# ``_nrt`` unless the callee sets it, so a non-counting caller (``substep_core``) may call a counted one as long as
+# no array crosses back.
 _leaf = njit(cache=True, _nrt=False)
+_counted = njit(cache=True, _nrt=True)
 
 # ---------------------------------------------------------------------------- algebra on tuples
 
@@ -443,7 +447,7 @@ def _pair_mobility(IM, II, Q, b1, b2, r1, r2):
     return True, _madd(K1, K2)
 
 
-@njit(cache=True)
+@_counted
 def _solve_dense(A, b, x):
     """A x = b by Gaussian elimination with partial pivoting (``xpbd_substep._solve_dense``); False if singular."""
     n = b.shape[0]
@@ -547,7 +551,7 @@ def _body_block(K, invm, invI, q, r):
             K[3 + i, 3 + j] += Ii[i][j]
 
 
-@njit(cache=True)
+@_counted
 def _hinge_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, lo, hi):
     q1 = _q4(Q, g1)
     aw = _rot(q1, a1)
@@ -683,7 +687,7 @@ def _tendon_limit_targets(X, Q, V, W, nj, jlim, h, tsoft):
         _soft_limit_target(jlim[i], ell, rate, jlim[i, 9], jlim[i, 10], h, tsoft[t])
 
 
-@njit(cache=True)
+@_counted
 def _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, art, G, Minv, reverse):
     """Soft tendon limit rows (``ReferenceSubstep._solve_tendon_limits``): C = ℓ − ℓ*, compliance α̃, λ ≤ 0 at an
     upper limit (≥ 0 at a lower one); with the articulated response (``art``: W = J·M⁻¹·Jᵀ, the groups
@@ -749,7 +753,7 @@ def _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, art, G, Minv, reve
                 _setq(Q, g, _qadd(_q4(Q, g), (dx[3], dx[4], dx[5]), 1.0))
 
 
-@njit(cache=True)
+@_counted
 def _solve_limits_block(X, Q, IM, jt, jg, jvec, jqoff, jlim, bsoft, tsoft, mu, G, Minv):
     """All active soft limits (joints' and tendons') of a hinge/slide tree together
     (``ReferenceSubstep._solve_limits_block``): rows C = q − q* (joint) or ℓ − ℓ* (tendon) taken in their pushing
@@ -858,7 +862,7 @@ def _axis_basis(a):
     return p1, _cross(a, p1)
 
 
-@njit(cache=True)
+@_counted
 def _lock_system(X, Q, IM, II, g1, g2, r1, r2, aw, target, qt):
     """A hinge held at angle ``target``: world lever arms, pin error [m], rotation error [rad] (axis·angle) and
     the 6×6 effective-mass block of pin + rotation (``ReferenceSubstep._lock_errors`` and the oracle's lock blocks)."""
@@ -885,7 +889,7 @@ def _lock_system(X, Q, IM, II, g1, g2, r1, r2, aw, target, qt):
     return r1w, r2w, c_pin, c_ang, K
 
 
-@njit(cache=True)
+@_counted
 def _hinge_soft_limit(X, Q, IM, II, g1, g2, r1, r2, a1, qoff, side, target, at, lam):
     """``ReferenceSubstep._hinge_soft_limit`` / ``xpbd_kernels.solve_soft_lock_block``; returns Δλ."""
     q1 = _q4(Q, g1)
@@ -937,7 +941,7 @@ def _slide_soft_limit(X, Q, IM, II, g1, g2, r1, a1, side, target, at, lam):
                       (0.0, 0.0, 0.0), aw, dist - target, at, lam, lo, hi)
 
 
-@njit(cache=True)
+@_counted
 def _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, reverse, jsoft, jlam):
     """Joint rows (``ReferenceSubstep._solve_joints``); jvec[j] = (r1, r2, a1, a2) as (4, 3).  A soft limit
     (jlim[j, 8] > 0) acts where jsoft[j, 0] ≠ 0 (its multiplier accumulates in jlam[j]); a rigid one is
@@ -1014,7 +1018,7 @@ def _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, reverse):
                              at[i], lam[i], lo[i], hi[i])
 
 
-@njit(cache=True)
+@_leaf
 def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob, work):
     """The active cylinder rows as one block through their articulated mobility ``mob``; ``work``: the
     ``RowBlockWork`` (for at least ``len(act)`` rows)."""
@@ -1366,19 +1370,30 @@ def _contact_targets(X, Q, V, W, contacts, cone, impratio, soft, pyramid, h, cw)
         active[ci] = 1
 
 
-@njit(cache=True)
+@_counted
 def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, art, G, Minv):
     """All edge rows of the candidates ``cis`` between groups g1 (plane) and g2, solved together with an
     active set over λ ≥ 0 (``ReferenceSubstep._contact_pyramids``).  ``art``: with the articulated response of
     the mechanism (group Jacobian G, joint-space M⁻¹): W = J·M⁻¹·Jᵀ and the groups move by G·M⁻¹·Jᵀ·Δλ."""
     npt = cis.shape[0]
     n = 4 * npt
-    pts = np.empty((npt, 2, 3))
-    E = np.empty((n, 3))
-    tgt = np.empty(n)
-    alpha = np.empty(n)
-    lam = np.empty(n)
-    disp_rows = np.empty(n)
+    nj = G.shape[2]
+    # one scratch buffer per call, carved into the rows' arrays (sizes in the order taken below)
+    scratch = np.empty(6 * npt + 3 * n + 6 * n + n * n + 2 * n * nj + 3 * n + nj)
+    pts = scratch[:6 * npt].reshape((npt, 2, 3))
+    o = 6 * npt
+    E = scratch[o:o + 3 * n].reshape((n, 3))
+    o += 3 * n
+    tgt, alpha, lam = scratch[o:o + n], scratch[o + n:o + 2 * n], scratch[o + 2 * n:o + 3 * n]
+    disp_rows, rhs, dlam = scratch[o + 3 * n:o + 4 * n], scratch[o + 4 * n:o + 5 * n], scratch[o + 5 * n:o + 6 * n]
+    o += 6 * n
+    A = scratch[o:o + n * n].reshape((n, n))
+    o += n * n
+    Jc = scratch[o:o + n * nj].reshape((n, nj))
+    MJ = scratch[o + n * nj:o + 2 * n * nj].reshape((nj, n))
+    o += 2 * n * nj
+    ang = scratch[o:o + 3 * n].reshape((n, 3))
+    dq = scratch[o + 3 * n:o + 3 * n + nj]
     for pi in range(npt):
         ci = cis[pi]
         r1l, r2l = _v3(clocal[ci], 0), _v3(clocal[ci], 1)
@@ -1400,10 +1415,9 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
             alpha[row] = edge[ci, j, 4]
             lam[row] = lam_e[ci, j]
             disp_rows[row] = _dot(disp, e)
-    A = np.zeros((n, n))
-    nj = G.shape[2]
-    Jc = np.zeros((n, nj))
-    if art:  # J[i, k] = ê_i·(v_g2,k(p) − v_g1,k(p)), v_g,k(p) = G_lin + G_ang × r
+    A[:, :] = 0.0
+    if art:
+        Jc[:, :] = 0.0  # J[i, k] = ê_i·(v_g2,k(p) − v_g1,k(p)), v_g,k(p) = G_lin + G_ang × r
         for row in range(n):
             e = _v3(E, row)
             for side in range(2):
@@ -1415,7 +1429,6 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
                 for k in range(nj):
                     vk = _cross((G[b, 3, k], G[b, 4, k], G[b, 5, k]), r)
                     Jc[row, k] += sg * (e[0] * (G[b, 0, k] + vk[0]) + e[1] * (G[b, 1, k] + vk[1]) + e[2] * (G[b, 2, k] + vk[2]))
-        MJ = np.zeros((nj, n))
         for k in range(nj):
             for j in range(n):
                 acc = 0.0
@@ -1434,7 +1447,6 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
             continue
         q = _q4(Q, b)
         invI = _v3(II, b)
-        ang = np.empty((n, 3))
         for row in range(n):
             r = _v3(pts[row // 4], side)
             a = _rotinv(q, _cross(r, _v3(E, row)))  # principal frame: (r × e)ᵀ I⁻¹ (r × e')
@@ -1443,15 +1455,14 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
             for j in range(n):
                 A[i, j] += IM[b] * (E[i, 0] * E[j, 0] + E[i, 1] * E[j, 1] + E[i, 2] * E[j, 2]) + \
                     (invI[0] * ang[i, 0] * ang[j, 0] + invI[1] * ang[i, 1] * ang[j, 1] + invI[2] * ang[i, 2] * ang[j, 2])
-    rhs = np.empty(n)
     for i in range(n):
         rhs[i] = -(disp_rows[i] - tgt[i]) - alpha[i] * lam[i]
         A[i, i] += alpha[i]
-    dlam = np.zeros(n)
+    dlam[:] = 0.0
     if not _nonnegative_increment(A, rhs, lam, dlam):
         return
     if art:
-        dq = np.zeros(nj)
+        dq[:] = 0.0
         for pi in range(npt):
             ci = cis[pi]
             for j in range(4):
@@ -1465,20 +1476,21 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
         return
     for pi in range(npt):
         ci = cis[pi]
-        imp = [0.0, 0.0, 0.0]
+        p0 = p1 = p2 = 0.0
         for j in range(4):
             row = 4 * pi + j
             new = max(lam[row] + dlam[row], 0.0)
             d = new - lam[row]
             lam_e[ci, j] = new
-            for c in range(3):
-                imp[c] += d * E[row, c]
-        p = (imp[0], imp[1], imp[2])
+            p0 += d * E[row, 0]
+            p1 += d * E[row, 1]
+            p2 += d * E[row, 2]
+        p = (p0, p1, p2)
         _apply_pos(X, Q, IM, II, g2, _v3(pts[pi], 1), p, 1.0)
         _apply_pos(X, Q, IM, II, g1, _v3(pts[pi], 0), p, -1.0)
 
 
-@njit(cache=True)
+@_leaf
 def _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, reverse, art, G, Minv):
     """One pass over the candidates (``ReferenceSubstep._solve_contacts``; ``cw`` the ``ContactWork``, Xp, Qp the group
     poses at the prediction): the normal rows of the non-pyramidal ones, the pyramids per body pair (``art``: with
@@ -1491,7 +1503,8 @@ def _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, reverse, art, G, Minv):
         if kind[ci] == CONTACT_SOFT or kind[ci] == CONTACT_RIGID:
             _contact_normal(X, Q, IM, II, contacts, cw, ci)
     active, clocal, edge, lam_e = cw.active, cw.local, cw.edge, cw.lam
-    done = np.zeros(nc, np.bool_)
+    done = cw.grouped[:nc]
+    done[:] = 0
     for k in range(nc):
         ci = nc - 1 - k if reverse else k
         if done[ci] or not active[ci]:
@@ -1502,13 +1515,13 @@ def _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, reverse, art, G, Minv):
             cj = nc - 1 - k2 if reverse else k2
             if active[cj] and cg[cj, 0] == g2 and cg[cj, 1] == g1:
                 cnt += 1
-        cis = np.empty(cnt, np.int64)
+        cis = cw.members[:cnt]
         cnt = 0
         for k2 in range(k, nc):
             cj = nc - 1 - k2 if reverse else k2
             if active[cj] and cg[cj, 0] == g2 and cg[cj, 1] == g1:
                 cis[cnt] = cj
-                done[cj] = True
+                done[cj] = 1
                 cnt += 1
         _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, art, G, Minv)
     for k in range(nc):
@@ -1520,21 +1533,22 @@ def _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, reverse, art, G, Minv):
 # ---------------------------------------------------------------------------- the substep
 
 
-@njit(cache=True)
+@_counted
 def substep_work(ng, nj, ntl, ncap, nr):
     """The ``SubstepWork`` of ``substep_core`` for ``ng`` groups, ``nj`` joints, ``ntl`` tendon limits, up to ``ncap``
     contact candidates and ``nr`` length rows (made once by a caller that runs many substeps)."""
     contacts = ContactWork(np.zeros(ncap, np.int64), np.zeros((ncap, 2, 3)), np.zeros((ncap, 4, 6)),
                            np.zeros((ncap, 4)), np.zeros(ncap, np.int64), np.zeros((ncap, 2)), np.zeros(ncap),
                            np.zeros(ncap), np.zeros((ncap, 2, 3)), np.zeros(ncap, np.int64), np.zeros(ncap, np.int64),
-                           np.zeros(1, np.int64), np.zeros((ncap, 4)))
+                           np.zeros(1, np.int64), np.zeros((ncap, 4)), np.zeros(ncap, np.int64),
+                           np.zeros(ncap, np.int64))
     rows = RowBlockWork(np.zeros((nr, nr)), np.zeros((nr, nr + 1)), np.zeros((3, nr)))
     return SubstepWork(np.zeros((nj, 3)), np.zeros(nj), np.zeros((ntl, 3)), np.zeros(ntl), contacts, np.zeros((ng, 3)),
                        np.zeros((ng, 4)), np.zeros((nj, 3)), np.zeros(nj + ntl), rows,
                        np.zeros((ng, 6, nj)), np.zeros((nj, nj)))
 
 
-@njit(cache=True)
+@_leaf
 def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work):
     """One XPBD substep of length h [s] in place on the group arrays X, Q, V, W (see module docstring).
 
@@ -1953,7 +1967,7 @@ def energies(x, q, v, w, root, from_root_quat, from_root_pos, group_mass, group_
 # G₀'s range), R_k = G_k·dq.  ``ReferenceSubstep._transported`` is the numpy oracle.
 
 
-@njit(cache=True)
+@_counted
 def group_jacobian(X, Q, IM, jt, jg, jvec, G):
     """G[g, :, i] = (COM velocity [m/s], angular velocity [rad/s]) of group g per unit rate of joint i.
 
@@ -2026,30 +2040,30 @@ def _move_groups(X, Q, IM, G, dq):
             _setq(Q, g, _qadd(_q4(Q, g), (d3, d4, d5), 1.0))
 
 
-@njit(cache=True)
+@_counted
 def _nonnegative_increment(A, rhs, lam, dlam):
     """Δλ of the one-sided block A·Δλ = rhs with λ + Δλ ≥ 0 (active set: a row whose total would turn negative is
-    released to Δλ = −λ and the rest re-solved, at most n + 1 times); False if a free sub-block is singular."""
+    released to Δλ = −λ and the rest re-solved, at most n + 1 times); False if a free sub-block is singular.
+    One float and one integer scratch buffer per call hold every re-solve's sub-block."""
     n = len(rhs)
-    free = np.empty(n, np.bool_)
+    flags = np.empty(2 * n, np.int64)  # free[r] (1: row r unreleased), then the free rows' indices
+    free, idx = flags[:n], flags[n:]
+    scratch = np.empty(n * (2 * n + 3))
     for r in range(n):
-        free[r] = rhs[r] > 0.0 or lam[r] > 0.0
+        free[r] = 1 if rhs[r] > 0.0 or lam[r] > 0.0 else 0
     for _ in range(n + 1):
         nf = 0
         for r in range(n):
             if not free[r]:
                 dlam[r] = -lam[r]
             else:
+                idx[nf] = r
                 nf += 1
         if nf:
-            idx = np.empty(nf, np.int64)
-            k = 0
-            for r in range(n):
-                if free[r]:
-                    idx[k] = r
-                    k += 1
-            Af = np.empty((nf, nf))
-            bf = np.empty(nf)
+            Af = scratch[:nf * nf].reshape((nf, nf))
+            M = scratch[n * n:n * n + nf * (nf + 1)].reshape((nf, nf + 1))
+            bf = scratch[n * (2 * n + 1):n * (2 * n + 1) + nf]
+            xf = scratch[n * (2 * n + 2):n * (2 * n + 2) + nf]
             for u in range(nf):
                 sacc = rhs[idx[u]]
                 for r in range(n):
@@ -2058,15 +2072,14 @@ def _nonnegative_increment(A, rhs, lam, dlam):
                 bf[u] = sacc
                 for c in range(nf):
                     Af[u, c] = A[idx[u], idx[c]]
-            xf = np.empty(nf)
-            if not _solve_dense(Af, bf, xf):
+            if not _solve_dense_in(Af, bf, xf, M):
                 return False
             for u in range(nf):
                 dlam[idx[u]] = xf[u]
         neg = False
         for r in range(n):
             if free[r] and lam[r] + dlam[r] < 0.0:
-                free[r] = False
+                free[r] = 0
                 neg = True
         if not neg:
             break
@@ -2102,7 +2115,7 @@ def _gauss_jordan(A, n):
     return True
 
 
-@njit(cache=True)
+@_counted
 def jacobian_pinv(G, P):
     """P = (GᵀG)⁻¹Gᵀ (nj, ng·6) of the group Jacobian (least squares); False if GᵀG is singular."""
     ng, _, nj = G.shape
@@ -2126,7 +2139,7 @@ def jacobian_pinv(G, P):
     return True
 
 
-@njit(cache=True)
+@_counted
 def transport(G, P, src, dst):
     """dst = G·(P·src) for one response (ng, 6): the joint-space motion of ``src`` at G's pose
     (``src`` and ``dst`` may be the same array)."""
@@ -2146,7 +2159,7 @@ def transport(G, P, src, dst):
             dst[g, c] = s
 
 
-@njit(cache=True)
+@_counted
 def articulated_inverse(X, Q, IM, GI, jt, jg, jvec, G, Minv):
     """G (``group_jacobian``) and M⁻¹ (njnt, njnt) of the joint-space mass matrix
     M = Σ_g m_g·G_linᵀG_lin + G_angᵀ·I_g·G_ang (group masses and principal inertias GI about the
