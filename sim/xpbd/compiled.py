@@ -137,7 +137,8 @@ ContactWork = namedtuple("ContactWork", [  # per contact candidate, for up to nc
     "seen",  # 1 once the normal row acted in this substep, (ncap,)
     "order", "count",  # the touching candidates in the order they first acted, (ncap,), (1,)
     "impulse",  # velocity pass: accumulated friction (3) and normal (1) impulses [N·s], (ncap, 4)
-    "grouped", "members",  # pyramid pass: 1 once a candidate joined its body pair's block; that block's candidates
+    "grouped", "members",  # pyramid pass: 1 once a candidate joined its body pair's block; that block's candidates,
+    # (ncap,), (ncap,)
 ])
 
 RowBlockWork = namedtuple("RowBlockWork", [  # the length rows' block system, for up to nr active rows
@@ -163,9 +164,9 @@ BodyTree = namedtuple("BodyTree", [
 # Kernels that allocate nothing are compiled without numba's reference counting (``_nrt=False``): in a
 # reference-counted function every array argument and view costs an NRT_incref/NRT_decref pair.  On the excavator
 # at 1 ms × 1 substep those pairs are 24 % of a PBD step's samples (perf) if every helper counts, 15 % if these do not.
-# A function that allocates keeps the counting and says so (``_counted``): numba compiles a callee with its caller's
-# ``_nrt`` unless the callee sets it, so a non-counting caller (``substep_core``) may call a counted one as long as
-# no array crosses back.
+# A function that allocates, or calls one that does, sets the counting explicitly (``_counted``): numba compiles a
+# callee with its caller's ``_nrt`` unless the callee sets it.  A non-counting caller may then call a counted one as
+# long as no array crosses back, so ``substep_core`` and ``_solve_contacts`` read their named tuples for free.
 _leaf = njit(cache=True, _nrt=False)
 _counted = njit(cache=True, _nrt=True)
 
