@@ -1378,23 +1378,12 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
     the mechanism (group Jacobian G, joint-space M⁻¹): W = J·M⁻¹·Jᵀ and the groups move by G·M⁻¹·Jᵀ·Δλ."""
     npt = cis.shape[0]
     n = 4 * npt
-    nj = G.shape[2]
-    # one scratch buffer per call, carved into the rows' arrays (sizes in the order taken below)
-    scratch = np.empty(6 * npt + 3 * n + 6 * n + n * n + 2 * n * nj + 3 * n + nj)
-    pts = scratch[:6 * npt].reshape((npt, 2, 3))
-    o = 6 * npt
-    E = scratch[o:o + 3 * n].reshape((n, 3))
-    o += 3 * n
-    tgt, alpha, lam = scratch[o:o + n], scratch[o + n:o + 2 * n], scratch[o + 2 * n:o + 3 * n]
-    disp_rows, rhs, dlam = scratch[o + 3 * n:o + 4 * n], scratch[o + 4 * n:o + 5 * n], scratch[o + 5 * n:o + 6 * n]
-    o += 6 * n
-    A = scratch[o:o + n * n].reshape((n, n))
-    o += n * n
-    Jc = scratch[o:o + n * nj].reshape((n, nj))
-    MJ = scratch[o + n * nj:o + 2 * n * nj].reshape((nj, n))
-    o += 2 * n * nj
-    ang = scratch[o:o + 3 * n].reshape((n, 3))
-    dq = scratch[o + 3 * n:o + 3 * n + nj]
+    pts = np.empty((npt, 2, 3))
+    E = np.empty((n, 3))
+    tgt = np.empty(n)
+    alpha = np.empty(n)
+    lam = np.empty(n)
+    disp_rows = np.empty(n)
     for pi in range(npt):
         ci = cis[pi]
         r1l, r2l = _v3(clocal[ci], 0), _v3(clocal[ci], 1)
@@ -1416,9 +1405,10 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
             alpha[row] = edge[ci, j, 4]
             lam[row] = lam_e[ci, j]
             disp_rows[row] = _dot(disp, e)
-    A[:, :] = 0.0
-    if art:
-        Jc[:, :] = 0.0  # J[i, k] = ê_i·(v_g2,k(p) − v_g1,k(p)), v_g,k(p) = G_lin + G_ang × r
+    A = np.zeros((n, n))
+    nj = G.shape[2]
+    Jc = np.zeros((n, nj))
+    if art:  # J[i, k] = ê_i·(v_g2,k(p) − v_g1,k(p)), v_g,k(p) = G_lin + G_ang × r
         for row in range(n):
             e = _v3(E, row)
             for side in range(2):
@@ -1430,6 +1420,7 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
                 for k in range(nj):
                     vk = _cross((G[b, 3, k], G[b, 4, k], G[b, 5, k]), r)
                     Jc[row, k] += sg * (e[0] * (G[b, 0, k] + vk[0]) + e[1] * (G[b, 1, k] + vk[1]) + e[2] * (G[b, 2, k] + vk[2]))
+        MJ = np.zeros((nj, n))
         for k in range(nj):
             for j in range(n):
                 acc = 0.0
@@ -1448,6 +1439,7 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
             continue
         q = _q4(Q, b)
         invI = _v3(II, b)
+        ang = np.empty((n, 3))
         for row in range(n):
             r = _v3(pts[row // 4], side)
             a = _rotinv(q, _cross(r, _v3(E, row)))  # principal frame: (r × e)ᵀ I⁻¹ (r × e')
@@ -1456,14 +1448,15 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
             for j in range(n):
                 A[i, j] += IM[b] * (E[i, 0] * E[j, 0] + E[i, 1] * E[j, 1] + E[i, 2] * E[j, 2]) + \
                     (invI[0] * ang[i, 0] * ang[j, 0] + invI[1] * ang[i, 1] * ang[j, 1] + invI[2] * ang[i, 2] * ang[j, 2])
+    rhs = np.empty(n)
     for i in range(n):
         rhs[i] = -(disp_rows[i] - tgt[i]) - alpha[i] * lam[i]
         A[i, i] += alpha[i]
-    dlam[:] = 0.0
+    dlam = np.zeros(n)
     if not _nonnegative_increment(A, rhs, lam, dlam):
         return
     if art:
-        dq[:] = 0.0
+        dq = np.zeros(nj)
         for pi in range(npt):
             ci = cis[pi]
             for j in range(4):
@@ -1477,16 +1470,15 @@ def _contact_pyramids(X, Q, Xp, Qp, IM, II, g1, g2, cis, clocal, edge, lam_e, ar
         return
     for pi in range(npt):
         ci = cis[pi]
-        p0 = p1 = p2 = 0.0
+        imp = [0.0, 0.0, 0.0]
         for j in range(4):
             row = 4 * pi + j
             new = max(lam[row] + dlam[row], 0.0)
             d = new - lam[row]
             lam_e[ci, j] = new
-            p0 += d * E[row, 0]
-            p1 += d * E[row, 1]
-            p2 += d * E[row, 2]
-        p = (p0, p1, p2)
+            for c in range(3):
+                imp[c] += d * E[row, c]
+        p = (imp[0], imp[1], imp[2])
         _apply_pos(X, Q, IM, II, g2, _v3(pts[pi], 1), p, 1.0)
         _apply_pos(X, Q, IM, II, g1, _v3(pts[pi], 0), p, -1.0)
 
@@ -2044,27 +2036,27 @@ def _move_groups(X, Q, IM, G, dq):
 @_counted
 def _nonnegative_increment(A, rhs, lam, dlam):
     """Δλ of the one-sided block A·Δλ = rhs with λ + Δλ ≥ 0 (active set: a row whose total would turn negative is
-    released to Δλ = −λ and the rest re-solved, at most n + 1 times); False if a free sub-block is singular.
-    One float and one integer scratch buffer per call hold every re-solve's sub-block."""
+    released to Δλ = −λ and the rest re-solved, at most n + 1 times); False if a free sub-block is singular."""
     n = len(rhs)
-    flags = np.empty(2 * n, np.int64)  # free[r] (1: row r unreleased), then the free rows' indices
-    free, idx = flags[:n], flags[n:]
-    scratch = np.empty(n * (2 * n + 3))
+    free = np.empty(n, np.bool_)
     for r in range(n):
-        free[r] = 1 if rhs[r] > 0.0 or lam[r] > 0.0 else 0
+        free[r] = rhs[r] > 0.0 or lam[r] > 0.0
     for _ in range(n + 1):
         nf = 0
         for r in range(n):
             if not free[r]:
                 dlam[r] = -lam[r]
             else:
-                idx[nf] = r
                 nf += 1
         if nf:
-            Af = scratch[:nf * nf].reshape((nf, nf))
-            M = scratch[n * n:n * n + nf * (nf + 1)].reshape((nf, nf + 1))
-            bf = scratch[n * (2 * n + 1):n * (2 * n + 1) + nf]
-            xf = scratch[n * (2 * n + 2):n * (2 * n + 2) + nf]
+            idx = np.empty(nf, np.int64)
+            k = 0
+            for r in range(n):
+                if free[r]:
+                    idx[k] = r
+                    k += 1
+            Af = np.empty((nf, nf))
+            bf = np.empty(nf)
             for u in range(nf):
                 sacc = rhs[idx[u]]
                 for r in range(n):
@@ -2073,14 +2065,15 @@ def _nonnegative_increment(A, rhs, lam, dlam):
                 bf[u] = sacc
                 for c in range(nf):
                     Af[u, c] = A[idx[u], idx[c]]
-            if not _solve_dense_in(Af, bf, xf, M):
+            xf = np.empty(nf)
+            if not _solve_dense(Af, bf, xf):
                 return False
             for u in range(nf):
                 dlam[idx[u]] = xf[u]
         neg = False
         for r in range(n):
             if free[r] and lam[r] + dlam[r] < 0.0:
-                free[r] = 0
+                free[r] = False
                 neg = True
         if not neg:
             break
