@@ -12,7 +12,7 @@ The component laws are the compiled scalar functions of their modules
 (:mod:`hydraulics.components`, e.g. :func:`hydraulics.components.orifice.flow_with_derivative`), each
 packed into its table by the module's ``pack``; the fluid law (:func:`fill_ratio_nb`), the node relations
 and the flow assembly are here.  Tuning constants (Newton tolerances, trust region, inversion limits …)
-are read from :mod:`hydraulics.steppers`, :mod:`hydraulics.coupling`, :mod:`hydraulics.network`,
+are read from :mod:`hydraulics.numerics`,
 :mod:`hydraulics.fluid` and the component modules when a network is packed and passed to the kernels in
 the packed arrays at run time (named layouts :data:`SCALAR_LAYOUT`, :data:`INT_LAYOUT`, the modules'
 ``COLUMNS``).  Importing this module compiles nothing: the entry points called from Python are cached on
@@ -68,8 +68,7 @@ from collections import namedtuple
 import numpy as np
 
 from . import fluid as _fluid
-from . import network as _network
-from .network import NetworkModel
+from . import numerics as _numerics
 
 from ._jit import FINGERPRINT, JIT_ENABLED, SOURCES, borrowed, compiled_available, source_sha256
 from ._jit import clip as _clip
@@ -190,9 +189,6 @@ def elimination_order(model: NetworkModel) -> np.ndarray:
 
 def pack_network(model: NetworkModel):
     """Flat float64 / int64 arrays (F, I) holding everything the kernels need from ``model``."""
-    from . import coupling as _coupling  # (deferred: both import this module; their constants are read here)
-    from . import steppers as _steppers
-
     fl = model.fluid
     n = model.node_count
     sl = model.branch_slices
@@ -203,21 +199,21 @@ def pack_network(model: NetworkModel):
                 reference_pressure=fl.reference_pressure, bulk_modulus=fl.bulk_modulus, air_fraction=fl.air_fraction,
                 polytropic_index=fl.polytropic_index, pressure_floor=fl.pressure_floor,
                 fill_floor=fl.fill_ratio(max(fl.pressure_floor, -fl.bulk_modulus))[0],  # the trust region's vapour-void fill ratio
-                newton_pressure_tolerance=_steppers.NEWTON_PRESSURE_TOLERANCE,
-                newton_relative_tolerance=_steppers.NEWTON_RELATIVE_TOLERANCE,
-                sufficient_decrease=_steppers.SUFFICIENT_DECREASE, trust_pressure=_steppers.TRUST_PRESSURE,
-                trust_fraction=_steppers.TRUST_FRACTION, inversion_tolerance=_network.PRESSURE_INVERSION_TOLERANCE,
+                newton_pressure_tolerance=_numerics.NEWTON_PRESSURE_TOLERANCE,
+                newton_relative_tolerance=_numerics.NEWTON_RELATIVE_TOLERANCE,
+                sufficient_decrease=_numerics.SUFFICIENT_DECREASE, trust_pressure=_numerics.TRUST_PRESSURE,
+                trust_fraction=_numerics.TRUST_FRACTION, inversion_tolerance=_numerics.PRESSURE_INVERSION_TOLERANCE,
                 fill_tolerance=_fluid.FILL_INVERSION_TOLERANCE,
                 friction_regularisation_velocity=_cylinder.FRICTION_REGULARISATION_VELOCITY,
-                guess_volume_fraction=_coupling.GUESS_VOLUME_FRACTION)[0]
+                guess_volume_fraction=_numerics.GUESS_VOLUME_FRACTION)[0]
     slices = {f"{kind}_{end}": getattr(sl[kind], end) for kind in BRANCH_KINDS for end in ("start", "stop")}
     ic = _table(INT_LAYOUT, 1, node_count=n, free_count=len(free), actuator_count=model.actuator_count,
                 branch_count=len(model.branch_names), cylinder_count=len(model.cylinder_actuator),
                 motor_count=len(model.motor_actuator), accumulator_count=len(model.accumulator_node),
                 valve_count=len(model.valve_names), pump_count=len(model.pump_names), **slices,
-                newton_max_iterations=_steppers.NEWTON_MAX_ITERATIONS,
-                line_search_halvings=_steppers.LINE_SEARCH_HALVINGS,
-                inversion_max_iterations=_network.PRESSURE_INVERSION_MAX_ITERATIONS,
+                newton_max_iterations=_numerics.NEWTON_MAX_ITERATIONS,
+                line_search_halvings=_numerics.LINE_SEARCH_HALVINGS,
+                inversion_max_iterations=_numerics.PRESSURE_INVERSION_MAX_ITERATIONS,
                 fill_max_iterations=_fluid.FILL_INVERSION_MAX_ITERATIONS)[0].astype(np.int64)
     floats = dict(
         sc=sc,

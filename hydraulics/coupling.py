@@ -92,6 +92,7 @@ import numpy as np
 
 from . import _compiled
 from .network import NetworkControl, NetworkModel, NetworkState
+from .numerics import GUESS_VOLUME_FRACTION  # noqa: F401 (documented here)
 from .steppers import ActuatorMotion, StepperImplicitEuler, StepReport, StepStatus, make_stepper
 
 
@@ -170,11 +171,6 @@ class CouplingExplicit(Coupling):
         return self.stepper.step(state, control, motion, dt)
 
 
-# A start velocity is used as the linearisation's guess of v⁺ only where the guessed displacement h·|v|
-# changes each chamber volume of its cylinder by at most this fraction (a short chord of the pressure law):
-# in an unresolved oscillation (the seed at 1200 Hz reverses ~1900 m/s every step) the start velocity is a
-# bad guess of v⁺, and the law linearised there lets the machine gain energy.
-GUESS_VOLUME_FRACTION = 0.01  # [-]
 
 
 def start_velocity_guess(model: NetworkModel, position, velocity, dt: float) -> np.ndarray:

@@ -41,10 +41,8 @@ import numpy as np
 from .circuit import Circuit
 from .components import BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, CircuitError
 from .components.hose import line_conductance
+from .numerics import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE  # noqa: F401 (documented here)
 
-# Pressure inversion of compliant nodes (elastic walls, accumulators).
-PRESSURE_INVERSION_MAX_ITERATIONS = 60  # converges in < 8 from the rigid guess
-PRESSURE_INVERSION_TOLERANCE = 1e-13  # on ln(V·φ/m)
 
 ACTUATOR_CYLINDER = 0
 ACTUATOR_MOTOR = 1

@@ -36,21 +36,9 @@ import numpy as np
 
 from . import _compiled
 from .network import BranchFlows, NetworkControl, NetworkModel, NetworkState
+from .numerics import (LINE_SEARCH_HALVINGS, NEWTON_MAX_ITERATIONS, NEWTON_PRESSURE_TOLERANCE,  # noqa: F401 (documented here)
+                       NEWTON_RELATIVE_TOLERANCE, SUFFICIENT_DECREASE, TRUST_FRACTION, TRUST_PRESSURE)
 
-NEWTON_MAX_ITERATIONS = 30  # per (sub)step; the excavator needs 2–4
-NEWTON_PRESSURE_TOLERANCE = 1e-2  # Pa: largest pressure change of the last Newton update
-NEWTON_RELATIVE_TOLERANCE = 1e-11  # relative to the node pressure
-LINE_SEARCH_HALVINGS = 8  # backtracking steps when the residual does not decrease enough
-# Armijo-type sufficient decrease of the max-norm residual per unit step.  Strong (0.3
-# rather than the textbook 1e-4) because an orifice's square-root law makes full Newton
-# steps flip the sign of Δp and ping-pong (for Q ∝ sign(Δp)·√|Δp| Newton maps Δp to −Δp):
-# the half step the rule then takes lands on the root.
-SUFFICIENT_DECREASE = 0.3
-# Trust region of one Newton update, in pressure: a node may fill its vapour void and
-# then change by at most max(TRUST_PRESSURE, TRUST_FRACTION·|p|).  Keeps the iteration
-# from jumping out of cavitation to absurd pressures after a valve slam.
-TRUST_PRESSURE = 2e6  # Pa
-TRUST_FRACTION = 0.5  # [-]
 REFERENCE_RTOL = 1e-10  # solve_ivp relative tolerance of StepperReference
 REFERENCE_PRESSURE_ATOL = 1e-3  # Pa, absolute tolerance expressed in pressure
 

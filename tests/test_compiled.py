@@ -8,7 +8,7 @@ from conftest import MODELS, network_from_toml
 from hydraulics._compiled import elimination_order
 from hydraulics.circuit import load_circuit
 from hydraulics.network import NetworkModel
-from hydraulics import steppers
+from hydraulics import numerics
 from hydraulics.steppers import ActuatorMotion, StepperImplicitEuler
 from reference.newton import StepperImplicitEulerOracle
 from test_network import ALL_KINDS
@@ -205,9 +205,9 @@ def test_warm_started_steps_match_oracle(name):
 
 
 def test_newton_failure_reported_alike(monkeypatch):
-    """With the iteration limit cut to 1 (read from hydraulics.steppers by both: the stepper when it packs the
+    """With the iteration limit cut to 1 (read from hydraulics.numerics by both: the stepper when it packs the
     network) a valve slam fails alike."""
-    monkeypatch.setattr(steppers, "NEWTON_MAX_ITERATIONS", 1)
+    monkeypatch.setattr(numerics, "NEWTON_MAX_ITERATIONS", 1)
     m = model("excavator")
     pure, fast = StepperImplicitEulerOracle(m), StepperImplicitEuler(m)
     state = start_state(m)

@@ -139,10 +139,10 @@ def test_step_is_advance_one_and_callback_restored():
 def test_newton_failure_reported_at_the_same_step(monkeypatch):
     """With the Newton limit cut to 1 (packed at construction) a valve slam fails in the same step and with the same
     message in both plants; the fast plant's network state, time and step index point at that step."""
-    from hydraulics import steppers
+    from hydraulics import numerics
     from sim.plants.mujoco_fast import MujocoPlantFast
 
-    monkeypatch.setattr(steppers, "NEWTON_MAX_ITERATIONS", 1)
+    monkeypatch.setattr(numerics, "NEWTON_MAX_ITERATIONS", 1)
     scenario = load_scenario(MODELS / "boom" / "lift.scenario.toml")
     slam = Schedule(np.array([0.0, 0.01, 0.011]), np.array([0.0, 0.0, 1.0]))
     scenario = scenario.with_overrides(inputs={**scenario.inputs, "boom_valve": slam})

@@ -2,7 +2,7 @@
 
 :class:`StepperImplicitEulerOracle` solves the same equations as
 :class:`hydraulics.steppers.StepperImplicitEuler` with the same Newton logic, trust region, line
-search, tolerances and iteration limits (read from :mod:`hydraulics.steppers` at call time), written
+search, tolerances and iteration limits (read from :mod:`hydraulics.numerics` at call time), written
 with the vectorised :class:`~hydraulics.network.NetworkModel` methods and LAPACK solves instead of the
 compiled kernels on the packed network.  The tests compare the two step by step, to round-off.
 
@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydraulics import steppers
+from hydraulics import numerics
 from hydraulics.network import NetworkState
 from hydraulics.steppers import Linearization, Stepper, StepReport, StepStatus
 
@@ -63,12 +63,12 @@ class StepperImplicitEulerOracle(Stepper):
         norm = np.max(np.abs(residual * scale), initial=0.0)
 
         def tolerance(pressure):
-            return steppers.NEWTON_PRESSURE_TOLERANCE + steppers.NEWTON_RELATIVE_TOLERANCE * np.max(
+            return numerics.NEWTON_PRESSURE_TOLERANCE + numerics.NEWTON_RELATIVE_TOLERANCE * np.max(
                 np.abs(pressure[free]), initial=0.0)
 
         converged = not len(free) or norm < tolerance(pressure)
-        halvings = steppers.LINE_SEARCH_HALVINGS
-        for iteration in range(steppers.NEWTON_MAX_ITERATIONS):
+        halvings = numerics.LINE_SEARCH_HALVINGS
+        for iteration in range(numerics.NEWTON_MAX_ITERATIONS):
             if converged:
                 break
             jq = m.flow_jacobian(flows)[np.ix_(free, free)]
@@ -85,7 +85,7 @@ class StepperImplicitEulerOracle(Stepper):
                 trial[free] += step * delta
                 t_pressure, t_dpdm, t_flows, t_residual = evaluate(trial)
                 t_norm = np.max(np.abs(t_residual * scale))
-                if np.isfinite(t_norm) and (t_norm <= (1.0 - steppers.SUFFICIENT_DECREASE * step) * norm
+                if np.isfinite(t_norm) and (t_norm <= (1.0 - numerics.SUFFICIENT_DECREASE * step) * norm
                                             or halving == halvings - 1):
                     break
                 step *= 0.5
@@ -115,7 +115,7 @@ class StepperImplicitEulerOracle(Stepper):
         volume, _ = m.node_volume_at(position, pressure)
         phi_floor = fluid.fill_ratio(max(fluid.pressure_floor, -fluid.bulk_modulus))[0]
         void = np.maximum(volume[free] * phi_floor - oil[free], 0.0)
-        allowed = void + volume[free] * np.maximum(steppers.TRUST_PRESSURE, steppers.TRUST_FRACTION * np.abs(pressure[free])) / (
+        allowed = void + volume[free] * np.maximum(numerics.TRUST_PRESSURE, numerics.TRUST_FRACTION * np.abs(pressure[free])) / (
             m.effective_bulk_modulus(pressure, position)[free]
         )
         with np.errstate(divide="ignore"):
