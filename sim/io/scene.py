@@ -4,7 +4,9 @@ The MJCF owns geometry and inertia, the circuit owns hydraulics.  They meet by
 name: each cylinder of the circuit is an MJCF ``<spatial>`` tendon and a
 ``<general>`` actuator of the same name (the tendon's ``range`` lower bound is
 the fully retracted pin-to-pin length, and range width must equal the
-circuit's stroke); each motor is an actuator of the same name on a joint
+circuit's stroke), or an actuator on the rod's slide joint (or a ``<fixed>``
+tendon over it) whose range is the stroke, driven pin to pin on the links
+(:mod:`sim.io.cylinder_pins`); each motor is an actuator of the same name on a joint
 (``gear`` = motor shaft angle per joint angle).  :func:`load_scene` checks all
 of this and raises :class:`~sim.io.scenario.ScenarioError` naming both files.
 """
@@ -25,9 +27,9 @@ from hydraulics.components import CircuitError
 from hydraulics.files import read_bytes, read_text, resolve
 from hydraulics.network import ACTUATOR_CYLINDER, NetworkModel, prune
 
+from sim.io.cylinder_pins import STROKE_TOLERANCE, pin_cylinders
 from sim.io.scenario import Scenario, ScenarioError, check_input_ranges
 
-STROKE_TOLERANCE = 1e-3  # m: MJCF tendon range width vs circuit stroke
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,6 +52,7 @@ class Scene:
     joint_names: tuple
     model_files: tuple = field(default_factory=tuple)  # (path, bytes) of the MJCF, then its includes and assets
     warnings: tuple = ()  # what the validator found, one line each naming the MJCF element (validate_model)
+    notes: tuple = ()  # how the MJCF was read where it could be read two ways (sim.io.cylinder_pins), one line each
 
     def mjcf_text(self) -> bytes:
         return read_bytes(self.scenario.mjcf, "MJCF", ScenarioError)
@@ -261,7 +264,8 @@ def check_cylinder_transmission(mjmodel: mujoco.MjModel, aid: int, name: str, mj
     joint transmission (the rod's slide) is refused with the change to make.
     """
     fix = (f"; give it a <spatial> tendon through two sites, one at the barrel pin and one at the rod eye (on the barrel "
-           f"and rod bodies if the model has them), with range = [closed pin-to-pin length, closed length + stroke] [m]")
+           f"and rod bodies if the model has them), with range = [closed pin-to-pin length, closed length + stroke] [m], "
+           f"or put the actuator on the rod's slide joint, whose range is then the stroke")
     trn = int(mjmodel.actuator_trntype[aid])
     target = int(mjmodel.actuator_trnid[aid, 0])
     if trn == int(mujoco.mjtTrn.mjTRN_JOINT):
@@ -464,6 +468,10 @@ def load_scene(scenario: Scenario) -> Scene:
         levels = dict(zip(network.actuator_names, network.actuator_fidelity))
         scenario = replace(scenario, fidelity=network.fidelity,
                            actuator_fidelity={a: lv for a, lv in levels.items() if lv != network.fidelity})
+    cylinders = {network.actuator_names[a]: float(network.cylinder_stroke[c]) for c, a in enumerate(network.cylinder_actuator)}
+    mjmodel, pin_notes = pin_cylinders(mjmodel, cylinders, scenario.mjcf)
+    if pin_notes:
+        check_finite_model(mjmodel, scenario.mjcf)
     binding = bind(network, mjmodel, scenario.circuit, scenario.mjcf)
     warnings = notices + validate_model(mjmodel, binding, scenario)
     configure_actuators(mjmodel, binding)
@@ -484,7 +492,7 @@ def load_scene(scenario: Scenario) -> Scene:
     for net in scenario.pressures:
         if net not in network.net_node:
             raise ScenarioError(f"{scenario.path}, field 'initial.pressures.{net}': no net '{net}' in {scenario.circuit}")
-    scene = Scene(scenario, mjmodel, network, binding, joints, tuple(files), warnings)
+    scene = Scene(scenario, mjmodel, network, binding, joints, tuple(files), warnings, pin_notes)
     check_initial_joints(scene)
     check_start_pose(scene)
     return scene

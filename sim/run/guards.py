@@ -243,7 +243,7 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
     # the PBD plant steps the oil column once per XPBD substep
     substeps = scenario.pbd_substeps if mode in ("pbd", "pbd-naive") else 1
     step = dt / substeps
-    rows, warnings, notes = [], list(getattr(scene, "warnings", ())), []
+    rows, warnings, notes = [], list(getattr(scene, "warnings", ())), list(getattr(scene, "notes", ()))
     for a, name in enumerate(network.actuator_names):
         m, ka, c = float(mass[a]), float(k[a]), float(damping[a])
         rigid = bool(network.actuator_rigid[a])

@@ -236,7 +236,7 @@ def check_scene(scenario_path, grid: int = 0, mode=None) -> tuple[str, int]:
     m, scene, net = ck.m, ck.scene, ck.scene.network
     out = [f"=== {ck.scenario.path} ({Path(ck.scenario.mjcf).name}: nq {m.nq}, nv {m.nv}, nu {m.nu}, "
            f"total mass {float(np.sum(m.body_mass)):.1f} kg)"]
-    out += [f"  warning: {w}" for w in scene.warnings]
+    out += [f"  warning: {w}" for w in scene.warnings] + [f"  note: {n}" for n in scene.notes]
     if m.neq:
         raw, _ = initial_qpos_qvel(scene, project=False)
         _, before, names = ck.equalities(raw)
