@@ -17,7 +17,11 @@ two-site ``<spatial>`` tendon from A to E:
   no equality closes keeps E on the rod body (a free slide, e.g. a test rig).
 
 The force then acts on the links directly, exactly where the pins are, and the closure carries only the barrel's
-and rod's own weight and inertia.  The tendon's length is ℓ = ℓ₀ + s·(q − q₀) along the slide (s = ±1, the sense of
+and rod's own weight and inertia.  That is right where the links are what the cylinder moves (an arm, a boom); where
+a pin's link is itself light and held by another soft closure (the side link of an H-link), the oil column would ring
+that link instead.  So the pins go where the cylinder sees the most inertia counting its joints but not its closures
+(:func:`inertia_seen`): on the links, or on the barrel and rod bodies as the joint transmission had them; the note
+names the choice and both masses.  The tendon's length is ℓ = ℓ₀ + s·(q − q₀) along the slide (s = ±1, the sense of
 the joint axis from A to E, q₀ the joint's reference position), so its range is the slide joint's range mapped the
 same way: the joint's range is the stroke.  Requirements, each refused in one line naming the MJCF element: the
 joint is a slide with a range, A and E lie on the slide axis within :data:`AXIS_TOLERANCE`, a fixed tendon has one
@@ -40,6 +44,8 @@ Example
 """
 
 from __future__ import annotations
+
+import math
 
 import mujoco
 import numpy as np
@@ -90,7 +96,7 @@ def pin_cylinders(model: mujoco.MjModel, cylinders, mjcf, spec: mujoco.MjSpec | 
     read again as an editable :class:`mujoco.MjSpec` (or ``spec`` is edited) and compiled only when a cylinder needs
     it; otherwise ``model`` itself is returned."""
     data = mujoco.MjData(model)
-    mujoco.mj_kinematics(model, data)  # the reference pose qpos0
+    mujoco.mj_forward(model, data)  # the reference pose qpos0: positions and the mass matrix
     notes, edits = [], []
     for name, stroke in cylinders.items():
         aid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
@@ -177,12 +183,35 @@ def _pins(model, data, name, joint, mjcf) -> dict:
         raise ScenarioError(f"{mjcf}: cylinder '{name}': its pins would meet within the range of slide '{jname}' "
                             f"(pin-to-pin {ends[0]:.4g} m at one end); check the joint's range and axis")
     body = lambda b: _name(model, mujoco.mjtObj.mjOBJ_BODY, b)  # noqa: E731
+    on_links = ((barrel_host, pin), (eye_host, _world(data, eye_host, eye_local)))
+    on_cylinder = ((barrel, pin), (rod, eye_on_rod))
+    seen = [inertia_seen(model, data, pins, reach / length) for pins in (on_links, on_cylinder)]
+    (a, pa), (b, pb) = on_links if seen[0] >= seen[1] else on_cylinder
     note = (f"{mjcf}: cylinder '{name}' on slide '{jname}' is driven pin to pin, from its barrel pin on body "
-            f"'{body(barrel_host)}' ({barrel_text}) to its rod eye on body '{body(eye_host)}' ({eye_text}); "
-            f"pin to pin {ends[0]:.4f} to {ends[1]:.4f} m over the slide's range")
+            f"'{body(a)}' ({barrel_text}) to its rod eye on body '{body(b)}' ({eye_text}), where it sees the most "
+            f"inertia without its closures ({max(seen):.4g} kg; {min(seen):.4g} kg on the "
+            f"{'barrel and rod bodies' if seen[0] >= seen[1] else 'links'}); pin to pin {ends[0]:.4f} to {ends[1]:.4f} m "
+            "over the slide's range")
     return {"name": name, "range": ends, "note": note,
-            "barrel": (barrel_host, _local(data, barrel_host, pin), "barrel_pin"),
-            "eye": (eye_host, eye_local, "rod_eye")}
+            "barrel": (a, _local(data, a, pa), "barrel_pin"), "eye": (b, _local(data, b, pb), "rod_eye")}
+
+
+def inertia_seen(model, data, pins, direction) -> float:
+    """Mass [kg] a force along ``direction`` between two points ``pins`` ((body, world point [m]) each) accelerates,
+    counting the joints but no equality: 1/(J·M⁻¹·Jᵀ) with J = direction·(J_eye − J_barrel) at ``data``'s pose.
+
+    Where the pins go decides which bodies ring on the oil column between the soft closures: a light body there
+    (a link held by another closure, a light rod on its slide) rings at ω = √(k/m) and makes the step unstable."""
+    jac = []
+    for body, point in pins:
+        jacp = np.zeros((3, model.nv))
+        mujoco.mj_jac(model, data, jacp, None, np.asarray(point, float), int(body))
+        jac.append(jacp)
+    row = (np.asarray(direction, float) @ (jac[1] - jac[0])).reshape(1, model.nv)
+    solved = np.zeros_like(row)
+    mujoco.mj_solveM(model, data, solved, row)
+    mobility = float((row @ solved.T)[0, 0])
+    return 1.0 / mobility if mobility > 0.0 else math.inf
 
 
 def _eq_bodies(model, e) -> tuple:
