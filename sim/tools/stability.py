@@ -55,7 +55,9 @@ Outputs in ``OUT``: ``stability.csv`` (one row per run), ``stability-<method>.pn
 (heat maps of dt against each swept quantity), ``summary.txt`` (the stability
 boundary per method).  The runs go through :func:`sim.tools.sweep.run_sweep` (process
 pool, or Dask with ``--scheduler``), cached in ``OUT/cache`` (keyed on the point, the hash of the hydraulics/ and sim/ source and
-the contents of the variant files) so an interrupted map resumes.
+the contents of the variant files) so an interrupted map resumes.  On Dask the variants' files travel to the
+workers as content (:func:`sim.tools.sweep.scene_bundle`); a run that cannot be made has its error text in
+the ``error`` column and in ``summary.txt`` (and is not cached).
 """
 
 from __future__ import annotations

@@ -45,7 +45,10 @@
   holding the bundle; :func:`point_file` joins the two): on the local pool the folder the files were
   read from; on a Dask worker a private folder in the worker's local directory (``dask worker
   --local-directory``) into which the bundle was written once (:func:`materialise`), reused by every
-  later point of that bundle.  Bundles are sent to the workers once (``client.scatter``).
+  later point of that bundle.  Bundles are sent to the workers once (``client.scatter``).  Text
+  fields of a result lose the bundle folder's prefix (an error names ``boom/lift.scenario.toml``, on
+  every engine alike), and fields the function copied back unchanged from the added ones are dropped,
+  so that a result does not depend on where it was computed.
 * On a cluster, :func:`run_sweep` waits at most ``worker_timeout`` seconds for a worker
   (:class:`SchedulerError` otherwise), prints the dashboard link, and runs ``warm_up(points)`` once
   on every worker before the points (e.g. to compile the kernels, so that no point's timing includes
@@ -294,6 +297,8 @@ def materialise(bundle: Bundle, base=None) -> Path:
             return Path(held.name)
         if bundle_digest(bundle.files) != bundle.digest:
             raise ValueError(f"bundle {bundle.digest[:12]}: its files do not match its digest")
+        if base is not None:
+            Path(base).mkdir(parents=True, exist_ok=True)
         folder = tempfile.TemporaryDirectory(prefix=f"hydroplant-scene-{bundle.digest[:12]}-", dir=base)
         _write_bundle(bundle.files, Path(folder.name))
         _MATERIALISED[bundle.digest] = folder
@@ -321,7 +326,7 @@ def _run_located(func, point: dict, root, context: dict | None):
     if isinstance(result, dict):
         added = {k: v for k, v in located.items() if k not in point}
         result = {k: v for k, v in result.items() if not (k in added and v == added[k])}
-        if root is not None:
+        if root is not None and Path(root).parent != Path(root):  # (not when the bundle is the whole file system)
             prefix = str(root).rstrip(os.sep) + os.sep
             result = {k: v.replace(prefix, "") if isinstance(v, str) else v for k, v in result.items()}
     return result

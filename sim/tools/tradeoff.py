@@ -2,7 +2,7 @@
 
 ::
 
-    hydroplant tradeoff SCENARIO [--scheduler tcp://host:port] [--out DIR] [--quick] [--duration S]
+    hydroplant tradeoff SCENARIO [--scheduler tcp://host:port [--worker-timeout S]] [--out DIR] [--quick] [--duration S]
 
 Sweeps the step ``dt``, the hydraulic substeps (MuJoCo mode), the XPBD substeps and
 iterations (PBD modes, when the PBD plant is importable), both couplings and the fidelity
@@ -15,6 +15,11 @@ process pool, or a Dask cluster with ``--scheduler``), and measures per setting
 * the errors against the converged reference (:mod:`sim.tools.reference`): the largest and RMS
   error of joint positions, strokes and pressures (:mod:`sim.tools.compare`), plus the energy
   drift and whether the run diverged.
+
+A setting that cannot run is a result with status ``error``; its error text (exception type and message,
+one line) is in the rows and the ``error`` column of ``tradeoff.csv``, and it is not cached.  With
+``--scheduler`` the scene's files travel to the workers as content (:func:`sim.tools.sweep.scene_bundle`),
+every worker first runs :func:`warm_up_points`, and ``--worker-timeout`` bounds the wait for a worker.
 
 Writes ``tradeoff.csv`` (one row per setting), ``pareto.png`` (error against cost,
 log-log, Pareto fronts drawn) and ``tradeoff.md`` naming the Pareto-optimal settings, e.g.
