@@ -1164,6 +1164,8 @@ def stability_map(scenario, *, grid: Grid = DEFAULT_GRID, out_dir=None, schedule
     # a grid point identical to its reference (implicit at dt_ref) is not run twice
     results += [dict(refs[p["config"]], **{k: p[k] for k in ("method", "reference", "truncated", "log")}) for p in points if p.get("same_as_reference")]
     rows = [classify(r, refs.get(r["config"]), facts, grid.tolerance) for r in results]
+    for row in rows:
+        row["error"] = run_error(row)  # the text of a run that could not be made, "" otherwise
     result = StabilityMap(facts, grid, rows, configs, out_dir)
     if write:
         write_csv(result, out_dir / "stability.csv")
