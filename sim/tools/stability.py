@@ -1255,6 +1255,8 @@ def main(args) -> int:
     if args.scheduler is not None:
         from sim.tools.sweep import WORKER_TIMEOUT, check_scheduler, check_workers
 
+        if not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
+            raise StabilityError(f"--scheduler: {args.scheduler!r} is not a scheduler address like tcp://host:8786")
         if args.keep_logs:
             raise StabilityError("--keep-logs: the logs of runs on Dask workers are not kept; run without --scheduler to keep them")
         check_scheduler(args.scheduler)  # one line now, not after the variants are built
