@@ -299,7 +299,8 @@ def materialise(bundle: Bundle, base=None) -> Path:
             raise ValueError(f"bundle {bundle.digest[:12]}: its files do not match its digest")
         if base is not None:
             Path(base).mkdir(parents=True, exist_ok=True)
-        folder = tempfile.TemporaryDirectory(prefix=f"hydroplant-scene-{bundle.digest[:12]}-", dir=base)
+        folder = tempfile.TemporaryDirectory(prefix=f"hydroplant-scene-{bundle.digest[:12]}-", dir=base,
+                                             ignore_cleanup_errors=True)  # (the worker may remove its directory first)
         _write_bundle(bundle.files, Path(folder.name))
         _MATERIALISED[bundle.digest] = folder
         return Path(folder.name)
