@@ -6,7 +6,7 @@ points run, the client's copy of the scene is renamed away: the local pool then 
 shows the hiding works), the cluster does not (which shows the workers read the shipped content, not the
 client's path).  The cluster's rows equal the local pool's in every field but the timings; a setting
 that cannot run fails on its worker with its error text in the rows, the CSV and the report, and is not
-cached.
+cached.  A scheduler without workers is one line and exit status 2 after ``--worker-timeout``.
 """
 
 from __future__ import annotations
@@ -132,12 +132,16 @@ def materialised(folder: Path, relative: str) -> list[Path]:
     return sorted((folder / "local").rglob(f"hydroplant-scene-*/{relative}"))
 
 
-def test_no_workers_is_one_line(scheduler, capsys):
-    """Before any worker joined: the CLI waits ``--worker-timeout`` seconds, then one line and exit 2."""
+def test_no_workers_is_one_line(capsys):
+    """A scheduler without workers: the CLI waits ``--worker-timeout`` seconds, then one line and exit 2."""
+    from dask.distributed import LocalCluster
+
     from sim import cli
 
-    code = cli.main(["tradeoff", str(MODELS / "seed_cylinder" / "closed.scenario.toml"), "--quick", "--scheduler", scheduler,
-                     "--worker-timeout", "0.5"])
+    with LocalCluster(n_workers=0, processes=False, protocol="tcp://", host="127.0.0.1", dashboard_address=None) as empty:
+        scheduler = empty.scheduler_address
+        code = cli.main(["tradeoff", str(MODELS / "seed_cylinder" / "closed.scenario.toml"), "--quick", "--scheduler", scheduler,
+                         "--worker-timeout", "0.5"])
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 2
     assert err == [f"hydroplant: error: no Dask workers joined {scheduler} within 0.5 s (start them with: dask worker {scheduler})"]
