@@ -453,10 +453,10 @@ def test_cache_keys_cover_the_mjcf_includes(scene):
     scenario = load_scenario(scene / SCENARIO)
     include = scene.parent / "common" / "visual.xml"
     assert include in input_paths(scenario)
-    key, files = reference_key(scenario, ReferenceSettings()), sweep_points(scenario, [{}], repeats=1)[0]["files"]
+    key, files = reference_key(scenario, ReferenceSettings()), sweep_points(scenario, [{}], repeats=1)[0]["bundle"]
     include.write_text(include.read_text().replace('offwidth="640"', 'offwidth="800"'))
     assert reference_key(scenario, ReferenceSettings()) != key
-    assert sweep_points(scenario, [{}], repeats=1)[0]["files"] != files
+    assert sweep_points(scenario, [{}], repeats=1)[0]["bundle"] != files
 
 
 def tetrahedron_stl() -> bytes:

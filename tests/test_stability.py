@@ -271,7 +271,10 @@ def test_variants_are_copies_and_do_what_they_say(boom_facts, tmp_path):
     path = st.write_variant(boom_facts, config, tmp_path / "v")
     assert _tree_digest(MODELS) == before, "models/ must never be touched"
     scenario = load_scenario(path)
-    assert scenario.path.parent == tmp_path / "v" and scenario.mjcf.parent == tmp_path / "v"
+    assert scenario.path.parent == tmp_path / "v" and scenario.mjcf.parent == tmp_path / "v" / "model"
+    (tmp_path / "v").rename(tmp_path / "moved")  # self-contained: its files named relative to each other
+    assert load_scenario(tmp_path / "moved" / path.name).mjcf == tmp_path / "moved" / "model" / "boom-mass.xml"
+    (tmp_path / "moved").rename(tmp_path / "v")
     circuit = tomllib.loads(scenario.circuit.read_text())
     assert circuit["fluid"]["bulk_modulus"] == 1e10
     cylinder = next(c for c in circuit["component"] if c["type"] == "cylinder")

@@ -1,7 +1,7 @@
 """``hydroplant stability`` from a working directory with relative paths, and its end-stop event on a loop-closure model.
 
 A relative scenario path and a relative (or the default) ``--out`` must not be joined twice
-(the variants' scenarios name their files by absolute path), and the end-stop pose must stay
+(the variants' folders are written below it), and the end-stop pose must stay
 on the MJCF's loop closures (no NaN chamber pressure at its start).
 """
 

@@ -176,3 +176,39 @@ def test_tradeoff_errors_on_filtered_signals_see_through_chatter():
     filtered, = error_rows(points, [result], reference, filter_window=0.1)
     assert pointwise["stroke_max_m"] == pytest.approx(6e-3, rel=1e-6)
     assert filtered["stroke_max_m"] == pytest.approx(1e-3, abs=2e-4)
+
+
+def test_a_scene_bundle_is_its_content_and_works_from_any_folder(tmp_path):
+    """The bundle of a scene holds every input file under the scene folder's name; moving the scene changes neither
+    its digest nor the sweep points' keys; written out elsewhere it loads with every file inside the copy; a scene
+    naming a file by an absolute path is refused (it would not exist on a worker)."""
+    import shutil
+
+    from sim.io.scenario import ScenarioError, load_scenario
+    from sim.tools.sweep import materialise, scene_bundle
+    from sim.tools.tradeoff import run_point, sweep_points
+
+    first, second = tmp_path / "a" / "seed_cylinder", tmp_path / "b" / "c" / "seed_cylinder"
+    shutil.copytree(SEED.parent, first)
+    shutil.copytree(SEED.parent, second)
+    bundle, rel = scene_bundle(first / SEED.name)
+    assert rel == "seed_cylinder/closed.scenario.toml"
+    assert [name for name, _ in bundle.files] == ["seed_cylinder/closed.scenario.toml", "seed_cylinder/seed_cylinder.circuit.toml",
+                                                  "seed_cylinder/seed_cylinder.xml"]
+    assert dict(bundle.files)["seed_cylinder/seed_cylinder.xml"] == (SEED.parent / "seed_cylinder.xml").read_bytes()
+    assert scene_bundle(second / SEED.name)[0].digest == bundle.digest
+    setting = {"mode": "mujoco", "coupling": "implicit", "dt": 1e-3, "hydraulic_substeps": 1, "pbd_substeps": 20, "pbd_iterations": 1}
+    keys = [point_key(sweep_points(load_scenario(s / SEED.name), [setting], repeats=1)[0], run_point) for s in (first, second)]
+    assert keys[0] == keys[1]
+    (second / "seed_cylinder.xml").write_text((second / "seed_cylinder.xml").read_text() + "\n")
+    assert scene_bundle(second / SEED.name)[0].digest != bundle.digest  # one byte more: another scene
+
+    folder = materialise(bundle, tmp_path / "worker")
+    assert folder.is_relative_to(tmp_path / "worker") and materialise(bundle, tmp_path / "elsewhere") == folder  # once
+    copy = load_scenario(folder / rel)
+    assert copy.mjcf == folder / "seed_cylinder" / "seed_cylinder.xml" and copy.circuit.parent == folder / "seed_cylinder"
+
+    text = (first / SEED.name).read_text().replace('mjcf = "seed_cylinder.xml"', f'mjcf = "{first / "seed_cylinder.xml"}"')
+    (first / SEED.name).write_text(text)
+    with pytest.raises(ScenarioError, match="absolute path"):
+        scene_bundle(first / SEED.name)

@@ -55,7 +55,9 @@ Outputs in ``OUT``: ``stability.csv`` (one row per run), ``stability-<method>.pn
 (heat maps of dt against each swept quantity), ``summary.txt`` (the stability
 boundary per method).  The runs go through :func:`sim.tools.sweep.run_sweep` (process
 pool, or Dask with ``--scheduler``), cached in ``OUT/cache`` (keyed on the point, the hash of the hydraulics/ and sim/ source and
-the contents of the variant files) so an interrupted map resumes.
+the contents of the variant files) so an interrupted map resumes.  On Dask the variants' files travel to the
+workers as content (:func:`sim.tools.sweep.scene_bundle`); a run that cannot be made has its error text in
+the ``error`` column and in ``summary.txt`` (and is not cached).
 """
 
 from __future__ import annotations
@@ -377,15 +379,21 @@ def _scale_floats(text: str, factor: float) -> str:
 def scale_mjcf_masses(source: Path, target: Path, factor: float) -> None:
     """Write ``source`` MJCF to ``target`` with every mass, inertia, density and armature × ``factor``.
 
-    Relative asset paths (compiler dirs, includes) are made absolute so the copy
-    compiles from anywhere; raises StabilityError when the compiled total mass
-    does not scale by ``factor`` (masses the edit could not reach).
+    Relative asset paths (compiler dirs, includes) are rewritten relative to the
+    target's folder (unchanged when it is the source's), so the copy names the same
+    files; raises StabilityError when the compiled total mass does not scale by
+    ``factor`` (masses the edit could not reach).
     """
     import mujoco
 
     tree = ET.parse(source)
     root = tree.getroot()
-    base = source.parent
+    base = source.parent.resolve()
+    here = Path(target).parent.resolve()
+
+    def moved(value: str) -> str:
+        return Path(os.path.relpath(base / value, here)).as_posix() if here != base else value
+
     compiler = root.find("compiler")
     if compiler is None:
         compiler = ET.Element("compiler")
@@ -393,12 +401,12 @@ def scale_mjcf_masses(source: Path, target: Path, factor: float) -> None:
     for attr in ("meshdir", "texturedir", "assetdir"):
         value = compiler.get(attr)
         if value is not None and not os.path.isabs(value):
-            compiler.set(attr, str((base / value).resolve()))
-    if compiler.get("assetdir") is None and compiler.get("meshdir") is None:
-        compiler.set("assetdir", str(base.resolve()))
+            compiler.set(attr, moved(value))
+    if compiler.get("assetdir") is None and compiler.get("meshdir") is None and here != base:
+        compiler.set("assetdir", moved("."))
     for include in root.iter("include"):
         if not os.path.isabs(include.get("file", "/")):
-            include.set("file", str((base / include.get("file")).resolve()))
+            include.set("file", moved(include.get("file")))
     for element in root.iter("inertial"):
         element.set("mass", repr(float(element.get("mass", "0")) * factor))
         for attr in ("diaginertia", "fullinertia"):
@@ -486,9 +494,28 @@ def end_stop_pose(scene, facts: SceneFacts, gap_time: float):
     return names_q, names_v
 
 
+def copy_model(mjcf, directory) -> Path:
+    """Copy an MJCF with its includes and assets (:func:`sim.io.scene.mjcf_files`) below ``directory``, keeping
+    their layout relative to each other; returns the copy of the MJCF."""
+    from sim.io.scene import mjcf_files
+
+    files = mjcf_files(mjcf)
+    root = Path(os.path.commonpath([str(f.path.parent) for f in files]))
+    for f in files:
+        target = Path(directory) / f.path.relative_to(root)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(f.data)
+    return Path(directory) / files[0].path.relative_to(root)
+
+
 def write_variant(facts: SceneFacts, config: Config, directory) -> Path:
-    """Write the circuit, MJCF (if changed) and scenario of ``config`` into ``directory``; returns the scenario path."""
-    directory = Path(directory).resolve()  # the variant's scenario names its files by absolute path
+    """Write the circuit, MJCF (with its includes and assets, in ``model/``) and scenario of ``config`` into
+    ``directory``; returns the scenario path.
+
+    The folder is self-contained: the scenario names its files relative to itself, so it can be moved or
+    shipped to a Dask worker as content (:func:`sim.tools.sweep.scene_bundle`).
+    """
+    directory = Path(directory).resolve()
     directory.mkdir(parents=True, exist_ok=True)
     base = Path(facts.scenario)
     scenario = tomllib.loads(base.read_text())
@@ -511,13 +538,16 @@ def write_variant(facts: SceneFacts, config: Config, directory) -> Path:
             component["time_constant"] = 0.0
     circuit_path = directory / Path(facts.circuit).name
     circuit_path.write_text(dump_toml(circuit))
-    mjcf_path = Path(facts.mjcf).resolve()
+    mjcf_path = copy_model(facts.mjcf, directory / "model")
     if config.mass_scale != 1.0:
-        mjcf_path = directory / Path(facts.mjcf).name
-        scale_mjcf_masses(Path(facts.mjcf), mjcf_path, config.mass_scale)
-    scenario["scene"] = {"mjcf": str(mjcf_path), "circuit": str(circuit_path)}
+        scaled = mjcf_path.with_name(f"{mjcf_path.stem}-mass{mjcf_path.suffix}")  # next to the copy: same relative paths
+        scale_mjcf_masses(mjcf_path, scaled, config.mass_scale)
+        mjcf_path = scaled
+    scenario["scene"] = {"mjcf": mjcf_path.relative_to(directory).as_posix(), "circuit": circuit_path.name}
     if "inputs_csv" in scenario:
-        scenario["inputs_csv"] = str((base.parent / scenario["inputs_csv"]).resolve())
+        csv_source = (base.parent / scenario["inputs_csv"]).resolve()
+        (directory / csv_source.name).write_bytes(csv_source.read_bytes())
+        scenario["inputs_csv"] = csv_source.name
     inputs = scenario.get("inputs", {})
     at = EVENT_START * D
     if config.event == "valve_slam":
@@ -564,11 +594,28 @@ def run_point(point: dict) -> dict:
     Top-level and picklable for process pools and Dask.  Never raises for a
     diverging run; an exception inside the run is reported as ``error``.
     """
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="hydroplant-stability-") as tmp:
+        return _run_point(point, _log_path(point, Path(tmp)))
+
+
+def _log_path(point: dict, tmp: Path) -> Path:
+    """Where a point's log goes: ``log_dir / log`` (the map's folder on this machine), an absolute ``log`` as it
+    is, otherwise a temporary folder (a Dask worker: the log is read there and not kept)."""
+    log = Path(point["log"])
+    if point.get("log_dir") is not None or log.is_absolute():
+        return Path(point.get("log_dir") or "") / log
+    return tmp / log.name
+
+
+def _run_point(point: dict, log_path: Path) -> dict:
     from sim.io.mcap_log import read_log
     from sim.run.runner import run
+    from sim.tools.sweep import point_file
 
     out = dict(point)
-    log_path = Path(point["log"])
+    scenario = point_file(point)
     log_path.parent.mkdir(parents=True, exist_ok=True)
     overrides = {"mode": point["mode"], "coupling": point["coupling"], "dt": point["dt"], "duration": point["duration"],
                  "log_rate_hz": point["log_rate_hz"], "pbd_blend": point.get("pbd_blend") or None,
@@ -576,11 +623,11 @@ def run_point(point: dict) -> dict:
                  "monitor": False}  # the map classifies every run by its own bounds (classify); the monitor only warns
     start = _time.perf_counter()
     try:
-        result = run(point["scenario"], out=log_path, overrides=overrides, progress=False, overwrite=True)
+        result = run(scenario, out=log_path, overrides=overrides, progress=False, overwrite=True)
         if not result.extremes_every_step:
             # the block-stepping runner only saw the pressures at its log samples (a plant without
             # per-step extremes): the bounds check needs every step, so repeat the run step by step
-            result = run(point["scenario"], out=log_path, overrides=overrides, progress=False, fast=False, overwrite=True)
+            result = run(scenario, out=log_path, overrides=overrides, progress=False, fast=False, overwrite=True)
     except (KeyboardInterrupt, SystemExit):
         raise
     except Exception as exc:  # a crash is a result of the map, not of the tool
@@ -697,16 +744,19 @@ def variant_info(scenario_path, full_flow: float) -> dict:
     }
 
 
-def build_points(facts: SceneFacts, grid: Grid, out_dir) -> tuple[list, list]:
-    """Write every variant and return (points, configs-with-metadata); each point is a JSON dict for :func:`run_point`."""
+def build_points(facts: SceneFacts, grid: Grid, out_dir) -> tuple[list, list, list]:
+    """Write every variant and return (points, configs-with-metadata, bundles); each point is a JSON dict for
+    :func:`run_point` naming its variant's files by a :class:`~sim.tools.sweep.Bundle` (``bundle``, ``scenario``)
+    and its log relative to ``out_dir`` (``log``)."""
     out_dir = Path(out_dir)
     methods = method_labels(grid)
     points, configs = [], []
     D = facts.duration
     rate = SAMPLES_PER_RUN / D
-    from sim.tools.sweep import code_hash, content_hash
+    from sim.tools.sweep import code_hash, scene_bundle
 
-    code = code_hash()  # cached runs are reused only with the same hydraulics/ and sim/ source
+    code = code_hash()
+    bundles = []  # cached runs are reused only with the same hydraulics/ and sim/ source
     for config in grid_configs(facts, grid):
         path = write_variant(facts, config, out_dir / "variants" / config.id)
 
@@ -716,13 +766,13 @@ def build_points(facts: SceneFacts, grid: Grid, out_dir) -> tuple[list, list]:
         ref_duration = min(D, REFERENCE_MAX_STEPS * dt_ref)
         configs.append({"config": config.id, "sweep": config.sweep, "value": config.value, "event": config.event,
                         "scenario": str(path), "omega_h": omega, "reference_dt": dt_ref, "pressure_ceiling": info["pressure_ceiling"]})
-        loaded = load_scenario(path)
+        bundle, rel = scene_bundle(path)
+        bundles.append(bundle)
         common = {"config": config.id, "sweep": config.sweep, "value": config.value, "event": config.event,
-                  "scenario": str(path), "omega_h": omega, "actuators": actuators, "log_rate_hz": rate,
-                  "pressure_ceiling": info["pressure_ceiling"], "node_ceilings": info["node_ceilings"],
-                  "files": content_hash(loaded.path, loaded.circuit, loaded.mjcf), "code": code}
+                  "scenario": rel, "bundle": bundle.digest, "omega_h": omega, "actuators": actuators, "log_rate_hz": rate,
+                  "pressure_ceiling": info["pressure_ceiling"], "node_ceilings": info["node_ceilings"], "code": code}
         ref = dict(common, method=REFERENCE_METHOD, mode="mujoco", coupling="implicit", dt=dt_ref, duration=ref_duration,
-                   reference=True, truncated=ref_duration < D, log=str(out_dir / "logs" / f"{config.id}-reference.mcap"))
+                   reference=True, truncated=ref_duration < D, log=f"logs/{config.id}-reference.mcap")
         points.append(ref)
         for label in methods:
             mode, coupling, blend = METHODS[label]
@@ -738,8 +788,8 @@ def build_points(facts: SceneFacts, grid: Grid, out_dir) -> tuple[list, list]:
                 points.append(dict(common, method=label, mode=mode, coupling=coupling, pbd_blend=blend, dt=float(dt),
                                    duration=float(duration),
                                    reference=False, truncated=duration < D * (1 - 1e-9), same_as_reference=same,
-                                   log=str(out_dir / "logs" / f"{config.id}-{label}-{dt:.3g}.mcap")))
-    return points, configs
+                                   log=f"logs/{config.id}-{label}-{dt:.3g}.mcap"))
+    return points, configs, bundles
 
 
 # --------------------------------------------------------------------------- classification
@@ -947,6 +997,10 @@ class StabilityMap:
                     f"(omega_h*dt {fmt(v['max_stable_omega_dt']):>7s})  accurate dt <= {fmt(v['max_accurate_dt']):>8s} s  "
                     f"diverged from {fmt(v['first_diverged_dt']):>8s} s {v['failure']}"
                 )
+        errors = [r for r in self.rows if r.get("status") == "error"]
+        if errors:
+            lines += ["", f"runs that could not be made ({len(errors)}; counted as diverged above):"]
+            lines += [f"  {r['method']} {r['config']} dt {r['dt']:.3g} s: {run_error(r)}" for r in errors]
         return "\n".join(lines)
 
 
@@ -954,6 +1008,7 @@ CSV_COLUMNS = (
     "method", "mode", "coupling", "config", "sweep", "value", "event", "dt", "omega_h", "omega_h_dt", "duration", "truncated",
     "class", "status", "fail_time", "fail_component", "error_position", "error_pressure", "pressure_low", "pressure_high",
     "peak_pressure_max", "min_pressure_min", "extremes_every_step", "steps", "simulated_time", "wall_time", "energy_relative_residual", "message", "reference",
+    "error",
 )
 
 
@@ -968,7 +1023,13 @@ def write_csv(stability_map: StabilityMap, path) -> None:
             row["peak_pressure_max"] = max((r.get("peak_pressure") or {}).values(), default="")
             row["min_pressure_min"] = min((r.get("min_pressure") or {}).values(), default="")
             row["message"] = (r.get("message") or "").replace("\n", " ")
+            row["error"] = run_error(r)
             writer.writerow(row)
+
+
+def run_error(row: dict) -> str:
+    """The one-line error of a run that could not be made (exception type and message), or ``""``."""
+    return " ".join(str(row.get("message") or "error (no message)").split()) if row.get("status") == "error" else ""
 
 
 CLASS_COLOURS = {CLASS_ACCURATE: "#4caf50", CLASS_INACCURATE: "#ffc107", CLASS_DIVERGED: "#e53935"}
@@ -1042,16 +1103,50 @@ def _progress_printer(total):
     return report
 
 
+def warm_up_points(points: list[dict]) -> None:
+    """A few untimed steps of every method among ``points`` on the first variant, in this process (on each Dask
+    worker before the map: imports and kernel compilation charged to no run). Failures are left to the points."""
+    import tempfile
+
+    from sim.run.runner import run
+    from sim.tools.sweep import point_file
+
+    done = set()
+    with tempfile.TemporaryDirectory(prefix="hydroplant-warm-up-") as tmp:
+        for point in points:
+            key = (point["mode"], point["coupling"], bool(point.get("pbd_blend")))
+            if key in done:
+                continue
+            done.add(key)
+            overrides = {"mode": point["mode"], "coupling": point["coupling"], "dt": point["dt"],
+                         "duration": min(point["duration"], 5 * point["dt"]), "pbd_blend": point.get("pbd_blend") or None,
+                         "pbd_substeps": point.get("pbd_substeps"), "monitor": False}
+            try:
+                run(point_file(point), out=Path(tmp) / "warm-up.mcap", overrides=overrides, progress=False, overwrite=True)
+            except Exception:  # noqa: BLE001 -- the point itself reports it
+                continue
+
+
 def stability_map(scenario, *, grid: Grid = DEFAULT_GRID, out_dir=None, scheduler=None, workers=None,
-                  keep_logs: bool = False, progress: bool = False, write: bool = True) -> StabilityMap:
-    """Build, run and classify a stability map of ``scenario``; write CSV, figures and summary into ``out_dir``."""
+                  keep_logs: bool = False, progress: bool = False, write: bool = True,
+                  worker_timeout: float | None = None) -> StabilityMap:
+    """Build, run and classify a stability map of ``scenario``; write CSV, figures and summary into ``out_dir``.
+
+    With a Dask ``scheduler`` every variant's files travel to the workers as content, each worker first runs
+    :func:`warm_up_points`, and ``worker_timeout`` [s] bounds the wait for a first worker; the runs' logs stay
+    on the workers (``keep_logs`` needs the local pool).
+    """
+    from sim.tools.sweep import WORKER_TIMEOUT
+
+    if keep_logs and scheduler is not None:
+        raise StabilityError("--keep-logs: the logs of runs on Dask workers are not kept; run without --scheduler to keep them")
     scenario_path = Path(scenario)
     facts = scene_facts(scenario_path, grid)
     if out_dir is None:
         out_dir = Path("logs") / f"stability-{facts.scene}-{scenario_path.name.removesuffix('.toml').removesuffix('.scenario')}"
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
-    points, configs = build_points(facts, grid, out_dir)
+    points, configs, bundles = build_points(facts, grid, out_dir)
     for p in points:
         p["keep_log"] = keep_logs
     if progress:
@@ -1062,11 +1157,15 @@ def stability_map(scenario, *, grid: Grid = DEFAULT_GRID, out_dir=None, schedule
     from sim.tools.sweep import run_sweep
 
     report = _progress_printer(len(todo)) if progress else None
-    results = run_sweep(run_point, todo, scheduler=scheduler, workers=workers, cache_dir=out_dir / "cache", progress=report)
+    results = run_sweep(run_point, todo, scheduler=scheduler, workers=workers, cache_dir=out_dir / "cache", progress=report,
+                        bundles=bundles, context={"log_dir": str(out_dir)} if scheduler is None else None,
+                        worker_timeout=worker_timeout or WORKER_TIMEOUT, warm_up=warm_up_points)
     refs = {r["config"]: r for r in results if r["reference"]}
     # a grid point identical to its reference (implicit at dt_ref) is not run twice
     results += [dict(refs[p["config"]], **{k: p[k] for k in ("method", "reference", "truncated", "log")}) for p in points if p.get("same_as_reference")]
     rows = [classify(r, refs.get(r["config"]), facts, grid.tolerance) for r in results]
+    for row in rows:
+        row["error"] = run_error(row)  # the text of a run that could not be made, "" otherwise
     result = StabilityMap(facts, grid, rows, configs, out_dir)
     if write:
         write_csv(result, out_dir / "stability.csv")
@@ -1119,6 +1218,8 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="small grid and short runs (for tests)")
     p.add_argument("--scheduler", help="Dask scheduler address (default: a local process pool)")
     p.add_argument("--workers", type=int_in(1, 1024), help="worker processes (default: all cores)")
+    p.add_argument("--worker-timeout", type=positive_float, help="seconds to wait for a first Dask worker to join --scheduler "
+                   "(default 60)")
     p.add_argument("--dt", type=_float_list, help="comma-separated steps [s], fractions allowed (e.g. 1e-4,1e-3,1/30)")
     p.add_argument("--methods", type=_name_list(tuple(METHODS)), help=f"comma-separated subset of {', '.join(METHODS)}")
     p.add_argument("--sweeps", type=_name_list(SWEEPS), help=f"comma-separated subset of {', '.join(SWEEPS)}")
@@ -1151,8 +1252,17 @@ def main(args) -> int:
     grid = replace(grid, **changes)
     if not args.scenario.is_file():
         raise ScenarioError(f"{args.scenario}: scenario file not found")
+    if args.scheduler is not None:
+        from sim.tools.sweep import WORKER_TIMEOUT, check_scheduler, check_workers
+
+        if not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
+            raise StabilityError(f"--scheduler: {args.scheduler!r} is not a scheduler address like tcp://host:8786")
+        if args.keep_logs:
+            raise StabilityError("--keep-logs: the logs of runs on Dask workers are not kept; run without --scheduler to keep them")
+        check_scheduler(args.scheduler)  # one line now, not after the variants are built
+        check_workers(args.scheduler, args.worker_timeout or WORKER_TIMEOUT)
     result = stability_map(args.scenario, grid=grid, out_dir=args.out, scheduler=args.scheduler, workers=args.workers,
-                           keep_logs=args.keep_logs, progress=True)
+                           keep_logs=args.keep_logs, progress=True, worker_timeout=args.worker_timeout)
     print(result.summary())
     print(f"\ncsv      {result.out_dir / 'stability.csv'}")
     for method, path in result.files.items():
@@ -1163,6 +1273,6 @@ def main(args) -> int:
 
 __all__ = [
     "CLASSES", "CLASS_ACCURATE", "CLASS_DIVERGED", "CLASS_INACCURATE", "Config", "DEFAULT_GRID", "Grid", "METHODS",
-    "QUICK_GRID", "SceneFacts", "StabilityError", "StabilityMap", "add_parser", "build_points", "classify", "dump_toml",
-    "main", "run_point", "scene_facts", "stability_map", "write_variant",
+    "QUICK_GRID", "SceneFacts", "StabilityError", "StabilityMap", "add_parser", "build_points", "classify", "copy_model",
+    "dump_toml", "main", "run_error", "run_point", "scene_facts", "stability_map", "warm_up_points", "write_variant",
 ]

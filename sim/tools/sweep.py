@@ -36,26 +36,45 @@
   it, e.g. :func:`sim.tools.tradeoff.run_point`) is returned but not cached, so that a rerun
   tries it again; a point whose function raises stops the sweep (:class:`SweepError`).
 * With a Dask scheduler the cache is written by the calling process, so ``cache_dir`` need
-  not be visible to remote workers; whatever files ``func`` reads must be.
+  not be visible to remote workers.
+* Scene files travel as content: :func:`scene_bundle` reads every input file of a scenario (the
+  scenario, circuit, MJCF with its includes and assets, inputs CSV) into a :class:`Bundle` (relative
+  paths and bytes, named by a content digest).  A point names its bundle (``"bundle": digest``) and
+  its files relative to the bundle (``"scenario": "boom/lift.scenario.toml"``), so its cache key holds
+  no path of this machine.  When the point runs, ``func`` sees ``point["bundle_root"]`` (the folder
+  holding the bundle; :func:`point_file` joins the two): on the local pool the folder the files were
+  read from; on a Dask worker a private folder in the worker's local directory (``dask worker
+  --local-directory``) into which the bundle was written once (:func:`materialise`), reused by every
+  later point of that bundle.  Bundles are sent to the workers once (``client.scatter``).  Text
+  fields of a result lose the bundle folder's prefix (an error names ``boom/lift.scenario.toml``, on
+  every engine alike), and fields the function copied back unchanged from the added ones are dropped,
+  so that a result does not depend on where it was computed.
+* On a cluster, :func:`run_sweep` waits at most ``worker_timeout`` seconds for a worker
+  (:class:`SchedulerError` otherwise), prints the dashboard link, and runs ``warm_up(points)`` once
+  on every worker before the points (e.g. to compile the kernels, so that no point's timing includes
+  compilation).
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
 import os
 import sys
 import tempfile
+import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from pathlib import Path
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
 
 from hydraulics.components import CircuitError
 from hydraulics.files import read_bytes, read_text
 
-__all__ = ["SchedulerError", "SweepError", "check_scheduler", "code_hash", "content_hash", "entry_digest", "finite_or_none", "func_code_hash",
-           "point_key", "run_sweep"]
+__all__ = ["Bundle", "SchedulerError", "SweepError", "check_scheduler", "check_workers", "code_hash", "content_hash", "entry_digest",
+           "finite_or_none", "func_code_hash", "materialise", "point_file", "point_key", "run_sweep", "scene_bundle"]
 
 CACHE_VERSION = 2  # bump when the cache file layout changes
 FAILED_STATUS = "error"  # a result with this "status" is not cached
@@ -70,6 +89,8 @@ class SchedulerError(CircuitError):
 
 
 SCHEDULER_TIMEOUT = 10.0  # s to connect to a Dask scheduler
+WORKER_TIMEOUT = 60.0  # s to wait for the first Dask worker to join the scheduler
+BUNDLE_ROOT = "bundle_root"  # point field set when the point runs: the folder holding its bundle's files
 
 
 def content_hash(*items) -> str:
@@ -189,8 +210,170 @@ def _write_cached(path: Path, point: dict, result: dict, key: str, made_by: dict
         raise
 
 
+@dataclass(frozen=True)
+class Bundle:
+    """The input files of a scene as content, to run it where its files are not (a Dask worker).
+
+    ``files``: ``((relative POSIX path, bytes), ...)`` sorted by path; ``digest``: :func:`bundle_digest`
+    of them; ``source``: the folder on this machine they were read from (local runs read the files
+    there; a worker writes them into a folder of its own, :func:`materialise`).
+    """
+
+    files: tuple
+    digest: str
+    source: str
+
+
+def bundle_digest(files) -> str:
+    """SHA-256 (hex) of a bundle's ``(relative path, bytes)`` pairs, in order: its name and cache identity."""
+    return content_hash(*(item for rel, data in files for item in (rel.encode(), data)))
+
+
+def _safe_relative(rel: str) -> PurePosixPath:
+    path = PurePosixPath(rel)
+    if path.is_absolute() or ".." in path.parts or not path.parts:
+        raise ValueError(f"bundle path {rel!r} must be relative and stay inside the bundle")
+    return path
+
+
+def _write_bundle(files, root: Path) -> None:
+    for rel, data in files:
+        target = root.joinpath(*_safe_relative(rel).parts)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_bytes(data)
+
+
+def scene_bundle(scenario) -> tuple[Bundle, str]:
+    """Every input file of ``scenario`` (:func:`sim.io.scene.input_paths`) as a :class:`Bundle`.
+
+    The files keep their layout below the parent of their common folder (so the scene folder keeps its
+    name, :attr:`~sim.io.scenario.Scenario.scene_name`).  Returns the bundle and the scenario's path in
+    it.  Raises :class:`~sim.io.scenario.ScenarioError` when the files do not work from another folder
+    (a scene file naming another by an absolute path): the bundle is written into a temporary folder and
+    loaded from there to check that every input resolves inside it.
+
+    Example::
+
+        bundle, rel = scene_bundle(load_scenario("models/boom/lift.scenario.toml"))
+        rel  # "boom/lift.scenario.toml"
+    """
+    from sim.io.scenario import ScenarioError, as_scenario
+    from sim.io.scene import input_paths
+
+    scenario = as_scenario(scenario)
+    paths = list(dict.fromkeys(Path(p) for p in input_paths(scenario)))
+    common = Path(os.path.commonpath([str(p.parent) for p in paths]))
+    root = common.parent
+    files = tuple(sorted((p.relative_to(root).as_posix(), read_bytes(p, "scene input")) for p in paths))
+    rel = Path(scenario.path).relative_to(root).as_posix()
+    with tempfile.TemporaryDirectory(prefix="hydroplant-bundle-check-") as tmp:
+        copy = Path(tmp).resolve()
+        _write_bundle(files, copy)
+        try:
+            moved = input_paths(as_scenario(copy / rel))
+        except ScenarioError as exc:
+            raise ScenarioError(f"{scenario.path}: the scene does not work when its files are copied to another folder "
+                                f"(a cluster run ships them as content): {exc}") from None
+        outside = [p for p in moved if not Path(p).resolve().is_relative_to(copy)]
+        if outside:
+            raise ScenarioError(f"{scenario.path}: the scene names {outside[0]} by an absolute path; a cluster run ships "
+                                "the scene as content and needs every file named relative to the file that names it")
+    return Bundle(files, bundle_digest(files), str(root)), rel
+
+
+_MATERIALISED: dict = {}  # bundle digest -> TemporaryDirectory holding its files (one per worker process)
+_MATERIALISE_LOCK = threading.Lock()
+
+
+def materialise(bundle: Bundle, base=None) -> Path:
+    """The folder holding ``bundle``'s files in this process: written once per digest into a new private
+    temporary folder below ``base`` (default: the system's temporary folder), reused afterwards.
+
+    The files' digest is checked before use; the folder is removed when the process exits.
+    """
+    with _MATERIALISE_LOCK:
+        held = _MATERIALISED.get(bundle.digest)
+        if held is not None and Path(held.name).is_dir():
+            return Path(held.name)
+        if bundle_digest(bundle.files) != bundle.digest:
+            raise ValueError(f"bundle {bundle.digest[:12]}: its files do not match its digest")
+        if base is not None:
+            Path(base).mkdir(parents=True, exist_ok=True)
+        folder = tempfile.TemporaryDirectory(prefix=f"hydroplant-scene-{bundle.digest[:12]}-", dir=base,
+                                             ignore_cleanup_errors=True)  # (the worker may remove its directory first)
+        _write_bundle(bundle.files, Path(folder.name))
+        _MATERIALISED[bundle.digest] = folder
+        return Path(folder.name)
+
+
+def point_file(point: dict, name: str = "scenario") -> str:
+    """The path of a point's file ``point[name]``: below ``point["bundle_root"]`` when the point names a bundle."""
+    root = point.get(BUNDLE_ROOT)
+    return str(Path(root) / point[name]) if root is not None else point[name]
+
+
+def _located(point: dict, root, context: dict | None) -> dict:
+    extra = dict(context or {})
+    if root is not None:
+        extra[BUNDLE_ROOT] = str(root)
+    return {**point, **extra}
+
+
+def _run_located(func, point: dict, root, context: dict | None):
+    """``func`` at ``point`` with ``context`` and the bundle root added; fields it copies back unchanged are dropped,
+    and the bundle root is cut from its text fields, so a result does not depend on where it was computed."""
+    located = _located(point, root, context)
+    result = func(located)
+    if isinstance(result, dict):
+        added = {k: v for k, v in located.items() if k not in point}
+        result = {k: v for k, v in result.items() if not (k in added and v == added[k])}
+        if root is not None and Path(root).parent != Path(root):  # (not when the bundle is the whole file system)
+            prefix = str(root).rstrip(os.sep) + os.sep
+            result = {k: v.replace(prefix, "") if isinstance(v, str) else v for k, v in result.items()}
+    return result
+
+
+def _run_local_point(func, point: dict, source, context: dict | None):
+    """A point in this machine's process pool: the bundle's files are read where they are (``source``)."""
+    return _run_located(func, point, source, context)
+
+
+def _worker_directory():
+    """The local directory of the Dask worker running this task (``dask worker --local-directory``), if any."""
+    try:
+        from dask.distributed import get_worker
+
+        return get_worker().local_directory
+    except (ImportError, ValueError):
+        return None
+
+
+def _run_remote_point(func, point: dict, bundle: Bundle | None, context: dict | None):
+    """A point on a Dask worker: the bundle's files written once into the worker's local directory."""
+    root = materialise(bundle, _worker_directory()) if bundle is not None else None
+    return _run_located(func, point, root, context)
+
+
+def _remote_warm_up(warm_up, points: list, bundles: dict, context: dict | None) -> str:
+    """``warm_up`` on one worker with the points located there; returns the worker's address."""
+    located = []
+    for point in points:
+        bundle = bundles.get(point.get("bundle"))
+        root = materialise(bundle, _worker_directory()) if bundle is not None else None
+        located.append(_located(point, root, context))
+    warm_up(located)
+    try:
+        from dask.distributed import get_worker
+
+        return get_worker().address
+    except (ImportError, ValueError):
+        return ""
+
+
 def run_sweep(func: Callable[[dict], dict], points: Sequence[dict], *, scheduler=None, workers: int | None = None,
-              cache_dir=None, progress: Callable[[int, int], None] | None = None, fresh: bool = False) -> list[dict]:
+              cache_dir=None, progress: Callable[[int, int], None] | None = None, fresh: bool = False,
+              bundles: Sequence[Bundle] = (), context: dict | None = None, worker_timeout: float = WORKER_TIMEOUT,
+              warm_up: Callable[[list], None] | None = None) -> list[dict]:
     """Evaluate ``func`` at every point, in parallel, with a per-point result cache.
 
     Parameters
@@ -213,6 +396,15 @@ def run_sweep(func: Callable[[dict], dict], points: Sequence[dict], *, scheduler
         ``progress(done, total)`` after every finished point (cached ones included).
     fresh : bool
         Read nothing from the cache: every point is computed (and its result cached).
+    bundles : sequence of Bundle
+        The scene files the points name by ``"bundle": digest`` (:func:`scene_bundle`).
+    context : dict, optional
+        Fields added to every point when it runs but not part of its key (e.g. an output folder of
+        this machine); fields a result copies back unchanged are dropped from it.
+    worker_timeout : float
+        Seconds to wait for a first Dask worker (:class:`SchedulerError` after that).
+    warm_up : callable, optional
+        ``warm_up(points)``, run once on every Dask worker before the points (the points located there).
 
     Returns
     -------
@@ -223,12 +415,17 @@ def run_sweep(func: Callable[[dict], dict], points: Sequence[dict], *, scheduler
     ------
     SweepError
         When ``func`` raises at a point; points finished before are cached.
+    SchedulerError
+        When the scheduler cannot be reached or no worker joins within ``worker_timeout``.
     """
     points = list(points)
+    by_digest = {b.digest: b for b in bundles}
     for i, point in enumerate(points):
         if not isinstance(point, dict):
             raise TypeError(f"point {i} must be a dict, got {type(point).__name__}")
         _canonical(point)
+        if point.get("bundle") is not None and point["bundle"] not in by_digest:
+            raise ValueError(f"point {i} names bundle {point['bundle']!r}, which is not among `bundles`")
     if workers is not None and (not isinstance(workers, int) or workers < 1):
         raise ValueError(f"`workers` must be a positive integer, got {workers!r}")
     keys = [point_key(p, func) for p in points]
@@ -262,17 +459,23 @@ def run_sweep(func: Callable[[dict], dict], points: Sequence[dict], *, scheduler
 
     if todo:
         if scheduler is not None:
-            _run_dask(func, todo, scheduler, finished)
+            _run_dask(func, todo, scheduler, finished, bundles=by_digest, context=context, worker_timeout=worker_timeout,
+                      warm_up=warm_up)
         elif (workers or os.cpu_count() or 1) == 1:
             for key, point in todo.items():
                 try:
-                    result = func(point)
+                    result = _run_local_point(func, point, _source(point, by_digest), context)
                 except Exception as exc:
                     raise SweepError(f"sweep point {point!r} failed: {type(exc).__name__}: {exc}") from exc
                 finished(key, result)
         else:
-            _run_pool(func, todo, min(workers or os.cpu_count() or 1, len(todo)), finished)
+            _run_pool(func, todo, min(workers or os.cpu_count() or 1, len(todo)), finished, by_digest, context)
     return [results[key] for key in keys]
+
+
+def _source(point: dict, bundles: dict):
+    bundle = bundles.get(point.get("bundle"))
+    return bundle.source if bundle is not None else None
 
 
 def _collect(completed, key_of: dict, todo: dict, finished) -> None:
@@ -291,9 +494,10 @@ def _collect(completed, key_of: dict, todo: dict, finished) -> None:
         finished(key, result)
 
 
-def _run_pool(func, todo: dict, workers: int, finished) -> None:
+def _run_pool(func, todo: dict, workers: int, finished, bundles: dict, context: dict | None) -> None:
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = {pool.submit(func, point): key for key, point in todo.items()}
+        futures = {pool.submit(_run_local_point, func, point, _source(point, bundles), context): key
+                   for key, point in todo.items()}
         try:
             _collect(as_completed(futures), futures, todo, finished)
         except BaseException:
@@ -302,24 +506,34 @@ def _run_pool(func, todo: dict, workers: int, finished) -> None:
             raise
 
 
-def _run_dask(func, todo: dict, scheduler, finished) -> None:
-    from dask.distributed import Client
+def _run_dask(func, todo: dict, scheduler, finished, *, bundles: dict, context: dict | None, worker_timeout: float,
+              warm_up=None) -> None:
+    from dask.distributed import Client, wait
     from dask.distributed import as_completed as dask_completed
 
     own = not isinstance(scheduler, Client)
-    if own:
-        try:
-            client = Client(scheduler, timeout=SCHEDULER_TIMEOUT)
-        except (OSError, TimeoutError, ValueError) as exc:
-            reason = " ".join(str(exc).split()) or type(exc).__name__
-            raise SchedulerError(f"--scheduler {scheduler}: no Dask scheduler reachable within {SCHEDULER_TIMEOUT:g} s "
-                                 f"({reason:.200})") from None
-    else:
-        client = scheduler
+    client = _connect(scheduler) if own else scheduler
     try:
+        _await_workers(client, client.scheduler_info().get("address") or str(scheduler), worker_timeout)
+        if own and client.dashboard_link:
+            print(f"Dask dashboard: {client.dashboard_link}", file=sys.stderr, flush=True)
         keys = list(todo)
+        needed = {todo[k].get("bundle") for k in keys} - {None}
+        # each bundle travels once to every worker (later workers fetch it from a peer)
+        remote = {d: client.scatter(bundles[d], broadcast=True, hash=False) for d in sorted(needed)}
+        if warm_up is not None:
+            workers = list(client.scheduler_info()["workers"])
+            warm = [client.submit(_remote_warm_up, warm_up, [todo[k] for k in keys], remote, context, workers=[w],
+                                  allow_other_workers=False, pure=False) for w in workers]
+            wait(warm)
+            for future in warm:
+                if future.status == "error":
+                    exc = future.exception()
+                    raise SweepError(f"warm-up on a Dask worker failed: {type(exc).__name__}: {exc}")
         # pure=False with explicit keys: every point runs once, named by its cache key.
-        futures = client.map(func, [todo[k] for k in keys], key=[f"hydroplant-sweep-{k}" for k in keys], pure=False)
+        futures = client.map(functools.partial(_run_remote_point, func, context=context), [todo[k] for k in keys],
+                             [remote.get(todo[k].get("bundle")) for k in keys],
+                             key=[f"hydroplant-sweep-{k}" for k in keys], pure=False)
         by_future = dict(zip(futures, keys))
         try:
             _collect(dask_completed(futures), by_future, todo, finished)
@@ -354,6 +568,39 @@ def check_scheduler(address: str, timeout: float = SCHEDULER_TIMEOUT) -> None:
     except OSError as exc:
         reason = exc.strerror or type(exc).__name__
         raise SchedulerError(f"--scheduler {address}: no Dask scheduler reachable ({reason})") from None
+
+
+def check_workers(address: str, timeout: float = WORKER_TIMEOUT) -> None:
+    """Raise :class:`SchedulerError` unless the Dask scheduler at ``address`` has a worker within ``timeout`` seconds.
+
+    Checked before a long computation on this machine (a reference run) so that a cluster without workers is
+    one line at once: ``no Dask workers joined tcp://host:8786 within 60 s (start them with: dask worker tcp://host:8786)``.
+    """
+    client = _connect(address)
+    try:
+        _await_workers(client, address, timeout)
+    finally:
+        client.close()
+
+
+def _connect(address: str):
+    """A :class:`dask.distributed.Client` of the scheduler at ``address``, or :class:`SchedulerError`."""
+    from dask.distributed import Client
+
+    try:
+        return Client(address, timeout=SCHEDULER_TIMEOUT)
+    except (OSError, TimeoutError, ValueError) as exc:
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise SchedulerError(f"--scheduler {address}: no Dask scheduler reachable within {SCHEDULER_TIMEOUT:g} s "
+                             f"({reason:.200})") from None
+
+
+def _await_workers(client, address: str, timeout: float) -> None:
+    try:
+        client.wait_for_workers(1, timeout=timeout)
+    except TimeoutError:
+        raise SchedulerError(f"no Dask workers joined {address} within {timeout:g} s "
+                             f"(start them with: dask worker {address})") from None
 
 
 def finite_or_none(value: float):

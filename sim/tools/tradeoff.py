@@ -2,7 +2,7 @@
 
 ::
 
-    hydroplant tradeoff SCENARIO [--scheduler tcp://host:port] [--out DIR] [--quick] [--duration S]
+    hydroplant tradeoff SCENARIO [--scheduler tcp://host:port [--worker-timeout S]] [--out DIR] [--quick] [--duration S]
 
 Sweeps the step ``dt``, the hydraulic substeps (MuJoCo mode), the XPBD substeps and
 iterations (PBD modes, when the PBD plant is importable), both couplings and the fidelity
@@ -15,6 +15,11 @@ process pool, or a Dask cluster with ``--scheduler``), and measures per setting
 * the errors against the converged reference (:mod:`sim.tools.reference`): the largest and RMS
   error of joint positions, strokes and pressures (:mod:`sim.tools.compare`), plus the energy
   drift and whether the run diverged.
+
+A setting that cannot run is a result with status ``error``; its error text (exception type and message,
+one line) is in the rows and the ``error`` column of ``tradeoff.csv``, and it is not cached.  With
+``--scheduler`` the scene's files travel to the workers as content (:func:`sim.tools.sweep.scene_bundle`),
+every worker first runs :func:`warm_up_points`, and ``--worker-timeout`` bounds the wait for a worker.
 
 Writes ``tradeoff.csv`` (one row per setting), ``pareto.png`` (error against cost,
 log-log, Pareto fronts drawn) and ``tradeoff.md`` naming the Pareto-optimal settings, e.g.
@@ -41,7 +46,7 @@ import numpy as np
 
 from hydraulics.components import CircuitError
 
-from sim.tools.sweep import content_hash, run_sweep
+from sim.tools.sweep import WORKER_TIMEOUT, point_file, run_sweep, scene_bundle
 
 __all__ = [
     "ERROR_COLUMNS",
@@ -53,10 +58,12 @@ __all__ = [
     "pareto_statements",
     "reference_floors",
     "run_point",
+    "sweep_plan",
     "sweep_points",
     "stability_statements",
     "sweep_settings",
     "tradeoff",
+    "warm_up_points",
 ]
 
 DEFAULT_REPEATS = 3
@@ -203,15 +210,32 @@ def setting_label(p: dict, default_fidelity: str | None = None) -> str:
     return text
 
 
-def sweep_points(scenario, settings: list[dict], *, repeats: int) -> list[dict]:
-    """Sweep points: the settings plus what their results depend on (file and code hashes, duration, repeats)."""
-    from sim.io.scene import input_paths
+def sweep_plan(scenario, settings: list[dict], *, repeats: int):
+    """Sweep points and the :class:`~sim.tools.sweep.Bundle` of the scene's files they name.
 
-    files = content_hash(*input_paths(scenario))  # MJCF with its includes and assets, circuit, scenario, inputs CSV
+    A point is a setting plus what its result depends on: the bundle's digest (the contents and layout of
+    the MJCF with its includes and assets, the circuit, the scenario and its inputs CSV), the scenario's
+    path inside the bundle, the code hash, duration and repeats -- no path of this machine.
+    """
+    bundle, rel = scene_bundle(scenario)
     code = code_hash()
-    return [{**setting, "fidelity": setting.get("fidelity", scenario.fidelity), "scenario_fidelity": scenario.fidelity,
-             "scenario": str(scenario.path), "files": files, "code": code, "duration": scenario.duration,
-             "repeats": repeats, "repeat_below_s": REPEAT_BELOW_S} for setting in settings]
+    points = [{**setting, "fidelity": setting.get("fidelity", scenario.fidelity), "scenario_fidelity": scenario.fidelity,
+               "scenario": rel, "bundle": bundle.digest, "code": code, "duration": scenario.duration,
+               "repeats": repeats, "repeat_below_s": REPEAT_BELOW_S} for setting in settings]
+    return points, bundle
+
+
+def sweep_points(scenario, settings: list[dict], *, repeats: int) -> list[dict]:
+    """The points of :func:`sweep_plan`."""
+    return sweep_plan(scenario, settings, repeats=repeats)[0]
+
+
+def _overrides(point: dict) -> dict:
+    overrides = {k: point[k] for k in ("mode", "coupling", "dt", "hydraulic_substeps", "pbd_substeps", "pbd_iterations",
+                                       "duration")}
+    if point.get("fidelity") is not None and point["fidelity"] != point.get("scenario_fidelity"):
+        overrides.update(fidelity=point["fidelity"], actuator_fidelity={})  # another level: the whole network at it
+    return overrides
 
 
 def run_point(point: dict) -> dict:
@@ -229,16 +253,14 @@ def run_point(point: dict) -> dict:
     from sim.io.mcap_log import read_log
     from sim.run.runner import run
 
-    overrides = {k: point[k] for k in ("mode", "coupling", "dt", "hydraulic_substeps", "pbd_substeps", "pbd_iterations",
-                                       "duration")}
-    if point.get("fidelity") is not None and point["fidelity"] != point.get("scenario_fidelity"):
-        overrides.update(fidelity=point["fidelity"], actuator_fidelity={})  # another level: the whole network at it
+    overrides = _overrides(point)
+    scenario = point_file(point)
     costs = []
     with tempfile.TemporaryDirectory(prefix="hydroplant-tradeoff-") as tmp:
         try:
             _warm_up(point, overrides, Path(tmp))
             for r in range(point["repeats"]):
-                result = run(point["scenario"], out=Path(tmp) / f"run{r}.mcap", overrides=overrides)
+                result = run(scenario, out=Path(tmp) / f"run{r}.mcap", overrides=overrides)
                 costs.append(result.wall_time / result.simulated_time if result.simulated_time > 0 else math.inf)
                 if result.wall_time > point["repeat_below_s"]:
                     break  # long runs are timed once
@@ -261,12 +283,24 @@ def _warm_up(point: dict, overrides: dict, tmp: Path) -> None:
     (imports, compilation, caches) are not charged to the first timed setting."""
     from sim.run.runner import run
 
-    key = (point["scenario"], point["mode"], point["coupling"], point.get("fidelity"))
+    key = (point_file(point), point["mode"], point["coupling"], point.get("fidelity"))
     if key in _WARM:
         return
     short = {**overrides, "duration": min(point["duration"], WARM_UP_STEPS * point["dt"])}
-    run(point["scenario"], out=tmp / "warm-up.mcap", overrides=short)
+    run(point_file(point), out=tmp / "warm-up.mcap", overrides=short)
     _WARM.add(key)
+
+
+def warm_up_points(points: list[dict]) -> None:
+    """The untimed warm-up run of every scenario, mode, coupling and fidelity among ``points``, in this process
+    (on each Dask worker before the timed points: imports and kernel compilation charged to no setting).
+    A setting that fails here fails again, and is reported, as a point."""
+    with tempfile.TemporaryDirectory(prefix="hydroplant-warm-up-") as tmp:
+        for point in points:
+            try:
+                _warm_up(point, _overrides(point), Path(tmp))
+            except Exception:  # noqa: BLE001 -- the point itself reports it
+                continue
 
 
 def error_rows(points: list[dict], results: list[dict], ref_signals: dict, filter_window: float | None = None) -> list[dict]:
@@ -283,6 +317,7 @@ def error_rows(points: list[dict], results: list[dict], ref_signals: dict, filte
                "fidelity": p.get("fidelity", p.get("scenario_fidelity")), "dt_s": p["dt"],
                "hydraulic_substeps": p["hydraulic_substeps"], "pbd_substeps": p["pbd_substeps"],
                "pbd_iterations": p["pbd_iterations"], "status": r["status"], "diverged_at_s": r["diverged_at_s"],
+               "error": error_text(r),
                "wall_per_sim_s": r["wall_per_sim_s"], "wall_per_sim_s_runs": " ".join(f"{c:.4g}" for c in r["wall_per_sim_s_runs"])}
         worst = {kind: (math.nan, math.nan) for kind in KIND_SCALE}
         for name, ref in ref_signals.items():
@@ -301,6 +336,13 @@ def error_rows(points: list[dict], results: list[dict], ref_signals: dict, filte
         row["energy_drift_rel"] = float(r["energy"].get("relative", math.nan)) if r["energy"] else math.nan
         rows.append(row)
     return rows
+
+
+def error_text(result: dict) -> str:
+    """The one-line error of a point that could not run (exception type and message), or ``""``."""
+    if result.get("status") != "error":
+        return ""
+    return " ".join(str(result.get("message") or "error (no message)").split())
 
 
 def error_table(rows: list[dict]) -> list[tuple]:
@@ -396,13 +438,14 @@ def reference_floors(report) -> dict:
 
 
 def write_csv(rows: list[dict], path) -> Path:
-    columns = SETTING_COLUMNS + ERROR_COLUMNS + COST_COLUMNS + ("pareto_stroke", "pareto_pressure")
+    columns = SETTING_COLUMNS + ERROR_COLUMNS + COST_COLUMNS + ("pareto_stroke", "pareto_pressure", "error")
     fronts = {kind: set(pareto_front(rows, kind)) for kind in ("stroke", "pressure")}
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(columns)
         for i, row in enumerate(rows):
-            values = [row[c] for c in columns[:-2]] + [i in fronts["stroke"], i in fronts["pressure"]]
+            values = ([row[c] for c in columns[:-3]] + [i in fronts["stroke"], i in fronts["pressure"]]
+                      + [row.get("error", "")])
             w.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in values])
     return Path(path)
 
@@ -484,23 +527,27 @@ class TradeoffResult:
 
 
 def evaluate(scenario, settings: list[dict], reference_log, *, repeats: int = DEFAULT_REPEATS, scheduler=None,
-             workers=None, cache_dir=None, progress=None, filter_window: float | None = None, fresh: bool = False) -> list[dict]:
+             workers=None, cache_dir=None, progress=None, filter_window: float | None = None, fresh: bool = False,
+             worker_timeout: float = WORKER_TIMEOUT) -> list[dict]:
     """Run the settings through :func:`sim.tools.sweep.run_sweep` and return the error rows against ``reference_log``
-    (``filter_window``: see :func:`error_rows`; ``fresh``: every point computed again, none read from the cache)."""
+    (``filter_window``: see :func:`error_rows`; ``fresh``: every point computed again, none read from the cache).
+
+    With a ``scheduler`` the scene's files travel to the workers as content (:func:`sweep_plan`), each worker
+    first runs :func:`warm_up_points`, and ``worker_timeout`` [s] bounds the wait for a first worker."""
     from sim.tools.compare import log_signals
     from sim.io.mcap_log import read_log
 
-    points = sweep_points(scenario, settings, repeats=repeats)
+    points, bundle = sweep_plan(scenario, settings, repeats=repeats)
     # The reference is not in the points: the workers return signals, the errors are computed here.
     results = run_sweep(run_point, points, scheduler=scheduler, workers=workers, cache_dir=cache_dir, progress=progress,
-                        fresh=fresh)
+                        fresh=fresh, bundles=[bundle], worker_timeout=worker_timeout, warm_up=warm_up_points)
     return error_rows(points, results, log_signals(read_log(reference_log)), filter_window)
 
 
 def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = False, modes=None,
              repeats=None, tolerance=None, cache_dir=None, sweep_cache=None, fresh=frozenset(),
              progress: bool = False, fidelities=None, reference_fidelity: str | None = None,
-             filter_window: float | None = None) -> TradeoffResult:
+             filter_window: float | None = None, worker_timeout: float = WORKER_TIMEOUT) -> TradeoffResult:
     """The full sweep of a scenario; writes ``tradeoff.csv``, ``pareto.png`` and ``tradeoff.md`` into ``out_dir``.
 
     ``fidelities`` are the levels swept (see :func:`sweep_settings`); ``reference_fidelity`` the level of
@@ -537,7 +584,8 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
 
     cache = Path(sweep_cache) if sweep_cache else Path(".cache/sweeps") / f"{scenario.scene_name}-{scenario.name}"
     rows = evaluate(scenario, settings, reference.log_path, repeats=repeats, scheduler=scheduler, workers=workers,
-                    cache_dir=cache, progress=report, filter_window=filter_window, fresh="sweep" in fresh)
+                    cache_dir=cache, progress=report, filter_window=filter_window, fresh="sweep" in fresh,
+                    worker_timeout=worker_timeout)
     title = f"{scenario.scene_name}/{scenario.name}, {scenario.duration:g} s"
     csv_path = write_csv(rows, out_dir / "tradeoff.csv")
     fig = pareto_figure(rows, out_dir / "pareto.png", title=title)
@@ -576,7 +624,8 @@ def pareto_table(rows: list[dict], kinds=("stroke", "pressure")) -> str:
     diverged = [r["label"] for r in rows if r["status"] != "complete"]
     if diverged:
         lines += ["", f"Not stable ({len(diverged)}): " + "; ".join(
-            f"{r['label']} ({r['status']}{' at %.3g s' % r['diverged_at_s'] if r['status'] == 'diverged' else ''})"
+            f"{r['label']} ({r['status']}{' at %.3g s' % r['diverged_at_s'] if r['status'] == 'diverged' else ''}"
+            f"{': ' + r['error'] if r.get('error') else ''})"
             for r in rows if r["status"] != "complete")]
     return "\n".join(lines)
 
@@ -587,6 +636,8 @@ def add_parser(subparsers):
     parser.add_argument("scenario", type=Path, help="scenario TOML file")
     parser.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local process pool)")
     parser.add_argument("--workers", type=int, help="local worker processes (default: CPU count)")
+    parser.add_argument("--worker-timeout", type=float, default=WORKER_TIMEOUT,
+                        help=f"seconds to wait for a first Dask worker to join --scheduler (default {WORKER_TIMEOUT:g})")
     parser.add_argument("--out", type=Path, help="output directory (default: logs/tradeoff-<scene>-<scenario>)")
     parser.add_argument("--quick", action="store_true", help="a few settings, one run each")
     parser.add_argument("--duration", type=float, help="simulated time [s] (default: the scenario's)")
@@ -607,7 +658,7 @@ def main(args) -> int:
     from sim.tools.reference import Tolerance
     from sim.io.scenario import MODES
 
-    for name in ("duration", "tolerance", "filter_window"):
+    for name in ("duration", "tolerance", "filter_window", "worker_timeout"):
         value = getattr(args, name)
         if value is not None and not (math.isfinite(value) and value > 0):
             raise CircuitError(f"--{name.replace('_', '-')}: {value!r} must be a positive finite number")
@@ -618,9 +669,10 @@ def main(args) -> int:
     if args.scheduler is not None and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
         raise CircuitError(f"--scheduler: {args.scheduler!r} is not a scheduler address like tcp://host:8786")
     if args.scheduler is not None:
-        from sim.tools.sweep import check_scheduler
+        from sim.tools.sweep import check_scheduler, check_workers
 
         check_scheduler(args.scheduler)  # a closed port: one line now, not after the reference is computed
+        check_workers(args.scheduler, args.worker_timeout)  # a cluster without workers: the same
     modes = None
     if args.modes:
         modes = [m.strip() for m in args.modes.split(",") if m.strip()]
@@ -646,7 +698,8 @@ def main(args) -> int:
                       workers=args.workers, quick=args.quick, modes=modes, repeats=args.repeats,
                       tolerance=Tolerance(relative=args.tolerance) if args.tolerance else None,
                       fresh=fresh, progress=True, fidelities=fidelities,
-                      reference_fidelity=args.reference_fidelity, filter_window=args.filter_window)
+                      reference_fidelity=args.reference_fidelity, filter_window=args.filter_window,
+                      worker_timeout=args.worker_timeout)
     for kind in ("stroke", "pressure"):
         for s in result.statements[kind]:
             print(s)
