@@ -168,3 +168,36 @@ def test_what_is_not_a_pin_to_pin_line_is_refused_in_one_line(tmp_path, edit, me
     with pytest.raises(ScenarioError, match=message) as error:
         scene_in(tmp_path, edit((SCENES / "outside_arm.xml").read_text()), "mujoco")
     assert "\n" not in str(error.value) and str(error.value).startswith(str(tmp_path / "arm.xml"))
+
+
+def soft_barrel_rod_text(barrel: float, rod: float) -> str:
+    """loop_arm (a spatial tendon between sites on the barrel and rod bodies) with MuJoCo's default equality settings."""
+    text = (SCENES / "loop_arm.xml").read_text().replace('    <equality solref="0.002 1" solimp="0.99 0.999 0.001"/>\n', "")
+    return with_masses(text, barrel, rod)
+
+
+@pytest.mark.parametrize("masses", sorted(MASSES))
+def test_the_predicted_closure_gap_is_the_one_a_hold_opens_and_is_warned_with_the_settings_that_close_it(tmp_path, masses):
+    """Pins on the barrel and rod bodies with MuJoCo's soft default equality: the predicted static gap of the rod eye is
+    what 3 s of hold open (within 10 %: the arm sags meanwhile), the start is warned with the stiffer settings' gap,
+    and the same machine driven on its rod's slide joint (pins on the links) is not warned."""
+    from sim.plants.constraints import actuator_moments, closure_gaps
+    from sim.run.guards import CLOSURE_GAP_WARN, check_plant
+    from sim.io.scene import initial_qpos_qvel
+
+    scene = scene_in(tmp_path, soft_barrel_rod_text(*MASSES[masses]), "mujoco")
+    m = scene.mjmodel
+    qpos, _ = initial_qpos_qvel(scene)
+    (gap, force), = closure_gaps(m, qpos, lambda d: actuator_moments(m, d, scene.binding.actuator_id)).values()
+    assert force == pytest.approx(4.8e3, rel=0.1)
+    plant = MujocoPlant(scene)
+    (warning,) = [w for w in check_plant(plant).warnings if w.startswith("equality 'rod_eye'")]
+    assert f"opens {gap * 1e3:.3g} mm" in warning and 'solref="0.002 1" solimp="0.99 0.999 0.001"' in warning
+    for _ in range(3000):
+        plant.step()
+    rows = np.flatnonzero(np.asarray(plant.data.efc_type[: plant.data.nefc]) == int(mujoco.mjtConstraint.mjCNSTR_EQUALITY))
+    assert gap > CLOSURE_GAP_WARN
+    assert float(np.linalg.norm(plant.data.efc_pos[rows])) == pytest.approx(gap, rel=0.1)
+    (tmp_path / "slide").mkdir()
+    on_slide = scene_in(tmp_path / "slide", with_masses((SCENES / "outside_arm.xml").read_text(), *MASSES[masses]), "mujoco")
+    assert not [w for w in check_plant(MujocoPlant(on_slide)).warnings if w.startswith("equality")]

@@ -49,12 +49,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import mujoco
 import numpy as np
 
 from hydraulics.components.cylinder import hydraulic_natural_frequency, hydraulic_stiffness
 from hydraulics.network import ACTUATOR_CYLINDER
 
-from sim.plants.constraints import HOLDING_RESIDUAL_WARN, actuator_moments, inverse_inertia
+from sim.plants.constraints import HOLDING_RESIDUAL_WARN, actuator_moments, closure_gaps, inverse_inertia
 
 # Practical explicit limit on ω_h·dt with typical physical damping (seal friction, valve
 # flow gain); measured on the boom and excavator maps (docs/stability/), 0.1–0.2 in the literature.
@@ -69,6 +70,13 @@ RIGID_SUPPLY_OMEGA_DT = 0.5  # [-]
 # ω_local·dt above which a cylinder's own rod body, held by MuJoCo's soft loop-closure equality, rings unstably
 # (tests/scenes/loop_arm.xml with a 10 kg rod: ω_local·dt = 1.52 holds, 1.77 and 2.53 diverge; the θ-rule's √2).
 LOCAL_MODE_OMEGA_DT = math.sqrt(2.0)  # [-]
+CLOSURE_GAP_WARN = 1e-3
+"""Largest static opening [m] of a ``connect`` closure at the start pose before a warning (MuJoCo mode): a closure that
+opens more lets the machine sag with every pressure still plausible (:func:`sim.plants.constraints.closure_gaps`)."""
+STIFF_SOLREF_STEPS = 2.0
+"""``solref`` time constant suggested for a stretching closure, in steps: MuJoCo's documented lower bound, 2·dt."""
+STIFF_SOLIMP = (0.99, 0.999, 0.001, 0.5, 2.0)
+"""``solimp`` suggested for a stretching closure (the settings of hydroplant's own loop-closure scenes)."""
 # The pins' own bodies count as a separate local mode when their inertia is below this fraction of the constrained one.
 LOCAL_MASS_RATIO = 0.5  # [-]
 # Methods (mode or coupling names) that step the oil column with forward Euler.
@@ -305,6 +313,7 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
             )
     if mode == "mujoco" and scene.mjmodel.neq and rows:
         warnings += local_mode_warnings(scene, qpos, k, mass, dt, net_state.actuator_position)
+        warnings += closure_gap_warnings(scene, qpos, dt)
     limits = relief_limits(network, net_state)
     explicit_stepper = (mode == "pbd-naive") or (coupling == "explicit" and (scenario.stepper or "explicit_euler") == "explicit_euler")
     if explicit_stepper:
@@ -343,6 +352,38 @@ def local_mode_warnings(scene, qpos, stiffness, mass, dt, position) -> list:
                 f"> {LOCAL_MODE_OMEGA_DT:.3g}, which diverges in MuJoCo mode; use dt <= {LOCAL_MODE_OMEGA_DT / omega:.3g} s, "
                 "give the rod body its real mass, or put the tendon's sites on the links"
             )
+    return out
+
+
+def closure_gap_warnings(scene, qpos, dt) -> list:
+    """Warnings for ``connect`` closures that MuJoCo's soft equality lets open by more than :data:`CLOSURE_GAP_WARN` at
+    the start pose under the static load (:func:`sim.plants.constraints.closure_gaps`), each with the gap that
+    ``solref`` = (:data:`STIFF_SOLREF_STEPS`·dt, 1) and ``solimp`` = :data:`STIFF_SOLIMP` would leave."""
+    m = scene.mjmodel
+    moments = lambda d: actuator_moments(m, d, scene.binding.actuator_id)  # noqa: E731
+    gaps = closure_gaps(m, qpos, moments)
+    wide = {name: value for name, value in gaps.items() if value[0] > CLOSURE_GAP_WARN}
+    if not wide:
+        return []
+    solref, solimp = m.eq_solref.copy(), m.eq_solimp.copy()
+    try:
+        m.eq_solref[:] = (STIFF_SOLREF_STEPS * dt, 1.0)
+        m.eq_solimp[:] = STIFF_SOLIMP
+        stiff = closure_gaps(m, qpos, moments)
+    finally:
+        m.eq_solref[:], m.eq_solimp[:] = solref, solimp
+    out = []
+    for name, (gap, force) in wide.items():
+        e = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, name)
+        now = (f' (solref="{" ".join(f"{v:g}" for v in solref[e])}" solimp="{" ".join(f"{v:g}" for v in solimp[e, :3])}")'
+               if e >= 0 else "")
+        out.append(
+            f"equality '{name}': MuJoCo's soft constraint{now} opens {gap * 1e3:.3g} mm under its {force / 1e3:.3g} kN at the "
+            f"start pose (more than {CLOSURE_GAP_WARN * 1e3:g} mm), and the machine sags with it while its pressures look "
+            f'plausible; solref="{STIFF_SOLREF_STEPS * dt:g} 1" solimp="{" ".join(f"{v:g}" for v in STIFF_SOLIMP[:3])}" on it '
+            f"leaves {stiff.get(name, (math.nan,))[0] * 1e3:.3g} mm, or drive the cylinder on the rod's slide joint (its pins "
+            "then sit on the links and the closure carries only the rod's weight)"
+        )
     return out
 
 
