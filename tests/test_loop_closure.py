@@ -136,6 +136,17 @@ def test_omega_h_matches_a_free_oscillation_of_the_closed_cylinder(path, mode):
     assert measured_frequency(plant) == pytest.approx(predicted, rel=2e-2)
 
 
+@pytest.mark.parametrize("fidelity", ["compressible", "lines"])
+@pytest.mark.parametrize("mode", ["mujoco", "pbd"])
+def test_omega_h_with_hoses_matches_a_free_oscillation_at_both_fidelities(mode, fidelity):
+    """With hoses on the work ports the oil column holds the hoses' oil too: lumped into the chamber (compressible) or
+    joined to it through each π-line's resistance (lines), the predicted frequency is the measured one within 2 %."""
+    plant = plant_for(HOLD, mode, qvel={"arm_hinge": 0.01}, circuit=SCENES / "loop_hoses.circuit.toml", fidelity=fidelity)
+    assert len(plant.network.hose_lines) == (2 if fidelity == "lines" else 0)
+    predicted = guards.check(plant.scene, plant.net_state).rows[0].frequency_hz
+    assert measured_frequency(plant, 1500) == pytest.approx(predicted, rel=2e-2)
+
+
 def test_start_pose_setting_one_joint_of_the_loop_is_projected_onto_it():
     scene = load_scene(replace(load_scenario(HOLD), qpos={"barrel_hinge": -0.06}))
     qpos, _ = initial_qpos_qvel(scene)

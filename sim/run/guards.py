@@ -192,20 +192,44 @@ def inertia_seen(mjmodel, qpos, actuator_id, *, constrained: bool = True):
 
 
 def oil_column_stiffness(network, pressure, position) -> np.ndarray:
-    """Σ β_eff·A²/V over each actuator's non-tank chambers [N/m or N·m/rad], shape (actuator_count,)."""
+    """Σ A²/C over each actuator's non-tank chambers [N/m or N·m/rad], shape (actuator_count,), with C the compliance
+    [m³/Pa] of the chamber's oil: V/β_eff of its node plus that of every node a hose built as a π-line joins to it
+    (``lines`` fidelity).  The line's laminar resistance is neglected: at the oil column's frequency ω its end
+    volumes are one compliance while ω·C_line/G_line ≪ 1 (a 3 m, 16 mm hose: 4e-3 at 20 Hz), which is the column
+    a closed valve traps; a long thin line at a high frequency is stiffer than this says."""
     beta = network.effective_bulk_modulus(pressure, position)
     volume, _ = network.node_volume_at(position, pressure)
     free = ~network.node_fixed
+    group = np.arange(network.node_count)  # the node that stands for each node's line-joined group
+
+    def root(n):
+        while group[n] != n:
+            group[n] = group[group[n]]
+            n = group[n]
+        return n
+
+    lines = {f"{hose}.line" for hose in network.hose_lines}
+    for b, name in enumerate(network.branch_names):
+        if name in lines and free[network.branch_from[b]] and free[network.branch_to[b]]:
+            group[root(network.branch_from[b])] = root(network.branch_to[b])
+    oil, compliance = np.zeros(network.node_count), np.zeros(network.node_count)
+    for n in np.flatnonzero(free):
+        oil[root(n)] += float(volume[n])
+        compliance[root(n)] += float(volume[n]) / float(beta[n])
     k = np.zeros(network.actuator_count)
+
+    def add(a, node, area):
+        if free[node]:
+            g = root(node)
+            k[a] += hydraulic_stiffness(oil[g] / compliance[g], area, oil[g])  # the group's β_eff = V/C
+
     for i, a in enumerate(network.cylinder_actuator):
-        for node, area in ((network.cylinder_cap_node[i], network.cylinder_cap_area[i]), (network.cylinder_rod_node[i], network.cylinder_rod_area[i])):
-            if free[node]:
-                k[a] += hydraulic_stiffness(beta[node], area, volume[node])
+        add(a, network.cylinder_cap_node[i], network.cylinder_cap_area[i])
+        add(a, network.cylinder_rod_node[i], network.cylinder_rod_area[i])
     for i, a in enumerate(network.motor_actuator):
         rate = network.motor_displacement[i] / (2.0 * math.pi)
-        for node in (network.motor_a_node[i], network.motor_b_node[i]):
-            if free[node]:
-                k[a] += hydraulic_stiffness(beta[node], rate, volume[node])
+        add(a, network.motor_a_node[i], rate)
+        add(a, network.motor_b_node[i], rate)
     # rigid actuators: the supply net of their rigid branch, on the larger (cap) area
     s = network.branch_slices.get("rigid", slice(0, 0))
     for b, a in zip(range(s.start, s.stop), network.rigid_branch_actuator):
