@@ -242,3 +242,35 @@ def test_a_flap_resting_on_its_stop_is_held_by_the_stop(tmp_path, mode):
     hanging = flap_plant(tmp_path / "hanging", "-1 0", mode)
     assert hanging.holding_residual > 1e-3
     assert any("initial.equilibrium" in w for w in check_plant(hanging).warnings)
+
+
+HOLD_CONTACT = SCENES / "hold_contact.scenario.toml"
+
+
+@pytest.mark.parametrize("mode", ["mujoco", "pbd"])
+def test_start_pose_mesh_contacts_are_left_out_of_the_equilibrium_and_named(mode):
+    """A mesh stop on the arm overlaps a post by 2.7 mm at the start pose: by default the equilibrium is hand statics
+    (the virtual-work force within 1 %), and the warning names the contact and its load."""
+    plant = plant_for(HOLD_CONTACT, mode)
+    assert plant.effort[0] == pytest.approx(virtual_work_force(0.1), rel=1e-2)
+    (warning,) = [w for w in guards.check_plant(plant).warnings if w.startswith("start pose:")]
+    assert "1 contact(s) touch (rest-stop" in warning or "2 contact(s) touch (rest-stop" in warning
+    assert "leave them out" in warning
+
+
+def test_start_pose_contacts_counted_on_request_carry_their_share():
+    """``[initial] start_contacts = "include"``: the contact's penetration force props the arm, and the cylinder holds
+    the rest: the efforts differ from hand statics by the contact's load times its lever."""
+    included = plant_for(HOLD_CONTACT, start_contacts="include")
+    (warning,) = [w for w in guards.check_plant(included).warnings if w.startswith("start pose:")]
+    assert "counts them" in warning
+    total = float(warning.split("; ")[1].split(" kN in all")[0]) * 1e3
+    assert total > 100.0
+    assert included.effort[0] < virtual_work_force(0.1) - 0.05 * total
+
+
+def test_check_names_the_start_contacts():
+    from sim.tools.check import check_scene
+
+    text, _ = check_scene(HOLD_CONTACT)
+    assert "warning: start pose:" in text and "rest-stop" in text

@@ -98,6 +98,7 @@ class Scenario:
     qpos: dict = field(default_factory=dict)
     qvel: dict = field(default_factory=dict)
     equilibrium: bool = True
+    start_contacts: str = "exclude"  # [initial] start_contacts: contacts of the start pose in the equilibrium or not
     base_pressure: float = DEFAULT_BASE_PRESSURE
     pressures: dict = field(default_factory=dict)
     inputs: dict = field(default_factory=dict)
@@ -183,6 +184,11 @@ def _number(table, key, where, *, low=None, high=None, low_open=True, default=No
         kind = "an integer" if integer else "a number"
         _error(where, f"field '{key}': {value!r} is not {kind} in {left}{low if low is not None else '-inf'}, {high if high is not None else 'inf'}]")
     return int(value) if integer else value
+
+
+START_CONTACTS = ("exclude", "include")
+"""``[initial] start_contacts``: whether the contacts MuJoCo finds at the start pose carry load in the equilibrium start
+and in ``check`` (``exclude``: the machine is balanced as if they were not there, as by hand statics)."""
 
 
 def _choice(table, key, where, choices, default):
@@ -315,7 +321,7 @@ def load_scenario(path) -> Scenario:
         "scene": {"mjcf", "circuit"},
         "run": {"mode", "coupling", "stepper", "dt", "duration", "hydraulic_substeps", "pbd_substeps", "pbd_iterations",
                 "pbd_blend", "fidelity"},
-        "initial": {"qpos", "qvel", "equilibrium", "base_pressure", "pressures"},
+        "initial": {"qpos", "qvel", "equilibrium", "start_contacts", "base_pressure", "pressures"},
         "log": {"rate_hz", "tf_rate_hz"},
     }
     if "compiled" in run:
@@ -386,6 +392,7 @@ def load_scenario(path) -> Scenario:
         qpos=joint_table("qpos"),
         qvel=joint_table("qvel"),
         equilibrium=equilibrium,
+        start_contacts=_choice(initial, "start_contacts", f"{where}, [initial]", START_CONTACTS, "exclude"),
         base_pressure=_number(initial, "base_pressure", f"{where}, [initial]", low=0.0, high=1e8, default=DEFAULT_BASE_PRESSURE),
         pressures={k: float(v) for k, v in pressures.items()},
         inputs=inputs,

@@ -206,23 +206,52 @@ def project_pose(m, qpos, qvel, held, *, where: str = ""):
     return q, v, float(np.max(np.abs(moved), initial=0.0))
 
 
-def static_load(m, d) -> np.ndarray:
+def static_load(m, d, contacts: bool = False) -> np.ndarray:
     """Generalized load Q [N or N·m] the actuators and equalities must hold at rest (after mj_forward with qvel = 0).
 
     MuJoCo's inverse dynamics with q̈ = 0 (``qfrc_inverse``): gravity and bias minus
-    passive forces, minus what the soft contacts and limits already carry at their
-    penetration; the equality rows carry nothing there (at rest on the constraint
-    their reference acceleration is 0), so their share is solved for.
+    passive forces, minus what the soft limits (and, with ``contacts``, the soft contacts)
+    already carry at their penetration; the equality rows carry nothing there (at rest on
+    the constraint their reference acceleration is 0), so their share is solved for.
+    Without ``contacts`` the contacts of the pose are left out (a start pose's mesh overlaps
+    would otherwise prop the machine up; :func:`start_contacts` names them).  ``d`` then holds
+    the pose without its contact rows.
     """
-    d.qacc[:] = 0.0
-    mujoco.mj_inverse(m, d)
+    flags = m.opt.disableflags
+    if not contacts:
+        m.opt.disableflags = flags | int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    try:
+        if not contacts:
+            mujoco.mj_forward(m, d)
+        d.qacc[:] = 0.0
+        mujoco.mj_inverse(m, d)
+    finally:
+        m.opt.disableflags = flags
     return np.array(d.qfrc_inverse)
 
 
-def holding_efforts(m, qpos, moment_of):
+def start_contacts(m, qpos) -> tuple:
+    """The contacts MuJoCo finds at ``qpos`` at rest: ((geom, geom, normal force [N]), …), the force being what each
+    carries at its penetration (MuJoCo's inverse dynamics with q̈ = 0)."""
+    d = mujoco.MjData(m)
+    _forward(m, d, qpos)
+    if not d.ncon:
+        return ()
+    d.qacc[:] = 0.0
+    mujoco.mj_inverse(m, d)
+    out, wrench = [], np.zeros(6)
+    for i in range(d.ncon):
+        mujoco.mj_contactForce(m, d, i, wrench)
+        names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, int(g)) or f"#{int(g)}" for g in d.contact.geom[i]]
+        out.append((names[0], names[1], float(wrench[0])))
+    return tuple(out)
+
+
+def holding_efforts(m, qpos, moment_of, contacts: bool = False):
     """Actuator efforts [N or N·m] that hold ``qpos`` at rest with the equalities (and, if needed, the limits) carrying load.
 
-    ``moment_of(d)`` returns the dense moments J (actuators × nv) after mj_forward.
+    ``moment_of(d)`` returns the dense moments J (actuators × nv) after mj_forward; ``contacts``: whether the
+    contacts of the pose carry load (:func:`static_load`).
     Returns ``(effort, relative_residual)`` (:func:`hydraulics.equilibrium.holding_efforts`).
     The active joint and tendon limits join the balance only when the actuators
     and equalities alone cannot hold the pose (a mechanism resting on its stop).
@@ -231,8 +260,9 @@ def holding_efforts(m, qpos, moment_of):
     _forward(m, d, qpos)
     J = moment_of(d)
     G, _, _ = equality_rows(m, d)
-    load = static_load(m, d)
-    return hold_with_stops(J, load, G, limit_rows(m, d))
+    stops = limit_rows(m, d)
+    load = static_load(m, d, contacts)
+    return hold_with_stops(J, load, G, stops)
 
 
 def impedance(solimp, violation: float) -> float:

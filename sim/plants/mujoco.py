@@ -98,7 +98,8 @@ class MujocoPlant(PlantBase):
         from sim.plants.constraints import actuator_moments, holding_efforts
 
         ids = self.binding.actuator_id
-        effort, self.holding_residual = holding_efforts(self.model, self.data.qpos, lambda d: actuator_moments(self.model, d, ids))
+        effort, self.holding_residual = holding_efforts(self.model, self.data.qpos, lambda d: actuator_moments(self.model, d, ids),
+                                                        contacts=self.scene.scenario.start_contacts == "include")
         return effort
 
     # -------------------------------------------------------------- kinematics

@@ -55,7 +55,8 @@ import numpy as np
 from hydraulics.components.cylinder import hydraulic_natural_frequency, hydraulic_stiffness
 from hydraulics.network import ACTUATOR_CYLINDER
 
-from sim.plants.constraints import HOLDING_RESIDUAL_WARN, actuator_moments, closure_gaps, inverse_inertia
+from sim.plants.constraints import (HOLDING_RESIDUAL_WARN, actuator_moments, closure_gaps, inverse_inertia,
+                                    start_contacts)
 
 # Practical explicit limit on ω_h·dt with typical physical damping (seal friction, valve
 # flow gain); measured on the boom and excavator maps (docs/stability/), 0.1–0.2 in the literature.
@@ -338,6 +339,7 @@ def check(scene, net_state, *, qpos=None, mode=None, coupling=None, dt=None, fid
     if mode == "mujoco" and scene.mjmodel.neq and rows:
         warnings += local_mode_warnings(scene, qpos, k, mass, dt, net_state.actuator_position)
         warnings += closure_gap_warnings(scene, qpos, dt)
+    warnings += start_contact_warnings(scene, qpos, mode)
     limits = relief_limits(network, net_state)
     explicit_stepper = (mode == "pbd-naive") or (coupling == "explicit" and (scenario.stepper or "explicit_euler") == "explicit_euler")
     if explicit_stepper:
@@ -377,6 +379,24 @@ def local_mode_warnings(scene, qpos, stiffness, mass, dt, position) -> list:
                 "give the rod body its real mass, or put the tendon's sites on the links"
             )
     return out
+
+
+def start_contact_warnings(scene, qpos, mode) -> list:
+    """One warning naming every contact of the start pose with the load it carries at its penetration
+    (:func:`sim.plants.constraints.start_contacts`), and whether the equilibrium start counted them
+    (``[initial] start_contacts``; PBD mode's equilibrium never does)."""
+    contacts = start_contacts(scene.mjmodel, qpos)
+    if not contacts:
+        return []
+    counted = scene.scenario.start_contacts == "include" and mode == "mujoco"
+    listed = ", ".join(f"{a}-{b} {force / 1e3:.4g} kN" for a, b, force in contacts[:8])
+    more = f" and {len(contacts) - 8} more" if len(contacts) > 8 else ""
+    total = sum(force for _, _, force in contacts)
+    how = ("the equilibrium start counts them ([initial] start_contacts = \"include\")" if counted else
+           "the equilibrium start and check leave them out, as hand statics would ([initial] start_contacts = "
+           "\"include\" counts them in MuJoCo mode), so they push the machine from the first step; if they are "
+           "overlapping meshes of the machine's own links, exclude the pairs with <contact><exclude>")
+    return [f"start pose: {len(contacts)} contact(s) touch ({listed}{more}; {total / 1e3:.4g} kN in all): {how}"]
 
 
 def closure_gap_warnings(scene, qpos, dt) -> list:

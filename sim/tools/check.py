@@ -41,6 +41,7 @@ from sim.io.examples import example_path, examples
 from sim.io.scenario import ScenarioError, load_scenario
 from sim.io.scene import initial_qpos_qvel, load_scene
 from sim.plants.constraints import actuator_moments, equality_rows, holding_efforts, project_pose
+from sim.run.guards import start_contact_warnings
 
 SWEEP_POINTS = 101  # points of a joint-range sweep
 LENGTH_TOLERANCE = 1e-4  # m: L may pass LMIN/LMAX by this much in a sweep (ranges rounded in the MJCF)
@@ -58,6 +59,7 @@ class Checker:
         self.m = self.scene.mjmodel
         self.d = mujoco.MjData(self.m)
         self.q0, _ = initial_qpos_qvel(self.scene)
+        self.contacts = self.scenario.start_contacts == "include"  # start-pose contacts carry load in the holding efforts
         G = self.equalities(self.q0)[0]
         self.loop_dofs = np.any(np.abs(G) > 0, axis=0) if len(G) else np.zeros(self.m.nv, bool)
         self.problems = 0
@@ -213,7 +215,7 @@ def worst_holding(ck: Checker, points: int) -> list:
         if q is None or ck.forward(q).ncon:
             skipped += 1
             continue
-        effort, _ = holding_efforts(m, q, lambda d: actuator_moments(m, d, ids))
+        effort, _ = holding_efforts(m, q, lambda d: actuator_moments(m, d, ids), contacts=ck.contacts)
         for a in range(net.actuator_count):
             if net.actuator_kind[a] != ACTUATOR_CYLINDER:
                 continue
@@ -236,7 +238,8 @@ def check_scene(scenario_path, grid: int = 0, mode=None) -> tuple[str, int]:
     m, scene, net = ck.m, ck.scene, ck.scene.network
     out = [f"=== {ck.scenario.path} ({Path(ck.scenario.mjcf).name}: nq {m.nq}, nv {m.nv}, nu {m.nu}, "
            f"total mass {float(np.sum(m.body_mass)):.1f} kg)"]
-    out += [f"  warning: {w}" for w in scene.warnings] + [f"  note: {n}" for n in scene.notes]
+    out += [f"  warning: {w}" for w in scene.warnings + tuple(start_contact_warnings(scene, ck.q0, ck.scenario.mode))]
+    out += [f"  note: {n}" for n in scene.notes]
     if m.neq:
         raw, _ = initial_qpos_qvel(scene, project=False)
         _, before, names = ck.equalities(raw)
@@ -306,7 +309,7 @@ def check_scene(scenario_path, grid: int = 0, mode=None) -> tuple[str, int]:
         if contacts and label != "start pose":
             out.append(f"  holding at {label}: {contacts} contact(s) at this pose (resting on something): not a free hold, skipped")
             continue
-        effort, residual = holding_efforts(m, q, lambda d: actuator_moments(m, d, ids))
+        effort, residual = holding_efforts(m, q, lambda d: actuator_moments(m, d, ids), contacts=ck.contacts)
         out.append(f"  holding at {label} (static balance residual {residual:.2g}{ck.note(residual < 1e-6)}):")
         out += [f"    {pressure_text(ck, a, float(effort[a]))}" for a in range(net.actuator_count)]
     if grid:

@@ -164,6 +164,9 @@ def scenario_keys() -> tuple:
         ("initial", "qvel", "rad/s or m/s", "table joint = number", "qvel", "Start velocity of named joints."),
         ("initial", "equilibrium", "", "true, false", "equilibrium", "Start with the chamber pressures that hold "
          "the load still."),
+        ("initial", "start_contacts", "", "exclude, include", "start_contacts", "Whether contacts touching at the "
+         "start pose carry load in the equilibrium start and in `check` (`exclude`: balanced as by hand statics; "
+         "either way they are named with their load)."),
         ("initial", "base_pressure", "Pa", "(0, 1e+08]", "base_pressure", "Absolute pressure of the low side of a "
          "loaded cylinder at t = 0 (equilibrium start)."),
         ("initial", "pressures", "Pa", "table net = number in [0, 1e+10]", "pressures", "Absolute start pressure "
