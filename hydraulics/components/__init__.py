@@ -19,6 +19,7 @@ from dataclasses import MISSING, fields
 
 from .accumulator import Accumulator
 from .check_valve import CheckValve
+from .counterbalance import CounterbalanceValve
 from .cylinder import Cylinder
 from .hose import Hose
 from .motor import Motor
@@ -47,6 +48,7 @@ COMPONENT_TYPES = {
     "accumulator": Accumulator,
     "pilot_check_valve": PilotCheckValve,
     "throttle_check_valve": ThrottleCheckValve,
+    "counterbalance_valve": CounterbalanceValve,
 }
 """Circuit-file ``type`` name → parameter class."""
 
