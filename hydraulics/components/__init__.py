@@ -26,6 +26,7 @@ from .motor import Motor
 from .orifice import Orifice
 from .parameters import CircuitError, check_number, describe_range, param
 from .pilot_check import PilotCheckValve
+from .pressure_reducing import PressureReducingValve
 from .pumps import PumpCompensated, PumpFixed
 from .relief import ReliefValve
 from .tank import Tank
@@ -49,6 +50,7 @@ COMPONENT_TYPES = {
     "pilot_check_valve": PilotCheckValve,
     "throttle_check_valve": ThrottleCheckValve,
     "counterbalance_valve": CounterbalanceValve,
+    "pressure_reducing_valve": PressureReducingValve,
 }
 """Circuit-file ``type`` name → parameter class."""
 
