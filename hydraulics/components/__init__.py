@@ -21,6 +21,7 @@ from .accumulator import Accumulator
 from .check_valve import CheckValve
 from .counterbalance import CounterbalanceValve
 from .cylinder import Cylinder
+from .flow_control import FlowControlValve
 from .hose import Hose
 from .motor import Motor
 from .orifice import Orifice
@@ -51,6 +52,7 @@ COMPONENT_TYPES = {
     "throttle_check_valve": ThrottleCheckValve,
     "counterbalance_valve": CounterbalanceValve,
     "pressure_reducing_valve": PressureReducingValve,
+    "flow_control_valve": FlowControlValve,
 }
 """Circuit-file ``type`` name → parameter class."""
 
