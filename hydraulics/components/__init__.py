@@ -102,5 +102,6 @@ def build_component(kind: str, table: dict, where: str):
 
 
 __all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "check_number", "describe_range", "param",
-           "Accumulator", "CheckValve", "Cylinder", "Hose", "Motor", "Orifice", "PilotCheckValve", "PumpCompensated",
-           "PumpFixed", "ReliefValve", "Tank", "ThrottleCheckValve", "Valve43", "Volume"]
+           "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "Motor", "Orifice",
+           "PilotCheckValve", "PressureReducingValve", "PumpCompensated", "PumpFixed", "ReliefValve", "Tank",
+           "ThrottleCheckValve", "Valve43", "Volume"]
