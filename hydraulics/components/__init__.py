@@ -19,12 +19,15 @@ from dataclasses import MISSING, fields
 
 from .accumulator import Accumulator
 from .check_valve import CheckValve
+from .counterbalance import CounterbalanceValve
 from .cylinder import Cylinder
+from .flow_control import FlowControlValve
 from .hose import Hose
 from .motor import Motor
 from .orifice import Orifice
 from .parameters import CircuitError, check_number, describe_range, param
 from .pilot_check import PilotCheckValve
+from .pressure_reducing import PressureReducingValve
 from .pumps import PumpCompensated, PumpFixed
 from .relief import ReliefValve
 from .tank import Tank
@@ -47,6 +50,9 @@ COMPONENT_TYPES = {
     "accumulator": Accumulator,
     "pilot_check_valve": PilotCheckValve,
     "throttle_check_valve": ThrottleCheckValve,
+    "counterbalance_valve": CounterbalanceValve,
+    "pressure_reducing_valve": PressureReducingValve,
+    "flow_control_valve": FlowControlValve,
 }
 """Circuit-file ``type`` name → parameter class."""
 
@@ -96,5 +102,6 @@ def build_component(kind: str, table: dict, where: str):
 
 
 __all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "check_number", "describe_range", "param",
-           "Accumulator", "CheckValve", "Cylinder", "Hose", "Motor", "Orifice", "PilotCheckValve", "PumpCompensated",
-           "PumpFixed", "ReliefValve", "Tank", "ThrottleCheckValve", "Valve43", "Volume"]
+           "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "Motor", "Orifice",
+           "PilotCheckValve", "PressureReducingValve", "PumpCompensated", "PumpFixed", "ReliefValve", "Tank",
+           "ThrottleCheckValve", "Valve43", "Volume"]

@@ -1,11 +1,14 @@
-"""Double-acting differential cylinder: chamber volumes, piston force, seal friction.
+"""Double-acting cylinder, differential or double-rod: chamber volumes, piston force, seal friction.
 
-With rod extension x [m] clipped to [0, stroke] (the end stops belong to the mechanics):
+Piston areas: A_cap = π·(D² − d_c²)/4 on the cap side (d_c = ``cap_rod_diameter``: 0 for a differential
+cylinder, the diameter of a through rod leaving by the cap end otherwise; d_c = d gives the double-rod,
+equal-area cylinder) and A_rod = π·(D² − d²)/4 on the rod side.  With rod extension x [m] clipped to
+[0, stroke] (the end stops belong to the mechanics):
 
 * V_cap = V_dead,cap + A_cap·x, V_rod = V_dead,rod + A_rod·(stroke − x), with dV/dx zero outside the stroke
   (:func:`chamber_volumes`);
-* F = p_cap·A_cap − p_rod·A_rod − p_amb·(A_cap − A_rod), absolute pressures, the rod's own cross-section at
-  ambient pressure (:func:`pressure_force`);
+* F = p_cap·A_cap − p_rod·A_rod − p_amb·(A_cap − A_rod), absolute pressures, the rods' own cross-sections at
+  ambient pressure (:func:`pressure_force`; 0 ambient term for a double-rod cylinder);
 * F_f = [F_c + (F_s − F_c)·exp(−(v/v_s)²)]·tanh(v/v_reg) + b·v, the force on the rod being −F_f
   (:func:`friction_force_with_derivative`, v_reg = :data:`FRICTION_REGULARISATION_VELOCITY`);
 * k = β·A²/V, the oil column of one chamber as a spring, and ω_h = sqrt(Σk/m), the actuator's hydraulic
@@ -37,12 +40,15 @@ FRICTION_REGULARISATION_VELOCITY = 1e-3  # [m/s]
 
 @dataclass(frozen=True, kw_only=True)
 class Cylinder:
-    """Double-acting differential cylinder; x = rod extension from fully retracted [m]."""
+    """Double-acting cylinder, differential or double-rod; x = rod extension from fully retracted [m]."""
 
     bore: float = param("m", low=0.0, high=1.0)
     """Piston diameter [m]."""
     rod_diameter: float = param("m", low=0.0, high=1.0)
     """Rod diameter [m]; must be smaller than the bore."""
+    cap_rod_diameter: float = param("m", low=0.0, high=1.0, low_open=False, default=0.0)
+    """Diameter of a through rod leaving by the cap end [m]: 0 for a differential cylinder, ``rod_diameter`` for
+    a double-rod (equal-area) one; must be smaller than the bore."""
     stroke: float = param("m", low=0.0, high=20.0)
     """Stroke [m]."""
     dead_volume_cap: float = param("m^3", low=0.0, high=1.0, low_open=False, default=0.0)
@@ -66,15 +72,16 @@ class Cylinder:
             object.__setattr__(self, "static_friction", self.coulomb_friction)
 
     def check(self, where: str) -> None:
-        """Raise CircuitError (prefixed by ``where``) unless the rod is thinner than the bore."""
-        if self.rod_diameter >= self.bore:
-            raise CircuitError(
-                f"{where}, field 'rod_diameter': {self.rod_diameter!r} m must be smaller than bore {self.bore!r} m")
+        """Raise CircuitError (prefixed by ``where``) unless the rods are thinner than the bore."""
+        for name in ("rod_diameter", "cap_rod_diameter"):
+            if getattr(self, name) >= self.bore:
+                raise CircuitError(
+                    f"{where}, field '{name}': {getattr(self, name)!r} m must be smaller than bore {self.bore!r} m")
 
     @property
     def cap_area(self) -> float:
-        """Piston area A_cap = π·D²/4 [m²]."""
-        return math.pi * self.bore**2 / 4.0
+        """Cap-side piston area A_cap = π·(D² − d_c²)/4 [m²] (π·D²/4 without a cap-end rod)."""
+        return math.pi * (self.bore**2 - self.cap_rod_diameter**2) / 4.0
 
     @property
     def rod_area(self) -> float:
