@@ -22,11 +22,7 @@ DIG = MODELS / "excavator" / "dig.scenario.toml"
 
 def excavator_pins():
     scene = load_scene(load_scenario(DIG))
-    net, binding = scene.network, scene.binding
-    cyl = np.asarray(net.cylinder_actuator)
-    pins = CylinderPins.of(scene.mjmodel, [net.actuator_names[a] for a in cyl], binding.tendon_id[cyl],
-                           binding.closed_length[cyl], net.cylinder_stroke)
-    return scene, pins
+    return scene, CylinderPins.of_scene(scene)
 
 
 def ends(center, quat_xyzw, length):

@@ -384,6 +384,14 @@ class CylinderPins:
                    np.maximum(closed - 2.0 * width, 0.5 * closed), 2.0 * width,
                    np.minimum(np.asarray(stroke, dtype=float) + 3.0 * width, closed), width)
 
+    @classmethod
+    def of_scene(cls, scene: Any) -> CylinderPins:
+        """The pins of every cylinder of a :class:`~sim.io.scene.Scene` (its network's cylinder order)."""
+        net, binding = scene.network, scene.binding
+        cyl = np.asarray(net.cylinder_actuator, dtype=np.intp)
+        return cls.of(scene.mjmodel, [net.actuator_names[a] for a in cyl], binding.tendon_id[cyl],
+                      binding.closed_length[cyl], net.cylinder_stroke)
+
     def world(self, xpos: np.ndarray, xquat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cap and rod pins in world [m], shape (..., n, 3), from body poses ``xpos`` (..., nbody, 3) and ``xquat``
         (..., nbody, 4) (MuJoCo's w, x, y, z): ``p = xpos[body] + R(xquat[body]) · local``."""

@@ -156,10 +156,7 @@ class RunRecorder:
         sizes = {"joints": 3 * nj, "cylinders": ncyl * len(CYLINDER_FIELDS), "motors": nmot * len(MOTOR_FIELDS),
                  "valves": nvalve * len(VALVE_FIELDS), "pumps": npump * len(PUMP_FIELDS), "nodes": nnode, "flows": nflow,
                  "energy": len(ENERGY_FIELDS), "solver": len(SOLVER_FIELDS), "xpos": 3 * nbody, "xquat": 4 * nbody}
-        cyl_actuators = np.asarray(net.cylinder_actuator, dtype=np.intp)
-        pins = CylinderPins.of(plant.model, [net.actuator_names[a] for a in cyl_actuators],
-                               plant.scene.binding.tendon_id[cyl_actuators], plant.scene.binding.closed_length[cyl_actuators],
-                               net.cylinder_stroke) if ncyl else None
+        pins = CylinderPins.of_scene(plant.scene) if ncyl else None
         sizes["cylinder_scene"] = CylinderScene.width(pins) if ncyl else 0
         start = np.cumsum([0, *sizes.values()])
         block = {name: slice(int(start[i]), int(start[i + 1])) for i, name in enumerate(sizes)}
