@@ -11,6 +11,7 @@ from sim.io.mcap_log import read_log
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 from sim.live.frame_topic import FRAME_FIELDS, FRAME_TOPIC
+from sim.live.figures import scene_figure
 from sim.live.layout import EXCAVATOR_CYLINDERS, EXCAVATOR_VALVES, layout_json, shipped_layout_path
 from sim.run.runner import run
 
@@ -47,3 +48,7 @@ def test_shipped_layout_is_the_generated_one_and_names_real_fields(tmp_path):
             assert field in FRAME_FIELDS
         else:
             assert field in log.topic(topic).fields, value
+
+    # the documentation's scene picture is drawn from these messages
+    png = scene_figure(result.log_path, tmp_path / "scene.png", int(log.topic("/tf").log_time[-1]))
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
