@@ -70,8 +70,9 @@ def test_orientation_straight_down_and_colour_scale():
     np.testing.assert_allclose(rows[2, 7:10], BARREL_RED)
 
 
-def test_logged_cylinders_sit_on_mujocos_pins_at_every_scene_sample(tmp_path):
-    result = run(DIG, out=tmp_path / "dig.mcap", overrides={"duration": 0.3})
+@pytest.mark.parametrize("tf_rate_hz", [100.0, 50.0])  # /tf on every sample; on every other one
+def test_logged_cylinders_sit_on_mujocos_pins_at_every_scene_sample(tmp_path, tf_rate_hz):
+    result = run(DIG, out=tmp_path / "dig.mcap", overrides={"duration": 0.3, "tf_rate_hz": tf_rate_hz})
     scene, pins = excavator_pins()
     m = scene.mjmodel
     d = mujoco.MjData(m)
@@ -107,7 +108,7 @@ def test_logged_cylinders_sit_on_mujocos_pins_at_every_scene_sample(tmp_path):
                 level = np.clip((p_cap - 1e5) / PRESSURE_FULL_SCALE, 0, 1)
                 assert barrel.color.r == pytest.approx(BARREL_GREY[0] + level * (BARREL_RED[0] - BARREL_GREY[0]))
             count += 1
-    assert count == len(log.topic("/tf")) >= 20  # at the /tf samples
+    assert count == len(log.topic("/tf")) == round(0.3 * tf_rate_hz) + 1  # at the /tf samples
     # the bar fields are the pascal fields in bar
     boom = cylinders["boom_cyl"]
     np.testing.assert_array_equal(boom["p_cap_bar"], boom["p_cap_pa"] / 1e5)

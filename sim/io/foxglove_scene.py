@@ -496,6 +496,7 @@ class CylinderScene:
                  topic: str = CYLINDER_TOPIC):
         self.pins = pins
         self.columns = columns
+        self.every = int(every)
         self.channel = frame.channel(topic, SCENE_UPDATE, layout=_cylinder_layout(pins),
                                      columns=np.arange(columns.start, columns.stop), every=every,
                                      metadata={"units": "SI", "drawing": "barrel from the cap pin, rod from the rod eye"})
@@ -505,8 +506,10 @@ class CylinderScene:
         """Frame columns the channel needs."""
         return _COLUMNS * len(pins.names)
 
-    def fill(self, rows: np.ndarray, xpos: np.ndarray, xquat: np.ndarray, p_cap: np.ndarray) -> None:
-        """Write the columns of ``rows`` (k, frame width) from body poses (k, nbody, 3), (k, nbody, 4) and cap
-        pressures (k, n) [Pa]."""
-        cap, rod = self.pins.world(xpos, xquat)
-        rows[:, self.columns] = cylinder_primitives(self.pins, cap, rod, p_cap).reshape(len(rows), -1)
+    def fill(self, rows: np.ndarray, steps: np.ndarray, xpos: np.ndarray, xquat: np.ndarray, p_cap: np.ndarray) -> None:
+        """Write the columns of the ``rows`` (k, frame width) the channel takes (those whose ``steps`` are multiples
+        of ``every``) from body poses (k, nbody, 3), (k, nbody, 4) and cap pressures (k, n) [Pa]."""
+        taken = np.flatnonzero(np.asarray(steps) % self.every == 0) if self.every > 1 else slice(None)
+        cap, rod = self.pins.world(xpos[taken], xquat[taken])
+        values = cylinder_primitives(self.pins, cap, rod, p_cap[taken])
+        rows[taken, self.columns] = values.reshape(len(values), -1)

@@ -378,7 +378,7 @@ class RunRecorder:
             c[:, :, 8], c[:, :, 9] = c[:, :, 2] / PA_PER_BAR, c[:, :, 3] / PA_PER_BAR
             rows[:, block["cylinders"]] = c.reshape(k, -1)
             nbody = self.plant.model.nbody
-            self.cylinder_scene.fill(rows, r[:, b["poses"]][:, :3 * nbody].reshape(k, nbody, 3),
+            self.cylinder_scene.fill(rows, self._raw_steps[:k], r[:, b["poses"]][:, :3 * nbody].reshape(k, nbody, 3),
                                      r[:, b["poses"]][:, 3 * nbody:].reshape(k, nbody, 4), p[:, self._cyl_cap])
         if len(self._mot):
             mot = self._mot
