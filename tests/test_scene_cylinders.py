@@ -91,11 +91,12 @@ def test_logged_cylinders_sit_on_mujocos_pins_at_every_scene_sample(tmp_path, tf
             for name in scene.joint_names:
                 d.qpos[qpos_columns[name]] = joints[f"position/{name}"][row]
             mujoco.mj_kinematics(m, d)
-            assert [e.id for e in update.entities] == [f"cylinder/{n}" for n in pins.names]
-            for i, entity in enumerate(update.entities):
-                assert entity.frame_id == "world" and (entity.timestamp.sec * 10**9 + entity.timestamp.nanosec
-                                                       == message.log_time)
-                barrel, rod = entity.cylinders
+            (entity,) = update.entities
+            assert entity.id == "cylinders" and entity.frame_id == "world"
+            assert entity.timestamp.sec * 10**9 + entity.timestamp.nanosec == message.log_time
+            assert len(entity.cylinders) == 2 * len(pins.names)
+            for i in range(len(pins.names)):
+                barrel, rod = entity.cylinders[2 * i:2 * i + 2]
                 p = barrel.pose.position, barrel.pose.orientation
                 start, _ = ends((p[0].x, p[0].y, p[0].z), (p[1].x, p[1].y, p[1].z, p[1].w), barrel.size.z)
                 p = rod.pose.position, rod.pose.orientation

@@ -442,9 +442,9 @@ def cylinder_primitives(pins: CylinderPins, cap: np.ndarray, rod: np.ndarray, p_
 
 
 def _cylinder_layout(pins: CylinderPins) -> dict[str, Any]:
-    """The SceneUpdate template: one entity ``cylinder/<name>`` per cylinder in ``world``, columns as
-    :func:`cylinder_primitives` lays them out (cylinder i at column 17 i)."""
-    entities = []
+    """The SceneUpdate template: one entity ``cylinders`` in ``world`` holding barrel and rod of every cylinder, in
+    the pins' order, columns as :func:`cylinder_primitives` lays them out (cylinder i at column 17 i)."""
+    primitives = []
     for i, name in enumerate(pins.names):
         c = _COLUMNS * i
 
@@ -454,24 +454,22 @@ def _cylinder_layout(pins: CylinderPins) -> dict[str, Any]:
                                     "w": Column(first + 6)}}
 
         barrel_d, rod_d = float(pins.barrel_diameter[i]), float(pins.rod_diameter[i])
-        entities.append({
-            "timestamp": TIMESTAMP, "frame_id": WORLD_FRAME, "id": f"cylinder/{name}", "lifetime": {"sec": 0, "nanosec": 0},
-            "frame_locked": False, "metadata": [{"key": "cylinder", "value": name}],
-            "cylinders": [
-                {"pose": pose(c), "size": {"x": barrel_d, "y": barrel_d, "z": float(pins.barrel_length[i])},
-                 "bottom_scale": 1.0, "top_scale": 1.0,
-                 "color": {"r": Column(c + 7), "g": Column(c + 8), "b": Column(c + 9), "a": 1.0}},
-                {"pose": pose(c + 10), "size": {"x": rod_d, "y": rod_d, "z": float(pins.rod_length[i])},
-                 "bottom_scale": 1.0, "top_scale": 1.0,
-                 "color": dict(zip("rgba", ROD_COLOR))},
-            ],
-        })
-    return {"deletions": [], "entities": entities}
+        primitives += [
+            {"pose": pose(c), "size": {"x": barrel_d, "y": barrel_d, "z": float(pins.barrel_length[i])},
+             "bottom_scale": 1.0, "top_scale": 1.0,
+             "color": {"r": Column(c + 7), "g": Column(c + 8), "b": Column(c + 9), "a": 1.0}},
+            {"pose": pose(c + 10), "size": {"x": rod_d, "y": rod_d, "z": float(pins.rod_length[i])},
+             "bottom_scale": 1.0, "top_scale": 1.0, "color": dict(zip("rgba", ROD_COLOR))},
+        ]
+    entity = {"timestamp": TIMESTAMP, "frame_id": WORLD_FRAME, "id": "cylinders", "lifetime": {"sec": 0, "nanosec": 0},
+              "frame_locked": False, "cylinders": primitives}
+    return {"deletions": [], "entities": [entity]}
 
 
 class CylinderScene:
     """The hydraulic cylinders on ``/hydroplant/scene/cylinders``: a ``foxglove_msgs/msg/SceneUpdate`` (CDR) per
-    sample of a :class:`~sim.io.log_writer.Frame`, barrel and rod of each cylinder between its pins.
+    sample of a :class:`~sim.io.log_writer.Frame`, one entity ``cylinders`` in ``world`` whose cylinder primitives
+    are barrel and rod of each cylinder between its pins (cylinder i: primitives 2 i and 2 i + 1).
 
     The channel reads ``17 × n`` columns of the frame (:meth:`fill` writes them from the body
     poses and cap pressures of a batch of rows), at the rows whose step is a multiple of
