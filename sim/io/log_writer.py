@@ -49,9 +49,10 @@ from sim.io.mcap_file import (DEFAULT_CHUNK_SIZE, MESSAGE_RECORD, NS_PER_S, PART
                               RUN_METADATA, ChunkedWriter, LogPathError, RecordStream, RunStatus, library_string,
                               publish, refuse_special)
 
-# sim time between forced chunk ends [s]: at the default 100 Hz a sample is ≈ 2 kB, so a 512 KiB chunk fills in ≈ 2.6 s
-# and a 2 s flush ends about one chunk early; each flush costs a batch derive and encode and a chunk end (≈ 1.5 ms
-# on the excavator at 100 Hz), whatever the chunk holds
+# sim time between forced chunk ends [s]: at the default 100 Hz an excavator sample is ≈ 3 kB (0.9 kB of it the
+# cylinder scene), so a 512 KiB chunk fills in ≈ 1.8 s and each 2 s flush ends a full chunk and a small one; each
+# flush costs a batch derive and encode and a chunk end (≈ 1.5 ms on the excavator at 100 Hz), whatever the chunk
+# holds
 DEFAULT_FLUSH_INTERVAL = 2.0
 DEFAULT_BATCH_SIZE = 1024  # buffered samples per channel before a batch encode
 
