@@ -507,7 +507,7 @@ class CylinderScene:
     def fill(self, rows: np.ndarray, steps: np.ndarray, xpos: np.ndarray, xquat: np.ndarray, p_cap: np.ndarray) -> None:
         """Write the columns of the ``rows`` (k, frame width) the channel takes (those whose ``steps`` are multiples
         of ``every``) from body poses (k, nbody, 3), (k, nbody, 4) and cap pressures (k, n) [Pa]."""
-        taken = np.flatnonzero(np.asarray(steps) % self.every == 0) if self.every > 1 else slice(None)
-        cap, rod = self.pins.world(xpos[taken], xquat[taken])
-        values = cylinder_primitives(self.pins, cap, rod, p_cap[taken])
-        rows[taken, self.columns] = values.reshape(len(values), -1)
+        taken = np.flatnonzero(np.asarray(steps) % self.every == 0) if self.every > 1 else np.arange(len(rows))
+        if len(taken):
+            cap, rod = self.pins.world(xpos[taken], xquat[taken])
+            rows[taken, self.columns] = cylinder_primitives(self.pins, cap, rod, p_cap[taken]).reshape(len(taken), -1)
