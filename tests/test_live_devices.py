@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from sim.live.devices import (AXES, JOYAXISMOTION, JOYDEVICEADDED, JOYDEVICEREMOVED, XBOX_LINUX, GamepadLayout,
-                              GamepadSource, KeyboardSource, Motion, Removed)
+from sim.live.devices import (AXES, DEFAULT_KEYS, JOYAXISMOTION, JOYDEVICEADDED, JOYDEVICEREMOVED, NEUTRAL_KEYS,
+                              XBOX_LINUX, GamepadLayout, GamepadSource, KeyboardSource, Motion, Removed)
 from sim.live.protocol import CommandSource
 
 
@@ -95,23 +95,29 @@ def test_gamepad_through_pygames_event_queue(monkeypatch):
         pygame.display.quit()
 
 
-def test_keyboard_ramps_per_press_and_space_centres():
+def test_keyboard_ramps_per_press_and_neutral_centres():
+    import mujoco
+
     keys = KeyboardSource(step=0.25)
     assert isinstance(keys, CommandSource)
+    # none of the default keys is a viewer shortcut (every letter is one)
+    shortcuts = {row[2] for table in (mujoco.mjVISSTRING, mujoco.mjRNDSTRING) for row in table if row[2]}
+    assert all(len(s) == 1 for s in shortcuts) and not {ord(s) for s in shortcuts} & (set(DEFAULT_KEYS) | set(NEUTRAL_KEYS))
+    home, end, kp = 268, 269, list(range(320, 330))
     for _ in range(3):
-        keys.key(ord("W"))
-    keys.key(ord("J"))
+        keys.key(home)
+    keys.key(kp[4])
     keys.key(ord("Q"))  # not bound: nothing
     values = keys.poll(0.0)
     assert values["left_y"] == 0.75 and values["right_x"] == -0.25 and values["left_x"] == 0.0
     for _ in range(10):  # held (auto-repeat): ramps to the end and stays there
-        keys.key(ord("W"))
-        keys.key(ord("K"))
+        keys.key(home)
+        keys.key(kp[2])
     values = keys.poll(0.0)
     assert values["left_y"] == 1.0 and values["right_y"] == -1.0
-    keys.key(ord("S"))
+    keys.key(end)
     assert keys.poll(0.0)["left_y"] == 0.75
-    keys.key(32)  # Space
+    keys.key(kp[5])  # numpad 5: neutral
     assert keys.poll(0.0) == dict.fromkeys(AXES, 0.0)
     with pytest.raises(ValueError, match="step"):
         KeyboardSource(step=0.0)

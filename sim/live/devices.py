@@ -23,14 +23,16 @@ read −1 at rest through SDL's joystick API: the source maps them to [0, 1].
 
 **Keyboard** (:class:`KeyboardSource`): the MuJoCo viewer's ``key_callback`` gets one call
 per key press (and per auto-repeat while a key is held), never a release, so each press
-moves its axis one ``step`` and holding a key ramps it; Space returns every axis to 0.
+moves its axis one ``step`` and holding a key ramps it; numpad 5 or 0 returns every axis to 0.
+Every letter is already a viewer shortcut (render and visualisation flags), so the default
+keys are the editing block for the left stick and the numpad for the right one:
 
-=========  ===========  =========  ===========
-key        axis         key        axis
-=========  ===========  =========  ===========
-W / S      left_y ±     I / K      right_y ±
-D / A      left_x ±     L / J      right_x ±
-=========  ===========  =========  ===========
+=================  ===========  =================  ===========
+key                axis         key                axis
+=================  ===========  =================  ===========
+Home / End         left_y ±     numpad 8 / 2       right_y ±
+Page Down / Del    left_x ±     numpad 6 / 4       right_x ±
+=================  ===========  =================  ===========
 
 Example
 -------
@@ -186,11 +188,13 @@ class GamepadSource:
             hook()
 
 
-# GLFW key codes (GLFW_KEY_*: upper-case ASCII for letters), what mujoco.viewer's key_callback receives
-KEY_SPACE = 32
-DEFAULT_KEYS = {ord("W"): ("left_y", 1.0), ord("S"): ("left_y", -1.0), ord("D"): ("left_x", 1.0),
-                ord("A"): ("left_x", -1.0), ord("I"): ("right_y", 1.0), ord("K"): ("right_y", -1.0),
-                ord("L"): ("right_x", 1.0), ord("J"): ("right_x", -1.0)}
+# GLFW key codes (GLFW_KEY_*), what mujoco.viewer's key_callback receives
+KEY_DELETE, KEY_PAGE_DOWN, KEY_HOME, KEY_END = 261, 267, 268, 269
+KEY_KP = tuple(range(320, 330))  # numpad 0..9
+NEUTRAL_KEYS = (KEY_KP[5], KEY_KP[0])
+DEFAULT_KEYS = {KEY_HOME: ("left_y", 1.0), KEY_END: ("left_y", -1.0), KEY_PAGE_DOWN: ("left_x", 1.0),
+                KEY_DELETE: ("left_x", -1.0), KEY_KP[8]: ("right_y", 1.0), KEY_KP[2]: ("right_y", -1.0),
+                KEY_KP[6]: ("right_x", 1.0), KEY_KP[4]: ("right_x", -1.0)}
 
 
 class KeyboardSource:
@@ -203,9 +207,12 @@ class KeyboardSource:
         Axis change per press (and per auto-repeat) [-], in (0, 1].
     keys : mapping, optional
         GLFW key code → (axis, direction ±1).
+    neutral : sequence of int, optional
+        GLFW key codes that set every axis to 0.
     """
 
-    def __init__(self, step: float = 0.1, keys: Mapping[int, tuple[str, float]] | None = None):
+    def __init__(self, step: float = 0.1, keys: Mapping[int, tuple[str, float]] | None = None,
+                 neutral: Iterable[int] = NEUTRAL_KEYS):
         if not 0.0 < step <= 1.0:
             raise ValueError(f"keyboard step must be in (0, 1], got {step!r}")
         self.step = float(step)
@@ -213,13 +220,15 @@ class KeyboardSource:
         unknown = {axis for axis, _ in self.keys.values()} - set(AXES)
         if unknown:
             raise ValueError(f"keyboard keys: unknown axis names {sorted(unknown)}; allowed {list(AXES)}")
+        self.neutral = frozenset(int(k) for k in neutral)
         self._lock = threading.Lock()  # the viewer calls key() from its own thread
         self._values = dict.fromkeys(AXES, 0.0)
 
     def key(self, keycode: int) -> None:
-        """One key press (the viewer's ``key_callback``): move its axis one step, or Space: every axis to 0."""
+        """One key press (the viewer's ``key_callback``): move its axis one step, or (a neutral key) every axis
+        to 0."""
         with self._lock:
-            if keycode == KEY_SPACE:
+            if keycode in self.neutral:
                 self._values = dict.fromkeys(AXES, 0.0)
                 return
             binding = self.keys.get(int(keycode))
@@ -236,5 +245,5 @@ class KeyboardSource:
         """Nothing to release."""
 
 
-__all__ = ["AXES", "DEFAULT_KEYS", "GamepadLayout", "GamepadSource", "KeyboardSource", "Motion", "Removed",
+__all__ = ["AXES", "DEFAULT_KEYS", "NEUTRAL_KEYS", "GamepadLayout", "GamepadSource", "KeyboardSource", "Motion", "Removed",
            "XBOX_LINUX"]
