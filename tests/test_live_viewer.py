@@ -26,7 +26,11 @@ class Handle:
     def __init__(self, model):
         self.user_scn = mujoco.MjvScene(model, 100)
         self.opt = mujoco.MjvOption()
-        self.texts, self.syncs, self.running, self.closed = None, 0, True, False
+        self.texts, self.syncs, self.running, self.closed, self.figures = None, 0, True, False, None
+        self.viewport = mujoco.MjrRect(0, 0, 1200, 900)
+
+    def set_figures(self, figures):
+        self.figures = figures
 
     def lock(self):
         return contextlib.nullcontext()
@@ -94,9 +98,17 @@ def test_viewer_overlay_draws_cylinders_on_the_pins_and_the_hydraulic_state(exca
     assert lines["boom_valve"] == "+0.40" and lines["stick_valve"] == "-1.00"
     assert lines["physics / frame"] == "  4.0 /  16.7 ms ( 24 %)" and lines["late, missed"] == "  0.5 ms, 1"
 
+    # the strip chart of cap pressures, bottom right: one line per cylinder, one point per frame so far
+    viewer.show(2.6, qpos, {**values, "boom_cyl/p_cap_bar": 250.0}, stats)
+    rect, figure = handle.figures
+    assert (rect.left, rect.bottom, rect.width, rect.height) == (800, 0, 400, 300)
+    assert list(figure.linepnt[:3]) == [2, 2, 2] and figure.linename[0] == b"boom_cyl"
+    np.testing.assert_allclose(figure.linedata[0, :4], [2.5, 500.0, 2.6, 250.0])
+    assert handle.syncs == 2
+
     handle.running = False  # the operator closed the window: nothing more is drawn
-    viewer.show(2.6, qpos, values, stats)
-    assert handle.syncs == 1 and not viewer.running
+    viewer.show(2.7, qpos, values, stats)
+    assert handle.syncs == 2 and not viewer.running
     viewer.close()
     assert handle.closed
 

@@ -10,7 +10,8 @@ the paced loop stays in charge of time) and, per frame:
   (:class:`sim.io.foxglove_scene.CylinderPins`); the model's own tendon lines are hidden,
 - writes a text overlay (:func:`overlay_texts`): time, each cylinder's cap and rod pressure
   in bar, each valve's command, and the frame budget (physics time against the frame period,
-  missed frames),
+  missed frames), and a strip chart of the cap pressures over the last 600 frames
+  (:class:`PressureChart`, ``set_figures``),
 - and syncs the window.
 
 Nothing opens until a :class:`ViewerOverlay` is made; tests pass a ``launch`` that returns a
@@ -100,6 +101,38 @@ def add_cylinder_geoms(scene: mujoco.MjvScene, pins: CylinderPins, data: mujoco.
     return added
 
 
+class PressureChart:
+    """A strip chart of every cylinder's cap pressure [bar] over the last ``frames`` frames, as a ``MjvFigure``
+    for a viewer handle's ``set_figures`` (bottom-right quarter of the window)."""
+
+    def __init__(self, names: Sequence[str], frames: int = 600):
+        self.names = tuple(names)[:mujoco.mjMAXLINE]
+        self.frames = max(2, min(int(frames), mujoco.mjMAXLINEPNT))
+        self.time = np.full(self.frames, np.nan)
+        self.history = np.full((len(self.names), self.frames), np.nan)
+        self.count = 0
+        self.figure = mujoco.MjvFigure()
+        self.figure.title = "cap pressure [bar]"
+        self.figure.xlabel = "time [s]"
+        self.figure.flg_extend = 1
+        for i, name in enumerate(self.names):
+            self.figure.linename[i] = name
+
+    def add(self, t: float, values: Mapping[str, float]) -> mujoco.MjvFigure:
+        """Append the frame at ``t`` [s] (``<cylinder>/p_cap_bar`` of ``values``) and return the updated figure."""
+        self.time = np.roll(self.time, -1)
+        self.history = np.roll(self.history, -1, axis=1)
+        self.time[-1] = t
+        self.history[:, -1] = [values.get(f"{name}/p_cap_bar", np.nan) for name in self.names]
+        self.count = min(self.count + 1, self.frames)
+        n = self.count
+        for i in range(len(self.names)):
+            self.figure.linedata[i, 0:2 * n:2] = self.time[-n:]
+            self.figure.linedata[i, 1:2 * n:2] = self.history[i, -n:]
+            self.figure.linepnt[i] = n
+        return self.figure
+
+
 def cap_pressures(pins: CylinderPins, values: Mapping[str, float]) -> np.ndarray:
     """Cap pressures [Pa] of ``pins``'s cylinders from ``values``' ``<cylinder>/p_cap_bar`` (ambient when absent)."""
     return np.array([values.get(f"{name}/p_cap_bar", AMBIENT_PA / PA_PER_BAR) * PA_PER_BAR for name in pins.names])
@@ -121,6 +154,8 @@ class ViewerOverlay:
     launch : callable, optional
         ``launch(model, data, key_callback=..., show_left_ui=..., show_right_ui=...)`` returning a
         viewer handle; ``mujoco.viewer.launch_passive`` by default.
+    chart : bool, optional
+        Show a strip chart of the cap pressures (:class:`PressureChart`) in the bottom-right corner.
 
     Attributes
     ----------
@@ -132,7 +167,7 @@ class ViewerOverlay:
 
     def __init__(self, model: mujoco.MjModel, pins: CylinderPins | None = None, *,
                  key_callback: Callable[[int], None] | None = None, show_ui: bool = False,
-                 launch: Callable[..., Any] | None = None):
+                 launch: Callable[..., Any] | None = None, chart: bool = True):
         if launch is None:
             from mujoco import viewer  # (a window: imported only when one is opened)
 
@@ -142,6 +177,7 @@ class ViewerOverlay:
         self.pins = pins
         self.missed = 0
         self.running = True
+        self.chart = PressureChart(pins.names) if pins is not None and chart else None
         self.handle = launch(model, self.data, key_callback=key_callback, show_left_ui=show_ui, show_right_ui=show_ui)
         if pins is not None:
             with self.handle.lock():
@@ -162,6 +198,12 @@ class ViewerOverlay:
                 scene.ngeom = 0
                 add_cylinder_geoms(scene, self.pins, self.data, cap_pressures(self.pins, values))
         self.handle.set_texts(overlay_texts(t, values, stats, self.missed))
+        if self.chart is not None:
+            figure = self.chart.add(t, values)
+            window = self.handle.viewport
+            if window is not None:
+                width, height = window.width // 3, window.height // 3
+                self.handle.set_figures((mujoco.MjrRect(window.width - width, 0, width, height), figure))
         self.handle.sync()
 
     def close(self) -> None:
@@ -198,4 +240,4 @@ def render_overlay(model: mujoco.MjModel, qpos: np.ndarray, pins: CylinderPins |
         return renderer.render().copy()
 
 
-__all__ = ["ViewerOverlay", "add_cylinder_geoms", "cap_pressures", "overlay_lines", "overlay_texts", "render_overlay"]
+__all__ = ["PressureChart", "ViewerOverlay", "add_cylinder_geoms", "cap_pressures", "overlay_lines", "overlay_texts", "render_overlay"]
