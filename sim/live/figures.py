@@ -3,8 +3,9 @@
 - ``viewer-overlay.png``: the frame :class:`sim.live.viewer.ViewerOverlay` shows, rendered
   offscreen with ``mujoco.Renderer`` (needs ``MUJOCO_GL=egl`` or ``osmesa``) at the log's last
   sample, its cylinders coloured by cap pressure; the overlay text (the same lines the viewer
-  writes, :func:`sim.live.viewer.overlay_lines`) is drawn over it with matplotlib, since the
-  renderer has no public text call.  The frame budget line is the run's average: physics
+  writes, :func:`sim.live.viewer.overlay_lines`) and the strip chart of cap pressures (from the
+  logged samples) are drawn over it with matplotlib, since the renderer has no public text or
+  figure call.  The frame budget line is the run's average: physics
   time per 60 Hz frame = (1/60 s) / real-time factor of the run that made the log.
 - ``scene-cylinders.png``: the 3D scene of the shipped layout at the same time, drawn with
   matplotlib from the log's own messages: the body primitives of ``/hydroplant/scene`` placed
@@ -209,6 +210,16 @@ def viewer_figure(log_path: Path, png: Path, log_time: int, real_time_factor: fl
     text = "\n".join(f"{label:<{width}}  {value}" for label, value in lines)
     ax.text(0.012, 0.975, text, transform=ax.transAxes, va="top", ha="left", family="monospace", fontsize=11,
             color="white", bbox={"facecolor": (0.1, 0.1, 0.1, 0.55), "edgecolor": "none", "pad": 6})
+    # the viewer's strip chart (PressureChart: cap pressures of the last 600 frames), from the logged samples
+    chart = fig.add_axes((0.69, 0.06, 0.29, 0.27), facecolor=(0.1, 0.1, 0.1, 0.6))
+    shown = (joints.log_time <= log_time) & (joints.log_time >= log_time - round(600 * FRAME_PERIOD * 1e9))
+    for name in pins.names:
+        chart.plot(joints.log_time[shown] * 1e-9, log.topic(f"/hydroplant/cylinders/{name}")["p_cap_bar"][shown],
+                   label=name, linewidth=1.2)
+    chart.set_title("cap pressure [bar]", color="white", fontsize=9)
+    chart.set_xlabel("time [s]", color="white", fontsize=8)
+    chart.tick_params(colors="white", labelsize=8)
+    chart.legend(fontsize=7, loc="upper left", framealpha=0.3)
     fig.savefig(png)
     plt.close(fig)
     return png
