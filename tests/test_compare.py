@@ -34,7 +34,7 @@ def write_log(path, dt, duration, *, stroke, pressure=None, joint=None, scene="s
         for n in range(steps + 1):
             t = n * dt
             joints.append(n, [joint(t)], [0.0])
-            cyl.append(n, (stroke(t), 0.0, pressure(t), 1e5, 0.0, 0.0, 0.0, 1.0))
+            cyl.append(n, (stroke(t), 0.0, pressure(t), 1e5, 0.0, 0.0, 0.0, 1.0, pressure(t) / 1e5, 1.0))
         if diverged_at is not None:
             log.mark("diverged", time_s=repr(steps * dt), component="test", message="synthetic")
         elif status == "complete":

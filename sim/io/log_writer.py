@@ -49,9 +49,10 @@ from sim.io.mcap_file import (DEFAULT_CHUNK_SIZE, MESSAGE_RECORD, NS_PER_S, PART
                               RUN_METADATA, ChunkedWriter, LogPathError, RecordStream, RunStatus, library_string,
                               publish, refuse_special)
 
-# sim time between forced chunk ends [s]: at the default 100 Hz a sample is ≈ 2 kB, so a 512 KiB chunk fills in ≈ 2.6 s
-# and a 2 s flush ends about one chunk early; each flush costs a batch derive and encode and a chunk end (≈ 1.5 ms
-# on the excavator at 100 Hz), whatever the chunk holds
+# sim time between forced chunk ends [s]: at the default 100 Hz an excavator sample is ≈ 3 kB (0.9 kB of it the
+# cylinder scene), so a 512 KiB chunk fills in ≈ 1.8 s and each 2 s flush ends a full chunk and a small one; each
+# flush costs a batch derive and encode and a chunk end (≈ 1.5 ms on the excavator at 100 Hz), whatever the chunk
+# holds
 DEFAULT_FLUSH_INTERVAL = 2.0
 DEFAULT_BATCH_SIZE = 1024  # buffered samples per channel before a batch encode
 
@@ -241,6 +242,72 @@ class _DeferredSigint:
             self._previous(*self._received)  # default_int_handler raises KeyboardInterrupt here
         elif self._previous == signal.SIG_DFL:
             signal.raise_signal(signal.SIGINT)
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    """What a log channel is, as written in its MCAP Schema and Channel records (handed to a :class:`LogTee`).
+
+    Attributes
+    ----------
+    id : int
+        MCAP channel id (from 1), the ``channel_id`` of its messages.
+    topic : str
+        Topic name.
+    schema_name, schema_encoding : str
+        Schema name and encoding (``"ros2msg"`` or ``"jsonschema"``).
+    schema_data : bytes
+        Schema text (``ros2msg`` definition or JSON Schema).
+    message_encoding : str
+        ``"cdr"`` or ``"json"``.
+    metadata : dict of str
+        Channel metadata.
+    """
+
+    id: int
+    topic: str
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes
+    message_encoding: str
+    metadata: Mapping[str, str]
+
+
+class LogTee:
+    """Receiver of a copy of everything a :class:`LogWriter` writes (see :meth:`LogWriter.add_tee`): a live stream
+    of the log's topics.  Subclass it and override both methods.
+
+    Calls come from the thread that writes the log (the drain of a batch), so they should be quick: copy the
+    bytes out, do not block.
+    """
+
+    def channel(self, info: ChannelInfo) -> None:
+        """A channel of the log: every channel registered before the tee was added, then each new one."""
+
+    def messages(self, records: Sequence[tuple[int, int, bytes]]) -> None:
+        """Messages in log-time order, as written to the file: ``(channel id, log time [ns], message data)``."""
+
+
+def stream_messages(stream: RecordStream) -> list[tuple[int, int, bytes]]:
+    """The messages of a record stream as ``(channel id, log time [ns], message data)``, in stream order.
+
+    Reads the MCAP Message records (``opcode, record length, channel, sequence, log time,
+    publish time`` then the data) at the offsets the stream lists.
+    """
+    found = []
+    for _, _, offsets in stream.messages:
+        found.append(offsets.reshape(-1))
+    if not found:
+        return []
+    starts = np.sort(np.concatenate(found))
+    data = stream.data
+    raw = data.tobytes() if not data.flags.c_contiguous else memoryview(data).cast("B")
+    out = []
+    for start in starts.tolist():
+        _, length, channel_id, _, log_time, _ = _MESSAGE_RECORD.unpack_from(raw, start)
+        begin = start + _MESSAGE_RECORD_OVERHEAD
+        out.append((channel_id, log_time, bytes(raw[begin:start + 9 + length])))
+    return out
 
 
 @dataclass(frozen=True)
@@ -818,6 +885,8 @@ class LogWriter:
         self._serial = 0
         self._closed = False
         self._close_hooks: list[Callable[[], None]] = []
+        self._infos: list[ChannelInfo] = []
+        self._tees: list[LogTee] = []
         self._overwrite = bool(overwrite)
 
         self._file: BinaryIO = _create_partial(self.path, self.partial_path, self._overwrite)
@@ -948,6 +1017,26 @@ class LogWriter:
         """
         self._close_hooks.append(hook)
 
+    def add_tee(self, tee: LogTee) -> None:
+        """Hand ``tee`` every channel of the log (those registered so far at once) and, at each drain, the messages
+        written to the file, as they are written (same bytes, same log times).
+
+        For a live view of the log's topics (:class:`sim.live.foxglove_live.FoxgloveLive`).  Messages reach the tee
+        when the writer drains its buffers: at a batch, a periodic flush, :meth:`drain`, :meth:`flush` and
+        :meth:`close`; a live view calls :meth:`drain` once per frame.  A tee does not change the file.
+        """
+        self._check_open()
+        self._tees.append(tee)
+        for info in self._infos:
+            tee.channel(info)
+
+    def drain(self) -> None:
+        """Encode every buffered sample and add it to the chunk in progress without ending the chunk (what a batch
+        drain does); the messages reach the tees (:meth:`add_tee`) now.  Call it after a frame's samples are all
+        buffered: a message written later for an earlier step would follow them in the file."""
+        self._check_open()
+        self._drain(end_chunk=False)
+
     def frame(self, column_count: int) -> Frame:
         """A :class:`Frame`: one row of ``column_count`` floats per sample feeding several channels."""
         self._check_open()
@@ -969,6 +1058,11 @@ class LogWriter:
             schema_id = self._writer.register_schema(schema_name, schema_encoding, schema_bytes)
             self._schema_ids[key] = schema_id
         channel_id = self._writer.register_channel(topic, message_encoding, schema_id, _str_dict("metadata", metadata))
+        info = ChannelInfo(channel_id, topic, schema_name, schema_encoding, bytes(schema_bytes), message_encoding,
+                           _str_dict("metadata", metadata))
+        self._infos.append(info)
+        for tee in self._tees:
+            tee.channel(info)
         channel = cls(self, channel_id, len(self._channels), topic, schema_name, msg_type, template, self._batch_size,
                       **(extra or {}))
         self._channels.append(channel)
@@ -1026,7 +1120,12 @@ class LogWriter:
         blocks = [block for frame in self._frames for block in frame._take_encoded()]
         blocks += [block for channel in self._channels for block in channel._take_encoded()]
         if blocks:
-            self._writer.add_records(_merge_blocks(blocks))
+            stream = _merge_blocks(blocks)
+            self._writer.add_records(stream)
+            if self._tees:
+                records = stream_messages(stream)
+                for tee in self._tees:
+                    tee.messages(records)
             self._last_step = max(self._last_step, max(c._last_step for c in self._channels))
         if end_chunk:
             self._writer.flush(wait=wait)

@@ -8,7 +8,8 @@ field's comment in the schema and in the channel metadata); the events and the
 scene are JSON:
 
 ``/hydroplant/joint_states``       ``foxglove_msgs/msg/JointStates`` of the scalar joints
-``/hydroplant/cylinders/<name>``   ``hydroplant_msgs/msg/CylinderState``: stroke, speed, pressures, forces, stiffness
+``/hydroplant/cylinders/<name>``   ``hydroplant_msgs/msg/CylinderState``: stroke, speed, pressures (also in bar, for
+                                   plots), forces, stiffness
 ``/hydroplant/motors/<name>``      ``hydroplant_msgs/msg/MotorState``: angle, speed, port pressures, torque
 ``/hydroplant/valves/<name>``      ``hydroplant_msgs/msg/ValveState``: command and spool
 ``/hydroplant/pumps/<name>``       ``hydroplant_msgs/msg/PumpState``: speed, flow, outlet pressure, power
@@ -20,6 +21,8 @@ scene are JSON:
                                    samples whose step is a multiple of ``tf_every`` (a display rate, see
                                    :attr:`sim.io.scenario.Scenario.tf_every`); the joints they follow are on every sample
 ``/hydroplant/scene``              ``foxglove.SceneUpdate`` (JSON): the bodies' geometry, once
+``/hydroplant/scene/cylinders``    ``foxglove_msgs/msg/SceneUpdate`` (CDR): each cylinder's barrel and rod between its
+                                   pins, barrel coloured by cap pressure, at the ``/tf`` samples
 ``/hydroplant/events``             ``foxglove.Log`` (JSON): divergence and other events
 
 Node and branch names become ROS 2 field names with :func:`field_name`
@@ -35,7 +38,7 @@ import numpy as np
 
 from hydraulics.energy import stored_energy_at
 
-from sim.io.foxglove_scene import FrameTransformsChannel, log_scene
+from sim.io.foxglove_scene import CylinderPins, CylinderScene, FrameTransformsChannel, log_scene
 from sim.io.mcap_log import LogLevel, LogWriter, flat_schema, log_message, log_schema
 
 
@@ -69,7 +72,10 @@ CYLINDER_FIELDS = {
     "pressure_force_n": "p_cap*A_cap - p_rod*A_rod - p_amb*(A_cap - A_rod) at the end of the step [N]",
     "stiffness_npm": "Oil-column stiffness beta*(A_cap^2/V_cap + A_rod^2/V_rod) [N/m]",
     "theta": "Implicit weight of the coupling this step [-]",
+    "p_cap_bar": "Cap-side absolute pressure in bar, p_cap_pa / 1e5 (for plots) [bar]",
+    "p_rod_bar": "Rod-side absolute pressure in bar, p_rod_pa / 1e5 (for plots) [bar]",
 }
+PA_PER_BAR = 1e5
 MOTOR_FIELDS = {
     "angle_rad": "Motor shaft angle [rad]",
     "speed_radps": "Motor shaft speed [rad/s]",
@@ -150,6 +156,8 @@ class RunRecorder:
         sizes = {"joints": 3 * nj, "cylinders": ncyl * len(CYLINDER_FIELDS), "motors": nmot * len(MOTOR_FIELDS),
                  "valves": nvalve * len(VALVE_FIELDS), "pumps": npump * len(PUMP_FIELDS), "nodes": nnode, "flows": nflow,
                  "energy": len(ENERGY_FIELDS), "solver": len(SOLVER_FIELDS), "xpos": 3 * nbody, "xquat": 4 * nbody}
+        pins = CylinderPins.of_scene(plant.scene) if ncyl else None
+        sizes["cylinder_scene"] = CylinderScene.width(pins) if ncyl else 0
         start = np.cumsum([0, *sizes.values()])
         block = {name: slice(int(start[i]), int(start[i + 1])) for i, name in enumerate(sizes)}
         self._block = block
@@ -187,6 +195,7 @@ class RunRecorder:
         self.tf = FrameTransformsChannel(log, plant.model)
         frame.adopt(self.tf.channel, np.arange(block["xpos"].start, block["xquat"].stop), every=tf_every)
         log_scene(log, plant.model)
+        self.cylinder_scene = CylinderScene(frame, pins, block["cylinder_scene"], every=tf_every) if ncyl else None
         # index arrays of the samples (one numpy gather per topic family, no per-field Python)
         self._cyl = np.asarray(net.cylinder_actuator, dtype=np.intp)
         self._cyl_cap = np.asarray(net.cylinder_cap_node, dtype=np.intp)
@@ -366,7 +375,11 @@ class RunRecorder:
             c[:, :, 5] = net.pressure_effort(p)[:, cyl]
             c[:, :, 6] = net.chamber_stiffness(p, x, volumes).sum(axis=1)
             c[:, :, 7] = theta[:, cyl]
+            c[:, :, 8], c[:, :, 9] = c[:, :, 2] / PA_PER_BAR, c[:, :, 3] / PA_PER_BAR
             rows[:, block["cylinders"]] = c.reshape(k, -1)
+            nbody = self.plant.model.nbody
+            self.cylinder_scene.fill(rows, self._raw_steps[:k], r[:, b["poses"]][:, :3 * nbody].reshape(k, nbody, 3),
+                                     r[:, b["poses"]][:, 3 * nbody:].reshape(k, nbody, 4), p[:, self._cyl_cap])
         if len(self._mot):
             mot = self._mot
             m = rows[:, block["motors"]].reshape(k, len(mot), len(MOTOR_FIELDS))
