@@ -619,3 +619,137 @@ def resume(log_path, at: float, *, out=None, overwrite: bool = False, source=Non
 
 __all__ = ["FrameDriver", "FrameSummary", "HoldSource", "LoggedRun", "PlayOptions", "PlayResult", "ProgramSource",
            "ScheduleSource", "play", "replay", "resume"]
+
+
+# ------------------------------------------------------------------------------------------------- command line
+INPUTS = ("script", "none", "gamepad", "foxglove")
+
+
+def add_parser(subparsers) -> None:
+    """``hydroplant play``: registered by :mod:`sim.cli` (``TOOL_MODULES``)."""
+    from sim.cli import int_in, out_path, positive_float
+
+    def non_negative(text):
+        value = float(text)
+        if not (value >= 0 and math.isfinite(value)):
+            raise ValueError(text)
+        return value
+
+    parser = subparsers.add_parser(
+        "play", help="run a scenario paced to the wall clock, driven by an operator; record, replay, resume",
+        description="Steps the scenario in frames paced to the wall clock (default 60 Hz, real time), reading the "
+        "operator's commands each frame, and writes the run's log with the commands, the frame timing and full-state "
+        "snapshots. The frame statistics (median, p99, max, misses) are printed at the end. Exit 0: complete; 2: bad "
+        "input; 3: diverged.")
+    parser.add_argument("scenario", type=Path, nargs="?", help="scenario TOML file")
+    parser.add_argument("--example", metavar="NAME", help="a shipped example instead of a file, e.g. excavator/dig")
+    parser.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"))
+    parser.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear", "rosenbrock"))
+    parser.add_argument("--dt", type=positive_float, help="physics step [s]")
+    parser.add_argument("--duration", type=positive_float, help="simulated time [s]")
+    parser.add_argument("--substeps", type=int_in(1), help="hydraulic substeps per physics step")
+    parser.add_argument("--pbd-substeps", type=int_in(1), help="XPBD substeps per step (PBD mode)")
+    parser.add_argument("--rate", type=positive_float, default=60.0, help="frame rate [Hz] (default 60)")
+    parser.add_argument("--pace", type=non_negative, default=1.0,
+                        help="simulated seconds per wall-clock second (default 1: real time; 0: as fast as possible)")
+    parser.add_argument("--overrun", choices=OVERRUNS, default="catch-up",
+                        help="a frame that ends after its deadline: catch-up (default: later frames run back to back) or "
+                             "slow (the simulated clock falls behind)")
+    parser.add_argument("--snapshot-hz", type=non_negative, default=1.0,
+                        help="full-state snapshots per simulated second (default 1; 0: only at the start)")
+    parser.add_argument("--input", choices=INPUTS, default="script",
+                        help="command source: script (the scenario's [inputs] played at the frame rate, default), none "
+                             "(hold the start values), gamepad (extra 'gamepad'), foxglove (a client publishing on "
+                             "/hydroplant/commands; extra 'live')")
+    parser.add_argument("--foxglove", type=int_in(0, 65535), nargs="?", const=8765, metavar="PORT",
+                        help="serve a live Foxglove stream on ws://127.0.0.1:PORT (default 8765; extra 'live')")
+    parser.add_argument("--replay", type=Path, metavar="LOG", help="play a log's recorded commands again (paced)")
+    parser.add_argument("--resume", type=Path, metavar="LOG", help="continue a log's run from its snapshot at or before --at")
+    parser.add_argument("--at", type=non_negative, metavar="T", help="simulated time to resume from [s] (with --resume)")
+    parser.add_argument("--out", type=out_path, help="log file (default: logs/<scene>-<scenario>-<mode>-<coupling>-<time>.mcap)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    parser.add_argument("--no-monitor", action="store_true", help="log the plausibility monitor's findings as warnings")
+    parser.set_defaults(func=main)
+
+
+def _endpoints(args):
+    """The command source and frame sinks the options ask for (the optional live modules imported only then)."""
+    sinks, source = [], None
+    live = None
+    if args.foxglove is not None or args.input == "foxglove":
+        from sim.live.foxglove_live import FoxgloveLive  # noqa: PLC0415 - optional extra 'live'
+
+        live = FoxgloveLive(port=8765 if args.foxglove is None else args.foxglove)
+        sinks.append(live)
+        print(f"hydroplant: live Foxglove stream on ws://127.0.0.1:{live.port}", file=sys.stderr)
+    if args.input == "foxglove":
+        source = live.commands
+    elif args.input == "gamepad":
+        from sim.live.devices import GamepadSource  # noqa: PLC0415 - optional extra 'gamepad'
+
+        source = GamepadSource.open()
+    elif args.input == "none":
+        source = HoldSource()
+    return source, sinks
+
+
+def main(args) -> int:
+    from sim.cli import EXIT_DIVERGED, _received
+    from sim.io.examples import example_path
+
+    options = PlayOptions(rate_hz=args.rate, pace=args.pace, overrun=args.overrun, snapshot_hz=args.snapshot_hz)
+    from_log = [name for name in ("replay", "resume") if getattr(args, name) is not None]
+    given = (args.scenario is not None) + (args.example is not None) + len(from_log)
+    if given != 1:
+        raise CircuitError("play: give one of a SCENARIO file, --example NAME, --replay LOG or --resume LOG")
+    if (args.at is None) != (args.resume is None):
+        raise CircuitError("play: --resume LOG and --at T go together")
+    stop = _received.__len__
+    if args.replay is not None:
+        result = replay(args.replay, out=args.out, overwrite=args.overwrite, paced=options, stop=stop)
+    else:
+        source, sinks = _endpoints(args)
+        if args.resume is not None:
+            if source is None:
+                with LoggedRun(args.resume) as logged:
+                    source = ScheduleSource(load_scenario(logged.scenario).inputs)
+            result = resume(args.resume, args.at, out=args.out, overwrite=args.overwrite, source=source,
+                            options=options, sinks=sinks, stop=stop)
+        else:
+            overrides = {"mode": args.mode, "coupling": args.coupling, "dt": args.dt, "duration": args.duration,
+                         "hydraulic_substeps": args.substeps, "pbd_substeps": args.pbd_substeps,
+                         "monitor": False if args.no_monitor else None}
+            scenario = example_path(args.example) if args.example else args.scenario
+            result = play(scenario, source=source, sinks=sinks, options=options, out=args.out, overrides=overrides,
+                          overwrite=args.overwrite, stop=stop)
+    print(result.summary_text())
+    return 0 if result.run.status == "complete" else EXIT_DIVERGED
+
+
+def add_run_options(parser) -> None:
+    """``hydroplant run --replay LOG`` and ``--resume LOG --at T`` (registered on ``run`` by :mod:`sim.cli`)."""
+    from sim.cli import out_path  # noqa: F401 - (the same module's types)
+
+    parser.add_argument("--replay", type=Path, metavar="LOG",
+                        help="run a 'hydroplant play' log's recorded commands again, as fast as it goes (bit for bit)")
+    parser.add_argument("--resume", type=Path, metavar="LOG",
+                        help="continue a 'hydroplant play' log's run from its snapshot at or before --at, with its "
+                             "recorded commands (bit for bit the original from there)")
+    parser.add_argument("--at", type=float, metavar="T", help="simulated time to resume from [s] (with --resume)")
+
+
+def run_from_log(args):
+    """``hydroplant run --replay LOG`` / ``--resume LOG --at T``: the run's result, or None when neither is given."""
+    if args.replay is None and args.resume is None:
+        if args.at is not None:
+            raise CircuitError("run: --at T needs --resume LOG")
+        return None
+    if args.replay is not None and args.resume is not None:
+        raise CircuitError("run: give --replay LOG or --resume LOG, not both")
+    if args.scenario is not None or args.example is not None:
+        raise CircuitError("run: --replay and --resume rebuild the run from the log; give no SCENARIO or --example")
+    if args.resume is not None:
+        if args.at is None or not (math.isfinite(args.at) and args.at >= 0):
+            raise CircuitError(f"run: --resume needs --at T, a simulated time >= 0 [s] (got {args.at!r})")
+        return resume(args.resume, args.at, out=args.out, overwrite=args.overwrite)
+    return replay(args.replay, out=args.out, overwrite=args.overwrite)
