@@ -1,0 +1,117 @@
+"""The physics share of a paced frame (``hydroplant play``) on the excavator dig, per mode and coupling, and the
+number of excavators one core steps in real time.
+
+Per configuration, ``play`` of the 20 s dig unpaced (``pace = 0``: no sleeping, every frame's work measured) at
+60 Hz frames with the scripted operator and the default log (100 Hz, snapshots at 1 Hz), ``--reps`` times
+interleaved over the configurations; per frame the physics time (the frame's steps with the log's in-loop
+sampling, as the paced loop measures it).  Printed per configuration: the median over the reps of each rep's
+median, p99 and max physics time per frame [ms], as a share of the 16.67 ms frame, and the frames over the period.
+
+Excavators per core in real time: N = floor(16.67 ms / p99) from the p99 physics time of one excavator (an
+extrapolation: N excavators stepped one after the other in a frame cost N times one, with the log of each),
+checked by stepping N plants of the configuration one after the other in every frame for ``--check-seconds`` of
+simulated time without logs (the same blocks, ``plant.advance`` per frame): the p99 of the summed frame time and
+whether it fits the frame.
+
+Usage::
+
+    python bench/bench_play.py [--reps 3] [--check-seconds 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from sim.io.examples import example_path
+from sim.io.scenario import load_scenario
+from sim.io.scene import load_scene
+from sim.run.play import PlayOptions, ScheduleSource, play
+from sim.run.runner import make_plant
+
+FRAME_MS = 1e3 / 60.0
+CONFIGS = (  # label, scenario overrides
+    ("mujoco implicit 1 ms", {"mode": "mujoco", "coupling": "implicit"}),
+    ("mujoco implicit-linear 1 ms", {"mode": "mujoco", "coupling": "implicit-linear"}),
+    ("mujoco rosenbrock 1 ms", {"mode": "mujoco", "coupling": "rosenbrock"}),
+    ("pbd implicit 1 ms × 20", {"mode": "pbd", "coupling": "implicit"}),
+    ("pbd rosenbrock 1 ms × 20", {"mode": "pbd", "coupling": "rosenbrock"}),
+    ("pbd rosenbrock-θ 16.67 ms × 18", {"mode": "pbd", "coupling": "rosenbrock", "dt": 1 / 60, "pbd_substeps": 18,
+                                        "pbd_blend": True}),
+)
+
+
+def one_play(overrides: dict, folder: Path) -> np.ndarray:
+    """Physics time per frame [ms] of one unpaced play of the dig."""
+    scenario = load_scenario(example_path("excavator/dig")).with_overrides(**overrides)
+    result = play(scenario, source=ScheduleSource(scenario.inputs), options=PlayOptions(pace=0.0),
+                  out=folder / f"play-{time.perf_counter_ns()}.mcap")
+    if result.run.status != "complete":
+        raise RuntimeError(f"{overrides}: {result.run.status} {result.run.message}")
+    return result.frames.physics_ms
+
+
+def frames_of_many(overrides: dict, count: int, seconds: float) -> np.ndarray:
+    """Summed wall time [ms] per 60 Hz frame of ``count`` plants stepped one after the other (no logs)."""
+    scenario = load_scenario(example_path("excavator/dig")).with_overrides(duration=seconds, **overrides)
+    plants = [make_plant(load_scene(scenario)) for _ in range(count)]
+    steps = scenario.step_count
+    per_frame = 1.0 / (60.0 * scenario.dt)
+    out = []
+    k = 0
+    while plants[0].step_index < steps:
+        end = min(int(round((k + 1) * per_frame)), steps)
+        tic = time.perf_counter()
+        for plant in plants:
+            plant.advance(end - plant.step_index)
+        out.append(1e3 * (time.perf_counter() - tic))
+        k += 1
+    return np.array(out)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--reps", type=int, default=3)
+    parser.add_argument("--check-seconds", type=float, default=5.0)
+    args = parser.parse_args(argv)
+    figures = {label: [] for label, _ in CONFIGS}
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, overrides in CONFIGS:  # warm-up: kernels loaded or compiled, not timed
+            frames_of_many(overrides, 1, 0.1)
+        for _ in range(args.reps):
+            for label, overrides in CONFIGS:
+                ms = one_play(overrides, Path(tmp))
+                figures[label].append((np.median(ms), np.percentile(ms, 99), ms.max(), np.count_nonzero(ms > FRAME_MS), len(ms)))
+    print(f"excavator dig, 20 s, 60 Hz frames ({FRAME_MS:.2f} ms), unpaced, default log; median over {args.reps} reps")
+    print()
+    print("| mode, coupling, step | physics median [ms] | p99 [ms] | max [ms] | median share | p99 share "
+          "| frames over 16.67 ms | excavators per core (16.67 ms / p99) |")
+    print("|---|---|---|---|---|---|---|---|")
+    counts = {}
+    for label, _ in CONFIGS:
+        rows = np.array(figures[label])
+        med, p99, top, over = (statistics.median(rows[:, i]) for i in range(4))
+        n = int(math.floor(FRAME_MS / p99))
+        counts[label] = n
+        print(f"| {label} | {med:.3f} | {p99:.3f} | {top:.1f} | {100 * med / FRAME_MS:.1f} % | {100 * p99 / FRAME_MS:.1f} % "
+              f"| {over:.0f} of {int(rows[0, 4])} | {n} |")
+    print()
+    print(f"| check: N plants stepped one after the other per frame, {args.check_seconds:g} s, no log | N | summed "
+          "median [ms] | summed p99 [ms] | fits the frame at p99 |")
+    print("|---|---|---|---|---|")
+    for label, overrides in CONFIGS:
+        n = max(1, counts[label])
+        ms = frames_of_many(overrides, n, args.check_seconds)
+        p99 = np.percentile(ms, 99)
+        print(f"| {label} | {n} | {np.median(ms):.2f} | {p99:.2f} | {'yes' if p99 <= FRAME_MS else 'no'} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
