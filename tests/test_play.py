@@ -198,6 +198,9 @@ def test_play_resume_with_a_live_source_starts_at_the_snapshot(tmp_path):
     for name in b.fields:
         assert a[name][i] == b[name][0], name
     assert b["position_m"][-1] < b["position_m"][0]  # the operator lowered the boom from there
+    # the taken-over run's own log replays bit for bit (from its first snapshot, with its recorded commands)
+    again = replay(taken.run.log_path, out=tmp_path / "c.mcap")
+    assert assert_same_messages(taken.run.log_path, again.log_path) > 1000
 
 
 def test_cli_refuses_bad_combinations(tmp_path, capsys):

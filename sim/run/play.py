@@ -367,6 +367,7 @@ class FrameDriver:
         every = max(1, int(round(1.0 / (opts.snapshot_hz * dt)))) if opts.snapshot_hz > 0 else None
         self.write_snapshot(plant)
         next_snapshot = math.inf if every is None else (first // every + 1) * every
+        self.warm_up(loop)
         physics, lateness, cycles, missed = [], [], [], []
         window = deque(maxlen=STATS_WINDOW)
         slip = 0.0
@@ -429,6 +430,18 @@ class FrameDriver:
 
             loop.recorder.event(plant.step_index, LogLevel.WARNING, "commands ignored (not an axis of the mapping, nor "
                                 f"a valve or pump of the circuit): {sorted(self.warned)}")
+
+    def warm_up(self, loop) -> None:
+        """One-time costs before the clock starts, so that the first frames keep their deadlines: the log's encoder
+        (the first sample and snapshot are written out now) and, for a block-stepping plant, the compiled step's
+        first call (one step taken and undone: :func:`sim.run.snapshot.restore` gives back the state bit for bit)."""
+        loop.drain()
+        self.log.flush()
+        plant = loop.plant
+        if getattr(plant, "fast", False) and plant.step_index < loop.steps:
+            state = snap.capture(plant)
+            plant.advance(1)
+            snap.restore(plant, state)
 
     def write_snapshot(self, plant) -> None:
         self.snapshots.write(plant.step_index, snap.encode(snap.capture(plant)))
@@ -565,6 +578,12 @@ class LoggedRun:
             return None
         return table_from_log(self.log, self.dt)
 
+    def first_snapshot(self) -> dict | None:
+        """The log's first snapshot (None without snapshots)."""
+        if snap.SNAPSHOT_TOPIC not in self.log:
+            return None
+        return snap.decode(self.log.topic(snap.SNAPSHOT_TOPIC).messages[0])
+
     def snapshot_at(self, at: float) -> dict:
         """The last snapshot at or before simulated time ``at`` [s]."""
         if snap.SNAPSHOT_TOPIC not in self.log:
@@ -588,7 +607,9 @@ def replay(log_path, *, out=None, overwrite: bool = False, paced: PlayOptions | 
         if table is None:
             raise CircuitError(f"{log_path}: no recorded commands ({COMMANDS_TOPIC}); logs of 'hydroplant play' carry them")
         meta = {"replay_of": str(log_path), "play_overrides": logged.meta.get("play_overrides", "{}")}
-        driver = FrameDriver(commands=table, frames=paced is not None, options=paced, metadata=meta)
+        start = logged.first_snapshot()  # a resumed run's log starts at its first snapshot
+        driver = FrameDriver(commands=table, frames=paced is not None, options=paced, metadata=meta,
+                             resume=start if start is not None and start["step_index"] > 0 else None)
         result = run(logged.scenario, out=out, overrides=logged.overrides, overwrite=overwrite, stop=stop, driver=driver)
     return result if paced is None else PlayResult(result, driver.summary)
 
