@@ -380,7 +380,7 @@ class FrameDriver:
             start_step = plant.step_index
             start_wall = time.perf_counter()
             if live:
-                stop_step = min(first + int(round((k + 1) * steps_per_frame)), end)
+                stop_step = min(max(first + int(round((k + 1) * steps_per_frame)), start_step + 1), end)  # >= 1 step
                 if k:
                     table.append(start_step, self.command_row(start_step * dt))
                 row = table.values[-1]
