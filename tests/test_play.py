@@ -301,3 +301,22 @@ def test_a_mapping_to_a_missing_valve_is_refused(tmp_path, capsys):
         'circuit = "', f'circuit = "{LIFT.parent}/') + '\n[mapping]\npreset = "iso"\n', encoding="utf-8")
     assert cli(["play", str(path), "--pace", "0", "--duration", "0.1", "--out", str(tmp_path / "x.mcap")]) == 2
     assert "which is no valve or pump of the circuit" in capsys.readouterr().err
+
+
+def test_snapshot_messages_round_trip_exactly():
+    from sim.run.snapshot import decode, encode
+
+    state = {"format": 1, "kind": "mujoco", "step_index": 7000, "net_time": 0.1 + 0.2,
+             "node_pressure": np.array([1e5, np.nan, -0.0, 5e-324, np.inf]), "mj_state": np.arange(6.0).reshape(2, 3) / 3}
+    back = decode(json_round_trip(encode(state)))
+    assert back.keys() == state.keys()
+    assert back["net_time"] == 0.1 + 0.2 and back["step_index"] == 7000
+    assert np.array_equal(back["node_pressure"], state["node_pressure"], equal_nan=True)
+    assert np.signbit(back["node_pressure"][2]) and back["node_pressure"][3] == 5e-324
+    assert np.array_equal(back["mj_state"], state["mj_state"])
+
+
+def json_round_trip(message):
+    import json
+
+    return json.loads(json.dumps(message))
