@@ -40,8 +40,8 @@ def assert_same_messages(original, other, *, since: float = 0.0):
     compared = 0
     for topic in b.topics:
         tb = b.topic(topic)
-        if not hasattr(tb, "fields") or topic == "/hydroplant/frame":  # (wall-clock timing differs run to run)
-            continue
+        if not hasattr(tb, "fields") or topic in ("/hydroplant/frame", "/hydroplant/events"):
+            continue  # (the wall-clock timing, and the events a missed deadline writes, differ from run to run)
         ta = a.topic(topic)
         ka, kb = ta.log_time >= round(since * 1e9), tb.log_time >= round(since * 1e9)
         assert np.array_equal(ta.log_time[ka], tb.log_time[kb]), topic
@@ -174,6 +174,9 @@ def test_overrun_policies(tmp_path):
         assert read_log(tmp_path / f"{policy}.mcap").metadata[RESULT_METADATA]["overrun"] == policy
     catch, slow = results["catch-up"], results["slow"]
     assert catch.misses == catch.frames == slow.frames == slow.misses == 30
+    events = [e["message"] for e in read_log(tmp_path / "slow.mcap").topic("/hydroplant/events").messages
+              if "missed its deadline" in e["message"]]
+    assert len(events) == 1 and events[0].startswith("frame 0 ") and "overrun policy slow" in events[0]
     assert catch.slip_s == 0.0 and slow.slip_s > 0.0
     assert catch.lateness_ms[-1] > catch.lateness_ms[1] > 0  # the backlog grows
     assert np.median(slow.lateness_ms) < np.median(catch.lateness_ms)

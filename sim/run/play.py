@@ -404,6 +404,8 @@ class FrameDriver:
             stats = FrameStats(k, plant.step_index * dt, work, (max(deadline, now) if wall_per_sim else now) - start_wall,
                                late, bool(miss))
             self.frame_channel.append(plant.step_index, frame_row(stats))
+            if miss and not any(missed):
+                self.overrun_event(loop, stats, now - deadline if wall_per_sim else work - period)
             physics.append(work)
             lateness.append(late)
             cycles.append(stats.cycle)
@@ -428,8 +430,19 @@ class FrameDriver:
         if self.warned:
             from sim.io.mcap_log import LogLevel
 
-            loop.recorder.event(plant.step_index, LogLevel.WARNING, "commands ignored (not an axis of the mapping, nor "
+            loop.event(plant.step_index, LogLevel.WARNING, "commands ignored (not an axis of the mapping, nor "
                                 f"a valve or pump of the circuit): {sorted(self.warned)}")
+
+    def overrun_event(self, loop, stats: FrameStats, over: float) -> None:
+        """A warning event at the run's first missed deadline, naming the overrun policy (the others are counted on
+        ``/hydroplant/frame`` and in the summary)."""
+        from sim.io.mcap_log import LogLevel
+
+        then = {"catch-up": "the frames after it run back to back until the loop is on time",
+                "slow": "the simulated clock falls behind by the overrun"}[self.options.overrun]
+        loop.event(loop.plant.step_index, LogLevel.WARNING,
+                            f"frame {stats.index} (t = {stats.sim_time:.4f} s) missed its deadline by {1e3 * over:.2f} ms "
+                            f"(physics {1e3 * stats.physics:.2f} ms); overrun policy {self.options.overrun}: {then}")
 
     def warm_up(self, loop) -> None:
         """One-time costs before the clock starts, so that the first frames keep their deadlines: the log's encoder
