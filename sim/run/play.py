@@ -176,6 +176,9 @@ class FrameSummary:
     """Wall time from the first frame's start to the end of the last frame's wait [s]."""
     slip_s: float = 0.0
     """Sum of the overruns the ``slow`` policy let the simulated clock fall behind by [s]."""
+    cpu_ms: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """CPU time of the process per frame's physics [ms] (``time.process_time``; below the wall time when the
+    process was not running, e.g. preempted on a busy machine; above it when the log's thread compressed meanwhile)."""
 
     @property
     def frames(self) -> int:
@@ -197,6 +200,11 @@ class FrameSummary:
         return self._figures(self.physics_ms)
 
     @property
+    def cpu(self) -> tuple:
+        """(median, p99, max) of the process's CPU time per frame's physics [ms]."""
+        return self._figures(self.cpu_ms)
+
+    @property
     def lateness(self) -> tuple:
         """(median, p99, max) of the frames' start lateness [ms]."""
         return self._figures(self.lateness_ms)
@@ -210,6 +218,7 @@ class FrameSummary:
             f"frames        {self.frames} at {self.rate_hz:g} Hz ({period:.2f} ms), {pace}, overrun policy {self.overrun}",
             f"physics [ms]  median {pm:.3f}  p99 {p99:.3f}  max {pmax:.3f}  "
             f"(share of the frame: median {100 * pm / period:.1f} %, p99 {100 * p99 / period:.1f} %)",
+            f"physics CPU   median {self.cpu[0]:.3f}  p99 {self.cpu[1]:.3f}  max {self.cpu[2]:.3f} [ms] (process time)",
             f"lateness [ms] median {lm:.3f}  p99 {l99:.3f}  max {lmax:.3f}",
             f"missed        {self.misses} deadline{'s' if self.misses != 1 else ''}",
             f"clocks        simulated {self.simulated_s:.4f} s in {self.wall_s:.4f} s of wall time"
@@ -221,7 +230,8 @@ class FrameSummary:
         pm, p99, pmax = self.physics
         lm, l99, lmax = self.lateness
         return {"frames": self.frames, "frame_rate_hz": float(self.rate_hz), "physics_ms_median": pm,
-                "physics_ms_p99": p99, "physics_ms_max": pmax, "lateness_ms_median": lm, "lateness_ms_p99": l99,
+                "physics_ms_p99": p99, "physics_ms_max": pmax, "physics_cpu_ms_median": self.cpu[0],
+                "physics_cpu_ms_p99": self.cpu[1], "lateness_ms_median": lm, "lateness_ms_p99": l99,
                 "lateness_ms_max": lmax, "missed_deadlines": self.misses, "overrun": self.overrun,
                 "pace": float(self.pace), "simulated_s": float(self.simulated_s), "wall_s": float(self.wall_s),
                 "slip_s": float(self.slip_s)}
@@ -368,7 +378,7 @@ class FrameDriver:
         self.write_snapshot(plant)
         next_snapshot = math.inf if every is None else (first // every + 1) * every
         self.warm_up(loop)
-        physics, lateness, cycles, missed = [], [], [], []
+        physics, cpu, lateness, cycles, missed = [], [], [], [], []
         window = deque(maxlen=STATS_WINDOW)
         slip = 0.0
         shown = bool(self.sinks)
@@ -392,9 +402,10 @@ class FrameDriver:
             scheduled = t0 + slip + (start_step - first) * dt * wall_per_sim
             late = max(0.0, start_wall - scheduled) if wall_per_sim else 0.0
             self.commands.append(start_step, (float(start_step), *row))
-            tic = time.perf_counter()
+            tic, cpu_tic = time.perf_counter(), time.process_time()
             advance(stop_step)
             work = time.perf_counter() - tic
+            cpu.append(time.process_time() - cpu_tic)
             if plant.step_index >= next_snapshot and loop.status == "complete":
                 self.write_snapshot(plant)
                 next_snapshot = (plant.step_index // every + 1) * every
@@ -426,7 +437,7 @@ class FrameDriver:
         wall = time.perf_counter() - t0
         ms = lambda a: 1e3 * np.asarray(a, float)  # noqa: E731
         self.summary = FrameSummary(opts.rate_hz, opts.pace, opts.overrun, ms(physics), ms(lateness), ms(cycles),
-                                    np.asarray(missed, bool), (plant.step_index - first) * dt, wall, slip)
+                                    np.asarray(missed, bool), (plant.step_index - first) * dt, wall, slip, ms(cpu))
         if self.warned:
             from sim.io.mcap_log import LogLevel
 
