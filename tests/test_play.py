@@ -323,3 +323,15 @@ def json_round_trip(message):
     import json
 
     return json.loads(json.dumps(message))
+
+
+def test_replay_of_a_scenario_changed_in_code(tmp_path):
+    """A Scenario object changed in code (log rate, start pose) replays as it ran: the log carries the changes."""
+    import dataclasses
+
+    scenario = dataclasses.replace(load_scenario(LIFT).with_overrides(duration=0.5, log_rate_hz=50.0),
+                                   qpos={"boom_hinge": 0.25})
+    first = play(scenario, options=PlayOptions(pace=0.0), out=tmp_path / "a.mcap")
+    again = replay(first.run.log_path, out=tmp_path / "b.mcap")
+    assert len(read_log(again.log_path).topic("/hydroplant/joint_states")) == 26  # 50 Hz over 0.5 s
+    assert assert_same_messages(first.run.log_path, again.log_path) > 500

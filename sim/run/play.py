@@ -304,6 +304,8 @@ class FrameDriver:
             if list(self.table.names) != names:
                 raise CircuitError(f"the recorded commands name {list(self.table.names)}, the circuit has {names}")
         self.metadata["command_inputs"] = json.dumps(names)
+        # what a Scenario object given in code may have changed against its file (LoggedRun applies it again)
+        self.metadata["play_settings"] = json.dumps({name: getattr(scenario, name) for name in SETTINGS})
         scene.scenario = dataclasses.replace(scenario, inputs=self.table.inputs())
         return scene
 
@@ -516,6 +518,9 @@ def play(scenario, *, source=None, sinks=(), options: PlayOptions | None = None,
     return PlayResult(result, driver.summary)
 
 
+SETTINGS = ("pbd_blend", "monitor", "fidelity", "actuator_fidelity", "log_rate_hz", "tf_rate_hz", "qpos", "qvel",
+            "equilibrium", "base_pressure", "pressures")
+"""Scenario fields besides the run metadata's that a replay needs as they were (``play_settings`` in the log)."""
 RUN_KEYS = {"mode": str, "coupling": str, "dt_s": float, "duration_s": float, "hydraulic_substeps": int,
             "pbd_substeps": int, "pbd_iterations": int}
 
@@ -562,6 +567,7 @@ class LoggedRun:
         if meta.get("stepper", "default") != "default":
             out["stepper"] = meta["stepper"]
         out.update(json.loads(meta.get("play_overrides", "{}")))
+        out.update(json.loads(meta.get("play_settings", "{}")))
         return out
 
     def _materialise(self, root: Path) -> Path:
