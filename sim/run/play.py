@@ -487,6 +487,7 @@ class FrameDriver:
             values[f"{name}/p_rod_bar"] = float(p[rod]) / 1e5
         for j, name in enumerate(net.valve_names):
             values[f"{name}/command"] = float(plant.control.valve_command[j])
+            values[f"{name}/spool"] = float(state.valve_spool[j])
         if hasattr(plant, "data"):
             qpos = plant.data.qpos.copy()
         else:
