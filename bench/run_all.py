@@ -64,6 +64,14 @@ BENCHES = (
           "The excavator dig at 1 kHz with the monitor on and off in alternating pairs, in the fast MuJoCo plant and "
           "the PBD block path: the paired median and spread, and the time inside its checks per step. Target: "
           "≤ 2 % of the step."),
+    Bench("bench_play", ("--reps", "3"), "Paced frames: the physics share of a frame",
+          "`hydroplant play` of the excavator dig at 60 Hz frames, unpaced so that every frame's work is measured, "
+          "per mode and coupling: physics time per frame (the frame's steps with the log's in-loop sampling) in wall "
+          "and in CPU time, and the CPU share of the 16.67 ms frame, median and p99 over the 1200 frames (median of "
+          "3 interleaved reps); the excavators one core steps in real time, 16.67 ms / CPU p99 (extrapolated, logs "
+          "included), and measured: the most plants stepped one after the other in every frame (no logs) whose summed "
+          "CPU time per frame keeps its p99 within the frame (see [play.md](play.md)). On a "
+          "shared machine the wall-time p99 is the scheduler's time slice: the CPU time is the physics."),
     Bench("bench_startup", (), "Start-up in fresh processes",
           "Import, scene load with the plant (cached kernels) and first step, in fresh interpreters."),
     Bench("bench_memory", (), "Memory of long runs",

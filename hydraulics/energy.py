@@ -49,11 +49,24 @@ def stored_energy_at(model: NetworkModel, oil, pressure, position, volumes=None)
         half, mid = 0.5 * (pa - p0), 0.5 * (pa + p0)
         at = mid[..., None, :] + half[..., None, :] * nodes[:, None]  # (..., point, accumulator)
         liquid = model.accumulator_liquid_volume(at)[0]
-        np.add.at(extra_integral, (..., model.accumulator_node), half * np.einsum("...ja,j->...a", liquid, weights))
+        np.add.at(extra_integral, (..., model.accumulator_node), half * _ordered_sum(liquid * weights[:, None], -2))
         current = model.accumulator_liquid_volume(pa)[0]
         np.add.at(geometric, (..., model.accumulator_node), -current)
     energy = oil * fluid.pressure_potential(p) - geometric * dp - extra_integral
-    return np.sum(energy[..., ~model.node_fixed], axis=-1)
+    return _ordered_sum(energy[..., ~model.node_fixed], -1)
+
+
+def _ordered_sum(terms, axis):
+    """Sum of ``terms`` along ``axis``, term by term in index order: the same float for a sample alone as within any
+    batch of samples (``np.sum``'s blocked pairwise order depends on the array's shape, so a logged value would
+    change in its last bits with the size of the batch it is derived in)."""
+    terms = np.moveaxis(np.asarray(terms, dtype=float), axis, 0)
+    if not len(terms):
+        return np.zeros(terms.shape[1:])[()]
+    total = terms[0] + 0.0
+    for term in terms[1:]:
+        total = total + term
+    return total
 
 
 def branch_powers(model: NetworkModel, state: NetworkState, flow: np.ndarray) -> dict:

@@ -168,6 +168,9 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--no-monitor", action="store_true",
                      help="a state beyond the plausibility bounds (stroke, pressure, energy residual, loop closures, joint "
                           "ranges) is logged as a warning and the run goes on, instead of stopping it with exit status 3")
+    from sim.run.play import add_run_options
+
+    add_run_options(run)  # --replay LOG, --resume LOG --at T
 
     sub.add_parser("examples", help="list the shipped example scenes")
     sub.add_parser("demo", help="hydraulics-only demo: pump, valve and cylinder lifting a 1-DOF mass")
@@ -196,7 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 # Tool subcommands living in their own modules: each module has ``add_parser(subparsers)``,
 # which registers one subcommand whose ``func`` default is ``module.main(args) -> int``.
-TOOL_MODULES = ("sim.tools.inspect", "sim.tools.check", "sim.tools.stability", "sim.tools.compare", "sim.tools.tradeoff", "sim.run.precompile")
+TOOL_MODULES = ("sim.tools.inspect", "sim.tools.check", "sim.tools.stability", "sim.tools.compare", "sim.tools.tradeoff", "sim.run.precompile",
+                "sim.run.play")
 
 
 def _tool_modules():
@@ -206,7 +210,13 @@ def _tool_modules():
 
 
 def _run(args) -> int:
+    from sim.run.play import run_from_log
     from sim.run.runner import run
+
+    result = run_from_log(args)  # --replay LOG, --resume LOG --at T
+    if result is not None:
+        print(result.summary_text())
+        return 0 if result.status == "complete" else EXIT_DIVERGED
 
     overrides = {
         "mode": args.mode,

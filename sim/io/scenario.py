@@ -107,6 +107,7 @@ class Scenario:
     log_dir: Path | None = None
     inputs_csv: Path | None = None  # the inputs CSV file the schedules were read from, if any
     monitor: bool = True  # [monitor] enabled: a run beyond the plausibility bounds stops (sim.run.monitor); False: warns
+    mapping: object = None  # [mapping]: device axes -> valve commands for `hydroplant play` (sim.live.mapping.Mapping)
 
     @property
     def name(self) -> str:
@@ -297,7 +298,7 @@ def load_scenario(path) -> Scenario:
     path = resolve(path, "scenario", ScenarioError)
     where = str(path)
     data = read_toml(path, "scenario", ScenarioError)
-    allowed = {"scene", "run", "initial", "inputs", "inputs_csv", "log", "fidelity", "monitor"}
+    allowed = {"scene", "run", "initial", "inputs", "inputs_csv", "log", "fidelity", "monitor", "mapping"}
     unknown = sorted(set(data) - allowed)
     if unknown:
         _error(where, f"unknown top-level key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -400,9 +401,19 @@ def load_scenario(path) -> Scenario:
         log_rate_hz=_number(log, "rate_hz", f"{where}, [log]", low=RATE_RANGE[0], high=RATE_RANGE[1], low_open=False, default=100.0),
         tf_rate_hz=_number(log, "tf_rate_hz", f"{where}, [log]", low=RATE_RANGE[0], high=RATE_RANGE[1], low_open=False, default=100.0),
         monitor=_monitor_enabled(data.get("monitor", {}), where),
+        mapping=_mapping(data.get("mapping"), where),
     )
     _validate_run(scenario, where)
     return scenario
+
+
+def _mapping(table, where):
+    """``[mapping]`` (device axes to valve commands, :func:`sim.live.mapping.parse_mapping`), or None."""
+    if table is None:
+        return None
+    from sim.live.mapping import parse_mapping  # noqa: PLC0415 - sim.live.mapping builds on this module
+
+    return parse_mapping(table, where)
 
 
 def _monitor_enabled(table, where) -> bool:

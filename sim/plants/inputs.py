@@ -35,12 +35,15 @@ def input_plan(network, control, inputs):
 
 def sample_inputs(plan, times, cmd, speed):
     """Rows of ``cmd`` (valve commands [-]) and ``speed`` (pump speeds [rad/s]) at ``times`` [s], one row per time:
-    piecewise-linear schedules vectorised, callables called per time, constants broadcast.  Columns of inputs
+    piecewise-linear schedules vectorised, schedules with a ``sample(times)`` method (the operator commands of
+    :mod:`sim.run.commands`) asked once, other callables called per time, constants broadcast.  Columns of inputs
     without a schedule are left as they are."""
     for is_valve, index, schedule in plan:
         target = cmd if is_valve else speed
         if isinstance(schedule, Schedule):
             target[:, index] = np.interp(times, schedule.t, schedule.value)
+        elif callable(getattr(schedule, "sample", None)):  # vectorised (sim.run.commands.HeldInput)
+            target[:, index] = schedule.sample(times)
         elif callable(schedule):
             target[:, index] = [schedule(t) for t in times]
         else:

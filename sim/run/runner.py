@@ -311,7 +311,7 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
 
 
 def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = False, overwrite: bool = False,
-        fast: bool = True, stop=None) -> RunResult:
+        fast: bool = True, stop=None, driver=None) -> RunResult:
     """Run a scenario (path or :class:`Scenario`) and write its MCAP log; see the module docstring.
 
     ``out``: the log file (default :func:`default_log_path`).  Before the run starts it is checked
@@ -328,6 +328,13 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     asked before the log is opened and before every step or block, and when it returns True the run
     stops as on Ctrl-C (:class:`KeyboardInterrupt`: before the log is opened, no log is written).
 
+    ``driver``: what advances the plant instead of the run's own blocks (``hydroplant play``'s paced frames,
+    :class:`sim.run.play.FrameDriver`): an object with ``scene(scene) -> Scene`` (the scene to build the plant of,
+    e.g. its scenario's inputs replaced by operator commands), ``prepare(plant)`` (before the first sample, e.g. a resumed
+    state), ``metadata`` (extra ``hydroplant.run`` entries, str → str), ``start(log, loop)`` (its own topics),
+    ``drive(loop)`` (calls ``loop.blocks(until)`` or ``loop.per_step(until)``) and ``result_info()`` (entries of
+    the ``hydroplant.result`` record).  The log, its checks and its samples are the run's own.
+
     Raises :class:`RunInterrupted` (a :class:`KeyboardInterrupt`) naming the log when interrupted
     while the log is written.
     """
@@ -336,12 +343,16 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     if overrides:
         scenario = scenario.with_overrides(**overrides)
     scene = load_scene(scenario)
+    if driver is not None:
+        scene = driver.scene(scene)
     inputs = input_files(scene)
     if out is not None:
         log_path = check_output(out, [path for _, _, path, _ in inputs], overwrite=overwrite)
     if scene.network.pruned and progress:
         print(f"hydroplant: not built (connected to no cylinder or motor): {', '.join(scene.network.pruned)}", file=sys.stderr)
     plant = make_plant(scene, fast=fast)
+    if driver is not None:
+        driver.prepare(plant)
     guard = check_plant(plant)  # load-time stability guards: warn, never fail
     if progress:
         for text in guard.warnings:
@@ -350,15 +361,17 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     net = plant.network
     if stop is not None and stop():
         raise KeyboardInterrupt
+    metadata = run_metadata(scenario, plant)
+    if driver is not None:
+        metadata.update(driver.metadata)
     if out is not None:
         log_path.parent.mkdir(parents=True, exist_ok=True)
-        writer = LogWriter(log_path, dt=scenario.dt, run_metadata=run_metadata(scenario, plant), attachments=attachments,
-                           overwrite=overwrite)
+        writer = LogWriter(log_path, dt=scenario.dt, run_metadata=metadata, attachments=attachments, overwrite=overwrite)
     else:
-        log_path, writer = _default_writer(scenario, plant, attachments)
+        log_path, writer = _default_writer(scenario, metadata, attachments)
     try:
         with writer as log:
-            loop, wall = _run_loop(log, plant, scenario, guard, (progress, stop))
+            loop, wall = _run_loop(log, plant, scenario, guard, (progress, stop), driver)
     except KeyboardInterrupt:
         raise RunInterrupted(log_path) from None
     except OSError as exc:  # a full disk, a folder gone or made read-only during the run
@@ -404,34 +417,39 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     )
 
 
-def _default_writer(scenario: Scenario, plant, attachments):
+def _default_writer(scenario: Scenario, metadata: dict, attachments):
     """The log at :func:`default_log_path`, the next free name when another run takes it at the same instant."""
     for _ in range(DEFAULT_NAME_TRIES):
         path = default_log_path(scenario)
         path.parent.mkdir(parents=True, exist_ok=True)
         try:
-            return path, LogWriter(path, dt=scenario.dt, run_metadata=run_metadata(scenario, plant), attachments=attachments)
+            return path, LogWriter(path, dt=scenario.dt, run_metadata=metadata, attachments=attachments)
         except (FileExistsError, CircuitError):
             if not any(os.path.lexists(p) for p in (path, path.with_name(path.name + PARTIAL_SUFFIX))):
                 raise  # refused for another reason
     raise CircuitError(f"{path.parent}: no free default log name after {DEFAULT_NAME_TRIES} tries; name one with --out")
 
 
-def _run_loop(log: LogWriter, plant, scenario: Scenario, guard, caller):
+def _run_loop(log: LogWriter, plant, scenario: Scenario, guard, caller, driver=None):
     """Step the plant through the run, logging to ``log``: the finished :class:`_Loop` and the wall time [s].
-    ``caller`` = (progress line shown, stop request or None), as :func:`run` takes them."""
+    ``caller`` = (progress line shown, stop request or None), as :func:`run` takes them; ``driver`` as :func:`run`'s."""
     progress, stop = caller
     recorder = RunRecorder(log, plant, tf_every=scenario.tf_every)
     for text in guard.warnings:
-        recorder.event(0, LogLevel.WARNING, "stability guard: " + text)
-    loop = _Loop(plant, recorder, log, scenario, progress)
+        recorder.event(plant.step_index, LogLevel.WARNING, "stability guard: " + text)
+    loop = _Loop(plant, recorder, log, scenario, progress and driver is None)
     loop.stop_request = stop
-    if getattr(plant, "fast", False):
+    if driver is not None:
+        driver.start(log, loop)
+        driver.drive(loop)
+    elif getattr(plant, "fast", False):
         loop.blocks()
     else:
         loop.per_step()
     if loop.status == "complete" and loop.drain():  # the last batch of samples, checked like the others
         log.mark("complete")
+    if driver is not None:
+        log.mark(log.status, **driver.result_info())
     loop.finish_extremes()
     return loop, _time.perf_counter() - loop.start
 
@@ -485,16 +503,17 @@ class _Loop:
         self.extremes_every_step = not getattr(plant, "fast", False) or self.per_step_extremes or self.every == 1
         self.stop_step = None  # the step where energy growth was found (the plant may have run past it)
         self.stop_request = None  # the caller's request to stop (run(stop=...))
+        self.replay_point = None  # the block path's _Snapshot (a failed block is replayed from it)
         # blocks of several log samples, recorded by the plant inside its compiled loop (MujocoPlantFast)
         self.record_blocks = bool(getattr(plant, "fast", False)) and recorder.records
         self.start = _time.perf_counter()
         self.last_progress = self.start
         self.sample: dict = {}
         self.monitor = RunMonitor(plant, enforce=getattr(scenario, "monitor", True))
-        self.last_event_step = 0
+        self.last_event_step = plant.step_index  # (a resumed run starts later than step 0)
         self.warnings: list = []  # (step, text) of the monitor's warnings not yet written (see accept)
         if not self.monitor.enforce:
-            recorder.event(0, LogLevel.WARNING, "plausibility monitor off (hydroplant run --no-monitor, or [monitor] "
+            recorder.event(plant.step_index, LogLevel.WARNING, "plausibility monitor off (hydroplant run --no-monitor, or [monitor] "
                            "enabled = false): a state beyond its bounds is written as a warning and the run goes on")
         self.running = self.first_sample()
 
@@ -516,11 +535,13 @@ class _Loop:
         if self.stop_request is not None and self.stop_request():
             raise KeyboardInterrupt
 
-    def per_step(self) -> None:
+    def per_step(self, until: int | None = None) -> None:
+        """One ``plant.step()`` at a time up to step ``until`` (default: the run's last)."""
         plant = self.plant
-        if not self.running:
+        if not self.running or self.status != "complete":
             return
-        for _ in range(self.steps):
+        until = self.steps if until is None else min(int(until), self.steps)
+        while plant.step_index < until:
             self.check_stop()
             if not self.after_step(plant.step()):
                 return
@@ -549,15 +570,20 @@ class _Loop:
                 end += 1
         return end
 
-    def blocks(self) -> None:
+    def blocks(self, until: int | None = None) -> None:
+        """Blocks of ``plant.advance`` up to step ``until`` (default: the run's last; a paced driver calls it once
+        per frame, :mod:`sim.run.play`): the same blocks, clipped at ``until``."""
         plant, recorder, steps, every = self.plant, self.recorder, self.steps, self.every
-        if not self.running:
+        if not self.running or self.status != "complete":
             return
-        snapshot = _Snapshot(plant)
-        while plant.step_index < steps:
+        until = steps if until is None else min(int(until), steps)
+        if self.replay_point is None:
+            self.replay_point = _Snapshot(plant)
+        snapshot = self.replay_point
+        while plant.step_index < until:
             self.check_stop()
             k = plant.step_index
-            end = self.block_end(k)
+            end = min(self.block_end(k), until)
             n = end - k
             if k - snapshot.step_index >= SNAPSHOT_STEPS:  # (a failed block is replayed from the last snapshot)
                 snapshot.take(plant)

@@ -135,6 +135,7 @@ def scenario_keys() -> tuple:
     """
     from hydraulics.components import COMPONENT_TYPES
     from sim.io import scenario as sc
+    from sim.live import mapping
 
     def closed(low, high):
         return f"[{low:g}, {high:g}]"
@@ -186,6 +187,16 @@ def scenario_keys() -> tuple:
          "`sim/run/monitor.py`); `false` (or `hydroplant run --no-monitor`) logs them as warnings and the run goes on."),
         ("fidelity", "default", "", "FIDELITIES", "fidelity", "Same as `[run] fidelity` (give one of the two)."),
         ("fidelity", "ACTUATOR", "", "FIDELITIES", None, "Fidelity level of one cylinder or motor, by name."),
+        ("mapping", "preset", "", '`"iso"`, `"sae"`', None, "`hydroplant play`: the excavator control pattern of a "
+         "gamepad's sticks, ISO 10968 / SAE J1177 or SAE J1814 (see [play.md](play.md#mapping-and-presets))."),
+        ("mapping", "dead_band", "-", closed(*mapping.DEAD_BAND_RANGE), None, "Dead band of the preset's axes "
+         f"(default {mapping.DEFAULT_DEAD_BAND:g}): |axis| at or below it commands 0."),
+        ("mapping", "expo", "-", closed(*mapping.EXPO_RANGE), None, "Expo of the preset's axes (default "
+         f"{mapping.DEFAULT_EXPO:g}): command = (1 − e)·s + e·s³ of the axis beyond the dead band."),
+        ("mapping", "valves", "", "table function = valve", None, "The preset's valves by function (`boom`, "
+         "`stick`, `bucket`, `swing`); default `<function>_valve`."),
+        ("mapping.axes", "AXIS", "", "{ valve, dead_band, expo, invert }", None, "One device axis (`left_x`, "
+         "`left_y`, `right_x`, `right_y`, `l2`, `r2`) driving a valve or pump; replaces the preset's entry."),
     )
 
 
@@ -236,7 +247,8 @@ def scenario_reference() -> str:
         "",
         "## Scenario file (`*.scenario.toml`)",
         "",
-        "Top-level tables: `[scene]` (required), `[run]`, `[initial]`, `[inputs]`, `[log]`, `[monitor]`, `[fidelity]`, and the key",
+        "Top-level tables: `[scene]` (required), `[run]`, `[initial]`, `[inputs]`, `[log]`, `[monitor]`, `[fidelity]`,",
+        "`[mapping]` (`hydroplant play`), and the key",
         "`inputs_csv`. Command-line options of `hydroplant run` (`--mode`, `--coupling`, `--dt`, `--duration`,",
         "`--substeps`, `--pbd-substeps`, `--iterations`, `--pbd-blend`) override `[run]` and are checked alike.",
         "",
