@@ -520,7 +520,7 @@ def play(scenario, *, source=None, sinks=(), options: PlayOptions | None = None,
 
 
 SETTINGS = ("pbd_blend", "monitor", "fidelity", "actuator_fidelity", "log_rate_hz", "tf_rate_hz", "qpos", "qvel",
-            "equilibrium", "base_pressure", "pressures")
+            "equilibrium", "start_contacts", "base_pressure", "pressures")
 """Scenario fields besides the run metadata's that a replay needs as they were (``play_settings`` in the log)."""
 RUN_KEYS = {"mode": str, "coupling": str, "dt_s": float, "duration_s": float, "hydraulic_substeps": int,
             "pbd_substeps": int, "pbd_iterations": int}

@@ -1,0 +1,92 @@
+"""``play`` end to end with a live Foxglove client: while the paced loop runs, a WebSocket client on loopback receives
+the advertised schemas, decodes the live cylinder messages, and the command it publishes on ``/hydroplant/commands``
+moves the machine; the log records the commands the frames used.
+
+The client is the Foxglove WebSocket protocol spoken directly (:class:`test_live_foxglove.Client`).
+"""
+
+from __future__ import annotations
+
+import threading
+
+import mcap.records as mr
+import numpy as np
+import pytest
+from mcap_ros2.decoder import DecoderFactory
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
+
+from conftest import MODELS
+from sim.io.mcap_log import read_log
+from sim.live.foxglove_live import FoxgloveLive
+from sim.run.commands import COMMANDS_TOPIC
+from sim.run.play import PlayOptions, play
+from sim.run.recorder import CYLINDER_STATE
+from test_live_foxglove import SUBPROTOCOL, TIMEOUT, Client, wait_for
+
+CYLINDER = "/hydroplant/cylinders/boom_cyl"
+
+
+def test_a_foxglove_client_watches_play_and_its_command_moves_the_boom(tmp_path):
+    from sim.run.runner import run
+
+    run(MODELS / "boom" / "lift.scenario.toml", out=tmp_path / "warm.mcap", overrides={"duration": 0.01})  # kernels loaded
+    live = FoxgloveLive(port=0)
+    outcome = {}
+
+    def operate():
+        try:
+            outcome["result"] = play(MODELS / "boom" / "lift.scenario.toml", source=live.commands, sinks=[live],
+                                     options=PlayOptions(rate_hz=60.0, pace=1.0), out=tmp_path / "play.mcap",
+                                     overrides={"duration": 3.0})
+        except BaseException as exc:  # noqa: BLE001 - reported by the test thread below
+            outcome["error"] = exc
+
+    runner = threading.Thread(target=operate, daemon=True)
+    try:
+        with connect(f"ws://127.0.0.1:{live.port}", subprotocols=[SUBPROTOCOL], open_timeout=TIMEOUT) as ws:
+            client = Client(ws)
+            runner.start()
+            client.wait_topics([CYLINDER])
+            advertised = client.channels[CYLINDER]
+            assert (advertised["encoding"], advertised["schemaEncoding"]) == ("cdr", "ros2msg")
+            assert advertised["schema"] == CYLINDER_STATE.definition()
+            client.subscribe([CYLINDER])
+            wait_for(lambda: (client.pump(0.02) or True) and len(client.received) >= 30, "30 live cylinder samples")
+            client.advertise_commands()
+            client.publish({"boom_valve": 1.0})
+            try:
+                while runner.is_alive():
+                    client.pump(0.05)
+            except ConnectionClosed:  # play closes its sinks, and so the server, when the run ends
+                pass
+        runner.join(TIMEOUT)
+    finally:
+        live.close()
+    assert "error" not in outcome, outcome.get("error")
+    result = outcome["result"]
+    assert result.run.status == "complete" and result.frames.frames == 180
+
+    # the live samples decode to the cylinder's stroke: still, then extending once the client's command arrived
+    schema = mr.Schema(id=1, name=CYLINDER_STATE.name, encoding="ros2msg", data=advertised["schema"].encode())
+    decode = DecoderFactory().decoder_for("cdr", schema)
+    live_t = np.array([t for topic, t, _ in client.received if topic == CYLINDER]) * 1e-9
+    live_x = np.array([decode(data).position_m for topic, _, data in client.received if topic == CYLINDER])
+    assert np.all(np.diff(live_t) > 0) and live_x[-1] - live_x[0] > 0.03
+
+    # the log records the commands of every frame: 0 until the client's command, 1 after it, and the stroke follows
+    log = read_log(result.run.log_path)
+    commands = log.topic(COMMANDS_TOPIC)
+    valve = np.asarray(commands["boom_valve"])
+    opened = np.flatnonzero(valve == 1.0)
+    assert len(opened) and np.all(valve[: opened[0]] == 0.0) and np.all(valve[opened[0]:] == 1.0)
+    t_open = commands.t[opened[0]]
+    cylinder = log.topic(CYLINDER)
+    x = np.asarray(cylinder["position_m"])
+    before = x[cylinder.t < t_open]
+    assert np.ptp(before) < 1e-3  # the boom held while the valve was closed
+    assert x[-1] - before[-1] > 0.03
+    # every live sample is the logged one at the same time
+    logged = dict(zip(np.round(cylinder.t * 1e9).astype(np.int64), x))
+    for t, value in zip(np.round(live_t * 1e9).astype(np.int64), live_x):
+        assert logged[t] == value
