@@ -160,7 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
                      "an existing file is refused unless --overwrite")
     run.add_argument("--overwrite", action="store_true",
                      help="replace an existing --out file (never the run's inputs, nor anything but a regular file)")
-    run.add_argument("--no-progress", action="store_true", help="no progress line")
+    run.add_argument("--no-progress", action="store_true", help="no progress line (warnings are still printed)")
     run.add_argument("--no-monitor", action="store_true",
                      help="a state beyond the plausibility bounds (stroke, pressure, energy residual, loop closures, joint "
                           "ranges) is logged as a warning and the run goes on, instead of stopping it with exit status 3")
@@ -221,7 +221,7 @@ def _run(args) -> int:
         raise CircuitError("run: give either a SCENARIO file or --example NAME (see 'hydroplant examples')")
     scenario = example_path(args.example) if args.example else args.scenario
     result = run(scenario, out=args.out, overrides=overrides, progress=not args.no_progress, overwrite=args.overwrite,
-                 stop=_received.__len__)  # a signal whose interrupt a library swallowed still stops the run
+                 stop=_received.__len__, warn=True)  # a signal whose interrupt a library swallowed still stops the run
     print(result.summary_text())
     return 0 if result.status == "complete" else EXIT_DIVERGED
 

@@ -686,3 +686,14 @@ def test_a_signal_while_the_command_loads_its_modules_exits_128_plus_signal(tmp_
     proc = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=120)
     assert proc.returncode == code and proc.stderr == "" and proc.stdout == "", (proc.returncode, proc.stderr)
+
+
+# ------------------------------------------------------------------------------ --no-progress
+def test_no_progress_hides_the_progress_line_not_the_load_time_warnings(scene, capsys, tmp_path):
+    """The explicit coupling at 10 ms does not resolve the boom's oil column: the guard's warnings are printed
+    with --no-progress too (which only leaves out the progress line)."""
+    code, _, err = hydroplant("run", scene / SCENARIO, "--coupling", "explicit", "--dt", "0.01", "--duration", "0.01",
+                              "--no-progress", "--out", tmp_path / "x.mcap", capsys=capsys)
+    warnings = [line for line in err if line.startswith("hydroplant: warning: ")]
+    assert len(warnings) == 2 and "boom_cyl" in warnings[0] and "explicit coupling" in warnings[0], err
+    assert "relief 'relief'" in warnings[1] and len(err) == 2

@@ -311,7 +311,7 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
 
 
 def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = False, overwrite: bool = False,
-        fast: bool = True, stop=None) -> RunResult:
+        fast: bool = True, stop=None, warn: bool | None = None) -> RunResult:
     """Run a scenario (path or :class:`Scenario`) and write its MCAP log; see the module docstring.
 
     ``out``: the log file (default :func:`default_log_path`).  Before the run starts it is checked
@@ -322,6 +322,11 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
 
     ``fast=False`` forces the per-step path (:class:`~sim.plants.mujoco.MujocoPlant`
     in MuJoCo mode).
+
+    ``progress``: show a progress line on stderr during a long run.  ``warn``: print the load-time
+    warnings (stability guards, parts of the circuit not built) on stderr; default: as ``progress``
+    (``hydroplant run`` always prints them, ``--no-progress`` leaves out the progress line only).
+    The warnings are in the log's guard report either way.
 
     ``stop``: a callable without arguments, the caller's request to stop (``hydroplant run`` passes
     whether a signal arrived, in case a library turned its interrupt into an error and handled it);
@@ -339,11 +344,12 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     inputs = input_files(scene)
     if out is not None:
         log_path = check_output(out, [path for _, _, path, _ in inputs], overwrite=overwrite)
-    if scene.network.pruned and progress:
+    warn = progress if warn is None else warn
+    if scene.network.pruned and warn:
         print(f"hydroplant: not built (connected to no cylinder or motor): {', '.join(scene.network.pruned)}", file=sys.stderr)
     plant = make_plant(scene, fast=fast)
     guard = check_plant(plant)  # load-time stability guards: warn, never fail
-    if progress:
+    if warn:
         for text in guard.warnings:
             print(f"hydroplant: warning: {text}", file=sys.stderr)
     attachments = [(name, media, data) for name, media, _, data in inputs]
