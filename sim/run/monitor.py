@@ -129,9 +129,9 @@ SOURCE_PRESSURE_TOLERANCE = 1.0e3  # [Pa]
 
 
 def end_stop_tolerance(travel):
-    """How far past an end stop a right run may go [m]: max(``STROKE_TOLERANCE``, ``STROKE_TOLERANCE_FRACTION``·travel),
-    for a cylinder's stroke and a limited slide joint's range width [m] alike (the same soft end stop, seen on the
-    tendon or on the joint)."""
+    """How far past an end stop a right run may go [m]:
+    max(``STROKE_TOLERANCE``, ``STROKE_TOLERANCE_FRACTION``·travel), for a cylinder's stroke and a limited slide
+    joint's range width [m] alike (the same soft end stop, seen on the tendon or on the joint)."""
     return np.maximum(STROKE_TOLERANCE, STROKE_TOLERANCE_FRACTION * np.asarray(travel, float))
 
 
@@ -175,8 +175,8 @@ def energy_unmetered(plant) -> str:
         return "rigid actuators take kinetic energy through their trackers unmetered"
     sources = pressure_sources(plant)
     if sources:
-        return (f"fixed-pressure node(s) {', '.join(repr(n) for n in sources)} off the reference pressure do work the ledger does not "
-                "meter")
+        names = ", ".join(repr(n) for n in sources)
+        return f"fixed-pressure node(s) {names} off the reference pressure do work the ledger does not meter"
     return ""
 
 
@@ -277,8 +277,6 @@ class RunMonitor:
         self.joint_range = rng
         self.joint_unit = np.where(hinge, "rad", "m")
         self.checks_joints = bool(np.any(limited))
-        # (no residual without oil; a mixed network's rigid actuators take kinetic energy through their trackers unmetered,
-        # so its ledger swings by kJ within a step: the energy-growth check still covers it)
         self.energy_off = energy_unmetered(plant)  # why the residual is not checked ("" when it is)
         self.energy = not self.energy_off
         self.sources = pressure_sources(plant)  # (the runner's energy-growth check counts pump work only, too)
