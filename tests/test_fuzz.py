@@ -106,7 +106,7 @@ def test_unknown_component_type(tmp_path, capsys):
 
 @pytest.mark.parametrize("old, new, field, allowed", [
     ("bore = 0.033851375012865375", 'bore = "big"', "bore", "(0, 1] m"),
-    ("stroke = 10.0 ", "stroke = true ", "stroke", "(0, 20] m"),
+    ("stroke = 10.0 ", "stroke = true ", "stroke", "[0.01, 20] m"),
     ("dead_volume_cap = 0.0 ", "dead_volume_cap = [0.0] ", "dead_volume_cap", "[0, 1] m^3"),
 ])
 def test_wrong_type_in_circuit(tmp_path, capsys, old, new, field, allowed):
