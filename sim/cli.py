@@ -20,10 +20,12 @@ finished and marked incomplete, one line on stderr names it, and the exit status
 signal number (130, 143, 129).  Each signal is recorded, then SIGINT raises
 :class:`KeyboardInterrupt` (:func:`_interrupt`) and SIGTERM and SIGHUP are routed to the SIGINT
 handler in force (:func:`_forward_signal`), so the log writer's deferral of Ctrl-C while a record
-is half written holds for all three.  A signal before any log is open (start-up, imports; also
-when a library turns the interrupt into another error, as MuJoCo's import does) exits quietly; a
-run asks whether a signal arrived before it opens its log and before every block, so an interrupt a
-library swallowed still stops it there.
+is half written holds for all three.  The handlers are installed first thing in :func:`main`,
+before the command's modules (numpy, numba, MuJoCo: most of start-up) are imported, so a signal
+at any time after the interpreter has started gives the same exit status.  A signal before any log
+is open (start-up, imports; also when a library turns the interrupt into another error, as MuJoCo's
+import does) exits quietly; a run asks whether a signal arrived before it opens its log and before
+every block, so an interrupt a library swallowed still stops it there.
 """
 
 from __future__ import annotations
@@ -35,16 +37,8 @@ EXIT_BAD_INPUT = 2
 EXIT_DIVERGED = 3
 EXIT_INTERRUPTED = 130  # 128 + SIGINT; SIGTERM gives 143, SIGHUP 129
 
-try:  # Ctrl-C while the modules load: a quiet exit, no traceback
-    import argparse
-    from pathlib import Path
-
-    from hydraulics.components import CircuitError
-
-    from sim import version
-    from sim.io.examples import example_path, examples
-except KeyboardInterrupt:
-    raise SystemExit(EXIT_INTERRUPTED) from None
+import argparse
+from pathlib import Path
 
 FORWARDED_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
 _received: list[int] = []  # the signals received during main(), first first
@@ -144,6 +138,8 @@ def out_path(text):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from sim import version
+
     parser = _Parser(prog="hydroplant", description="Hydraulic heavy-equipment simulator (SI units throughout).")
     parser.add_argument("--version", action="version", version=f"hydroplant {version()}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -164,7 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
                      "an existing file is refused unless --overwrite")
     run.add_argument("--overwrite", action="store_true",
                      help="replace an existing --out file (never the run's inputs, nor anything but a regular file)")
-    run.add_argument("--no-progress", action="store_true", help="no progress line")
+    run.add_argument("--no-progress", action="store_true", help="no progress line (warnings are still printed)")
     run.add_argument("--no-monitor", action="store_true",
                      help="a state beyond the plausibility bounds (stroke, pressure, energy residual, loop closures, joint "
                           "ranges) is logged as a warning and the run goes on, instead of stopping it with exit status 3")
@@ -210,6 +206,8 @@ def _tool_modules():
 
 
 def _run(args) -> int:
+    from hydraulics.components import CircuitError
+    from sim.io.examples import example_path
     from sim.run.play import run_from_log
     from sim.run.runner import run
 
@@ -233,7 +231,7 @@ def _run(args) -> int:
         raise CircuitError("run: give either a SCENARIO file or --example NAME (see 'hydroplant examples')")
     scenario = example_path(args.example) if args.example else args.scenario
     result = run(scenario, out=args.out, overrides=overrides, progress=not args.no_progress, overwrite=args.overwrite,
-                 stop=_received.__len__)  # a signal whose interrupt a library swallowed still stops the run
+                 stop=_received.__len__, warn=True)  # a signal whose interrupt a library swallowed still stops the run
     print(result.summary_text())
     return 0 if result.status == "complete" else EXIT_DIVERGED
 
@@ -241,6 +239,7 @@ def _run(args) -> int:
 def _log(args) -> int:
     """``log info`` (exit 0 no damage found, 1 damaged) and ``log recover`` (exit 0 nothing skipped, 1 data
     skipped); a file that is not a readable MCAP log raises CircuitError (exit 2)."""
+    from hydraulics.components import CircuitError
     from sim.io.mcap_log import inspect_log, recover
 
     path = args.log if args.log_command == "info" else args.partial
@@ -282,11 +281,15 @@ def main(argv=None) -> int:
 
 
 def _main(argv) -> int:
+    from hydraulics.components import CircuitError  # (here, not at the top: after main() installed the handlers)
+
     args = build_parser().parse_args(argv)
     try:
         if args.command == "run":
             return _run(args)
         if args.command == "examples":
+            from sim.io.examples import examples
+
             for name, summary in examples():
                 print(f"{name:24} {summary}")
             return 0

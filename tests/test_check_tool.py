@@ -64,3 +64,20 @@ def test_check_for_pbd_mode_names_what_pbd_mode_drops(capsys):
     assert cli.main(["check", "--mode", "pbd", str(SCENES / "hlink.scenario.toml")]) == 0
     out = capsys.readouterr().out
     assert "body 'base' has free joint 'base_free', held by weld 'base_weld'" in out and "geom(s) 'cab' (mesh)" in out
+
+
+def test_the_stroke_end_pose_is_on_the_stroke_end_not_the_nearest_sweep_point(tmp_path):
+    """The boom's hinge range widened past its cylinder's extended end (flagged): the extended pose is found where
+    L = LMAX between the sweep's points, so its hold is the boom's own (18.03 kN, as with the range that ends there)
+    and not the end stop's push 0.8 mm beyond it."""
+    models = Path(__file__).parent.parent / "models" / "boom"
+    for f in models.iterdir():
+        if f.is_file():
+            shutil.copy(f, tmp_path / f.name)
+    xml = tmp_path / "boom.xml"
+    xml.write_text(xml.read_text().replace('range="-0.2448 0.7710"', 'range="-0.2448 0.9"'))
+    text, problems = check_scene(tmp_path / "hold.scenario.toml")
+    assert problems == 1 and "OUTSIDE the stroke" in text  # the range, flagged; nothing else
+    assert re.search(r"extended: boom_hinge = \+0\.771\d, L = 1\.0600 m", text), text
+    hold = text.split("holding at boom_cyl extended")[1].splitlines()[1]
+    assert hold.startswith("    boom_cyl: F = +18.03") and "!!" not in hold, hold

@@ -106,7 +106,7 @@ def test_unknown_component_type(tmp_path, capsys):
 
 @pytest.mark.parametrize("old, new, field, allowed", [
     ("bore = 0.033851375012865375", 'bore = "big"', "bore", "(0, 1] m"),
-    ("stroke = 10.0 ", "stroke = true ", "stroke", "(0, 20] m"),
+    ("stroke = 10.0 ", "stroke = true ", "stroke", "[0.01, 20] m"),
     ("dead_volume_cap = 0.0 ", "dead_volume_cap = [0.0] ", "dead_volume_cap", "[0, 1] m^3"),
 ])
 def test_wrong_type_in_circuit(tmp_path, capsys, old, new, field, allowed):
@@ -144,7 +144,7 @@ def test_compiled_key_is_refused_with_what_to_do(tmp_path, capsys, value):
 @pytest.mark.parametrize("old, new, field, allowed", [
     ("bore = 0.033851375012865375", "bore = 0.0", "bore", "(0, 1] m"),
     ("bore = 0.033851375012865375", "bore = -0.05", "bore", "(0, 1] m"),
-    ("stroke = 10.0 ", "stroke = -1.0 ", "stroke", "(0, 20] m"),
+    ("stroke = 10.0 ", "stroke = -1.0 ", "stroke", "[0.01, 20] m"),
     ("dead_volume_cap = 0.0 ", "dead_volume_cap = -1e-6 ", "dead_volume_cap", "[0, 1] m^3"),
     ("bulk_modulus = 2.2e9", "bulk_modulus = 0.0", "bulk_modulus", "[1e+07, 1e+11] Pa"),
     ("bulk_modulus = 2.2e9", "bulk_modulus = 1.0", "bulk_modulus", "[1e+07, 1e+11] Pa"),
@@ -166,6 +166,27 @@ def test_zero_or_negative_volume(tmp_path, capsys, volume):
 def test_zero_or_negative_mass_in_mjcf(tmp_path, capsys, mass):
     err = one_edit_error(tmp_path, capsys, "seed_cylinder", "seed_cylinder.xml", 'mass="1.0"', f'mass="{mass}"')
     assert "seed_cylinder.xml" in err and "mass" in err and "'piston'" in err
+
+
+@pytest.mark.parametrize("mass", ["1e-12", "1e-6"])
+def test_a_featherweight_moving_body_is_refused(tmp_path, capsys, mass):
+    """A body a joint moves, lighter than a gram with what it carries: one line naming it and the range, not a
+    MuJoCo reset deep in a step."""
+    err = one_edit_error(tmp_path, capsys, "seed_cylinder", "seed_cylinder.xml", 'mass="1.0"', f'mass="{mass}"')
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "seed_cylinder.xml" in err and "body 'piston'" in err and "mass" in err, err
+    assert "[0.001, inf) kg" in err
+
+
+def test_a_zero_length_cylinder_is_refused(tmp_path, capsys):
+    """A stroke far below the binding's and the end stops' tolerances (here 0.5 mm, with an MJCF tendon range of the
+    same width, so the MJCF and the circuit agree): one line naming the circuit file, the field and its range."""
+    d = scene_dir(tmp_path, "boom")
+    edit(d / "boom.xml", 'range="0.66 1.06"', 'range="0.8600 0.8605"')
+    err = one_edit_error(tmp_path, capsys, "boom", "boom.circuit.toml", "stroke = 0.40                 # m  (= MJCF",
+                         "stroke = 0.0005               # m  (= MJCF")
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "boom.circuit.toml" in err and "field 'stroke'" in err and "[0.01, 20] m" in err, err
 
 
 @pytest.mark.parametrize("where, old, new, field", [

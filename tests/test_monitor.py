@@ -286,3 +286,133 @@ def test_every_shipped_scenario_completes(tmp_path, name, mode):
     whose scheme damps its unresolved oil column on purpose, has its monitor set to warn)."""
     result = run(example_path(name), out=tmp_path / "run.mcap", overrides={"mode": mode})
     assert result.status == "complete", result.message
+
+
+# --------------------------------------------------------------------------------- every level
+def test_the_incompressible_level_stops_a_pose_whose_oil_cannot_be_right(tmp_path):
+    """The push scene with the stick at 0.0 rad (inside its range): at the incompressible level the boom's rod side
+    is driven to megabars. The pressures derived from the efforts are checked at every level: the run stops on the
+    first node beyond 2 x (relief + 10 %) + ambient, at exit status 3 through the command."""
+    folder = tmp_path / "excavator"
+    shutil.copytree(MODELS / "excavator", folder)
+    scenario = folder / "push.scenario.toml"
+    text = scenario.read_text()
+    assert text.count("stick = -0.50") == 1
+    scenario.write_text(text.replace("stick = -0.50", "stick = 0.0"))
+    assert load_scenario(scenario).fidelity == "incompressible"
+    assert main(["run", str(scenario), "--no-progress", "--out", str(tmp_path / "push.mcap")]) == 3
+    record = read_log(tmp_path / "push.mcap").metadata["hydroplant.result"]
+    assert record["status"] == "diverged" and record["check"] == "plausibility" and record["quantity"] == "pressure"
+    assert float(record["end_time_s"]) < 4.0
+
+
+# ------------------------------------------------------------------------ consistent tolerances
+LOAD_MJCF = """<mujoco model="load">
+  <compiler angle="radian" autolimits="false"/>
+  <option timestep="0.001" integrator="implicitfast" gravity="0 0 -9.81"/>
+  <worldbody>
+    <site name="lift_barrel" pos="0 0 0" size="0.01"/>
+    <body name="load" pos="0 0 0">
+      <joint name="z" type="slide" axis="0 0 1" limited="true" range="0.5 1.0"/>
+      <inertial pos="0 0 0" mass="10" diaginertia="0.01 0.01 0.01"/>
+      <site name="lift_rod" pos="0 0 0" size="0.01"/>
+    </body>
+  </worldbody>
+  <tendon>
+    <spatial name="lift" limited="true" range="0.5 1.0">
+      <site site="lift_barrel"/>
+      <site site="lift_rod"/>
+    </spatial>
+  </tendon>
+  <actuator>
+    <general name="lift" tendon="lift" ctrllimited="false" gaintype="fixed" gainprm="1" biastype="affine" biasprm="0 0 0"/>
+  </actuator>
+</mujoco>
+"""
+
+
+def _load_scene(tmp_path, *, start: float, mode: str, circuit: str | None = None):
+    """A 10 kg load on a vertical slide lifted directly by the lift_1dof circuit's 50 mm cylinder (0.5 m stroke),
+    at a 60 Hz step, valve opened at 0.5 s."""
+    (tmp_path / "load.xml").write_text(LOAD_MJCF)
+    (tmp_path / "lift.circuit.toml").write_text(circuit or (MODELS / "lift_1dof" / "lift.circuit.toml").read_text())
+    path = tmp_path / "load.scenario.toml"
+    path.write_text(f'[scene]\nmjcf = "load.xml"\ncircuit = "lift.circuit.toml"\n[run]\nmode = "{mode}"\n'
+                    f'dt = 0.016666666666666666\nduration = 3.0\n[initial]\nqpos = {{ z = {start} }}\nequilibrium = true\n'
+                    '[inputs]\nvalve = { t = [0.0, 0.5, 0.6], value = [0.0, 0.0, 1.0] }\npump = 20.0\n[log]\nrate_hz = 60\n')
+    return path
+
+
+def test_a_10_kg_load_lifted_at_60_hz_completes_at_the_pumps_speed(tmp_path):
+    """12 L/min into a 50 mm bore lifts the load at Q/A = 0.102 m/s once the supply line has emptied into the cap:
+    measured with the monitor on, to 2 %."""
+    result = run(_load_scene(tmp_path, start=0.55, mode="mujoco"), out=tmp_path / "run.mcap")
+    assert result.status == "complete", result.message
+    cyl = read_log(result.log_path).topic("/hydroplant/cylinders/lift")
+    moving = (cyl.t > 1.5) & (cyl.t < 2.9)
+    import math
+
+    expected = 1.0e-5 * 20.0 / (math.pi / 4 * 0.05**2)
+    assert float(cyl["velocity_mps"][moving].mean()) == pytest.approx(expected, rel=0.02)
+
+
+def test_slide_joint_and_stroke_tolerances_agree(tmp_path):
+    """A cylinder lifting a load on a slide joint: the joint's range and the tendon's are the same soft end stop, so
+    both are allowed the same overshoot, max(10 mm, 5 % of the range or stroke) = 25 mm here, and a joint message
+    states that rule."""
+    from sim.io.scene import load_scene
+    from sim.run.runner import make_plant
+
+    path = _load_scene(tmp_path, start=0.95, mode="pbd")
+    monitor = M.RunMonitor(make_plant(load_scene(load_scenario(path))))
+    assert monitor.joint_high[0] - 1.0 == pytest.approx(monitor.stroke_high[0] - 0.5) == pytest.approx(0.025)
+    assert monitor.joint_low[0] - 0.5 == pytest.approx(monitor.stroke_low[0]) == pytest.approx(-0.025)
+    import numpy as np
+
+    zero = np.zeros(1)
+    batch = {"joint_position": np.array([[1.03]]), "step": np.array([60]), "kinetic": zero, "potential": zero,
+             "oil": zero, "pump_work": zero, "residual": zero}
+    found = monitor.check_batch(batch, 1 / 60, 0.0)
+    assert found is not None and found[1].message == (
+        "t = 1 s, joint 'z': position 1.03 m outside its range 0.5 .. 1 m (bound 1.025 m: tolerance max(0.01 m, 5% of "
+        "the range))")
+
+
+# ------------------------------------------------------------------------- fixed-pressure supply
+def test_a_supply_at_a_fixed_pressure_is_not_stopped(tmp_path):
+    """The lift circuit fed by a 200 bar fixed-pressure node instead of its pump: the ledger meters pumps only, so the
+    source's work would show as a residual; the monitor leaves the energy residual out for such a circuit (saying
+    why) and the run completes, the load rising."""
+    circuit = (MODELS / "lift_1dof" / "lift.circuit.toml").read_text()
+    blocks = circuit.split("[[component]]")
+    kept = [blocks[0]] + [b for b in blocks[1:] if 'name = "pump"' not in b and 'name = "relief"' not in b]
+    source = '\nname = "source"\ntype = "tank"\npressure = 2.0e7\nports = { port = "supply" }\n\n'
+    path = _load_scene(tmp_path, start=0.55, mode="mujoco", circuit="[[component]]".join(kept + [source]))
+    path.write_text(path.read_text().replace("pump = 20.0\n", ""))
+    from sim.io.scene import load_scene
+    from sim.run.runner import make_plant
+
+    monitor = M.RunMonitor(make_plant(load_scene(load_scenario(path))))
+    assert not monitor.energy and "'supply'" in monitor.energy_off
+    result = run(path, out=tmp_path / "run.mcap", overrides={"duration": 1.5, "dt": 1e-3})
+    assert result.status == "complete", result.message
+    assert result.final_strokes["lift"] > 0.06
+
+
+# ------------------------------------------------------------------------------ equalities
+def test_the_equality_violation_is_the_whole_gap_not_its_largest_component():
+    """A connect pulled 8 mm in x and 8 mm in z: each component is within 10 mm, the gap (11.3 mm) is not."""
+    import types
+
+    import mujoco
+    import numpy as np
+
+    model = mujoco.MjModel.from_xml_string("""<mujoco><worldbody><body name="b">
+      <joint name="x" type="slide" axis="1 0 0"/><joint name="z" type="slide" axis="0 0 1"/>
+      <inertial pos="0 0 0" mass="1" diaginertia="1 1 1"/></body></worldbody>
+      <equality><connect name="pin" body1="b" anchor="0 0 0"/></equality></mujoco>""")
+    data = mujoco.MjData(model)
+    data.qpos[:] = (0.008, 0.008)
+    mujoco.mj_forward(model, data)
+    name, gap = M.ConstraintErrors(types.SimpleNamespace(model=model, data=data)).worst()
+    assert name == "equality 'pin'" and gap == pytest.approx(0.008 * np.sqrt(2), rel=1e-6)

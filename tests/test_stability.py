@@ -447,3 +447,20 @@ def test_boom_map_cells_at_30hz_are_reproduced(tmp_path, monkeypatch):
         assert (r["class"] == st.CLASS_DIVERGED) == (committed["class"] == st.CLASS_DIVERGED), (r["method"], r["config"], r["message"])
     explicit = [r for r in runs if r["method"] == "mujoco-explicit"]
     assert sum(r["class"] == st.CLASS_DIVERGED for r in explicit) >= len(explicit) - 1  # all but beta 1e8 (omega_h*dt 0.42)
+
+
+def test_mass_scaling_ignores_static_bodies_whose_mass_is_inferred(tmp_path):
+    """A floor slab welded to the world, its mass inferred from its geom's default density (100 t): its mass moves
+    nothing, so the mass sweep scales the moving bodies and is not refused over the slab."""
+    from sim.tools.stability import scale_mjcf_masses
+
+    source = tmp_path / "boom.xml"
+    text = (MODELS / "boom" / "boom.xml").read_text()
+    source.write_text(text.replace("<worldbody>", '<worldbody>\n    <body name="slab" pos="0 0 -1"><geom type="box" '
+                                   'size="5 5 0.5"/></body>', 1))
+    target = tmp_path / "scaled.xml"
+    scale_mjcf_masses(source, target, 0.01)
+    before, after = (mujoco.MjModel.from_xml_path(str(p)) for p in (source, target))
+    moving = np.asarray(before.body_weldid) != 0
+    assert float(before.body_mass[~moving].sum()) > 1e4  # the slab is there, with its inferred mass
+    assert after.body_mass[moving] == pytest.approx(0.01 * before.body_mass[moving])

@@ -49,8 +49,9 @@ class Cylinder:
     cap_rod_diameter: float = param("m", low=0.0, high=1.0, low_open=False, default=0.0)
     """Diameter of a through rod leaving by the cap end [m]: 0 for a differential cylinder, ``rod_diameter`` for
     a double-rod (equal-area) one; must be smaller than the bore."""
-    stroke: float = param("m", low=0.0, high=20.0)
-    """Stroke [m]."""
+    stroke: float = param("m", low=0.01, high=20.0, low_open=False)
+    """Stroke [m]; at least 10 mm (short-stroke clamping cylinders), well above the 1 mm the MJCF tendon range may
+    differ from it and the end stops' tolerance, so that a zero-length cylinder is refused."""
     dead_volume_cap: float = param("m^3", low=0.0, high=1.0, low_open=False, default=0.0)
     """Cap-side volume at x = 0 (ports, cushion) [m³]."""
     dead_volume_rod: float = param("m^3", low=0.0, high=1.0, low_open=False, default=0.0)

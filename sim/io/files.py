@@ -20,10 +20,17 @@ names the path, when the path
 The writer itself (:class:`sim.io.mcap_log.LogWriter`) creates the ``.partial`` exclusively, so a
 second run racing past these checks is still refused.
 
+Tools that write a fixed set of files into a folder (``compare``, ``tradeoff``) check every name
+first with :func:`check_outputs` (a name that is a link, a folder or one of the command's inputs is
+refused before any work) and write each with :func:`write_output`: a new file created exclusively
+beside the target and renamed over it, so a link or hard link planted in the folder is replaced,
+never written through.
+
 Usage::
 
     from sim.io.files import check_output
     path = check_output("logs/lift.mcap", protected=[scenario.path, scenario.circuit])
+    write_output("logs/compare/report.md", lambda f: f.write(b"# Report"), what="report")
 """
 
 from __future__ import annotations
@@ -31,12 +38,15 @@ from __future__ import annotations
 import errno
 import os
 import stat
+import secrets
+from collections.abc import Callable
 from pathlib import Path
 
 from hydraulics.components import CircuitError
 from hydraulics.files import MAX_INPUT_BYTES, file_kind, read_bytes, read_text, resolve
 
-__all__ = ["MAX_INPUT_BYTES", "PARTIAL_SUFFIX", "check_output", "free_path", "read_bytes", "read_text", "resolve"]
+__all__ = ["MAX_INPUT_BYTES", "PARTIAL_SUFFIX", "check_output", "check_outputs", "free_path", "read_bytes", "read_text",
+           "resolve", "write_output"]
 
 PARTIAL_SUFFIX = ".partial"  # as sim.io.mcap_log.PARTIAL_SUFFIX (not imported: that module loads the MCAP stack)
 
@@ -138,3 +148,32 @@ def free_path(path) -> Path:
         n += 1
         candidate = path.with_name(f"{path.stem}-{n}{path.suffix}")
     return candidate
+
+
+def check_outputs(folder, names, protected=(), *, what: str = "output") -> list[Path]:
+    """The paths ``folder/name`` a tool will write, each checked by :func:`check_output` (``overwrite=True``: the
+    tool's own files are replaced; links, folders, devices and the ``protected`` inputs are refused)."""
+    folder = Path(folder)
+    return [check_output(folder / name, protected, overwrite=True, what=what) for name in names]
+
+
+def write_output(path, write: Callable, *, what: str = "output") -> Path:
+    """Write a file through ``write(binary_stream)`` without ever following a link at ``path``.
+
+    ``path`` is checked by :func:`check_output` (``overwrite=True``); the data goes to a new file
+    created exclusively in the same folder, which is then renamed over ``path`` (``os.replace``
+    replaces a link or hard link itself, not what it points to). On any error the new file is
+    removed and ``path`` is left as it was.
+    """
+    path = check_output(path, overwrite=True, what=what)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o666)
+    try:
+        with os.fdopen(fd, "wb") as stream:
+            write(stream)
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)  # (ours: created exclusively above)
+        raise
+    return path

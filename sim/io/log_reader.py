@@ -330,10 +330,14 @@ class RunLog:
                                f"({type(error).__name__}: {error}); 'hydroplant log recover {self.path}' keeps "
                                "every chunk that checks") from None
         times = np.array(log_times, dtype=np.int64)
-        if msg_type is not None:
-            data = TopicData.from_cdr(name, msg_type, times, datas)
-        else:
-            data = TopicData.from_messages(name, self.schema_names[name], times, [_loads(d) for d in datas])
+        try:
+            if msg_type is not None:
+                data = TopicData.from_cdr(name, msg_type, times, datas)
+            else:
+                data = TopicData.from_messages(name, self.schema_names[name], times, [_loads(d) for d in datas])
+        except (ValueError, TypeError, AttributeError, LookupError) as error:  # another program's payloads
+            raise LogReadError(f"{self.path}: topic {name!r} holds messages that do not decode as {encoding} objects "
+                               f"({type(error).__name__}: {error})") from None
         self._topic_cache[name] = data
         return data
 

@@ -71,7 +71,13 @@ RECORD_PREFIX = struct.Struct("<BQ")  # opcode (uint8) + record length (uint64)
 MESSAGE_RECORD = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log time, publish time
 _CHUNK_FIXED = struct.Struct("<QQQII")  # start time, end time, uncompressed size, crc, compression string length
 _COMPRESSIONS = {"zstd": "zstd", "lz4": "lz4", "none": ""}  # LogWriter name -> MCAP chunk compression string
-_MAX_UNCOMPRESSED = 1 << 31  # a chunk claiming more is damaged [B]
+_MAX_UNCOMPRESSED = 1 << 28  # a chunk claiming more is damaged [B] (writers cut chunks at a few MB; ours at 512 KiB)
+# The largest ratio uncompressed / compressed size each chunk compression can reach: a zstd block of
+# 128 KiB can be a 4-byte RLE block; an LZ4 match grows by 255 B per byte. A chunk claiming more than
+# its compressed bytes can hold is damaged, found before anything is allocated.
+_MAX_RATIO = {"zstd": 1 << 15, "lz4": 256}
+_FRAME_SLACK = 64  # B: frame header and end mark, beyond the ratio
+_PIECE = 1 << 20  # B decompressed at a time: memory grows with the data a frame really yields
 
 
 class LogPathError(CircuitError):
@@ -148,17 +154,45 @@ def _compressor(compression: str) -> Callable[[bytes], bytes]:
 
 
 def _decompress(compression: str, data: bytes, size: int) -> bytes:
+    """The ``size`` bytes a chunk's ``data`` decompress to; ValueError when they cannot be, without allocating more
+    than the compressed bytes can yield (a frame's own claimed content size is never trusted)."""
+    if compression == "":
+        return bytes(data)
+    ratio = _MAX_RATIO.get(compression)
+    if ratio is None:
+        raise ValueError(f"unknown chunk compression {compression!r}")
+    if size > ratio * len(data) + _FRAME_SLACK:
+        raise ValueError(f"claims {size} B uncompressed from {len(data)} B of {compression}, more than "
+                         f"{compression} can hold")
+    pieces, total = [], 0
+    for piece in _pieces(compression, data):
+        total += len(piece)
+        if total > size:
+            raise ValueError(f"decompresses to more than its stated {size} B")
+        pieces.append(piece)
+    return b"".join(pieces)
+
+
+def _pieces(compression: str, data: bytes) -> Iterator[bytes]:
+    """The decompressed bytes of one frame, :data:`_PIECE` at a time."""
     if compression == "zstd":
         import zstandard
 
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == "lz4":
-        import lz4.frame
+        with zstandard.ZstdDecompressor().stream_reader(bytes(data)) as reader:
+            while piece := reader.read(_PIECE):
+                yield piece
+        return
+    import lz4.frame
 
-        return lz4.frame.decompress(data)
-    if compression == "":
-        return bytes(data)
-    raise ValueError(f"unknown chunk compression {compression!r}")
+    decompressor = lz4.frame.LZ4FrameDecompressor()
+    piece = decompressor.decompress(bytes(data), max_length=_PIECE)
+    while True:
+        yield piece
+        if decompressor.eof:
+            return
+        if decompressor.needs_input:
+            raise ValueError("the LZ4 frame ends early")
+        piece = decompressor.decompress(b"", max_length=_PIECE)
 
 
 @dataclass(frozen=True)

@@ -187,7 +187,24 @@ def load_mjmodel(path: Path, files: list[MjcfFile] | None = None) -> mujoco.MjMo
         message = " ".join(str(exc).split())  # one line
         raise ScenarioError(f"{path}: MuJoCo cannot compile this MJCF: {message}") from None
     check_finite_model(model, path)
+    check_moving_masses(model, path)
     return model
+
+
+MIN_MOVING_MASS = 1e-3
+"""Lightest body a joint may move, with the bodies it carries [kg]: a cylinder's kN on less than a gram
+accelerates it by 1e6 m/s^2 and more, which no step resolves (MuJoCo resets such a state mid-step)."""
+
+
+def check_moving_masses(model: mujoco.MjModel, path) -> None:
+    """Refuse a body that a joint moves whose mass with its subtree (``body_subtreemass``) is below
+    :data:`MIN_MOVING_MASS`; the message names the MJCF, the body and the allowed range."""
+    for b in range(1, model.nbody):
+        if model.body_dofnum[b] and not float(model.body_subtreemass[b]) >= MIN_MOVING_MASS:
+            name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or f"#{b}"
+            raise ScenarioError(f"{path}: body '{name}': mass {float(model.body_subtreemass[b]):.4g} kg (with the bodies "
+                                f"it carries) is outside the allowed range [{MIN_MOVING_MASS:g}, inf) kg for a body a "
+                                "joint moves")
 
 
 _MODEL_OBJECTS = {"body": mujoco.mjtObj.mjOBJ_BODY, "jnt": mujoco.mjtObj.mjOBJ_JOINT, "dof": None,

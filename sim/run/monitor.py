@@ -12,7 +12,8 @@ stroke
     tol = max(``STROKE_TOLERANCE``, ``STROKE_TOLERANCE_FRACTION``·stroke): the end
     stops (MJCF tendon limits) are soft and give a little, never a tenth of the stroke.
 pressure
-    every free node's absolute pressure p [Pa] within [p_low, p_high]:
+    every free node's absolute pressure p [Pa] within [p_low, p_high], at every
+    fidelity level (at the ``incompressible`` level the pressures derived from the efforts):
     p_low = ``PRESSURE_FLOOR_FACTOR``·p_cavitation (the network floors its
     pressures at the cavitation pressure; no lower bound without cavitation), and
     p_high = ``PRESSURE_BOUND_FACTOR``·(1 + ``RELIEF_OVERRIDE_FRACTION``)·Δp_crack,max + p_ref,
@@ -33,17 +34,23 @@ energy residual
     ΔE_stored the change of kinetic + potential + oil energy since t = 0: a fraction
     of the energy that went through the machine, not of a pump work that may be
     near zero.  An unaccounted force (a leftover MJCF velocity actuator acting as
-    a brake) or an unstable coupling shows up here.  Not checked at the
-    ``incompressible`` fidelity (no oil energy) nor with rigid actuators in a
-    compressible network (their trackers brake without metering what they take).
+    a brake) or an unstable coupling shows up here.  Not checked where the ledger
+    is no balance (:func:`energy_unmetered`, the reason kept as ``energy_off``): at the
+    ``incompressible`` fidelity (no pump work metered), with rigid actuators in a
+    compressible network (their trackers brake without metering what they take), and
+    with a fixed node at a pressure other than the reference (a pressure source whose
+    work Q·μ(p) no pump meters).
 equality constraints
-    MuJoCo mode: the largest |efc_pos| of each equality constraint's rows (loop
-    closures: ``connect``, ``weld``, ``joint``) [m or rad]; PBD mode: the XPBD
+    MuJoCo mode: the length of each equality constraint's gap vector, its rows of
+    ``efc_pos`` taken together (loop closures: ``connect``, ``weld``, ``joint``)
+    [m or rad] (:class:`ConstraintErrors`); PBD mode: the XPBD
     solver's own pin errors |p₂ − p₁| [m] of its hinge joints and its connect /
     weld equalities; each within ``EQUALITY_TOLERANCE``.
 joint range
     every limited hinge [rad] or slide [m] within its MJCF range widened by
-    ``JOINT_RANGE_TOLERANCE_HINGE`` / ``JOINT_RANGE_TOLERANCE_SLIDE`` (soft limits).
+    ``JOINT_RANGE_TOLERANCE_HINGE`` for a hinge and, for a slide, by the stroke's
+    rule applied to its range width (:func:`end_stop_tolerance`: a cylinder's slide and
+    its tendon are the same soft end stop).
 
 Where the checks run (the runner's :class:`sim.run.runner._Loop`), so that the
 compiled fast paths pay no Python call per step:
@@ -114,9 +121,63 @@ EQUALITY_TOLERANCE = 0.01  # [m | rad]
 # the excavator's dig at 1 kHz goes 0.007 rad past its bucket's range; at a 30 Hz frame, where MuJoCo's soft limits
 # have a time constant of at least 2·dt, the incompressible fidelity drives the bucket 0.27 rad past it)
 JOINT_RANGE_TOLERANCE_HINGE = 0.05  # [rad] (≈ 2.9°)
-JOINT_RANGE_TOLERANCE_SLIDE = 0.01  # [m]
 
 PA_PER_BAR = 1e5
+# Energy: a fixed node (a tank) whose pressure differs from the reference pressure by more than this is a pressure
+# source whose work the ledger does not meter [Pa]
+SOURCE_PRESSURE_TOLERANCE = 1.0e3  # [Pa]
+
+
+def end_stop_tolerance(travel):
+    """How far past an end stop a right run may go [m]:
+    max(``STROKE_TOLERANCE``, ``STROKE_TOLERANCE_FRACTION``·travel), for a cylinder's stroke and a limited slide
+    joint's range width [m] alike (the same soft end stop, seen on the tendon or on the joint)."""
+    return np.maximum(STROKE_TOLERANCE, STROKE_TOLERANCE_FRACTION * np.asarray(travel, float))
+
+
+def pressure_sources(plant) -> list[str]:
+    """Names of the fixed nodes whose pressure differs from the reference pressure by more than
+    ``SOURCE_PRESSURE_TOLERANCE`` (pressure sources: the oil they give carries work no pump meters)."""
+    net = plant.network
+    fixed = np.flatnonzero(np.asarray(net.node_fixed, bool) & ~_rigid_chambers(net))
+    pressure = np.asarray(plant.net_state.node_pressure, float)[fixed]
+    return [str(net.node_names[i]) for i, p in zip(fixed, pressure)
+            if abs(p - net.fluid.reference_pressure) > SOURCE_PRESSURE_TOLERANCE]
+
+
+def _rigid_chambers(net) -> np.ndarray:
+    """Mask of the nodes that are chambers of rigid actuators (fixed nodes of the packed network, not sources)."""
+    mask = np.zeros(net.node_count, bool)
+    rigid = np.asarray(net.actuator_rigid, bool)
+    if rigid.any():
+        for i, a in enumerate(np.asarray(net.cylinder_actuator, int)):
+            if rigid[a]:
+                mask[[int(net.cylinder_cap_node[i]), int(net.cylinder_rod_node[i])]] = True
+    return mask
+
+
+def energy_unmetered(plant) -> str:
+    """Why the energy residual of ``plant``'s run is not checked ("" when it is).
+
+    The ledger (:class:`sim.plants.base.EnergyLedger`) meters the work of pumps, the stored oil energy of the free
+    nodes and the branch losses.  It is not a balance when
+
+    * the network is at the ``incompressible`` level: no pressure states, no metered pump work;
+    * rigid actuators sit in a compressible network: their trackers take kinetic energy unmetered (the
+      energy-growth check still covers them);
+    * a fixed node holds a pressure other than the reference (a tank at 200 bar as the supply): the oil it
+      gives or takes carries Q·μ(p) of work that no pump meters, and the residual would carry it.
+    """
+    net = plant.network
+    if net.fidelity == "incompressible" or getattr(plant.coupling, "name", "") == "incompressible":
+        return "the incompressible level meters no pump work"
+    if np.any(np.asarray(net.actuator_rigid, bool)):
+        return "rigid actuators take kinetic energy through their trackers unmetered"
+    sources = pressure_sources(plant)
+    if sources:
+        names = ", ".join(repr(n) for n in sources)
+        return f"fixed-pressure node(s) {names} off the reference pressure do work the ledger does not meter"
+    return ""
 
 
 @dataclass(frozen=True)
@@ -174,9 +235,7 @@ class RunMonitor:
         net = plant.network
         self.network = net
         fluid = net.fluid
-        free = ~np.asarray(net.node_fixed, bool)
-        if net.fidelity == "incompressible":
-            free = np.zeros(net.node_count, bool)  # no pressure states: pressures are derived from the efforts
+        free = ~np.asarray(net.node_fixed, bool)  # (at the incompressible level too: pressures derived from the efforts)
         relief = np.asarray(net.relief_cracking, float)
         if len(relief):
             worst = int(np.argmax(relief))
@@ -201,7 +260,7 @@ class RunMonitor:
         self.stroke_high, self.stroke_low = np.full(na, np.inf), np.full(na, -np.inf)
         cyl = np.asarray(net.cylinder_actuator, int)
         stroke = np.asarray(net.cylinder_stroke, float)
-        tolerance = np.maximum(STROKE_TOLERANCE, STROKE_TOLERANCE_FRACTION * stroke)
+        tolerance = end_stop_tolerance(stroke)
         self.stroke_low[cyl] = -tolerance
         self.stroke_high[cyl] = stroke + tolerance
         self.stroke = np.zeros(na)
@@ -212,19 +271,18 @@ class RunMonitor:
         limited = np.array([bool(m.jnt_limited[j]) for j in joints], bool) if len(joints) else np.zeros(0, bool)
         hinge = np.array([int(m.jnt_type[j]) == int(mujoco.mjtJoint.mjJNT_HINGE) for j in joints], bool)
         rng = np.array(m.jnt_range[joints]) if len(joints) else np.zeros((0, 2))
-        tol = np.where(hinge, JOINT_RANGE_TOLERANCE_HINGE, JOINT_RANGE_TOLERANCE_SLIDE)
+        tol = np.where(hinge, JOINT_RANGE_TOLERANCE_HINGE, end_stop_tolerance(rng[:, 1] - rng[:, 0]))
         self.joint_low = np.where(limited, rng[:, 0] - tol, -np.inf) if len(joints) else np.zeros(0)
         self.joint_high = np.where(limited, rng[:, 1] + tol, np.inf) if len(joints) else np.zeros(0)
         self.joint_range = rng
         self.joint_unit = np.where(hinge, "rad", "m")
         self.checks_joints = bool(np.any(limited))
-        # (no residual without oil; a mixed network's rigid actuators take kinetic energy through their trackers unmetered,
-        # so its ledger swings by kJ within a step: the energy-growth check still covers it)
-        self.energy = (net.fidelity != "incompressible" and getattr(plant.coupling, "name", "") != "incompressible"
-                       and not np.any(np.asarray(net.actuator_rigid, bool)))
+        self.energy_off = energy_unmetered(plant)  # why the residual is not checked ("" when it is)
+        self.energy = not self.energy_off
+        self.sources = pressure_sources(plant)  # (the runner's energy-growth check counts pump work only, too)
         moving = float(np.sum(np.asarray(m.body_mass)[np.asarray(m.body_weldid) != 0]))
         self.energy_floor = max(ENERGY_RESIDUAL_FLOOR, ENERGY_RESIDUAL_FLOOR_PER_KG * moving)  # [J]
-        self._constraints = _ConstraintErrors(plant)
+        self._constraints = ConstraintErrors(plant)
 
     # ------------------------------------------------------------ verdicts
     def accept(self, violation: Violation | None) -> bool:
@@ -359,16 +417,19 @@ class RunMonitor:
         b = float(self.joint_high[i] if high else self.joint_low[i])
         unit = str(self.joint_unit[i])
         lo, hi = self.joint_range[i]
-        text = (f"{v:.6g} {unit} outside its range {lo:.6g} .. {hi:.6g} {unit} (bound {b:.6g} {unit}: tolerance "
-                f"{JOINT_RANGE_TOLERANCE_HINGE:g} rad / {JOINT_RANGE_TOLERANCE_SLIDE:g} m)")
+        rule = (f"{JOINT_RANGE_TOLERANCE_HINGE:g} rad" if unit == "rad" else
+                f"max({STROKE_TOLERANCE:g} m, {STROKE_TOLERANCE_FRACTION:.0%} of the range)")
+        text = f"{v:.6g} {unit} outside its range {lo:.6g} .. {hi:.6g} {unit} (bound {b:.6g} {unit}: tolerance {rule})"
         return Violation(time, f"joint '{names[i]}'", "position", v, b, text, (names[i], "position", "high" if high else "low"))
 
 
-class _ConstraintErrors:
+class ConstraintErrors:
     """Largest equality-constraint violation of a plant's current state, with the constraint's name.
 
     MuJoCo plants: the rows of ``efc_pos`` whose ``efc_type`` is an equality (the state MuJoCo's last
-    ``mj_step``/``mj_forward`` saw), one maximum per equality (``efc_id``).  PBD plants: the pin errors
+    ``mj_step``/``mj_forward`` saw), grouped per equality (``efc_id``): the violation is the length of the
+    gap vector, ``|efc_pos|`` over a ``connect``'s three rows, the larger of the position and the rotation
+    lengths of a ``weld``'s six, ``|efc_pos|`` of a ``joint`` or ``tendon`` equality's one row.  PBD plants: the pin errors
     |p₂ − p₁| [m] of the XPBD hinge joints and connect / weld equalities at the current body state.
     """
 
@@ -409,9 +470,15 @@ class _ConstraintErrors:
             rows = np.flatnonzero(d.efc_type[:n] == int(mujoco.mjtConstraint.mjCNSTR_EQUALITY))
             if not len(rows):
                 return None
-            err = np.abs(d.efc_pos[rows])
-            k = int(np.argmax(err))
-            return f"equality '{self.eq_names[int(d.efc_id[rows[k]])]}'", float(err[k])
+            ids = d.efc_id[rows]
+            best = None
+            for e in np.unique(ids):
+                gap = d.efc_pos[rows[ids == e]]
+                size = max(float(np.linalg.norm(gap[:3])), float(np.linalg.norm(gap[3:]))) if len(gap) == 6 else \
+                    float(np.linalg.norm(gap))
+                if best is None or size > best[1]:
+                    best = (f"equality '{self.eq_names[int(e)]}'", size)
+            return best
         return self._pbd_worst()
 
     def _pbd_worst(self):
@@ -439,6 +506,7 @@ class _ConstraintErrors:
 
 __all__ = [
     "ENERGY_RESIDUAL_FLOOR", "ENERGY_RESIDUAL_FLOOR_PER_KG", "ENERGY_RESIDUAL_FRACTION", "EQUALITY_TOLERANCE", "JOINT_RANGE_TOLERANCE_HINGE",
-    "JOINT_RANGE_TOLERANCE_SLIDE", "NO_RELIEF_PRESSURE_LIMIT", "PRESSURE_BOUND_FACTOR", "PRESSURE_FLOOR_FACTOR",
-    "RELIEF_OVERRIDE_FRACTION", "RunMonitor", "STROKE_TOLERANCE", "STROKE_TOLERANCE_FRACTION", "Violation",
+    "NO_RELIEF_PRESSURE_LIMIT", "PRESSURE_BOUND_FACTOR", "PRESSURE_FLOOR_FACTOR",
+    "RELIEF_OVERRIDE_FRACTION", "ConstraintErrors", "RunMonitor", "STROKE_TOLERANCE", "STROKE_TOLERANCE_FRACTION", "Violation",
+    "end_stop_tolerance", "energy_unmetered", "pressure_sources",
 ]

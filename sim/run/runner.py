@@ -311,7 +311,7 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
 
 
 def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = False, overwrite: bool = False,
-        fast: bool = True, stop=None, driver=None) -> RunResult:
+        fast: bool = True, stop=None, driver=None, warn: bool | None = None) -> RunResult:
     """Run a scenario (path or :class:`Scenario`) and write its MCAP log; see the module docstring.
 
     ``out``: the log file (default :func:`default_log_path`).  Before the run starts it is checked
@@ -322,6 +322,11 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
 
     ``fast=False`` forces the per-step path (:class:`~sim.plants.mujoco.MujocoPlant`
     in MuJoCo mode).
+
+    ``progress``: show a progress line on stderr during a long run.  ``warn``: print the load-time
+    warnings (stability guards, parts of the circuit not built) on stderr; default: as ``progress``
+    (``hydroplant run`` always prints them, ``--no-progress`` leaves out the progress line only).
+    The warnings are in the log's guard report either way.
 
     ``stop``: a callable without arguments, the caller's request to stop (``hydroplant run`` passes
     whether a signal arrived, in case a library turned its interrupt into an error and handled it);
@@ -348,13 +353,14 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     inputs = input_files(scene)
     if out is not None:
         log_path = check_output(out, [path for _, _, path, _ in inputs], overwrite=overwrite)
-    if scene.network.pruned and progress:
+    warn = progress if warn is None else warn
+    if scene.network.pruned and warn:
         print(f"hydroplant: not built (connected to no cylinder or motor): {', '.join(scene.network.pruned)}", file=sys.stderr)
     plant = make_plant(scene, fast=fast)
     if driver is not None:
         driver.prepare(plant)
     guard = check_plant(plant)  # load-time stability guards: warn, never fail
-    if progress:
+    if warn:
         for text in guard.warnings:
             print(f"hydroplant: warning: {text}", file=sys.stderr)
     attachments = [(name, media, data) for name, media, _, data in inputs]
@@ -764,7 +770,8 @@ class _Loop:
         if batch is None:
             return True
         bad = None
-        if check and plant.coupling.name != "incompressible":  # (no energy terms without oil)
+        # (no energy terms without oil; a pressure source's work is not metered: sim.run.monitor.energy_unmetered)
+        if check and plant.coupling.name != "incompressible" and not self.monitor.sources:
             e = plant.energy
             gained = batch["kinetic"] + batch["potential"] + batch["oil"] - e.initial_total
             allowed = ENERGY_GROWTH_LIMIT * (abs(e.initial_total) + batch["pump_work"]) + ENERGY_GROWTH_FLOOR

@@ -179,6 +179,31 @@ def valve_for(scene, a: int):
     return None, 0
 
 
+END_BISECTIONS = 60  # halvings of a sweep interval when finding a stroke end (to round-off)
+
+
+def stroke_end(ck: Checker, a: int, dof: int, values, lengths, k: int, target: float) -> tuple[float, float]:
+    """(driving-joint value, L) where actuator ``a``'s length L equals ``target`` [m], bisected between the sweep
+    point ``k`` nearest to it and the neighbour on the other side of it; the sweep point itself when L does not
+    cross ``target`` there (the joint's range ends before the stroke does).  A pose between sweep points, not the
+    nearest point, so that a stroke end is never evaluated past the end stop."""
+    for j in (k - 1, k + 1):
+        if 0 <= j < len(values) and np.isfinite(lengths[j]) and (lengths[k] - target) * (lengths[j] - target) < 0:
+            lo, hi, f_lo = float(values[k]), float(values[j]), float(lengths[k] - target)
+            for _ in range(END_BISECTIONS):
+                mid = 0.5 * (lo + hi)
+                q = ck.pose(dof, mid)
+                if q is None:  # the loops do not close there: keep the bracket found so far
+                    break
+                f_mid = float(ck.lengths(q)[a] - target)
+                if (f_mid > 0) == (f_lo > 0):
+                    lo, f_lo = mid, f_mid
+                else:
+                    hi = mid
+            return lo, target + f_lo
+    return float(values[k]), float(lengths[k])
+
+
 def pressure_text(ck: Checker, a: int, effort: float) -> str:
     """Holding effort as chamber pressure against the relief on that side."""
     net = ck.scene.network
@@ -296,10 +321,11 @@ def check_scene(scenario_path, grid: int = 0, mode=None) -> tuple[str, int]:
                 out.append(f"    {label}: not reached in the range of {joint_name(m, dof)} (L comes to {lengths[k]:.4f} m at "
                            f"{values[k]:+.4f}): the joint's range ends the motion before the cylinder does")
                 continue
-            q = ck.pose(dof, values[k])
-            plus, minus = ck.pose(dof, values[k] + PROBE), ck.pose(dof, values[k] - PROBE)
+            value, length = stroke_end(ck, a, dof, values, lengths, k, target)
+            q = ck.pose(dof, value)
+            plus, minus = ck.pose(dof, value + PROBE), ck.pose(dof, value - PROBE)
             end_arm = (ck.lengths(plus)[a] - ck.lengths(minus)[a]) / (2 * PROBE) if plus is not None and minus is not None else math.nan
-            out.append(f"    {label}: {joint_name(m, dof)} = {values[k]:+.4f}, L = {lengths[k]:.4f} m, dL/d{joint_name(m, dof)} = {end_arm:+.4f} m")
+            out.append(f"    {label}: {joint_name(m, dof)} = {value:+.4f}, L = {length:.4f} m, dL/d{joint_name(m, dof)} = {end_arm:+.4f} m")
             extremes.append((f"{name} {label}", q))
     # holding at the start pose and at the stroke ends
     for label, q in [("start pose", ck.q0)] + extremes:

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,6 +39,7 @@ import numpy as np
 
 from hydraulics.components import CircuitError
 
+from sim.io.files import check_outputs, write_output
 from sim.io.log_recover import verify_log
 from sim.io.mcap_log import RESULT_METADATA, RUN_METADATA, merge_logs, read_log
 
@@ -117,13 +117,13 @@ def log_signals(log) -> dict[str, Signal]:
             data = log.topic(topic)
             for label, column, kind in (("stroke", "position_m", "stroke"), ("p_cap", "p_cap_pa", "pressure"),
                                         ("p_rod", "p_rod_pa", "pressure")):
-                if column in data:
+                if column in data.fields:
                     out[f"{label} {cyl}"] = Signal(f"{label} {cyl}", kind, data.t, data[column])
         elif topic.startswith(MOTOR_PREFIX):
             motor = topic.removeprefix(MOTOR_PREFIX)
             data = log.topic(topic)
             for label, column in (("p_a", "p_a_pa"), ("p_b", "p_b_pa")):
-                if column in data:
+                if column in data.fields:
                     out[f"{label} {motor}"] = Signal(f"{label} {motor}", "pressure", data.t, data[column])
     return out
 
@@ -571,6 +571,16 @@ def parse_runs(text: str, default_coupling: str = "implicit") -> list[RunSpec]:
     return [RunSpec(m, c, m if counts[m] == 1 else f"{m}-{c}") for m, c in pairs]
 
 
+OUTPUT_NAMES = ("merged.mcap", "report.md", "overlay.png", "error.png")
+"""What compare writes into its folder besides the run logs (``reference.mcap``, ``<label>.mcap``)."""
+
+
+def _copy_into(source, stream) -> None:
+    with open(source, "rb") as src:
+        while block := src.read(1 << 20):
+            stream.write(block)
+
+
 @dataclass
 class CompareResult:
     """What ``compare`` wrote."""
@@ -603,6 +613,8 @@ def compare_runs(scenario, specs: list[RunSpec], out_dir, *, dt: float | None = 
 
     scenario = as_scenario(scenario, duration=duration)
     out_dir = Path(out_dir)
+    check_outputs(out_dir, ["reference.mcap", *(f"{s.label}.mcap" for s in specs), *OUTPUT_NAMES],
+                  [scenario.path, scenario.circuit, scenario.mjcf], what="compare output")
     out_dir.mkdir(parents=True, exist_ok=True)
     if any(s.mode.startswith("pbd") for s in specs):
         ok, why = pbd_available()
@@ -611,8 +623,7 @@ def compare_runs(scenario, specs: list[RunSpec], out_dir, *, dt: float | None = 
     reference = compute_reference(scenario, tolerance=tolerance, cache_dir=cache_dir or DEFAULT_CACHE_DIR,
                                   fresh=fresh_reference, progress=progress, filter_window=filter_window,
                                   **(reference_options or {}))
-    ref_copy = out_dir / "reference.mcap"
-    shutil.copyfile(reference.log_path, ref_copy)
+    ref_copy = write_output(out_dir / "reference.mcap", lambda f: _copy_into(reference.log_path, f), what="compare output")
     ref_log = read_log(ref_copy)
     comparisons = []
     for spec in specs:
@@ -649,11 +660,17 @@ def compare_existing(logs: list, out_dir, *, filter_window: float | None = None)
     for path in logs:
         if not Path(path).is_file():
             raise CircuitError(f"{path}: log file not found")
+    out_dir = Path(out_dir)
+    check_outputs(out_dir, OUTPUT_NAMES, logs, what="compare output")  # never over an input: compare DIR/merged.mcap
     try:
         ref_log = read_log(logs[0])
         others = [read_log(p) for p in logs[1:]]
     except ValueError as exc:
         raise CircuitError(str(exc)) from None
+    for log in (ref_log, *others):
+        if RUN_METADATA not in log.metadata:
+            raise CircuitError(f"{log.path}: not a hydroplant log (no '{RUN_METADATA}' metadata record; its topics: "
+                               f"{', '.join(log.topics[:3]) or 'none'}); compare reads logs written by 'hydroplant run'")
     for path in logs:  # a damaged chunk would otherwise surface deep in a topic read or the merge
         if damage := verify_log(path).damage:
             raise CircuitError(f"{path}: damaged log ({damage[0].what} at bytes {damage[0].start}..{damage[0].end}); "
@@ -666,7 +683,6 @@ def compare_existing(logs: list, out_dir, *, filter_window: float | None = None)
             label += "_"
         labels.add(label)
         comparisons.append(compare_logs(ref_log, log, label=label, filter_window=filter_window))
-    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = ref_log.metadata.get(RUN_METADATA, {})
     title = f"{meta.get('scene', '?')} logs: {', '.join(Path(p).name for p in logs)}"
@@ -778,9 +794,10 @@ def overlay_figure(ref_log, comparisons: list, path, *, title: str = "", max_cyl
     fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 3), fontsize=7, frameon=False)
     if title:
         fig.suptitle(title, fontsize=9)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return Path(path)
+    try:
+        return write_output(path, lambda f: fig.savefig(f, format="png", dpi=90), what="figure")
+    finally:
+        plt.close(fig)
 
 
 def error_figure(ref_log, comparisons: list, path, *, title: str = "") -> Path:
@@ -819,9 +836,10 @@ def error_figure(ref_log, comparisons: list, path, *, title: str = "") -> Path:
     if title:
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return Path(path)
+    try:
+        return write_output(path, lambda f: fig.savefig(f, format="png", dpi=90), what="figure")
+    finally:
+        plt.close(fig)
 
 
 def _write_report(out_dir: Path, title: str, ref_label: str, ref_log, ref_text: str, convergence_text: str,
@@ -876,8 +894,7 @@ def _write_report(out_dir: Path, title: str, ref_label: str, ref_log, ref_text: 
     files = ["reference.mcap"] + [c.log_path.name for c in comparisons] + ([merged.name] if merged else [])
     lines += ["Logs: " + ", ".join(f"`{f}`" for f in files) + ("" if not merged else
               f" (`{merged.name}`: every log with topics prefixed `/<run>/`, for Foxglove)"), ""]
-    report = out_dir / "report.md"
-    report.write_text("\n".join(lines))
+    report = write_output(out_dir / "report.md", lambda f: f.write("\n".join(lines).encode()), what="report")
     return CompareResult(ref_label, ref_log.path, ref_text, comparisons, report, merged, [overlay, errors])
 
 

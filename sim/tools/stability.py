@@ -381,8 +381,9 @@ def scale_mjcf_masses(source: Path, target: Path, factor: float) -> None:
 
     Relative asset paths (compiler dirs, includes) are rewritten relative to the
     target's folder (unchanged when it is the source's), so the copy names the same
-    files; raises StabilityError when the compiled total mass does not scale by
-    ``factor`` (masses the edit could not reach).
+    files; raises StabilityError when the compiled mass of the moving bodies does not
+    scale by ``factor`` (masses the edit could not reach; bodies welded to the world, a
+    floor whose mass MuJoCo infers from its geoms, are not counted: they move nothing).
     """
     import mujoco
 
@@ -425,11 +426,13 @@ def scale_mjcf_masses(source: Path, target: Path, factor: float) -> None:
         after = mujoco.MjModel.from_xml_path(str(target))
     except Exception as exc:
         raise StabilityError(f"{source}: the mass-scaled copy {target} does not compile: {exc}") from None
-    total_before, total_after = float(np.sum(before.body_mass)), float(np.sum(after.body_mass))
+    moving = np.asarray(before.body_weldid) != 0  # (a body welded to the world moves nothing: its mass is left out)
+    total_before, total_after = float(np.sum(before.body_mass[moving])), float(np.sum(after.body_mass[moving]))
     if not math.isclose(total_after, factor * total_before, rel_tol=1e-6):
         raise StabilityError(
-            f"{source}: scaling masses by {factor:g} gave {total_after:g} kg instead of {factor * total_before:g} kg "
-            "(masses set through defaults or inferred from geoms without density are not reached)"
+            f"{source}: scaling masses by {factor:g} gave {total_after:g} kg of moving bodies instead of "
+            f"{factor * total_before:g} kg (masses set through defaults or inferred from geoms without density are not "
+            "reached)"
         )
 
 

@@ -35,6 +35,7 @@ the model's simplification, which is what tells whether ``incompressible`` is go
 from __future__ import annotations
 
 import csv
+import io
 import math
 import statistics
 import sys
@@ -46,6 +47,7 @@ import numpy as np
 
 from hydraulics.components import CircuitError
 
+from sim.io.files import check_outputs, write_output
 from sim.tools.sweep import WORKER_TIMEOUT, point_file, run_sweep, scene_bundle
 
 __all__ = [
@@ -440,14 +442,14 @@ def reference_floors(report) -> dict:
 def write_csv(rows: list[dict], path) -> Path:
     columns = SETTING_COLUMNS + ERROR_COLUMNS + COST_COLUMNS + ("pareto_stroke", "pareto_pressure", "error")
     fronts = {kind: set(pareto_front(rows, kind)) for kind in ("stroke", "pressure")}
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(columns)
-        for i, row in enumerate(rows):
-            values = ([row[c] for c in columns[:-3]] + [i in fronts["stroke"], i in fronts["pressure"]]
-                      + [row.get("error", "")])
-            w.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in values])
-    return Path(path)
+    text = io.StringIO(newline="")
+    w = csv.writer(text)
+    w.writerow(columns)
+    for i, row in enumerate(rows):
+        values = ([row[c] for c in columns[:-3]] + [i in fronts["stroke"], i in fronts["pressure"]]
+                  + [row.get("error", "")])
+        w.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in values])
+    return write_output(path, lambda f: f.write(text.getvalue().encode()), what="table")
 
 
 MARKERS = {(True, "implicit"): "o", (True, "explicit"): "s", (True, "rosenbrock"): "D", (False, "implicit"): "^",
@@ -511,9 +513,10 @@ def pareto_figure(rows: list[dict], path, *, title: str = "", kinds=("stroke", "
     fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 4), fontsize=7, frameon=False)
     if title:
         fig.suptitle(title + "  (open markers: hydraulic substeps or PBD iterations > 1)", fontsize=9)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return Path(path)
+    try:
+        return write_output(path, lambda f: fig.savefig(f, format="png", dpi=90), what="figure")
+    finally:
+        plt.close(fig)
 
 
 @dataclass
@@ -544,6 +547,10 @@ def evaluate(scenario, settings: list[dict], reference_log, *, repeats: int = DE
     return error_rows(points, results, log_signals(read_log(reference_log)), filter_window)
 
 
+OUTPUT_NAMES = ("tradeoff.csv", "pareto.png", "tradeoff.md")
+"""What tradeoff writes into its folder (each checked first, and written without following a link)."""
+
+
 def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = False, modes=None,
              repeats=None, tolerance=None, cache_dir=None, sweep_cache=None, fresh=frozenset(),
              progress: bool = False, fidelities=None, reference_fidelity: str | None = None,
@@ -566,6 +573,7 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
     if unknown:
         raise ValueError(f"fresh: {sorted(unknown)} not among {sorted(FRESH_CACHES)}")
     out_dir = Path(out_dir)
+    check_outputs(out_dir, OUTPUT_NAMES, [scenario.path, scenario.circuit, scenario.mjcf], what="tradeoff output")
     out_dir.mkdir(parents=True, exist_ok=True)
     reference_scenario = scenario
     if reference_fidelity is not None and reference_fidelity != scenario.fidelity:
@@ -607,8 +615,7 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
               "stated, and errors near these values are the reference's as much as the setting's."]
     lines += ["", "Stability:", ""] + [f"- {s}" for s in stability_statements(rows)]
     lines += ["", f"![Pareto]({fig.name})", "", pareto_table(rows), ""]
-    report_path = out_dir / "tradeoff.md"
-    report_path.write_text("\n".join(lines))
+    report_path = write_output(out_dir / "tradeoff.md", lambda f: f.write("\n".join(lines).encode()), what="report")
     return TradeoffResult(rows, csv_path, fig, report_path, statements, ref_text)
 
 
