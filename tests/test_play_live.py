@@ -90,3 +90,44 @@ def test_a_foxglove_client_watches_play_and_its_command_moves_the_boom(tmp_path)
     logged = dict(zip(np.round(cylinder.t * 1e9).astype(np.int64), x))
     for t, value in zip(np.round(live_t * 1e9).astype(np.int64), live_x):
         assert logged[t] == value
+
+
+def test_play_with_the_viewer_and_the_keyboard_drives_the_boom_by_the_iso_pattern(tmp_path, monkeypatch):
+    """``play --view --input keyboard``: the viewer (a stand-in window here) shows every frame, and the keys pressed in
+    it drive the valves through the ISO pattern: right stick forward (boom down) is the boom valve negative."""
+    import argparse
+
+    from sim.live.devices import KeyboardSource
+    from sim.run import play as play_module
+    from test_live_viewer import Handle
+
+    handles = []
+
+    def launch(m, d, *, key_callback, show_left_ui, show_right_ui):
+        handles.append((Handle(m), key_callback))
+        return handles[-1][0]
+
+    real = play_module._endpoints
+    monkeypatch.setattr(play_module, "_endpoints", lambda args, scene=None: real(args, scene, launch=launch))
+    pressed = []
+
+    def press_during_play(self, t):  # a key pressed in the window between the first frames and the rest
+        if t > 0.2 and not pressed:
+            pressed.append(t)
+            for _ in range(5):  # five presses: the axis at 0.5, past the pattern's dead band
+                handles[0][1](KEY_BOOM_DOWN)
+        return self.axes_now(t)
+
+    KEY_BOOM_DOWN = next(code for code, (axis, sign) in KeyboardSource().keys.items() if axis == "right_y" and sign > 0)
+    monkeypatch.setattr(KeyboardSource, "axes_now", KeyboardSource.poll, raising=False)
+    monkeypatch.setattr(KeyboardSource, "poll", press_during_play)
+    args = argparse.Namespace(scenario=MODELS / "boom" / "lift.scenario.toml", example=None, replay=None, resume=None,
+                              at=None, rate=60.0, pace=0.0, overrun="catch-up", snapshot_hz=1.0, input="keyboard",
+                              pattern="iso", view=True, foxglove=None, mode=None, coupling=None, dt=None, duration=0.5,
+                              substeps=None, pbd_substeps=None, no_monitor=False, out=tmp_path / "kb.mcap",
+                              overwrite=False)
+    assert play_module.main(args) == 0
+    handle = handles[0][0]
+    assert handle.syncs == 30 and handle.texts  # every frame shown, with the overlay
+    valve = np.asarray(read_log(tmp_path / "kb.mcap").topic(COMMANDS_TOPIC)["boom_valve"])
+    assert valve[0] == 0.0 and valve[-1] < 0.0  # forward on the right stick lowers the boom (ISO)

@@ -674,7 +674,7 @@ __all__ = ["FrameDriver", "FrameSummary", "HoldSource", "LoggedRun", "PlayOption
 
 
 # ------------------------------------------------------------------------------------------------- command line
-INPUTS = ("script", "none", "gamepad", "foxglove")
+INPUTS = ("script", "none", "keyboard", "gamepad", "foxglove")
 
 
 def add_parser(subparsers) -> None:
@@ -711,8 +711,14 @@ def add_parser(subparsers) -> None:
                         help="full-state snapshots per simulated second (default 1; 0: only at the start)")
     parser.add_argument("--input", choices=INPUTS, default="script",
                         help="command source: script (the scenario's [inputs] played at the frame rate, default), none "
-                             "(hold the start values), gamepad (extra 'gamepad'), foxglove (a client publishing on "
-                             "/hydroplant/commands; extra 'live')")
+                             "(hold the start values), keyboard (keys in the --view window), gamepad (extra 'gamepad'), "
+                             "foxglove (a client publishing on /hydroplant/commands; extra 'live')")
+    parser.add_argument("--pattern", choices=("iso", "sae"), default="iso",
+                        help="excavator control pattern for --input keyboard or gamepad when the scenario has no "
+                             "[mapping]: iso (ISO 10968 / SAE J1177, default) or sae (SAE J1814: boom and stick swapped)")
+    parser.add_argument("--view", action="store_true",
+                        help="show the machine in MuJoCo's viewer with the hydraulic state overlaid (pressures in bar, "
+                             "valve commands, frame budget) and the cylinders drawn between their pins")
     parser.add_argument("--foxglove", type=int_in(0, 65535), nargs="?", const=8765, metavar="PORT",
                         help="serve a live Foxglove stream on ws://127.0.0.1:PORT (default 8765; extra 'live')")
     parser.add_argument("--replay", type=Path, metavar="LOG", help="play a log's recorded commands again (paced)")
@@ -724,10 +730,25 @@ def add_parser(subparsers) -> None:
     parser.set_defaults(func=main)
 
 
-def _endpoints(args):
-    """The command source and frame sinks the options ask for (the optional live modules imported only then)."""
+def _endpoints(args, scene=None, launch=None):
+    """The command source and frame sinks the options ask for (the optional live modules imported only then);
+    ``scene``: the loaded scene the viewer shows (``--view``); ``launch``: the viewer's window opener (tests pass a
+    stand-in; default :func:`mujoco.viewer.launch_passive`)."""
     sinks, source = [], None
     live = None
+    if args.input == "keyboard" and not args.view:
+        raise CircuitError("play: --input keyboard reads the keys of the viewer window: add --view")
+    if args.view:
+        from sim.io.foxglove_scene import CylinderPins  # noqa: PLC0415 - only with a window
+        from sim.live.devices import KeyboardSource  # noqa: PLC0415
+        from sim.live.viewer import ViewerOverlay  # noqa: PLC0415
+
+        if scene is None:
+            raise CircuitError("play: --view shows a SCENARIO or --example (not --replay or --resume)")
+        keys = KeyboardSource() if args.input == "keyboard" else None
+        sinks.append(ViewerOverlay(scene.mjmodel, CylinderPins.of_scene(scene), key_callback=keys.key if keys else None,
+                                   launch=launch))
+        source = keys
     if args.foxglove is not None or args.input == "foxglove":
         from sim.live.foxglove_live import FoxgloveLive  # noqa: PLC0415 - optional extra 'live'
 
@@ -757,10 +778,34 @@ def main(args) -> int:
     if (args.at is None) != (args.resume is None):
         raise CircuitError("play: --resume LOG and --at T go together")
     stop = _received.__len__
+    overrides = {"mode": args.mode, "coupling": args.coupling, "dt": args.dt, "duration": args.duration,
+                 "hydraulic_substeps": args.substeps, "pbd_substeps": args.pbd_substeps,
+                 "monitor": False if args.no_monitor else None}
+    scenario = example_path(args.example) if args.example else args.scenario
+    if scenario is not None and args.input in ("keyboard", "gamepad"):
+        scenario = load_scenario(scenario)
+        if scenario.mapping is None:
+            from hydraulics.circuit import load_circuit  # noqa: PLC0415
+            from sim.live.mapping import Mapping  # noqa: PLC0415
+
+            valves = {c.name for c in load_circuit(scenario.circuit).by_kind("valve_4_3")}
+            preset = Mapping.preset(args.pattern)  # the pattern's functions this machine has
+            scenario = dataclasses.replace(scenario, mapping=Mapping(
+                {axis: m for axis, m in preset.axes.items() if m.valve in valves}, args.pattern))
+            print(f"hydroplant: {args.input} axes drive the valves by the {args.pattern.upper()} excavator pattern "
+                  "(--pattern; a [mapping] section in the scenario overrides it)", file=sys.stderr)
     if args.replay is not None:
+        if args.view:
+            raise CircuitError("play: --view shows a SCENARIO or --example (not --replay or --resume)")
         result = replay(args.replay, out=args.out, overwrite=args.overwrite, paced=options, stop=stop)
     else:
-        source, sinks = _endpoints(args)
+        scene = None
+        if args.view and scenario is not None:
+            from sim.io.scene import load_scene  # noqa: PLC0415
+
+            scene = load_scene((scenario if isinstance(scenario, Scenario) else load_scenario(scenario))
+                               .with_overrides(**overrides))
+        source, sinks = _endpoints(args, scene)
         if args.resume is not None:
             if source is None:
                 with LoggedRun(args.resume) as logged:
@@ -768,10 +813,6 @@ def main(args) -> int:
             result = resume(args.resume, args.at, out=args.out, overwrite=args.overwrite, source=source,
                             options=options, sinks=sinks, stop=stop)
         else:
-            overrides = {"mode": args.mode, "coupling": args.coupling, "dt": args.dt, "duration": args.duration,
-                         "hydraulic_substeps": args.substeps, "pbd_substeps": args.pbd_substeps,
-                         "monitor": False if args.no_monitor else None}
-            scenario = example_path(args.example) if args.example else args.scenario
             result = play(scenario, source=source, sinks=sinks, options=options, out=args.out, overrides=overrides,
                           overwrite=args.overwrite, stop=stop)
     print(result.summary_text())
