@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from hydraulics.components import CircuitError
+from hydraulics.extras import require
 
 from sim.io.log_recover import verify_log
 from sim.io.mcap_log import RESULT_METADATA, RUN_METADATA, merge_logs, read_log
@@ -724,7 +725,7 @@ def signal_table(c: RunComparison) -> str:
 
 
 def _pyplot():
-    import matplotlib
+    matplotlib = require("matplotlib", "tools", "drawing the figures")
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -911,6 +912,7 @@ def add_parser(subparsers):
 
 def main(args) -> int:
     """``hydroplant compare``; returns the exit code."""
+    require("matplotlib", "tools", "hydroplant compare")  # before any run: its figures are drawn at the end
     inputs = list(args.inputs)
     if all(p.suffix == ".mcap" for p in inputs):
         if len(inputs) < 2:

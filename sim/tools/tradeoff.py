@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from hydraulics.components import CircuitError
+from hydraulics.extras import require
 
 from sim.tools.sweep import content_hash, run_sweep
 
@@ -604,6 +605,7 @@ def add_parser(subparsers):
 
 def main(args) -> int:
     """``hydroplant tradeoff``; returns the exit code."""
+    require("matplotlib", "tools", "hydroplant tradeoff")  # before any run: its figures are drawn at the end
     from sim.tools.reference import Tolerance
     from sim.io.scenario import MODES
 
