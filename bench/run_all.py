@@ -103,9 +103,8 @@ with `.venv/bin/python bench/run_all.py --only NAME`. Speed is measured as ratio
 machines move by ±15–20 % from one run to the next, so read ±10 % into any one figure. No figure includes
 numba's compilation of the kernels: a run compiles (or loads) them before its clock starts
 (`RunResult.compile_time`) and the benchmarks run on a filled cache; the cold first run is measured on its own
-below. How the figures
-are produced is in each script's docstring; what they mean in [numerics.md](numerics.md),
-[pbd.md](pbd.md) and [validation.md](validation.md).
+below. How the figures are produced is in each script's docstring; what they mean in
+[numerics.md](numerics.md), [pbd.md](pbd.md) and [validation.md](validation.md).
 """
 
 _SECTION = re.compile(r"<!-- bench: (?P<name>\S+) -->\n.*?<!-- /bench -->\n", re.S)
