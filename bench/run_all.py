@@ -74,6 +74,16 @@ BENCHES = (
           "shared machine the wall-time p99 is the scheduler's time slice: the CPU time is the physics."),
     Bench("bench_startup", (), "Start-up in fresh processes",
           "Import, scene load with the plant (cached kernels) and first step, in fresh interpreters."),
+    Bench("bench_first_run", ("--inline", "--markdown"), "The first run on a cold kernel cache",
+          "`hydroplant run` of the excavator dig (20 s) in each mode in a fresh process with an empty numba cache, "
+          "as on a fresh clone, then again on the cache it filled. The run compiles only the kernels its mode calls, "
+          "announces it on stderr, and compiles them before its clock starts: the reported wall time and real-time "
+          "factor (and the costs of `compare` and `tradeoff`, taken from them) exclude the compilation, which is "
+          "reported apart. The row `warm=False` compiles each kernel at its first call inside the timed loop, for "
+          "comparison. The process CPU time moves less than its wall time on a shared machine."),
+    Bench("bench_install", ("--markdown",), "Installed size",
+          "The default install and each extra in fresh venvs (site-packages beyond an empty venv; distributions "
+          "installed, hydroplant included), against an install with the tools' libraries required."),
     Bench("bench_memory", (), "Memory of long runs",
           "The excavator dig at 1 kHz with default logging for 10 s and 600 s in fresh processes: peak RSS, RSS "
           "over the run, log size. Target T5: memory flat over a 10-minute run."),
@@ -84,9 +94,11 @@ BENCHES = (
     Bench("bench_fidelity", (), "Fidelity levels",
           "The excavator dig (20 s) at each fidelity level against the `lines` level at 1 kHz: cost and max errors "
           "(see [fidelity.md](fidelity.md))."),
-    Bench("bench_tradeoff", (), "Accuracy against cost",
-          "The seed cylinder and the excavator approach: converged reference, every mode against it, the trade-off "
-          "sweep (see [validation.md](validation.md))."),
+    Bench("bench_tradeoff", ("--docs", "--full-dig"), "Accuracy against cost",
+          "The seed cylinder (0.1 s) and the excavator dig (the whole 20 s against a reference on 0.1 s averages; "
+          "the trade-off sweep on its first 1.75 s): converged reference, every mode against it, the trade-off sweep "
+          "(see [validation.md](validation.md)). Rewrites the figures, tables and reports of "
+          "[figures/](figures/)."),
     Bench("bench_stability", (), "Stability maps",
           "Rewrites the maps, CSVs and summaries of [stability/](stability/README.md)."),
 )
@@ -96,9 +108,11 @@ HEADER = """# Benchmarks
 
 Written by `make bench` (`bench/run_all.py`) from the benchmarks' printed figures; regenerate one section
 with `.venv/bin/python bench/run_all.py --only NAME`. Speed is measured as ratios within one run: shared
-machines move by ±15–20 % from one run to the next, so read ±10 % into any one figure. How the figures
-are produced is in each script's docstring; what they mean in [numerics.md](numerics.md),
-[pbd.md](pbd.md) and [validation.md](validation.md).
+machines move by ±15–20 % from one run to the next, so read ±10 % into any one figure. No figure includes
+numba's compilation of the kernels: a run compiles (or loads) them before its clock starts
+(`RunResult.compile_time`) and the benchmarks run on a filled cache; the cold first run is measured on its own
+below. How the figures are produced is in each script's docstring; what they mean in
+[numerics.md](numerics.md), [pbd.md](pbd.md) and [validation.md](validation.md).
 """
 
 _SECTION = re.compile(r"<!-- bench: (?P<name>\S+) -->\n.*?<!-- /bench -->\n", re.S)

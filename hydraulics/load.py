@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .coupling import make_coupling
+from .extras import require
 from .network import ACTUATOR_CYLINDER, NetworkModel, NetworkState
 
 COUPLING_VELOCITY_TOLERANCE = 1e-6  # relative change of the end velocity that ends coupling iterations
@@ -210,7 +211,8 @@ def simulate_reference(
     volume, _ = model.node_volume_at(x_all, state.node_pressure)
     beta = model.effective_bulk_modulus(state.node_pressure, x_all)
     atol = np.concatenate([[1e-12, 1e-12], (1e-3 * volume / beta)[free], np.full(nv, 1e-12)])
-    from scipy.integrate import solve_ivp  # (here: scipy.integrate costs ~0.35 s of every start-up)
+    # (here: scipy.integrate costs ~0.35 s of every start-up, and scipy comes with the [tools] extra)
+    solve_ivp = require("scipy.integrate", "tools", "simulate_reference").solve_ivp
 
     sol = solve_ivp(rhs, (0.0, duration), y0, method=method, rtol=rtol, atol=atol, t_eval=sample_times, dense_output=False)
     pressures, efforts, oils = [], [], []

@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _compiled
+from .extras import require
 from .network import BranchFlows, NetworkControl, NetworkModel, NetworkState
 from .numerics import (LINE_SEARCH_HALVINGS, NEWTON_MAX_ITERATIONS, NEWTON_PRESSURE_TOLERANCE,  # noqa: F401 (documented here)
                        NEWTON_RELATIVE_TOLERANCE, SUFFICIENT_DECREASE, TRUST_FRACTION, TRUST_PRESSURE)
@@ -448,6 +449,10 @@ class StepperReference(Stepper):
     order = None
     implicit = True
 
+    def __init__(self, model: NetworkModel, *, substeps: int = 1):
+        require("scipy.integrate", "tools", "the 'reference' stepper")  # when the run is built, not at its first step
+        super().__init__(model, substeps=substeps)
+
     def _substep(self, state, control, motion, h, oil_guess=None):  # oil_guess: not used (solve_ivp)
         m = self.model
         free = self.free
@@ -479,7 +484,8 @@ class StepperReference(Stepper):
             volume, _ = m.node_volume_at(x0, state.node_pressure)
             beta = m.effective_bulk_modulus(state.node_pressure, x0)
             atol = (REFERENCE_PRESSURE_ATOL * volume / beta)[free]
-            from scipy.integrate import solve_ivp  # (here: scipy.integrate costs ~0.35 s of every start-up)
+            # (here: scipy.integrate costs ~0.35 s of every start-up, and scipy comes with the [tools] extra)
+            solve_ivp = require("scipy.integrate", "tools", "the 'reference' stepper").solve_ivp
 
             sol = solve_ivp(rhs, (0.0, h), state.node_oil[free], method="Radau", jac=jac, rtol=REFERENCE_RTOL, atol=atol)
             if not sol.success:

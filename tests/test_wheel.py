@@ -10,6 +10,7 @@ data file missing from the wheel fails here and not on a user's machine.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -40,8 +41,8 @@ def installed(tmp_path_factory):
     source, dist = base / "source", base / "dist"  # built from a copy: a build writes build/ and *.egg-info
     shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(".git", ".venv", "logs", "__pycache__", "*.egg-info",
                                                                "build", ".pytest_cache", ".hypothesis", ".cache"))
-    subprocess.run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "-w", str(dist), str(source)],
-                   check=True, capture_output=True, cwd=base)
+    build = subprocess.run([sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "-w", str(dist), str(source)],
+                           check=True, capture_output=True, text=True, cwd=base)
     (wheel,) = dist.glob("hydroplant-*.whl")
     env_dir = base / "venv"
     venv.create(env_dir, with_pip=False)
@@ -53,11 +54,11 @@ def installed(tmp_path_factory):
                     str(wheel)], check=True, capture_output=True, cwd=base)
     work = base / "elsewhere"
     work.mkdir()
-    return wheel, python, env_dir / "bin" / "hydroplant", work
+    return wheel, python, env_dir / "bin" / "hydroplant", work, build.stdout + build.stderr
 
 
 def _run(installed, *args, timeout=600):
-    wheel, python, script, work = installed
+    wheel, python, script, work, _ = installed
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CACHE_DIR")}
     result = subprocess.run([str(script), *args], cwd=work, env=env, capture_output=True, text=True, timeout=timeout)
     assert result.returncode == 0, f"hydroplant {' '.join(args)} exited {result.returncode}:\n{result.stderr[-2000:]}"
@@ -71,9 +72,18 @@ def test_wheel_holds_every_module_and_example(installed):
     assert not missing, f"missing from the wheel: {missing}"
 
 
+def test_the_build_prints_no_warning_and_the_wheel_carries_the_licence(installed):
+    """setuptools warns of nothing (a scene folder missing from the packages would be 'ignored'; a deprecated
+    setting would be named); pip's own notes about the index (upper-case ``WARNING:``) are not the build's."""
+    wheel, output = installed[0], installed[4]
+    assert not re.search(r"would be ignored|Warning:|!!", output), output[-3000:]
+    names = zipfile.ZipFile(wheel).namelist()
+    assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names), names[-10:]
+
+
 def test_installed_package_is_imported_from_the_wheel(installed):
     """The venv imports the installed copy, not the checkout."""
-    wheel, python, script, work = installed
+    wheel, python, script, work, _ = installed
     where = subprocess.run([str(python), "-c", "import sim, hydraulics; print(sim.__file__); print(hydraulics.__file__)"],
                            cwd=work, capture_output=True, text=True, check=True).stdout.split()
     assert all(str(ROOT) not in path for path in where), where

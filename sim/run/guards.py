@@ -52,11 +52,18 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from hydraulics.components.cylinder import hydraulic_natural_frequency, hydraulic_stiffness
+from hydraulics.components import cylinder as _cylinder
 from hydraulics.network import ACTUATOR_CYLINDER
 
 from sim.plants.constraints import (HOLDING_RESIDUAL_WARN, actuator_moments, closure_gaps, inverse_inertia,
                                     start_contacts)
+
+# The cylinder's laws as Python functions (``py_func`` of the compiled law; the law itself under NUMBA_DISABLE_JIT): the
+# guards call them a few times per run from Python, where compiling them (every process: a law is not cached on its
+# own, see hydraulics._jit) would cost about a second of every run's start-up.
+hydraulic_stiffness = getattr(_cylinder.hydraulic_stiffness, "py_func", _cylinder.hydraulic_stiffness)
+hydraulic_natural_frequency = getattr(_cylinder.hydraulic_natural_frequency, "py_func",
+                                      _cylinder.hydraulic_natural_frequency)
 
 # Practical explicit limit on ω_h·dt with typical physical damping (seal friction, valve
 # flow gain); measured on the boom and excavator maps (docs/stability/), 0.1–0.2 in the literature.

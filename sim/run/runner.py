@@ -45,6 +45,7 @@ import math
 import os
 import platform
 import sys
+import tempfile
 import time as _time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,6 +55,7 @@ import numpy as np
 
 from sim import version
 from hydraulics.components import CircuitError
+from sim.run.compile_watch import CompileWatch
 from sim.run.guards import check_plant
 from sim.io.files import PARTIAL_SUFFIX, check_output, free_path, read_bytes
 from sim.io.mcap_log import LogLevel, LogWriter
@@ -200,10 +202,16 @@ class RunResult:
     energy: dict = field(default_factory=dict)
     extremes_every_step: bool = True
     """Whether ``peak_pressure``/``min_pressure`` cover every step (False: only the logged samples, see :class:`_Loop`)."""
+    compile_time: float = 0.0
+    """Wall time [s] before the timed loop spent compiling the kernels, or loading them from numba's disk cache: the
+    compilations while the scene loaded, the plant's construction and the warm-up (:func:`warm_up`); not part of
+    ``wall_time``."""
+    kernels_compiled: int = 0
+    """Functions numba compiled for this run (0 when every kernel came from the disk cache or an earlier run)."""
 
     @property
     def real_time_factor(self) -> float:
-        """Simulated seconds per wall-clock second."""
+        """Simulated seconds per wall-clock second of the timed loop (compilation excluded)."""
         return self.simulated_time / self.wall_time if self.wall_time > 0 else math.inf
 
     def summary_text(self) -> str:
@@ -213,7 +221,9 @@ class RunResult:
             f"mode          {s.mode}, coupling {s.coupling}, dt {s.dt:g} s, hydraulic substeps {s.hydraulic_substeps}",
             f"status        {self.status}{': ' + self.message if self.message else ''}",
             f"simulated     {self.simulated_time:.4f} s in {self.steps} steps",
-            f"wall time     {self.wall_time:.3f} s  (real-time factor {self.real_time_factor:.2f})",
+            f"wall time     {self.wall_time:.3f} s  (real-time factor {self.real_time_factor:.2f}; "
+            + (f"compile {self.compile_time:.1f} s excluded)" if self.kernels_compiled else
+               f"kernels loaded in {self.compile_time:.1f} s, excluded)"),
             "pressures     node: min .. peak [bar]" + ("" if self.extremes_every_step else
                                                            f" (at the logged samples, {s.log_rate_hz:g} Hz)"),
         ]
@@ -311,7 +321,7 @@ def run_metadata(scenario: Scenario, plant=None) -> dict:
 
 
 def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = False, overwrite: bool = False,
-        fast: bool = True, stop=None, driver=None, warn: bool | None = None) -> RunResult:
+        fast: bool = True, stop=None, driver=None, warn: bool | None = None, warm: bool = True) -> RunResult:
     """Run a scenario (path or :class:`Scenario`) and write its MCAP log; see the module docstring.
 
     ``out``: the log file (default :func:`default_log_path`).  Before the run starts it is checked
@@ -340,6 +350,11 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
     ``drive(loop)`` (calls ``loop.blocks(until)`` or ``loop.per_step(until)``) and ``result_info()`` (entries of
     the ``hydroplant.result`` record).  The log, its checks and its samples are the run's own.
 
+    ``warm``: before the clock starts, compile (or load from numba's disk cache) every kernel the run calls, by a
+    short throwaway run (:func:`warm_up`), so that ``wall_time`` and ``real_time_factor`` are the stepping alone;
+    the time it took is ``compile_time``.  A compilation (a cold cache) is announced on stderr with its progress
+    (:class:`~sim.run.compile_watch.CompileWatch`).  ``warm=False`` leaves the kernels to their first call.
+
     Raises :class:`RunInterrupted` (a :class:`KeyboardInterrupt`) naming the log when interrupted
     while the log is written.
     """
@@ -347,19 +362,27 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
         scenario = load_scenario(scenario)
     if overrides:
         scenario = scenario.with_overrides(**overrides)
-    scene = load_scene(scenario)
-    if driver is not None:
-        scene = driver.scene(scene)
-    inputs = input_files(scene)
-    if out is not None:
-        log_path = check_output(out, [path for _, _, path, _ in inputs], overwrite=overwrite)
+    # compile_time: the kernels compiled while the scene loads (its start-up equilibrium), then building the plant
+    # (MuJoCo mode compiles or loads its control callback there) and the warm-up
     warn = progress if warn is None else warn
-    if scene.network.pruned and warn:
-        print(f"hydroplant: not built (connected to no cylinder or motor): {', '.join(scene.network.pruned)}", file=sys.stderr)
-    plant = make_plant(scene, fast=fast)
-    if driver is not None:
-        driver.prepare(plant)
-    guard = check_plant(plant)  # load-time stability guards: warn, never fail
+    with CompileWatch(f"{scenario.scene_name}/{scenario.name}", scenario.mode, show=warm) as watch:
+        scene = load_scene(scenario)
+        if driver is not None:
+            scene = driver.scene(scene)
+        inputs = input_files(scene)
+        if out is not None:
+            log_path = check_output(out, [path for _, _, path, _ in inputs], overwrite=overwrite)
+        if scene.network.pruned and warn:
+            print(f"hydroplant: not built (connected to no cylinder or motor): {', '.join(scene.network.pruned)}",
+                  file=sys.stderr)
+        compile_time, set_up = watch.seconds, _time.perf_counter()
+        plant = make_plant(scene, fast=fast)
+        if driver is not None:
+            driver.prepare(plant)
+        guard = check_plant(plant)  # load-time stability guards: warn, never fail
+        if warm:
+            warm_up(scenario, fast=fast, stop=stop)
+        compile_time += _time.perf_counter() - set_up
     if warn:
         for text in guard.warnings:
             print(f"hydroplant: warning: {text}", file=sys.stderr)
@@ -413,6 +436,8 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
         final_joints=dict(zip(plant.joint_names, map(float, q))),
         final_strokes=strokes,
         extremes_every_step=loop.extremes_every_step,
+        compile_time=compile_time,
+        kernels_compiled=watch.count,
         energy={
             "pump_work": pump_work,
             "delta": total - e.initial_total,
@@ -421,6 +446,45 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
             "relative": sample["residual"] / pump_work if pump_work else 0.0,
         },
     )
+
+
+WARM_UP_INTERVALS = 2  # log intervals of the throwaway run of warm_up (the first sample is recorded, the next captured)
+WARMED_UP: set = set()
+"""The :func:`warm_key` of every run this process has warmed up.  numba keeps a compiled (or loaded) kernel for the
+life of the process, so a later run with the same key calls no kernel its warm-up did not (``compare``,
+``tradeoff`` and the test suite run many in one process); another key is warmed up again."""
+
+
+def warm_key(scenario: Scenario, fast: bool) -> tuple:
+    """What selects the kernels a run calls: its mode, coupling, stepper, fidelity levels, stepping path
+    (``fast``) and whether it logs every step.  A compiled kernel is keyed by the types of its arguments, which the
+    duration, the step, the scene's size or the inputs do not change."""
+    return (scenario.mode, scenario.coupling, scenario.stepper, scenario.fidelity_label, bool(fast),
+            scenario.log_every == 1)
+
+
+def warm_up(scenario: Scenario, *, fast: bool = True, stop=None) -> None:
+    """Compile, or load from numba's disk cache, every kernel a run of ``scenario`` calls, unless this process
+    warmed up a run with the same :func:`warm_key` already: a run of its first ``WARM_UP_INTERVALS`` log intervals
+    and two steps (the same plant, stepping path, recorder and log writer) into a temporary log, deleted afterwards;
+    its results are not used.
+
+    The kernels are keyed by the types of their arguments, which a scenario's duration does not change, so the
+    throwaway run calls the kernels of the full run and no other (a PBD run the PBD block and its callees, a MuJoCo
+    run the control callback and the log writer's).  Ctrl-C (or ``stop``) during it raises
+    :class:`KeyboardInterrupt`.
+    """
+    key = warm_key(scenario, fast)
+    if key in WARMED_UP:
+        return
+    steps = min(scenario.step_count, WARM_UP_INTERVALS * scenario.log_every + 2)
+    with tempfile.TemporaryDirectory(prefix="hydroplant-warm-up-") as folder:
+        try:
+            run(scenario.with_overrides(duration=steps * scenario.dt), out=Path(folder) / "warm-up.mcap", fast=fast,
+                stop=stop, warm=False)
+        except RunInterrupted:
+            raise KeyboardInterrupt from None
+    WARMED_UP.add(key)
 
 
 def _default_writer(scenario: Scenario, metadata: dict, attachments):

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from hydraulics.components import CircuitError
+from hydraulics.extras import require
 
 from sim.io.files import check_outputs, write_output
 from sim.io.log_recover import verify_log
@@ -740,7 +741,7 @@ def signal_table(c: RunComparison) -> str:
 
 
 def _pyplot():
-    import matplotlib
+    matplotlib = require("matplotlib", "tools", "drawing the figures")
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -928,6 +929,7 @@ def add_parser(subparsers):
 
 def main(args) -> int:
     """``hydroplant compare``; returns the exit code."""
+    require("matplotlib", "tools", "hydroplant compare")  # before any run: its figures are drawn at the end
     inputs = list(args.inputs)
     if all(p.suffix == ".mcap" for p in inputs):
         if len(inputs) < 2:

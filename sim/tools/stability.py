@@ -79,6 +79,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hydraulics.extras import require
 from sim.cli import int_in, positive_float
 from sim.io.scenario import ScenarioError, load_scenario
 
@@ -1041,7 +1042,7 @@ PANEL_TITLES = {"beta": "bulk modulus [Pa]", "mass": "mass scale [-]", "dead": "
 
 def plot_maps(stability_map: StabilityMap, out_dir) -> dict:
     """One PNG per method: a heat map of dt (columns) against each swept quantity (rows); returns {method: path}."""
-    import matplotlib
+    matplotlib = require("matplotlib", "tools", "drawing the stability maps")
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -1240,6 +1241,7 @@ def main(args) -> int:
 
         print(check_scenario(args.scenario).table())
         return 0
+    require("matplotlib", "tools", "hydroplant stability")  # before any run: its maps are drawn at the end
     grid = QUICK_GRID if args.quick else DEFAULT_GRID
     changes = {}
     if args.dt:

@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from hydraulics.components import CircuitError
+from hydraulics.extras import require
 
 from sim.io.files import check_outputs, write_output
 from sim.tools.sweep import WORKER_TIMEOUT, point_file, run_sweep, scene_bundle
@@ -662,6 +663,7 @@ def add_parser(subparsers):
 
 def main(args) -> int:
     """``hydroplant tradeoff``; returns the exit code."""
+    require("matplotlib", "tools", "hydroplant tradeoff")  # before any run: its figures are drawn at the end
     from sim.tools.reference import Tolerance
     from sim.io.scenario import MODES
 
