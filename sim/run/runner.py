@@ -368,7 +368,7 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
         else:
             kept = "; the log written so far is finished and marked incomplete" if os.path.lexists(log_path) else ""
         raise LogWriteError(f"{log_path}: cannot write the log ({exc.strerror or exc}){kept}") from None
-    if progress and wall > PROGRESS_AFTER:
+    if progress and wall > PROGRESS_AFTER and sys.stderr.isatty():
         print(file=sys.stderr)
     e = plant.energy
     sample = loop.sample  # the last logged sample (the final step, the failing step, or where energy growth was found)
@@ -770,11 +770,15 @@ class _Loop:
         return False
 
     def show_progress(self) -> None:
-        if self.progress:
+        """``\\r`` progress with an estimate of the time left, only when stderr is a terminal (never into a pipe or file)."""
+        if self.progress and sys.stderr.isatty():
             now = _time.perf_counter()
             if now - self.start > PROGRESS_AFTER and now - self.last_progress > 0.5:
                 self.last_progress = now
-                print(f"\r  {self.plant.time:8.3f} / {self.scenario.duration:g} s simulated", end="", file=sys.stderr, flush=True)
+                done = self.plant.time / self.scenario.duration if self.scenario.duration > 0 else 1.0
+                eta = f", ETA {(now - self.start) * (1 - done) / done:.0f} s" if done > 0 else ""
+                print(f"\r\033[K  {self.plant.time:8.3f} / {self.scenario.duration:g} s simulated{eta}", end="",
+                      file=sys.stderr, flush=True)
 
 
 def _failed_component(plant, report) -> str:
