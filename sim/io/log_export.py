@@ -113,8 +113,8 @@ def export_hdf5(log: RunLog, out_file, topics=None, *, overwrite: bool = False) 
         import h5py
     except ImportError:
         raise CircuitError("HDF5 export needs h5py: pip install 'hydroplant[hdf5]' (or use --format csv)") from None
-    out_file = check_output(Path(out_file), [log.path], overwrite=overwrite, what="HDF5 file")
     chosen = _topics(log, topics)
+    out_file = check_output(Path(out_file), [log.path], overwrite=overwrite, what="HDF5 file")
     written = []
     with h5py.File(out_file, "w" if overwrite else "x") as f:
         f.attrs["source"] = log.path.name
