@@ -33,7 +33,7 @@ Example::
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from collections import namedtuple
 
 MODES = ("mujoco", "pbd", "pbd-naive")
 """Modes: MuJoCo steps the bodies, hydroplant's XPBD solver does, or the naive XPBD co-simulation."""
@@ -50,13 +50,10 @@ class MethodError(ValueError):
     """A method name that is not one of :data:`MODES` × :data:`COUPLINGS`; the message names the allowed values."""
 
 
-@dataclass(frozen=True)
-class Method:
-    """A mode, a coupling, and PBD mode's θ-rule blend."""
+class Method(namedtuple("Method", "mode coupling blend", defaults=(False,))):
+    """A mode, a coupling, and PBD mode's θ-rule blend (a named tuple: no dataclass machinery to import for --help)."""
 
-    mode: str
-    coupling: str
-    blend: bool = False
+    __slots__ = ()
 
     @property
     def name(self) -> str:
