@@ -191,3 +191,22 @@ def test_progress_does_not_count_cached_items_in_the_rate():
     clock.now = 10.0
     progress(6)  # one computed in 10 s: four left, 40 s
     assert stream.getvalue().splitlines()[-1].endswith("stability: 6/10 runs, 10 s, ETA 40 s")
+
+
+@pytest.mark.parametrize("tty", [True, False])
+def test_run_progress_line_only_on_a_terminal(tty, tmp_path, monkeypatch, capsys):
+    """With the progress thresholds at zero every block would redraw the line: on a terminal it is redrawn with
+    ``\\r`` and an ETA; into a pipe or file nothing of it is written."""
+    from sim.run import runner
+
+    monkeypatch.setattr(runner, "PROGRESS_AFTER", -1.0)
+    monkeypatch.setattr(runner, "PROGRESS_EVERY", -1.0)
+    stream = _Stream(tty)
+    monkeypatch.setattr(sys, "stderr", stream)
+    assert cli.main(["run", str(SEED), "--duration", "0.05", "--out", str(tmp_path / "run.mcap")]) == 0
+    text = stream.getvalue()
+    if tty:
+        assert text.count("\r") >= 1 and "s simulated, ETA" in text and text.endswith("\n")
+    else:
+        assert "\r" not in text and "simulated" not in text
+    assert "status        complete" in capsys.readouterr().out

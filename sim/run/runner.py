@@ -63,7 +63,8 @@ from sim.io.scenario import Scenario, load_scenario
 from sim.io.scene import load_scene
 
 DEFAULT_LOG_DIR = Path("logs")
-PROGRESS_AFTER = 3.0  # s of wall time before a progress line is shown
+PROGRESS_AFTER = 3.0  # s of wall time before a progress line is shown (on a terminal only)
+PROGRESS_EVERY = 0.5  # s of wall time between two redraws of the progress line
 # A run has diverged when its mechanical + oil energy grows beyond what the pumps put in:
 ENERGY_GROWTH_LIMIT = 3.0  # relative to |initial energy| + pump work (symplectic steps swing by less)
 ENERGY_GROWTH_FLOOR = 1.0  # J, so that machines starting at zero energy are not flagged by round-off
@@ -773,7 +774,7 @@ class _Loop:
         """``\\r`` progress with an estimate of the time left, only when stderr is a terminal (never into a pipe or file)."""
         if self.progress and sys.stderr.isatty():
             now = _time.perf_counter()
-            if now - self.start > PROGRESS_AFTER and now - self.last_progress > 0.5:
+            if now - self.start > PROGRESS_AFTER and now - self.last_progress > PROGRESS_EVERY:
                 self.last_progress = now
                 done = self.plant.time / self.scenario.duration if self.scenario.duration > 0 else 1.0
                 eta = f", ETA {(now - self.start) * (1 - done) / done:.0f} s" if done > 0 else ""
