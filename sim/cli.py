@@ -46,7 +46,6 @@ import sys
 
 try:  # Ctrl-C while the modules load: a quiet exit, no traceback
     import argparse
-    from pathlib import Path
 
     from sim import version
     from sim.commands import (EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_PARTIAL,

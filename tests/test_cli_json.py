@@ -4,7 +4,6 @@ results themselves; exit statuses of partial failures; ``log export`` read back 
 from __future__ import annotations
 
 import csv
-import io
 import json
 import math
 import shutil

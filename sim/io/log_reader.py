@@ -1,4 +1,5 @@
-"""Reading logs back: :func:`read_log` (topics as numpy columns), :func:`inspect_log` / :func:`log_info`, :func:`merge_logs`.
+"""Reading logs back: :func:`read_log` (topics as numpy columns), :func:`inspect_log` / :func:`log_info` /
+:func:`log_summary`, :func:`merge_logs`.
 
 :func:`read_log` reads CDR and JSON topics back as numpy columns with the field names of the
 messages (``"p_cap_pa"``, ``"pressure_pa.supply"``, ``"position/<joint>"``,
