@@ -234,3 +234,13 @@ def test_log_export_csv_and_hdf5_hold_read_logs_arrays_exactly(seed_run, tmp_pat
         assert f.attrs["hydroplant.run.scene"] == "seed_cylinder"
     code, doc = hydroplant_json(["log", "export", log_path, "--format", "hdf5", "--topics", "/nope"], capsys, "error")
     assert code == 2 and "/nope" in doc["error"]
+
+
+def test_a_diverged_run_json_says_so_with_exit_3(tmp_path, capsys):
+    """The seed cylinder with the explicit coupling diverges within its first steps (docs/figures/seed-compare.md):
+    status ``diverged``, exit 3, the message naming the time, and the log kept with that status."""
+    code, doc = hydroplant_json(["run", SEED, "--method", "mujoco:explicit", "--duration", "0.05", "--out",
+                                 tmp_path / "explicit.mcap"], capsys, "run")
+    assert code == 3 and doc["status"] == "diverged" and doc["method"] == "mujoco:explicit"
+    assert doc["simulated_time_s"] < 0.05 and "t = " in doc["message"]
+    assert read_log(doc["log"]).status == "diverged"
