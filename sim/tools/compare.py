@@ -2,11 +2,14 @@
 
 ::
 
-    hydroplant compare SCENARIO [--modes mujoco,mujoco:explicit,pbd,pbd-naive] [--out DIR]
-    hydroplant compare REFERENCE.mcap RUN.mcap [RUN2.mcap ...] [--out DIR]
+    hydroplant compare SCENARIO | --example NAME [--methods mujoco,mujoco:explicit,pbd,pbd-naive] [--out DIR] [--json]
+    hydroplant compare REFERENCE.mcap RUN.mcap [RUN2.mcap ...] [--out DIR] [--json]
+
+Exit status 0 when every run is stable, 4 when the report is written but some run diverged or did
+not complete (:data:`sim.commands.EXIT_PARTIAL`), 2 for bad input.
 
 The first form computes (or takes from the cache) the converged MuJoCo-mode reference of
-the scenario (:mod:`sim.tools.reference`), runs each mode (``mode`` or ``mode:coupling``), and
+the scenario (:mod:`sim.tools.reference`), runs each method (``mode`` or ``mode:coupling``, :mod:`sim.methods`), and
 writes into ``--out``: one MCAP log per run, ``reference.mcap``, ``merged.mcap`` (topics
 prefixed ``/reference/...``, ``/mujoco/...``, ``/pbd/...``; open it in Foxglove), and
 ``report.md`` with a table per run and PNG figures.  The second form does the same for

@@ -1,6 +1,6 @@
 """Stability maps: run a scenario at the extremes, per method, and classify every run.
 
-``hydroplant stability SCENARIO [--quick] [--out DIR] [--scheduler ADDR] ...`` builds a
+``hydroplant stability SCENARIO | --example NAME [--quick] [--out DIR] [--scheduler ADDR] [--json] ...`` builds a
 grid of *configurations* (scenario variants) × step sizes × methods, runs every
 point through :func:`sim.run.runner.run`, and classifies each run as
 
@@ -56,6 +56,10 @@ Outputs in ``OUT``: ``stability.csv`` (one row per run), ``stability-<method>.pn
 boundary per method).  The runs go through :func:`sim.tools.sweep.run_sweep` (process
 pool, or Dask with ``--scheduler``), cached in ``OUT/cache`` (keyed on the point, the hash of the hydraulics/ and sim/ source and
 the contents of the variant files) so an interrupted map resumes.
+
+Exit status: 0 when no run diverged or failed, 4 when the map is written but some did (a map that reaches
+the explicit coupling's limit exits 4 by design), 2 for bad input.  Methods are named as in :mod:`sim.methods`
+(``mujoco:implicit``; file names ``stability-<scene>-mujoco-implicit.png``).
 """
 
 from __future__ import annotations

@@ -2,7 +2,10 @@
 
 ::
 
-    hydroplant tradeoff SCENARIO [--scheduler tcp://host:port] [--out DIR] [--quick] [--duration S]
+    hydroplant tradeoff SCENARIO | --example NAME [--scheduler tcp://host:port] [--out DIR] [--quick] [--duration S] [--json]
+
+Exit status 0 when every setting ran stable, 4 when the report is written but some settings diverged or
+failed (the report names them; with every setting failed there is no figure), 2 for bad input.
 
 Sweeps the step ``dt``, the hydraulic substeps (MuJoCo mode), the XPBD substeps and
 iterations (PBD modes, when the PBD plant is importable), both couplings and the fidelity
