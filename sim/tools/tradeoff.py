@@ -50,7 +50,7 @@ import numpy as np
 
 from hydraulics.components import CircuitError
 
-from sim.tools.sweep import WORKER_TIMEOUT, point_file, run_sweep, scene_bundle
+from sim.tools.sweep import WORKER_TIMEOUT, Cluster, point_file, run_sweep, scene_bundle
 
 __all__ = [
     "ERROR_COLUMNS",
@@ -549,11 +549,14 @@ def evaluate(scenario, settings: list[dict], reference_log, *, repeats: int = DE
     return error_rows(points, results, log_signals(read_log(reference_log)), filter_window)
 
 
-def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = False, modes=None,
+def tradeoff(scenario, out_dir, *, cluster: Cluster = Cluster(), quick: bool = False, modes=None,
              repeats=None, tolerance=None, cache_dir=None, sweep_cache=None, fresh=frozenset(),
              progress: bool = False, fidelities=None, reference_fidelity: str | None = None,
-             filter_window: float | None = None, worker_timeout: float = WORKER_TIMEOUT) -> TradeoffResult:
+             filter_window: float | None = None) -> TradeoffResult:
     """The full sweep of a scenario; writes ``tradeoff.csv``, ``pareto.png`` and ``tradeoff.md`` into ``out_dir``.
+
+    ``cluster``: where the settings run (:class:`~sim.tools.sweep.Cluster`: a Dask scheduler with its
+    worker timeout, or a local pool of ``workers`` processes).
 
     ``fidelities`` are the levels swept (see :func:`sweep_settings`); ``reference_fidelity`` the level of
     the reference (default: the scenario's own, per-actuator overrides included). ``filter_window`` [s]
@@ -585,9 +588,9 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
     report = Progress(len(settings), "tradeoff", "settings") if progress else None
 
     cache = Path(sweep_cache) if sweep_cache else Path(".cache/sweeps") / f"{scenario.scene_name}-{scenario.name}"
-    rows = evaluate(scenario, settings, reference.log_path, repeats=repeats, scheduler=scheduler, workers=workers,
-                    cache_dir=cache, progress=report, filter_window=filter_window, fresh="sweep" in fresh,
-                    worker_timeout=worker_timeout)
+    rows = evaluate(scenario, settings, reference.log_path, repeats=repeats, scheduler=cluster.scheduler,
+                    workers=cluster.workers, cache_dir=cache, progress=report, filter_window=filter_window,
+                    fresh="sweep" in fresh, worker_timeout=cluster.worker_timeout)
     title = f"{scenario.scene_name}/{scenario.name}, {scenario.duration:g} s"
     csv_path = write_csv(rows, out_dir / "tradeoff.csv")
     drawable = [r for r in rows if math.isfinite(r["wall_per_sim_s"])]
@@ -598,7 +601,7 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
                 f"{reference.report.text().splitlines()[0]}")
     lines = [f"# Accuracy against cost: {title}", "", f"Reference: {ref_text}", "",
              f"{len(rows)} settings. Cost: wall-clock time per simulated second, the median of {repeats} run(s) "
-             f"(one for runs over {REPEAT_BELOW_S:g} s), {'on the workers of ' + str(scheduler) if scheduler else 'in a local process pool'}; "
+             f"(one for runs over {REPEAT_BELOW_S:g} s), {'on the workers of ' + str(cluster.scheduler) if cluster.scheduler else 'in a local process pool'}; "
              "timings vary with the machine and its load, errors do not. Errors: largest over the run against the reference"
              + (f" of the signals averaged over a centred {filter_window:g} s moving window" if filter_window else "") + "; "
              f"settings marked [level] run at that fidelity instead of the scenario's ({scenario.fidelity_label}), so their "
@@ -717,12 +720,12 @@ def main(args) -> int:
     scenario = load_scenario(scenario_path)
     out = args.out or Path("logs") / f"tradeoff-{scenario.scene_name}-{scenario.name}"
     fresh = FRESH_CACHES if args.fresh else {"reference"} if args.fresh_reference else frozenset()
-    result = tradeoff(as_scenario(scenario, duration=args.duration), out, scheduler=args.scheduler,
-                      workers=args.workers, quick=args.quick, modes=modes, repeats=args.repeats,
+    cluster = Cluster(args.scheduler, args.workers, args.worker_timeout or WORKER_TIMEOUT)
+    result = tradeoff(as_scenario(scenario, duration=args.duration), out, cluster=cluster,
+                      quick=args.quick, modes=modes, repeats=args.repeats,
                       tolerance=Tolerance(relative=args.tolerance) if args.tolerance else None,
                       fresh=fresh, progress=True, fidelities=fidelities,
-                      reference_fidelity=args.reference_fidelity, filter_window=args.filter_window,
-                      worker_timeout=args.worker_timeout or WORKER_TIMEOUT)
+                      reference_fidelity=args.reference_fidelity, filter_window=args.filter_window)
     failed = [r for r in result.rows if r["status"] != "complete"]
     code = EXIT_PARTIAL if failed else EXIT_OK
     as_json = getattr(args, "json", False)
