@@ -41,6 +41,7 @@ from sim.tools.compare import RunSpec, compare_runs, default_modes, parse_runs, 
 from sim.tools.reference import Tolerance  # noqa: E402
 from sim.io.scenario import as_scenario  # noqa: E402
 from sim.tools.tradeoff import pareto_table, stability_statements, tradeoff  # noqa: E402
+from sim.tools.sweep import Cluster  # noqa: E402
 
 SEED = ROOT / "models/seed_cylinder/closed.scenario.toml"
 DIG = ROOT / "models/excavator/dig.scenario.toml"
@@ -114,7 +115,7 @@ def main(argv=None) -> int:
             continue
         started = time.perf_counter()
         tout = args.out / f"{name}-tradeoff"
-        t = tradeoff(as_scenario(scenario, duration=duration), tout, scheduler=args.scheduler, workers=args.workers,
+        t = tradeoff(as_scenario(scenario, duration=duration), tout, cluster=Cluster(args.scheduler, args.workers),
                      quick=not args.full, progress=True)
         print(f"\n## {name}: tradeoff, {len(t.rows)} settings ({time.perf_counter() - started:.0f} s)")
         for kind in ("stroke", "pressure"):

@@ -2,13 +2,26 @@
 
 Subcommands::
 
-    hydroplant run SCENARIO | --example NAME [--mode M] [--coupling C] [--dt S] [--duration S] [--substeps N] [--out PATH]
-    hydroplant examples                  the shipped example scenes (names for ``run --example``)
+    hydroplant run SCENARIO | --example NAME [--method MODE:COUPLING | --mode M --coupling C] [--dt S] [--duration S]
+                   [--substeps N] [--out PATH] [--json]
+    hydroplant examples                  the shipped example scenes (names for ``--example``)
     hydroplant demo                      the hydraulics-only 1-DOF lift (no MuJoCo)
-    hydroplant log info LOG [--no-verify]  summary of a log, chunk CRCs checked (exit 1 if damaged)
+    hydroplant inspect|check|compare|tradeoff|stability SCENARIO | --example NAME ... [--json]
+    hydroplant log info LOG [--no-verify] [--json]  summary of a log, chunk CRCs checked (exit 1 if damaged)
     hydroplant log recover PARTIAL [OUT] [--overwrite]  rebuild a valid MCAP from a cut or damaged log
                                          (exit 1 if data was skipped)
+    hydroplant log export LOG --format csv|hdf5 [--out PATH] [--topics T ...] [--overwrite]
     hydroplant compile [--jobs N]        fill numba's disk cache with every compiled kernel, in parallel
+    python -m hydroplant ...             the same
+
+The parsers are declared in :mod:`sim.commands` and built without importing NumPy, numba, MuJoCo
+or a tool module (``hydroplant --help`` loads none of them); a command imports what it needs when
+it runs.  ``--json`` prints one JSON document on stdout, valid against the command's schema in
+``sim/schemas`` (docs/cli-json.md), and sends every human-readable line to stderr.
+
+Exit status (:data:`sim.commands.EXIT_CODES`): 0 success; 1 a check failed / a log is damaged;
+2 bad input; 3 a run diverged; 4 compare, tradeoff or stability finished with some runs diverged
+or failed; 128 + signal when interrupted.
 
 Bad input (scenario, circuit, MJCF binding, arguments, an output file that may not be
 written) prints one line naming the file, the field and the allowed range, and exits with
@@ -33,12 +46,17 @@ from __future__ import annotations
 import signal
 import sys
 
-EXIT_BAD_INPUT = 2
-EXIT_DIVERGED = 3
-EXIT_INTERRUPTED = 130  # 128 + SIGINT; SIGTERM gives 143, SIGHUP 129
+try:  # Ctrl-C while the modules load: a quiet exit, no traceback
+    import argparse
 
-import argparse
-from pathlib import Path
+    from sim import version
+    from sim.commands import (EXIT_BAD_INPUT, EXIT_DIVERGED, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_PARTIAL,
+                              TOOL_PARSERS, add_log, add_run, exit_code_epilog, int_in, out_path, positive_float)
+except KeyboardInterrupt:
+    raise SystemExit(130) from None
+
+__all__ = ["EXIT_BAD_INPUT", "EXIT_DIVERGED", "EXIT_FAILED", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_PARTIAL", "TOOL_MODULES",
+           "build_parser", "int_in", "main", "out_path", "positive_float"]
 
 FORWARDED_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
 _received: list[int] = []  # the signals received during main(), first first
@@ -100,109 +118,72 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(EXIT_BAD_INPUT)
 
 
-def positive_float(text):
-    """argparse type: a positive finite number (NaN and inf refused)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"{text!r} must be a positive finite number")
-    return value
+class _Version(argparse.Action):
+    """``--version``: the version is looked up only when asked (the package metadata costs tens of ms to read)."""
 
-
-def int_in(low: int, high: int | None = None):
-    """argparse type: an integer in [low, high], or >= low when ``high`` is None."""
-
-    def parse(text):
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-        if high is None and value < low:
-            raise argparse.ArgumentTypeError(f"{text!r} must be >= {low}")
-        if high is not None and not low <= value <= high:
-            raise argparse.ArgumentTypeError(f"{text!r} must be an integer in [{low}, {high}]")
-        return value
-
-    return parse
-
-
-def out_path(text):
-    """argparse type: a non-empty path without NUL bytes (the rest is checked by :func:`sim.io.files.check_output`)."""
-    if not text:
-        raise argparse.ArgumentTypeError("an empty file name; name the log file, e.g. logs/run.mcap")
-    if "\0" in text:
-        raise argparse.ArgumentTypeError(f"{text!r}: a file name may not hold a NUL byte")
-    return Path(text)
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"hydroplant {version()}")
+        parser.exit()
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from sim import version
-
-    parser = _Parser(prog="hydroplant", description="Hydraulic heavy-equipment simulator (SI units throughout).")
-    parser.add_argument("--version", action="version", version=f"hydroplant {version()}")
+    """Every subcommand's parser, from the declarations of :mod:`sim.commands` (nothing heavy is imported)."""
+    parser = _Parser(prog="hydroplant", description="Hydraulic heavy-equipment simulator (SI units throughout). "
+                     "'hydroplant CMD --help' lists a command's options with units and allowed values; "
+                     "--json on run, inspect, check, compare, tradeoff, stability and log info|export prints "
+                     "one JSON document (docs/cli-json.md).",
+                     epilog=exit_code_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action=_Version, nargs=0, help="print the installed version and exit")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-
-    run = sub.add_parser("run", help="run a scenario and write an MCAP log")
-    run.add_argument("scenario", type=Path, nargs="?", help="scenario TOML file")
-    run.add_argument("--example", metavar="NAME", help="a shipped example instead of a file, e.g. excavator/dig (see 'hydroplant examples')")
-    run.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"))
-    run.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear", "rosenbrock"))  # sim.io.scenario.COUPLINGS
-    run.add_argument("--dt", type=positive_float, help="physics step [s]")
-    run.add_argument("--duration", type=positive_float, help="simulated time [s]")
-    run.add_argument("--substeps", type=int_in(1), help="hydraulic substeps per physics step")
-    run.add_argument("--pbd-substeps", type=int_in(1), help="XPBD substeps per step (PBD mode)")
-    run.add_argument("--iterations", type=int_in(1), help="XPBD iterations per substep (PBD mode)")
-    run.add_argument("--pbd-blend", action="store_true",
-                     help="PBD mode: blend the rows' pressure forces by MuJoCo mode's θ-rule (default θ = 1, backward Euler)")
-    run.add_argument("--out", type=out_path, help="log file (default: logs/<scene>-<scenario>-<mode>-<coupling>-<time>.mcap); "
-                     "an existing file is refused unless --overwrite")
-    run.add_argument("--overwrite", action="store_true",
-                     help="replace an existing --out file (never the run's inputs, nor anything but a regular file)")
-    run.add_argument("--no-progress", action="store_true", help="no progress line (warnings are still printed)")
-    run.add_argument("--no-monitor", action="store_true",
-                     help="a state beyond the plausibility bounds (stroke, pressure, energy residual, loop closures, joint "
-                          "ranges) is logged as a warning and the run goes on, instead of stopping it with exit status 3")
-    from sim.run.play import add_run_options
-
-    add_run_options(run)  # --replay LOG, --resume LOG --at T
-
-    sub.add_parser("examples", help="list the shipped example scenes")
+    add_run(sub)
+    sub.add_parser("examples", help="list the shipped example scenes (names for --example)")
     sub.add_parser("demo", help="hydraulics-only demo: pump, valve and cylinder lifting a 1-DOF mass")
+    add_log(sub)
+    for name in TOOL_MODULES:
+        if name in TOOL_PARSERS:
+            TOOL_PARSERS[name](sub)
+        else:  # a tool module of its own: its add_parser registers the subcommand
+            import importlib
 
-    log = sub.add_parser("log", help="inspect or repair logs")
-    log_sub = log.add_subparsers(dest="log_command", required=True, parser_class=_Parser)
-    info = log_sub.add_parser("info", help="summary of a log; checks every chunk's CRC",
-                              description="Summary of a log (metadata, status, topics, attachments). Every chunk is "
-                              "decompressed and its CRC checked unless --no-verify. Exit 0: no damage found (an "
-                              "unfinished log is marked UNFINISHED); 1: damaged (see 'log recover'); 2: not an MCAP "
-                              "file.")
-    info.add_argument("log", type=Path)
-    info.add_argument("--no-verify", action="store_true", help="do not decompress the chunks to check their CRCs")
-    recover = log_sub.add_parser("recover", help="rebuild a valid MCAP from a cut or damaged log",
-                                 description="Write a finished, indexed log from every chunk of PARTIAL that checks; "
-                                 "damaged chunks and records are skipped and reported (chunks, messages, byte ranges). "
-                                 "OUT defaults to NAME.recovered.mcap and is never replaced unless --overwrite. "
-                                 "Exit 0: nothing was skipped; 1: data was skipped; 2: not an MCAP file or OUT exists.")
-    recover.add_argument("partial", type=Path)
-    recover.add_argument("out", type=Path, nargs="?")
-    recover.add_argument("--overwrite", action="store_true", help="replace an existing OUT")
-    for module in _tool_modules():
-        module.add_parser(sub)
+            importlib.import_module(name).add_parser(sub)
     return parser
 
 
-# Tool subcommands living in their own modules: each module has ``add_parser(subparsers)``,
-# which registers one subcommand whose ``func`` default is ``module.main(args) -> int``.
+# Tool subcommands living in their own modules: each module has ``main(args) -> int``; its parser is
+# declared in :data:`sim.commands.TOOL_PARSERS` (or, for a module not there, by its ``add_parser(subparsers)``).
 TOOL_MODULES = ("sim.tools.inspect", "sim.tools.check", "sim.tools.stability", "sim.tools.compare", "sim.tools.tradeoff", "sim.run.precompile",
                 "sim.run.play")
 
 
-def _tool_modules():
-    import importlib
+def scenario_argument(args, command: str):
+    """The scenario of a command: its SCENARIO file or ``--example NAME`` (exactly one); bad input raises CircuitError."""
+    from hydraulics.components import CircuitError
 
-    return [importlib.import_module(name) for name in TOOL_MODULES]
+    from sim.io.examples import example_path
+
+    given = getattr(args, "scenario", None)
+    example = getattr(args, "example", None)
+    if (given is None) == (example is None):
+        raise CircuitError(f"{command}: give either a SCENARIO file or --example NAME (see 'hydroplant examples')")
+    return example_path(example) if example else given
+
+
+def method_overrides(args) -> dict:
+    """``mode`` and ``coupling`` from ``--method`` or ``--mode``/``--coupling`` (not both); bad input raises CircuitError."""
+    from hydraulics.components import CircuitError
+
+    from sim.methods import MethodError, parse_method
+
+    method = getattr(args, "method", None)
+    if method is None:
+        return {"mode": getattr(args, "mode", None), "coupling": getattr(args, "coupling", None)}
+    if args.mode is not None or args.coupling is not None:
+        raise CircuitError("--method: give either --method MODE:COUPLING or --mode/--coupling, not both")
+    try:
+        parsed = parse_method(method)
+    except MethodError as exc:
+        raise CircuitError(f"--method: {exc}") from None
+    return {"mode": parsed.mode, "coupling": parsed.coupling, "pbd_blend": True if parsed.blend else None}
 
 
 def _run(args) -> int:
@@ -214,42 +195,66 @@ def _run(args) -> int:
     result = run_from_log(args)  # --replay LOG, --resume LOG --at T
     if result is not None:
         print(result.summary_text())
-        return 0 if result.status == "complete" else EXIT_DIVERGED
+        return EXIT_OK if result.status == "complete" else EXIT_DIVERGED
 
+    methods = method_overrides(args)
     overrides = {
-        "mode": args.mode,
-        "coupling": args.coupling,
+        "mode": methods["mode"],
+        "coupling": methods["coupling"],
         "dt": args.dt,
         "duration": args.duration,
         "hydraulic_substeps": args.substeps,
         "pbd_substeps": args.pbd_substeps,
         "pbd_iterations": args.iterations,
-        "pbd_blend": True if args.pbd_blend else None,
+        "pbd_blend": True if args.pbd_blend or methods.get("pbd_blend") else None,
         "monitor": False if args.no_monitor else None,
     }
-    if (args.scenario is None) == (args.example is None):
-        raise CircuitError("run: give either a SCENARIO file or --example NAME (see 'hydroplant examples')")
-    scenario = example_path(args.example) if args.example else args.scenario
+    scenario = scenario_argument(args, "run")
     result = run(scenario, out=args.out, overrides=overrides, progress=not args.no_progress, overwrite=args.overwrite,
                  stop=_received.__len__, warn=True)  # a signal whose interrupt a library swallowed still stops the run
-    print(result.summary_text())
-    return 0 if result.status == "complete" else EXIT_DIVERGED
+    code = EXIT_OK if result.status == "complete" else EXIT_DIVERGED
+    if args.json:
+        from sim.jsonout import emit, run_document
+
+        print(result.summary_text(), file=sys.stderr)
+        emit(run_document(result, code))
+    else:
+        print(result.summary_text())
+    return code
 
 
 def _log(args) -> int:
-    """``log info`` (exit 0 no damage found, 1 damaged) and ``log recover`` (exit 0 nothing skipped, 1 data
-    skipped); a file that is not a readable MCAP log raises CircuitError (exit 2)."""
+    """``log info`` (exit 0 no damage found, 1 damaged), ``log recover`` (exit 0 nothing skipped, 1 data
+    skipped) and ``log export``; a file that is not a readable MCAP log raises CircuitError (exit 2)."""
     from hydraulics.components import CircuitError
+
     from sim.io.mcap_log import inspect_log, recover
 
-    path = args.log if args.log_command == "info" else args.partial
+    path = args.partial if args.log_command == "recover" else args.log
     if not path.is_file():
         raise CircuitError(f"{path}: log file not found" if not path.exists() else f"{path}: not a regular file")
     try:
         if args.log_command == "info":
             text, code = inspect_log(path, verify=not args.no_verify)
-            print(text)
+            if args.json:
+                from sim.io.log_reader import log_summary
+                from sim.jsonout import emit
+
+                emit({"command": "log info", **log_summary(path, verify=not args.no_verify), "exit_code": code})
+            else:
+                print(text)
             return code
+        if args.log_command == "export":
+            from sim.io.log_export import export_log
+
+            report = export_log(path, args.format, out=args.out, topics=args.topics, overwrite=args.overwrite)
+            if args.json:
+                from sim.jsonout import emit
+
+                emit({"command": "log export", "status": "ok", "exit_code": EXIT_OK, **report})
+            else:
+                print(f"{len(report['topics'])} topic(s) exported as {args.format}: " + ", ".join(report["files"]))
+            return EXIT_OK
         out = args.out or path.with_name(path.name.removesuffix(".partial").removesuffix(".mcap") + ".recovered.mcap")
         report = recover(path, out, overwrite=args.overwrite)
     except CircuitError:
@@ -284,6 +289,8 @@ def _main(argv) -> int:
     from hydraulics.components import CircuitError  # (here, not at the top: after main() installed the handlers)
 
     args = build_parser().parse_args(argv)
+    from hydraulics.components import CircuitError
+
     try:
         if args.command == "run":
             return _run(args)
@@ -301,12 +308,21 @@ def _main(argv) -> int:
             return _log(args)
         return args.func(args)
     except CircuitError as exc:  # ScenarioError is a CircuitError
-        print(f"hydroplant: error: {_one_line(exc)}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return _bad_input(args, _one_line(exc))
     except OSError as exc:  # writing the log: a full disk, a folder made read-only during the run, ...
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-        print(f"hydroplant: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return _bad_input(args, f"{where}{exc.strerror or exc}")
+
+
+def _bad_input(args, message: str) -> int:
+    """One line on stderr; with --json also the error document on stdout; exit status 2."""
+    print(f"hydroplant: error: {message}", file=sys.stderr)
+    if getattr(args, "json", False):
+        from sim.jsonout import emit
+
+        command = args.command + (f" {args.log_command}" if args.command == "log" else "")
+        emit({"command": command, "status": "error", "exit_code": EXIT_BAD_INPUT, "error": message})
+    return EXIT_BAD_INPUT
 
 
 def _one_line(exc: BaseException) -> str:

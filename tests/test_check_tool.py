@@ -49,7 +49,7 @@ def test_check_flags_a_joint_range_past_the_stroke_and_a_hold_beyond_the_relief(
 
 def test_check_without_a_scenario_is_bad_input(capsys):
     assert cli.main(["check"]) == 2
-    assert "check: give a SCENARIO file or --examples" in capsys.readouterr().err
+    assert "check: give a SCENARIO file, --example NAME or --examples" in capsys.readouterr().err
 
 
 def test_check_grid_finds_the_worst_hold_over_the_joint_range():

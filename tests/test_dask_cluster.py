@@ -218,6 +218,14 @@ def test_stability_on_the_cluster_equals_the_local_pool(workers, scheduler, tmp_
     with open(tmp_path / "remote" / "stability.csv", newline="") as f:
         assert sorted(row["error"] for row in csv.DictReader(f) if row["error"]) == sorted(r["error"] for r in failed)
     assert len(list((tmp_path / "remote" / "cache").glob("*.json"))) == len(remote.rows) - len(failed)
+    import jsonschema
+
+    from sim.jsonout import schema
+
+    document = st.result_json(remote, 4)  # the --json document: the same error texts, counted as errors
+    jsonschema.validate(document, schema("stability"))
+    assert document["status"] == "partial" and document["errors"] == len(failed)
+    assert [r["error"] for r in document["runs"]] == [r["error"] for r in remote.rows]
     shipped = [path for folder in workers for path in materialised(folder, "mass-100-valve_slam/model/boom-mass.xml")]
     assert shipped and all(p.read_bytes() == shipped[0].read_bytes() for p in shipped)
 

@@ -187,21 +187,21 @@ def test_boom_explicit_stable_at_default_step(boom_facts, tmp_path):
 def test_map_agrees_with_guards(tmp_path, monkeypatch):
     """A small boom map: implicit never diverges; explicit diverges exactly where the guards predict (omega_h*dt > limit)."""
     monkeypatch.setattr(st, "REFERENCE_DT_RANGE", (1e-3, 1e-3))  # references = the 1 ms implicit runs (cheap)
-    grid = st.Grid(dts=(1e-3, 1.0 / 30.0), sweeps=("event",), methods=("mujoco-implicit", "mujoco-explicit"),
+    grid = st.Grid(dts=(1e-3, 1.0 / 30.0), sweeps=("event",), methods=("mujoco:implicit", "mujoco:explicit"),
                    duration_min=0.1, duration_max=0.1, max_steps=200, min_steps=10)
     result = st.stability_map(BOOM, grid=grid, out_dir=tmp_path, workers=1)
     runs = [r for r in result.rows if not r["reference"]]
     assert {r["config"] for r in runs} == {"nominal-valve_slam", "event-pump_start", "event-end_stop", "event-cavitation"}
     for r in runs:
-        if r["method"] == "mujoco-implicit":
+        if r["method"] == "mujoco:implicit":
             assert r["class"] != st.CLASS_DIVERGED, r
         else:
             predicted_stable = expected_stable("explicit", r["omega_h"] * r["dt"], 0.0025)
             assert (r["class"] != st.CLASS_DIVERGED) == predicted_stable, r
-    assert all(r["class"] == st.CLASS_ACCURATE for r in runs if r["method"] == "mujoco-implicit" and r["dt"] == 1e-3)
+    assert all(r["class"] == st.CLASS_ACCURATE for r in runs if r["method"] == "mujoco:implicit" and r["dt"] == 1e-3)
     boundaries = result.boundaries()
-    assert all(b["first_diverged_dt"] == pytest.approx(1 / 30) for b in boundaries["mujoco-explicit"].values())
-    assert all(b["first_diverged_dt"] is None for b in boundaries["mujoco-implicit"].values())
+    assert all(b["first_diverged_dt"] == pytest.approx(1 / 30) for b in boundaries["mujoco:explicit"].values())
+    assert all(b["first_diverged_dt"] is None for b in boundaries["mujoco:implicit"].values())
     for method, png in result.files.items():
         assert png.stat().st_size <= PNG_LIMIT
     assert (tmp_path / "stability.csv").read_text().count("\n") == 1 + len(result.rows)
@@ -307,22 +307,41 @@ def test_cli_stability_quick_map(stability_cli, tmp_path, capsys):
     out = tmp_path / "map"
     code = stability_cli(["stability", str(SEED), "--quick", "--dt", "1e-4,1/30", "--sweeps", "beta", "--workers", "1",
                           "--out", str(out)])
-    assert code == 0
-    printed = capsys.readouterr().out
-    assert "mujoco-explicit" in printed and "smallest diverged omega_h*dt" in printed
+    assert code == 4  # the map is written, and runs diverged
+    captured = capsys.readouterr()
+    printed = captured.out
+    assert "mujoco:explicit" in printed and "smallest diverged omega_h*dt" in printed
+    assert "runs diverged or failed" in captured.err and "\r" not in captured.err
     for name in ("stability.csv", "summary.txt", "stability-seed_cylinder-mujoco-implicit.png", "stability-seed_cylinder-mujoco-explicit.png"):
         assert (out / name).is_file(), name
     assert (out / "stability-seed_cylinder-mujoco-explicit.png").stat().st_size <= PNG_LIMIT
     with open(out / "stability.csv", newline="") as f:
         rows = [r for r in csv.DictReader(f) if r["reference"] == "False"]
     assert {r["config"] for r in rows} == {"nominal-none", "beta-1e+08-none", "beta-1e+10-none"}
-    explicit = {(r["config"], float(r["dt"])): r for r in rows if r["method"] == "mujoco-explicit"}
+    explicit = {(r["config"], float(r["dt"])): r for r in rows if r["method"] == "mujoco:explicit"}
     assert all(r["class"] == st.CLASS_DIVERGED for (config, dt), r in explicit.items() if dt > 0.03 or config != "beta-1e+08-none")
     assert all(r["fail_component"] and float(r["fail_time"]) > 0 for r in explicit.values() if r["class"] == st.CLASS_DIVERGED)
-    assert not any(r["class"] == st.CLASS_DIVERGED for r in rows if r["method"] == "mujoco-implicit")
-    # a second call reads every run from the cache
+    assert not any(r["class"] == st.CLASS_DIVERGED for r in rows if r["method"] == "mujoco:implicit")
+    # a second call reads every run from the cache; its --json document counts the diverged runs of the CSV
+    import json
+
+    import jsonschema
+
+    from sim.jsonout import schema
+
     assert stability_cli(["stability", str(SEED), "--quick", "--dt", "1e-4,1/30", "--sweeps", "beta", "--workers", "1",
-                          "--out", str(out)]) == 0
+                          "--out", str(out), "--json"]) == 4
+    document = json.loads(capsys.readouterr().out)
+    jsonschema.validate(document, schema("stability"))
+    assert document["status"] == "partial" and document["exit_code"] == 4
+    with open(out / "stability.csv", newline="") as f:
+        every = list(csv.DictReader(f))  # references included
+    assert document["diverged"] + document["errors"] == sum(r["class"] == st.CLASS_DIVERGED for r in every) > 0
+    assert len(document["runs"]) == len(every)
+    assert [r["error"] for r in document["runs"]] == [r["error"] for r in every]  # "" for every run that was made
+    assert document["methods"]["mujoco:explicit"]["counts"][st.CLASS_DIVERGED] == sum(
+        r["class"] == st.CLASS_DIVERGED for r in explicit.values())
+    assert {"mujoco:implicit", "mujoco:explicit"} <= set(document["figures"])
 
 
 def test_cli_stability_check_prints_guards(stability_cli, capsys):
@@ -421,11 +440,14 @@ def test_run_point_repeats_a_run_without_per_step_extremes(boom_facts, tmp_path,
 
 # ------------------------------------------------------------------------------------ the committed maps
 def _map_cells(scene):
-    """{(method, config, dt): row} of the committed map docs/stability/<scene>.csv (runs only)."""
+    """{(method, config, dt): row} of the committed map docs/stability/<scene>.csv (runs only; method names as
+    :func:`sim.methods.parse_method` writes them, whichever spelling the file has)."""
     from conftest import ROOT
+    from sim.methods import parse_method
 
     with open(ROOT / "docs" / "stability" / f"{scene}.csv", newline="") as f:
-        return {(r["method"], r["config"], round(float(r["dt"]), 12)): r for r in csv.DictReader(f) if r["reference"] == "False"}
+        return {(parse_method(r["method"], warn=None).name, r["config"], round(float(r["dt"]), 12)): r
+                for r in csv.DictReader(f) if r["reference"] == "False"}
 
 
 def test_boom_map_cells_at_30hz_are_reproduced(tmp_path, monkeypatch):
@@ -438,14 +460,14 @@ def test_boom_map_cells_at_30hz_are_reproduced(tmp_path, monkeypatch):
     """
     monkeypatch.setattr(st, "REFERENCE_DT_RANGE", (1e-3, 1e-3))
     cells = _map_cells("boom")
-    grid = replace(st.DEFAULT_GRID, dts=(1.0 / 30.0,), methods=("mujoco-implicit", "mujoco-explicit", "pbd"))
+    grid = replace(st.DEFAULT_GRID, dts=(1.0 / 30.0,), methods=("mujoco:implicit", "mujoco:explicit", "pbd:implicit"))
     result = st.stability_map(BOOM, grid=grid, out_dir=tmp_path, workers=1, write=False)
     runs = [r for r in result.rows if not r["reference"]]
     assert len(runs) == 3 * (len(BOOM_EXTREMES) + 2)  # + the beta 1e8 and 1e9 configurations
     for r in runs:
         committed = cells[(r["method"], r["config"], round(r["dt"], 12))]
         assert (r["class"] == st.CLASS_DIVERGED) == (committed["class"] == st.CLASS_DIVERGED), (r["method"], r["config"], r["message"])
-    explicit = [r for r in runs if r["method"] == "mujoco-explicit"]
+    explicit = [r for r in runs if r["method"] == "mujoco:explicit"]
     assert sum(r["class"] == st.CLASS_DIVERGED for r in explicit) >= len(explicit) - 1  # all but beta 1e8 (omega_h*dt 0.42)
 
 

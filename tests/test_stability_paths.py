@@ -37,7 +37,7 @@ def test_stability_runs_from_a_working_directory_with_relative_paths(stability_c
     shutil.copytree(ROOT / "models" / "boom", tmp_path / "models" / "boom")
     monkeypatch.chdir(tmp_path)
     code = stability_cli(["stability", "models/boom/lift.scenario.toml", "--quick", "--dt", "1e-3", "--sweeps", "beta",
-                          "--methods", "mujoco-implicit", "--workers", "1", *out])
+                          "--methods", "mujoco:implicit", "--workers", "1", *out])
     assert code == 0
     folder = tmp_path / (out[1] if out else "logs/stability-boom-lift")
     assert (folder / "stability.csv").is_file() and (folder / "summary.txt").is_file()

@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("hydraulics", "sim")
+PACKAGES = ("hydraulics", "sim", "hydroplant")
 
 
 def _shipped_sources() -> set[str]:
@@ -31,7 +31,8 @@ def _shipped_sources() -> set[str]:
                if "__pycache__" not in p.parts}
     examples = {"sim/examples/" + p.relative_to(ROOT / "models").as_posix() for p in (ROOT / "models").rglob("*")
                 if p.is_file() and p.suffix in (".xml", ".toml", ".md", ".csv", ".stl", ".obj")}
-    return modules | examples
+    schemas = {p.relative_to(ROOT).as_posix() for p in (ROOT / "sim" / "schemas").glob("*.schema.json")}
+    return modules | examples | schemas
 
 
 @pytest.fixture(scope="module")
@@ -103,3 +104,10 @@ def test_installed_commands_run_outside_the_repository(installed):
         _run(installed, "run", "--example", "boom/lift", "--mode", mode, "--duration", "0.2", "--no-progress",
              "--out", str(out))
         assert out.stat().st_size > 10_000
+    doc = subprocess.run([str(installed[1]), "-m", "hydroplant", "log", "info", str(out), "--json"], cwd=work,
+                         capture_output=True, text=True, check=True).stdout
+    check = ("import json, sys, jsonschema, sim.jsonout as j; jsonschema.validate(json.loads(sys.stdin.read()), "
+             "j.schema('log-info')); print(j.__file__)")
+    where = subprocess.run([str(installed[1]), "-c", check], input=doc, cwd=work, capture_output=True, text=True,
+                           check=True).stdout
+    assert str(ROOT) not in where  # python -m hydroplant and the schemas, both from the wheel

@@ -1,4 +1,5 @@
-"""Reading logs back: :func:`read_log` (topics as numpy columns), :func:`inspect_log` / :func:`log_info`, :func:`merge_logs`.
+"""Reading logs back: :func:`read_log` (topics as numpy columns), :func:`inspect_log` / :func:`log_info` /
+:func:`log_summary`, :func:`merge_logs`.
 
 :func:`read_log` reads CDR and JSON topics back as numpy columns with the field names of the
 messages (``"p_cap_pa"``, ``"pressure_pa.supply"``, ``"position/<joint>"``,
@@ -413,6 +414,38 @@ def inspect_log(path: str | os.PathLike, *, verify: bool = True) -> tuple[str, i
     lines += [f"  {name}  {media_type}  {size} B" for name, media_type, size in log.attachment_list]
     lines += damage if check is not None else ["verified: no (--no-verify)"]
     return "\n".join(lines), 1 if check is not None and check.damage else 0
+
+
+def log_summary(path: str | os.PathLike, *, verify: bool = True) -> dict:
+    """The facts of :func:`inspect_log` as a dict (the ``log info --json`` document, SI units).
+
+    ``status`` is ``"ok"`` (no damage found), ``"damaged"`` (a chunk fails its CRC or does not decompress;
+    exit status 1) or ``"unfinished"`` (no summary or footer, no damage found); ``run_status`` is the
+    run's own ``hydroplant.result`` status (``complete``, ``diverged``, ``incomplete``, ``unknown``).
+    Raises :class:`LogReadError` for a file that is not MCAP.
+    """
+    check = verify_log(path) if verify else None
+    damage = [] if check is None else [{"start": d.start, "end": d.end, "what": d.what, "messages": d.messages}
+                                       for d in check.damage]
+    base = {"file": str(path), "verified": check is not None, "damage": damage,
+            "chunks_verified": None if check is None else check.chunk_count}
+    try:
+        log = RunLog(path)
+    except LogReadError as error:
+        if check is None and "not an MCAP file" in str(error):
+            raise
+        return {**base, "status": "damaged" if damage else "unfinished", "run_status": "unknown", "message": str(error),
+                "library": None, "run": {}, "result": {}, "start_time_s": None, "end_time_s": None,
+                "message_count": None, "topics": [], "attachments": []}
+    result = log.metadata.get(RESULT_METADATA, {})
+    return {
+        **base, "status": "damaged" if damage else "ok", "run_status": result.get("status", "unknown"), "message": "",
+        "library": log.library, "run": log.metadata.get(RUN_METADATA, {}), "result": result,
+        "start_time_s": log.start_time_ns / NS_PER_S, "end_time_s": log.end_time_ns / NS_PER_S,
+        "message_count": log.message_count,
+        "topics": [{"name": t, "schema": log.schema_names[t], "messages": log.message_counts[t]} for t in log.topics],
+        "attachments": [{"name": n, "media_type": m, "size_b": size} for n, m, size in log.attachment_list],
+    }
 
 
 # ---------------------------------------------------------------------------------------

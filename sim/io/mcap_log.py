@@ -10,7 +10,8 @@ re-exported here:
   records, output safety);
 - :mod:`sim.io.mcap_file`: the MCAP file itself on the public ``mcap.records`` API (chunked
   writer with one compression thread, damage-tolerant scanner);
-- :mod:`sim.io.log_reader`: :func:`read_log`, :func:`inspect_log`, :func:`merge_logs`;
+- :mod:`sim.io.log_reader`: :func:`read_log`, :func:`inspect_log`, :func:`log_summary`, :func:`merge_logs`;
+- :mod:`sim.io.log_export`: a log's topics as CSV files or one HDF5 file (not re-exported: h5py is optional);
 - :mod:`sim.io.log_recover`: :func:`verify_log` and :func:`recover`.
 
 Conventions:
@@ -39,7 +40,7 @@ Example::
     assert read_log("run.mcap").topic("/pump")["p_pa"].size == 1000
 """
 
-from sim.io.log_reader import RunLog, TopicData, inspect_log, log_info, merge_logs, read_log
+from sim.io.log_reader import RunLog, TopicData, inspect_log, log_info, log_summary, merge_logs, read_log
 from sim.io.log_recover import RecoverReport, recover, verify_log
 from sim.io.log_schemas import (FOXGLOVE_SCHEMAS, FRAME_TRANSFORMS, JOINT_STATES, TIME, TIMESTAMP, Column, LogLevel,
                                 MsgField, MsgType, cdr_decode, cdr_encode, flat_schema, log_message, log_schema,
@@ -78,6 +79,7 @@ __all__ = [
     "log_info",
     "log_message",
     "log_schema",
+    "log_summary",
     "merge_logs",
     "read_log",
     "recover",

@@ -70,13 +70,14 @@ import numpy as np
 
 from hydraulics.components import COMPONENT_TYPES, CircuitError
 
+from sim.commands import PLAY_INPUTS as INPUTS  # the parser's choices, declared with it
+from sim.commands import PLAY_OVERRUNS as OVERRUNS
 from sim.io.scenario import Scenario, ScenarioError, load_scenario
 from sim.live.frame_topic import FRAME_FIELDS, FRAME_STATS, FRAME_TOPIC, frame_row
 from sim.live.protocol import FrameStats
 from sim.run import snapshot as snap
 from sim.run.commands import COMMANDS_TOPIC, CommandTable, commands_schema, table_from_log
 
-OVERRUNS = ("catch-up", "slow")
 RATE_RANGE = (1.0, 1000.0)  # Hz, frame rate
 PACE_RANGE = (0.0, 1000.0)  # simulated seconds per wall-clock second; 0 = as fast as possible
 SNAPSHOT_RANGE = (0.0, 1000.0)  # Hz of simulated time; 0 = only the start
@@ -674,60 +675,13 @@ __all__ = ["FrameDriver", "FrameSummary", "HoldSource", "LoggedRun", "PlayOption
 
 
 # ------------------------------------------------------------------------------------------------- command line
-INPUTS = ("script", "none", "keyboard", "gamepad", "foxglove")
 
 
 def add_parser(subparsers) -> None:
-    """``hydroplant play``: registered by :mod:`sim.cli` (``TOOL_MODULES``)."""
-    from sim.cli import int_in, out_path, positive_float
+    """``hydroplant play``: declared in :mod:`sim.commands` (so ``--help`` imports nothing heavy)."""
+    from sim.commands import add_play
 
-    def non_negative(text):
-        value = float(text)
-        if not (value >= 0 and math.isfinite(value)):
-            raise ValueError(text)
-        return value
-
-    parser = subparsers.add_parser(
-        "play", help="run a scenario paced to the wall clock, driven by an operator; record, replay, resume",
-        description="Steps the scenario in frames paced to the wall clock (default 60 Hz, real time), reading the "
-        "operator's commands each frame, and writes the run's log with the commands, the frame timing and full-state "
-        "snapshots. The frame statistics (median, p99, max, misses) are printed at the end. Exit 0: complete; 2: bad "
-        "input; 3: diverged.")
-    parser.add_argument("scenario", type=Path, nargs="?", help="scenario TOML file")
-    parser.add_argument("--example", metavar="NAME", help="a shipped example instead of a file, e.g. excavator/dig")
-    parser.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"))
-    parser.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear", "rosenbrock"))
-    parser.add_argument("--dt", type=positive_float, help="physics step [s]")
-    parser.add_argument("--duration", type=positive_float, help="simulated time [s]")
-    parser.add_argument("--substeps", type=int_in(1), help="hydraulic substeps per physics step")
-    parser.add_argument("--pbd-substeps", type=int_in(1), help="XPBD substeps per step (PBD mode)")
-    parser.add_argument("--rate", type=positive_float, default=60.0, help="frame rate [Hz] (default 60)")
-    parser.add_argument("--pace", type=non_negative, default=1.0,
-                        help="simulated seconds per wall-clock second (default 1: real time; 0: as fast as possible)")
-    parser.add_argument("--overrun", choices=OVERRUNS, default="catch-up",
-                        help="a frame that ends after its deadline: catch-up (default: later frames run back to back) or "
-                             "slow (the simulated clock falls behind)")
-    parser.add_argument("--snapshot-hz", type=non_negative, default=1.0,
-                        help="full-state snapshots per simulated second (default 1; 0: only at the start)")
-    parser.add_argument("--input", choices=INPUTS, default="script",
-                        help="command source: script (the scenario's [inputs] played at the frame rate, default), none "
-                             "(hold the start values), keyboard (keys in the --view window), gamepad (extra 'gamepad'), "
-                             "foxglove (a client publishing on /hydroplant/commands; extra 'live')")
-    parser.add_argument("--pattern", choices=("iso", "sae"), default="iso",
-                        help="excavator control pattern for --input keyboard or gamepad when the scenario has no "
-                             "[mapping]: iso (ISO 10968 / SAE J1177, default) or sae (SAE J1814: boom and stick swapped)")
-    parser.add_argument("--view", action="store_true",
-                        help="show the machine in MuJoCo's viewer with the hydraulic state overlaid (pressures in bar, "
-                             "valve commands, frame budget) and the cylinders drawn between their pins")
-    parser.add_argument("--foxglove", type=int_in(0, 65535), nargs="?", const=8765, metavar="PORT",
-                        help="serve a live Foxglove stream on ws://127.0.0.1:PORT (default 8765; extra 'live')")
-    parser.add_argument("--replay", type=Path, metavar="LOG", help="play a log's recorded commands again (paced)")
-    parser.add_argument("--resume", type=Path, metavar="LOG", help="continue a log's run from its snapshot at or before --at")
-    parser.add_argument("--at", type=non_negative, metavar="T", help="simulated time to resume from [s] (with --resume)")
-    parser.add_argument("--out", type=out_path, help="log file (default: logs/<scene>-<scenario>-<mode>-<coupling>-<time>.mcap)")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
-    parser.add_argument("--no-monitor", action="store_true", help="log the plausibility monitor's findings as warnings")
-    parser.set_defaults(func=main)
+    add_play(subparsers)
 
 
 def _endpoints(args, scene=None, launch=None):
@@ -817,18 +771,6 @@ def main(args) -> int:
                           overwrite=args.overwrite, stop=stop)
     print(result.summary_text())
     return 0 if result.run.status == "complete" else EXIT_DIVERGED
-
-
-def add_run_options(parser) -> None:
-    """``hydroplant run --replay LOG`` and ``--resume LOG --at T`` (registered on ``run`` by :mod:`sim.cli`)."""
-    from sim.cli import out_path  # noqa: F401 - (the same module's types)
-
-    parser.add_argument("--replay", type=Path, metavar="LOG",
-                        help="run a 'hydroplant play' log's recorded commands again, as fast as it goes (bit for bit)")
-    parser.add_argument("--resume", type=Path, metavar="LOG",
-                        help="continue a 'hydroplant play' log's run from its snapshot at or before --at, with its "
-                             "recorded commands (bit for bit the original from there)")
-    parser.add_argument("--at", type=float, metavar="T", help="simulated time to resume from [s] (with --resume)")
 
 
 def run_from_log(args):

@@ -142,10 +142,10 @@ def precompile(groups=tuple(GROUPS), jobs: int | None = None) -> dict[str, float
 
 
 def add_parser(subparsers) -> None:
-    parser = subparsers.add_parser("compile", help="compile every numba kernel into the disk cache, in parallel")
-    parser.add_argument("--jobs", type=int, default=None, help="processes at a time (default: one per group, ≤ CPUs)")
-    parser.add_argument("--groups", nargs="+", choices=list(GROUPS), default=list(GROUPS))
-    parser.set_defaults(func=main)
+    """Register ``hydroplant compile`` (declared in :func:`sim.commands.add_compile`)."""
+    from sim.commands import add_compile
+
+    add_compile(subparsers)
 
 
 def main(args) -> int:

@@ -65,7 +65,8 @@ from sim.io.scenario import Scenario, load_scenario
 from sim.io.scene import load_scene
 
 DEFAULT_LOG_DIR = Path("logs")
-PROGRESS_AFTER = 3.0  # s of wall time before a progress line is shown
+PROGRESS_AFTER = 3.0  # s of wall time before a progress line is shown (on a terminal only)
+PROGRESS_EVERY = 0.5  # s of wall time between two redraws of the progress line
 # A run has diverged when its mechanical + oil energy grows beyond what the pumps put in:
 ENERGY_GROWTH_LIMIT = 3.0  # relative to |initial energy| + pump work (symplectic steps swing by less)
 ENERGY_GROWTH_FLOOR = 1.0  # J, so that machines starting at zero energy are not flagged by round-off
@@ -410,7 +411,7 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
         else:
             kept = "; the log written so far is finished and marked incomplete" if os.path.lexists(log_path) else ""
         raise LogWriteError(f"{log_path}: cannot write the log ({exc.strerror or exc}){kept}") from None
-    if progress and wall > PROGRESS_AFTER:
+    if progress and wall > PROGRESS_AFTER and sys.stderr.isatty():
         print(file=sys.stderr)
     e = plant.energy
     sample = loop.sample  # the last logged sample (the final step, the failing step, or where energy growth was found)
@@ -867,11 +868,15 @@ class _Loop:
         return False
 
     def show_progress(self) -> None:
-        if self.progress:
+        """``\\r`` progress with an estimate of the time left, only when stderr is a terminal (never into a pipe or file)."""
+        if self.progress and sys.stderr.isatty():
             now = _time.perf_counter()
-            if now - self.start > PROGRESS_AFTER and now - self.last_progress > 0.5:
+            if now - self.start > PROGRESS_AFTER and now - self.last_progress > PROGRESS_EVERY:
                 self.last_progress = now
-                print(f"\r  {self.plant.time:8.3f} / {self.scenario.duration:g} s simulated", end="", file=sys.stderr, flush=True)
+                done = self.plant.time / self.scenario.duration if self.scenario.duration > 0 else 1.0
+                eta = f", ETA {(now - self.start) * (1 - done) / done:.0f} s" if done > 0 else ""
+                print(f"\r\033[K  {self.plant.time:8.3f} / {self.scenario.duration:g} s simulated{eta}", end="",
+                      file=sys.stderr, flush=True)
 
 
 def _failed_component(plant, report) -> str:

@@ -363,23 +363,36 @@ def check_scene(scenario_path, grid: int = 0, mode=None) -> tuple[str, int]:
 
 
 def add_parser(subparsers):
-    parser = subparsers.add_parser("check", help="static checks of a scene: strokes, sweeps, holding pressures, signs, loop closures")
-    parser.add_argument("scenario", type=Path, nargs="*", help="scenario TOML file(s)")
-    parser.add_argument("--examples", action="store_true", help="check every shipped example scene")
-    parser.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"), help="validate for this mode (its warnings and refusals)")
-    parser.add_argument("--grid", type=int, default=0, metavar="N",
-                        help="also the worst holding pressure over an N-point grid of the cylinders' driving joints")
-    parser.set_defaults(func=main)
+    """Register ``hydroplant check`` (declared in :func:`sim.commands.add_check`)."""
+    from sim.commands import add_check
+
+    return add_check(subparsers)
 
 
 def main(args) -> int:
-    paths = list(args.scenario) + ([example_path(name) for name, _ in examples()] if args.examples else [])
+    """``hydroplant check``; exit 0 when every check passed, 1 when one failed (marked ``!!``)."""
+    import sys
+
+    paths = list(args.scenario) + [example_path(name) for name in (getattr(args, "example", None) or [])]
+    paths += [example_path(name) for name, _ in examples()] if args.examples else []
     if not paths:
-        raise ScenarioError("check: give a SCENARIO file or --examples")
+        raise ScenarioError("check: give a SCENARIO file, --example NAME or --examples")
+    as_json = getattr(args, "json", False)
     problems = 0
+    scenes = []
     for path in paths:
         text, count = check_scene(path, args.grid, args.mode)
-        print(text)
+        print(text, file=sys.stderr if as_json else sys.stdout)
         problems += count
-    print("\nall checks passed" if not problems else f"\n!! {problems} check(s) failed")
-    return 0 if not problems else 1
+        lines = text.splitlines()
+        scenes.append({"scenario": str(path), "problems": count, "passed": count == 0,
+                       "failed_checks": [line.strip().removesuffix("!!").strip() for line in lines if line.endswith("!!")],
+                       "report": lines})
+    print("\nall checks passed" if not problems else f"\n!! {problems} check(s) failed", file=sys.stderr if as_json else sys.stdout)
+    code = 0 if not problems else 1
+    if as_json:
+        from sim.jsonout import emit
+
+        emit({"command": "check", "status": "ok" if not problems else "failed", "exit_code": code,
+              "problems": problems, "scenarios": scenes})
+    return code

@@ -2,11 +2,14 @@
 
 ::
 
-    hydroplant compare SCENARIO [--modes mujoco,mujoco:explicit,pbd,pbd-naive] [--out DIR]
-    hydroplant compare REFERENCE.mcap RUN.mcap [RUN2.mcap ...] [--out DIR]
+    hydroplant compare SCENARIO | --example NAME [--methods mujoco,mujoco:explicit,pbd,pbd-naive] [--out DIR] [--json]
+    hydroplant compare REFERENCE.mcap RUN.mcap [RUN2.mcap ...] [--out DIR] [--json]
+
+Exit status 0 when every run is stable, 4 when the report is written but some run diverged or did
+not complete (:data:`sim.commands.EXIT_PARTIAL`), 2 for bad input.
 
 The first form computes (or takes from the cache) the converged MuJoCo-mode reference of
-the scenario (:mod:`sim.tools.reference`), runs each mode (``mode`` or ``mode:coupling``), and
+the scenario (:mod:`sim.tools.reference`), runs each method (``mode`` or ``mode:coupling``, :mod:`sim.methods`), and
 writes into ``--out``: one MCAP log per run, ``reference.mcap``, ``merged.mcap`` (topics
 prefixed ``/reference/...``, ``/mujoco/...``, ``/pbd/...``; open it in Foxglove), and
 ``report.md`` with a table per run and PNG figures.  The second form does the same for
@@ -531,6 +534,13 @@ class RunSpec:
     coupling: str
     label: str
 
+    @property
+    def method(self) -> str:
+        """The method's name (:mod:`sim.methods`): ``mujoco:explicit``, ``pbd-naive``."""
+        from sim.methods import Method
+
+        return Method(self.mode, self.coupling).name
+
 
 def pbd_available() -> tuple[bool, str]:
     """Whether the PBD modes can run here, and why not."""
@@ -542,34 +552,27 @@ def pbd_available() -> tuple[bool, str]:
 
 
 def default_modes() -> str:
-    """``mujoco:implicit,mujoco:explicit`` plus ``pbd,pbd-naive`` when the PBD plant imports."""
-    return "mujoco:implicit,mujoco:explicit" + (",pbd,pbd-naive" if pbd_available()[0] else "")
+    """``mujoco:implicit,mujoco:explicit`` plus ``pbd:implicit,pbd-naive`` when the PBD plant imports."""
+    return "mujoco:implicit,mujoco:explicit" + (",pbd:implicit,pbd-naive" if pbd_available()[0] else "")
 
 
 def parse_runs(text: str, default_coupling: str = "implicit") -> list[RunSpec]:
     """Parse ``"mujoco,mujoco:explicit,pbd"`` into run specs.
 
-    Each item is ``mode`` or ``mode:coupling`` (a bare mode uses ``default_coupling``). The
-    label is the mode when that mode appears once, else ``mode-coupling``.
+    Each item is a method (:mod:`sim.methods`): ``mode`` or ``mode:coupling`` (a bare mode uses
+    ``default_coupling``; the dash spelling ``mujoco-explicit`` is read with a deprecation warning). The
+    label (file name and merge prefix) is the mode when that mode appears once, else ``mode-coupling``.
     """
-    from sim.io.scenario import COUPLINGS, MODES
+    from sim.methods import MethodError, parse_methods
 
-    items = [item.strip() for item in text.split(",") if item.strip()]
-    if not items:
-        raise CircuitError("--modes: no mode given; expected e.g. 'mujoco,mujoco:explicit,pbd'")
-    pairs = []
-    for item in items:
-        mode, _, coupling = item.partition(":")
-        coupling = coupling or default_coupling
-        if mode not in MODES:
-            raise CircuitError(f"--modes: {mode!r} is not one of {list(MODES)}")
-        if coupling not in COUPLINGS:
-            raise CircuitError(f"--modes: coupling {coupling!r} of {item!r} is not one of {list(COUPLINGS)}")
-        if (mode, coupling) in pairs:
-            raise CircuitError(f"--modes: {item!r} is listed twice")
-        pairs.append((mode, coupling))
-    counts = {m: sum(1 for mm, _ in pairs if mm == m) for m, _ in pairs}
-    return [RunSpec(m, c, m if counts[m] == 1 else f"{m}-{c}") for m, c in pairs]
+    try:
+        methods = parse_methods(text, default_coupling)
+    except MethodError as exc:
+        raise CircuitError(f"--methods: {exc}") from None
+    if any(m.blend for m in methods):
+        raise CircuitError("--methods: compare runs no '+blend' method; use 'hydroplant run --pbd-blend'")
+    counts = {m.mode: sum(1 for mm in methods if mm.mode == m.mode) for m in methods}
+    return [RunSpec(m.mode, m.coupling, m.mode if counts[m.mode] == 1 else f"{m.mode}-{m.coupling}") for m in methods]
 
 
 OUTPUT_NAMES = ("merged.mcap", "report.md", "overlay.png", "error.png")
@@ -627,14 +630,15 @@ def compare_runs(scenario, specs: list[RunSpec], out_dir, *, dt: float | None = 
     ref_copy = write_output(out_dir / "reference.mcap", lambda f: _copy_into(reference.log_path, f), what="compare output")
     ref_log = read_log(ref_copy)
     comparisons = []
-    for spec in specs:
+    from sim.progress import Progress
+
+    report = Progress(len(specs), "compare", "runs") if progress else None
+    for done, spec in enumerate(specs, 1):
         path = out_dir / f"{spec.label}.mcap"
         overrides = {"mode": spec.mode, "coupling": spec.coupling, "dt": dt, **(run_overrides or {}).get(spec.label, {})}
         result = run(scenario, out=path, overrides=overrides, overwrite=True)  # compare's own files in its folder
-        if progress:
-            import sys
-
-            print(f"compare: {spec.label}: {result.status}, {result.wall_time:.2f} s wall", file=sys.stderr)
+        if report is not None:
+            report(done, note=f"{spec.label}: {result.status}, {result.wall_time:.2f} s wall")
         comparisons.append(compare_logs(ref_log, path, label=spec.label, wall_time=result.wall_time,
                                         real_time_factor=result.real_time_factor, filter_window=filter_window))
     merged = out_dir / "merged.mcap"
@@ -905,32 +909,65 @@ def _write_report(out_dir: Path, title: str, ref_label: str, ref_log, ref_text: 
 
 
 def add_parser(subparsers):
-    """Register ``hydroplant compare``."""
-    parser = subparsers.add_parser(
-        "compare", help="runs of a scenario (or existing logs) against a converged reference: table, figures, merged log",
-        description="compare SCENARIO [--modes ...]: reference + each mode; compare REF.mcap RUN.mcap ...: existing logs "
-                    "(the first is the reference).")
-    parser.add_argument("inputs", nargs="+", type=Path, help="a scenario TOML file, or two or more MCAP logs")
-    parser.add_argument("--modes", help="runs, comma-separated, each 'mode' or 'mode:coupling' "
-                                        f"(default: {default_modes()})")
-    parser.add_argument("--dt", type=float, help="physics step of the runs [s] (default: the scenario's)")
-    parser.add_argument("--duration", type=float, help="simulated time [s] (default: the scenario's)")
-    parser.add_argument("--out", type=Path, help="output directory (default: logs/compare-<scene>-<scenario>)")
-    parser.add_argument("--tolerance", type=float, help="relative convergence tolerance of the reference (default 1e-3)")
-    parser.add_argument("--cache", type=Path, help="reference cache directory (default .cache/references)")
-    parser.add_argument("--filter-window", type=float, help="also compare the signals averaged over this moving window "
-                        f"[s] (e.g. {DEFAULT_FILTER_WINDOW}), and check the reference's convergence on them")
-    parser.add_argument("--max-steps", type=int, help="largest reference run [steps] (default 2 000 000)")
-    parser.add_argument("--fresh-reference", action="store_true", help="recompute the reference even if it is cached "
-                        "(the cache key covers the scene, circuit and scenario files and the simulation code)")
-    parser.add_argument("--fresh", action="store_true", help="ignore every cache (here: the reference's; as --fresh-reference)")
-    parser.set_defaults(func=main)
+    """Register ``hydroplant compare`` (declared in :func:`sim.commands.add_compare`)."""
+    from sim.commands import add_compare
+
+    return add_compare(subparsers)
+
+
+def _stats_json(s: ErrorStats) -> dict:
+    return {"max_abs": s.max_abs, "rms": s.rms, "ref_range": s.ref_range, "max_rel": s.max_rel, "rms_rel": s.rms_rel,
+            "t_max_s": s.t_max, "t_end_s": s.t_end, "samples": s.samples}
+
+
+def run_json(c: RunComparison) -> dict:
+    """One run of a :class:`CompareResult` as the ``runs`` item of ``compare --json`` (SI units)."""
+    from sim.methods import Method
+
+    meta = read_log(c.log_path).metadata.get(RUN_METADATA, {}) if Path(c.log_path).is_file() else {}
+    method = Method(meta["mode"], meta.get("coupling", "implicit")).name if meta.get("mode") else None
+    return {
+        "label": c.label, "method": method, "settings": c.settings, "log": str(c.log_path), "status": c.status,
+        "stable": c.stable, "diverged_at_s": c.diverged_at, "wall_time_s": c.wall_time,
+        "real_time_factor": c.real_time_factor,
+        "errors": {kind: c.kind_stats(kind) for kind in KINDS},
+        "filtered_errors": {kind: c.kind_stats(kind, True) for kind in KINDS} if c.filtered else None,
+        "filter_window_s": c.filter_window,
+        "energy_drift": {"final_j": c.energy.get("final_j"), "max_abs_j": c.energy.get("max_abs_j"),
+                         "relative": c.energy.get("relative")},
+        "signals": {name: _stats_json(s) for name, s in c.signals.items()},
+    }
+
+
+def result_json(result: CompareResult, exit_code: int) -> dict:
+    """``compare --json``: the document of docs/cli-json.md."""
+    failed = [c.label for c in result.comparisons if not c.stable]
+    return {
+        "command": "compare", "status": "partial" if failed else "ok", "exit_code": exit_code,
+        "reference": {"log": str(result.reference_log), "settings": result.reference_text},
+        "report": str(result.report_path), "merged_log": str(result.merged_path) if result.merged_path else None,
+        "figures": [str(f) for f in result.figures],
+        "runs": [run_json(c) for c in result.comparisons],
+        "failed": failed,
+    }
 
 
 def main(args) -> int:
-    """``hydroplant compare``; returns the exit code."""
+    """``hydroplant compare``; returns the exit code: 0 every run stable, 4 some diverged or did not complete."""
+    import sys
+
+    from sim.cli import EXIT_OK, EXIT_PARTIAL
+
     require("matplotlib", "tools", "hydroplant compare")  # before any run: its figures are drawn at the end
     inputs = list(args.inputs)
+    if getattr(args, "example", None):
+        if inputs:
+            raise CircuitError("compare: give either a SCENARIO file (or logs) or --example NAME, not both")
+        from sim.io.examples import example_path
+
+        inputs = [example_path(args.example)]
+    if not inputs:
+        raise CircuitError("compare: give a SCENARIO file, --example NAME, or two or more .mcap logs")
     if all(p.suffix == ".mcap" for p in inputs):
         if len(inputs) < 2:
             raise CircuitError(f"{inputs[0]}: compare needs a reference log and at least one more log")
@@ -957,8 +994,18 @@ def main(args) -> int:
                               reference_options={"max_steps": args.max_steps} if getattr(args, "max_steps", None) else None)
     else:
         raise CircuitError(f"compare takes one scenario file or two or more .mcap logs, got {[str(p) for p in inputs]}")
-    print(summary_table(result.comparisons))
-    print(f"report: {result.report_path}")
+    failed = [c for c in result.comparisons if not c.stable]
+    code = EXIT_PARTIAL if failed else EXIT_OK
+    text = sys.stderr if getattr(args, "json", False) else sys.stdout
+    print(summary_table(result.comparisons), file=text)
+    print(f"report: {result.report_path}", file=text)
     if result.merged_path:
-        print(f"merged log: {result.merged_path}")
-    return 0
+        print(f"merged log: {result.merged_path}", file=text)
+    if failed:
+        print(f"compare: {len(failed)} of {len(result.comparisons)} runs not stable: "
+              + ", ".join(f"{c.label} ({_status_text(c)})" for c in failed), file=sys.stderr)
+    if getattr(args, "json", False):
+        from sim.jsonout import emit
+
+        emit(result_json(result, code))
+    return code

@@ -49,6 +49,13 @@ def largest_stable_dt(report: guards.GuardReport) -> float:
 
 def describe(scenario_path, overrides=None) -> str:
     """The inspect text for a scenario."""
+    return inspect_scenario(scenario_path, overrides)[0]
+
+
+def inspect_scenario(scenario_path, overrides=None) -> tuple[str, dict]:
+    """The inspect text for a scenario and the same facts as the ``inspect --json`` document (SI units)."""
+    from sim.methods import Method
+
     scenario = load_scenario(scenario_path)
     if overrides:
         scenario = scenario.with_overrides(**overrides)
@@ -56,6 +63,13 @@ def describe(scenario_path, overrides=None) -> str:
     plant = MujocoPlant(scene)
     m, net = scene.mjmodel, scene.network
     lines = [f"scenario  {scenario.path}", f"run       mode {scenario.mode}, coupling {scenario.coupling}, dt {scenario.dt:g} s, fidelity {scenario.fidelity_label}"]
+    data = {"scenario": str(scenario.path), "method": Method(scenario.mode, scenario.coupling, scenario.pbd_blend).name,
+            "mode": scenario.mode, "coupling": scenario.coupling, "dt_s": scenario.dt, "fidelity": scenario.fidelity_label,
+            "total_mass_kg": float(np.sum(m.body_mass)),
+            "bodies": [{"name": mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or f"body{b}", "mass_kg": float(m.body_mass[b])}
+                       for b in range(1, m.nbody)],
+            "joints": [], "hydraulic_states": int(net.state_count), "nodes": int(net.node_count),
+            "flow_branches": len(net.branch_names), "pruned": list(net.pruned), "actuators": []}
     lines.append(f"bodies    {m.nbody - 1} (+ world), total mass {float(np.sum(m.body_mass)):.1f} kg")
     for b in range(1, m.nbody):
         lines.append(f"  {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or f'body{b}':<20s} {m.body_mass[b]:10.2f} kg")
@@ -64,6 +78,8 @@ def describe(scenario_path, overrides=None) -> str:
         kind = mujoco.mjtJoint(int(m.jnt_type[j])).name.removeprefix("mjJNT_").lower()
         limits = f"[{m.jnt_range[j][0]:.4g}, {m.jnt_range[j][1]:.4g}]" if m.jnt_limited[j] else "unlimited"
         lines.append(f"  {scene.joint_names[j]:<20s} {kind:<6s} {limits}")
+        data["joints"].append({"name": scene.joint_names[j], "type": kind,
+                               "range": [float(m.jnt_range[j][0]), float(m.jnt_range[j][1])] if m.jnt_limited[j] else None})
     contact = not (m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT)
     lines.append(f"contact   {'on' if contact else 'off (no two geoms can touch)'}")
     lines.append(
@@ -107,6 +123,11 @@ def describe(scenario_path, overrides=None) -> str:
                 f"{rm.actuator:<14s} {size} {rm.frequency_hz:7.3g}Hz {re.frequency_hz:7.3g}Hz "
                 f"{rm.omega_h_dt:11.3g} {re.omega_h_dt:10.3g} {'yes' if rm.stable and re.stable else 'NO':>7s}"
             )
+            data["actuators"].append({
+                "name": rm.actuator, "kind": "cylinder" if net.actuator_kind[a] == ACTUATOR_CYLINDER else "motor",
+                "frequency_mid_hz": float(rm.frequency_hz), "frequency_near_end_hz": float(re.frequency_hz),
+                "omega_h_dt_mid": float(rm.omega_h_dt), "omega_h_dt_near_end": float(re.omega_h_dt),
+                "stable": bool(rm.stable and re.stable)})
     dt_max = min(largest_stable_dt(report_mid), largest_stable_dt(report_end))
     lines.append(
         f"largest stable dt for {report_mid.method}: "
@@ -117,18 +138,30 @@ def describe(scenario_path, overrides=None) -> str:
         lines.append(f"warning: {w}")
     for n in dict.fromkeys(report_mid.notes + report_end.notes):
         lines.append(f"note: {n}")
-    return "\n".join(lines)
+    data.update(guard_method=report_mid.method, largest_stable_dt_s=dt_max,  # inf (null in JSON): unbounded
+                warnings=list(dict.fromkeys(report_mid.warnings + report_end.warnings)),
+                notes=list(dict.fromkeys(report_mid.notes + report_end.notes)))
+    return "\n".join(lines), data
 
 
 def add_parser(subparsers):
-    parser = subparsers.add_parser("inspect", help="print what a scenario builds and its stability verdict")
-    parser.add_argument("scenario", type=Path)
-    parser.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"))
-    parser.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear", "rosenbrock"))  # sim.io.scenario.COUPLINGS
-    parser.add_argument("--dt", type=float, help="physics step [s]")
-    parser.set_defaults(func=main)
+    """Register ``hydroplant inspect`` (declared in :func:`sim.commands.add_inspect`)."""
+    from sim.commands import add_inspect
+
+    return add_inspect(subparsers)
 
 
 def main(args) -> int:
-    print(describe(args.scenario, {"mode": args.mode, "coupling": args.coupling, "dt": args.dt}))
+    """``hydroplant inspect``: the text (or with ``--json`` the document) of :func:`inspect_scenario`; exit 0."""
+    from sim.cli import method_overrides, scenario_argument
+
+    scenario = scenario_argument(args, "inspect")
+    overrides = {**method_overrides(args), "dt": args.dt}
+    text, data = inspect_scenario(scenario, {k: v for k, v in overrides.items() if v is not None})
+    if getattr(args, "json", False):
+        from sim.jsonout import emit
+
+        emit({"command": "inspect", "status": "ok", "exit_code": 0, **data})
+    else:
+        print(text)
     return 0

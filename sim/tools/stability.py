@@ -1,6 +1,6 @@
 """Stability maps: run a scenario at the extremes, per method, and classify every run.
 
-``hydroplant stability SCENARIO [--quick] [--out DIR] [--scheduler ADDR] ...`` builds a
+``hydroplant stability SCENARIO | --example NAME [--quick] [--out DIR] [--scheduler ADDR] [--json] ...`` builds a
 grid of *configurations* (scenario variants) × step sizes × methods, runs every
 point through :func:`sim.run.runner.run`, and classifies each run as
 
@@ -57,7 +57,11 @@ boundary per method).  The runs go through :func:`sim.tools.sweep.run_sweep` (pr
 pool, or Dask with ``--scheduler``), cached in ``OUT/cache`` (keyed on the point, the hash of the hydraulics/ and sim/ source and
 the contents of the variant files) so an interrupted map resumes.  On Dask the variants' files travel to the
 workers as content (:func:`sim.tools.sweep.scene_bundle`); a run that cannot be made has its error text in
-the ``error`` column and in ``summary.txt`` (and is not cached).
+the ``error`` column, in ``summary.txt`` and in the ``--json`` document (and is not cached).
+
+Exit status: 0 when no run diverged or failed, 4 when the map is written but some did (a map that reaches
+the explicit coupling's limit exits 4 by design), 2 for bad input.  Methods are named as in :mod:`sim.methods`
+(``mujoco:implicit``; file names ``stability-<scene>-mujoco-implicit.png``).
 """
 
 from __future__ import annotations
@@ -80,7 +84,6 @@ from pathlib import Path
 import numpy as np
 
 from hydraulics.extras import require
-from sim.cli import int_in, positive_float
 from sim.io.scenario import ScenarioError, load_scenario
 
 # --------------------------------------------------------------------------- constants
@@ -105,15 +108,34 @@ END_STOP_HIT = 0.3  # of D: when the end-stop event reaches the stop at full spe
 STEP_EDGE = 1e-9  # s: width of a one-step input change in a schedule
 
 METHODS = {
-    "mujoco-implicit": ("mujoco", "implicit", False),
-    "mujoco-explicit": ("mujoco", "explicit", False),
-    "mujoco-rosenbrock": ("mujoco", "rosenbrock", False),  # (on request: --methods; not in the default maps)
-    "pbd": ("pbd", "implicit", False),
-    "pbd-rosenbrock-blend": ("pbd", "rosenbrock", True),  # (on request)
+    "mujoco:implicit": ("mujoco", "implicit", False),
+    "mujoco:explicit": ("mujoco", "explicit", False),
+    "mujoco:rosenbrock": ("mujoco", "rosenbrock", False),  # (on request: --methods; not in the default maps)
+    "pbd:implicit": ("pbd", "implicit", False),
+    "pbd:rosenbrock+blend": ("pbd", "rosenbrock", True),  # (on request)
     "pbd-naive": ("pbd-naive", "implicit", False),
 }
-"""Method label → (mode, coupling, PBD mode's θ-rule ``pbd_blend``)."""
-REFERENCE_METHOD = "mujoco-implicit"
+"""Method name (:mod:`sim.methods`) → (mode, coupling, PBD mode's θ-rule ``pbd_blend``); ``--methods`` takes any
+other method name as well."""
+REFERENCE_METHOD = "mujoco:implicit"
+
+
+def method_settings(name: str) -> tuple:
+    """(mode, coupling, pbd_blend) of a method name (:func:`sim.methods.parse_method`)."""
+    if name in METHODS:
+        return METHODS[name]
+    from sim.methods import MethodError, parse_method
+
+    try:
+        m = parse_method(name)
+    except MethodError as exc:
+        raise StabilityError(f"--methods: {exc}") from None
+    return m.mode, m.coupling, m.blend
+
+
+def method_file_label(name: str) -> str:
+    """A method's name where ``:`` and ``+`` may not stand (file names): ``mujoco-implicit``."""
+    return name.replace(":", "-").replace("+", "-")
 EVENTS = ("valve_slam", "pump_start", "end_stop", "cavitation")
 SWEEPS = ("beta", "mass", "dead", "event")
 
@@ -679,13 +701,15 @@ def _numeric_fields(topic) -> list:
 def method_labels(grid: Grid) -> tuple:
     """Methods to map: the grid's, or every available one (PBD when sim.plants.pbd imports)."""
     if grid.methods:
-        unknown = [m for m in grid.methods if m not in METHODS]
-        if unknown:
-            raise StabilityError(f"--methods: unknown method(s) {unknown}; choose from {sorted(METHODS)}")
-        return tuple(grid.methods)
-    labels = ["mujoco-implicit", "mujoco-explicit"]
+        from sim.methods import MethodError, parse_method
+
+        try:
+            return tuple(parse_method(m).name for m in grid.methods)
+        except MethodError as exc:
+            raise StabilityError(f"--methods: {exc}; e.g. {', '.join(METHODS)}") from None
+    labels = ["mujoco:implicit", "mujoco:explicit"]
     if pbd_available():
-        labels += ["pbd", "pbd-naive"]
+        labels += ["pbd:implicit", "pbd-naive"]
     return tuple(labels)
 
 
@@ -779,7 +803,7 @@ def build_points(facts: SceneFacts, grid: Grid, out_dir) -> tuple[list, list, li
                    reference=True, truncated=ref_duration < D, log=f"logs/{config.id}-reference.mcap")
         points.append(ref)
         for label in methods:
-            mode, coupling, blend = METHODS[label]
+            mode, coupling, blend = method_settings(label)
             for dt in grid.dts:
                 steps = int(round(D / dt))
                 duration = D
@@ -792,7 +816,7 @@ def build_points(facts: SceneFacts, grid: Grid, out_dir) -> tuple[list, list, li
                 points.append(dict(common, method=label, mode=mode, coupling=coupling, pbd_blend=blend, dt=float(dt),
                                    duration=float(duration),
                                    reference=False, truncated=duration < D * (1 - 1e-9), same_as_reference=same,
-                                   log=f"logs/{config.id}-{label}-{dt:.3g}.mcap"))
+                                   log=f"logs/{config.id}-{method_file_label(label)}-{dt:.3g}.mcap"))
     return points, configs, bundles
 
 
@@ -932,7 +956,8 @@ class StabilityMap:
     files: dict = field(default_factory=dict)
 
     def methods(self) -> list:
-        return [m for m in METHODS if any(r["method"] == m and not r["reference"] for r in self.rows)]
+        """The methods mapped, in the order of the rows."""
+        return list(dict.fromkeys(r["method"] for r in self.rows if not r["reference"]))
 
     def cell(self, method, config_id, dt) -> dict | None:
         for r in self.rows:
@@ -1084,27 +1109,11 @@ def plot_maps(stability_map: StabilityMap, out_dir) -> dict:
         fig.legend(handles=[Patch(color=CLASS_COLOURS[k], label=k) for k in CLASSES], loc="lower center", ncol=3, fontsize=7,
                    frameon=False)
         fig.tight_layout(rect=(0, 0.04, 1, 1))
-        path = out_dir / f"stability-{stability_map.facts.scene}-{method}.png"
+        path = out_dir / f"stability-{stability_map.facts.scene}-{method_file_label(method)}.png"
         fig.savefig(path, dpi=90)
         plt.close(fig)
         files[method] = path
     return files
-
-
-def _progress_printer(total):
-    start = _time.perf_counter()
-
-    tty = sys.stderr.isatty()
-    step = max(1, total // 10)
-
-    def report(done, _total):
-        if tty:
-            print(f"\r  {done}/{total} runs, {_time.perf_counter() - start:.0f} s", end="" if done < total else "\n",
-                  file=sys.stderr, flush=True)
-        elif done % step == 0 or done == total:
-            print(f"  {done}/{total} runs, {_time.perf_counter() - start:.0f} s", file=sys.stderr, flush=True)
-
-    return report
 
 
 def warm_up_points(points: list[dict]) -> None:
@@ -1160,7 +1169,9 @@ def stability_map(scenario, *, grid: Grid = DEFAULT_GRID, out_dir=None, schedule
     todo = [p for p in points if not p.get("same_as_reference")]
     from sim.tools.sweep import run_sweep
 
-    report = _progress_printer(len(todo)) if progress else None
+    from sim.progress import Progress
+
+    report = Progress(len(todo), "hydroplant stability", "runs") if progress else None
     results = run_sweep(run_point, todo, scheduler=scheduler, workers=workers, cache_dir=out_dir / "cache", progress=report,
                         bundles=bundles, context={"log_dir": str(out_dir)} if scheduler is None else None,
                         worker_timeout=worker_timeout or WORKER_TIMEOUT, warm_up=warm_up_points)
@@ -1183,64 +1194,62 @@ def stability_map(scenario, *, grid: Grid = DEFAULT_GRID, out_dir=None, schedule
 
 
 # --------------------------------------------------------------------------- CLI
-def _float_list(text):
-    try:
-        values = tuple(float(eval_fraction(v)) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers") from None
-    if not values or not all(math.isfinite(v) and v > 0 for v in values):
-        raise argparse.ArgumentTypeError(f"{text!r}: every value must be a positive finite number")
-    return values
-
-
-def eval_fraction(text: str) -> float:
-    """A number or a fraction like ``1/30``."""
-    text = text.strip()
-    if "/" in text:
-        num, _, den = text.partition("/")
-        value = float(num) / float(den) if float(den) != 0 else math.inf
-        return value
-    return float(text)
-
-
-def _name_list(choices):
-    def parse(text):
-        values = tuple(v.strip() for v in text.split(",") if v.strip())
-        bad = [v for v in values if v not in choices]
-        if not values or bad:
-            raise argparse.ArgumentTypeError(f"{text!r}: choose from {', '.join(choices)}")
-        return values
-
-    return parse
-
-
 def add_parser(subparsers) -> argparse.ArgumentParser:
-    """Register ``hydroplant stability``."""
-    p = subparsers.add_parser("stability", help="stability map of a scenario at the extremes (dt, bulk modulus, mass, dead volume, events)")
-    p.add_argument("scenario", type=Path, help="scenario TOML file")
-    p.add_argument("--out", type=Path, help="output directory (default logs/stability-<scene>-<scenario>)")
-    p.add_argument("--quick", action="store_true", help="small grid and short runs (for tests)")
-    p.add_argument("--scheduler", help="Dask scheduler address (default: a local process pool)")
-    p.add_argument("--workers", type=int_in(1, 1024), help="worker processes (default: all cores)")
-    p.add_argument("--worker-timeout", type=positive_float, help="seconds to wait for a first Dask worker to join --scheduler "
-                   "(default 60)")
-    p.add_argument("--dt", type=_float_list, help="comma-separated steps [s], fractions allowed (e.g. 1e-4,1e-3,1/30)")
-    p.add_argument("--methods", type=_name_list(tuple(METHODS)), help=f"comma-separated subset of {', '.join(METHODS)}")
-    p.add_argument("--sweeps", type=_name_list(SWEEPS), help=f"comma-separated subset of {', '.join(SWEEPS)}")
-    p.add_argument("--tolerance", type=positive_float, help="largest relative error of a stable-accurate run (default 0.05)")
-    p.add_argument("--keep-logs", action="store_true", help="keep the MCAP log of every run")
-    p.add_argument("--check", action="store_true", help="only print the load-time guards of the scenario (no runs)")
-    p.set_defaults(func=main)
-    return p
+    """Register ``hydroplant stability`` (declared in :func:`sim.commands.add_stability`)."""
+    from sim.commands import add_stability
+
+    return add_stability(subparsers)
+
+
+def failed_runs(stability_map: StabilityMap) -> list:
+    """The rows of runs that diverged or failed (``status`` error), references included."""
+    return [r for r in stability_map.rows if r["class"] == CLASS_DIVERGED or r.get("status") == "error"]
+
+
+def result_json(stability_map: StabilityMap, exit_code: int) -> dict:
+    """``stability --json``: the document of docs/cli-json.md."""
+    counts = {}
+    for r in stability_map.rows:
+        if not r["reference"]:
+            counts.setdefault(r["method"], {c: 0 for c in CLASSES})[r["class"]] += 1
+    failed = failed_runs(stability_map)
+    out_dir = stability_map.out_dir
+    keys = ("method", "mode", "coupling", "config", "sweep", "value", "event", "dt", "omega_h", "duration", "truncated",
+            "reference", "class", "status", "fail_time", "fail_component", "message", "error", "error_position",
+            "error_pressure", "wall_time")
+    return {
+        "command": "stability", "status": "partial" if failed else "ok", "exit_code": exit_code,
+        "scene": stability_map.facts.scene, "scenario": str(stability_map.facts.scenario),
+        "out_dir": str(out_dir) if out_dir else None,
+        "csv": str(out_dir / "stability.csv") if out_dir else None,
+        "summary": str(out_dir / "summary.txt") if out_dir else None,
+        "figures": {m: str(p) for m, p in stability_map.files.items()},
+        "tolerance": stability_map.grid.tolerance, "dts_s": list(stability_map.grid.dts),
+        "methods": {m: {"counts": counts.get(m, {}), "boundaries": b} for m, b in stability_map.boundaries().items()},
+        "runs": [dict({k: r.get(k) for k in keys}, error=run_error(r)) for r in stability_map.rows],
+        "diverged": sum(1 for r in failed if r["class"] == CLASS_DIVERGED and r.get("status") != "error"),
+        "errors": sum(1 for r in failed if r.get("status") == "error"),
+    }
 
 
 def main(args) -> int:
-    """``hydroplant stability``; returns the exit status (user errors raise ScenarioError → 2)."""
+    """``hydroplant stability``; returns the exit status: 0 no run diverged or failed, 4 some did (the map is
+    written), 2 bad input (ScenarioError)."""
+    from sim.cli import EXIT_OK, EXIT_PARTIAL, scenario_argument
+
+    scenario = scenario_argument(args, "stability")
+    as_json = getattr(args, "json", False)
+    text = sys.stderr if as_json else sys.stdout
     if args.check:
         from sim.run.guards import check_scenario
 
-        print(check_scenario(args.scenario).table())
-        return 0
+        print(check_scenario(scenario).table(), file=text)
+        if as_json:
+            from sim.jsonout import emit
+
+            emit({"command": "stability", "status": "ok", "exit_code": EXIT_OK, "scenario": str(scenario),
+                  "check_only": True})
+        return EXIT_OK
     require("matplotlib", "tools", "hydroplant stability")  # before any run: its maps are drawn at the end
     grid = QUICK_GRID if args.quick else DEFAULT_GRID
     changes = {}
@@ -1255,8 +1264,8 @@ def main(args) -> int:
     if args.tolerance:
         changes["tolerance"] = args.tolerance
     grid = replace(grid, **changes)
-    if not args.scenario.is_file():
-        raise ScenarioError(f"{args.scenario}: scenario file not found")
+    if not Path(scenario).is_file():
+        raise ScenarioError(f"{scenario}: scenario file not found")
     if args.scheduler is not None:
         from sim.tools.sweep import WORKER_TIMEOUT, check_scheduler, check_workers
 
@@ -1266,14 +1275,24 @@ def main(args) -> int:
             raise StabilityError("--keep-logs: the logs of runs on Dask workers are not kept; run without --scheduler to keep them")
         check_scheduler(args.scheduler)  # one line now, not after the variants are built
         check_workers(args.scheduler, args.worker_timeout or WORKER_TIMEOUT)
-    result = stability_map(args.scenario, grid=grid, out_dir=args.out, scheduler=args.scheduler, workers=args.workers,
+    result = stability_map(scenario, grid=grid, out_dir=args.out, scheduler=args.scheduler, workers=args.workers,
                            keep_logs=args.keep_logs, progress=True, worker_timeout=args.worker_timeout)
-    print(result.summary())
-    print(f"\ncsv      {result.out_dir / 'stability.csv'}")
+    failed = failed_runs(result)
+    code = EXIT_PARTIAL if failed else EXIT_OK
+    print(result.summary(), file=text)
+    print(f"\ncsv      {result.out_dir / 'stability.csv'}", file=text)
     for method, path in result.files.items():
-        print(f"figure   {path}")
-    print(f"summary  {result.out_dir / 'summary.txt'}")
-    return 0
+        print(f"figure   {path}", file=text)
+    print(f"summary  {result.out_dir / 'summary.txt'}", file=text)
+    if failed:
+        errors = sum(1 for r in failed if r.get("status") == "error")
+        print(f"hydroplant stability: {len(failed)} of {len(result.rows)} runs diverged or failed ({errors} with an "
+              "error); exit status 4", file=sys.stderr)
+    if as_json:
+        from sim.jsonout import emit
+
+        emit(result_json(result, code))
+    return code
 
 
 __all__ = [

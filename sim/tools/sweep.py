@@ -73,7 +73,7 @@ from pathlib import Path, PurePosixPath
 from hydraulics.components import CircuitError
 from hydraulics.files import read_bytes, read_text
 
-__all__ = ["Bundle", "SchedulerError", "SweepError", "check_scheduler", "check_workers", "code_hash", "content_hash", "entry_digest",
+__all__ = ["Bundle", "Cluster", "SchedulerError", "SweepError", "check_scheduler", "check_workers", "code_hash", "content_hash", "entry_digest",
            "finite_or_none", "func_code_hash", "materialise", "point_file", "point_key", "run_sweep", "scene_bundle"]
 
 CACHE_VERSION = 2  # bump when the cache file layout changes
@@ -91,6 +91,21 @@ class SchedulerError(CircuitError):
 SCHEDULER_TIMEOUT = 10.0  # s to connect to a Dask scheduler
 WORKER_TIMEOUT = 60.0  # s to wait for the first Dask worker to join the scheduler
 BUNDLE_ROOT = "bundle_root"  # point field set when the point runs: the folder holding its bundle's files
+
+
+@dataclass(frozen=True)
+class Cluster:
+    """Where a sweep's points run: the workers of a Dask scheduler, or a local process pool.
+
+    Example: ``Cluster("tcp://host:8786", worker_timeout=120)``; ``Cluster(workers=2)``.
+    """
+
+    scheduler: str | None = None
+    """Dask scheduler address ``tcp://host:port``; ``None``: a local process pool."""
+    workers: int | None = None
+    """Local worker processes (``None``: the CPU count); not used with a scheduler."""
+    worker_timeout: float = WORKER_TIMEOUT
+    """Longest wait for a first Dask worker to join the scheduler [s]."""
 
 
 def content_hash(*items) -> str:

@@ -2,7 +2,11 @@
 
 ::
 
-    hydroplant tradeoff SCENARIO [--scheduler tcp://host:port [--worker-timeout S]] [--out DIR] [--quick] [--duration S]
+    hydroplant tradeoff SCENARIO | --example NAME [--scheduler tcp://host:port [--worker-timeout S]] [--out DIR] [--quick]
+        [--duration S] [--json]
+
+Exit status 0 when every setting ran stable, 4 when the report is written but some settings diverged or
+failed (the report names them; with every setting failed there is no figure), 2 for bad input.
 
 Sweeps the step ``dt``, the hydraulic substeps (MuJoCo mode), the XPBD substeps and
 iterations (PBD modes, when the PBD plant is importable), both couplings and the fidelity
@@ -49,7 +53,7 @@ from hydraulics.components import CircuitError
 from hydraulics.extras import require
 
 from sim.io.files import check_outputs, write_output
-from sim.tools.sweep import WORKER_TIMEOUT, point_file, run_sweep, scene_bundle
+from sim.tools.sweep import WORKER_TIMEOUT, Cluster, point_file, run_sweep, scene_bundle
 
 __all__ = [
     "ERROR_COLUMNS",
@@ -321,7 +325,8 @@ def error_rows(points: list[dict], results: list[dict], ref_signals: dict, filte
                "hydraulic_substeps": p["hydraulic_substeps"], "pbd_substeps": p["pbd_substeps"],
                "pbd_iterations": p["pbd_iterations"], "status": r["status"], "diverged_at_s": r["diverged_at_s"],
                "error": error_text(r),
-               "wall_per_sim_s": r["wall_per_sim_s"], "wall_per_sim_s_runs": " ".join(f"{c:.4g}" for c in r["wall_per_sim_s_runs"])}
+               "wall_per_sim_s": r["wall_per_sim_s"], "wall_per_sim_s_runs": " ".join(f"{c:.4g}" for c in r["wall_per_sim_s_runs"]),
+               "message": " ".join(str(r.get("message") or "").split())}
         worst = {kind: (math.nan, math.nan) for kind in KIND_SCALE}
         for name, ref in ref_signals.items():
             sig = r["signals"].get(name)
@@ -524,7 +529,7 @@ def pareto_figure(rows: list[dict], path, *, title: str = "", kinds=("stroke", "
 class TradeoffResult:
     rows: list
     csv_path: Path
-    figure_path: Path
+    figure_path: Path | None  # None when no setting finished with a cost to draw
     report_path: Path
     statements: dict
     reference_text: str
@@ -552,11 +557,14 @@ OUTPUT_NAMES = ("tradeoff.csv", "pareto.png", "tradeoff.md")
 """What tradeoff writes into its folder (each checked first, and written without following a link)."""
 
 
-def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = False, modes=None,
+def tradeoff(scenario, out_dir, *, cluster: Cluster = Cluster(), quick: bool = False, modes=None,
              repeats=None, tolerance=None, cache_dir=None, sweep_cache=None, fresh=frozenset(),
              progress: bool = False, fidelities=None, reference_fidelity: str | None = None,
-             filter_window: float | None = None, worker_timeout: float = WORKER_TIMEOUT) -> TradeoffResult:
+             filter_window: float | None = None) -> TradeoffResult:
     """The full sweep of a scenario; writes ``tradeoff.csv``, ``pareto.png`` and ``tradeoff.md`` into ``out_dir``.
+
+    ``cluster``: where the settings run (:class:`~sim.tools.sweep.Cluster`: a Dask scheduler with its
+    worker timeout, or a local pool of ``workers`` processes).
 
     ``fidelities`` are the levels swept (see :func:`sweep_settings`); ``reference_fidelity`` the level of
     the reference (default: the scenario's own, per-actuator overrides included). ``filter_window`` [s]
@@ -584,27 +592,25 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
     settings = sweep_settings(scenario, quick=quick, modes=modes, fidelities=fidelities)
     repeats = repeats or (QUICK_REPEATS if quick else DEFAULT_REPEATS)
 
-    def report(done, total):
-        if progress:
-            if sys.stderr.isatty():
-                print(f"\rtradeoff: {done}/{total} settings", end="" if done < total else "\n", file=sys.stderr, flush=True)
-            else:
-                print(f"tradeoff: {done}/{total} settings", file=sys.stderr, flush=True)
+    from sim.progress import Progress
+
+    report = Progress(len(settings), "tradeoff", "settings") if progress else None
 
     cache = Path(sweep_cache) if sweep_cache else Path(".cache/sweeps") / f"{scenario.scene_name}-{scenario.name}"
-    rows = evaluate(scenario, settings, reference.log_path, repeats=repeats, scheduler=scheduler, workers=workers,
-                    cache_dir=cache, progress=report, filter_window=filter_window, fresh="sweep" in fresh,
-                    worker_timeout=worker_timeout)
+    rows = evaluate(scenario, settings, reference.log_path, repeats=repeats, scheduler=cluster.scheduler,
+                    workers=cluster.workers, cache_dir=cache, progress=report, filter_window=filter_window,
+                    fresh="sweep" in fresh, worker_timeout=cluster.worker_timeout)
     title = f"{scenario.scene_name}/{scenario.name}, {scenario.duration:g} s"
     csv_path = write_csv(rows, out_dir / "tradeoff.csv")
-    fig = pareto_figure(rows, out_dir / "pareto.png", title=title)
+    drawable = [r for r in rows if math.isfinite(r["wall_per_sim_s"])]
+    fig = pareto_figure(rows, out_dir / "pareto.png", title=title) if drawable else None  # nothing to draw: no figure
     floors = reference_floors(reference.report)
     statements = {kind: pareto_statements(rows, kind, floors[kind]) for kind in ("stroke", "pressure", "joint")}
     ref_text = (f"{reference.settings_text()}, fidelity {reference_scenario.fidelity_label}; "
                 f"{reference.report.text().splitlines()[0]}")
     lines = [f"# Accuracy against cost: {title}", "", f"Reference: {ref_text}", "",
              f"{len(rows)} settings. Cost: wall-clock time per simulated second, the median of {repeats} run(s) "
-             f"(one for runs over {REPEAT_BELOW_S:g} s), {'on the workers of ' + str(scheduler) if scheduler else 'in a local process pool'}; "
+             f"(one for runs over {REPEAT_BELOW_S:g} s), {'on the workers of ' + str(cluster.scheduler) if cluster.scheduler else 'in a local process pool'}; "
              "timings vary with the machine and its load, errors do not. Errors: largest over the run against the reference"
              + (f" of the signals averaged over a centred {filter_window:g} s moving window" if filter_window else "") + "; "
              f"settings marked [level] run at that fidelity instead of the scenario's ({scenario.fidelity_label}), so their "
@@ -615,7 +621,12 @@ def tradeoff(scenario, out_dir, *, scheduler=None, workers=None, quick: bool = F
     lines += ["", f"The reference is accurate to about its own h → h/2 change: {floor_text}; smaller thresholds are not "
               "stated, and errors near these values are the reference's as much as the setting's."]
     lines += ["", "Stability:", ""] + [f"- {s}" for s in stability_statements(rows)]
-    lines += ["", f"![Pareto]({fig.name})", "", pareto_table(rows), ""]
+    failed = [r for r in rows if r["status"] != "complete"]
+    if failed:
+        lines += ["", f"{len(failed)} of {len(rows)} settings did not run stable: "
+                  + "; ".join(f"{r['label']} ({r['status']}{': ' + r['message'] if r.get('message') else ''})" for r in failed)]
+    lines += ["", f"![Pareto]({fig.name})" if fig else "No figure: no setting finished with a cost to draw.", "",
+              pareto_table(rows), ""]
     report_path = write_output(out_dir / "tradeoff.md", lambda f: f.write("\n".join(lines).encode()), what="report")
     return TradeoffResult(rows, csv_path, fig, report_path, statements, ref_text)
 
@@ -639,34 +650,50 @@ def pareto_table(rows: list[dict], kinds=("stroke", "pressure")) -> str:
 
 
 def add_parser(subparsers):
-    """Register ``hydroplant tradeoff``."""
-    parser = subparsers.add_parser("tradeoff", help="sweep modes, couplings and steps: error against cost, Pareto settings")
-    parser.add_argument("scenario", type=Path, help="scenario TOML file")
-    parser.add_argument("--scheduler", help="Dask scheduler address tcp://host:port (default: local process pool)")
-    parser.add_argument("--workers", type=int, help="local worker processes (default: CPU count)")
-    parser.add_argument("--worker-timeout", type=float, default=WORKER_TIMEOUT,
-                        help=f"seconds to wait for a first Dask worker to join --scheduler (default {WORKER_TIMEOUT:g})")
-    parser.add_argument("--out", type=Path, help="output directory (default: logs/tradeoff-<scene>-<scenario>)")
-    parser.add_argument("--quick", action="store_true", help="a few settings, one run each")
-    parser.add_argument("--duration", type=float, help="simulated time [s] (default: the scenario's)")
-    parser.add_argument("--repeats", type=int, help=f"timed runs per setting (default {DEFAULT_REPEATS}, quick {QUICK_REPEATS})")
-    parser.add_argument("--modes", help="comma-separated subset of mujoco,pbd,pbd-naive (default: those available)")
-    parser.add_argument("--tolerance", type=float, help="relative convergence tolerance of the reference (default 1e-3)")
-    parser.add_argument("--fresh-reference", action="store_true", help="recompute the reference even if it is cached")
-    parser.add_argument("--fresh", action="store_true", help="ignore every cache: the reference and every setting computed again")
-    parser.add_argument("--fidelities", help="comma-separated fidelity levels to sweep (default: all; quick: the scenario's and incompressible)")
-    parser.add_argument("--reference-fidelity", help="fidelity of the reference (default: the scenario's)")
-    parser.add_argument("--filter-window", type=float, help="compare signals averaged over a centred moving window [s] "
-                        "(reference convergence and errors; default: point-wise)")
-    parser.set_defaults(func=main)
+    """Register ``hydroplant tradeoff`` (declared in :func:`sim.commands.add_tradeoff`)."""
+    from sim.commands import add_tradeoff
+
+    return add_tradeoff(subparsers)
+
+
+def result_json(result: TradeoffResult, exit_code: int) -> dict:
+    """``tradeoff --json``: the document of docs/cli-json.md (SI units)."""
+    from sim.methods import Method
+
+    fronts = {kind: set(pareto_front(result.rows, kind)) for kind in ("stroke", "pressure", "joint")}
+    settings = []
+    for i, r in enumerate(result.rows):
+        settings.append({
+            "label": r["label"], "method": Method(r["mode"], r["coupling"]).name, "mode": r["mode"],
+            "coupling": r["coupling"], "fidelity": r["fidelity"], "dt_s": r["dt_s"],
+            "hydraulic_substeps": r["hydraulic_substeps"], "pbd_substeps": r["pbd_substeps"],
+            "pbd_iterations": r["pbd_iterations"], "status": r["status"], "message": r.get("message", ""),
+            "error": r.get("error", ""), "diverged_at_s": r["diverged_at_s"], "wall_per_sim_s": r["wall_per_sim_s"],
+            "errors": {"joint_max": r["joint_max"], "joint_rms": r["joint_rms"], "stroke_max_m": r["stroke_max_m"],
+                       "stroke_rms_m": r["stroke_rms_m"], "pressure_max_pa": r["pressure_max_pa"],
+                       "pressure_rms_pa": r["pressure_rms_pa"]},
+            "energy_drift_rel": r["energy_drift_rel"],
+            "pareto": {kind: i in front for kind, front in fronts.items()},
+        })
+    failed = [r["label"] for r in result.rows if r["status"] != "complete"]
+    return {
+        "command": "tradeoff", "status": "partial" if failed else "ok", "exit_code": exit_code,
+        "reference": result.reference_text, "csv": str(result.csv_path),
+        "figure": str(result.figure_path) if result.figure_path else None, "report": str(result.report_path),
+        "statements": result.statements, "settings": settings, "failed": failed,
+    }
 
 
 def main(args) -> int:
-    """``hydroplant tradeoff``; returns the exit code."""
+    """``hydroplant tradeoff``; returns the exit code: 0 every setting stable, 4 some diverged or failed (the report
+    is written)."""
+    from sim.cli import EXIT_OK, EXIT_PARTIAL, scenario_argument
+
     require("matplotlib", "tools", "hydroplant tradeoff")  # before any run: its figures are drawn at the end
     from sim.tools.reference import Tolerance
     from sim.io.scenario import MODES
 
+    scenario_path = scenario_argument(args, "tradeoff")
     for name in ("duration", "tolerance", "filter_window", "worker_timeout"):
         value = getattr(args, name)
         if value is not None and not (math.isfinite(value) and value > 0):
@@ -681,7 +708,7 @@ def main(args) -> int:
         from sim.tools.sweep import check_scheduler, check_workers
 
         check_scheduler(args.scheduler)  # a closed port: one line now, not after the reference is computed
-        check_workers(args.scheduler, args.worker_timeout)  # a cluster without workers: the same
+        check_workers(args.scheduler, args.worker_timeout or WORKER_TIMEOUT)  # a cluster without workers: the same
     modes = None
     if args.modes:
         modes = [m.strip() for m in args.modes.split(",") if m.strip()]
@@ -700,17 +727,30 @@ def main(args) -> int:
         raise CircuitError(f"--reference-fidelity: {args.reference_fidelity!r} is not one of {list(FIDELITIES)}")
     from sim.io.scenario import as_scenario, load_scenario
 
-    scenario = load_scenario(args.scenario)
+    scenario = load_scenario(scenario_path)
     out = args.out or Path("logs") / f"tradeoff-{scenario.scene_name}-{scenario.name}"
     fresh = FRESH_CACHES if args.fresh else {"reference"} if args.fresh_reference else frozenset()
-    result = tradeoff(as_scenario(scenario, duration=args.duration), out, scheduler=args.scheduler,
-                      workers=args.workers, quick=args.quick, modes=modes, repeats=args.repeats,
+    cluster = Cluster(args.scheduler, args.workers, args.worker_timeout or WORKER_TIMEOUT)
+    result = tradeoff(as_scenario(scenario, duration=args.duration), out, cluster=cluster,
+                      quick=args.quick, modes=modes, repeats=args.repeats,
                       tolerance=Tolerance(relative=args.tolerance) if args.tolerance else None,
                       fresh=fresh, progress=True, fidelities=fidelities,
-                      reference_fidelity=args.reference_fidelity, filter_window=args.filter_window,
-                      worker_timeout=args.worker_timeout)
+                      reference_fidelity=args.reference_fidelity, filter_window=args.filter_window)
+    failed = [r for r in result.rows if r["status"] != "complete"]
+    code = EXIT_PARTIAL if failed else EXIT_OK
+    as_json = getattr(args, "json", False)
+    text = sys.stderr if as_json else sys.stdout
     for kind in ("stroke", "pressure"):
         for s in result.statements[kind]:
-            print(s)
-    print(f"table: {result.csv_path}\nfigure: {result.figure_path}\nreport: {result.report_path}")
-    return 0
+            print(s, file=text)
+    print(f"table: {result.csv_path}\nfigure: {result.figure_path or 'none (no setting to draw)'}\n"
+          f"report: {result.report_path}", file=text)
+    if failed:
+        errors = sum(1 for r in failed if r["status"] == "error")
+        print(f"tradeoff: {len(failed)} of {len(result.rows)} settings did not run stable ({errors} failed with an "
+              "error); exit status 4", file=sys.stderr)
+    if as_json:
+        from sim.jsonout import emit
+
+        emit(result_json(result, code))
+    return code
