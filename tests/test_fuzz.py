@@ -559,7 +559,7 @@ def quiet_cli(monkeypatch, tmp_path):
     """The CLI with stepping stubbed out: scenarios are loaded, overridden and bound, but never run."""
     from sim.run import runner
 
-    def fake_run(scenario, *, out=None, overrides=None, progress=False, overwrite=True, stop=None):
+    def fake_run(scenario, *, out=None, overrides=None, progress=False, overwrite=True, stop=None, warn=None):
         scenario = load_scenario(scenario)
         if overrides:
             scenario = scenario.with_overrides(**overrides)

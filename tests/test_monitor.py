@@ -289,10 +289,10 @@ def test_every_shipped_scenario_completes(tmp_path, name, mode):
 
 
 # --------------------------------------------------------------------------------- every level
-def test_the_incompressible_level_stops_a_pose_whose_oil_cannot_be_right(tmp_path):
-    """The push scene with the stick at 0.0 rad (inside its range): at the incompressible level the boom's rod side
-    is driven to megabars. The pressures derived from the efforts are checked at every level: the run stops on the
-    first node beyond 2 x (relief + 10 %) + ambient, at exit status 3 through the command."""
+def test_a_start_pose_inside_the_ground_is_refused_before_the_oil_is_driven_to_megabars(tmp_path, capsys):
+    """The push scene with the stick at 0.0 rad (inside its range) buries the bucket 0.56 m in the ground: counted
+    in the equilibrium its contacts drove the boom's rod side to megabars, left out they throw the machine on the
+    first step. The start pose is refused in one line naming the field, the two geoms and the allowed overlap."""
     folder = tmp_path / "excavator"
     shutil.copytree(MODELS / "excavator", folder)
     scenario = folder / "push.scenario.toml"
@@ -300,10 +300,11 @@ def test_the_incompressible_level_stops_a_pose_whose_oil_cannot_be_right(tmp_pat
     assert text.count("stick = -0.50") == 1
     scenario.write_text(text.replace("stick = -0.50", "stick = 0.0"))
     assert load_scenario(scenario).fidelity == "incompressible"
-    assert main(["run", str(scenario), "--no-progress", "--out", str(tmp_path / "push.mcap")]) == 3
-    record = read_log(tmp_path / "push.mcap").metadata["hydroplant.result"]
-    assert record["status"] == "diverged" and record["check"] == "plausibility" and record["quantity"] == "pressure"
-    assert float(record["end_time_s"]) < 4.0
+    assert main(["run", str(scenario), "--no-progress", "--out", str(tmp_path / "push.mcap")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "\n" not in error and f"{scenario}, field 'initial.qpos'" in error
+    assert "geoms 'ground' and 'tooth_" in error and "overlap by 0.5" in error and "at most 0.01 m" in error
+    assert not (tmp_path / "push.mcap").exists()
 
 
 # ------------------------------------------------------------------------ consistent tolerances

@@ -544,7 +544,8 @@ def check_initial_joints(scene: Scene) -> None:
 
 
 def check_start_pose(scene: Scene) -> None:
-    """Reject a start pose that puts a cylinder outside its stroke or leaves a chamber with no volume.
+    """Reject a start pose that puts a cylinder outside its stroke, leaves a chamber with no volume, or buries a geom
+    in another (:func:`check_start_penetration`).
 
     The extension x = tendon length − closed length (MJCF tendon range lower bound)
     must lie in [0, stroke] (± ``STROKE_TOLERANCE``), and both chamber volumes
@@ -552,11 +553,12 @@ def check_start_pose(scene: Scene) -> None:
     must be positive there: otherwise the pressures are NaN at t = 0.
     """
     net, m, scenario = scene.network, scene.mjmodel, scene.scenario
-    if not len(net.cylinder_actuator):
-        return
     data = mujoco.MjData(m)
     data.qpos[:], data.qvel[:] = initial_qpos_qvel(scene)
     mujoco.mj_fwdPosition(m, data)
+    if not len(net.cylinder_actuator):
+        check_start_penetration(scene, data)
+        return
     for i, a in enumerate(net.cylinder_actuator):
         name = net.actuator_names[a]
         aid, tid = scene.binding.actuator_id[a], scene.binding.tendon_id[a]
@@ -584,6 +586,27 @@ def check_start_pose(scene: Scene) -> None:
                     f"volume of {volume:g} m^3; it must be > 0 m^3 (start away from the end of the stroke, or give "
                     f"field '{field_name}' in {scenario.circuit} a value > 0)"
                 )
+    check_start_penetration(scene, data)
+
+
+START_PENETRATION = 0.01
+"""Deepest overlap [m] of two colliding geoms the start pose may have: a shallow one is a resting contact (named in a
+warning), a deeper one a pose inside the ground or another body, whose contact forces (megaNewtons) would throw the
+machine on the first step."""
+
+
+def check_start_penetration(scene: Scene, data) -> None:
+    """Reject a start pose in which two colliding geoms overlap by more than :data:`START_PENETRATION` (``data``: the
+    start pose after ``mj_fwdPosition``, its contacts found)."""
+    m, scenario = scene.mjmodel, scene.scenario
+    deepest = min(range(data.ncon), key=lambda i: data.contact.dist[i], default=None)
+    if deepest is None or -float(data.contact.dist[deepest]) <= START_PENETRATION:
+        return
+    names = [_name(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in data.contact.geom[deepest]]
+    raise ScenarioError(
+        f"{scenario.path}, field 'initial.qpos': at the start pose geoms '{names[0]}' and '{names[1]}' overlap by "
+        f"{-float(data.contact.dist[deepest]):.3g} m (at most {START_PENETRATION:g} m: a start inside the ground or "
+        "another body); choose joint angles that keep them apart")
 
 
 def initial_qpos_qvel(scene: Scene, *, project: bool = True):
