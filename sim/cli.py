@@ -286,11 +286,10 @@ def main(argv=None) -> int:
 
 
 def _main(argv) -> int:
+    args = build_parser().parse_args(argv)  # (--help and bad options end here, before any simulation code loads)
     from hydraulics.components import CircuitError  # (here, not at the top: after main() installed the handlers)
 
-    args = build_parser().parse_args(argv)
-    from hydraulics.components import CircuitError
-
+    args.stop = _received.__len__  # a signal whose interrupt a library swallowed still stops a command's runs
     try:
         if args.command == "run":
             return _run(args)

@@ -1,6 +1,6 @@
 """Structure of the packages: no import cycle, counting every import (short signatures: ``test_layout.py``).
 
-* Every import statement of ``hydraulics`` counts, at module level and inside functions alike: a deferred import
+* Every import statement of ``hydraulics`` and ``sim`` counts, at module level and inside functions alike: a deferred import
   hides a cycle from Python's import machinery but not from the reader, so none may close one.
 * ``hydraulics`` imports nothing from ``sim`` (it is usable alone).
 * ``from package import name`` depends on the submodule ``package.name`` when that is a module, else on
@@ -13,7 +13,7 @@ import ast
 
 from conftest import ROOT
 
-PACKAGES = ("hydraulics",)
+PACKAGES = ("hydraulics", "sim")
 
 
 def _modules(packages):

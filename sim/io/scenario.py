@@ -47,9 +47,12 @@ from pathlib import Path
 import numpy as np
 
 from hydraulics.circuit import read_toml
-from hydraulics.components import COMPONENT_TYPES, CircuitError
+from hydraulics.components import COMPONENT_TYPES
 from hydraulics.files import check_regular, read_text, resolve
 from hydraulics.network import FIDELITIES
+
+from sim.io.errors import ScenarioError
+from sim.live.mapping import parse_mapping
 
 MODES = ("mujoco", "pbd", "pbd-naive")
 COUPLINGS = ("implicit", "explicit", "implicit-linear", "rosenbrock")
@@ -60,10 +63,6 @@ DT_RANGE = (1e-9, 1.0)  # s, [low, high]: 1 ns is the resolution of the log's ti
 DURATION_MAX = 1e6  # s
 RATE_RANGE = (1e-6, 1e9)  # Hz, [low, high] for [log] rate_hz and tf_rate_hz (above 1/dt: every step)
 VALVE_COMMAND_RANGE = (-1.0, 1.0)  # [-]: spool command, -1 and +1 fully open to either side, 0 centred
-
-
-class ScenarioError(CircuitError):
-    """A scenario file is wrong; the message names the file and the field."""
 
 
 @dataclass(frozen=True)
@@ -411,7 +410,6 @@ def _mapping(table, where):
     """``[mapping]`` (device axes to valve commands, :func:`sim.live.mapping.parse_mapping`), or None."""
     if table is None:
         return None
-    from sim.live.mapping import parse_mapping  # noqa: PLC0415 - sim.live.mapping builds on this module
 
     return parse_mapping(table, where)
 

@@ -52,7 +52,7 @@ import math
 from collections.abc import Mapping as MappingABC
 from dataclasses import dataclass, field
 
-from sim.io.scenario import ScenarioError
+from sim.io.errors import ScenarioError
 
 AXES = ("left_x", "left_y", "right_x", "right_y", "l2", "r2")
 """The device axes a mapping may name (sticks: x + right, y + forward; triggers 0..1 or −1..1 as the device gives)."""

@@ -721,7 +721,7 @@ def _endpoints(args, scene=None, launch=None):
 
 
 def main(args) -> int:
-    from sim.cli import EXIT_DIVERGED, _received
+    from sim.commands import EXIT_DIVERGED
     from sim.io.examples import example_path
 
     options = PlayOptions(rate_hz=args.rate, pace=args.pace, overrun=args.overrun, snapshot_hz=args.snapshot_hz)
@@ -731,7 +731,7 @@ def main(args) -> int:
         raise CircuitError("play: give one of a SCENARIO file, --example NAME, --replay LOG or --resume LOG")
     if (args.at is None) != (args.resume is None):
         raise CircuitError("play: --resume LOG and --at T go together")
-    stop = _received.__len__
+    stop = getattr(args, "stop", None)  # hydroplant's signal check (sim.cli)
     overrides = {"mode": args.mode, "coupling": args.coupling, "dt": args.dt, "duration": args.duration,
                  "hydraulic_substeps": args.substeps, "pbd_substeps": args.pbd_substeps,
                  "monitor": False if args.no_monitor else None}

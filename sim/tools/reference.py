@@ -2,7 +2,7 @@
 
 A reference of a scenario is a MuJoCo-mode run with the implicit coupling at a step ``h``
 small enough that halving it changes every compared signal -- joint positions, cylinder
-strokes, chamber and motor port pressures (:func:`sim.tools.compare.log_signals`) -- by less than
+strokes, chamber and motor port pressures (:func:`sim.tools.signals.log_signals`) -- by less than
 a stated tolerance (:class:`Tolerance`).  :func:`compute_reference` runs ``h0, h0/2, h0/4, …``
 and stops at the first pair ``(h, h/2)`` that passes :func:`check_convergence`; the run at
 ``h/2`` is the reference and the pair's changes are its convergence proof (for the
@@ -27,7 +27,7 @@ Point-wise or filtered: by default the change of every sample counts (point-wise
 dynamics are not point-wise step-convergent at any affordable step -- the excavator's teeth
 stick-slipping in the soil, where the instants of the slips move with the step -- a
 reference may instead be proven on the signals averaged over a centred moving window
-(``filter_window`` [s], e.g. 0.1 s; :func:`sim.tools.compare.filtered_error_stats`): the same
+(``filter_window`` [s], e.g. 0.1 s; :func:`sim.tools.signals.filtered_error_stats`): the same
 tolerance then applies to the averaged signals, and the report says so. The point-wise
 check is unchanged and stays the default.
 """
@@ -244,7 +244,7 @@ def check_convergence(coarse, fine, tolerance: Tolerance | None = None, *,
         Allowed change per signal kind (default :class:`Tolerance`).
     filter_window : float, optional
         Compare the signals averaged over a centred moving window of this length [s]
-        (:func:`sim.tools.compare.filtered_error_stats`) instead of point-wise; the tolerance then
+        (:func:`sim.tools.signals.filtered_error_stats`) instead of point-wise; the tolerance then
         applies to the averaged signals (ranges are those of the unfiltered signals).
 
     Returns
@@ -255,7 +255,7 @@ def check_convergence(coarse, fine, tolerance: Tolerance | None = None, *,
         signal is missing from one log, or when the logs state steps that are not ``h`` and
         ``h/2``.
     """
-    from sim.tools.compare import check_same_scene, error_stats, filtered_error_stats, log_signals, log_status
+    from sim.tools.signals import check_same_scene, error_stats, filtered_error_stats, log_signals, log_status
 
     if filter_window is not None and not (math.isfinite(filter_window) and filter_window > 0):
         raise ScenarioError(f"reference: filter_window {filter_window!r} s must be a positive finite number")
