@@ -131,6 +131,17 @@ def test_compiled_four_bar_connect_equality():
     _run_pair(FOURBAR, 60, 1 / 120, 20)
 
 
+def test_compiled_length_row_through_a_loop_closure():
+    """A compliant length row on the cylinder of tests/scenes/loop_arm.xml (barrel on a hinge, rod on a slide, the
+    rod eye held by a connect): with the loop closed, each substep's backward pass ends with the rows again."""
+    from pathlib import Path
+
+    xml = (Path(__file__).parent / "scenes" / "loop_arm.xml").read_text()
+    inputs = SubstepInputs(target_length=np.array([0.9434]), compliance=np.array([2e-8]))
+    xm, st = _run_pair(xml, 30, 1 / 240, 10, inputs=inputs, rows=[LengthConstraint("lift_cyl_barrel", "lift_cyl_rod")])
+    assert abs(xm.qpos_qvel(st)[0][xm.joint_id("arm_hinge")]) < 1e-3  # the row holds the arm up
+
+
 def test_compiled_rope_rows_gauss_seidel_with_bounds():
     """Rows without mobility (Gauss-Seidel), unilateral bound: slack, then taut."""
     inputs = SubstepInputs(target_length=np.array([1.2]), compliance=np.array([0.0]), force_max=np.array([0.0]))

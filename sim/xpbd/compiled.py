@@ -1702,6 +1702,13 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
                 elif tact:
                     _solve_tendon_limits(X, Q, IM, II, nj, jlim, tsoft, tlam, False, Gc, Minv, rev)
                 _solve_joints(X, Q, IM, II, jt, jg, jvec, jqoff, jlim, jlo, jhi, rev, jsoft, jlam)
+                # with loop closures the equalities and joints just solved move the rows' ends after the rows: a
+                # last row pass makes each row's end length the one its law c + s·v⁺ was solved for
+                if act.shape[0] and et.shape[0]:
+                    if use_block:
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work.rows)
+                    else:
+                        _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, False)
     # velocity update
     ih = 1.0 / h
     for g in range(1, ng):

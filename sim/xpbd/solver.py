@@ -171,7 +171,11 @@ class SolverXPBD:
 
     * ``symmetric`` (default True): each iteration is a forward + backward Gauss-Seidel
       pass.  Forward-only sweeps can be unstable with light bodies between joints
-      (see ``compiled.substep_core``); it costs about 2× per iteration.
+      (see ``compiled.substep_core``); it costs about 2× per iteration.  With loop closures (equalities) the
+      backward pass ends with the length rows once more: the equalities and joints solved after the rows move
+      their ends, and a row's law (a cylinder's c + s·v⁺, whose friction slope makes it stiff) then no longer
+      holds for the motion the substep realises (without this pass a loop held with seal friction creeps and
+      its pressure rises 10 % in 1.5 s, ``tests/test_loop_closure.py``).
     * Pin/connect attachments are projected with the 3×3 block form of the XPBD update
       (``compiled._attach``: Δλ = −K⁻¹·d with K the 3×3 point mobility of the pair) rather than the
       scalar projection along the error direction: less pin drift (double pendulum at 60 Hz × 20:

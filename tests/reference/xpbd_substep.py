@@ -270,7 +270,9 @@ class ReferenceSubstep:
         rod), and more substeps do not cure it.
 
         ``block`` (the active rows' group mobilities, see ``SubstepInputs.row_mobility``)
-        solves the rows together with their articulated response.
+        solves the rows together with their articulated response.  With loop closures (equalities) the
+        backward pass ends with the rows once more: the equalities and joints solved after them move the
+        rows' ends, and a row's law c + s·v⁺ holds only for the end length it was solved for.
         """
         if not reverse:
             self._solve_joints(sw, X, Q, self._joints)
@@ -301,6 +303,11 @@ class ReferenceSubstep:
             elif sw.tendon_soft is not None:
                 self._solve_tendon_limits(sw, X, Q, True)
             self._solve_joints(sw, X, Q, self._joints, reverse=True)
+            if rowdata and self._eqs:  # loop closures: the rows' ends as their laws were solved for
+                if block is None:
+                    self._solve_rows(X, Q, rowdata, lam_rows)
+                else:
+                    self._solve_rows_block(X, Q, rowdata, lam_rows, block)
 
     def _solve_joints(self, sw, X, Q, joints, reverse=False):
         """Joint rows ([RB] Sec. 3.4); ``reverse`` traverses the joints backwards and also reverses the row
