@@ -23,7 +23,12 @@ Equations (SI units; a motor's "area" is its displacement per radian D/2π [m³/
 * **Incompressible law** (:func:`incompressible_law`): the metered damper per actuator with supply p_s (the
   highest compensator setting, else the highest relief setting), a lock (tracker to v = 0) for a closed valve,
   the pumps' delivery shared among the demands A_in·√(|F_d|/R), trackers where the share is slower, bounds
-  ±p_relief·A.
+  ±p_relief·A.  End stops (:func:`stroke_speeds`): a cylinder within reach of an end of its stroke
+  (``STOP_REACH``·max(v, v_t, 0)·h ≥ the distance left to the extended end, likewise retracting) tracks v_t
+  clipped to [−x/h, (stroke − x)/h] within the same bounds, so x⁺ = x + h·v⁺ stays in [0, stroke] to the
+  tracker's residual while the load stays within the bounds.  **Limitation**: a load beyond the relief force
+  (a contact kick) still drives the rod past its end, where only the plant's own limits act; the stop knows the
+  stroke only, not a narrower joint range of the link it drives.
 * **Rigid actuators in a compressible network** (:func:`mixed_law`): the metered damper at the live supply
   pressure p_P(v⁺) = p_P,lin + (∂p_P/∂v)·(v⁺ − v_g), plus seal friction; the bounds are the forces at p_P on
   [cavitation floor, highest relief].
@@ -59,6 +64,10 @@ from .components.valve_4_3 import V_OVERLAP, V_TAU
 # Incompressible fidelity: the rod follows its metered flow with this stiffness relative to
 # m_eff/h (the velocity error left after one step is about 1/(1 + gain) of the demand change).
 INCOMPRESSIBLE_TRACKING_GAIN = 100.0  # [-]
+# End stops at the incompressible level: a cylinder whose start or target speed, times this factor, would take it
+# past an end of its stroke within the step tracks a speed that ends the step at that end at most (room for a load
+# that speeds it up within the step).
+STOP_REACH = 2.0  # [-]
 # Force bound of an incompressible actuator in a circuit without relief valves, as a pressure.
 INCOMPRESSIBLE_UNBOUNDED_PRESSURE = 1e12  # Pa
 
@@ -358,11 +367,25 @@ def _incompressible_metering(pnet, T, a, spool, area):
 
 
 @kernel
-def incompressible_law(pnet, T, spool, speed, velocity, effective_mass, dt, area, law, bounds):
+def stroke_speeds(pnet, a, position, dt):
+    """End-stop window (v_lo, v_hi) [m/s] of actuator ``a`` over a step of ``dt`` [s] from the start ``position``
+    [m]: the end speeds v⁺ that keep x + dt·v⁺ inside [0, stroke]; (−inf, inf) for a motor."""
+    net = C._deref(pnet)
+    cyl, ci = net.cyl, net.cyl_i
+    for c in range(ci.shape[0]):
+        if ci[c, CI_ACT] == a:
+            x = position[a]
+            return -x / dt, (cyl[c, C.CYL_STROKE] - x) / dt
+    return -math.inf, math.inf
+
+
+@kernel
+def incompressible_law(pnet, T, spool, speed, state, effective_mass, dt, area, law, bounds):
     """The incompressible effort law of a step (CouplingIncompressible; see the module docstring) into ``law`` =
     (const, slope) (effort = const + slope·v⁺) and ``bounds`` = (lower, upper) [N | N·m], at the step's end spools
-    ``spool``, pump speeds ``speed`` [rev/s], start velocities and effective masses (NaN or inf: unknown);
-    ``area``: scratch (orifice branches)."""
+    ``spool``, pump speeds ``speed`` [rev/s], start ``state`` = (positions [m | rad], velocities) and effective
+    masses (NaN or inf: unknown); ``area``: scratch (orifice branches)."""
+    position, velocity = state
     net = C._deref(pnet)
     const, slope = law
     lower, upper = bounds
@@ -410,6 +433,14 @@ def incompressible_law(pnet, T, spool, speed, velocity, effective_mass, dt, area
             upper[a] = maximum(minimum(upper[a], damper_now), lower[a])
         if pump_limited and direction < 0:
             lower[a] = minimum(maximum(lower[a], damper_now), upper[a])
+        # end stops: a cylinder that could reach an end of its stroke within the step tracks a target clipped to
+        # the speeds that end the step inside [0, stroke], so rigid oil holds the rod at its end (within the bounds)
+        v_lo, v_hi = stroke_speeds(pnet, a, position, dt)
+        reach_up = STOP_REACH * maximum(maximum(velocity[a], target), 0.0)
+        reach_down = STOP_REACH * maximum(maximum(-velocity[a], -target), 0.0)
+        if v_hi <= reach_up or v_lo >= -reach_down:
+            track = True
+            target = clip(target, v_lo, v_hi)
         if track:
             c, k = bounded_tracker(target, velocity[a], tracking_gain(gain0, effective_mass[a], dt), lower[a], upper[a])
         const[a], slope[a] = c, k
@@ -611,14 +642,15 @@ def _explicit_step_python(F, I, start, x_end, h):
 
 
 @C._jit
-def _incompressible_law_python(F, I, T, spool0, command, speed, velocity, effective_mass, dt):
+def _incompressible_law_python(F, I, T, spool0, command, speed, position, velocity, effective_mass, dt):
     net = C._unpack(F, I)
     pnet = C._ref(net)
     na = velocity.size
     const, slope, lower, upper = np.empty(na), np.empty(na), np.empty(na), np.empty(na)
     area, spool = np.empty(C._area_count(net.ic)), np.empty(spool0.size)
     C._spool_end(pnet, spool0, command, dt, spool)
-    incompressible_law(pnet, T, spool, speed, velocity, effective_mass, dt, area, (const, slope), (lower, upper))
+    incompressible_law(pnet, T, spool, speed, (position, velocity), effective_mass, dt, area, (const, slope),
+                       (lower, upper))
     return spool, const, slope, lower, upper
 
 
@@ -658,10 +690,10 @@ def _cached(fingerprint):
             raise ValueError("no fingerprint")
         return _explicit_step_python(F, I, start, x_end, h)
 
-    def incompressible_law_entry(F, I, T, spool0, command, speed, velocity, effective_mass, dt):
+    def incompressible_law_entry(F, I, T, spool0, command, speed, position, velocity, effective_mass, dt):
         if fingerprint is None:  # never (see explicit_step)
             raise ValueError("no fingerprint")
-        return _incompressible_law_python(F, I, T, spool0, command, speed, velocity, effective_mass, dt)
+        return _incompressible_law_python(F, I, T, spool0, command, speed, position, velocity, effective_mass, dt)
 
     def mixed_law_entry(F, I, R, spool0, command, velocity, effective_mass, dt, supply, const, slope):
         if fingerprint is None:  # never (see explicit_step)
@@ -692,4 +724,4 @@ __all__ = ["IncompressibleTable", "RigidTable", "pack_incompressible", "pack_rig
            "flatten_incompressible", "unflatten_incompressible", "flatten_rigid", "unflatten_rigid", "explicit_substep",
            "incompressible_law", "mixed_law", "chamber_pressures", "incompressible_finish", "explicit_law",
            "explicit_finish", "rigid_law", "rigid_finish", "rigid_account",
-           "quadratic_damper", "bounded_tracker", "free_speed", "tracking_gain"]
+           "quadratic_damper", "bounded_tracker", "free_speed", "tracking_gain", "stroke_speeds"]

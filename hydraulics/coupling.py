@@ -360,7 +360,11 @@ class CouplingIncompressible(Coupling):
     motors), linearised at the start velocity so the plant integrates its slope
     −2R|v| implicitly.  A closed valve locks the actuator with a stiff velocity
     tracker (K = gain·m_eff/h towards v = 0), and an actuator faster than its
-    share of the pumps' delivery is tracked at that share.  The effort is bounded
+    share of the pumps' delivery is tracked at that share.  End stops: a cylinder
+    that could reach an end of its stroke within the step (start or target speed
+    times ``STOP_REACH`` = 2) tracks its target clipped to [−x/h, (stroke − x)/h],
+    so rigid oil holds the rod at its end (the pump flow goes over the relief)
+    against loads within the force bounds.  The effort is bounded
     by the highest relief setting (``EffortLaw.lower/upper``; the plant clamps
     within its step, so the actuator stalls there).  Logged pressures are derived
     from the force.  The equations are compiled once, in
@@ -386,20 +390,21 @@ class CouplingIncompressible(Coupling):
         self.supply_pressure = float(self.table.scalars[K.IS_SUPPLY])
         self.force_lower, self.force_upper = self.table.force_lower, self.table.force_upper
 
-    def law(self, spool0, command, pump_speed, velocity, effective_mass, dt):
-        """End spools [-] of the step and its effort law (see class docstring), from the start spools ``spool0``."""
+    def law(self, spool0, command, pump_speed, position, velocity, effective_mass, dt):
+        """End spools [-] of the step and its effort law (see class docstring), from the start spools ``spool0`` and
+        the actuators' start positions [m | rad] and velocities."""
         from . import _compiled_rigid as K
 
         F, I = self.packed
         velocity = _f64(velocity)
         spool, constant, slope, lower, upper = K.incompressible_law_entry(
-            F, I, self.table, _f64(spool0), _f64(command), _f64(pump_speed), velocity,
+            F, I, self.table, _f64(spool0), _f64(command), _f64(pump_speed), _f64(position), velocity,
             _masses(effective_mass, len(velocity)), float(dt))
         return spool, EffortLaw(constant, slope, lower, upper)
 
     def begin(self, state, control, position, velocity, dt, *, effective_mass=None, velocity_guess=None):
-        self._spool, self._law = self.law(state.valve_spool, control.valve_command, control.pump_speed, velocity,
-                                          effective_mass, dt)
+        self._spool, self._law = self.law(state.valve_spool, control.valve_command, control.pump_speed, position,
+                                          velocity, effective_mass, dt)
         return self._law
 
     def finish(self, state, control, position_start, position_end, velocity_start, velocity_end, dt):

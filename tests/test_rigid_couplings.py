@@ -60,12 +60,14 @@ def test_incompressible_law_matches_oracle(models, data):
     speed = data.draw(floats(npump, 0.0, 60.0))
     velocity = data.draw(floats(na, -2.0, 2.0))
     mass = data.draw(floats(na, 1.0, 1e5))
-    dt = data.draw(st.sampled_from([1e-4, 1e-3, 1e-2]))
+    dt = data.draw(st.sampled_from([1e-4, 1e-3, 1e-2, 1 / 30]))
+    # positions anywhere in and a little past the stroke, so that the end stops engage in some draws
+    position = data.draw(floats(na, -0.05, 1.6))
     coupling = CouplingIncompressible(m)
-    spool_end, law = coupling.law(spool, command, speed, velocity, mass, dt)
+    spool_end, law = coupling.law(spool, command, speed, position, velocity, mass, dt)
     expected_spool = R.spool_step(spool, np.clip(command, -1, 1), m.valve_time_constant, dt)
     close(spool_end, expected_spool)
-    expected = R.incompressible_law(m, expected_spool, speed, velocity, mass, dt)
+    expected = R.incompressible_law(m, expected_spool, speed, position, velocity, mass, dt)
     for got, want in zip((law.constant, law.slope, law.lower, law.upper), expected):
         close(got, want, scale=np.abs(want[np.isfinite(want)]).max(initial=1.0))
 

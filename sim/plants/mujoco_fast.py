@@ -570,7 +570,7 @@ def _begin(ctx, pnet, V, T, R):
         else:  # CouplingIncompressible.begin: end spools (kept for the finish) and the bounded law
             C._spool_end(pnet, spool, cmd, dt, lin_spool)
             ic = C._deref(pnet).ic
-            K.incompressible_law(pnet, T, lin_spool, speed, vs, meff, dt, W[:C._area_count(ic)], (const, slope),
+            K.incompressible_law(pnet, T, lin_spool, speed, (xs, vs), meff, dt, W[:C._area_count(ic)], (const, slope),
                                  (V.lower, V.upper))
             _write_bounds(act, V.lower, V.upper, V.flimited, V.frange)
         for i in range(na):

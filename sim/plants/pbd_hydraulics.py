@@ -168,7 +168,7 @@ def _begin_core(pnet, buffers, control, x, v, h, coupling, effective_mass):
     n, na, nb, nvalve, oil_change, guess, lin_oil, lin_spool, doil, o = _kept(pnet, buffers)
     if kind == KIND_INCOMPRESSIBLE:
         C._spool_end(pnet, spool, cmd, h, lin_spool)
-        K.incompressible_law(pnet, buffers.incompressible, lin_spool, speed, v, effective_mass, h,
+        K.incompressible_law(pnet, buffers.incompressible, lin_spool, speed, (x, v), effective_mass, h,
                              W[:C._area_count(C._deref(pnet).ic)], (const, slope), (lower, upper))
         theta[:] = 1.0
         return True

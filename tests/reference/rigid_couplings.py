@@ -136,8 +136,21 @@ def incompressible_edges(model):
     return edges
 
 
-def incompressible_law(model, spool, pump_speed, velocity, effective_mass, dt):
-    """(constant, slope, lower, upper) of the incompressible effort law at the end spools ``spool``."""
+STOP_REACH = 2.0  # the start or target speed times this reaching an end of the stroke within the step engages the stop
+
+
+def stroke_window(model, position, dt):
+    """Per actuator the end speeds (v_lo, v_hi) that keep x + dt·v⁺ inside [0, stroke] (±inf for motors)."""
+    lo, hi = np.full(model.actuator_count, -np.inf), np.full(model.actuator_count, np.inf)
+    x = np.asarray(position, float)[model.cylinder_actuator]
+    lo[model.cylinder_actuator] = -x / dt
+    hi[model.cylinder_actuator] = (model.cylinder_stroke - x) / dt
+    return lo, hi
+
+
+def incompressible_law(model, spool, pump_speed, position, velocity, effective_mass, dt):
+    """(constant, slope, lower, upper) of the incompressible effort law at the end spools ``spool``, from the start
+    positions and velocities."""
     m = model
     edges = incompressible_edges(m)
     relief = relief_pressure(m)
@@ -174,6 +187,11 @@ def incompressible_law(model, spool, pump_speed, velocity, effective_mass, dt):
     lower, upper = force_lower.copy(), force_upper.copy()
     upper = np.where(pump_limited & (direction > 0), np.maximum(np.minimum(upper, damper_now), lower), upper)
     lower = np.where(pump_limited & (direction < 0), np.minimum(np.maximum(lower, damper_now), upper), lower)
+    v_lo, v_hi = stroke_window(m, position, dt)
+    stop = ((v_hi <= STOP_REACH * np.maximum(np.maximum(velocity, target), 0.0))
+            | (v_lo >= -STOP_REACH * np.maximum(np.maximum(-velocity, -target), 0.0)))
+    track = track | stop
+    target = np.where(stop, np.clip(target, v_lo, v_hi), target)
     tracker_constant, tracker_slope = bounded_tracker(target, velocity, gain, lower, upper)
     return np.where(track, tracker_constant, constant), np.where(track, tracker_slope, slope), lower, upper
 
@@ -264,10 +282,10 @@ def oracle_coupling(coupling):
                     StepReport(rhs_evaluations=1, branch_flow=flow))
 
     class Incompressible(CouplingIncompressible):
-        def law(self, spool0, command, pump_speed, velocity, effective_mass, dt):
+        def law(self, spool0, command, pump_speed, position, velocity, effective_mass, dt):
             m = self.model
             spool = spool_step(spool0, np.clip(command, -1.0, 1.0), m.valve_time_constant, dt)
-            return spool, EffortLaw(*incompressible_law(m, spool, pump_speed, np.asarray(velocity, float),
+            return spool, EffortLaw(*incompressible_law(m, spool, pump_speed, position, np.asarray(velocity, float),
                                                         effective_mass, dt))
 
         def finish(self, state, control, position_start, position_end, velocity_start, velocity_end, dt):
