@@ -589,10 +589,10 @@ def check_start_pose(scene: Scene) -> None:
     check_start_penetration(scene, data)
 
 
-START_PENETRATION = 0.01
-"""Deepest overlap [m] of two colliding geoms the start pose may have: a shallow one is a resting contact (named in a
-warning), a deeper one a pose inside the ground or another body, whose contact forces (megaNewtons) would throw the
-machine on the first step."""
+START_PENETRATION = 0.05
+"""Deepest overlap [m] of two colliding geoms the start pose may have: a shallow one is a resting contact (a tooth
+pressed a centimetre into the ground, named in a warning), a deeper one a pose inside the ground or another body,
+whose contact forces (megaNewtons) would throw the machine on the first step."""
 
 
 def check_start_penetration(scene: Scene, data) -> None:
