@@ -28,24 +28,15 @@ from hydraulics.components.throttle_check import flow_with_derivatives as thrott
 from hydraulics.fluid import Fluid
 from hydraulics.load import MassLoad, simulate
 from hydraulics.network import NetworkModel
+from reference.laws import orifice_textbook
 
 FLUID = Fluid(density=870.0, kinematic_viscosity=4.6e-5, reference_pressure=1.01325e5)
-RE_CRITICAL = 150.0  # the orifice law's critical Reynolds number (Merritt §2.4)
-
-
-def orifice_textbook(area, cd, dp):
-    """Q [m³/s] of the laminar–turbulent orifice law in its textbook form."""
-    if area == 0.0:
-        return 0.0
-    hydraulic_diameter = math.sqrt(4.0 * area / math.pi)
-    p_tr = 0.5 * FLUID.density * (RE_CRITICAL * FLUID.kinematic_viscosity / (cd * hydraulic_diameter)) ** 2
-    return cd * area * math.sqrt(2.0 / FLUID.density) * dp / (dp * dp + p_tr * p_tr) ** 0.25
 
 
 def pilot_check_by_hand(valve, p_a, p_b, p_x):
     z = (valve.pilot_area_ratio * (p_x - FLUID.reference_pressure) + p_a - p_b - valve.cracking_pressure) / valve.opening_band
     y = 0.0 if z <= 0 else 1.0 if z >= 1 else 3 * z**2 - 2 * z**3
-    return orifice_textbook(valve.leakage_area + valve.area * y, valve.discharge_coefficient, p_a - p_b)
+    return orifice_textbook(valve.leakage_area + valve.area * y, valve.discharge_coefficient, p_a - p_b, FLUID)
 
 
 VALVE = PilotCheckValve(cracking_pressure=2e5, opening_band=1e6, pilot_area_ratio=3.0, area=1e-5, leakage_area=1e-11)
@@ -93,9 +84,9 @@ def test_throttle_check_is_a_two_port_law_with_hand_values_and_derivatives():
     valve = ThrottleCheckValve(throttle_area=1e-6, area=1e-4, cracking_pressure=1e4, full_open_pressure=1e5)
     row = valve.law_row(FLUID)
     q, d_a, d_b, d_x = throttle_check_law(row, 1e6, 0.0, 123.0)
-    assert q == pytest.approx(orifice_textbook(1e-6 + 1e-4, 0.7, 1e6), rel=1e-12)
+    assert q == pytest.approx(orifice_textbook(1e-6 + 1e-4, 0.7, 1e6, FLUID), rel=1e-12)
     assert d_x == 0.0 and d_b == -d_a
-    assert throttle_check_law(row, 0.0, 1e6, 0.0)[0] == pytest.approx(orifice_textbook(1e-6, 0.7, -1e6), rel=1e-12)
+    assert throttle_check_law(row, 0.0, 1e6, 0.0)[0] == pytest.approx(orifice_textbook(1e-6, 0.7, -1e6, FLUID), rel=1e-12)
     for dp in (-1e6, 3e4, 2e6):
         g = throttle_check_law(row, dp, 0.0, 0.0)[1]
         numeric = (throttle_check_law(row, dp + 1.0, 0.0, 0.0)[0] - throttle_check_law(row, dp - 1.0, 0.0, 0.0)[0]) / 2.0

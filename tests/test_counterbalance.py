@@ -25,20 +25,11 @@ from hydraulics.components.counterbalance import flow_with_derivatives as counte
 from hydraulics.fluid import Fluid
 from sim.io.mcap_log import read_log
 from sim.run.runner import run
+from reference.laws import orifice_textbook
 
 SCENES = Path(__file__).parent / "scenes"
 FLUID = Fluid(density=870.0, kinematic_viscosity=4.6e-5, reference_pressure=1.01325e5)
 P0 = FLUID.reference_pressure
-RE_CRITICAL = 150.0  # the orifice law's critical Reynolds number (Merritt §2.4)
-
-
-def orifice_textbook(area, cd, dp):
-    """Q [m³/s] of the laminar–turbulent orifice law in its textbook form."""
-    if area == 0.0:
-        return 0.0
-    hydraulic_diameter = math.sqrt(4.0 * area / math.pi)
-    p_tr = 0.5 * FLUID.density * (RE_CRITICAL * FLUID.kinematic_viscosity / (cd * hydraulic_diameter)) ** 2
-    return cd * area * math.sqrt(2.0 / FLUID.density) * dp / (dp * dp + p_tr * p_tr) ** 0.25
 
 
 def step(z):
@@ -51,7 +42,7 @@ def by_hand(valve, p_load, p_valve, p_pilot):
          - valve.setting_pressure) / valve.opening_band
     z_check = (p_valve - p_load - valve.check_cracking_pressure) / valve.check_opening_band
     area = valve.leakage_area + valve.area * step(z) + valve.check_area * step(z_check)
-    return orifice_textbook(area, valve.discharge_coefficient, p_load - p_valve)
+    return orifice_textbook(area, valve.discharge_coefficient, p_load - p_valve, FLUID)
 
 
 VALVES = [CounterbalanceValve(setting_pressure=1.3e7, pilot_ratio=4.0, opening_band=1e6, area=2e-5),
@@ -145,7 +136,7 @@ def test_holds_the_load_with_the_valve_centred(holds, mode):
     p_load, p_line = nodes["pressure_pa.boom_cyl_cap"], nodes["pressure_pa.boom_cbv_valve"]
     assert np.all(p_load - P0 > 4.5e6) and np.all(p_line - P0 < 2e5)  # the valve alone holds ~50 bar
     assert np.all(p_load - P0 < valve.setting_pressure)
-    leak = orifice_textbook(valve.leakage_area, valve.discharge_coefficient, float(np.max(p_load - p_line)))
+    leak = orifice_textbook(valve.leakage_area, valve.discharge_coefficient, float(np.max(p_load - p_line)), FLUID)
     cap_area = math.pi * 0.063**2 / 4
     x = cylinder["position_m"]
     sink = x[0] - x[-1]

@@ -30,18 +30,11 @@ from hydraulics.load import MassLoad, simulate
 from hydraulics.network import NetworkModel
 from sim.io.mcap_log import read_log
 from sim.run.runner import run
+from reference.laws import orifice_textbook
 
 SCENES = Path(__file__).parent / "scenes"
 FLUID = Fluid(density=870.0, kinematic_viscosity=4.6e-5, reference_pressure=1.01325e5)
 P0 = FLUID.reference_pressure
-RE_CRITICAL = 150.0  # the orifice law's critical Reynolds number (Merritt §2.4)
-
-
-def orifice_textbook(area, cd, dp):
-    """Q [m³/s] of the laminar–turbulent orifice law in its textbook form."""
-    hydraulic_diameter = math.sqrt(4.0 * area / math.pi)
-    p_tr = 0.5 * FLUID.density * (RE_CRITICAL * FLUID.kinematic_viscosity / (cd * hydraulic_diameter)) ** 2
-    return cd * area * math.sqrt(2.0 / FLUID.density) * dp / (dp * dp + p_tr * p_tr) ** 0.25
 
 
 VALVE = FlowControlValve(flow_setting=1e-4, compensator_pressure=6e5)  # 6 L/min, blend 5.4–6.6 bar
@@ -50,7 +43,7 @@ VALVE = FlowControlValve(flow_setting=1e-4, compensator_pressure=6e5)  # 6 L/min
 def test_metering_area_passes_the_setting_at_the_compensator_drop():
     """Q_orifice(A_m, Δp_c) = Q_set to 1e-12; A_m a little above the turbulent formula's Q/(C_d·sqrt(2Δp_c/ρ))."""
     area = VALVE.law_row(FLUID)[2]
-    assert orifice_textbook(area, 0.7, 6e5) == pytest.approx(1e-4, rel=1e-12)
+    assert orifice_textbook(area, 0.7, 6e5, FLUID) == pytest.approx(1e-4, rel=1e-12)
     turbulent = 1e-4 / (0.7 * math.sqrt(2 * 6e5 / FLUID.density))
     assert turbulent < area < 1.01 * turbulent
 
@@ -63,9 +56,9 @@ def test_flow_and_derivatives(dp):
     area = row[2]
     q, d_in, d_out, d_x = flow_control_law(row, P0 + dp, P0, 0.0)
     if dp <= 5.4e5 or dp >= 6.6e5:
-        assert q == pytest.approx(orifice_textbook(area, 0.7, min(dp, 6e5)), rel=1e-12)
+        assert q == pytest.approx(orifice_textbook(area, 0.7, min(dp, 6e5), FLUID), rel=1e-12)
     else:
-        assert orifice_textbook(area, 0.7, 5.4e5) < q < orifice_textbook(area, 0.7, dp)
+        assert orifice_textbook(area, 0.7, 5.4e5, FLUID) < q < orifice_textbook(area, 0.7, dp, FLUID)
     assert d_x == 0.0 and d_out == -d_in
     numeric = (flow_control_law(row, P0 + dp + 1.0, P0, 0.0)[0] - flow_control_law(row, P0 + dp - 1.0, P0, 0.0)[0]) / 2
     assert d_in == pytest.approx(numeric, rel=1e-6, abs=1e-12 * 1e-4 / 6e5)
@@ -126,7 +119,7 @@ def test_cylinder_speed_held_over_the_pressure_drop(drop):
     force = (p_cap - P0) * CAP_AREA  # against extension, rod side at tank
     pressure = np.full(model.node_count, P0)
     pressure[model.node("cap")] = p_cap
-    flow = min(1e-4, orifice_textbook(VALVE.law_row(FLUID)[2], 0.7, drop))
+    flow = min(1e-4, orifice_textbook(VALVE.law_row(FLUID)[2], 0.7, drop, FLUID))
     expected = flow / CAP_AREA / math.exp((p_cap - P0) / 1.5e9)
     state = model.state(actuator_position=np.array([0.1]), node_pressure=pressure)
     trajectory = simulate(model, MassLoad(actuator="cylinder", mass=100.0, force=-force), state, dt=1e-3,

@@ -12,7 +12,6 @@
 
 from __future__ import annotations
 
-import math
 import tomllib
 from pathlib import Path
 
@@ -28,26 +27,17 @@ from hydraulics.fluid import Fluid
 from hydraulics.network import NetworkModel
 from sim.io.mcap_log import read_log
 from sim.run.runner import run
+from reference.laws import orifice_textbook
 
 SCENES = Path(__file__).parent / "scenes"
 FLUID = Fluid(density=870.0, kinematic_viscosity=4.6e-5, reference_pressure=1.01325e5)
 P0 = FLUID.reference_pressure
-RE_CRITICAL = 150.0  # the orifice law's critical Reynolds number (Merritt §2.4)
-
-
-def orifice_textbook(area, cd, dp):
-    """Q [m³/s] of the laminar–turbulent orifice law in its textbook form."""
-    if area == 0.0:
-        return 0.0
-    hydraulic_diameter = math.sqrt(4.0 * area / math.pi)
-    p_tr = 0.5 * FLUID.density * (RE_CRITICAL * FLUID.kinematic_viscosity / (cd * hydraulic_diameter)) ** 2
-    return cd * area * math.sqrt(2.0 / FLUID.density) * dp / (dp * dp + p_tr * p_tr) ** 0.25
 
 
 def by_hand(valve, p_in, p_out):
     z = (valve.setting_pressure - (p_out - P0)) / valve.regulation_band
     y = 0.0 if z <= 0 else 1.0 if z >= 1 else 3 * z**2 - 2 * z**3
-    return orifice_textbook(valve.leakage_area + valve.area * y, valve.discharge_coefficient, p_in - p_out)
+    return orifice_textbook(valve.leakage_area + valve.area * y, valve.discharge_coefficient, p_in - p_out, FLUID)
 
 
 VALVE = PressureReducingValve(setting_pressure=9e6, regulation_band=5e5, area=1.5e-5)
@@ -132,11 +122,11 @@ def test_outlet_pressure_held_over_inlet_pressure_and_flow(p_in, load_area):
     row = VALVE.law_row(FLUID)
 
     def balance(p):
-        return reducing_law(row, P0 + p_in, p, 0.0)[0] - orifice_textbook(load_area, 0.7, p - P0)
+        return reducing_law(row, P0 + p_in, p, 0.0)[0] - orifice_textbook(load_area, 0.7, p - P0, FLUID)
 
     root = brentq(balance, P0 + 1.0, P0 + VALVE.setting_pressure, xtol=1e-3)
     assert p_out == pytest.approx(root, abs=100.0)
-    flow = orifice_textbook(load_area, 0.7, p_out - P0)
+    flow = orifice_textbook(load_area, 0.7, p_out - P0, FLUID)
     assert flow < 3.4e-4 and (load_area < 3e-6 or flow > 2.9e-4)  # the widest load draws 17–20 L/min
 
 

@@ -17,11 +17,28 @@ Example
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from hydraulics.components.cylinder import FRICTION_REGULARISATION_VELOCITY  # noqa: F401  (m/s, the friction law's)
 from hydraulics.components.orifice import CRITICAL_REYNOLDS as ORIFICE_CRITICAL_REYNOLDS
 from hydraulics.components.orifice import coefficients as orifice_coefficients
+
+
+TEXTBOOK_CRITICAL_REYNOLDS = 150.0
+"""The orifice law's critical Reynolds number as Merritt gives it (§2.4), kept apart from the package's constant so the
+textbook form checks it."""
+
+
+def orifice_textbook(area, cd, dp, fluid):
+    """Q [m³/s] of the laminar–turbulent orifice law in its textbook form (Merritt §2.4), scalar: area [m²], discharge
+    coefficient cd [-], pressure drop dp [Pa] in ``fluid`` (a :class:`~hydraulics.fluid.Fluid`)."""
+    if area == 0.0:
+        return 0.0
+    hydraulic_diameter = math.sqrt(4.0 * area / math.pi)
+    p_tr = 0.5 * fluid.density * (TEXTBOOK_CRITICAL_REYNOLDS * fluid.kinematic_viscosity / (cd * hydraulic_diameter)) ** 2
+    return cd * area * math.sqrt(2.0 / fluid.density) * dp / (dp * dp + p_tr * p_tr) ** 0.25
 
 
 # --------------------------------------------------------------------------
