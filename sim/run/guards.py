@@ -46,6 +46,7 @@ not finite at t = 0 is bad input (:func:`check_initial_state`).
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 
@@ -416,13 +417,11 @@ def closure_gap_warnings(scene, qpos, dt) -> list:
     wide = {name: value for name, value in gaps.items() if value[0] > CLOSURE_GAP_WARN}
     if not wide:
         return []
-    solref, solimp = m.eq_solref.copy(), m.eq_solimp.copy()
-    try:
-        m.eq_solref[:] = (STIFF_SOLREF_STEPS * dt, 1.0)
-        m.eq_solimp[:] = STIFF_SOLIMP
-        stiff = closure_gaps(m, qpos, moments)
-    finally:
-        m.eq_solref[:], m.eq_solimp[:] = solref, solimp
+    solref, solimp = m.eq_solref, m.eq_solimp
+    stiffened = copy.copy(m)  # the scene's model is left as it is
+    stiffened.eq_solref[:] = (STIFF_SOLREF_STEPS * dt, 1.0)
+    stiffened.eq_solimp[:] = STIFF_SOLIMP
+    stiff = closure_gaps(stiffened, qpos, lambda d: actuator_moments(stiffened, d, scene.binding.actuator_id))
     out = []
     for name, (gap, force) in wide.items():
         e = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, name)
