@@ -99,7 +99,7 @@ from .components.pumps import P_BAND, P_COMP, P_DISP, P_EFF
 from .components.relief import R_CRACK, R_GRAD, R_WIDTH
 from .components.valve_4_3 import V_OVERLAP, V_TAU
 from .components.parameters import table as _table
-from .components import BRANCH_LAWS, LAW_WIDTH
+from .components import BRANCH_LAWS, LAW_WIDTH, law_states
 
 
 # ----------------------------------------------------------------------------
@@ -109,7 +109,7 @@ from .components import BRANCH_LAWS, LAW_WIDTH
 # ----------------------------------------------------------------------------
 _FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "lam", "rel", "chk", "pump", "law", "rig")
 _INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act",
-               "law_kind", "rig_i", "mot_br_i")
+               "law_kind", "rig_i", "mot_br_i", "law_state", "valve_rate")
 _NFF = len(_FLOAT_FIELDS)
 _NIF = len(_INT_FIELDS)
 _Net = namedtuple("_Net", _FLOAT_FIELDS + _INT_FIELDS)
@@ -126,10 +126,11 @@ BRANCH_KINDS = ("orifice", "laminar", "relief", "check", "pump", "motor", "law",
 INT_LAYOUT = (("node_count", "free_count", "actuator_count", "branch_count", "cylinder_count", "motor_count",
                "accumulator_count", "valve_count", "pump_count")
               + tuple(f"{kind}_{end}" for kind in BRANCH_KINDS for end in ("start", "stop"))
-              + ("newton_max_iterations", "line_search_halvings", "inversion_max_iterations", "fill_max_iterations"))
+              + ("newton_max_iterations", "line_search_halvings", "inversion_max_iterations", "fill_max_iterations",
+                 "state_count"))
 (IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_NPUMP, IC_O0, IC_O1, IC_L0, IC_L1, IC_R0, IC_R1, IC_C0,
  IC_C1, IC_P0, IC_P1, IC_M0, IC_M1, IC_W0, IC_W1, IC_G0, IC_G1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX,
- IC_FILL_MAX) = range(len(INT_LAYOUT))
+ IC_FILL_MAX, IC_NSTATE) = range(len(INT_LAYOUT))
 # node table columns
 NODE_COLUMNS = ("fixed_pressure", "volume", "wall_compliance")
 NODE_FIXED_P, NODE_VOLUME, NODE_WALL = range(len(NODE_COLUMNS))
@@ -151,6 +152,13 @@ G_EXTEND, G_RETRACT, G_SIGN, G_BASE, G_MAX = range(len(RIGID_COLUMNS))
 RIGID_INDEX_COLUMNS = ("valve", "actuator")
 GI_VALVE, GI_ACT = range(len(RIGID_INDEX_COLUMNS))
 _W_RIG, _W_RIG_I = len(RIGID_COLUMNS), len(RIGID_INDEX_COLUMNS)
+
+PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W_VALVE, ori=_W_ORI, lam=0, rel=_W_REL,
+                     chk=_W_CHK, pump=_W_PUMP, law=_W_LAW, rig=_W_RIG, ic=0, fixed=0, free=0, free_index=0, compliant=0,
+                     acc_node=0, cyl_i=_W_CI, mot_i=_W_MI, br=_W_BR, or_valve=0, mot_br_act=0, law_kind=0, rig_i=_W_RIG_I,
+                     mot_br_i=0, law_state=0, valve_rate=0)
+"""Row width of every packed field (0: a vector): the description :func:`pack_network` packs by and the views of
+``_unpack`` are generated from."""
 
 # status codes returned by the kernels
 _OK, _NEWTON_FAILED = 0, 1
@@ -214,7 +222,8 @@ def pack_network(model: NetworkModel):
                 newton_max_iterations=_numerics.NEWTON_MAX_ITERATIONS,
                 line_search_halvings=_numerics.LINE_SEARCH_HALVINGS,
                 inversion_max_iterations=_numerics.PRESSURE_INVERSION_MAX_ITERATIONS,
-                fill_max_iterations=_fluid.FILL_INVERSION_MAX_ITERATIONS)[0].astype(np.int64)
+                fill_max_iterations=_fluid.FILL_INVERSION_MAX_ITERATIONS,
+                state_count=model.component_state_count)[0].astype(np.int64)
     floats = dict(
         sc=sc,
         node=_table(NODE_COLUMNS, n, fixed_pressure=model.node_fixed_pressure, volume=model.node_volume,
@@ -248,6 +257,8 @@ def pack_network(model: NetworkModel):
         law_kind=model.law_kind,
         rig_i=np.column_stack((model.rigid_valve, model.rigid_branch_actuator)).reshape(-1, _W_RIG_I),
         mot_br_i=np.searchsorted(model.motor_actuator, model.motor_branch_actuator),  # motor of each motor branch
+        law_state=model.law_state_offset,
+        valve_rate=model.valve_rate_offset,
     )
     fparts = [np.ascontiguousarray(floats[k], float).ravel() for k in _FLOAT_FIELDS]
     iparts = [np.ascontiguousarray(ints[k]).astype(np.int64).ravel() for k in _INT_FIELDS]
@@ -259,43 +270,35 @@ def pack_network(model: NetworkModel):
     return np.ascontiguousarray(F), np.ascontiguousarray(I)
 
 
-@_jit
-def _unpack(F, I):
-    """The packed arrays as a named tuple of views (tables reshaped to 2-D)."""
-    o = _NFF + 1
-    ic = I[I[o]:I[o + 1]]
-    n, ncyl, nmot, nacc, nv, nb = ic[IC_N], ic[IC_NCYL], ic[IC_NMOT], ic[IC_NACC], ic[IC_NV], ic[IC_NB]
-    nor, nrel, nchk, npump = ic[IC_O1] - ic[IC_O0], ic[IC_R1] - ic[IC_R0], ic[IC_C1] - ic[IC_C0], ic[IC_P1] - ic[IC_P0]
-    nlaw, nrig = ic[IC_W1] - ic[IC_W0], ic[IC_G1] - ic[IC_G0]
-    return _Net(
-        F[I[0]:I[1]],
-        _matrix(F[I[1]:I[2]], n, _W_NODE),
-        _matrix(F[I[2]:I[3]], nacc, _W_ACC),
-        _matrix(F[I[3]:I[4]], ncyl, _W_CYL),
-        F[I[4]:I[5]],
-        _matrix(F[I[5]:I[6]], nv, _W_VALVE),
-        _matrix(F[I[6]:I[7]], nor, _W_ORI),
-        F[I[7]:I[8]],
-        _matrix(F[I[8]:I[9]], nrel, _W_REL),
-        _matrix(F[I[9]:I[10]], nchk, _W_CHK),
-        _matrix(F[I[10]:I[11]], npump, _W_PUMP),
-        _matrix(F[I[11]:I[12]], nlaw, _W_LAW),
-        _matrix(F[I[12]:I[13]], nrig, _W_RIG),
-        ic,
-        I[I[o + 1]:I[o + 2]],
-        I[I[o + 2]:I[o + 3]],
-        I[I[o + 3]:I[o + 4]],
-        I[I[o + 4]:I[o + 5]],
-        I[I[o + 5]:I[o + 6]],
-        _matrix(I[I[o + 6]:I[o + 7]], ncyl, _W_CI),
-        _matrix(I[I[o + 7]:I[o + 8]], nmot, _W_MI),
-        _matrix(I[I[o + 8]:I[o + 9]], nb, _W_BR),
-        I[I[o + 9]:I[o + 10]],
-        I[I[o + 10]:I[o + 11]],
-        I[I[o + 11]:I[o + 12]],
-        _matrix(I[I[o + 12]:I[o + 13]], nrig, _W_RIG_I),
-        I[I[o + 13]:I[o + 14]],
-    )
+def _unpack_source() -> str:
+    """Source of ``_unpack(F, I)``: the packed arrays as a :data:`_Net` of views, one per field of
+    :data:`_FLOAT_FIELDS` and :data:`_INT_FIELDS` in that order, tables reshaped to their :data:`PACKED_WIDTHS`
+    (rows = entries / width).  ``I`` starts with the float-field offsets (into ``F``) and the int-field offsets
+    (into ``I``), as :func:`pack_network` writes them."""
+    views = []
+    for i, name in enumerate(_FLOAT_FIELDS):
+        views.append(_view_source("F", f"I[{i}]", f"I[{i + 1}]", PACKED_WIDTHS[name]))
+    for i, name in enumerate(_INT_FIELDS):
+        views.append(_view_source("I", f"I[{_NFF + 1 + i}]", f"I[{_NFF + 2 + i}]", PACKED_WIDTHS[name]))
+    body = ",\n        ".join(views)
+    return f"def _unpack(F, I):\n    return _Net(\n        {body})\n"
+
+
+def _view_source(array, start, stop, width):
+    if width == 0:
+        return f"{array}[{start}:{stop}]"
+    return f"_matrix({array}[{start}:{stop}], ({stop} - {start}) // {width}, {width})"
+
+
+def _generated_unpack():
+    namespace = {"_Net": _Net, "_matrix": _matrix}
+    exec(compile(_unpack_source(), "<hydraulics._compiled._unpack>", "exec"), namespace)
+    function = namespace["_unpack"]
+    function.__doc__ = "The packed arrays as a named tuple of views (tables reshaped to 2-D); see :func:`_unpack_source`."
+    return function
+
+
+_unpack = _jit(_generated_unpack())
 
 
 # ----------------------------------------------------------------------------
@@ -316,28 +319,60 @@ def fill_ratio_nb(p, pref, beta, air, n):
     return phi, -phi * dspecific / specific
 
 
-def _law_dispatch(laws, first=0):
-    """A kernel ``dispatch(kind, row, p_from, p_to, p_pilot)`` that calls ``laws[kind - first]`` (the branch laws of
-    :data:`hydraulics.components.BRANCH_LAWS`, in order): a chain of closures, one ``if`` per law, built from the
-    registry so that a new component needs no line here."""
-    if not laws:
-        @_kernel
-        def none(kind, row, p_from, p_to, p_pilot):
-            return math.nan, math.nan, math.nan, math.nan
-
-        return none
-    law, rest = laws[0], _law_dispatch(laws[1:], first + 1)
+def _state_law(cls):
+    """The branch law of component class ``cls`` as ``law(row, state, h, p_from, p_to, p_pilot)`` (a stateless law
+    ignores ``state`` and ``h``) and its state update ``end(row, state, h, p_from, p_to, p_pilot, out)`` (none for
+    a stateless law); see :data:`hydraulics.components.BRANCH_LAWS`."""
+    if law_states(cls):
+        return cls.BRANCH_LAW, cls.STATE_END
+    static = cls.BRANCH_LAW
 
     @_kernel
-    def dispatch(kind, row, p_from, p_to, p_pilot):
+    def law(row, state, h, p_from, p_to, p_pilot):
+        return static(row, p_from, p_to, p_pilot)
+
+    @_kernel
+    def end(row, state, h, p_from, p_to, p_pilot, out):
+        return None
+
+    return law, end
+
+
+def _law_dispatch(laws, first=0):
+    """Kernels ``dispatch(kind, row, state, h, p_from, p_to, p_pilot)`` calling ``laws[kind - first][0]`` and
+    ``dispatch_end(kind, row, state, h, p_from, p_to, p_pilot, out)`` calling ``laws[kind - first][1]`` (the pairs
+    of :func:`_state_law` of :data:`hydraulics.components.BRANCH_LAWS`, in order): chains of closures, one ``if``
+    per law, built from the registry so that a new component needs no line here."""
+    if not laws:
+        @_kernel
+        def none(kind, row, state, h, p_from, p_to, p_pilot):
+            return math.nan, math.nan, math.nan, math.nan
+
+        @_kernel
+        def none_end(kind, row, state, h, p_from, p_to, p_pilot, out):
+            return None
+
+        return none, none_end
+    (law, end), (rest, rest_end) = laws[0], _law_dispatch(laws[1:], first + 1)
+
+    @_kernel
+    def dispatch(kind, row, state, h, p_from, p_to, p_pilot):
         if kind == first:
-            return law(row, p_from, p_to, p_pilot)
-        return rest(kind, row, p_from, p_to, p_pilot)
+            return law(row, state, h, p_from, p_to, p_pilot)
+        return rest(kind, row, state, h, p_from, p_to, p_pilot)
 
-    return dispatch
+    @_kernel
+    def dispatch_end(kind, row, state, h, p_from, p_to, p_pilot, out):
+        if kind == first:
+            end(row, state, h, p_from, p_to, p_pilot, out)
+        else:
+            rest_end(kind, row, state, h, p_from, p_to, p_pilot, out)
+
+    return dispatch, dispatch_end
 
 
-_branch_law = _law_dispatch(tuple(cls.BRANCH_LAW for cls in BRANCH_LAWS))
+_branch_law, _branch_law_end = _law_dispatch(tuple(_state_law(cls) for cls in BRANCH_LAWS))
+_LAW_STATE_WIDTH = max([len(law_states(cls)) for cls in BRANCH_LAWS], default=0)
 
 
 # ----------------------------------------------------------------------------
@@ -556,9 +591,11 @@ def _valve_areas(pnet, spool, area):
 
 
 @_kernel
-def _branch_flows(pnet, p, area, speed, velocity, flow, dflow):
+def _branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h):
     """NetworkModel.branch_flows: ``flow`` [m³/s] of every branch and ``dflow`` (branches × terminals) its
-    derivative with respect to the pressure of each terminal (columns :data:`TERMINAL_COLUMNS`) [m³/(s·Pa)]."""
+    derivative with respect to the pressure of each terminal (columns :data:`TERMINAL_COLUMNS`) [m³/(s·Pa)].
+    ``state``: the component states at the start of the step of ``h`` [s] whose end pressures ``p`` are (a
+    stateful law's flow is that at the end of the step)."""
     net = _deref(pnet)
     ic, br = net.ic, net.br
     dflow[:, :] = 0.0
@@ -597,9 +634,34 @@ def _branch_flows(pnet, p, area, speed, velocity, flow, dflow):
     for b in range(ic[IC_W0], ic[IC_W1]):
         i = b - ic[IC_W0]
         pilot = br[b, T_PILOT]
-        q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], p[br[b, T_FROM]], p[br[b, T_TO]],
-                                    p[pilot] if pilot >= 0 else 0.0)
+        q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], _law_state(state, net.law_state[i]), h, p[br[b, T_FROM]],
+                                    p[br[b, T_TO]], p[pilot] if pilot >= 0 else 0.0)
         flow[b], dflow[b, T_FROM], dflow[b, T_TO], dflow[b, T_PILOT] = q, d0, d1, d2
+
+
+@_inline
+def _law_state(state, offset):
+    """The states of one law branch in the component-state vector ``state`` (from ``offset``; none for −1)."""
+    if offset < 0:
+        return state[:0]
+    return state[offset:offset + _LAW_STATE_WIDTH]
+
+
+@_kernel
+def _law_states_end(pnet, state, h, p):
+    """Advance the stateful law branches' states in ``state`` (in place: they hold the step's start states) over the
+    step of ``h`` [s] that ends at the node pressures ``p`` [Pa] (each component's ``STATE_END``)."""
+    net = _deref(pnet)
+    ic, br, law = net.ic, net.br, net.law
+    for b in range(ic[IC_W0], ic[IC_W1]):
+        i = b - ic[IC_W0]
+        offset = net.law_state[i]
+        if offset < 0:
+            continue
+        pilot = br[b, T_PILOT]
+        current = _law_state(state, offset)
+        _branch_law_end(net.law_kind[i], law[i], current, h, p[br[b, T_FROM]], p[br[b, T_TO]],
+                        p[pilot] if pilot >= 0 else 0.0, current)
 
 
 @_kernel
@@ -699,11 +761,11 @@ def _lu_solve(a, b):
 
 
 @_kernel
-def _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dflow, inflow, residual):
+def _evaluate(pnet, oil, oil0, x, v, area, state, speed, h, geo, p, dpdm, flow, dflow, inflow, residual):
     # pressures, ∂p/∂m, branch flows and the backward-Euler residual r = m − m₀ − h·ΣQ(p(m, x), v) (free nodes)
     net = _deref(pnet)
     _pressure(pnet, oil, x, geo, p, dpdm)
-    _branch_flows(pnet, p, area, speed, v, flow, dflow)
+    _branch_flows(pnet, p, area, speed, v, flow, dflow, state, h)
     _net_inflow(pnet, flow, inflow)
     free = net.free
     for j in range(free.size):
@@ -853,7 +915,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out,
     rhs = 0
     jacobians = 0
     iterations = 0
-    _evaluate(pnet, oil, oil0, x, v, area, speed, h, geo, p, dpdm, flow, dflow, inflow, residual)
+    _evaluate(pnet, oil, oil0, x, v, area, spool, speed, h, geo, p, dpdm, flow, dflow, inflow, residual)
     _copy(p_first, p)
     rhs += 1
     for j in range(nf):
@@ -878,7 +940,8 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out,
             _copy(t_oil, oil)
             for j in range(nf):
                 t_oil[free[j]] = oil[free[j]] + step * delta[j, 0]
-            _evaluate(pnet, t_oil, oil0, x, v, area, speed, h, geo, t_p, t_dpdm, t_flow, t_dflow, inflow, t_residual)
+            _evaluate(pnet, t_oil, oil0, x, v, area, spool, speed, h, geo, t_p, t_dpdm, t_flow, t_dflow, inflow,
+                      t_residual)
             rhs += 1
             t_norm = _scaled_norm(t_residual, scale)
             if math.isfinite(t_norm) and (t_norm <= (1.0 - sc[S_SUFFICIENT] * step) * norm or halving == halvings - 1):
@@ -933,8 +996,15 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out,
 def _spool_end(pnet, spool0, command, h, spool):
     # Stepper._spool_end
     net = _deref(pnet)
-    for i in range(spool.size):
-        spool[i] = _valve.spool_step(spool0[i], _clip(command[i], -1.0, 1.0), net.valve[i, V_TAU], h)
+    nv = net.ic[IC_NV]
+    for i in range(nv, spool.size):  # the law branches' states: the start states until _law_states_end
+        spool[i] = spool0[i]
+    for i in range(nv):
+        r = net.valve_rate[i]
+        if r < 0:
+            spool[i] = _valve.spool_step(spool0[i], _clip(command[i], -1.0, 1.0), net.valve[i, V_TAU], h)
+        else:
+            spool[i], spool[r] = _valve.valve_step(net.valve[i], spool0[i], spool0[r], _clip(command[i], -1.0, 1.0), h)
 
 
 # ----------------------------------------------------------------------------
@@ -958,6 +1028,7 @@ def _step_core(pnet, W, start, h, update_spool, out, oil_init):
     geo, o = _take(W, o, n)
     norm = _solve_core(pnet, oil0, x, v, spool, speed, h, oil, flow, dflow, istats, W, p, oil_init)
     _pressure(pnet, oil, x, geo, p, dpdm)
+    _law_states_end(pnet, spool, h, p)
     return norm
 
 
@@ -1101,7 +1172,7 @@ def _linearize_core(pnet, W, start, dt, out, oil_init):
     slope, o = _take(W, o, na)
     _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt)
     _valve_areas(pnet, spool, area)
-    _branch_flows(pnet, p, area, speed, velocity, flow2, dflow)
+    _branch_flows(pnet, p, area, speed, velocity, flow2, dflow, spool, dt)
     _flow_jacobian(pnet, dflow, jq)
     _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, 0)
     _newton_matrix_of(pnet, jq, dpdm, dt, jac)
@@ -1168,7 +1239,7 @@ def _linearize_one_step_core(pnet, W, start, dt, out):
     epg, o = _take2(W, o, na, n)
     slope, o = _take(W, o, na)
     _valve_areas(pnet, spool, area)
-    _evaluate(pnet, oil0, oil0, x0, velocity, area, speed, dt, geo, p_first, dpdm, flow, dflow, inflow, residual)
+    _evaluate(pnet, oil0, oil0, x0, velocity, area, spool, speed, dt, geo, p_first, dpdm, flow, dflow, inflow, residual)
     _position_pressure_gradient(pnet, x0, geo, p_first, dpdm, dt, dvdx, dpdx_dt)
     _flow_jacobian(pnet, dflow, jq)
     _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, 1)
@@ -1499,10 +1570,11 @@ def _predicted_oil(lin_oil, doil, guess, v_end, dv, out):
 
 
 @_kernel
-def _linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow):
+def _linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow, h):
     """CouplingImplicitLinear.finish after the prediction: end pressures p = p(m⁺, x⁺) [Pa] of the predicted oil
     ``oil`` (m⁺ [m³]) at the end positions ``x``, and the branch flows ``flow`` [m³/s] at the linearisation's
-    spools ``spool``, pump speeds ``speed`` and end velocities ``v`` (no Newton solve).  ``W``: scratch of at least
+    spools ``spool``, pump speeds ``speed`` and end velocities ``v`` (no Newton solve) over the step of ``h`` [s]; the
+    stateful law branches' states in ``spool`` are advanced to its end.  ``W``: scratch of at least
     (:func:`_area_count` + 2·nodes) entries; ``dflow``: scratch (branches × terminals)."""
     net = _deref(pnet)
     n = oil.size
@@ -1512,7 +1584,8 @@ def _linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow):
     dpdm, o = _take(W, o, n)
     _pressure(pnet, oil, x, geo, p, dpdm)
     _valve_areas(pnet, spool, area)
-    _branch_flows(pnet, p, area, speed, v, flow, dflow)
+    _branch_flows(pnet, p, area, speed, v, flow, dflow, spool, h)
+    _law_states_end(pnet, spool, h, p)
 
 
 @_kernel
@@ -1782,12 +1855,12 @@ def _eval_law_pieces(F, I, p):
 
 
 @_jit
-def _eval_branch_flows(F, I, p, area, speed, velocity):
+def _eval_branch_flows(F, I, p, area, speed, velocity, state, h):
     """NetworkModel.branch_flows: flows [m³/s] and terminal derivatives (branches × TERMINAL_COLUMNS)."""
     net = _unpack(F, I)
     nb = net.ic[IC_NB]
     flow, dflow = np.zeros(nb), np.empty((nb, _W_BR))
-    _branch_flows(_ref(net), p, area, speed, velocity, flow, dflow)
+    _branch_flows(_ref(net), p, area, speed, velocity, flow, dflow, state, h)
     return flow, dflow
 
 
@@ -2042,14 +2115,14 @@ def _start_velocity_guess_python_entry(F, I, x, v, dt):
 
 
 @_jit
-def _linear_finish_python_entry(F, I, oil, spool, x, v, speed):
+def _linear_finish_python_entry(F, I, oil, spool, x, v, speed, h):
     """:func:`_linear_finish` with allocated outputs: (end pressures [Pa], branch flows [m³/s])."""
     net = _unpack(F, I)
     ic = net.ic
     n, nb = ic[IC_N], ic[IC_NB]
     W = np.empty(_area_count(ic) + 2 * n)
     p, flow, dflow = np.empty(n), np.empty(nb), np.empty((nb, _W_BR))
-    _linear_finish(_ref(net), W, oil, spool, x, v, speed, p, flow, dflow)
+    _linear_finish(_ref(net), W, oil, spool, x, v, speed, p, flow, dflow, h)
     return p, flow
 
 
@@ -2114,10 +2187,10 @@ def _coupling_entries(fingerprint):
             raise ValueError("no fingerprint")
         return _start_velocity_guess_python_entry(F, I, x, v, dt)
 
-    def linear_finish(F, I, oil, spool, x, v, speed):
+    def linear_finish(F, I, oil, spool, x, v, speed, h):
         if fingerprint is None:  # never
             raise ValueError("no fingerprint")
-        return _linear_finish_python_entry(F, I, oil, spool, x, v, speed)
+        return _linear_finish_python_entry(F, I, oil, spool, x, v, speed, h)
 
     def predicted_oil(lin_oil, doil, guess, v_end):
         if fingerprint is None:  # never

@@ -59,7 +59,7 @@ from .components.cylinder import CI_ACT, CI_CAP, CI_ROD
 from .components.motor import MI_A, MI_ACT, MI_B
 from .components.parameters import table
 from .components.pumps import P_DISP, P_EFF
-from .components.valve_4_3 import V_OVERLAP, V_TAU
+from .components.valve_4_3 import V_OVERLAP
 
 # Incompressible fidelity: the rod follows its metered flow with this stiffness relative to
 # m_eff/h (the velocity error left after one step is about 1/(1 + gain) of the demand change).
@@ -281,7 +281,7 @@ def explicit_substep(pnet, W, start, x_end, h, out):
     C._spool_end(pnet, spool0, command, h, spool)
     C._pressure(pnet, oil0, x, geo, p, dpdm)
     C._valve_areas(pnet, spool0, area)
-    C._branch_flows(pnet, p, area, speed, v, flow, dflow)
+    C._branch_flows(pnet, p, area, speed, v, flow, dflow, spool0, h)
     C._net_inflow(pnet, flow, inflow)
     C._copy(oil, oil0)
     free = net.free
@@ -289,6 +289,7 @@ def explicit_substep(pnet, W, start, x_end, h, out):
         k = free[j]
         oil[k] = oil0[k] + h * inflow[k]
     C._pressure(pnet, oil, x_end, geo, p, dpdm)
+    C._law_states_end(pnet, spool, h, p)
     istats[:] = 0
     istats[C.IS_RHS] = 1
 
@@ -473,7 +474,9 @@ def mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, la
     for k in range(R.actuator.size):
         a, valve = R.actuator[k], R.valve[k]
         overlap = net.valve[valve, V_OVERLAP]
-        s = _valve.spool_step(spool0[valve], clip(command[valve], -1.0, 1.0), net.valve[valve, V_TAU], dt)
+        r = net.valve_rate[valve]
+        s = _valve.valve_step(net.valve[valve], spool0[valve], spool0[r] if r >= 0 else 0.0,
+                              clip(command[valve], -1.0, 1.0), dt)[0]
         direction = _valve.metering_direction(R.sign[k] * s, overlap)
         extend = direction >= 0
         a_in = R.extend_area[k] if extend else R.retract_area[k]

@@ -293,7 +293,8 @@ class CouplingImplicitLinear(CouplingImplicit):
         spool = lin.state.valve_spool
         C = _compiled
         pressure, flow = C.linear_finish_kernel(self.predictor._F, self.predictor._I, C._f64(oil), C._f64(spool),
-                                                C._f64(position_end), C._f64(velocity_end), C._f64(control.pump_speed))
+                                                C._f64(position_end), C._f64(velocity_end), C._f64(control.pump_speed),
+                                                dt)
         report = StepReport(rhs_evaluations=1, branch_flow=flow)
         if not np.all(np.isfinite(pressure)):
             bad = m.node_names[int(np.flatnonzero(~np.isfinite(pressure))[0])]

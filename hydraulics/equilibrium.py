@@ -55,6 +55,14 @@ def null_space(matrix, rtol: float = NULL_SPACE_RTOL) -> np.ndarray:
     return vt[rank:].T
 
 
+def _constraint_rows(constraint_jacobian, nv: int) -> np.ndarray:
+    """The constraint Jacobian as rows of ``nv`` entries (none: zero rows; a model without degrees of freedom
+    included)."""
+    if constraint_jacobian is None or nv == 0:
+        return np.zeros((0, nv))
+    return np.asarray(constraint_jacobian, float).reshape(-1, nv)
+
+
 def holding_efforts(moment, load, constraint_jacobian=None):
     """Actuator efforts F and constraint forces λ that hold a pose at rest: Jᵀ·F + Gᵀ·λ = Q (least squares).
 
@@ -79,7 +87,7 @@ def holding_efforts(moment, load, constraint_jacobian=None):
     moment = np.atleast_2d(np.asarray(moment, float))
     load = np.asarray(load, float)
     nv = load.shape[0]
-    G = np.zeros((0, nv)) if constraint_jacobian is None else np.asarray(constraint_jacobian, float).reshape(-1, nv)
+    G = _constraint_rows(constraint_jacobian, nv)
     A = np.vstack([moment, G]).T
     if A.shape[1] == 0:
         return np.zeros(0), np.zeros(0), 0.0 if not np.any(load) else 1.0
@@ -107,7 +115,7 @@ def constrained_inverse_inertia(mass, moment, constraint_jacobian=None):
     mass = np.asarray(mass, float)
     moment = np.atleast_2d(np.asarray(moment, float))
     nv = mass.shape[0]
-    N = null_space(np.zeros((0, nv)) if constraint_jacobian is None else np.asarray(constraint_jacobian, float).reshape(-1, nv))
+    N = null_space(_constraint_rows(constraint_jacobian, nv))
     if N.shape[1] == 0:
         return np.zeros(moment.shape[0]), np.zeros((nv, moment.shape[0]))
     reduced = N.T @ mass @ N
@@ -147,7 +155,8 @@ def steady_state(model: NetworkModel, control: NetworkControl, state: NetworkSta
     nodes = np.array(sorted(pinned), int)
     values = np.array([pinned[k] for k in nodes])
     state = state.copy()
-    state.valve_spool = np.clip(control.valve_command, -1.0, 1.0).astype(float)
+    state.valve_spool = state.valve_spool.copy()  # the valves' spools at their commands, other states kept
+    state.valve_spool[:len(model.valve_names)] = np.clip(control.valve_command, -1.0, 1.0)
 
     def pin(state):
         p = state.node_pressure.copy()

@@ -20,6 +20,7 @@ import numpy as np
 from .coupling import make_coupling
 from .extras import require
 from .network import ACTUATOR_CYLINDER, NetworkModel, NetworkState
+from .steppers import refuse_component_states
 
 COUPLING_VELOCITY_TOLERANCE = 1e-6  # relative change of the end velocity that ends coupling iterations
 
@@ -97,6 +98,7 @@ def simulate(
     ends the run early with ``status = "diverged"``.
     """
     inputs = inputs or {}
+    refuse_component_states(model, "simulate_reference")
     a = model.actuator(load.actuator)
     is_cylinder = model.actuator_kind[a] == ACTUATOR_CYLINDER
     stroke = model.cylinder_stroke[list(model.cylinder_actuator).index(a)] if is_cylinder else math.inf
@@ -174,6 +176,7 @@ def simulate_reference(
     modelled: keep the reference inside the stroke.
     """
     inputs = inputs or {}
+    refuse_component_states(model, "simulate_reference")
     a = model.actuator(load.actuator)
     free = model.free_nodes
     nf = len(free)

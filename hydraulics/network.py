@@ -39,7 +39,7 @@ from functools import cached_property
 import numpy as np
 
 from .circuit import Circuit
-from .components import BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, CircuitError
+from .components import BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, CircuitError, law_states
 from .components.hose import line_conductance
 from .numerics import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE  # noqa: F401 (documented here)
 
@@ -103,7 +103,8 @@ class _UnionFind:
 
 
 def prune(circuit: Circuit, drives=None):
-    """Drop components that no cylinder or motor reaches through shared nets (tank nets do not connect).
+    """Drop components that no cylinder or motor reaches through shared nets (tank nets do not connect); a circuit
+    without any cylinder or motor (a test rig) is kept whole.
 
     ``drives`` (names of the actuators the scene has, e.g. the MJCF's) also drops
     every cylinder or motor not among them and the branches that fed only those:
@@ -122,6 +123,8 @@ def prune(circuit: Circuit, drives=None):
         for net in c.ports.values():
             by_net.setdefault(net, []).append(c)
     reached = {c.name for c in circuit.by_kind("cylinder", "motor")}
+    if not reached:  # no actuator at all: a test rig (a pump and valves on volumes), kept whole
+        return circuit, ()
     frontier = [c for c in circuit.components if c.name in reached]
     while frontier:
         c = frontier.pop()
@@ -386,6 +389,17 @@ class NetworkModel:
     branch_pilot: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     law_kind: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     law_table: np.ndarray = field(default_factory=lambda: np.zeros((0, LAW_WIDTH)))
+    # component states: the valves' spools, then the states of every stateful law component (its STATES, in
+    # circuit order); the first state of each law branch in that vector (-1: a stateless law)
+    law_state_offset: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    # second-order spools: each valve's spool rate in that vector (after the law components' states; -1: a
+    # first-order spool), natural frequency [rad/s] and damping ratio [-]
+    valve_rate_offset: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    valve_omega: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    valve_zeta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    component_state_names: tuple = ()  # "valve" for a spool, "component.state" for a law component's state
+    component_state_units: tuple = ()
+    component_state_start: np.ndarray = field(default_factory=lambda: np.zeros(0))  # values at rest
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -597,6 +611,10 @@ class NetworkModel:
         # law branches: from the component's first port to its second; a third port is a pilot terminal
         start = len(branch_names)
         law_pilot, law_kind, law_rows = [], [], []
+        state_names = [v.name for v in valves]
+        state_units = ["-"] * len(valves)
+        state_start = [0.0] * len(valves)
+        law_state_offset = []
         for c in circuit.components:
             law_class = COMPONENT_TYPES[c.kind]
             if law_class not in BRANCH_LAWS or not keep(c, node(c, law_class.PORTS[0]), node(c, law_class.PORTS[1])):
@@ -604,11 +622,24 @@ class NetworkModel:
             add_branch(c.name, node(c, law_class.PORTS[0]), node(c, law_class.PORTS[1]))
             law_pilot.append(node(c, law_class.PORTS[2]) if len(law_class.PORTS) > 2 else -1)
             law_kind.append(BRANCH_LAWS.index(law_class))
+            own = law_states(law_class)
+            law_state_offset.append(len(state_names) if own else -1)
+            state_names.extend(f"{c.name}.{name}" for name in own)
+            state_units.extend(law_class.STATE_UNITS if own else ())
+            state_start.extend(c.params.state_start() if own else ())
             row = np.zeros(LAW_WIDTH)
             values = c.params.law_row(circuit.fluid)
             row[:len(values)] = values
             law_rows.append(row)
         slices["law"] = slice(start, len(branch_names))
+        valve_rate_offset = []
+        for v in valves:
+            second = v.params.dynamics == "second_order"
+            valve_rate_offset.append(len(state_names) if second else -1)
+            if second:
+                state_names.append(f"{v.name}.spool_rate")
+                state_units.append("1/s")
+                state_start.append(0.0)
 
         # rigid branches: valve P -> T, carrying the flow a rigid actuator's rod (shaft) displaces
         start = len(branch_names)
@@ -725,6 +756,13 @@ class NetworkModel:
             branch_pilot=b_pilot,
             law_kind=f(law_kind, int),
             law_table=np.array(law_rows, float).reshape(len(law_rows), LAW_WIDTH),
+            law_state_offset=f(law_state_offset, int),
+            valve_rate_offset=f(valve_rate_offset, int),
+            valve_omega=column(valves, "natural_frequency"),
+            valve_zeta=column(valves, "damping_ratio"),
+            component_state_names=tuple(state_names),
+            component_state_units=tuple(state_units),
+            component_state_start=np.array(state_start, float),
         )
         return model
 
@@ -741,6 +779,12 @@ class NetworkModel:
     @property
     def actuator_count(self) -> int:
         return len(self.actuator_names)
+
+    @property
+    def component_state_count(self) -> int:
+        """Entries of the component-state vector (``NetworkState.valve_spool``): the valves' spools, then the
+        stateful law components' states (:attr:`component_state_names`)."""
+        return len(self.component_state_names)
 
     @property
     def free_nodes(self) -> np.ndarray:
@@ -800,7 +844,7 @@ class NetworkModel:
             p = np.array(node_pressure, float).reshape(self.node_count)
         p = np.where(self.node_fixed, self.node_fixed_pressure, p)
         oil = self.oil_from_pressure(p, x)
-        state = NetworkState(oil, p, np.zeros(len(self.valve_names)), x, v, 0.0)
+        state = NetworkState(oil, p, self.component_state_start.copy(), x, v, 0.0)
         state.node_pressure = self.pressure(oil, x)[0]
         return state
 
@@ -904,10 +948,14 @@ class NetworkModel:
     def valve_areas(self, spool):
         """Open area [m²] of every orifice-law branch for the given spool positions, followed (when the
         network has rigid actuators) by the displacement rate of every rigid branch (:meth:`rigid_rates`)."""
-        return self._kernel("valve_areas", _vector(spool, len(self.valve_names)))
+        return self._kernel("valve_areas", self._spools(spool))
+
+    def _spools(self, spool):
+        """The valves' spools [-] of ``spool`` (the valves' spools, or the whole component-state vector)."""
+        return _vector(np.asarray(spool, float)[:len(self.valve_names)], len(self.valve_names))
 
     def _rigid(self, spool):
-        return self._kernel("rigid", _vector(spool, len(self.valve_names)))
+        return self._kernel("rigid", self._spools(spool))
 
     def rigid_direction(self, spool):
         """Metering direction of every rigid branch [-]: +1 when the spool feeds the cap (motor port a) from P,
@@ -936,7 +984,7 @@ class NetworkModel:
         """
         return self._kernel("law_pieces", _vector(pressure, self.node_count))
 
-    def branch_flows(self, pressure, orifice_area, pump_speed, actuator_velocity) -> BranchFlows:
+    def branch_flows(self, pressure, orifice_area, pump_speed, actuator_velocity, state=None, h=0.0) -> BranchFlows:
         """Flow [m³/s] of every branch and its pressure derivatives (the component laws of
         :mod:`hydraulics.components`: orifices, leaks, reliefs, check valves, pumps, motors, law branches; rigid
         branches carry their rate times the actuator velocity).
@@ -951,10 +999,15 @@ class NetworkModel:
             [rev/s].
         actuator_velocity : ndarray, shape (actuator_count,)
             Motor shaft speeds [rad/s] (and rigid actuators' velocities) are read from it.
+        state : ndarray, shape (component_state_count,), optional
+            Component states at the start of a step of ``h`` [s] (default: :attr:`component_state_start`); a
+            stateful component's flow is that at the end of the step (with ``h`` = 0: at these states).
         """
         area = _vector(orifice_area, self.branch_slices["orifice"].stop + len(self.rigid_branch_actuator))
         flow, dflow = self._kernel("branch_flows", _vector(pressure, self.node_count), area,
-                                   _vector(pump_speed, len(self.pump_names)), _vector(actuator_velocity, self.actuator_count))
+                                   _vector(pump_speed, len(self.pump_names)), _vector(actuator_velocity, self.actuator_count),
+                                   _vector(self.component_state_start if state is None else state,
+                                           self.component_state_count), float(h))
         sl = self.branch_slices.get("law", slice(0, 0))
         pilot = dflow[:, 2].copy() if sl.stop > sl.start else None
         return BranchFlows(flow, dflow[:, 0].copy(), dflow[:, 1].copy(), pilot)

@@ -221,7 +221,10 @@ class Stepper:
     def _spool_end(self, state, control, h):
         """Spools [-] after ``h`` [s] of τ·ds/dt = u − s with the commands u clipped to [−1, 1] held
         (:func:`hydraulics.components.valve_4_3.spool_step`)."""
-        return _compiled.spool_steps(state.valve_spool, control.valve_command, self.model.valve_time_constant, h)
+        nv = len(self.model.valve_names)
+        spool = state.valve_spool.copy()  # (then the law components' states, advanced by the step's kernel)
+        spool[:nv] = _compiled.spool_steps(state.valve_spool[:nv], control.valve_command, self.model.valve_time_constant, h)
+        return spool
 
     def _net_inflow(self, flows):
         return self.model.incidence @ flows.flow
@@ -451,6 +454,7 @@ class StepperReference(Stepper):
 
     def __init__(self, model: NetworkModel, *, substeps: int = 1):
         require("scipy.integrate", "tools", "the 'reference' stepper")  # when the run is built, not at its first step
+        refuse_component_states(model, "the 'reference' stepper")
         super().__init__(model, substeps=substeps)
 
     def _substep(self, state, control, motion, h, oil_guess=None):  # oil_guess: not used (solve_ivp)
@@ -499,6 +503,15 @@ class StepperReference(Stepper):
             flows = m.branch_flows(state.node_pressure, m.valve_areas(spool_end), control.pump_speed, motion.velocity_end)
         report.branch_flow = flows.flow
         return self._finish(state, oil, spool_end, motion, h, flows), report
+
+
+def refuse_component_states(model: NetworkModel, what: str) -> None:
+    """Raise :class:`ValueError` when ``model`` has components with states of their own (``what`` integrates the
+    valves' spools only)."""
+    own = model.component_state_names[len(model.valve_names):]
+    if own:
+        raise ValueError(f"{what} integrates no component states; the circuit has {list(own)} (use the implicit "
+                         "stepper with a small step as the reference)")
 
 
 STEPPERS = {cls.name: cls for cls in (StepperExplicitEuler, StepperImplicitEuler, StepperReference)}

@@ -153,7 +153,7 @@ def test_linear_finish_matches_oracle(name, seed):
     oil = np.where(m.node_fixed, np.nan, state.node_oil * rng.uniform(0.999, 1.001, m.node_count))
     speed = rng.uniform(0, 40, len(m.pump_names))
     F, I = C.packed(m)
-    p, flow = C.linear_finish_kernel(F, I, oil, state.valve_spool, state.actuator_position, v, speed)
+    p, flow = C.linear_finish_kernel(F, I, oil, state.valve_spool, state.actuator_position, v, speed, 1e-3)
     p_ref, flow_ref = oracle.linear_finish(m, oil, state.valve_spool, state.actuator_position, v, speed)
     # pressures are iterated to the inversion tolerance, 1e-13 on ln(V·φ/m), i.e. β·1e-13 ≈ 2e-4 Pa
     np.testing.assert_allclose(p, p_ref, rtol=1e-10, atol=1e-3)

@@ -59,13 +59,35 @@ COMPONENT_TYPES = {
 BRANCH_LAWS = tuple(cls for cls in COMPONENT_TYPES.values() if hasattr(cls, "BRANCH_LAW"))
 """The component classes that bring their own branch law, in registry order (their law number in the network).
 
-Such a class declares ``PORTS`` (two or three: the flow runs from the first to the second port; a third is a
-pilot terminal whose pressure the law reads), ``LAW_COLUMNS`` (the names of its parameter row),
-``law_row(fluid)`` (that row) and ``BRANCH_LAW``, a compiled function
-``law(row, p_from, p_to, p_pilot) -> (Q, ∂Q/∂p_from, ∂Q/∂p_to, ∂Q/∂p_pilot)`` [m³/s, m³/(s·Pa)].
-Adding such a component takes its module and one line in :data:`COMPONENT_TYPES`."""
+Such a class declares
+
+* ``PORTS``: two or more port names; the flow runs from the first to the second port, a third is a pilot
+  terminal whose pressure the law reads;
+* ``LAW_COLUMNS`` (the names of its parameter row) and ``law_row(fluid)`` (that row);
+* ``BRANCH_LAW``, a compiled function ``law(row, p_from, p_to, p_pilot) -> (Q, ∂Q/∂p_from, ∂Q/∂p_to, ∂Q/∂p_pilot)``
+  [m³/s, m³/(s·Pa)] at absolute port pressures [Pa];
+
+and, for a component with states of its own (a poppet's lift and speed, …), also
+
+* ``STATES``: their names, ``STATE_UNITS`` their units and ``state_start()`` their values at rest;
+* ``BRANCH_LAW`` then takes ``(row, state, h, p_from, p_to, p_pilot)``: ``state`` holds the states at the start
+  of a step of ``h`` [s], and the law returns the flow through the component *at the end of the step*, with its
+  states advanced over the step by the component's own (implicit or exact) update driven by the end pressures,
+  and the total pressure derivatives of that flow;
+* ``STATE_END``, a compiled function ``end(row, state, h, p_from, p_to, p_pilot, out)`` writing those end states
+  into ``out`` (called once the step's end pressures are known).
+
+The network numbers the states of all components in one vector (the valves' spools first, then each stateful
+component's states in circuit order: :attr:`hydraulics.network.NetworkModel.component_state_names`); the kernels, the
+packing and the logs follow from these declarations, so adding such a component takes its module and one line
+in :data:`COMPONENT_TYPES`."""
 LAW_WIDTH = max([len(cls.LAW_COLUMNS) for cls in BRANCH_LAWS], default=1)
 """Floats per row of the network's law-branch table (the widest law's row)."""
+
+
+def law_states(cls) -> tuple:
+    """Names of the states of a component class (empty for a stateless one)."""
+    return tuple(getattr(cls, "STATES", ()))
 
 
 def build_component(kind: str, table: dict, where: str):
@@ -101,7 +123,7 @@ def build_component(kind: str, table: dict, where: str):
     return component
 
 
-__all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "check_number", "describe_range", "param",
+__all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "law_states", "check_number", "describe_range", "param",
            "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "Motor", "Orifice",
            "PilotCheckValve", "PressureReducingValve", "PumpCompensated", "PumpFixed", "ReliefValve", "Tank",
            "ThrottleCheckValve", "Valve43", "Volume"]

@@ -1,7 +1,10 @@
-"""Proportional 4/3 directional control valve: first-order spool, four metering edges (orifice law), centre type.
+"""Proportional 4/3 directional control valve: first- or second-order spool, four metering edges (orifice law),
+centre type.
 
-Spool s ∈ [−1, 1] follows its command u through τ·ds/dt = u − s, advanced exactly over a step h
-(:func:`spool_step`: s⁺ = u + (s − u)·exp(−h/τ), exact for a command held over the step).  s > 0 opens
+Spool s ∈ [−1, 1] follows its command u clipped to [−1, 1], either through a first-order lag τ·ds/dt = u − s
+(proportional valves) or as a mass–spring–damper s̈ + 2ζω·ṡ + ω²·s = ω²·u (servo valves, ω and ζ from the maker's
+Bode plot), advanced exactly over a step h with the command held (:func:`spool_step`, :func:`valve_step`; the
+transitions of :mod:`hydraulics.components.dynamics`); a second-order spool that reaches ±1 stops there.  s > 0 opens
 P→A and B→T, s < 0 opens P→B and A→T; each edge opens linearly beyond the overlap ε,
 y = clip((s − ε)/(1 − ε), 0, 1) (:func:`metering_opening`), and its flow is the orifice law
 (:mod:`hydraulics.components.orifice`) at area A_leak + y·A_max.  Open and tandem centres add passages of
@@ -24,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._jit import clip, kernel, maximum
+from .dynamics import second_order_transition
 from .parameters import param, table
 
 
@@ -50,9 +54,18 @@ class Valve43:
     """Area of every edge when closed (spool clearance) [m²]."""
     time_constant: float = param("s", low=0.0, high=10.0, low_open=False, default=0.03)
     """First-order spool time constant τ [s]; 0 = ideal spool."""
+    dynamics: str = param("-", default="first_order", choices=("first_order", "second_order"))
+    """Spool model: first-order lag (``time_constant``) or second order (``natural_frequency``, ``damping_ratio``)."""
+    natural_frequency: float = param("rad/s", low=0.0, high=1e5, default=250.0)
+    """Second order: ω [rad/s] (the 90° phase frequency of the valve's Bode plot)."""
+    damping_ratio: float = param("-", low=0.0, high=100.0, low_open=False, default=0.7)
+    """Second order: ζ [-]."""
     discharge_coefficient: float = param("-", low=0.0, high=1.0, default=0.7)
     """C_d [-]."""
     PORTS = ("P", "T", "A", "B")
+    STATES = ("spool", "spool_rate")
+    """The spool's position and (second order only) its rate."""
+    STATE_UNITS = ("-", "1/s")
 
 
 @kernel
@@ -60,6 +73,23 @@ def spool_step(spool, command, tau, dt):
     """Spool position [-] after ``dt`` [s] of τ·ds/dt = u − s from ``spool`` with ``command`` u held; τ = 0: s = u."""
     decay = math.exp(-dt / tau) if tau > 0.0 else 0.0
     return command + (spool - command) * decay
+
+
+@kernel
+def valve_step(row, spool, rate, command, dt):
+    """Spool position [-] and rate [1/s] after ``dt`` [s] with ``command`` u ∈ [−1, 1] held, from ``spool`` and
+    ``rate``: the first-order lag (rate 0) or the second-order spool of ``row`` (columns :data:`COLUMNS`), stopped
+    at ±1."""
+    if row[V_ORDER] == 1.0:
+        return spool_step(spool, command, row[V_TAU], dt), 0.0
+    f11, f12, f21, f22 = second_order_transition(row[V_OMEGA], row[V_ZETA], dt)
+    s = command + f11 * (spool - command) + f12 * rate
+    r = f21 * (spool - command) + f22 * rate
+    if s > 1.0:
+        return 1.0, 0.0
+    if s < -1.0:
+        return -1.0, 0.0
+    return s, r
 
 
 @kernel
@@ -116,11 +146,14 @@ def displaced_rate(direction, extend_area, retract_area):
     return 0.0
 
 
-COLUMNS = ("time_constant", "overlap")
-"""Spool table: time constant τ [s], overlap ε [-]."""
-V_TAU, V_OVERLAP = range(len(COLUMNS))
+COLUMNS = ("time_constant", "overlap", "order", "omega", "zeta")
+"""Spool table: time constant τ [s], overlap ε [-], spool order (1 or 2), natural frequency ω [rad/s], damping ratio
+ζ [-]."""
+V_TAU, V_OVERLAP, V_ORDER, V_OMEGA, V_ZETA = range(len(COLUMNS))
 
 
 def pack(model) -> np.ndarray:
     """The spool table of a :class:`~hydraulics.network.NetworkModel`, columns :data:`COLUMNS`."""
-    return table(COLUMNS, len(model.valve_names), time_constant=model.valve_time_constant, overlap=model.valve_overlap)
+    return table(COLUMNS, len(model.valve_names), time_constant=model.valve_time_constant, overlap=model.valve_overlap,
+                 order=np.where(model.valve_rate_offset >= 0, 2.0, 1.0), omega=model.valve_omega,
+                 zeta=model.valve_zeta)

@@ -437,9 +437,9 @@ def build_network(scenario: Scenario, actuators=None) -> NetworkModel:
     circuit = load_circuit(scenario.circuit)
     check_input_ranges(scenario, circuit)
     names = [c.name for c in circuit.by_kind("cylinder", "motor")]
-    if not names:
+    if not names and actuators:  # (none in the circuit and none in the MJCF: a test rig, stepped and logged as is)
         raise ScenarioError(f"{scenario.circuit}: no 'cylinder' or 'motor' component: a circuit must drive at least one "
-                            f"actuator of {scenario.mjcf}")
+                            f"actuator of {scenario.mjcf} (or the MJCF has no actuators: a test rig)")
     undriven = ()
     if actuators is not None and set(names) - set(actuators):
         if not set(names) & set(actuators):

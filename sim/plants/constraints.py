@@ -100,7 +100,7 @@ def joint_stop_rows(m, qpos, skip=()) -> np.ndarray:
                 row = np.zeros(m.nv)
                 row[m.jnt_dofadr[j]] = sign
                 rows.append(row)
-    return np.array(rows).reshape(-1, m.nv)
+    return np.array(rows, float).reshape(len(rows), m.nv)
 
 
 def limit_rows(m, d) -> np.ndarray:

@@ -98,6 +98,9 @@ class MujocoPlant(PlantBase):
         from sim.plants.constraints import actuator_moments, holding_efforts
 
         ids = self.binding.actuator_id
+        if len(ids) == 0:  # a test rig: nothing to hold
+            self.holding_residual = 0.0
+            return np.zeros(0)
         effort, self.holding_residual = holding_efforts(self.model, self.data.qpos, lambda d: actuator_moments(self.model, d, ids),
                                                         contacts=self.scene.scenario.start_contacts == "include")
         return effort

@@ -189,14 +189,14 @@ CTX_SYMBOL = "hydroplant_fast_plant_ctx"
 SOLVEM_SYMBOL = "hydroplant_mj_solveM"
 
 
-def _finish_scratch(na, n, nb, nvalve):
-    return 4 * na + 6 * n + (1 + C._W_BR) * nb + nvalve
+def _finish_scratch(na, n, nb, nstate):
+    return 4 * na + 6 * n + (1 + C._W_BR) * nb + nstate
 
 
-def scratch_size(na, n, nb, nvalve):
+def scratch_size(na, n, nb, nstate):
     """Length of the plant's float64 scratch (P_SCRATCH): _finish_pending's part, then _begin's (whose first
     part — velocity guess, predicted oil and spool, ∂m⁺/∂v — persists until the step is finished)."""
-    return _finish_scratch(na, n, nb, nvalve) + 9 * na + 5 * n + na * na + n + nvalve + na + nb + n * na
+    return _finish_scratch(na, n, nb, nstate) + 9 * na + 5 * n + na * na + n + nstate + na + nb + n * na
 
 
 _JIT = _NUMBA and C.JIT_ENABLED  # False under NUMBA_DISABLE_JIT=1: the callback runs as Python (below)
@@ -314,7 +314,7 @@ _Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W',
 
 
 @_inline
-def _views(ctx):
+def _views(ctx, nstate):
     """The arrays of the pointer table as views (built here, in reference-counted code: the kernels below
     run without numba's reference counting and cannot create arrays)."""
     na, nv, nu, n, nb = ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N], ctx[C_NB]
@@ -323,7 +323,7 @@ def _views(ctx):
     nnz = 0
     for a in range(nu):
         nnz = max(nnz, rowadr[a] + rownnz[a])
-    return _Views(_vf(ctx, P_FS, NFS), _mf(ctx, P_J, na, nv), _mf(ctx, P_MINVJ, na, nv), _vf(ctx, P_QVEL, nv), _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na), _vf(ctx, P_SCRATCH, ctx[C_NS]), _vf(ctx, P_WORK, ctx[C_NW]), _vi64(ctx, P_ISTATS, 6), _mf(ctx, P_CMD, ctx[C_ROWS], nvalve), _mf(ctx, P_SPEED, ctx[C_ROWS], npump), _vf(ctx, P_OIL, n), _vf(ctx, P_PRESSURE, n), _vf(ctx, P_SPOOL, nvalve), _vf(ctx, P_XPOS, na), _vf(ctx, P_XVEL, na), _vf(ctx, P_FLOW, nb), _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na), _vf(ctx, P_EFFORT, na), _vf(ctx, P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, P_PASSIVE_SAVED, nv), _vf(ctx, P_CONSTRAINT, nv), _vf(ctx, P_PASSIVE, nv), _vi64(ctx, P_ACT, na), _vf(ctx, P_CLOSED, na), _vf(ctx, P_LENGTH, nu), _vf(ctx, P_AVEL, nu), _vf(ctx, P_MEFF, na), _vf(ctx, P_THETA, na), _vf(ctx, P_CTRL, nu), _vf(ctx, P_BIASPRM, nu * ctx[C_NBIAS]), _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu), _vi32(ctx, P_COLIND, nnz), _vf(ctx, P_MOMENT, nnz), _vf(ctx, P_PMAX, n), _vf(ctx, P_PMIN, n), _vf(ctx, P_OIL_CHANGE, n), _vf(ctx, P_XMAX, na), _vf(ctx, P_XMIN, na), _vf(ctx, P_LOWER, na), _vf(ctx, P_UPPER, na), _vu8(ctx, P_FLIMITED, nu), _vf(ctx, P_FRANGE, 2 * nu))
+    return _Views(_vf(ctx, P_FS, NFS), _mf(ctx, P_J, na, nv), _mf(ctx, P_MINVJ, na, nv), _vf(ctx, P_QVEL, nv), _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na), _vf(ctx, P_SCRATCH, ctx[C_NS]), _vf(ctx, P_WORK, ctx[C_NW]), _vi64(ctx, P_ISTATS, 6), _mf(ctx, P_CMD, ctx[C_ROWS], nvalve), _mf(ctx, P_SPEED, ctx[C_ROWS], npump), _vf(ctx, P_OIL, n), _vf(ctx, P_PRESSURE, n), _vf(ctx, P_SPOOL, nstate), _vf(ctx, P_XPOS, na), _vf(ctx, P_XVEL, na), _vf(ctx, P_FLOW, nb), _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na), _vf(ctx, P_EFFORT, na), _vf(ctx, P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, P_PASSIVE_SAVED, nv), _vf(ctx, P_CONSTRAINT, nv), _vf(ctx, P_PASSIVE, nv), _vi64(ctx, P_ACT, na), _vf(ctx, P_CLOSED, na), _vf(ctx, P_LENGTH, nu), _vf(ctx, P_AVEL, nu), _vf(ctx, P_MEFF, na), _vf(ctx, P_THETA, na), _vf(ctx, P_CTRL, nu), _vf(ctx, P_BIASPRM, nu * ctx[C_NBIAS]), _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu), _vi32(ctx, P_COLIND, nnz), _vf(ctx, P_MOMENT, nnz), _vf(ctx, P_PMAX, n), _vf(ctx, P_PMIN, n), _vf(ctx, P_OIL_CHANGE, n), _vf(ctx, P_XMAX, na), _vf(ctx, P_XMIN, na), _vf(ctx, P_LOWER, na), _vf(ctx, P_UPPER, na), _vu8(ctx, P_FLIMITED, nu), _vf(ctx, P_FRANGE, 2 * nu))
 
 
 @_kernel
@@ -366,12 +366,12 @@ def _finish_pending(ctx, pnet, V, T, R):
     mu, o = C._take(S, o, n)
     fl, o = C._take(S, o, nb)
     dfl, o = C._take2(S, o, nb, C._W_BR)  # branches × terminals
-    sp2, o = C._take(S, o, nvalve)
+    sp2, o = C._take(S, o, V.spool.size)
     mpred, o = C._take(S, o, n)
     mstart, o = C._take(S, o, n)
     minit, o = C._take(S, o, n)
     # what _begin left for this step: velocity guess, predicted oil and spool, ∂m⁺/∂v
-    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, nvalve)
+    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, V.spool.size)
     for i in range(na):
         s = 0.0
         for j in range(nv):
@@ -408,7 +408,7 @@ def _finish_pending(ctx, pnet, V, T, R):
     elif ctx[C_LINEAR]:  # implicit-linear, rosenbrock: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
         substeps = 0
         C._copy(sp2, lin_spool)
-        C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfl)
+        C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfl, dt)
         rhs = 1
         C._copy(flow_out, fl)
         bad = C._commit_if_finite(oil, pres, spool, pos, vel, mpred, p2, sp2, x_end, v_end)
@@ -528,9 +528,9 @@ def _begin(ctx, pnet, V, T, R):
     S = V.S
     W = V.W
     istats = V.istats
-    o = _finish_scratch_nb(na, n, nb, nvalve)  # after _finish_pending's part
+    o = _finish_scratch_nb(na, n, nb, V.spool.size)  # after _finish_pending's part
     # kept for _finish_pending
-    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, nvalve)
+    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, V.spool.size)
     fg, o = C._take(S, o, na)
     fslope_guess, o = C._take(S, o, na)
     end_const, o = C._take(S, o, na)
@@ -680,7 +680,7 @@ def _coupled_step(address, m, d):
     I = carray(_pi64(ctx[P_I]), (ctx[C_NI],))
     net = _unpack(F, I)
     pnet = C._ref(net)
-    V = _views(ctx)
+    V = _views(ctx, net.ic[C.IC_NSTATE])
     na = ctx[C_NA]
     TF = carray(_pf64(ctx[P_TF]), (ctx[C_NTF],))
     TI = carray(_pi64(ctx[P_TI]), (ctx[C_NTI],))
@@ -811,14 +811,14 @@ class MujocoPlantFast(MujocoPlant):
         self._MinvJ = np.zeros((na, nv))
         n = net.node_count
         self._oil, self._p, self._oil_change = np.zeros(n), np.zeros(n), np.zeros(n)
-        self._spool = np.zeros(len(net.valve_names))
+        self._spool = net.component_state_start.copy()  # the component states (valve spools first)
         self._x, self._v = np.zeros(na), np.zeros(na)
         self._xs, self._vs = np.zeros(na), np.zeros(na)
         self._const, self._slope, self._theta, self._meff, self._effort = (np.zeros(na) for _ in range(5))
         self._flow = np.zeros(len(net.branch_names))
         self._passive = np.zeros(nv)
         self._work = np.zeros(max(C.work_size(self._F, self._I), 4 * n + len(net.branch_names), 3 * nr + 3 * n + 4 * na))
-        self._scratch = np.zeros(scratch_size(na, n, len(net.branch_names), len(net.valve_names)))
+        self._scratch = np.zeros(scratch_size(na, n, len(net.branch_names), net.component_state_count))
         self._istats = np.zeros(6, np.int64)
         self._pmax, self._pmin = np.zeros(n), np.zeros(n)
         self._xmax, self._xmin = np.zeros(na), np.zeros(na)
@@ -902,14 +902,15 @@ class MujocoPlantFast(MujocoPlant):
         """Floats per row of :meth:`advance`'s ``record`` (see :meth:`record_row` for the layout)."""
         m, net = self.model, self.network
         n, na = net.node_count, net.actuator_count
-        return (2 * n + m.nq + m.nv + 4 * na + 2 * len(net.valve_names) + len(net.pump_names) + len(net.branch_names)
-                + 8 + 7 * m.nbody)
+        return (2 * n + m.nq + m.nv + 4 * na + len(net.valve_names) + net.component_state_count + len(net.pump_names)
+                + len(net.branch_names) + 8 + 7 * m.nbody)
 
     def record_row(self, out: np.ndarray) -> None:
         """Write the current state into ``out`` (``record_width`` floats), as :meth:`advance` records a step.
 
         Layout, SI units: node pressures [Pa], ``qpos``, ``qvel``, node oil [m³ at reference density],
-        actuator positions [m|rad], velocities, efforts [N|N·m], θ [-], valve commands, valve spools [-],
+        actuator positions [m|rad], velocities, efforts [N|N·m], θ [-], valve commands, component states (valve spools
+        [-] first),
         pump speeds [rev/s], branch flows [m³/s], Newton iterations and residual [Pa] of the last step,
         kinetic and potential energy [J], pump work, hydraulic, friction and mechanical dissipation [J],
         body positions ``xpos`` (nbody×3) [m] and quaternions ``xquat`` (nbody×4).  Refreshes the kinematics

@@ -384,8 +384,8 @@ class PbdPlant(PlantBase):
         2 solver and 6 energy terms, 7 per body)."""
         net = self.network
         n, na = net.node_count, net.actuator_count
-        return (2 * n + 2 * len(self.scalar_joints) + 4 * na + 2 * len(net.valve_names) + len(net.pump_names)
-                + len(net.branch_names) + 8 + 7 * self.xmodel.nbody)
+        return (2 * n + 2 * len(self.scalar_joints) + 4 * na + len(net.valve_names) + net.component_state_count
+                + len(net.pump_names) + len(net.branch_names) + 8 + 7 * self.xmodel.nbody)
 
     def record_next(self, record: np.ndarray, every: int = 1) -> None:
         """Make the next :meth:`advance` record the samples after every step whose index becomes a multiple of

@@ -270,7 +270,7 @@ def _finish_core(pnet, buffers, control, motion, h, coupling, effort):
         else:  # m⁺ = the prediction, at the linearisation's spools
             C._copy(o2, mpred)
             C._copy(sp2, lin_spool)
-            C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dflow)
+            C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dflow, h)
             istats[C.IS_STATUS] = C._OK
             istats[I_RHS] += 1
         if norm > ledger[L_RESIDUAL]:
@@ -324,7 +324,7 @@ class NetworkBuffers:
         else:
             self._F, self._I = coupling.packed
         n, na = net.node_count, net.actuator_count
-        nb, nvalve = len(net.branch_names), len(net.valve_names)
+        nb, nvalve = len(net.branch_names), net.component_state_count  # (the component states: spools first)
         rigid = K.pack_rigid(net)
         self._W = np.zeros(work_size(self._F, self._I, n, na, nb, len(rigid.actuator)))
         self._S = np.zeros(keep_size(n, na, nb, nvalve))

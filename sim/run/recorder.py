@@ -15,6 +15,8 @@ scene are JSON:
 ``/hydroplant/pumps/<name>``       ``hydroplant_msgs/msg/PumpState``: speed, flow, outlet pressure, power
 ``/hydroplant/nodes``              ``hydroplant_msgs/msg/NodePressures``: ``pressure_pa.<node>`` of every node
 ``/hydroplant/flows``              ``hydroplant_msgs/msg/BranchFlows``: ``flow_m3ps.<branch>`` of every branch
+``/hydroplant/component_states``   ``hydroplant_msgs/msg/ComponentStates``: ``state.<component>_<state>`` of every
+                                   component with states of its own (a relief's poppet lift and speed, …)
 ``/hydroplant/energy``             ``hydroplant_msgs/msg/Energy``: energy terms and the balance residual
 ``/hydroplant/solver``             ``hydroplant_msgs/msg/Solver``: Newton iterations, residual, coupling θ
 ``/tf``                            ``foxglove_msgs/msg/FrameTransforms``: body poses for Foxglove's 3D panel, at the
@@ -147,6 +149,9 @@ class RunRecorder:
         self.pump_branches = np.arange(net.branch_slices["pump"].start, net.branch_slices["pump"].stop)
         node_fields = _named_fields("pressure_pa", net.node_names, "Absolute pressure of node {} [Pa]")
         flow_fields = _named_fields("flow_m3ps", net.branch_names, "Flow of branch {}, positive from its first port [m^3/s]")
+        own = len(net.valve_names)  # the component states after the valves' spools: the stateful components' own
+        state_fields = {f"state.{field_name(name)}": f"State {name} of its component [{unit}]" for name, unit in
+                        zip(net.component_state_names[own:], net.component_state_units[own:])}
         # One frame row per sample holds every columnar topic, /tf included (its channel reads xpos.ravel() then
         # xquat.ravel(), see FrameTransformsChannel, on the rows at multiples of tf_every): one commit per sample,
         # so an interrupt never splits a sample.
@@ -155,7 +160,8 @@ class RunRecorder:
         nbody = plant.model.nbody
         sizes = {"joints": 3 * nj, "cylinders": ncyl * len(CYLINDER_FIELDS), "motors": nmot * len(MOTOR_FIELDS),
                  "valves": nvalve * len(VALVE_FIELDS), "pumps": npump * len(PUMP_FIELDS), "nodes": nnode, "flows": nflow,
-                 "energy": len(ENERGY_FIELDS), "solver": len(SOLVER_FIELDS), "xpos": 3 * nbody, "xquat": 4 * nbody}
+                 "states": len(state_fields), "energy": len(ENERGY_FIELDS), "solver": len(SOLVER_FIELDS),
+                 "xpos": 3 * nbody, "xquat": 4 * nbody}
         pins = CylinderPins.of_scene(plant.scene) if ncyl else None
         sizes["cylinder_scene"] = CylinderScene.width(pins) if ncyl else 0
         start = np.cumsum([0, *sizes.values()])
@@ -187,6 +193,12 @@ class RunRecorder:
                           fields=list(flow_fields), columns=columns("flows", 0, nflow), metadata=si)
             if flow_fields else None
         )
+        self.states = (
+            frame.channel("/hydroplant/component_states",
+                          flat_schema("hydroplant_msgs/msg/ComponentStates", state_fields), fields=list(state_fields),
+                          columns=columns("states", 0, len(state_fields)), metadata=si)
+            if state_fields else None
+        )
         self.energy = frame.channel("/hydroplant/energy", ENERGY, fields=list(ENERGY_FIELDS),
                                     columns=columns("energy", 0, len(ENERGY_FIELDS)), metadata=si)
         self.solver = frame.channel("/hydroplant/solver", SOLVER, fields=list(SOLVER_FIELDS),
@@ -212,7 +224,8 @@ class RunRecorder:
         # powers) is computed per batch in derive().
         # (node pressures and joints first and adjacent: captured_finite() sums one slice)
         raw_sizes = {"p": nnode, "joints": 2 * nj, "oil": nnode, "x": net.actuator_count, "v": net.actuator_count,
-                     "effort": net.actuator_count, "theta": net.actuator_count, "cmd": nvalve, "spool": nvalve,
+                     "effort": net.actuator_count, "theta": net.actuator_count, "cmd": nvalve,
+                     "spool": net.component_state_count,
                      "speed": npump, "flow": nflow, "solver": 2, "energy": 6, "poses": 7 * nbody}
         # A MuJoCo plant's joints are read as the whole qpos/qvel (two plain copies) and selected per batch
         from sim.plants.mujoco import MujocoPlant
@@ -388,7 +401,7 @@ class RunRecorder:
             rows[:, block["motors"]] = m.reshape(k, -1)
         if self.valves:
             valves = rows[:, block["valves"]].reshape(k, len(self.valves), len(VALVE_FIELDS))
-            valves[:, :, 0], valves[:, :, 1] = r[:, b["cmd"]], r[:, b["spool"]]
+            valves[:, :, 0], valves[:, :, 1] = r[:, b["cmd"]], r[:, b["spool"]][:, :len(self.valves)]
             rows[:, block["valves"]] = valves.reshape(k, -1)
         if self.pumps:
             mu = net.fluid.pressure_potential(p)
@@ -398,6 +411,8 @@ class RunRecorder:
             pumps[:, :, 3] = q_pump * (mu[:, self._pump_to] - mu[:, self._pump_from])
             rows[:, block["pumps"]] = pumps.reshape(k, -1)
         rows[:, block["nodes"]] = p
+        if self.states is not None:
+            rows[:, block["states"]] = r[:, b["spool"]][:, len(net.valve_names):]
         if self.flows is not None:
             rows[:, block["flows"]] = flow
         kinetic, potential, pump_work, diss_h, diss_f, diss_m = r[:, b["energy"]].T

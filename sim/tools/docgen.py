@@ -106,11 +106,17 @@ def component_reference() -> str:
         "its range is refused with one line naming the file, the component, the field and the range",
         "(exit status 2). The fluid and scenario keys are in [scenario-keys.md](scenario-keys.md).",
         "",
-        "| type | what |",
-        "|---|---|",
+        "A component with states of its own lists them (with their units); they start at rest, are stepped with",
+        "the circuit and are logged on `/hydroplant/valves/<name>` (a valve's spool) or",
+        "`/hydroplant/component_states`.",
+        "",
+        "| type | ports | states | what |",
+        "|---|---|---|---|",
     ]
     for kind, cls in COMPONENT_TYPES.items():
-        lines.append(f"| [`{kind}`](#{kind}) | {_markdown(first_line(cls.__doc__))} |")
+        ports = ", ".join(getattr(cls, "PORTS", ()))
+        lines.append(f"| [`{kind}`](#{kind}) | {ports} | {', '.join(getattr(cls, 'STATES', ())) or '-'} "
+                     f"| {_markdown(first_line(cls.__doc__))} |")
     for kind, cls in COMPONENT_TYPES.items():
         docs = attribute_docs(cls)
         ports = ", ".join(f"`{p}`" for p in getattr(cls, "PORTS", ()))
@@ -118,6 +124,10 @@ def component_reference() -> str:
                   f"{_markdown(first_line(cls.__doc__))}", ""]
         if ports:
             lines += [f"Ports: {ports}.", ""]
+        states = ", ".join(f"`{name}` [{unit}]" for name, unit in zip(getattr(cls, "STATES", ()),
+                                                                       getattr(cls, "STATE_UNITS", ())))
+        if states:
+            lines += [f"States: {states}.", ""]
         lines += ["| field | unit | range | default | description |", "|---|---|---|---|---|"]
         for f in dataclasses.fields(cls):
             meta = f.metadata

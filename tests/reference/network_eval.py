@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydraulics.components import BRANCH_LAWS
+from hydraulics.components import BRANCH_LAWS, law_states
 from hydraulics.components.relief import REGULARISATION as RELIEF_REGULARISATION
 from hydraulics.network import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE, BranchFlows
 
@@ -277,9 +277,14 @@ def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -
     dpilot = np.zeros(nb)
     for i, b in enumerate(range(s.start, s.stop)):  # the compiled law of each component, called from Python
         pilot = model.branch_pilot[b]
-        law = BRANCH_LAWS[model.law_kind[i]].BRANCH_LAW
-        flow[b], dfrom[b], dto[b], dpilot[b] = law(model.law_table[i], pressure[model.branch_from[b]],
-                                                   pressure[model.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0)
+        cls = BRANCH_LAWS[model.law_kind[i]]
+        ports = (pressure[model.branch_from[b]], pressure[model.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0)
+        if law_states(cls):  # at the component's states at rest, over a step of zero length
+            first = model.law_state_offset[i]
+            start = model.component_state_start[first:first + len(law_states(cls))].copy()
+            flow[b], dfrom[b], dto[b], dpilot[b] = cls.BRANCH_LAW(model.law_table[i], start, 0.0, *ports)
+        else:
+            flow[b], dfrom[b], dto[b], dpilot[b] = cls.BRANCH_LAW(model.law_table[i], *ports)
     return BranchFlows(flow, dfrom, dto, dpilot)
 
 
