@@ -30,6 +30,7 @@ from .pilot_check import PilotCheckValve
 from .pressure_reducing import PressureReducingValve
 from .pumps import PumpCompensated, PumpFixed
 from .relief import ReliefValve
+from .relief_poppet import ReliefPoppet
 from .tank import Tank
 from .throttle_check import ThrottleCheckValve
 from .valve_4_3 import Valve43
@@ -53,6 +54,7 @@ COMPONENT_TYPES = {
     "counterbalance_valve": CounterbalanceValve,
     "pressure_reducing_valve": PressureReducingValve,
     "flow_control_valve": FlowControlValve,
+    "relief_valve_poppet": ReliefPoppet,
 }
 """Circuit-file ``type`` name → parameter class."""
 
@@ -125,5 +127,5 @@ def build_component(kind: str, table: dict, where: str):
 
 __all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "law_states", "check_number", "describe_range", "param",
            "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "Motor", "Orifice",
-           "PilotCheckValve", "PressureReducingValve", "PumpCompensated", "PumpFixed", "ReliefValve", "Tank",
+           "PilotCheckValve", "PressureReducingValve", "PumpCompensated", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",
            "ThrottleCheckValve", "Valve43", "Volume"]
