@@ -20,7 +20,8 @@ outlet dead-ended, its leakage lets the outlet creep above the setting towards t
 reducing/relieving valve would bleed it to tank).  Reverse flow (p_out > p_in) passes through the same area (no
 bypass check).  Quasi-static spool (no dynamics, no flow forces).
 
-Ports: ``inlet``, ``outlet``.  Packing: one row per valve, columns :data:`COLUMNS` (:func:`law_row`), read by
+The law is the pressure-regulated orifice of :mod:`hydraulics.components.regulated` with the ambient as its
+reference.  Ports: ``inlet``, ``outlet``.  Packing: one row per valve, columns :data:`COLUMNS` (:func:`law_row`), read by
 :func:`flow_with_derivatives` (:attr:`PressureReducingValve.BRANCH_LAW`).
 
 References: H. Exner et al., *Hydraulics: Basic Principles and Components*, Bosch Rexroth 2011 (pressure
@@ -46,27 +47,14 @@ import numpy as np
 
 from .._jit import kernel
 from .orifice import coefficients as orifice_coefficients
-from .orifice import flow_area_derivative as orifice_flow_area_derivative
-from .orifice import flow_with_derivative as orifice_flow_with_derivative
 from .parameters import param, table
-from .ramps import smooth_step_with_derivative
-
-COLUMNS = ("setting", "band", "ambient", "area", "leakage", "k", "c")
-"""Row of one valve: setting [Pa gauge], regulation band [Pa], reference pressure [Pa], full and closed areas
-[m²], orifice-law constants k, c."""
-SETTING, BAND, AMBIENT, AREA, LEAKAGE, K, C = range(len(COLUMNS))
-
+from .regulated import AMBIENT, COLUMNS, regulated_flow
 
 @kernel
 def flow_with_derivatives(row, p_in, p_out, p_x):
     """Flow Q [m³/s] from ``inlet`` to ``outlet`` and ∂Q/∂p_in, ∂Q/∂p_out, ∂Q/∂p_x (0: two ports) [m³/(s·Pa)] at
     absolute port pressures [Pa]; ``row``: the valve's parameters, columns :data:`COLUMNS`."""
-    band = row[BAND]
-    y, dy = smooth_step_with_derivative((row[SETTING] - (p_out - row[AMBIENT])) / band)
-    area = row[LEAKAGE] + row[AREA] * y
-    dp = p_in - p_out
-    q, g = orifice_flow_with_derivative(area, row[K], row[C], dp)
-    closing = orifice_flow_area_derivative(area, row[K], row[C], dp) * row[AREA] * dy / band
+    q, g, closing = regulated_flow(row, p_in, p_out, row[AMBIENT])
     return q, g, -g - closing, 0.0
 
 
