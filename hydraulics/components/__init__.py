@@ -19,6 +19,7 @@ from dataclasses import MISSING, fields
 
 from .accumulator import Accumulator
 from .check_valve import CheckValve
+from .compensator import PressureCompensator
 from .counterbalance import CounterbalanceValve
 from .cylinder import Cylinder
 from .flow_control import FlowControlValve
@@ -55,6 +56,7 @@ COMPONENT_TYPES = {
     "pressure_reducing_valve": PressureReducingValve,
     "flow_control_valve": FlowControlValve,
     "relief_valve_poppet": ReliefPoppet,
+    "pressure_compensator": PressureCompensator,
 }
 """Circuit-file ``type`` name → parameter class."""
 
@@ -127,5 +129,5 @@ def build_component(kind: str, table: dict, where: str):
 
 __all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "law_states", "check_number", "describe_range", "param",
            "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "Motor", "Orifice",
-           "PilotCheckValve", "PressureReducingValve", "PumpCompensated", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",
+           "PilotCheckValve", "PressureCompensator", "PressureReducingValve", "PumpCompensated", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",
            "ThrottleCheckValve", "Valve43", "Volume"]
