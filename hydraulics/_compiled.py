@@ -99,7 +99,7 @@ from .components.pumps import P_BAND, P_COMP, P_DISP, P_EFF
 from .components.relief import R_CRACK, R_GRAD, R_WIDTH
 from .components.valve_4_3 import V_OVERLAP, V_TAU
 from .components.parameters import table as _table
-from .components import BRANCH_LAWS, LAW_WIDTH, law_states
+from .components import BRANCH_LAWS, LAW_WIDTH, law_sources, law_states
 
 
 # ----------------------------------------------------------------------------
@@ -373,6 +373,7 @@ def _law_dispatch(laws, first=0):
 
 _branch_law, _branch_law_end = _law_dispatch(tuple(_state_law(cls) for cls in BRANCH_LAWS))
 _LAW_STATE_WIDTH = max([len(law_states(cls)) for cls in BRANCH_LAWS], default=0)
+_LAW_SOURCE = np.array(law_sources() or (0,), np.int64)  # 1: the law's power is pump work (its SOURCE)
 
 
 # ----------------------------------------------------------------------------
@@ -1622,7 +1623,11 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     for b in range(ic[IC_O0], ic[IC_C1]):
         dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
     for b in range(ic[IC_W0], ic[IC_W1]):
-        dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+        power = flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+        if _LAW_SOURCE[net.law_kind[b - ic[IC_W0]]]:
+            pump += power
+        else:
+            dissipated += power
     ledger[at] += h * -pump
     ledger[at + 1] += h * motor
     ledger[at + 2] += h * dissipated

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .components import law_sources
 from .network import NetworkModel, NetworkState
 
 ACCUMULATOR_QUADRATURE_POINTS = 16  # Gauss–Legendre points for ∫ V_liquid dp
@@ -79,6 +80,10 @@ def branch_powers(model: NetworkModel, state: NetworkState, flow: np.ndarray) ->
     mu = model.fluid.pressure_potential(state.node_pressure)
     power = flow * (mu[model.branch_from] - mu[model.branch_to])
     sl = model.branch_slices
-    dissipative = np.concatenate([power[sl[k]] for k in ("orifice", "laminar", "relief", "check", "law") if k in sl])
-    return {"pump": float(-np.sum(power[sl["pump"]])), "motor": float(np.sum(power[sl["motor"]])),
+    law = power[sl["law"]] if "law" in sl else power[:0]
+    source = np.array(law_sources(), bool)[model.law_kind] if len(law) else np.zeros(0, bool)  # pumps with a law
+    dissipative = np.concatenate([power[sl[k]] for k in ("orifice", "laminar", "relief", "check") if k in sl]
+                                 + [law[~source]])
+    return {"pump": float(-np.sum(np.concatenate([power[sl["pump"]], law[source]]))),
+            "motor": float(np.sum(power[sl["motor"]])),
             "dissipated": float(np.sum(dissipative)), "rigid": float(np.sum(power[sl["rigid"]]))}

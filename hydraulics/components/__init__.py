@@ -81,12 +81,20 @@ and, for a component with states of its own (a poppet's lift and speed, …), al
 * ``STATE_END``, a compiled function ``end(row, state, h, p_from, p_to, p_pilot, out)`` writing those end states
   into ``out`` (called once the step's end pressures are known).
 
+A law component that delivers power (a pump) sets ``SOURCE = True``: its flow's power enters the energy ledger
+as pump work instead of dissipation.
+
 The network numbers the states of all components in one vector (the valves' spools first, then each stateful
 component's states in circuit order: :attr:`hydraulics.network.NetworkModel.component_state_names`); the kernels, the
 packing and the logs follow from these declarations, so adding such a component takes its module and one line
 in :data:`COMPONENT_TYPES`."""
 LAW_WIDTH = max([len(cls.LAW_COLUMNS) for cls in BRANCH_LAWS], default=1)
 """Floats per row of the network's law-branch table (the widest law's row)."""
+
+
+def law_sources() -> tuple:
+    """1 for each law of :data:`BRANCH_LAWS` that is a power source (``SOURCE``), else 0, in law order."""
+    return tuple(int(bool(getattr(cls, "SOURCE", False))) for cls in BRANCH_LAWS)
 
 
 def law_states(cls) -> tuple:
@@ -127,7 +135,7 @@ def build_component(kind: str, table: dict, where: str):
     return component
 
 
-__all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "law_states", "check_number", "describe_range", "param",
+__all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "law_sources", "law_states", "check_number", "describe_range", "param",
            "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "Motor", "Orifice",
            "PilotCheckValve", "PressureCompensator", "PressureReducingValve", "PumpCompensated", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",
            "ThrottleCheckValve", "Valve43", "Volume"]
