@@ -29,6 +29,7 @@ from .orifice import Orifice
 from .parameters import CircuitError, check_number, describe_range, param
 from .pilot_check import PilotCheckValve
 from .pressure_reducing import PressureReducingValve
+from .pump_load_sensing import PumpLoadSensing
 from .pumps import PumpCompensated, PumpFixed
 from .relief import ReliefValve
 from .relief_poppet import ReliefPoppet
@@ -56,6 +57,7 @@ COMPONENT_TYPES = {
     "pressure_reducing_valve": PressureReducingValve,
     "flow_control_valve": FlowControlValve,
     "relief_valve_poppet": ReliefPoppet,
+    "pump_load_sensing": PumpLoadSensing,
     "pressure_compensator": PressureCompensator,
 }
 """Circuit-file ``type`` name → parameter class."""
@@ -137,5 +139,5 @@ def build_component(kind: str, table: dict, where: str):
 
 __all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "law_sources", "law_states", "check_number", "describe_range", "param",
            "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "Motor", "Orifice",
-           "PilotCheckValve", "PressureCompensator", "PressureReducingValve", "PumpCompensated", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",
+           "PilotCheckValve", "PressureCompensator", "PressureReducingValve", "PumpCompensated", "PumpLoadSensing", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",
            "ThrottleCheckValve", "Valve43", "Volume"]
