@@ -19,8 +19,13 @@ ratio (bare + evaluation + factorisation) / bare: what the coupled step would
 cost if everything else (moments, M⁻¹·Jᵀ, effort law, energy ledger, Newton
 iterations beyond the first) were free and the end-of-step pressures were the
 next step's start evaluation; and the same with the end pressures inverted
-separately, as every coupling scheme here does (the next step starts at
-MuJoCo's integrated positions, not at the linearisation's).  Run: ``.venv/bin/python bench/bench_floor.py``.
+separately, as the implicit couplings do (their next step starts at MuJoCo's
+integrated positions, not at the linearisation's; ``rosenbrock`` ends its step there).
+A second line times the pieces of a ``rosenbrock`` step in the same way: its one-step
+linearisation (``_compiled._linearize_one_step_core``: start evaluation, gradients,
+one elimination, effort gradient), the same with the start evaluation known (MuJoCo
+mode, where the previous step's end evaluation is it), its linear finish (end
+pressures and flows) and the energy ledger.  Run: ``.venv/bin/python bench/bench_floor.py``.
 """
 
 from __future__ import annotations
@@ -38,10 +43,16 @@ from sim.plants.mujoco_fast import MujocoPlantFast
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 
+from hydraulics.fluid import POTENTIAL_QUADRATURE_POINTS
+
 from bench_fast import DT, SCENES, bare_start  # the same scenes, step and bare loop as bench_fast.py
 
 PIECES = ("pressures", "flows", "evaluation", "factorisation")
 PRESSURES, FLOWS, EVALUATION, FACTORISATION = range(4)
+# the pieces of a rosenbrock step (hydraulics.coupling): its one-step linearisation, the same at a known start
+# evaluation (MuJoCo mode: the previous step's end), its linear finish and the energy ledger
+STEP_PIECES = ("one-step", "one-step known", "linear finish", "ledger")
+ONE_STEP, ONE_STEP_KNOWN, LINEAR_FINISH, LEDGER = range(4, 8)
 
 
 @numba.njit(cache=True)
@@ -59,9 +70,26 @@ def _time_piece(F, I, oil, x, v, spool, speed, piece, reps):
     rhs = np.empty((nf, 1 + na))
     C._valve_areas(pnet, spool, area)
     C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
+    W = np.empty(C._linearize_work_size(net.ic))
+    start = C.StepStart(oil, spool, spool, speed, x, v)
+    out = C.LinearizationOut(np.empty(n), np.empty(n), np.empty(spool.size), np.empty(na), np.empty(nb),
+                             np.zeros(6, np.int64), np.empty(na), np.empty((na, na)), p.copy(), np.empty((n, na)))
+    ledger, quad, mu = np.zeros(8), np.zeros(2 * POTENTIAL_QUADRATURE_POINTS), np.empty(n)
     check = 0.0
     for r in range(reps):
-        if piece == PRESSURES:
+        if piece == ONE_STEP:
+            C._linearize_one_step_core(pnet, W, start, DT, out)
+            check += out.pressure[n - 1]
+        elif piece == ONE_STEP_KNOWN:
+            C._linearize_one_step_from(pnet, W, start, DT, out, True, geo, dpdm)
+            check += out.pressure[n - 1]
+        elif piece == LINEAR_FINISH:
+            C._linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow)
+            check += p[n - 1]
+        elif piece == LEDGER:
+            C._account(pnet, ledger, 2, DT, p, flow, v, quad, mu, geo, dpdm)
+            check += ledger[4]
+        elif piece == PRESSURES:
             C._pressure(pnet, oil, x, geo, p, dpdm)
             check += p[n - 1]
         elif piece == FLOWS:
@@ -95,17 +123,17 @@ def bench(name, path, reps, window, every, calls):
         states.append((plant._F, plant._I, plant._oil.copy(), plant._x.copy(), plant._v.copy(), plant._spool.copy(),
                        plant._speed[stride - 1].copy()))
     for args in states[:1]:
-        for piece in range(len(PIECES)):
+        for piece in range(len(PIECES) + len(STEP_PIECES)):
             _time_piece(*args, piece, 10)  # compiled (or loaded) before timing
     steps = int(round(window / DT))
-    times = {key: [] for key in ("bare", *PIECES)}
+    times = {key: [] for key in ("bare", *PIECES, *STEP_PIECES)}
     for _ in range(reps):
         bare = mujoco.MjData(m)
         mujoco.mj_copyData(bare, m, start)
         t = time.perf_counter()
         mujoco.mj_step(m, bare, nstep=steps)
         times["bare"].append((time.perf_counter() - t) / steps)
-        for piece, key in enumerate(PIECES):
+        for piece, key in enumerate(PIECES + STEP_PIECES):
             t = time.perf_counter()
             for args in states:
                 _time_piece(*args, piece, calls)
@@ -118,6 +146,8 @@ def bench(name, path, reps, window, every, calls):
           f"({len(states)} states):  bare mj_step {med['bare']:6.3f} µs  {cells}  "
           f"floor {(med['bare'] + floor) / med['bare']:4.2f}× bare "
           f"({(med['bare'] + floor + med['pressures']) / med['bare']:4.2f}× with separate end pressures)", flush=True)
+    cells = "  ".join(f"{k} {med[k]:6.3f} µs ({med[k] / med['bare']:4.2f})" for k in STEP_PIECES)
+    print(f"{'':10s} rosenbrock's pieces: {cells}", flush=True)
     return med
 
 

@@ -47,6 +47,11 @@ BENCHES = (
           "millisecond of simulated time. Blocks of 500 / 1000 steps are the block-stepping `MujocoPlantFast`; the "
           "Python-orchestrated plant is the per-step `MujocoPlant`. Last column: the process's peak RSS. "
           "Target T1: MuJoCo mode within 1.3× bare `mj_step` on the excavator (see the floor below)."),
+    Bench("bench_bare_replay", ("--reps", "7", "--markdown"), "Coupled step against bare-replay",
+          "The excavator dig (20 s at 1 kHz) per coupling against bare-replay: plain `mj_step` stepping the same "
+          "trajectory with the run's own effort laws replayed from a table (its contacts and solver work included; "
+          "the replayed `qpos` equals the coupled run's). 7 rounds, the two halves of each pair back to back; the "
+          "figure is the median of the paired ratios. Target: the default coupling within 1.6× bare-replay."),
     Bench("bench_floor", (), "The floor of an implicit step",
           "The least any implicit coupling does per step (one network evaluation, one factorisation of the Newton "
           "matrix with its solve), timed in a compiled loop at the scenario's network states, against bare `mj_step` "

@@ -764,8 +764,14 @@ def _lu_solve(a, b):
 @_kernel
 def _evaluate(pnet, oil, oil0, x, v, area, state, speed, h, geo, p, dpdm, flow, dflow, inflow, residual):
     # pressures, ∂p/∂m, branch flows and the backward-Euler residual r = m − m₀ − h·ΣQ(p(m, x), v) (free nodes)
-    net = _deref(pnet)
     _pressure(pnet, oil, x, geo, p, dpdm)
+    _evaluate_flows(pnet, oil, oil0, v, area, state, speed, h, p, flow, dflow, inflow, residual)
+
+
+@_kernel
+def _evaluate_flows(pnet, oil, oil0, v, area, state, speed, h, p, flow, dflow, inflow, residual):
+    # :func:`_evaluate` at known pressures ``p`` of ``oil``: branch flows and the backward-Euler residual
+    net = _deref(pnet)
     _branch_flows(pnet, p, area, speed, v, flow, dflow, state, h)
     _net_inflow(pnet, flow, inflow)
     free = net.free
@@ -1196,6 +1202,12 @@ def _linearize_core(pnet, W, start, dt, out, oil_init):
 
 @_kernel
 def _linearize_one_step_core(pnet, W, start, dt, out):
+    """:func:`_linearize_one_step_from` evaluating the start pressures itself."""
+    return _linearize_one_step_from(pnet, W, start, dt, out, False, out.pressure_first, out.pressure_first)
+
+
+@_kernel
+def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_known):
     """StepperImplicitEuler.linearize(…, newton=False): the Rosenbrock–Euler (W-method) twin of
     :func:`_linearize_core`, with the same arguments and outputs.
 
@@ -1214,6 +1226,10 @@ def _linearize_one_step_core(pnet, W, start, dt, out):
     law than the start (:func:`_same_law_pieces`: the start's Jacobian does not see the kink; a cylinder
     hitting its end stop drives the supply past the relief), or when the matrix is singular; the
     outputs are then incomplete and the caller solves (:func:`_linearize_any`).
+
+    ``known``: ``out.pressure_first`` already holds p₀ = p(``oil0``, ``x0``) and ``geo_known``, ``dpdm_known`` the
+    geometric volumes and ∂p/∂m there (:func:`_pressure`'s outputs, e.g. the previous step's end evaluation
+    when that step ended at ``x0`` with ``oil0``): the pressure law is not evaluated again (same results).
     """
     oil0, spool0, command, speed, x0, velocity = start
     oil, p, spool, x, flow, istats, effort, gradient, p_first, doil = out
@@ -1240,7 +1256,13 @@ def _linearize_one_step_core(pnet, W, start, dt, out):
     epg, o = _take2(W, o, na, n)
     slope, o = _take(W, o, na)
     _valve_areas(pnet, spool, area)
-    _evaluate(pnet, oil0, oil0, x0, velocity, area, spool, speed, dt, geo, p_first, dpdm, flow, dflow, inflow, residual)
+    if known:
+        _copy(geo, geo_known)
+        _copy(dpdm, dpdm_known)
+        _evaluate_flows(pnet, oil0, oil0, velocity, area, spool, speed, dt, p_first, flow, dflow, inflow, residual)
+    else:
+        _evaluate(pnet, oil0, oil0, x0, velocity, area, spool, speed, dt, geo, p_first, dpdm, flow, dflow, inflow,
+                  residual)
     _position_pressure_gradient(pnet, x0, geo, p_first, dpdm, dt, dvdx, dpdx_dt)
     _flow_jacobian(pnet, dflow, jq)
     _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, 1)
@@ -1515,7 +1537,15 @@ def _effort_law_terms(pnet, guess, p_end, v, gradient, fg, fsg, end_const, end_s
     """
     _friction_effort(pnet, guess, fg, fsg)
     _pressure_effort(pnet, p_end, end_const)
-    _friction_effort(pnet, v, friction, damping)
+    same = True  # (the guess is the start velocity but where its chord is long or it leaves the stroke)
+    for i in range(guess.size):
+        if not v[i] == guess[i]:
+            same = False
+    if same:
+        _copy(friction, fg)
+        _copy(damping, fsg)
+    else:
+        _friction_effort(pnet, v, friction, damping)
     for i in range(guess.size):
         pslope = gradient[i, i] - fsg[i]
         end_const[i] = end_const[i] - pslope * guess[i]

@@ -77,8 +77,12 @@ coupling can finish the hydraulic step.  Two schemes:
     p_lin = p₀ + (∂p/∂m)·Δ + (h·∂p/∂x)·v_g and the finish is
     ``implicit-linear``'s.  No nonlinear solve in the step: one Jacobian, one
     elimination (for Δ and ∂m/∂v together) and two pressure evaluations
-    (start, end).  Order 1; L-stable on the linear oil column; oil of a
-    closed network conserved to round-off.  A step whose update leaves the
+    (start, end); one in MuJoCo mode, whose plants end the step at the actuator
+    positions MuJoCo integrated to (``position_end``; x + h·v⁺ differs from
+    them by O(h²)), so the end pressures are the next step's p₀
+    (:meth:`sim.plants.mujoco.MujocoPlant.end_position`; the bodies move as
+    with either end, the law not depending on it).  Order 1; L-stable on the
+    linear oil column; oil of a closed network conserved to round-off.  A step whose update leaves the
     Newton trust region, or that puts a relief, check valve or pump
     compensator on another piece of its law (:meth:`NetworkModel.law_pieces`),
     is solved by Newton instead (:meth:`StepperImplicitEuler.linearize`).

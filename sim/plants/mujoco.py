@@ -11,7 +11,8 @@ Each step (``mj_step1`` → coupling → ``mj_step2`` → network):
    mass matrix, so the oil-column stiffness is integrated implicitly.
 3. ``mj_step2`` integrates the bodies.
 4. The realised actuator velocities v⁺ = J(q)·q̇⁺ (with the moments MuJoCo used)
-   and positions x + h·v⁺ finish the hydraulic step.
+   and positions x + h·v⁺ finish the hydraulic step (``rosenbrock``: the positions
+   MuJoCo integrated to, :meth:`MujocoPlant.end_position`).
 
 The implicit couplings linearise the network at the start-of-step actuator
 velocities (``velocity_guess = v``, zeroed for a cylinder whose guessed
@@ -30,7 +31,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from hydraulics.coupling import make_coupling, start_velocity_guess
+from hydraulics.coupling import SCHEME_ROSENBROCK, CouplingMixed, make_coupling, start_velocity_guess
 from hydraulics.steppers import StepStatus
 
 from sim.plants.base import PlantBase
@@ -77,6 +78,9 @@ class MujocoPlant(PlantBase):
             "incompressible" if self.network.fidelity == "incompressible" else (coupling or scenario.coupling),
             self.network, stepper=scenario.stepper, substeps=scenario.hydraulic_substeps,
         )
+        inner = self.coupling.inner if type(self.coupling) is CouplingMixed else self.coupling
+        # rosenbrock: the network's step ends at the actuator positions MuJoCo integrated to (see end_position)
+        self.realised_end = getattr(inner, "scheme", None) == SCHEME_ROSENBROCK
         m = self.model
         self.scalar_joints = np.array([j for j in range(m.njnt) if int(m.jnt_type[j]) in SCALAR_JOINTS], int)
         self.joint_names = tuple(scene.joint_names[j] for j in self.scalar_joints)
@@ -168,7 +172,7 @@ class MujocoPlant(PlantBase):
             m.actuator_forcerange[ids, 1] = np.where(bounded, law.upper, 0.0)
         mujoco.mj_step2(m, d)
         v_end = moment @ d.qvel
-        x_end = x + dt * v_end
+        x_end = self.end_position(x, v_end)
         self.net_state, report = self.coupling.finish(self.net_state, self.control, x, x_end, v, v_end, dt)
         if report.success:  # (a failed hydraulic step names its own cause)
             mark_reset(report, resets, d)
@@ -178,6 +182,18 @@ class MujocoPlant(PlantBase):
         self._account(report, v_end, dt)
         self.step_index += 1
         return report
+
+    def end_position(self, x, v_end) -> np.ndarray:
+        """The actuator positions [m | rad] the network's step ends at, after ``mj_step2``: x + h·v⁺ from the start
+        positions ``x`` and the realised velocities ``v_end``, or, with the ``rosenbrock`` coupling
+        (:attr:`realised_end`), the positions MuJoCo integrated the bodies to (``mj_fwdPosition`` at the new
+        ``qpos``, which the next ``mj_step1`` recomputes anyway: observing never changes the trajectory).  The
+        two differ by O(h²) (the moment J is the slope of the actuator length); the realised ones make the end
+        pressures p(m⁺, x⁺) the next step's start pressures, so that step evaluates the pressure law once."""
+        if not self.realised_end:
+            return x + self.dt * v_end
+        mujoco.mj_fwdPosition(self.model, self.data)
+        return self.actuator_motion()[0]
 
     def _account(self, report, velocity, dt) -> None:
         super()._account(report, velocity, dt)

@@ -41,7 +41,11 @@ state :class:`MujocoPlant` sees after ``mj_step1``.  In the callback of step k:
    (``implicit``) or takes that value as the end oil (``implicit-linear``,
    ``C_LINEAR``; see :mod:`hydraulics.coupling`).  With ``rosenbrock`` the
    linearisation is one Newton step (``_compiled._linearize_one_step_core``), so
-   the step has no nonlinear solve at all.
+   the step has no nonlinear solve at all, and the step ends at MuJoCo's actuator
+   positions (:meth:`MujocoPlant.end_position`; the block's last step after an
+   ``mj_fwdPosition`` from Python): its end pressures p(m⁺, x⁺), kept in the scratch
+   with their geometric volumes and ∂p/∂m (``_start_evaluation``), are the next
+   step's start pressures, so each step evaluates the pressure law once.
 
 **Cost and caching.**  The callback allocates nothing: every temporary lives
 in buffers the plant allocates once (``_work`` for the ``_compiled`` cores,
@@ -195,8 +199,9 @@ def _finish_scratch(na, n, nb, nstate):
 
 def scratch_size(na, n, nb, nstate):
     """Length of the plant's float64 scratch (P_SCRATCH): _finish_pending's part, then _begin's (whose first
-    part — velocity guess, predicted oil and spool, ∂m⁺/∂v — persists until the step is finished)."""
-    return _finish_scratch(na, n, nb, nstate) + 9 * na + 5 * n + na * na + n + nstate + na + nb + n * na
+    part — velocity guess, predicted oil and spool, ∂m⁺/∂v — persists until the step is finished), then the flag
+    of a known start evaluation (:func:`_start_evaluation`)."""
+    return _finish_scratch(na, n, nb, nstate) + 9 * na + 5 * n + na * na + n + nstate + na + nb + n * na + 1
 
 
 _JIT = _NUMBA and C.JIT_ENABLED  # False under NUMBA_DISABLE_JIT=1: the callback runs as Python (below)
@@ -283,6 +288,19 @@ else:  # the same callback as Python (NUMBA_DISABLE_JIT=1, for debugging): ctype
 
 
 _finish_scratch_nb = _kernel(_finish_scratch)
+
+
+@_kernel
+def _start_evaluation(S, na, n, nb, nstate):
+    """Views of _begin's geometric volumes, start pressures p₀ and ∂p/∂m in the scratch ``S`` (after its guess,
+    predicted oil and spool, ∂m⁺/∂v and eight actuator vectors), and the last entry of ``S``: 1 when the finish
+    just before wrote p(m, x) of the state's oil at the positions this step starts from into them (``rosenbrock``:
+    its step ends at MuJoCo's positions), else 0."""
+    o = _finish_scratch_nb(na, n, nb, nstate) + na + n + nstate + n * na + 8 * na
+    geo, o = C._take(S, o, n)
+    p0, o = C._take(S, o, n)
+    dpdm, o = C._take(S, o, n)
+    return geo, p0, dpdm, S[S.size - 1:]  # (S: the whole scratch, scratch_size entries)
 
 
 @_jit  # returns a view of foreign memory (no NRT reference to drop)
@@ -408,12 +426,26 @@ def _finish_pending(ctx, pnet, V, T, R):
     elif ctx[C_LINEAR]:  # implicit-linear, rosenbrock: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
         substeps = 0
         C._copy(sp2, lin_spool)
-        C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfl, dt)
+        if ctx[C_LINEAR] == SCHEME_ROSENBROCK:  # x⁺: MuJoCo's positions (MujocoPlant.end_position), so that
+            geo0, p0, dpdm0, known = _start_evaluation(S, na, n, nb, V.spool.size)  # p(m⁺, x⁺) is the next step's p₀
+            act, length, closed = V.act, V.length, V.closed
+            for i in range(na):
+                x_end[i] = length[act[i]] - closed[i]
+            C._pressure(pnet, mpred, x_end, geo0, p0, dpdm0)  # (C._linear_finish, its pressures kept for _begin)
+            C._copy(p2, p0)
+            area = W[:C._area_count(C._deref(pnet).ic)]
+            C._valve_areas(pnet, sp2, area)
+            C._branch_flows(pnet, p2, area, speed, v_end, fl, dfl, sp2, dt)
+            C._law_states_end(pnet, sp2, dt, p2)
+            known[0] = 1.0 if ctx[C_MODE] == MODE_STEP else 0.0  # (_commit_if_finite below clears it on failure)
+        else:
+            C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfl, dt)
         rhs = 1
         C._copy(flow_out, fl)
         bad = C._commit_if_finite(oil, pres, spool, pos, vel, mpred, p2, sp2, x_end, v_end)
         if bad >= 0:
             status, worst = ST_NONFINITE, bad
+            S[S.size - 1] = 0.0  # (no known start evaluation)
     for s in range(substeps):
         if substeps > 1:  # ActuatorMotion.part: linear interpolation to the substep end
             frac = (s + 1) / substeps
@@ -582,10 +614,19 @@ def _begin(ctx, pnet, V, T, R):
     C._secant_oil_guess(oil, V.oil_change, oil_warm)
     # predicted end velocities: the start velocities where their chord is short (coupling.start_velocity_guess),
     # clipped so the cylinders stay inside their stroke; the held actuators where that linearisation is useless
-    held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, pnet, W,
-                                          C.StepStart(oil, spool, cmd, speed, xs, vs), dt, guess,
-                                          C.LinearizationOut(lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats,
-                                                             effort_end, gradient, p0, doil), oil_warm)
+    out = C.LinearizationOut(lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient, p0, doil)
+    _, _, _, known = _start_evaluation(S, na, n, nb, V.spool.size)
+    done, held = False, False
+    if known[0] != 0.0:  # rosenbrock after a finished step: p₀, geo and ∂p/∂m are its end evaluation
+        known[0] = 0.0  # (_linearize_at_start_velocity's one-step path, its pressure law not evaluated again)
+        C._short_chord_guess(pnet, xs, vs, dt, guess)
+        held = C._clipped_guess_is_held(pnet, xs, dt, guess)
+        done = (C._linearize_one_step_from(pnet, W, C.StepStart(oil, spool, cmd, speed, xs, guess), dt, out, True, geo,
+                                           dpdm)
+                and (held or C._linearization_usable(istats, lin_p, gradient)))
+    if not done:
+        held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, pnet, W,
+                                              C.StepStart(oil, spool, cmd, speed, xs, vs), dt, guess, out, oil_warm)
     if istats[C.IS_SINGULAR]:
         ctx[C_STATUS] = ST_SINGULAR
         ctx[C_FAILED] = k
@@ -1030,6 +1071,8 @@ class MujocoPlantFast(MujocoPlant):
                 mujoco.mj_step(self.model, self.data, nstep=n)
             finally:
                 mujoco.set_mjcb_control(previous)
+            if self.realised_end:  # the last step ends at MuJoCo's positions too (MujocoPlant.end_position)
+                mujoco.mj_fwdPosition(self.model, self.data)
             _finish_python()
             failed, status, worst, newton, rhs, jac = _CTX[C_FAILED:C_JAC + 1].tolist()
             if rows:
