@@ -389,8 +389,7 @@ class RunRecorder:
         """
         net, r, b, block = self.plant.network, raw[lo:hi], self._rawcols, self._block
         k = hi - lo
-        volumes, oil_energy, residual = (v[lo:hi] for v in batch[0]), batch[1][lo:hi], batch[2][lo:hi]
-        volumes = tuple(volumes)
+        volumes, oil_energy, residual = tuple(v[lo:hi] for v in batch[0]), batch[1][lo:hi], batch[2][lo:hi]
         p, x, v = r[:, b["p"]], r[:, b["x"]], r[:, b["v"]]
         effort, theta, flow = r[:, b["effort"]], r[:, b["theta"]], r[:, b["flow"]]
         rows[:, block["xpos"].start:block["xquat"].stop] = r[:, b["poses"]]
