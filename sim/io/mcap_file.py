@@ -257,6 +257,7 @@ class ChunkedWriter:
         self._pending: collections.deque[concurrent.futures.Future] = collections.deque()
         self._failure: BaseException | None = None
         self._inside = threading.local()  # .job is True on the chunk thread while it runs a job
+        self._outbox: list[tuple[Any, Callable[[int, int], None] | None, int | None]] = []  # see _write
         # the chunk in progress
         self._pieces: list[np.ndarray] = []
         self._chunk_bytes = 0
@@ -282,7 +283,13 @@ class ChunkedWriter:
 
     def _submit(self, job: Callable[..., None], *args: Any) -> None:
         """Run ``job(*args)`` on the chunk thread (inline without one, or when called from a job), after every job
-        submitted before it."""
+        submitted before it and the records written outside chunks so far (:meth:`_write`)."""
+        if self._outbox:
+            box, self._outbox = self._outbox, []
+            self._submit_one(self._write_box, box)
+        self._submit_one(job, *args)
+
+    def _submit_one(self, job: Callable[..., None], *args: Any) -> None:
         if not self._outside():
             job(*args)
             return
@@ -318,9 +325,13 @@ class ChunkedWriter:
 
     def settle(self) -> None:
         """Wait until the chunk thread has written everything handed to it; raise the error of a failed write."""
-        while self._pending:
-            self._pending.popleft().result()
-        self._raise_failure()
+        while True:
+            while self._pending:
+                self._pending.popleft().result()
+            self._raise_failure()
+            if not self._outbox:
+                return
+            self._submit(lambda: None)  # the records written outside chunks, after everything handed over before
 
     def stop_thread(self) -> None:
         """Settle and end the chunk thread (idempotent; later writes are inline)."""
@@ -334,13 +345,21 @@ class ChunkedWriter:
 
     # -- records outside chunks --------------------------------------------------------
 
-    def _write(self, data: bytes, index: Callable[[int], None] | None = None) -> None:
-        """Write ``data`` at the end of the stream (on the chunk thread); ``index(offset)`` records where."""
-        def job() -> None:
+    def _write(self, record: Any, index: Callable[[int, int], None] | None = None, summary: int | None = None) -> None:
+        """Write ``record`` (bytes, or a ``mcap.records`` record) at the end of the stream: kept until the next job is
+        handed to the chunk thread, then serialised and written there with the others kept (one job instead of one per
+        record, the serialisation off the caller's thread); ``index(offset, length)`` records where, ``summary``: the
+        opcode of the summary group that repeats it."""
+        self._outbox.append((record, index, summary))
+
+    def _write_box(self, box: list[tuple[Any, Callable[[int, int], None] | None, int | None]]) -> None:
+        for record, index, summary in box:
+            data = record if isinstance(record, bytes) else _record_bytes(record)
+            if summary is not None:
+                self._summary_bytes[summary].append(data)
             if index is not None:
-                index(self._stream.tell())
+                index(self._stream.tell(), len(data))
             self._stream.write(data)
-        self._submit(job)
 
     def start(self, *, profile: str = "", library: str = "") -> None:
         """Write the magic and the Header record."""
@@ -350,8 +369,7 @@ class ChunkedWriter:
         """Write a Schema record; return its id (from 1)."""
         schema = mr.Schema(id=len(self._schemas) + 1, data=bytes(data), encoding=encoding, name=name)
         self._schemas.append(schema)
-        self._summary_bytes[Opcode.SCHEMA].append(_record_bytes(schema))  # (written again in the summary)
-        self._write(self._summary_bytes[Opcode.SCHEMA][-1])
+        self._write(schema, summary=Opcode.SCHEMA)  # (its bytes are written again in the summary)
         return schema.id
 
     def register_channel(self, topic: str, message_encoding: str, schema_id: int,
@@ -360,20 +378,19 @@ class ChunkedWriter:
         channel = mr.Channel(id=len(self._channels) + 1, topic=topic, message_encoding=message_encoding,
                              metadata=dict(metadata or {}), schema_id=schema_id)
         self._channels.append(channel)
-        self._summary_bytes[Opcode.CHANNEL].append(_record_bytes(channel))
-        self._write(self._summary_bytes[Opcode.CHANNEL][-1])
+        self._write(channel, summary=Opcode.CHANNEL)
         return channel.id
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Write a Metadata record (indexed)."""
-        record = _record_bytes(mr.Metadata(name=name, metadata=dict(data)))
-        self._write(record, lambda offset: self._metadata_indexes.append(mr.MetadataIndex(offset, len(record), name)))
+        self._write(mr.Metadata(name=name, metadata=dict(data)),
+                    lambda offset, length: self._metadata_indexes.append(mr.MetadataIndex(offset, length, name)))
 
     def add_attachment(self, create_time: int, log_time: int, name: str, media_type: str, data: bytes) -> None:
         """Write an Attachment record (with its CRC; indexed)."""
-        record = _record_bytes(mr.Attachment(create_time, log_time, name, media_type, bytes(data)))
-        self._write(record, lambda offset: self._attachment_indexes.append(
-            mr.AttachmentIndex(offset, len(record), log_time, create_time, len(data), name, media_type)))
+        self._write(mr.Attachment(create_time, log_time, name, media_type, bytes(data)),
+                    lambda offset, length: self._attachment_indexes.append(
+                        mr.AttachmentIndex(offset, length, log_time, create_time, len(data), name, media_type)))
 
     # -- messages and chunks -----------------------------------------------------------
 
