@@ -178,8 +178,8 @@ def fixed_cost(out: Path, reps: int = 7) -> dict:
 def sample_parts(samples: int, out: Path) -> dict:
     """µs per sample of the logging stages (see the module docstring), logging every step of the dig from its start.
 
-    The log is written without its chunk thread, each stage timed alone: the run's thread
-    (derive, push) and the writer's (fill, encode, merge, compress).
+    The log is written without its chunk thread, each stage timed alone in CPU time: the run's
+    thread (derive, push) and the writer's (fill, encode, merge, compress); ``record`` in wall time.
     """
     import dataclasses
 
@@ -194,9 +194,11 @@ def sample_parts(samples: int, out: Path) -> dict:
     run_scenario = scenario(1.0, {})
     plant = make_plant(load_scene(run_scenario))
     plant.advance(10)
-    clock = time.perf_counter
+    clock = time.thread_time  # CPU time: the stages run in this thread (no chunk thread), other jobs do not count
     stages = dict.fromkeys(("derive", "push", "fill", "encode", "merge", "compress"), 0.0)
-    with LogWriter(out / "parts.mcap", dt=run_scenario.dt, flush_interval=float("inf"), batch_size=samples + 1,
+    messages = size = 0
+    # one chunk for the whole log (compressed at the end, timed alone); batches of the recorder's ring, as in a run
+    with LogWriter(out / "parts.mcap", dt=run_scenario.dt, flush_interval=float("inf"), chunk_size=1 << 40,
                    chunk_thread=False) as log:
         # consecutive steps, as run() logs every step: /tf on the steps at multiples of the scenario's tf_every
         recorder = RunRecorder(log, plant, tf_every=run_scenario.with_overrides(log_rate_hz=1.0 / run_scenario.dt).tf_every)
@@ -213,26 +215,28 @@ def sample_parts(samples: int, out: Path) -> dict:
             t1 = clock()
             recorder.push()
             t2 = clock()
-            stages["derive"] += t1 - t
-            stages["push"] += t2 - t1
-        jobs = recorder.frame._take_jobs()
+            jobs = recorder.frame._take_jobs()
+            t3 = clock()
+            for job in jobs:
+                for first_row, fill, lo, hi in job.fills:
+                    fill(job.buffer[first_row:first_row + hi - lo], lo, hi)
+            t4 = clock()
+            blocks = [dataclasses.replace(job, fills=()).block() for job in jobs]
+            t5 = clock()
+            log._writer.add_records(_merge_blocks(blocks))
+            t6 = clock()
+            for name, a, b in (("derive", t, t1), ("push", t1, t3), ("fill", t3, t4), ("encode", t4, t5),
+                               ("merge", t5, t6)):
+                stages[name] += b - a
+            messages += sum(len(b.log_times) * len(b.offsets) for b in blocks)
+            size += sum(b.rows.size for b in blocks)
         t = clock()
-        for job in jobs:
-            for first_row, fill, lo, hi in job.fills:
-                fill(job.buffer[first_row:first_row + hi - lo], lo, hi)
-        t1 = clock()
-        blocks = [dataclasses.replace(job, fills=(), spares=None).block() for job in jobs]
-        t2 = clock()
-        stream = _merge_blocks(blocks)
-        log._writer.add_records(stream)
-        t3 = clock()
         log._writer.flush()
-        t4 = clock()
-        stages.update(fill=t1 - t, encode=t2 - t1, merge=t3 - t2, compress=t4 - t3)
-        messages = sum(len(b.log_times) * len(b.offsets) for b in blocks) / done
-        size = sum(b.rows.size for b in blocks) / done
+        stages["compress"] = clock() - t
+    messages, size = messages / done, size / done
     # record: the plant's in-block copy of a sample, per recorded row (blocks of 10 steps, 9 rows recorded), as
     # the difference of alternating blocks with and without recording
+    clock = time.perf_counter
     rows = np.empty((9, plant.record_width))
     with_record, without = [], []
     for i in range(400):

@@ -53,9 +53,9 @@ from sim.io.mcap_file import (DEFAULT_CHUNK_SIZE, MESSAGE_RECORD, NS_PER_S, PART
                               publish, refuse_special)
 
 # sim time between forced chunk ends [s]: at the default 100 Hz an excavator sample is ≈ 3 kB (0.9 kB of it the
-# cylinder scene), so a 512 KiB chunk fills in ≈ 1.8 s and each 2 s flush ends a full chunk and a small one; each
-# flush costs a batch derive and encode and a chunk end (≈ 1.5 ms on the excavator at 100 Hz), whatever the chunk
-# holds
+# cylinder scene), so a 256 KiB chunk fills in ≈ 0.9 s and each 2 s flush ends two full chunks and a small one; each
+# flush costs the batch's checks in the caller's thread and its fields, encoding and chunk end on the chunk thread,
+# whatever the chunk holds
 DEFAULT_FLUSH_INTERVAL = 2.0
 DEFAULT_BATCH_SIZE = 1024  # buffered samples per channel before a batch encode
 
@@ -803,10 +803,6 @@ class Frame:
         self._encode()
         jobs, self._jobs = self._jobs, []
         return jobs
-
-    def _take_encoded(self) -> list[_RecordBlock]:
-        """Encoded record blocks, buffered rows included (encoded in the caller's thread)."""
-        return [job.block() for job in self._take_jobs()]
 
 
 def _locked_by_other(partial: Path) -> bool:

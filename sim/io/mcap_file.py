@@ -15,7 +15,8 @@ CRC-32.
 
 :class:`ChunkedWriter` writes such a file from ready Message records (:meth:`ChunkedWriter.add_records`,
 a whole batch at a time), compressing and writing each finished chunk on one background
-thread; a caller can hand that thread whole batches to build first (:meth:`ChunkedWriter.defer`).  :func:`scan` reads a file record by record and survives damage: a record that does not
+thread; a caller can hand that thread whole batches to build first (:meth:`ChunkedWriter.defer`).
+:func:`scan` reads a file record by record and survives damage: a record that does not
 parse, or a chunk whose CRC or decompression fails, is skipped and reading resumes at the next
 record that parses (after a chunk whose length is intact) or at the next Chunk opcode whose
 chunk decompresses to its CRC; message indexes are never needed.
@@ -25,7 +26,7 @@ The record classes come from ``mcap.records`` (public API); nothing of ``mcap.wr
 Example::
 
     with open("x.mcap", "wb") as stream:
-        writer = ChunkedWriter(stream, chunk_size=512 * 1024)
+        writer = ChunkedWriter(stream, chunk_size=256 * 1024)
         writer.start(library="me")
         schema = writer.register_schema("t", "jsonschema", b"{}")
         channel = writer.register_channel("/t", "json", schema)
@@ -66,13 +67,13 @@ RUN_METADATA = "hydroplant.run"  # metadata record written at construction
 RESULT_METADATA = "hydroplant.result"  # metadata record written at close
 PARTIAL_SUFFIX = ".partial"  # suffix of the file while it is being written
 NS_PER_S = 1_000_000_000  # nanoseconds per second
-DEFAULT_CHUNK_SIZE = 512 * 1024  # uncompressed bytes per chunk [B]
+DEFAULT_CHUNK_SIZE = 256 * 1024  # uncompressed bytes per chunk [B] (see ChunkedWriter.ZSTD_LEVEL)
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 RECORD_PREFIX = struct.Struct("<BQ")  # opcode (uint8) + record length (uint64)
 MESSAGE_RECORD = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log time, publish time
 _CHUNK_FIXED = struct.Struct("<QQQII")  # start time, end time, uncompressed size, crc, compression string length
 _COMPRESSIONS = {"zstd": "zstd", "lz4": "lz4", "none": ""}  # LogWriter name -> MCAP chunk compression string
-_MAX_UNCOMPRESSED = 1 << 28  # a chunk claiming more is damaged [B] (writers cut chunks at a few MB; ours at 512 KiB)
+_MAX_UNCOMPRESSED = 1 << 28  # a chunk claiming more is damaged [B] (writers cut chunks at a few MB; ours at 256 KiB)
 # The largest ratio uncompressed / compressed size each chunk compression can reach: a zstd block of
 # 128 KiB can be a 4-byte RLE block; an LZ4 match grows by 255 B per byte. A chunk claiming more than
 # its compressed bytes can hold is damaged, found before anything is allocated.
@@ -239,8 +240,9 @@ class ChunkedWriter:
     :meth:`flush` queues its chunk end behind them.  Inside a job every method acts at once.
     """
 
-    # zstd's fast level -2 on the 512 KiB chunks of a 20 s dig logged every step: 957 MB/s at a ratio of 2.75, against
-    # level -1's 778 MB/s at 2.84 and level 1's 591 MB/s at 2.89 (-3: 998 MB/s at 2.71; lz4: 1160 MB/s at 2.33)
+    # zstd's fast level -2 on the message records of the dig logged every step, in one run (CPU time): 965 MB/s at a
+    # ratio of 2.83 in 256 KiB chunks, against 853 MB/s at 2.75 in 512 KiB chunks (the chunk and zstd's tables stay in
+    # a core's cache) and 1000 MB/s at 2.80 in 128 KiB; level -1 830 MB/s at 3.02, level 1 683 MB/s at 2.90
     ZSTD_LEVEL = -2
     MAX_PENDING_CHUNKS = 4  # jobs handed to the chunk thread and not yet done (≤ 4 × chunk_size of memory)
 
@@ -283,8 +285,9 @@ class ChunkedWriter:
 
     def _submit(self, job: Callable[..., None], *args: Any) -> None:
         """Run ``job(*args)`` on the chunk thread (inline without one, or when called from a job), after every job
-        submitted before it and the records written outside chunks so far (:meth:`_write`)."""
-        if self._outbox:
+        submitted before it and the records written outside chunks so far (:meth:`_write`; those are the caller's:
+        a job on the chunk thread leaves them to it)."""
+        if self._outbox and not getattr(self._inside, "job", False):
             box, self._outbox = self._outbox, []
             self._submit_one(self._write_box, box)
         self._submit_one(job, *args)
