@@ -117,7 +117,8 @@ SOLVER = flat_schema("hydroplant_msgs/msg/Solver", SOLVER_FIELDS)
 
 # samples captured before their fields are derived and written, as one batch (the runner also derives at every periodic
 # flush of the log); a divisor of the runner's 500-step blocks at 1 kHz (sim.run.runner.block_steps) and of the 2 s
-# flush interval, so that logging every step runs whole blocks (512 cut every ring into a block and a 12-step one)
+# flush interval, so that logging every step runs whole blocks (a ring of 512 would end each 500-step block with a
+# 12-step one)
 RING_SIZE = 500
 
 
