@@ -456,7 +456,8 @@ class ChunkedWriter:
     def _write_chunk(self, pieces: list[np.ndarray], times: tuple[int, int],
                      indexes: list[tuple[int, list[np.ndarray]]]) -> None:
         """Compress one chunk, write it and its message indexes at the end of the stream, and index it."""
-        data = b"".join(pieces)
+        # (a chunk within one batch is one piece, a view of the batch's records: compressed and checked in place)
+        data = pieces[0] if len(pieces) == 1 else b"".join(pieces)
         if self._compress is None:
             self._compress = _compressor(self._compression)
         compressed = self._compress(data)
