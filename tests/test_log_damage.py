@@ -1,6 +1,6 @@
 """Damaged and cut logs, and the output safety of the log writer.
 
-A 20 s excavator dig log (21 chunks) with one flipped bit: ``log recover`` keeps every other
+A 20 s excavator dig log (31 chunks) with one flipped bit: ``log recover`` keeps every other
 chunk (exact message counts, the same messages byte for byte), a damaged message index loses
 nothing, ``log info`` flags the damage; cut files recover the chunks before the cut.  The writer
 never shares, deletes or replaces a file it was not told to: two writers on one path, an
@@ -51,7 +51,7 @@ def dig(tmp_path_factory):
             count += opcode == 0x05
             position += 9 + length
         chunks.append((index.chunk_start_offset, index.chunk_length, index.message_index_offsets, count))
-    assert len(chunks) == 21 and len(messages) == 32_017 == sum(c[3] for c in chunks)
+    assert len(chunks) == 31 and len(messages) == 32_017 == sum(c[3] for c in chunks)  # 256 KiB chunks
     return path, data, chunks, messages
 
 
@@ -74,12 +74,12 @@ def _in_chunk(dig, k: int) -> collections.Counter:
     return collections.Counter(messages[first:first + chunks[k][3]])
 
 
-@pytest.mark.parametrize("which", [0, 10, 20])
+@pytest.mark.parametrize("which", [0, 15, 30])
 def test_one_flipped_bit_in_a_chunk_loses_that_chunk_only(dig, tmp_path, which):
     """A bit flipped in the compressed data of the first, a middle or the last chunk: the chunk fails its CRC (or
     does not decompress); every other chunk is kept, message for message; the report names the chunk's byte
-    range and its message count, counted in the undamaged log (2 769, 352 and 16 of 32 017 messages for chunks
-    1, 11 and 21 of the dig as logged today)."""
+    range and its message count, counted in the undamaged log (1 361, 1 424 and 16 of 32 017 messages for chunks
+    1, 16 and 31 of the dig as logged today)."""
     path, data, chunks, messages = dig
     start, length, _, count = chunks[which]
     damaged = tmp_path / "damaged.mcap"
@@ -87,7 +87,7 @@ def test_one_flipped_bit_in_a_chunk_loses_that_chunk_only(dig, tmp_path, which):
     out = tmp_path / "recovered.mcap"
     report = recover(damaged, out)
     assert report.message_count == len(messages) - count
-    assert report.chunk_count == 20 and not report.complete
+    assert report.chunk_count == 30 and not report.complete
     assert [(d.start, d.end, d.messages) for d in report.skipped] == [(start, start + length, count)]
     assert report.skipped_messages == count
     assert report.stop_reason == "footer" and report.original_status == "complete"
@@ -104,7 +104,7 @@ def test_flipped_bit_in_a_chunk_length_resynchronises_on_the_next_chunk(dig, tmp
     damaged = tmp_path / "length.mcap"
     damaged.write_bytes(_flipped(data, start + 2, 0))  # length += 256
     report = recover(damaged, tmp_path / "out.mcap")
-    assert report.message_count == len(messages) - count and report.chunk_count == 20
+    assert report.message_count == len(messages) - count and report.chunk_count == 30
     assert [(d.start, d.end, d.messages) for d in report.skipped] == [(start, chunks[4][0], count)]  # (summary)
     assert collections.Counter(_messages(tmp_path / "out.mcap")) == collections.Counter(messages) - _in_chunk(dig, 3)
 
@@ -117,7 +117,7 @@ def test_flipped_bit_in_a_chunk_opcode_loses_that_chunk_only(dig, tmp_path):
     damaged = tmp_path / "opcode.mcap"
     damaged.write_bytes(_flipped(data, start, 4))  # 0x06 -> 0x16
     report = recover(damaged, tmp_path / "out.mcap")
-    assert report.message_count == len(messages) - count and report.chunk_count == 20
+    assert report.message_count == len(messages) - count and report.chunk_count == 30
     assert [(d.start, d.end, d.what, d.messages) for d in report.skipped] == [
         (start, start + length, "chunk: opcode damaged (0x16)", count)]
 
@@ -137,7 +137,7 @@ def test_flipped_bits_in_message_indexes_lose_nothing(dig, tmp_path):
     damaged = tmp_path / "index-length.mcap"
     damaged.write_bytes(_flipped(data, max(offsets.values()) + 1, 1))
     report = recover(damaged, tmp_path / "length-out.mcap")
-    assert report.message_count == len(messages) and report.chunk_count == 21
+    assert report.message_count == len(messages) and report.chunk_count == 31
     assert len(report.skipped) == 1 and report.skipped[0].end == chunks[3][0] and report.skipped_messages == 0
 
 
@@ -146,7 +146,7 @@ def test_log_info_verifies_chunk_crcs(dig, tmp_path, capsys):
     chunk and its messages for a flipped bit (``--no-verify`` does not look: exit 0); every attachment listed."""
     path, data, chunks, _ = dig
     text, code = inspect_log(path)
-    assert code == 0 and "verified: 21 chunks, every CRC matches" in text
+    assert code == 0 and "verified: 31 chunks, every CRC matches" in text
     attachments = read_log(path).attachment_list
     assert attachments and f"attachments: {len(attachments)}" in text
     assert all(f"  {name}  {media}  {size} B" in text for name, media, size in attachments)

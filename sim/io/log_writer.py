@@ -10,8 +10,11 @@ compiled pass (:class:`_RecordRows`, numba). Batches of all channels are merged 
 order, sample by sample, and handed whole to the chunks of
 :class:`sim.io.mcap_file.ChunkedWriter`, so every file is globally ordered by ``log_time``;
 chunks are compressed with zstd at level -2 and written, in order, by one background thread
-while the caller goes on stepping.  JSON channels take irregular messages one by one
-(:meth:`Channel.write`).
+while the caller goes on stepping.  A batch holding :class:`Frame` rows (a stepping loop's
+bulk) is encoded, merged and added to the chunks on that thread as well: the caller hands the
+frame's buffer over (the next rows go into another one) and goes on; the file is byte for byte
+the one written in the caller's thread (``chunk_thread=False``).  JSON channels take irregular
+messages one by one (:meth:`Channel.write`).
 
 Output safety: the file is written to ``PATH.partial``, created exclusively
 (``O_CREAT | O_EXCL``) and locked, so two writers never share it; an existing ``.partial`` is
@@ -50,9 +53,9 @@ from sim.io.mcap_file import (DEFAULT_CHUNK_SIZE, MESSAGE_RECORD, NS_PER_S, PART
                               publish, refuse_special)
 
 # sim time between forced chunk ends [s]: at the default 100 Hz an excavator sample is ≈ 3 kB (0.9 kB of it the
-# cylinder scene), so a 512 KiB chunk fills in ≈ 1.8 s and each 2 s flush ends a full chunk and a small one; each
-# flush costs a batch derive and encode and a chunk end (≈ 1.5 ms on the excavator at 100 Hz), whatever the chunk
-# holds
+# cylinder scene), so a 256 KiB chunk fills in ≈ 0.9 s and each 2 s flush ends two full chunks and a small one; each
+# flush costs the batch's checks in the caller's thread and its fields, encoding and chunk end on the chunk thread,
+# whatever the chunk holds
 DEFAULT_FLUSH_INTERVAL = 2.0
 DEFAULT_BATCH_SIZE = 1024  # buffered samples per channel before a batch encode
 
@@ -155,6 +158,39 @@ def _fill_records(out, bits, log_times, first_sequences, time_offsets, log_time_
         sample = bits[r]
         for k in range(float_offsets.size):
             _put_le(row, float_offsets[k], sample[float_columns[k]], 8)
+
+
+@dataclass(frozen=True)
+class _EncodeJob:
+    """Rows of a :class:`Frame` buffer that become one :class:`_RecordBlock` when encoded (on the chunk thread).
+
+    The rows ``rows`` (a slice or indexes) of the first ``count`` rows of ``buffer`` at ``log_times``
+    [ns], member i's sequence numbers from ``first_sequences[i]``; ``order`` and ``serial`` as in
+    :class:`_RecordBlock`.  ``fills`` (on the first job of a buffer): rows still to be written,
+    ``(first row, fill, lo, hi)`` for ``fill(buffer[first:first + hi - lo], lo, hi)`` (see
+    :meth:`Frame.defer`), run before anything is encoded.  ``spares`` (on the last job of a
+    buffer): where the buffer goes once encoded, for the frame to fill again.
+    """
+
+    records: _RecordRows
+    buffer: np.ndarray
+    count: int
+    rows: Any
+    log_times: np.ndarray
+    first_sequences: list[int]
+    order: int
+    serial: int
+    fills: tuple = ()
+    spares: list[np.ndarray] | None = None
+
+    def block(self) -> _RecordBlock:
+        for first, fill, lo, hi in self.fills:
+            fill(self.buffer[first:first + hi - lo], lo, hi)
+        rows = self.records.encode(self.buffer[:self.count][self.rows], self.log_times, self.first_sequences)
+        if self.spares is not None:
+            self.spares.append(self.buffer)  # (list.append is atomic: the frame pops it in the caller's thread)
+        return _RecordBlock(self.log_times, rows, self.records.channel_ids, self.records.offsets, self.order,
+                            self.serial)
 
 
 def _as_slice(columns: np.ndarray) -> np.ndarray | slice:
@@ -486,7 +522,7 @@ class Channel:
         if step_index >= writer._next_flush_step:
             writer._periodic_flush(step_index)
         if self._count == self._capacity:
-            writer._drain(end_chunk=False)
+            writer._drain(end_chunk=False, wait=False)
         return self._count
 
     def _encode_buffer(self) -> None:
@@ -583,7 +619,9 @@ class Frame:
         self._last_step = -1
         self._members: list[tuple[Channel, np.ndarray | slice, int]] = []  # (channel, columns, every)
         self._records: dict[tuple[int, ...], _RecordRows] = {}  # per set of members fed together, their records
-        self._encoded: list[_RecordBlock] = []
+        self._jobs: list[_EncodeJob] = []  # rows taken from the buffer, to encode
+        self._spares: list[np.ndarray] = []  # buffers whose rows are encoded, to fill again
+        self._fills: list[tuple[int, Callable[[np.ndarray, int, int], None], int, int]] = []  # rows of defer()
 
     def _columns(self, columns: Sequence[int] | np.ndarray, count: int, topic: str) -> np.ndarray:
         columns = np.asarray(columns, dtype=np.intp).ravel()
@@ -645,7 +683,7 @@ class Frame:
             if step_index >= writer._next_flush_step:
                 writer._periodic_flush(step_index)
             if self._count == self._capacity:
-                writer._drain(end_chunk=False)
+                writer._drain(end_chunk=False, wait=False)
         if step_index < self._last_step:
             raise ValueError(f"frame: step_index {step_index} is before the previous one {self._last_step}")
         self._steps[self._count] = step_index
@@ -663,11 +701,34 @@ class Frame:
         before the same rows), in a few array copies; a Ctrl-C is held back until every
         row is buffered, so a batch is never half in the log.
         """
-        steps = np.asarray(step_index, dtype=np.int64).ravel()
         values = np.asarray(values, dtype=np.float64)
-        k = len(steps)
+        k = np.size(step_index)
         if values.shape != (k, self.column_count):
             raise ValueError(f"frame: `values` must have shape ({k}, {self.column_count}), got {values.shape}")
+
+        def store(n: int, i: int, j: int) -> None:
+            self._values[n:n + j - i] = values[i:j]
+        self._take_rows(step_index, store)
+
+    def defer(self, step_index: Sequence[int] | np.ndarray, fill: Callable[[np.ndarray, int, int], None]) -> None:
+        """Buffer rows for steps ``step_index`` whose values are written later, by ``fill(out, lo, hi)``: rows
+        ``lo:hi`` of these rows into ``out`` (shape (hi - lo, column_count), SI; every column a channel reads).
+
+        As :meth:`extend` (the same file, byte for byte, as ``extend`` of what ``fill`` writes),
+        but ``fill`` runs when the batch is encoded: on the writer's chunk thread while the
+        caller goes on, or in the caller's thread when it drains there (a tee, no chunk
+        thread).  ``fill`` must read only what nothing changes until it has run (e.g. a
+        buffer the caller hands over), and may be called for several ranges, each once.
+        """
+        def store(n: int, i: int, j: int) -> None:
+            self._fills.append((n, fill, i, j))
+        self._take_rows(step_index, store)
+
+    def _take_rows(self, step_index: Sequence[int] | np.ndarray, store: Callable[[int, int, int], None]) -> None:
+        """Buffer rows for steps ``step_index`` (non-decreasing): ``store(n, i, j)`` puts rows ``i:j`` of them at buffer
+        row ``n``, after the periodic flushes and batch drains due before them; SIGINT held back until all are in."""
+        steps = np.asarray(step_index, dtype=np.int64).ravel()
+        k = len(steps)
         if k == 0:
             return
         if steps[0] < self._last_step or (k > 1 and np.any(steps[1:] < steps[:-1])):
@@ -682,25 +743,28 @@ class Frame:
                     if first >= writer._next_flush_step:
                         writer._periodic_flush(first)
                     if self._count == self._capacity:
-                        writer._drain(end_chunk=False)
+                        writer._drain(end_chunk=False, wait=False)
                 j = min(k, i + self._capacity - self._count)
                 if math.isfinite(writer._next_flush_step):  # stop before the next periodic flush
                     j = min(j, i + int(np.searchsorted(steps[i:j], writer._next_flush_step, side="left")))
                 j = max(j, i + 1)
                 n = self._count
-                self._values[n:n + j - i] = values[i:j]
+                store(n, i, j)
                 self._steps[n:n + j - i] = steps[i:j]
                 self._count = n + j - i
                 self._last_step = int(steps[j - 1])
                 i = j
 
     def _encode(self) -> None:
-        """Encode the buffered rows into record blocks: one of the members fed by every buffered row (those with
-        ``every`` 1 or dividing every row's step, as /tf at the log rate) and one per other ``every``, of its
-        members' messages at the rows at multiples of it; each channel is in one block, in log-time order."""
+        """Take the buffered rows as encode jobs (:class:`_EncodeJob`, encoded by the writer's drain): one block of the
+        members fed by every buffered row (those with ``every`` 1 or dividing every row's step, as /tf at the log
+        rate) and one per other ``every``, of its members' messages at the rows at multiples of it; each channel is
+        in one block, in log-time order.  Sequence numbers and serials are given here, in the caller's thread, so
+        the file does not depend on where the jobs are encoded.  The jobs take the buffer itself (and the rows still
+        to be filled, :meth:`defer`): the next rows go into a spare one."""
         n = self._count
         if n == 0 or not self._members:
-            self._count = 0
+            self._count, self._fills = 0, []
             return
         steps = self._steps[:n]
         log_times = _step_log_times(steps, self._writer.dt)
@@ -715,26 +779,30 @@ class Frame:
                 groups.append((tuple(fed), rows))
         if every_row:
             groups.insert(0, (tuple(sorted(every_row)), slice(None)))
-        for group, rows in groups:
+        buffer, fills = self._values, tuple(self._fills)
+        for g, (group, rows) in enumerate(groups):
             members = [self._members[m][:2] for m in group]
             records = self._records.get(group)
             if records is None:
                 records = self._records[group] = _RecordRows([(c._channel_id, c._template, columns) for c, columns in members])
             times = log_times[rows]
-            encoded = records.encode(self._values[:n][rows], times, [c._sequence + 1 for c, _ in members])
+            first_sequences = [c._sequence + 1 for c, _ in members]
             last = int(steps[rows][-1])
             for channel, _ in members:
                 channel._sequence += len(times)
                 channel._last_step = last
-            self._encoded.append(_RecordBlock(times, encoded, records.channel_ids, records.offsets,
-                                              min(c._order for c, _ in members), self._writer._next_serial()))
-        self._count = 0
+            self._jobs.append(_EncodeJob(records, buffer, n, rows, times, first_sequences,
+                                         min(c._order for c, _ in members), self._writer._next_serial(),
+                                         fills if g == 0 else (), self._spares if g == len(groups) - 1 else None))
+        if groups:  # the buffer goes with the jobs; the next rows go into a spare one
+            self._values = self._spares.pop() if self._spares else np.full_like(buffer, np.nan)
+        self._count, self._fills = 0, []
 
-    def _take_encoded(self) -> list[_RecordBlock]:
-        """Encoded record blocks, buffered rows included."""
+    def _take_jobs(self) -> list[_EncodeJob]:
+        """Encode jobs of the rows taken so far, buffered rows included."""
         self._encode()
-        encoded, self._encoded = self._encoded, []
-        return encoded
+        jobs, self._jobs = self._jobs, []
+        return jobs
 
 
 def _locked_by_other(partial: Path) -> bool:
@@ -817,18 +885,19 @@ class LogWriter:
         A ``path`` that exists and is not a regular file (folder, device, FIFO) is refused
         either way, as is a ``path.partial`` another writer is writing.
     chunk_thread : bool, optional
-        Compress and write finished zstd chunks on a background thread (zstd, crc32, the
-        file writes and MuJoCo's ``mj_step`` all release the GIL, so they overlap the
-        stepping on a second core). The file is byte for byte the same either way;
-        ``False`` does all the work in the caller's thread.
+        Encode the batches of frame rows and compress and write finished zstd chunks on a
+        background thread (the compiled encoding, zstd, crc32, the file writes and MuJoCo's
+        ``mj_step`` all release the GIL, so they overlap the stepping on a second core). The
+        file is byte for byte the same either way; ``False`` does all the work in the caller's
+        thread.
 
     Notes
     -----
     What a SIGKILL can lose is bounded by the larger of ``flush_interval`` of simulation
     time and ``chunk_size`` bytes of messages plus ``batch_size`` samples per channel,
-    plus, with the chunk thread, the chunks handed to it and not yet written (at most
-    ``ChunkedWriter.MAX_PENDING_CHUNKS``; a periodic flush does not wait for them, an
-    explicit :meth:`flush` does); everything before is in complete chunks on disk and
+    plus, with the chunk thread, the batches and chunks handed to it and not yet written (at
+    most ``ChunkedWriter.MAX_PENDING_CHUNKS``; a periodic flush or a full batch does not wait
+    for them, an explicit :meth:`flush`, :meth:`drain` or :meth:`close` does); everything before is in complete chunks on disk and
     comes back with :func:`recover`. A write that fails on the chunk thread is raised by
     the next call that hands it work or waits for it (at the latest :meth:`close`, which
     then leaves the ``.partial``).
@@ -1117,20 +1186,33 @@ class LogWriter:
             self._drain_now(end_chunk=end_chunk, wait=wait)
 
     def _drain_now(self, *, end_chunk: bool, wait: bool = True) -> None:
-        blocks = [block for frame in self._frames for block in frame._take_encoded()]
-        blocks += [block for channel in self._channels for block in channel._take_encoded()]
-        if blocks:
-            stream = _merge_blocks(blocks)
-            self._writer.add_records(stream)
-            if self._tees:
-                records = stream_messages(stream)
-                for tee in self._tees:
-                    tee.messages(records)
+        """Hand every buffered sample to the chunks: a batch with frame rows is encoded, merged and added on the chunk
+        thread (in the caller's one with a tee, so that the tees have the messages on return, or without the
+        thread); ``end_chunk`` ends the chunk after it; ``wait`` returns only once all is in the file."""
+        jobs = [job for frame in self._frames for job in frame._take_jobs()]
+        blocks = [block for channel in self._channels for block in channel._take_encoded()]
+        if jobs or blocks:
             self._last_step = max(self._last_step, max(c._last_step for c in self._channels))
+            if jobs and not self._tees:
+                self._writer.defer(self._write_batch, jobs, blocks, ())
+            else:
+                self._write_batch(jobs, blocks, tuple(self._tees))
         if end_chunk:
             self._writer.flush(wait=wait)
         else:
             self._writer.flush_stream()
+            if wait:
+                self._writer.settle()
+
+    def _write_batch(self, jobs: list[_EncodeJob], blocks: list[_RecordBlock], tees: Sequence[LogTee]) -> None:
+        """Encode ``jobs``, merge them with ``blocks`` in log-time order, add the records to the chunks and hand the
+        messages to ``tees``."""
+        stream = _merge_blocks([job.block() for job in jobs] + blocks)
+        self._writer.add_records(stream)
+        if tees:
+            records = stream_messages(stream)
+            for tee in tees:
+                tee.messages(records)
 
     def _next_serial(self) -> int:
         """A new block serial number (creation order, the last tie-break of the log-time merge)."""

@@ -15,7 +15,8 @@ CRC-32.
 
 :class:`ChunkedWriter` writes such a file from ready Message records (:meth:`ChunkedWriter.add_records`,
 a whole batch at a time), compressing and writing each finished chunk on one background
-thread.  :func:`scan` reads a file record by record and survives damage: a record that does not
+thread; a caller can hand that thread whole batches to build first (:meth:`ChunkedWriter.defer`).
+:func:`scan` reads a file record by record and survives damage: a record that does not
 parse, or a chunk whose CRC or decompression fails, is skipped and reading resumes at the next
 record that parses (after a chunk whose length is intact) or at the next Chunk opcode whose
 chunk decompresses to its CRC; message indexes are never needed.
@@ -25,7 +26,7 @@ The record classes come from ``mcap.records`` (public API); nothing of ``mcap.wr
 Example::
 
     with open("x.mcap", "wb") as stream:
-        writer = ChunkedWriter(stream, chunk_size=512 * 1024)
+        writer = ChunkedWriter(stream, chunk_size=256 * 1024)
         writer.start(library="me")
         schema = writer.register_schema("t", "jsonschema", b"{}")
         channel = writer.register_channel("/t", "json", schema)
@@ -44,6 +45,7 @@ import mmap
 import os
 import stat
 import struct
+import threading
 import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -65,13 +67,13 @@ RUN_METADATA = "hydroplant.run"  # metadata record written at construction
 RESULT_METADATA = "hydroplant.result"  # metadata record written at close
 PARTIAL_SUFFIX = ".partial"  # suffix of the file while it is being written
 NS_PER_S = 1_000_000_000  # nanoseconds per second
-DEFAULT_CHUNK_SIZE = 512 * 1024  # uncompressed bytes per chunk [B]
+DEFAULT_CHUNK_SIZE = 256 * 1024  # uncompressed bytes per chunk [B] (see ChunkedWriter.ZSTD_LEVEL)
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 RECORD_PREFIX = struct.Struct("<BQ")  # opcode (uint8) + record length (uint64)
 MESSAGE_RECORD = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, log time, publish time
 _CHUNK_FIXED = struct.Struct("<QQQII")  # start time, end time, uncompressed size, crc, compression string length
 _COMPRESSIONS = {"zstd": "zstd", "lz4": "lz4", "none": ""}  # LogWriter name -> MCAP chunk compression string
-_MAX_UNCOMPRESSED = 1 << 28  # a chunk claiming more is damaged [B] (writers cut chunks at a few MB; ours at 512 KiB)
+_MAX_UNCOMPRESSED = 1 << 28  # a chunk claiming more is damaged [B] (writers cut chunks at a few MB; ours at 256 KiB)
 # The largest ratio uncompressed / compressed size each chunk compression can reach: a zstd block of
 # 128 KiB can be a 4-byte RLE block; an LZ4 match grows by 255 B per byte. A chunk claiming more than
 # its compressed bytes can hold is damaged, found before anything is allocated.
@@ -231,10 +233,16 @@ class ChunkedWriter:
     -----
     A write failing on the chunk thread is kept and raised by the next call that hands it
     work or waits for it; nothing is written after it (the offsets would be unknown).
+
+    Jobs handed over with :meth:`defer` run on the chunk thread in order; the chunk in
+    progress is theirs while any is queued, so :meth:`add_records` and :meth:`end_chunk`
+    called from another thread first wait for the queue (:meth:`settle`), and
+    :meth:`flush` queues its chunk end behind them.  Inside a job every method acts at once.
     """
 
-    # zstd's fast level -2 on the 512 KiB chunks of a 20 s dig logged every step: 957 MB/s at a ratio of 2.75, against
-    # level -1's 778 MB/s at 2.84 and level 1's 591 MB/s at 2.89 (-3: 998 MB/s at 2.71; lz4: 1160 MB/s at 2.33)
+    # zstd's fast level -2 on the message records of the dig logged every step, in one run (CPU time): 965 MB/s at a
+    # ratio of 2.83 in 256 KiB chunks, against 853 MB/s at 2.75 in 512 KiB chunks (the chunk and zstd's tables stay in
+    # a core's cache) and 1000 MB/s at 2.80 in 128 KiB; level -1 830 MB/s at 3.02, level 1 683 MB/s at 2.90
     ZSTD_LEVEL = -2
     MAX_PENDING_CHUNKS = 4  # jobs handed to the chunk thread and not yet done (≤ 4 × chunk_size of memory)
 
@@ -250,6 +258,8 @@ class ChunkedWriter:
         self._pool: concurrent.futures.ThreadPoolExecutor | None = None
         self._pending: collections.deque[concurrent.futures.Future] = collections.deque()
         self._failure: BaseException | None = None
+        self._inside = threading.local()  # .job is True on the chunk thread while it runs a job
+        self._outbox: list[tuple[Any, Callable[[int, int], None] | None, int | None]] = []  # see _write
         # the chunk in progress
         self._pieces: list[np.ndarray] = []
         self._chunk_bytes = 0
@@ -259,6 +269,7 @@ class ChunkedWriter:
         # the summary
         self._schemas: list[mr.Schema] = []
         self._channels: list[mr.Channel] = []
+        self._summary_bytes: dict[int, list[bytes]] = {Opcode.SCHEMA: [], Opcode.CHANNEL: []}  # their records
         self._chunk_index_records: list[mr.ChunkIndex] = []
         self._attachment_indexes: list[mr.AttachmentIndex] = []
         self._metadata_indexes: list[mr.MetadataIndex] = []
@@ -268,9 +279,21 @@ class ChunkedWriter:
 
     # -- the chunk thread ------------------------------------------------------------
 
+    def _outside(self) -> bool:
+        """Whether the caller is not the chunk thread while there is one (jobs it queued may still be running)."""
+        return self._chunk_thread and not getattr(self._inside, "job", False)
+
     def _submit(self, job: Callable[..., None], *args: Any) -> None:
-        """Run ``job(*args)`` on the chunk thread (inline without one), after every job submitted before it."""
-        if not self._chunk_thread:
+        """Run ``job(*args)`` on the chunk thread (inline without one, or when called from a job), after every job
+        submitted before it and the records written outside chunks so far (:meth:`_write`; those are the caller's:
+        a job on the chunk thread leaves them to it)."""
+        if self._outbox and not getattr(self._inside, "job", False):
+            box, self._outbox = self._outbox, []
+            self._submit_one(self._write_box, box)
+        self._submit_one(job, *args)
+
+    def _submit_one(self, job: Callable[..., None], *args: Any) -> None:
+        if not self._outside():
             job(*args)
             return
         self._raise_failure()
@@ -283,10 +306,21 @@ class ChunkedWriter:
     def _guarded(self, job: Callable[..., None], args: tuple) -> None:
         if self._failure is not None:  # after a failed write the stream's offsets are unknown: write nothing more
             return
+        self._inside.job = True
         try:
             job(*args)
         except BaseException as error:  # noqa: BLE001 - raised in the caller's thread by _raise_failure
             self._failure = error
+        finally:
+            self._inside.job = False
+
+    def defer(self, job: Callable[..., None], *args: Any) -> None:
+        """Run ``job(*args)`` on the chunk thread after everything handed to it before (at once without a thread),
+        e.g. encode a batch and :meth:`add_records` it while the caller goes on.  At most
+        :attr:`MAX_PENDING_CHUNKS` jobs wait: the caller blocks until the oldest is done (a bounded queue).  A job's
+        exception is raised by the next call that hands over work or waits (:meth:`settle`), and nothing is
+        written after it."""
+        self._submit(job, *args)
 
     def _raise_failure(self) -> None:
         if self._failure is not None:
@@ -294,9 +328,13 @@ class ChunkedWriter:
 
     def settle(self) -> None:
         """Wait until the chunk thread has written everything handed to it; raise the error of a failed write."""
-        while self._pending:
-            self._pending.popleft().result()
-        self._raise_failure()
+        while True:
+            while self._pending:
+                self._pending.popleft().result()
+            self._raise_failure()
+            if not self._outbox:
+                return
+            self._submit(lambda: None)  # the records written outside chunks, after everything handed over before
 
     def stop_thread(self) -> None:
         """Settle and end the chunk thread (idempotent; later writes are inline)."""
@@ -310,13 +348,21 @@ class ChunkedWriter:
 
     # -- records outside chunks --------------------------------------------------------
 
-    def _write(self, data: bytes, index: Callable[[int], None] | None = None) -> None:
-        """Write ``data`` at the end of the stream (on the chunk thread); ``index(offset)`` records where."""
-        def job() -> None:
+    def _write(self, record: Any, index: Callable[[int, int], None] | None = None, summary: int | None = None) -> None:
+        """Write ``record`` (bytes, or a ``mcap.records`` record) at the end of the stream: kept until the next job is
+        handed to the chunk thread, then serialised and written there with the others kept (one job instead of one per
+        record, the serialisation off the caller's thread); ``index(offset, length)`` records where, ``summary``: the
+        opcode of the summary group that repeats it."""
+        self._outbox.append((record, index, summary))
+
+    def _write_box(self, box: list[tuple[Any, Callable[[int, int], None] | None, int | None]]) -> None:
+        for record, index, summary in box:
+            data = record if isinstance(record, bytes) else _record_bytes(record)
+            if summary is not None:
+                self._summary_bytes[summary].append(data)
             if index is not None:
-                index(self._stream.tell())
+                index(self._stream.tell(), len(data))
             self._stream.write(data)
-        self._submit(job)
 
     def start(self, *, profile: str = "", library: str = "") -> None:
         """Write the magic and the Header record."""
@@ -326,7 +372,7 @@ class ChunkedWriter:
         """Write a Schema record; return its id (from 1)."""
         schema = mr.Schema(id=len(self._schemas) + 1, data=bytes(data), encoding=encoding, name=name)
         self._schemas.append(schema)
-        self._write(_record_bytes(schema))
+        self._write(schema, summary=Opcode.SCHEMA)  # (its bytes are written again in the summary)
         return schema.id
 
     def register_channel(self, topic: str, message_encoding: str, schema_id: int,
@@ -335,19 +381,19 @@ class ChunkedWriter:
         channel = mr.Channel(id=len(self._channels) + 1, topic=topic, message_encoding=message_encoding,
                              metadata=dict(metadata or {}), schema_id=schema_id)
         self._channels.append(channel)
-        self._write(_record_bytes(channel))
+        self._write(channel, summary=Opcode.CHANNEL)
         return channel.id
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """Write a Metadata record (indexed)."""
-        record = _record_bytes(mr.Metadata(name=name, metadata=dict(data)))
-        self._write(record, lambda offset: self._metadata_indexes.append(mr.MetadataIndex(offset, len(record), name)))
+        self._write(mr.Metadata(name=name, metadata=dict(data)),
+                    lambda offset, length: self._metadata_indexes.append(mr.MetadataIndex(offset, length, name)))
 
     def add_attachment(self, create_time: int, log_time: int, name: str, media_type: str, data: bytes) -> None:
         """Write an Attachment record (with its CRC; indexed)."""
-        record = _record_bytes(mr.Attachment(create_time, log_time, name, media_type, bytes(data)))
-        self._write(record, lambda offset: self._attachment_indexes.append(
-            mr.AttachmentIndex(offset, len(record), log_time, create_time, len(data), name, media_type)))
+        self._write(mr.Attachment(create_time, log_time, name, media_type, bytes(data)),
+                    lambda offset, length: self._attachment_indexes.append(
+                        mr.AttachmentIndex(offset, length, log_time, create_time, len(data), name, media_type)))
 
     # -- messages and chunks -----------------------------------------------------------
 
@@ -357,6 +403,8 @@ class ChunkedWriter:
         n = len(stream.unit_ends)
         if n == 0:
             return
+        if self._outside():
+            self.settle()  # deferred jobs own the chunk in progress until they are done
         times = stream.unit_times
         first, last = int(times.min()), int(times.max())
         start, end = self._message_times
@@ -389,11 +437,16 @@ class ChunkedWriter:
             self._pieces.append(stream.data[base:stop_byte])
             self._chunk_bytes += stop_byte - base
             if self._chunk_bytes > self._chunk_size:
-                self.end_chunk()
+                self._end_chunk()
             done = stop
 
     def end_chunk(self) -> None:
         """Hand the chunk in progress (if it holds messages) to the chunk thread."""
+        if self._outside():
+            self.settle()
+        self._end_chunk()
+
+    def _end_chunk(self) -> None:
         if self._chunk_messages == 0:
             return
         job = (self._pieces, self._chunk_times, sorted(self._chunk_indexes.items()))
@@ -403,7 +456,8 @@ class ChunkedWriter:
     def _write_chunk(self, pieces: list[np.ndarray], times: tuple[int, int],
                      indexes: list[tuple[int, list[np.ndarray]]]) -> None:
         """Compress one chunk, write it and its message indexes at the end of the stream, and index it."""
-        data = b"".join(pieces)
+        # (a chunk within one batch is one piece, a view of the batch's records: compressed and checked in place)
+        data = pieces[0] if len(pieces) == 1 else b"".join(pieces)
         if self._compress is None:
             self._compress = _compressor(self._compression)
         compressed = self._compress(data)
@@ -428,10 +482,13 @@ class ChunkedWriter:
 
     def flush(self, wait: bool = True) -> None:
         """End the chunk in progress and flush the stream to the OS; ``wait=False`` leaves both to the chunk thread."""
-        self.end_chunk()
-        self._submit(self._stream.flush)
+        self._submit(self._end_chunk_and_flush)
         if wait:
             self.settle()
+
+    def _end_chunk_and_flush(self) -> None:
+        self._end_chunk()
+        self._stream.flush()
 
     def flush_stream(self) -> None:
         """Flush the stream to the OS after the chunks handed over so far (on the chunk thread)."""
@@ -455,7 +512,8 @@ class ChunkedWriter:
                   (Opcode.METADATA_INDEX, self._metadata_indexes)]
         summary, offsets = b"", []
         for opcode, group in groups:
-            data = b"".join(_record_bytes(record) for record in group)
+            known = self._summary_bytes.get(opcode)
+            data = b"".join(known if known is not None else (_record_bytes(record) for record in group))
             offsets.append(mr.SummaryOffset(group_opcode=opcode, group_start=summary_start + len(summary),
                                             group_length=len(data)))
             summary += data

@@ -33,6 +33,7 @@ Node and branch names become ROS 2 field names with :func:`field_name`
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 
@@ -116,7 +117,11 @@ PUMP_STATE = flat_schema("hydroplant_msgs/msg/PumpState", PUMP_FIELDS)
 ENERGY = flat_schema("hydroplant_msgs/msg/Energy", ENERGY_FIELDS)
 SOLVER = flat_schema("hydroplant_msgs/msg/Solver", SOLVER_FIELDS)
 
-RING_SIZE = 512  # samples captured before their fields are derived and written, as one batch (the runner also derives at every periodic flush of the log)
+# samples captured before their fields are derived and written, as one batch (the runner also derives at every periodic
+# flush of the log); a divisor of the runner's 500-step blocks at 1 kHz (sim.run.runner.block_steps) and of the 2 s
+# flush interval, so that logging every step runs whole blocks (a ring of 512 would end each 500-step block with a
+# 12-step one)
+RING_SIZE = 500
 
 
 class RunRecorder:
@@ -127,15 +132,18 @@ class RunRecorder:
     into a ring of ``ring_size`` rows; a plant that records samples inside its
     blocks (:class:`~sim.plants.mujoco_fast.MujocoPlantFast`, same row layout:
     ``record_row``) writes them straight into the ring instead
-    (:meth:`record_target`, then :meth:`commit_recorded`).  :meth:`derive` computes the logged fields
-    of all pending samples at once (chamber volumes, stiffness, stored oil energy,
-    pressure forces, pump powers, energy residual) with the same functions a
-    single sample uses: the node relations of :class:`~hydraulics.network.NetworkModel`,
-    :func:`hydraulics.energy.stored_energy_at`, which broadcast
-    over the rows.  :meth:`push` hands the rows to the log's :class:`~sim.io.mcap_log.Frame`.
-    Values equal the per-sample ones to round-off.  Pending samples are
-    pushed when the log closes (:meth:`LogWriter.on_close`), so an interrupted
-    run keeps every sample it captured.
+    (:meth:`record_target`, then :meth:`commit_recorded`).  :meth:`derive` computes what the
+    run's checks need of all pending samples at once (node volumes, stored oil energy, energy
+    residual); :meth:`push` hands the ring itself to the log's :class:`~sim.io.mcap_log.Frame`
+    (:meth:`~sim.io.log_writer.Frame.defer`; the next samples go into a spare ring), whose
+    batch computes the other logged fields (chamber stiffness, pressure forces, pump powers,
+    the cylinder scene) from it on the log's writer thread while the run goes on.  Both use
+    the same functions a single sample uses: the node relations of
+    :class:`~hydraulics.network.NetworkModel`, :func:`hydraulics.energy.stored_energy_at`,
+    which broadcast over the rows, so values equal the per-sample ones to round-off, and
+    the same whichever thread computes them.  Pending samples are pushed when the log
+    closes (:meth:`LogWriter.on_close`), so an interrupted run keeps every sample it
+    captured.
 
     ``tf_every`` [steps, ≥ 1]: ``/tf`` is written for the samples whose step index is a
     multiple of it (1: every sample); every other topic takes every sample.
@@ -241,8 +249,10 @@ class RunRecorder:
         capacity = max(1, min(int(RING_SIZE if ring_size is None else ring_size), log._batch_size))
         self._raw = np.zeros((capacity, int(raw_start[-1])))
         self._raw_steps = np.zeros(capacity, dtype=np.int64)
+        self._spare_rings: list[tuple[np.ndarray, np.ndarray]] = []  # rings whose rows are in the log, to fill again
         self._counting = np.arange(capacity, dtype=np.int64)
-        self._rows = np.full((capacity, int(start[-1])), np.nan)  # joint efforts are never written: logged as NaN
+        self._nbody = nbody
+        self._batch: tuple = ()  # derive()'s node volumes, oil energy and energy residual of the pending samples
         self._pending = self._derived = 0
         self.last: dict = {}
         if self._mj:
@@ -361,25 +371,49 @@ class RunRecorder:
         return self._pending
 
     def derive(self) -> dict | None:
-        """Compute the logged fields of the pending samples, vectorised over them; None when none are pending.
+        """Compute what the run's checks need of the pending samples, vectorised over them; None when none are pending.
 
         Returns the batch's energy terms as arrays over its samples (``step``,
         ``kinetic``, ``potential``, ``oil``, ``residual``, ``pump_work`` [J]) and the
         ``actuator_position`` [m | rad] and scalar ``joint_position`` [rad | m] rows, for
         checks before :meth:`push` (the runner's energy-growth check and plausibility monitor).
+        The other logged fields are computed from the same rows when the log encodes them (:meth:`_fill`).
         """
         k = self._pending
         if k == 0:
             return None
         net, r, b = self.plant.network, self._raw[:k], self._rawcols
-        p, oil, x, v = r[:, b["p"]], r[:, b["oil"]], r[:, b["x"]], r[:, b["v"]]
+        p, oil, x = r[:, b["p"]], r[:, b["oil"]], r[:, b["x"]]
+        volumes = net.node_volume_at(x, p)  # node relations broadcast over the rows
+        kinetic, potential, pump_work, diss_h, diss_f, diss_m = r[:, b["energy"]].T
+        oil_energy = stored_energy_at(net, oil, p, x, volumes)
+        # EnergyLedger.residual, term by term
+        residual = pump_work - (kinetic + potential + oil_energy - self.plant.energy.initial_total) - (diss_h + diss_f + diss_m)
+        joints = r[:, b["joints"]]
+        self._batch = (volumes, oil_energy, residual)
+        self._derived = k
+        return {"step": self._raw_steps[:k], "kinetic": kinetic, "potential": potential, "oil": oil_energy,
+                "residual": residual, "pump_work": pump_work, "actuator_position": x,
+                "joint_position": (joints[:, self._joint_columns] if self._mj else joints)[:, :self._nj]}
+
+    def _fill(self, raw: np.ndarray, steps: np.ndarray, batch: tuple, count: int, rows: np.ndarray, lo: int,
+              hi: int) -> None:
+        """Write the frame rows of samples ``lo:hi`` of a pushed ring (``raw``, ``steps``; ``batch``: its
+        :meth:`derive` arrays) into ``rows``; the ring is free again once its last sample (``count``) is written.
+
+        Called by the log (:meth:`~sim.io.log_writer.Frame.defer`), usually on its writer thread: it reads only the
+        pushed ring and the network's constant tables, never the plant's state.
+        """
+        net, r, b, block = self.plant.network, raw[lo:hi], self._rawcols, self._block
+        k = hi - lo
+        volumes, oil_energy, residual = tuple(v[lo:hi] for v in batch[0]), batch[1][lo:hi], batch[2][lo:hi]
+        p, x, v = r[:, b["p"]], r[:, b["x"]], r[:, b["v"]]
         effort, theta, flow = r[:, b["effort"]], r[:, b["theta"]], r[:, b["flow"]]
-        rows = self._rows[:k]
-        block = self._block
         rows[:, block["xpos"].start:block["xquat"].stop] = r[:, b["poses"]]
         joints = r[:, b["joints"]]
-        rows[:, block["joints"].start:block["joints"].start + 2 * self._nj] = joints[:, self._joint_columns] if self._mj else joints
-        volumes = net.node_volume_at(x, p)  # node relations broadcast over the rows
+        jp = block["joints"].start
+        rows[:, jp:jp + 2 * self._nj] = joints[:, self._joint_columns] if self._mj else joints
+        rows[:, jp + 2 * self._nj:block["joints"].stop] = np.nan  # joint efforts are not logged
         if len(self._cyl):
             cyl = self._cyl
             c = rows[:, block["cylinders"]].reshape(k, len(cyl), len(CYLINDER_FIELDS))
@@ -390,8 +424,8 @@ class RunRecorder:
             c[:, :, 7] = theta[:, cyl]
             c[:, :, 8], c[:, :, 9] = c[:, :, 2] / PA_PER_BAR, c[:, :, 3] / PA_PER_BAR
             rows[:, block["cylinders"]] = c.reshape(k, -1)
-            nbody = self.plant.model.nbody
-            self.cylinder_scene.fill(rows, self._raw_steps[:k], r[:, b["poses"]][:, :3 * nbody].reshape(k, nbody, 3),
+            nbody = self._nbody
+            self.cylinder_scene.fill(rows, steps[lo:hi], r[:, b["poses"]][:, :3 * nbody].reshape(k, nbody, 3),
                                      r[:, b["poses"]][:, 3 * nbody:].reshape(k, nbody, 4), p[:, self._cyl_cap])
         if len(self._mot):
             mot = self._mot
@@ -416,9 +450,6 @@ class RunRecorder:
         if self.flows is not None:
             rows[:, block["flows"]] = flow
         kinetic, potential, pump_work, diss_h, diss_f, diss_m = r[:, b["energy"]].T
-        oil_energy = stored_energy_at(net, oil, p, x, volumes)
-        # EnergyLedger.residual, term by term
-        residual = pump_work - (kinetic + potential + oil_energy - self.plant.energy.initial_total) - (diss_h + diss_f + diss_m)
         en = rows[:, block["energy"]]
         en[:, 0], en[:, 1], en[:, 2], en[:, 3] = kinetic, potential, oil_energy, pump_work
         en[:, 4], en[:, 5], en[:, 6], en[:, 7] = diss_h, diss_f, diss_m, residual
@@ -427,10 +458,8 @@ class RunRecorder:
         s[:, 0], s[:, 1] = r[:, b["solver"]].T
         s[:, 2] = np.minimum(theta.min(axis=1), 1.0) if theta.shape[1] else 1.0
         rows[:, block["solver"]] = s
-        self._derived = k
-        jp = block["joints"].start
-        return {"step": self._raw_steps[:k], "kinetic": kinetic, "potential": potential, "oil": oil_energy,
-                "residual": residual, "pump_work": pump_work, "actuator_position": x, "joint_position": rows[:, jp:jp + self._nj]}
+        if hi == count:
+            self._spare_rings.append((raw, steps))  # (list.append is atomic; the ring is taken in the run's thread)
 
     def push(self, count: int | None = None) -> None:
         """Write the first ``count`` derived samples (all by default) to the log and empty the ring.
@@ -438,7 +467,8 @@ class RunRecorder:
         Samples after ``count`` are dropped (a run cut at a divergence).  ``last``
         then holds the last written sample's energy terms [J] (``kinetic``,
         ``potential``, ``oil``, ``residual``, ``pump_work``, ``dissipated``),
-        actuator positions and joint positions, for summaries.
+        actuator positions and joint positions, for summaries.  The ring goes to the log
+        (:meth:`~sim.io.log_writer.Frame.defer`, its fields computed there); later samples go into a spare ring.
         """
         if self._pending > self._derived:  # captured after derive() (or never derived): derive them too
             self.derive()
@@ -446,17 +476,22 @@ class RunRecorder:
         count = k if count is None else max(0, min(int(count), k))
         if count > 0:
             i = count - 1
-            r, b, rows, block = self._raw, self._rawcols, self._rows, self._block
-            en = rows[i, block["energy"]]
-            self.last = {"kinetic": float(en[0]), "potential": float(en[1]), "oil": float(en[2]), "residual": float(en[7]),
-                         "pump_work": float(en[3]), "dissipated": float(en[4] + en[5] + en[6]),
+            r, b = self._raw, self._rawcols
+            kinetic, potential, pump_work, diss_h, diss_f, diss_m = r[i, b["energy"]]
+            _, oil_energy, residual = self._batch
+            self.last = {"kinetic": float(kinetic), "potential": float(potential), "oil": float(oil_energy[i]),
+                         "residual": float(residual[i]), "pump_work": float(pump_work),
+                         "dissipated": float(diss_h + diss_f + diss_m),
                          "step": int(self._raw_steps[i]), "actuator_position": r[i, b["x"]].copy(),
                          "joint_position": (r[i, b["joints"]][self._joint_columns] if self._mj else r[i, b["joints"]])[:self._nj].copy()}
-        # empty the ring first: a Ctrl-C (held back by extend until its rows are all buffered) must not leave them
-        # pending for the close hook to write twice; the ring's arrays are not touched until the next capture
+        # empty the ring first: a Ctrl-C (held back by defer until its rows are all buffered) must not leave them
+        # pending for the close hook to write twice
         self._pending = self._derived = 0
         if count > 0:
-            self.frame.extend(self._raw_steps[:count], self._rows[:count])
+            raw, steps, batch = self._raw, self._raw_steps, self._batch
+            self._raw, self._raw_steps = (self._spare_rings.pop() if self._spare_rings
+                                          else (np.zeros_like(raw), np.zeros_like(steps)))
+            self.frame.defer(steps[:count], functools.partial(self._fill, raw, steps, batch, count))
 
     def push_pending(self) -> None:
         """Derive and write every pending sample (the log's close hook: an interrupted run keeps what it captured)."""
