@@ -385,7 +385,7 @@ class PbdPlant(PlantBase):
         net = self.network
         n, na = net.node_count, net.actuator_count
         return (2 * n + 2 * len(self.scalar_joints) + 4 * na + 2 * len(net.valve_names) + len(net.pump_names)
-                + len(net.branch_names) + 8 + 7 * self.xmodel.nbody)
+                + len(net.branch_names) + 8 + 7 * self.xmodel.nbody + self.controller_state.size)
 
     def record_next(self, record: np.ndarray, every: int = 1) -> None:
         """Make the next :meth:`advance` record the samples after every step whose index becomes a multiple of
@@ -429,13 +429,14 @@ class PbdPlant(PlantBase):
         pmax, pmin, xmax, xmin = ctx["pmax"], ctx["pmin"], ctx["xmax"], ctx["xmin"]
         pmax[:], pmin[:] = self.node_pressure_max, self.node_pressure_min
         xmax[:], xmin[:] = self.actuator_position_max, self.actuator_position_min
-        from sim.plants.pbd_block import BLOCK_SINGULAR, BlockTrack, Recording, block
+        from sim.plants.pbd_block import BLOCK_SINGULAR, BlockTrack, Control, Recording, block
         from sim.plants.pbd_frame import RigidState
 
         kernel = block(solver.transport_response, solver.articulated_contacts)  # (a dict lookup once compiled)
         done, status = kernel(n, float(self.dt), cmd, speed, net.buffers, RigidState(st.x, st.q, st.v, st.w),
                                      fc["actuators"], BlockTrack(clock, hint, pmax, pmin, xmax, xmin), ctx["plant"], ctx["buffers"],
-                                     self._frame_settings(h), Recording(ctx["no_record"] if record is None else record, rec))
+                                     self._frame_settings(h), Recording(ctx["no_record"] if record is None else record, rec),
+                                     self._block_control(ctx, n))
         self.recorded, self.recorded_finite = int(rec[3]), not rec[4]
         if status == BLOCK_SINGULAR:
             raise np.linalg.LinAlgError("Matrix is singular.")
@@ -460,6 +461,26 @@ class PbdPlant(PlantBase):
         self.frame_steps += done
         self.step_index += done
         return done, self._report
+
+    def _block_control(self, ctx, n):
+        """The compiled block's ``Control``: the PID table, state and the setpoints of the next ``n`` steps; the
+        buffers' qpos/qvel set to the current state (the controllers' joint sensors read them before the first
+        frame)."""
+        from sim.plants.pbd_block import Control
+
+        bank = self.controllers
+        if len(bank):
+            qpos, qvel = self._qpos_qvel()
+            ctx["buffers"].qpos[:], ctx["buffers"].qvel[:] = qpos, qvel
+            if len(ctx.get("setpoint", ())) < n:
+                ctx["setpoint"] = np.zeros((max(n, 2 * len(ctx.get("setpoint", ()))), len(bank)))
+            bank.setpoint_rows((np.arange(n) + self.step_index) * self.dt, ctx["setpoint"][:n])
+            return Control(bank.table, bank.state, ctx["setpoint"])
+        return Control(bank.table, bank.state, ctx.setdefault("setpoint", np.zeros((1, 0))))
+
+    def generalized_state(self):
+        """(qpos, qvel) of the whole model, MuJoCo's layout, from the bodies' state."""
+        return self._qpos_qvel()
 
     def _block_inputs(self, ctx, n, h):
         """Rows of valve commands and pump speeds for every substep of the next ``n`` steps (step k, substep s:

@@ -129,6 +129,7 @@ class _Snapshot:
         np.copyto(self.valve_command, control.valve_command)
         np.copyto(self.pump_speed, control.pump_speed)
         self.extremes = [getattr(plant, name) for name in self.extreme_names]
+        self.controller_state = plant.controller_state.copy()  # (written in place by the blocks)
 
     def restore(self, plant) -> None:
         if self.own:
@@ -143,6 +144,7 @@ class _Snapshot:
         plant.control.pump_speed[:] = self.pump_speed
         for name, value in zip(self.extreme_names, self.extremes):
             setattr(plant, name, value)
+        plant.controller_state[:] = self.controller_state
 
 
 # Steps between snapshots of the block path: a failed block is replayed from the last snapshot (the
