@@ -249,3 +249,25 @@ def test_controller_channel_logged(tmp_path, mode):
     # the logged error is the setpoint less the stroke at the start of the logged step's successor
     np.testing.assert_allclose(ctl["error"], ctl["setpoint"] - ctl["measurement"], rtol=0, atol=1e-15)
     assert np.max(np.abs(cyl["position_m"][after] - ctl["measurement"][after])) < 2e-4
+
+
+def proportional(t, sensors):
+    """The servo scenario's P law (kp = 57.7 /m, the setpoint stepping to 0.21 m at 0.05 s), for a scenario's
+    ``python = "test_controllers:proportional"``."""
+    setpoint = 0.21 if t >= 0.05 - 1e-12 else 0.2
+    return {"valve": min(1.0, max(-1.0, 57.7 * (setpoint - sensors["stroke:cyl"])))}
+
+
+def test_python_controller_from_a_scenario(tmp_path, mode):
+    """``type = "python"`` in a scenario file: run by the runner (logged in blocks of one period), the same strokes
+    as the compiled PID to round-off."""
+    path = _write(tmp_path, '[controllers.mine]\ntype = "python"\npython = "test_controllers:proportional"\n'
+                            'sensors = ["stroke:cyl"]\noutputs = ["valve"]\n[log]\nrate_hz = 2000\n')
+    logs = {}
+    for label, scenario in (("python", path), ("pid", SERVO)):
+        result = run(scenario, out=tmp_path / f"{label}.mcap", overrides={"mode": mode, "duration": 0.3},
+                     progress=False)
+        assert result.status == "complete", result.message
+        logs[label] = read_log(result.log_path).topic("/hydroplant/cylinders/cyl")
+    np.testing.assert_array_equal(logs["python"].t, logs["pid"].t)
+    np.testing.assert_allclose(logs["python"]["position_m"], logs["pid"]["position_m"], rtol=0, atol=1e-12)

@@ -138,6 +138,7 @@ import numpy as np
 from hydraulics.coupling import make_coupling
 from hydraulics.network import ACTUATOR_CYLINDER
 
+from sim.plants.controllers import advance_controlled
 from sim.plants.inputs import input_plan, sample_inputs
 from sim.plants.base import PlantBase
 from sim.plants.mujoco_fast import MujocoPlantFast
@@ -364,7 +365,10 @@ class PbdPlant(PlantBase):
         self._record_next = None
         self.recorded, self.recorded_finite = 0, True
         report = None
-        if self.fast:
+        if self.python_controller is not None:  # blocks of one control period (sim.plants.controllers)
+            report = advance_controlled(self, lambda m, rows, ev: self._advance_block(m, rows, ev)[1] if self.fast
+                                        else self._steps(m), n, record if self.fast else None, every)
+        elif self.fast:
             report = self._advance_block(n, record, every)[1]
         else:
             for _ in range(n):
@@ -373,6 +377,31 @@ class PbdPlant(PlantBase):
                     break
         self.end_finite = self.finite()
         return report
+
+    def _steps(self, n):
+        report = None
+        for _ in range(n):
+            report = self.step()
+            if not report.success:
+                break
+        return report
+
+    def record_row(self, out: np.ndarray) -> None:
+        """Write the current state into ``out`` (:attr:`record_width` floats) in the layout the compiled block
+        records (``RunRecorder.capture``'s raw row)."""
+        state, e, report = self.net_state, self.energy, self.last_report
+        kinetic, potential = self.mechanical_energy()
+        xpos, xquat = self.body_poses()
+        q, qd = self.joint_state()
+        if report is None:
+            flow, solver = np.zeros(len(self.network.branch_names)), (0.0, 0.0)
+        else:
+            flow, solver = report.branch_flow, (report.newton_iterations, report.residual)
+        np.concatenate((state.node_pressure, q, qd, state.node_oil, state.actuator_position, state.actuator_velocity,
+                        self.effort, self.theta, self.control.valve_command, state.valve_spool, self.control.pump_speed,
+                        flow, solver, (kinetic, potential, e.pump_work, e.dissipated_hydraulic, e.dissipated_friction,
+                                       e.dissipated_mechanical), np.reshape(xpos, -1), np.reshape(xquat, -1),
+                        self.controller_state.reshape(-1)), out=out)
 
     # ------------------------------------------------------------------ record
     record_rows = staticmethod(MujocoPlantFast.record_rows)  # the same rows as MujocoPlantFast.advance records

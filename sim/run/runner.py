@@ -62,6 +62,7 @@ from sim.io.mcap_log import LogLevel, LogWriter
 from sim.run.monitor import RunMonitor, Violation
 from sim.run.recorder import RunRecorder
 from sim.io.scenario import Scenario, load_scenario
+from sim.plants.controllers import load_python_controllers
 from sim.io.scene import load_scene
 
 DEFAULT_LOG_DIR = Path("logs")
@@ -86,13 +87,17 @@ def make_plant(scene, *, fast: bool = True):
         if fast:
             from sim.plants.mujoco_fast import MujocoPlantFast
 
-            return MujocoPlantFast(scene)
-        from sim.plants.mujoco import MujocoPlant
+            plant = MujocoPlantFast(scene)
+        else:
+            from sim.plants.mujoco import MujocoPlant
 
-        return MujocoPlant(scene)
-    from sim.plants.pbd import make_pbd_plant  # noqa: PLC0415 - optional until the PBD mode exists
+            plant = MujocoPlant(scene)
+    else:
+        from sim.plants.pbd import make_pbd_plant  # noqa: PLC0415 - optional until the PBD mode exists
 
-    return make_pbd_plant(scene, block=fast)  # fast=False: the PBD plant steps one step at a time too
+        plant = make_pbd_plant(scene, block=fast)  # fast=False: the PBD plant steps one step at a time too
+    plant.python_controller = load_python_controllers(plant)  # the scenario's `type = "python"` controller, if any
+    return plant
 
 
 class _Snapshot:
