@@ -4,7 +4,7 @@ Per row, the closed loop runs once step by step and its commands of every step a
 scenario without the controllers, those commands given back as piecewise-linear schedules with a knot at every
 step (so both runs step the same physics: the largest difference of the actuator coordinates between them is
 printed).  Both then advance in the runner's blocks (``sim.run.runner.block_steps``) from the scenario's start over
-the window, ``--reps`` times in alternating pairs; the figure is the median of the paired ratios closed/open
+the window, ``--reps`` times in alternating pairs, in CPU time of the stepping thread; the figure is the median of the paired ratios closed/open
 (and the spread of the ratios, min–max), with the medians of µs per step.
 
 Rows:
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import statistics
 import time
 from pathlib import Path
@@ -79,12 +80,38 @@ def open_loop(closed):
 
 
 def timed(plant, steps, block):
-    """Seconds of advancing ``plant`` from its reset over ``steps`` in blocks of ``block``."""
+    """CPU seconds of this thread advancing ``plant`` from its reset over ``steps`` in blocks of ``block`` (CPU time:
+    on a shared machine the wall time also counts the other processes' time slices)."""
     plant.reset()
-    start = time.perf_counter()
+    start = time.thread_time()
     while plant.step_index < steps:
         plant.advance(min(block, steps - plant.step_index))
-    return time.perf_counter() - start
+    return time.thread_time() - start
+
+
+def kernel_ns(plant, calls=200_000):
+    """ns per call of the controllers' compiled update (:func:`hydraulics.controllers.update`) at ``plant``'s state,
+    in a compiled loop: what the closed loop adds to a step."""
+    import numba
+
+    from hydraulics import controllers as CT
+
+    @numba.njit
+    def loop(table, state, setpoint, dt, x, v, qpos, qvel, p, flow, cmd, speed, calls):
+        for k in range(calls):
+            CT.update(table, state, setpoint, k, dt, x, v, qpos, qvel, p, flow, cmd, speed)
+
+    bank, net, control = plant.controllers, plant.net_state, plant.control
+    args = (bank.table, bank.state.copy(), bank.setpoint_rows(np.array([0.0]))[0], plant.dt, net.actuator_position,
+            net.actuator_velocity, plant.data.qpos.copy(), plant.data.qvel.copy(), net.node_pressure,
+            np.zeros(len(plant.network.branch_names)), control.valve_command.copy(), control.pump_speed.copy())
+    loop(*args, 10)
+    best = math.inf
+    for _ in range(5):
+        start = time.thread_time()
+        loop(*args, calls)
+        best = min(best, (time.thread_time() - start) / calls * 1e9)
+    return best
 
 
 def pairs(plants, steps, block, reps):
@@ -107,11 +134,11 @@ def row(label, times, steps, base="open", other="closed"):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--reps", type=int, default=5)
-    parser.add_argument("--window", type=float, default=6.0, help="simulated seconds per timed run")
+    parser.add_argument("--reps", type=int, default=15)
+    parser.add_argument("--window", type=float, default=2.0, help="simulated seconds per timed run")
     args = parser.parse_args()
-    lines = ["| machine | open loop µs/step | closed loop µs/step | closed/open (median) | spread |",
-             "|---|---|---|---|---|"]
+    lines = ["| machine | open loop µs/step | closed loop µs/step | closed/open (median) | spread | controllers' kernel ns/step | share of the open-loop step |",
+             "|---|---|---|---|---|---|---|"]
     checks = []
     cases = [("arm, MuJoCo mode", load_scenario(ARM).with_overrides(duration=args.window)),
              ("arm, PBD mode", load_scenario(ARM).with_overrides(duration=args.window, mode="pbd")),
@@ -121,7 +148,11 @@ def main():
         plants = {"closed": make_plant(load_scene(closed)), "open": make_plant(load_scene(opened))}
         steps, block = closed.step_count, block_steps(closed.dt)
         times = pairs(plants, steps, block, args.reps)
-        lines.append(row(label, times, steps))
+        share = ""
+        if closed.mode == "mujoco":
+            ns = kernel_ns(plants["closed"])
+            share = f" {ns:.0f} | {ns / (statistics.median(times['open']) / steps * 1e9) * 100:.2f} % |"
+        lines.append(row(label, times, steps) + (share or " — | — |"))
         replay = plants["open"]
         replay.reset()
         replay.advance(steps)
