@@ -271,3 +271,15 @@ def test_python_controller_from_a_scenario(tmp_path, mode):
         logs[label] = read_log(result.log_path).topic("/hydroplant/cylinders/cyl")
     np.testing.assert_array_equal(logs["python"].t, logs["pid"].t)
     np.testing.assert_allclose(logs["python"]["position_m"], logs["pid"]["position_m"], rtol=0, atol=1e-12)
+
+
+def test_joint_sensor_servoes_like_the_stroke(mode):
+    """The carriage's slide joint is the cylinder's stroke (joint transmission): servoing ``joint:x`` (MuJoCo's qpos,
+    PBD's generalized coordinates) reaches the same peak as servoing ``stroke:cyl`` within 0.1 % of the step."""
+    peaks = {}
+    for sensor in (("stroke", "cyl"), ("joint", "x")):
+        scenario = _scenario(mode, sensor=sensor).with_overrides(duration=0.4)
+        t, x, _ = _trace(make_plant(load_scene(scenario)), scenario, block=4)
+        peaks[sensor[0]] = _peak(t, x)
+    assert peaks["joint"][0] == pytest.approx(peaks["stroke"][0], abs=1e-3)
+    assert peaks["joint"][1] == pytest.approx(peaks["stroke"][1], abs=2e-3)
