@@ -8,7 +8,7 @@
   the loop is x/r = K·kp/(τs² + s + K·kp), ζ = 1/(2·sqrt(τ·K·kp)), ω_n = sqrt(K·kp/τ); overshoot
   exp(−πζ/sqrt(1 − ζ²)) and peak time π/(ω_n·sqrt(1 − ζ²)) held within 1 % in both modes.  With PI the loop is
   third order (τs³ + s² + K·kp·s + K·ki); its step response is computed exactly (matrix exponential) and matched
-  the same way.
+  the same way (`tests/scenes/servo_pi.scenario.toml`).
 * Limits and anti-windup on a saturating step; the sample rate holds the output between samples.
 * A Python callable ``controller(t, sensors)`` running the same law gives the compiled PID's run to round-off.
 * Snapshot/resume continues the loop bit for bit; the controllers' channels are logged.
@@ -168,8 +168,8 @@ def test_servo_p_matches_second_order(mode):
 
 def test_servo_pi_matches_third_order(mode):
     """PI on the stroke: the closed loop τs³ + s² + K·kp·s + K·ki, stepped exactly; overshoot and peak time within 1 %."""
-    kp, ki = 40.0, 200.0
-    scenario = _scenario(mode, kp=kp, ki=ki)
+    scenario = load_scenario(SCENES / "servo_pi.scenario.toml").with_overrides(mode=mode)
+    kp, ki = scenario.controllers["stroke"].kp, scenario.controllers["stroke"].ki
     t, x, _ = _trace(make_plant(load_scene(scenario)), scenario, block=2)
     # states (x, s, ∫e): x' = K·s, s' = (kp·(r − x) + ki·∫e − s)/τ, ∫e' = r − x
     a = np.array([[0.0, GAIN, 0.0], [-kp / TAU, -1.0 / TAU, ki / TAU], [-1.0, 0.0, 0.0]])
