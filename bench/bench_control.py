@@ -97,14 +97,15 @@ def kernel_ns(plant, calls=200_000):
     from hydraulics import controllers as CT
 
     @numba.njit
-    def loop(table, state, setpoint, dt, x, v, qpos, qvel, p, flow, cmd, speed, calls):
+    def loop(table, state, setpoint, dt, sources, cmd, speed, calls):
         for k in range(calls):
-            CT.update(table, state, setpoint, k, dt, x, v, qpos, qvel, p, flow, cmd, speed)
+            CT.update(table, state, setpoint, k, dt, sources, cmd, speed)
 
     bank, net, control = plant.controllers, plant.net_state, plant.control
-    args = (bank.table, bank.state.copy(), bank.setpoint_rows(np.array([0.0]))[0], plant.dt, net.actuator_position,
-            net.actuator_velocity, plant.data.qpos.copy(), plant.data.qvel.copy(), net.node_pressure,
-            np.zeros(len(plant.network.branch_names)), control.valve_command.copy(), control.pump_speed.copy())
+    sources = (net.actuator_position, net.actuator_velocity, plant.data.qpos.copy(), plant.data.qvel.copy(),
+               net.node_pressure, np.zeros(len(plant.network.branch_names)))
+    args = (bank.table, bank.state.copy(), bank.setpoint_rows(np.array([0.0]))[0], plant.dt, sources,
+            control.valve_command.copy(), control.pump_speed.copy())
     loop(*args, 10)
     best = math.inf
     for _ in range(5):

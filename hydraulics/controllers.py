@@ -115,37 +115,44 @@ def pid_update(p, state, error, measurement, h):
     return out, raw, integrator + increment, derivative
 
 
+SOURCES = ("position", "velocity", "qpos", "qvel", "pressure", "flow")
+"""What the sensors read, in this order (the ``sources`` tuple): actuator positions [m | rad] and velocities, qpos
+and qvel (MuJoCo's layout), node pressures [Pa], branch flows [m³/s]; pump speeds come with the commands."""
+assert SOURCES == tuple({"stroke": "position", "speed": "velocity", "joint": "qpos", "joint_speed": "qvel",
+                         "pressure": "pressure", "flow": "flow"}[k] for k in SENSOR_KINDS[:len(SOURCES)])
+
+
 @kernel
-def sensor_value(kind, index, position, velocity, qpos, qvel, pressure, flow, speed):
-    """The measurement of sensor ``kind`` (:data:`SENSOR_KINDS`) at ``index`` from the step's start state: actuator
-    positions and velocities, MuJoCo-layout qpos/qvel, node pressures, branch flows, pump speeds."""
+def sensor_value(kind, index, sources, speed):
+    """The measurement of sensor ``kind`` (:data:`SENSOR_KINDS`) at ``index`` from the step's start state
+    ``sources`` (:data:`SOURCES`) or the pump speeds ``speed`` [rev/s]."""
     if kind == 0:
-        return position[index]
+        return sources[0][index]
     if kind == 1:
-        return velocity[index]
+        return sources[1][index]
     if kind == 2:
-        return qpos[index]
+        return sources[2][index]
     if kind == 3:
-        return qvel[index]
+        return sources[3][index]
     if kind == 4:
-        return pressure[index]
+        return sources[4][index]
     if kind == 5:
-        return flow[index]
+        return sources[5][index]
     return speed[index]
 
 
 @kernel
-def update(table_, state, setpoint, step, dt, position, velocity, qpos, qvel, pressure, flow, cmd, speed):
+def update(table_, state, setpoint, step, dt, sources, cmd, speed):
     """Every controller of ``table_`` at plant step ``step`` (dt [s]): those whose period divides ``step`` sample
-    their sensor against ``setpoint[i]`` and update their ``state`` row; every one writes its held output into
-    ``cmd`` (valve commands) or ``speed`` (pump speeds), the inputs of the step's hydraulics."""
+    their sensor (``sources``: :data:`SOURCES` at the step's start) against ``setpoint[i]`` and update their
+    ``state`` row; every one writes its held output into ``cmd`` (valve commands) or ``speed`` (pump speeds), the
+    inputs of the step's hydraulics."""
     for i in range(table_.shape[0]):
         p = table_[i]
         s = state[i]
         every = int(p[EVERY])
         if step % every == 0:
-            y = sensor_value(int(p[SENSOR_KIND]), int(p[SENSOR_INDEX]), position, velocity, qpos, qvel, pressure, flow,
-                             speed)
+            y = sensor_value(int(p[SENSOR_KIND]), int(p[SENSOR_INDEX]), sources, speed)
             r = setpoint[i]
             e = r - y
             out, raw, integrator, derivative = pid_update(p, s, e, y, every * dt)
@@ -165,5 +172,5 @@ def update_outputs(table_, state, cmd, speed):
             speed[int(p[OUTPUT_INDEX])] = state[i, S_OUTPUT]
 
 
-__all__ = ["ANTI_WINDUP", "LOGGED", "OUTPUT_KINDS", "PID_COLUMNS", "SENSOR_KINDS", "STATE_COLUMNS", "initial_state",
+__all__ = ["ANTI_WINDUP", "LOGGED", "OUTPUT_KINDS", "PID_COLUMNS", "SENSOR_KINDS", "SOURCES", "STATE_COLUMNS", "initial_state",
            "pack", "pid_update", "sensor_value", "update", "update_outputs"]

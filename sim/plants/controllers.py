@@ -133,9 +133,8 @@ class ControllerBank:
         if not len(self.names):
             return
         setpoint = self.setpoint_rows(np.array([step_index * dt]))[0]
-        position, velocity, qpos, qvel, pressure, flow = (np.ascontiguousarray(a, float) for a in sources)
-        CT.update(self.table, self.state, setpoint, step_index, dt, position, velocity, qpos, qvel, pressure, flow,
-                  control.valve_command, control.pump_speed)
+        sources = tuple(np.ascontiguousarray(a, float) for a in sources)
+        CT.update(self.table, self.state, setpoint, step_index, dt, sources, control.valve_command, control.pump_speed)
 
 
 class PythonController:
@@ -171,10 +170,9 @@ class PythonController:
 
     def call(self, plant) -> None:
         """Ask the controller at the plant's current step and hold its commands in ``plant.control``."""
-        position, velocity, qpos, qvel, pressure, flow = plant.controller_sources()
+        sources = tuple(np.ascontiguousarray(a, float) for a in plant.controller_sources())
         speed = plant.control.pump_speed
-        values = {text: float(CT.sensor_value(kind, index, position, velocity, qpos, qvel, pressure, flow, speed))
-                  for text, kind, index in self.sensors}
+        values = {text: float(CT.sensor_value(kind, index, sources, speed)) for text, kind, index in self.sensors}
         commands = self.function(plant.time, values)
         if not isinstance(commands, dict):
             raise TypeError(f"the controller returned {type(commands).__name__}, expected a dict of input name: value")

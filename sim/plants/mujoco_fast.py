@@ -715,8 +715,8 @@ def _control(ctx, V):
     table = _mf(ctx, P_CTL_TABLE, nctl, _CTL_COLUMNS)
     state = _mf(ctx, P_CTL_STATE, nctl, _CTL_STATES)
     setpoint = _mf(ctx, P_CTL_SET, ctx[C_ROWS], nctl)[k]
-    CT.update(table, state, setpoint, ctx[C_STEP0] + k, V.fs[FS_DT], V.pos, V.vel, _vf(ctx, P_QPOS, ctx[C_NQ]), V.qvel,
-              V.pres, V.flow, V.cmd[k], V.speed[k])
+    sources = (V.pos, V.vel, _vf(ctx, P_QPOS, ctx[C_NQ]), V.qvel, V.pres, V.flow)  # CT.SOURCES
+    CT.update(table, state, setpoint, ctx[C_STEP0] + k, V.fs[FS_DT], sources, V.cmd[k], V.speed[k])
 
 
 def _callback_function(fingerprint):

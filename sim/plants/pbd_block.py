@@ -194,8 +194,8 @@ def _control(control, step, dt, hyd, qpos, qvel, cmd, speed, k):
     """The PID controllers of plant step ``step`` (:func:`hydraulics.controllers.update`) from the frame's start
     state (the network's actuator motion, pressures and last flows, qpos/qvel of the previous frame's end), their
     outputs written into the first substep's row of ``cmd``/``speed`` and held over the frame's other rows."""
-    CT.update(control.table, control.state, control.setpoint[k], step, dt, hyd.position, hyd.velocity, qpos, qvel,
-              hyd.pressure, hyd.flow, cmd[0], speed[0])
+    sources = (hyd.position, hyd.velocity, qpos, qvel, hyd.pressure, hyd.flow)  # CT.SOURCES
+    CT.update(control.table, control.state, control.setpoint[k], step, dt, sources, cmd[0], speed[0])
     for s in range(1, cmd.shape[0]):
         CT.update_outputs(control.table, control.state, cmd[s], speed[s])
 
