@@ -80,6 +80,13 @@ BENCHES = (
           "included), and measured: the most plants stepped one after the other in every frame (no logs) whose summed "
           "CPU time per frame keeps its p99 within the frame (see [play.md](play.md)). On a "
           "shared machine the wall-time p99 is the scheduler's time slice: the CPU time is the physics."),
+    Bench("bench_control", ("--reps", "15"), "Controllers in compiled blocks",
+          "Closed loops against the same machine open loop: the outside arm whose valve command is proportional to "
+          "the stroke error every step (scenario `tests/scenes/outside_arm_servo.scenario.toml`) and the excavator dig "
+          "with three PI stroke controllers, each against its own commands replayed as schedules (the same physics), "
+          "in the runner's blocks over 2 s, 15 alternating pairs of CPU time: µs per step and the paired median ratio; and the controllers' update alone in a compiled loop. Targets: "
+          "the arm within 10 % of open loop, the excavator's controllers at most 5 % of the step. Last table: a "
+          "Python `controller(t, sensors)` against the compiled PID (see [controllers.md](controllers.md))."),
     Bench("bench_startup", (), "Start-up in fresh processes",
           "Import, scene load with the plant (cached kernels) and first step, in fresh interpreters."),
     Bench("bench_first_run", ("--inline", "--markdown"), "The first run on a cold kernel cache",

@@ -107,6 +107,7 @@ class Scenario:
     inputs_csv: Path | None = None  # the inputs CSV file the schedules were read from, if any
     monitor: bool = True  # [monitor] enabled: a run beyond the plausibility bounds stops (sim.run.monitor); False: warns
     mapping: object = None  # [mapping]: device axes -> valve commands for `hydroplant play` (sim.live.mapping.Mapping)
+    controllers: dict = field(default_factory=dict)  # [controllers.NAME]: name -> PidSpec (inputs driven by feedback)
 
     @property
     def name(self) -> str:
@@ -205,8 +206,8 @@ def _flag(table, key, where, default):
     return value
 
 
-def _schedule(name, spec, where) -> Schedule:
-    where = f"{where}, field 'inputs.{name}'"
+def _schedule(name, spec, where, *, field=None) -> Schedule:
+    where = f"{where}, field '{field or 'inputs.' + name}'"
     if isinstance(spec, bool) or isinstance(spec, str):
         _error(where, f"expected a number or a table {{ t = [...], value = [...] }}, got {spec!r}")
     if isinstance(spec, (int, float)):
@@ -229,6 +230,125 @@ def _schedule(name, spec, where) -> Schedule:
     if np.any(np.diff(t) <= 0):
         _error(where, "'t' must be strictly increasing")
     return Schedule(t, value)
+
+
+CONTROLLER_TYPES = ("pid", "python")
+SENSOR_KINDS = ("stroke", "speed", "joint", "joint_speed", "pressure", "flow", "pump_speed")  # hydraulics.controllers
+ANTI_WINDUP = ("none", "clamp", "back_calculation")  # hydraulics.controllers.ANTI_WINDUP
+GAIN_LIMIT = 1e12  # |kp|, |ki|, |kd| at most this (in output units per sensor unit)
+DERIVATIVE_FILTER_MAX = 1e3  # s
+TRACKING_TIME_MAX = 1e6  # s
+CONTROL_RATE_RANGE = (1e-6, 1e9)  # Hz; above 1/dt: every step
+
+
+@dataclass(frozen=True)
+class PidSpec:
+    """``[controllers.NAME]`` with ``type = "pid"`` (law: :mod:`hydraulics.controllers`), SI units.
+
+    ``output``: the valve or pump input it drives; ``sensor``: ``(kind, name)`` from ``"KIND:NAME"``, kind one of
+    :data:`SENSOR_KINDS`; ``setpoint``: a :class:`Schedule` in the sensor's unit; gains ``kp`` [out/unit],
+    ``ki`` [out/(unit·s)], ``kd`` [out·s/unit]; ``derivative_filter`` T_f [s]; ``rate`` [Hz] (None: every step);
+    ``low``/``high``: output limits (None: the input's range); ``anti_windup`` one of :data:`ANTI_WINDUP`;
+    ``tracking_time`` T_t [s] of back-calculation (None: T_i = kp/ki, or the sample period without kp or ki)."""
+
+    output: str
+    sensor: tuple
+    setpoint: Schedule
+    kp: float = 0.0
+    ki: float = 0.0
+    kd: float = 0.0
+    derivative_filter: float = 0.0
+    rate: float | None = None
+    low: float | None = None
+    high: float | None = None
+    anti_windup: str = "clamp"
+    tracking_time: float | None = None
+
+
+@dataclass(frozen=True)
+class PythonSpec:
+    """``[controllers.NAME]`` with ``type = "python"``: ``python = "module:function"``, a callable
+    ``controller(t, sensors) -> commands`` (:mod:`sim.plants.controllers`), asked at ``rate`` [Hz] (None: every
+    step) with the sensors ``sensors`` (``"KIND:NAME"`` strings) and allowed to set the inputs ``outputs``."""
+
+    python: str
+    sensors: tuple
+    outputs: tuple
+    rate: float | None = None
+
+
+def _sensor(text, where, key="sensor"):
+    if not isinstance(text, str) or ":" not in text:
+        _error(where, f"field '{key}': expected \"KIND:NAME\" with KIND one of {list(SENSOR_KINDS)}, got {text!r}")
+    kind, name = text.split(":", 1)
+    if kind not in SENSOR_KINDS or not name:
+        _error(where, f"field '{key}': {text!r}: KIND must be one of {list(SENSOR_KINDS)} and NAME non-empty")
+    return kind, name
+
+
+def _controllers(table, where, inputs) -> dict:
+    """``[controllers.NAME]`` tables: name -> :class:`PidSpec` or :class:`PythonSpec`; an input driven by a
+    controller cannot also have a schedule (``[inputs]``, ``inputs_csv``) nor a second controller."""
+    if not isinstance(table, dict):
+        _error(where, "[controllers] must hold tables [controllers.NAME] with type = 'pid' or 'python'")
+    out, driven = {}, {}
+    for name, spec in table.items():
+        w = f"{where}, [controllers.{name}]"
+        if not isinstance(spec, dict):
+            _error(w, "expected a table with type = 'pid' or 'python'")
+        kind = _choice(spec, "type", w, CONTROLLER_TYPES, None)
+        if kind is None:
+            _error(w, f"missing field 'type' (one of {list(CONTROLLER_TYPES)})")
+        allowed = ({"type", "output", "sensor", "setpoint", "kp", "ki", "kd", "derivative_filter", "rate", "low", "high",
+                    "anti_windup", "tracking_time"} if kind == "pid" else {"type", "python", "sensors", "outputs", "rate"})
+        unknown = sorted(set(spec) - allowed)
+        if unknown:
+            _error(w, f"unknown field(s) {unknown} for type '{kind}'; allowed: {sorted(allowed)}")
+        rate = _number(spec, "rate", w, low=CONTROL_RATE_RANGE[0], high=CONTROL_RATE_RANGE[1], low_open=False,
+                       default=math.nan)
+        rate = None if math.isnan(rate) else rate
+        if kind == "python":
+            target = spec.get("python")
+            if not isinstance(target, str) or target.count(":") != 1 or not all(target.split(":")):
+                _error(w, f"field 'python': expected \"module:function\", got {target!r}")
+            sensors, outputs = spec.get("sensors", []), spec.get("outputs")
+            if not isinstance(sensors, list):
+                _error(w, "field 'sensors': expected an array of \"KIND:NAME\" strings")
+            if not isinstance(outputs, list) or not outputs or not all(isinstance(o, str) for o in outputs):
+                _error(w, "field 'outputs': expected a non-empty array of valve or pump names")
+            spec_out = PythonSpec(target, tuple(":".join(_sensor(t, w, "sensors")) for t in sensors), tuple(outputs), rate)
+            names = outputs
+        else:
+            output = spec.get("output")
+            if not isinstance(output, str):
+                _error(w, "field 'output': the name of the valve or pump it drives is required")
+            if "setpoint" not in spec:
+                _error(w, "missing field 'setpoint' (a number or { t = [...], value = [...] } in the sensor's unit)")
+            setpoint = _schedule(name, spec["setpoint"], where, field=f"controllers.{name}.setpoint")
+            gains = {k: _number(spec, k, w, low=-GAIN_LIMIT, high=GAIN_LIMIT, low_open=False, default=0.0)
+                     for k in ("kp", "ki", "kd")}
+            low = _number(spec, "low", w, low=-1e12, high=1e12, low_open=False, default=math.nan)
+            high = _number(spec, "high", w, low=-1e12, high=1e12, low_open=False, default=math.nan)
+            if not (math.isnan(low) or math.isnan(high)) and not low < high:
+                _error(w, f"fields 'low', 'high': {low!r} must be below {high!r}")
+            tracking = _number(spec, "tracking_time", w, low=0.0, high=TRACKING_TIME_MAX, default=math.nan)
+            spec_out = PidSpec(
+                output=output, sensor=_sensor(spec.get("sensor"), w), setpoint=setpoint, **gains,
+                derivative_filter=_number(spec, "derivative_filter", w, low=0.0, high=DERIVATIVE_FILTER_MAX,
+                                          low_open=False, default=0.0),
+                rate=rate, low=None if math.isnan(low) else low, high=None if math.isnan(high) else high,
+                anti_windup=_choice(spec, "anti_windup", w, ANTI_WINDUP, "clamp"),
+                tracking_time=None if math.isnan(tracking) else tracking)
+            names = [output]
+        for input_name in names:
+            if input_name in inputs:
+                _error(w, f"input '{input_name}' is driven by this controller and also has a schedule ([inputs] or "
+                          f"inputs_csv); give it one source")
+            if input_name in driven:
+                _error(w, f"input '{input_name}' is already driven by controller '{driven[input_name]}'")
+            driven[input_name] = name
+        out[name] = spec_out
+    return out
 
 
 def _csv_inputs(path: Path, where) -> dict:
@@ -297,7 +417,7 @@ def load_scenario(path) -> Scenario:
     path = resolve(path, "scenario", ScenarioError)
     where = str(path)
     data = read_toml(path, "scenario", ScenarioError)
-    allowed = {"scene", "run", "initial", "inputs", "inputs_csv", "log", "fidelity", "monitor", "mapping"}
+    allowed = {"scene", "run", "initial", "inputs", "inputs_csv", "log", "fidelity", "monitor", "mapping", "controllers"}
     unknown = sorted(set(data) - allowed)
     if unknown:
         _error(where, f"unknown top-level key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -374,6 +494,7 @@ def load_scenario(path) -> Scenario:
             _error(where, "field 'inputs_csv': a path relative to the scenario file is required")
         inputs_csv = resolve(path.parent / data["inputs_csv"], f"field 'inputs_csv' of {where}: inputs CSV", ScenarioError)
         inputs.update(_csv_inputs(inputs_csv, where))
+    controllers = _controllers(data.get("controllers", {}), where, inputs)
     scenario = Scenario(
         path=path,
         mjcf=files["mjcf"],
@@ -401,6 +522,7 @@ def load_scenario(path) -> Scenario:
         tf_rate_hz=_number(log, "tf_rate_hz", f"{where}, [log]", low=RATE_RANGE[0], high=RATE_RANGE[1], low_open=False, default=100.0),
         monitor=_monitor_enabled(data.get("monitor", {}), where),
         mapping=_mapping(data.get("mapping"), where),
+        controllers=controllers,
     )
     _validate_run(scenario, where)
     return scenario

@@ -29,6 +29,7 @@ from hydraulics.network import ACTUATOR_CYLINDER, NetworkModel, prune
 
 from sim.io.cylinder_pins import STROKE_TOLERANCE, pin_cylinders
 from sim.io.scenario import Scenario, ScenarioError, check_input_ranges
+from sim.plants.controllers import ControllerBank
 
 
 
@@ -509,6 +510,7 @@ def load_scene(scenario: Scenario) -> Scene:
     for net in scenario.pressures:
         if net not in network.net_node:
             raise ScenarioError(f"{scenario.path}, field 'initial.pressures.{net}': no net '{net}' in {scenario.circuit}")
+    ControllerBank(scenario, network, mjmodel, scenario.dt)  # the controllers' sensors, outputs and limits exist
     scene = Scene(scenario, mjmodel, network, binding, joints, tuple(files), warnings, pin_notes)
     check_initial_joints(scene)
     check_start_pose(scene)

@@ -18,6 +18,8 @@ from hydraulics.energy import branch_powers, stored_energy
 from hydraulics.equilibrium import equilibrium_state
 from hydraulics.load import apply_inputs
 
+from sim.plants.controllers import ControllerBank
+
 
 @dataclass
 class EnergyLedger:
@@ -46,6 +48,10 @@ class PlantBase:
         self.step_index = 0
         self.control = self.network.control()
         apply_inputs(self.network, self.control, scenario.inputs, 0.0)
+        if getattr(self, "controllers", None) is None:  # the scenario's PIDs (their state is reset in place: the
+            self.controllers = ControllerBank(scenario, self.network, self.scene.mjmodel, self.dt)  # blocks hold it)
+            self.python_controller = None  # a PythonController (sim.plants.controllers), asked per control period
+        self.controllers.state[:] = 0.0
         self.holding_residual = None  # relative residual of the static balance (set by holding_efforts)
         if scenario.equilibrium:
             self.net_state = equilibrium_state(
@@ -84,6 +90,24 @@ class PlantBase:
     def apply_inputs(self) -> None:
         """Set the controls from the scenario's schedules at the current time."""
         apply_inputs(self.network, self.control, self.scene.scenario.inputs, self.time)
+
+    @property
+    def controller_state(self) -> np.ndarray:
+        """The PID controllers' state, one row per controller (``hydraulics.controllers.STATE_COLUMNS``); written in
+        place by the plant's steps."""
+        return self.controllers.state
+
+    def controller_sources(self):
+        """What the controllers' sensors read at the current step's start: actuator positions [m | rad] and
+        velocities, qpos, qvel (MuJoCo layout), node pressures [Pa], the last step's branch flows [m³/s]."""
+        state, report = self.net_state, self.last_report
+        flow = report.branch_flow if report is not None and len(report.branch_flow) else np.zeros(len(self.network.branch_names))
+        qpos, qvel = self.generalized_state()
+        return state.actuator_position, state.actuator_velocity, qpos, qvel, state.node_pressure, flow
+
+    def generalized_state(self):
+        """(qpos, qvel) of the whole model, MuJoCo's layout."""
+        return self.data.qpos, self.data.qvel
 
     def _account(self, report, velocity, dt) -> None:
         """Add one step's pump work, hydraulic and friction losses to the ledger."""

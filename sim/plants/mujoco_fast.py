@@ -141,12 +141,14 @@ import numpy as np
 
 from hydraulics import _compiled as C
 from hydraulics import _compiled_rigid as K
+from hydraulics import controllers as CT
 from hydraulics.coupling import (SCHEME_ROSENBROCK, CouplingExplicit, CouplingImplicit, CouplingIncompressible,
                                  CouplingMixed)
 from hydraulics.fluid import POTENTIAL_QUADRATURE_POINTS, potential_quadrature
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepperExplicitEuler, StepperImplicitEuler, StepReport, StepStatus
 
+from sim.plants.controllers import advance_controlled
 from sim.plants.inputs import input_plan, sample_inputs
 from sim.plants.mujoco import MujocoPlant, mark_reset, mujoco_resets
 
@@ -175,8 +177,9 @@ except ImportError:  # pragma: no cover
     C_NQ, C_NBODY, C_REC_ROWS, C_REC_EVERY, C_REC_FIRST, C_REC_COUNT, C_REC_BAD, C_END_FINITE, C_REC_WIDTH,
     P_QPOS, P_BXPOS, P_BXQUAT, P_ENERGY, P_REC, P_OIL_CHANGE, P_XMAX, P_XMIN,
     C_KIND, C_NTF, C_NTI, P_TF, P_TI, P_LOWER, P_UPPER, P_FLIMITED, P_FRANGE, C_NR,
+    P_CTL_TABLE, P_CTL_STATE, P_CTL_SET, C_NCTL, C_STEP0,  # controllers (hydraulics.controllers), C_STEP0: first step
     NCTX,
-) = range(93)
+) = range(98)
 # C_KIND: the coupling the callback steps
 KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(3)
 
@@ -688,7 +691,8 @@ def _record(ctx, V):
     row[o], row[o + 1], row[o + 2], row[o + 3] = ctx[C_NEWTON], fs[FS_NORM], energy[1], energy[0]
     row[o + 4], row[o + 5], row[o + 6], row[o + 7] = fs[FS_PUMP], fs[FS_DISS_H], fs[FS_DISS_F], fs[FS_DISS_M]
     o = _put(row, o + 8, _vf(ctx, P_BXPOS, 3 * ctx[C_NBODY]))
-    _put(row, o, _vf(ctx, P_BXQUAT, 4 * ctx[C_NBODY]))
+    o = _put(row, o, _vf(ctx, P_BXQUAT, 4 * ctx[C_NBODY]))
+    _put(row, o, _vf(ctx, P_CTL_STATE, ctx[C_NCTL] * _CTL_STATES))
     ctx[C_REC_COUNT] = count + 1
     if not _state_finite(ctx, V):
         ctx[C_REC_BAD] += 1
@@ -735,7 +739,25 @@ def _coupled_step(address, m, d):
         _record(ctx, V)
     _prepare(ctx, V)
     _mj_solveM_nb(m, d, _pvoid(ctx[P_MINVJ]), _pvoid(ctx[P_J]), np.int32(ctx[C_NA]))
+    if ctx[C_NCTL] > 0 and ctx[C_FAILED] < 0:
+        _control(ctx, V)
     _begin(ctx, pnet, V, T, R)
+
+
+_CTL_COLUMNS, _CTL_STATES = len(CT.PID_COLUMNS), len(CT.STATE_COLUMNS)
+
+
+@_jit
+def _control(ctx, V):
+    """The controllers of step k (:func:`hydraulics.controllers.update`) from the step's start state (the network's
+    actuator motion, pressures and last flows, MuJoCo's qpos/qvel), writing row k of the commands before the step's
+    effort law (``_begin``) reads it."""
+    k, nctl = ctx[C_K], ctx[C_NCTL]
+    table = _mf(ctx, P_CTL_TABLE, nctl, _CTL_COLUMNS)
+    state = _mf(ctx, P_CTL_STATE, nctl, _CTL_STATES)
+    setpoint = _mf(ctx, P_CTL_SET, ctx[C_ROWS], nctl)[k]
+    sources = (V.pos, V.vel, _vf(ctx, P_QPOS, ctx[C_NQ]), V.qvel, V.pres, V.flow)  # CT.SOURCES
+    CT.update(table, state, setpoint, ctx[C_STEP0] + k, V.fs[FS_DT], sources, V.cmd[k], V.speed[k])
 
 
 def _callback_function(fingerprint):
@@ -751,7 +773,7 @@ def _callback_function(fingerprint):
 
 
 # this file and the hydraulic kernel sources (everything the callback compiles in), taken at import: part of the cache key
-SOURCE_SHA256 = C.source_sha256(__file__, *C.SOURCES)
+SOURCE_SHA256 = C.source_sha256(__file__, CT.__file__, *C.SOURCES)
 
 
 # ----------------------------------------------------------------------------
@@ -816,6 +838,7 @@ class MujocoPlantFast(MujocoPlant):
 
     def __init__(self, scene, *, coupling: str | None = None):
         self._record_next = None
+        self._in_control = False
         self.recorded, self.recorded_finite, self.end_finite = 0, True, True
         super().__init__(scene, coupling=coupling)
         scenario = scene.scenario
@@ -894,7 +917,9 @@ class MujocoPlantFast(MujocoPlant):
             P_PMAX: self._pmax, P_PMIN: self._pmin, P_XMAX: self._xmax, P_XMIN: self._xmin, P_OIL_CHANGE: self._oil_change, P_QPOS: d.qpos, P_BXPOS: d.xpos, P_BXQUAT: d.xquat, P_ENERGY: d.energy,
             P_TF: self._TF, P_TI: self._TI, P_LOWER: self._lower, P_UPPER: self._upper,
             P_FLIMITED: m.actuator_forcelimited, P_FRANGE: m.actuator_forcerange,
+            P_CTL_TABLE: self.controllers.table, P_CTL_STATE: self.controllers.state,
         }
+        ctx[C_NCTL] = len(self.controllers)
         assert m.actuator_forcelimited.dtype.itemsize == 1 and m.actuator_forcelimited.flags.c_contiguous  # bool (mjtByte)
         assert m.actuator_forcerange.dtype == np.float64 and m.actuator_forcerange.flags.c_contiguous
         for a in (d.qpos, d.xpos, d.xquat, d.energy):
@@ -921,15 +946,19 @@ class MujocoPlantFast(MujocoPlant):
             self._cmd = np.zeros((self._capacity, len(self.network.valve_names)))
             self._speed = np.zeros((self._capacity, len(self.network.pump_names)))
             self._step_numbers = np.arange(self._capacity)
+            self._setpoint = np.zeros((self._capacity, len(self.controllers)))
             # the callback reads rows of the whole buffers (row stride = capacity rows)
             ctx = self._ctx
             ctx[P_CMD], ctx[P_SPEED], ctx[C_ROWS] = self._cmd.ctypes.data, self._speed.ctypes.data, self._capacity
+            ctx[P_CTL_SET] = self._setpoint.ctypes.data
         cmd, speed = self._cmd[:n], self._speed[:n]
         cmd[:] = self.control.valve_command
         speed[:] = self.control.pump_speed
         if self._inputs:
             times = (self._step_numbers[:n] + self.step_index) * self.dt  # = (np.arange(n) + step_index)·dt
             sample_inputs(self._inputs, times, cmd, speed)
+        if len(self.controllers):
+            self.controllers.setpoint_rows((self._step_numbers[:n] + self.step_index) * self.dt, self._setpoint[:n])
         return cmd, speed
 
     # -------------------------------------------------------------------- step
@@ -944,7 +973,7 @@ class MujocoPlantFast(MujocoPlant):
         m, net = self.model, self.network
         n, na = net.node_count, net.actuator_count
         return (2 * n + m.nq + m.nv + 4 * na + len(net.valve_names) + net.component_state_count + len(net.pump_names)
-                + len(net.branch_names) + 8 + 7 * m.nbody)
+                + len(net.branch_names) + 8 + 7 * m.nbody + self.controller_state.size)
 
     def record_row(self, out: np.ndarray) -> None:
         """Write the current state into ``out`` (``record_width`` floats), as :meth:`advance` records a step.
@@ -954,7 +983,8 @@ class MujocoPlantFast(MujocoPlant):
         [-] first),
         pump speeds [rev/s], branch flows [m³/s], Newton iterations and residual [Pa] of the last step,
         kinetic and potential energy [J], pump work, hydraulic, friction and mechanical dissipation [J],
-        body positions ``xpos`` (nbody×3) [m] and quaternions ``xquat`` (nbody×4).  Refreshes the kinematics
+        body positions ``xpos`` (nbody×3) [m] and quaternions ``xquat`` (nbody×4), the controllers' states
+        (``hydraulics.controllers.STATE_COLUMNS`` per controller).  Refreshes the kinematics
         (:meth:`mechanical_energy`), as observing always does.
         """
         state, e, report = self.net_state, self.energy, self.last_report
@@ -968,7 +998,7 @@ class MujocoPlantFast(MujocoPlant):
                         state.actuator_velocity, self.effort, self.theta, self.control.valve_command, state.valve_spool,
                         self.control.pump_speed, flow, solver, (kinetic, potential, e.pump_work, e.dissipated_hydraulic,
                                                               e.dissipated_friction, e.dissipated_mechanical),
-                        d.xpos.reshape(-1), d.xquat.reshape(-1)), out=out)
+                        d.xpos.reshape(-1), d.xquat.reshape(-1), self.controller_state.reshape(-1)), out=out)
 
     @staticmethod
     def record_rows(step_index: int, n: int, every: int) -> int:
@@ -1011,6 +1041,12 @@ class MujocoPlantFast(MujocoPlant):
         every = int(every)
         if every < 1:
             raise ValueError(f"`every` must be >= 1, got {every!r}")
+        if self.python_controller is not None and not self._in_control:  # blocks of one control period
+            self._in_control = True
+            try:
+                return advance_controlled(self, self.advance, n, record, every)
+            finally:
+                self._in_control = False
         self.recorded = 0
         self.recorded_finite = True
         rows = 0
@@ -1056,6 +1092,7 @@ class MujocoPlantFast(MujocoPlant):
         fs[FS_DISS_F], fs[FS_DISS_M] = e.dissipated_friction, e.dissipated_mechanical
         cmd, speed = self._sample_inputs(n)
         ctx = self._ctx
+        ctx[C_STEP0] = self.step_index
         ctx[C_K:C_WORST + 1] = _BLOCK_START  # C_K, C_PENDING, C_FAILED, C_STATUS, C_WORST
         if rows:
             ctx[P_REC] = record.ctypes.data

@@ -138,6 +138,7 @@ import numpy as np
 from hydraulics.coupling import make_coupling
 from hydraulics.network import ACTUATOR_CYLINDER
 
+from sim.plants.controllers import advance_controlled
 from sim.plants.inputs import input_plan, sample_inputs
 from sim.plants.base import PlantBase
 from sim.plants.mujoco_fast import MujocoPlantFast
@@ -364,7 +365,10 @@ class PbdPlant(PlantBase):
         self._record_next = None
         self.recorded, self.recorded_finite = 0, True
         report = None
-        if self.fast:
+        if self.python_controller is not None:  # blocks of one control period (sim.plants.controllers)
+            report = advance_controlled(self, lambda m, rows, ev: self._advance_block(m, rows, ev)[1] if self.fast
+                                        else self._steps(m), n, record if self.fast else None, every)
+        elif self.fast:
             report = self._advance_block(n, record, every)[1]
         else:
             for _ in range(n):
@@ -373,6 +377,31 @@ class PbdPlant(PlantBase):
                     break
         self.end_finite = self.finite()
         return report
+
+    def _steps(self, n):
+        report = None
+        for _ in range(n):
+            report = self.step()
+            if not report.success:
+                break
+        return report
+
+    def record_row(self, out: np.ndarray) -> None:
+        """Write the current state into ``out`` (:attr:`record_width` floats) in the layout the compiled block
+        records (``RunRecorder.capture``'s raw row)."""
+        state, e, report = self.net_state, self.energy, self.last_report
+        kinetic, potential = self.mechanical_energy()
+        xpos, xquat = self.body_poses()
+        q, qd = self.joint_state()
+        if report is None:
+            flow, solver = np.zeros(len(self.network.branch_names)), (0.0, 0.0)
+        else:
+            flow, solver = report.branch_flow, (report.newton_iterations, report.residual)
+        np.concatenate((state.node_pressure, q, qd, state.node_oil, state.actuator_position, state.actuator_velocity,
+                        self.effort, self.theta, self.control.valve_command, state.valve_spool, self.control.pump_speed,
+                        flow, solver, (kinetic, potential, e.pump_work, e.dissipated_hydraulic, e.dissipated_friction,
+                                       e.dissipated_mechanical), np.reshape(xpos, -1), np.reshape(xquat, -1),
+                        self.controller_state.reshape(-1)), out=out)
 
     # ------------------------------------------------------------------ record
     record_rows = staticmethod(MujocoPlantFast.record_rows)  # the same rows as MujocoPlantFast.advance records
@@ -385,7 +414,7 @@ class PbdPlant(PlantBase):
         net = self.network
         n, na = net.node_count, net.actuator_count
         return (2 * n + 2 * len(self.scalar_joints) + 4 * na + len(net.valve_names) + net.component_state_count
-                + len(net.pump_names) + len(net.branch_names) + 8 + 7 * self.xmodel.nbody)
+                + len(net.pump_names) + len(net.branch_names) + 8 + 7 * self.xmodel.nbody + self.controller_state.size)
 
     def record_next(self, record: np.ndarray, every: int = 1) -> None:
         """Make the next :meth:`advance` record the samples after every step whose index becomes a multiple of
@@ -429,13 +458,14 @@ class PbdPlant(PlantBase):
         pmax, pmin, xmax, xmin = ctx["pmax"], ctx["pmin"], ctx["xmax"], ctx["xmin"]
         pmax[:], pmin[:] = self.node_pressure_max, self.node_pressure_min
         xmax[:], xmin[:] = self.actuator_position_max, self.actuator_position_min
-        from sim.plants.pbd_block import BLOCK_SINGULAR, BlockTrack, Recording, block
+        from sim.plants.pbd_block import BLOCK_SINGULAR, BlockTrack, Control, Recording, block
         from sim.plants.pbd_frame import RigidState
 
         kernel = block(solver.transport_response, solver.articulated_contacts)  # (a dict lookup once compiled)
         done, status = kernel(n, float(self.dt), cmd, speed, net.buffers, RigidState(st.x, st.q, st.v, st.w),
                                      fc["actuators"], BlockTrack(clock, hint, pmax, pmin, xmax, xmin), ctx["plant"], ctx["buffers"],
-                                     self._frame_settings(h), Recording(ctx["no_record"] if record is None else record, rec))
+                                     self._frame_settings(h), Recording(ctx["no_record"] if record is None else record, rec),
+                                     self._block_control(ctx, n))
         self.recorded, self.recorded_finite = int(rec[3]), not rec[4]
         if status == BLOCK_SINGULAR:
             raise np.linalg.LinAlgError("Matrix is singular.")
@@ -460,6 +490,26 @@ class PbdPlant(PlantBase):
         self.frame_steps += done
         self.step_index += done
         return done, self._report
+
+    def _block_control(self, ctx, n):
+        """The compiled block's ``Control``: the PID table, state and the setpoints of the next ``n`` steps; the
+        buffers' qpos/qvel set to the current state (the controllers' joint sensors read them before the first
+        frame)."""
+        from sim.plants.pbd_block import Control
+
+        bank = self.controllers
+        if len(bank):
+            qpos, qvel = self._qpos_qvel()
+            ctx["buffers"].qpos[:], ctx["buffers"].qvel[:] = qpos, qvel
+            if len(ctx.get("setpoint", ())) < n:
+                ctx["setpoint"] = np.zeros((max(n, 2 * len(ctx.get("setpoint", ()))), len(bank)))
+            bank.setpoint_rows((np.arange(n) + self.step_index) * self.dt, ctx["setpoint"][:n])
+            return Control(bank.table, bank.state, ctx["setpoint"])
+        return Control(bank.table, bank.state, ctx.setdefault("setpoint", np.zeros((1, 0))))
+
+    def generalized_state(self):
+        """(qpos, qvel) of the whole model, MuJoCo's layout, from the bodies' state."""
+        return self._qpos_qvel()
 
     def _block_inputs(self, ctx, n, h):
         """Rows of valve commands and pump speeds for every substep of the next ``n`` steps (step k, substep s:

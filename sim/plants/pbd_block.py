@@ -45,6 +45,7 @@ import numpy as np
 from numba import njit
 
 from hydraulics import _compiled as C
+from hydraulics import controllers as CT
 
 from sim.xpbd import compiled as XC
 from sim.plants import pbd_frame as FN
@@ -87,19 +88,25 @@ BlockTrack = namedtuple("BlockTrack", [  # running values, updated in place
     "position_max", "position_min",  # running actuator-position extremes [m or rad], (na,)
 ])
 
+Control = namedtuple("Control", [  # the PID controllers (hydraulics.controllers)
+    "table",  # parameter table, (nctl, len(PID_COLUMNS))
+    "state",  # their states, updated in place, (nctl, len(STATE_COLUMNS))
+    "setpoint",  # setpoint of each frame of the block, (≥ nframe, nctl)
+])
+
 Recording = namedtuple("Recording", [
     "record",  # the rows to fill, (rows, width)
     "rec",  # (rows, every, first step index, rows written, a row was not finite), int64 (5,)
 ])
 
 
-def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers, settings, recording, transport,
-           art_contacts):
+def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers, settings, recording, control,
+           transport, art_contacts):
     """Up to ``nframe`` frames of ``dt`` [s] (see the module docstring): ``cmd``/``speed`` the operator inputs of
     every substep, ``hyd`` the ``pbd_hydraulics.HydraulicBuffers``, ``bodies`` the body ``pbd_frame.RigidState``,
     ``actuators`` the ``pbd_frame.ActuatorState``, ``track`` the ``BlockTrack``, ``plant`` the ``BlockPlant``,
     ``buffers`` the ``BlockBuffers``, ``settings`` the ``pbd_frame.FrameSettings``, ``recording`` the
-    ``Recording``.  Returns (frames done, status)."""
+    ``Recording``, ``control`` the ``Control`` of the PID controllers.  Returns (frames done, status)."""
     model, tree, cand, crows, amodel, actuation = (plant.model, plant.tree, plant.candidates, plant.contacts,
                                                    plant.articulated, plant.actuation)
     groups, b, art = buffers.groups, buffers.contacts, buffers.articulated
@@ -141,6 +148,9 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
         ledger[H.L_FAIL_NORM] = 0.0
         contacts = XC.ContactRows(b.group[:nc], b.vec[:nc], b.radius[:nc], b.mu[:nc], b.solref[:nc], b.solimp[:nc],
                                   b.condim[:nc], b.tran[:nc])
+        if control.table.shape[0]:  # the controllers from the frame's start state, held over its substeps
+            _control_jit(control, first_step + k, dt, hyd, qpos, qvel, cmd[k * substeps:(k + 1) * substeps],
+                     speed[k * substeps:(k + 1) * substeps], k)
         status = FN._frame_jit(hyd, cmd[k * substeps:(k + 1) * substeps], speed[k * substeps:(k + 1) * substeps],
                                groups, bodies, model, art, contacts, actuation, actuators, settings,
                                C.borrowed(work), (transport, art_contacts, joint_space))
@@ -167,7 +177,7 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
         if rec[3] < rows and k < nframe - 1 and (first_step + k + 1) % every == 0:
             last = (k + 1) * substeps - 1
             if not _record_row(record[rec[3]], hyd, qpos, qvel, plant.record_qpos, plant.record_qvel, actuators.effort,
-                               cmd[last], speed[last], kin, pot, clock[2], xb, qb):
+                               cmd[last], speed[last], kin, pot, clock[2], xb, qb, control.state):
                 rec[4] = 1
             rec[3] += 1
     return nframe, BLOCK_OK
@@ -180,8 +190,19 @@ def _put(row, o, values):
     return o + values.size
 
 
+def _control(control, step, dt, hyd, qpos, qvel, cmd, speed, k):
+    """The PID controllers of plant step ``step`` (:func:`hydraulics.controllers.update`) from the frame's start
+    state (the network's actuator motion, pressures and last flows, qpos/qvel of the previous frame's end), their
+    outputs written into the first substep's row of ``cmd``/``speed`` and held over the frame's other rows."""
+    sources = (hyd.position, hyd.velocity, qpos, qvel, hyd.pressure, hyd.flow)  # CT.SOURCES
+    CT.update(control.table, control.state, control.setpoint[k], step, dt, sources, cmd[0], speed[0])
+    for s in range(1, cmd.shape[0]):
+        CT.update_outputs(control.table, control.state, cmd[s], speed[s])
+
+
 @njit(cache=True)
-def _record_row(row, hyd, qpos, qvel, rq, rd, effort, cmd, speed, kinetic, potential, dissipated_mechanical, xb, qb):
+def _record_row(row, hyd, qpos, qvel, rq, rd, effort, cmd, speed, kinetic, potential, dissipated_mechanical, xb, qb,
+                controller_state):
     """One raw sample in the layout of ``RunRecorder.capture`` for a plant with ``joint_state``: node pressures [Pa],
     scalar-joint positions and rates, node oil, actuator positions, velocities, efforts, θ, valve commands, spools,
     pump speeds, branch flows, Newton iterations and residual [Pa], kinetic, potential energy, pump work, hydraulic,
@@ -222,15 +243,19 @@ def _record_row(row, hyd, qpos, qvel, rq, rd, effort, cmd, speed, kinetic, poten
         for c in range(4):
             row[o] = qb[b, c]
             o += 1
+    for i in range(controller_state.shape[0]):  # the controllers' states (hydraulics.controllers.STATE_COLUMNS)
+        for c in range(controller_state.shape[1]):
+            row[o] = controller_state[i, c]
+            o += 1
     return finite
 
 
 # this file and everything frame_nb compiles in, taken at import: part of the cache key
-SOURCE_SHA256 = C.source_sha256(__file__, FN.__file__, H.__file__, XC.__file__, *C.SOURCES)
+SOURCE_SHA256 = C.source_sha256(__file__, FN.__file__, H.__file__, XC.__file__, CT.__file__, *C.SOURCES)
 
 
 _BLOCK = {}
-_block_jit = None
+_block_jit = _control_jit = None
 
 
 def block(transport: bool = False, articulated_contacts: bool = True):
@@ -240,7 +265,7 @@ def block(transport: bool = False, articulated_contacts: bool = True):
     substep's pose (``compiled.transport``); False keeps them as given for the whole step.
     ``articulated_contacts`` (as ``XpbdOptions(articulated_contacts=...)``): solve the contact pyramids with the
     mechanism's articulated response."""
-    global _block_jit
+    global _block_jit, _control_jit
     key = (bool(transport), bool(articulated_contacts))
     if key not in _BLOCK:
         import numba
@@ -249,6 +274,7 @@ def block(transport: bool = False, articulated_contacts: bool = True):
         FN.articulated()  # and the articulated response's (_articulated_*_jit)
         if _block_jit is None:
             _block_jit = numba.njit(error_model="numpy")(_block)
+            _control_jit = numba.njit(error_model="numpy")(_control)
         fingerprint = SOURCE_SHA256
         transport_, contacts_ = key
 

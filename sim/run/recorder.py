@@ -17,6 +17,8 @@ scene are JSON:
 ``/hydroplant/flows``              ``hydroplant_msgs/msg/BranchFlows``: ``flow_m3ps.<branch>`` of every branch
 ``/hydroplant/component_states``   ``hydroplant_msgs/msg/ComponentStates``: ``state.<component>_<state>`` of every
                                    component with states of its own (a relief's poppet lift and speed, …)
+``/hydroplant/controllers/<name>`` ``hydroplant_msgs/msg/ControllerState``: a PID's output, error, integrator,
+                                   derivative term, measurement and setpoint (:mod:`hydraulics.controllers`)
 ``/hydroplant/energy``             ``hydroplant_msgs/msg/Energy``: energy terms and the balance residual
 ``/hydroplant/solver``             ``hydroplant_msgs/msg/Solver``: Newton iterations, residual, coupling θ
 ``/tf``                            ``foxglove_msgs/msg/FrameTransforms``: body poses for Foxglove's 3D panel, at the
@@ -39,6 +41,7 @@ import re
 
 import numpy as np
 
+from hydraulics.controllers import LOGGED as CONTROLLER_COLUMNS, STATE_COLUMNS as CONTROLLER_STATE_COLUMNS
 from hydraulics.energy import stored_energy_at
 
 from sim.io.foxglove_scene import CylinderPins, CylinderScene, FrameTransformsChannel, log_scene
@@ -103,6 +106,14 @@ ENERGY_FIELDS = {
     "dissipated_mechanical_j": "Cumulative loss in joints and contacts [J]",
     "residual_j": "Pump work - delta(kinetic+potential+oil) - dissipation: numerical dissipation [J]",
 }
+CONTROLLER_FIELDS = dict(zip(CONTROLLER_COLUMNS, (
+    "Held output: valve command [-] or pump speed [rev/s]",
+    "Error setpoint - measurement of the last sample [sensor unit: m, m/s, rad, rad/s, Pa, m^3/s or rev/s]",
+    "Integral term, in the output's unit",
+    "Derivative term, in the output's unit",
+    "Measurement of the last sample [sensor unit]",
+    "Setpoint of the last sample [sensor unit]",
+)))
 SOLVER_FIELDS = {
     "newton_iterations": "Newton iterations of the hydraulic step [-]",
     "residual_pa": "Final Newton residual expressed as pressure [Pa]",
@@ -116,6 +127,7 @@ VALVE_STATE = flat_schema("hydroplant_msgs/msg/ValveState", VALVE_FIELDS)
 PUMP_STATE = flat_schema("hydroplant_msgs/msg/PumpState", PUMP_FIELDS)
 ENERGY = flat_schema("hydroplant_msgs/msg/Energy", ENERGY_FIELDS)
 SOLVER = flat_schema("hydroplant_msgs/msg/Solver", SOLVER_FIELDS)
+CONTROLLER_STATE = flat_schema("hydroplant_msgs/msg/ControllerState", CONTROLLER_FIELDS)
 
 # samples captured before their fields are derived and written, as one batch (the runner also derives at every periodic
 # flush of the log); a divisor of the runner's 500-step blocks at 1 kHz (sim.run.runner.block_steps) and of the 2 s
@@ -172,6 +184,10 @@ class RunRecorder:
                  "xpos": 3 * nbody, "xquat": 4 * nbody}
         pins = CylinderPins.of_scene(plant.scene) if ncyl else None
         sizes["cylinder_scene"] = CylinderScene.width(pins) if ncyl else 0
+        bank = getattr(plant, "controllers", None)
+        self._controller_names = tuple(bank.names) if bank is not None else ()
+        nctl = len(self._controller_names)
+        sizes["controllers"] = nctl * len(CONTROLLER_FIELDS)
         start = np.cumsum([0, *sizes.values()])
         block = {name: slice(int(start[i]), int(start[i + 1])) for i, name in enumerate(sizes)}
         self._block = block
@@ -194,6 +210,7 @@ class RunRecorder:
         self.motors = per_item("motors", MOTOR_STATE, MOTOR_FIELDS, [net.actuator_names[a] for a in net.motor_actuator])
         self.valves = per_item("valves", VALVE_STATE, VALVE_FIELDS, net.valve_names)
         self.pumps = per_item("pumps", PUMP_STATE, PUMP_FIELDS, net.pump_names)
+        self.controllers = per_item("controllers", CONTROLLER_STATE, CONTROLLER_FIELDS, self._controller_names)
         self.nodes = frame.channel("/hydroplant/nodes", flat_schema("hydroplant_msgs/msg/NodePressures", node_fields),
                                    fields=list(node_fields), columns=columns("nodes", 0, nnode), metadata=si)
         self.flows = (
@@ -226,6 +243,7 @@ class RunRecorder:
         self._pump_to = np.asarray(net.branch_to[self.pump_branches], dtype=np.intp)
         self._pump_from = np.asarray(net.branch_from[self.pump_branches], dtype=np.intp)
         self._no_flow = np.zeros(len(net.branch_names))
+        self._no_controllers = np.zeros(0)
         self._nj = nj
         # The ring of raw samples: per sample one row of the plant's raw state, copied by one
         # np.concatenate; everything derived (volumes, stiffness, stored energy, efforts, pump
@@ -234,7 +252,8 @@ class RunRecorder:
         raw_sizes = {"p": nnode, "joints": 2 * nj, "oil": nnode, "x": net.actuator_count, "v": net.actuator_count,
                      "effort": net.actuator_count, "theta": net.actuator_count, "cmd": nvalve,
                      "spool": net.component_state_count,
-                     "speed": npump, "flow": nflow, "solver": 2, "energy": 6, "poses": 7 * nbody}
+                     "speed": npump, "flow": nflow, "solver": 2, "energy": 6, "poses": 7 * nbody,
+                     "controllers": nctl * len(CONTROLLER_STATE_COLUMNS)}
         # A MuJoCo plant's joints are read as the whole qpos/qvel (two plain copies) and selected per batch
         from sim.plants.mujoco import MujocoPlant
 
@@ -310,10 +329,14 @@ class RunRecorder:
         np.concatenate((state.node_pressure, q, qd, state.node_oil, state.actuator_position, state.actuator_velocity,
                         plant.effort, plant.theta, control.valve_command, state.valve_spool, control.pump_speed, flow,
                         solver, (kinetic, potential, e.pump_work, e.dissipated_hydraulic, e.dissipated_friction,
-                                 e.dissipated_mechanical), xpos, xquat), out=self._raw[n])
+                                 e.dissipated_mechanical), xpos, xquat, self._controller_state()), out=self._raw[n])
         self._raw_steps[n] = step_index
         self._pending = n + 1  # last: an interrupt above leaves no half-captured sample
         return self._pending == len(self._raw) or step_index >= self.log._next_flush_step
+
+    def _controller_state(self) -> np.ndarray:
+        """The plant's controller states, flat (none without controllers)."""
+        return self.plant.controller_state.reshape(-1) if self._controller_names else self._no_controllers
 
     @property
     def room(self) -> int:
@@ -444,6 +467,10 @@ class RunRecorder:
             pumps[:, :, 0], pumps[:, :, 1], pumps[:, :, 2] = r[:, b["speed"]], q_pump, p[:, self._pump_to]
             pumps[:, :, 3] = q_pump * (mu[:, self._pump_to] - mu[:, self._pump_from])
             rows[:, block["pumps"]] = pumps.reshape(k, -1)
+        if self._controller_names:
+            nctl = len(self._controller_names)
+            states = r[:, b["controllers"]].reshape(k, nctl, len(CONTROLLER_STATE_COLUMNS))
+            rows[:, block["controllers"]] = states[:, :, :len(CONTROLLER_FIELDS)].reshape(k, -1)
         rows[:, block["nodes"]] = p
         if self.states is not None:
             rows[:, block["states"]] = r[:, b["spool"]][:, len(net.valve_names):]

@@ -62,6 +62,7 @@ from sim.io.mcap_log import LogLevel, LogWriter
 from sim.run.monitor import RunMonitor, Violation
 from sim.run.recorder import RunRecorder
 from sim.io.scenario import Scenario, load_scenario
+from sim.plants.controllers import load_python_controllers
 from sim.io.scene import load_scene
 
 DEFAULT_LOG_DIR = Path("logs")
@@ -86,13 +87,17 @@ def make_plant(scene, *, fast: bool = True):
         if fast:
             from sim.plants.mujoco_fast import MujocoPlantFast
 
-            return MujocoPlantFast(scene)
-        from sim.plants.mujoco import MujocoPlant
+            plant = MujocoPlantFast(scene)
+        else:
+            from sim.plants.mujoco import MujocoPlant
 
-        return MujocoPlant(scene)
-    from sim.plants.pbd import make_pbd_plant  # noqa: PLC0415 - optional until the PBD mode exists
+            plant = MujocoPlant(scene)
+    else:
+        from sim.plants.pbd import make_pbd_plant  # noqa: PLC0415 - optional until the PBD mode exists
 
-    return make_pbd_plant(scene, block=fast)  # fast=False: the PBD plant steps one step at a time too
+        plant = make_pbd_plant(scene, block=fast)  # fast=False: the PBD plant steps one step at a time too
+    plant.python_controller = load_python_controllers(plant)  # the scenario's `type = "python"` controller, if any
+    return plant
 
 
 class _Snapshot:
@@ -129,6 +134,7 @@ class _Snapshot:
         np.copyto(self.valve_command, control.valve_command)
         np.copyto(self.pump_speed, control.pump_speed)
         self.extremes = [getattr(plant, name) for name in self.extreme_names]
+        self.controller_state = plant.controller_state.copy()  # (written in place by the blocks)
 
     def restore(self, plant) -> None:
         if self.own:
@@ -143,6 +149,7 @@ class _Snapshot:
         plant.control.pump_speed[:] = self.pump_speed
         for name, value in zip(self.extreme_names, self.extremes):
             setattr(plant, name, value)
+        plant.controller_state[:] = self.controller_state
 
 
 # Steps between snapshots of the block path: a failed block is replayed from the last snapshot (the

@@ -13,6 +13,8 @@ What is kept
 * the applied efforts [N | N·m], the coupling's θ per actuator, the controls (valve commands, pump speeds);
 * the last step's report (Newton counters, residual [Pa], branch flows [m³/s]: logged with every sample);
 * the running extremes of node pressures and actuator coordinates (the run's peaks and its monitor);
+* the PID controllers' states (held output, error, integrator, derivative term, last measurement and setpoint,
+  ``hydraulics.controllers.STATE_COLUMNS``): a resumed loop samples on as the uninterrupted one;
 * MuJoCo mode: ``mj_getState(..., mjSTATE_INTEGRATION)`` (time, qpos, qvel, act, warm-start accelerations,
   controls, applied forces, equality and mocap state, user data, plugin state);
 * PBD mode: ``PbdPlant.snapshot()`` (rigid-group positions, orientations, linear and angular velocities, the
@@ -66,6 +68,8 @@ def capture(plant) -> dict:
            "valve_command": plant.control.valve_command, "pump_speed": plant.control.pump_speed}
     if s.node_oil_change is not None:
         out["node_oil_change"] = s.node_oil_change
+    if getattr(plant, "controllers", None) is not None and len(plant.controllers):
+        out["controller_state"] = plant.controller_state
     e = plant.energy
     out["ledger"] = np.array([getattr(e, name) for name in _LEDGER])
     for name in _EXTREMES:
@@ -109,6 +113,10 @@ def restore(plant, state: dict) -> None:
     for name in _EXTREMES:
         if name in state:
             setattr(plant, name, f(name))
+    if "controller_state" in state:  # in place: the compiled blocks hold the array
+        if plant.controller_state.shape != np.shape(state["controller_state"]):
+            raise ValueError("the snapshot's controllers do not match the plant's (another scenario)")
+        plant.controller_state[:] = state["controller_state"]
     if "report" in state:
         newton, rhs, jac, residual = state["report"]
         plant.last_report = StepReport(status=StepStatus(state["report_status"]), message=state["report_message"],

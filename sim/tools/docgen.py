@@ -195,6 +195,30 @@ def scenario_keys() -> tuple:
         ("monitor", "enabled", "", "true, false", "monitor", "The plausibility monitor stops a run whose stroke, "
          "pressure, energy residual, loop closures or joint ranges leave their bounds (exit status 3; see "
          "`sim/run/monitor.py`); `false` (or `hydroplant run --no-monitor`) logs them as warnings and the run goes on."),
+        ("controllers.NAME", "type", "", '`"pid"`, `"python"`', None, "A controller driving inputs from sensors "
+         "(see [controllers.md](controllers.md)); an input it drives has no schedule."),
+        ("controllers.NAME", "output", "", "a valve or pump name", None, "`pid`: the input it drives (spool command "
+         "[-] or pump speed [rev/s]). Required."),
+        ("controllers.NAME", "sensor", "", '`"KIND:NAME"`', None, "`pid`: KIND one of " + ", ".join(
+            f"`{k}`" for k in sc.SENSOR_KINDS) + " (actuator coordinate and rate, joint coordinate and rate, net "
+         "pressure, branch flow, pump speed). Required."),
+        ("controllers.NAME", "setpoint", "sensor unit", "number, or { t = [...], value = [...] }", None,
+         "`pid`: the setpoint r, piecewise linear in t [s] like `[inputs]`. Required."),
+        ("controllers.NAME", "kp, ki, kd", "output/unit, /(unit·s), ·s/unit",
+         f"number in [{-sc.GAIN_LIMIT:g}, {sc.GAIN_LIMIT:g}]", None, "`pid`: gains on e = r − y (default 0)."),
+        ("controllers.NAME", "derivative_filter", "s", f"number in [0, {sc.DERIVATIVE_FILTER_MAX:g}]", None,
+         "`pid`: first-order filter of the derivative term (default 0: none)."),
+        ("controllers.NAME", "rate", "Hz", "number in " + closed(*sc.CONTROL_RATE_RANGE), None, "Sample rate "
+         "(default: every step; the period is the nearest whole number of steps, at least one)."),
+        ("controllers.NAME", "low, high", "output unit", "within the output's range", None, "`pid`: output limits "
+         f"(default: the input's range, {command} for a valve)."),
+        ("controllers.NAME", "anti_windup", "", '`"none"`, `"clamp"`, `"back_calculation"`', None,
+         "`pid`: integrator anti-windup (default `clamp`)."),
+        ("controllers.NAME", "tracking_time", "s", f"number in (0, {sc.TRACKING_TIME_MAX:g}]", None,
+         "`pid`: back-calculation tracking time T_t (default kp/ki, or the period)."),
+        ("controllers.NAME", "python, sensors, outputs", "", '`"module:function"`, arrays', None,
+         "`python`: a callable `controller(t, sensors) -> commands` asked once per period with the listed sensors; "
+         "`outputs`: the inputs it may set."),
         ("fidelity", "default", "", "FIDELITIES", "fidelity", "Same as `[run] fidelity` (give one of the two)."),
         ("fidelity", "ACTUATOR", "", "FIDELITIES", None, "Fidelity level of one cylinder or motor, by name."),
         ("mapping", "preset", "", '`"iso"`, `"sae"`', None, "`hydroplant play`: the excavator control pattern of a "
@@ -258,7 +282,7 @@ def scenario_reference() -> str:
         "## Scenario file (`*.scenario.toml`)",
         "",
         "Top-level tables: `[scene]` (required), `[run]`, `[initial]`, `[inputs]`, `[log]`, `[monitor]`, `[fidelity]`,",
-        "`[mapping]` (`hydroplant play`), and the key",
+        "`[mapping]` (`hydroplant play`), `[controllers.NAME]`, and the key",
         "`inputs_csv`. Command-line options of `hydroplant run` (`--mode`, `--coupling`, `--dt`, `--duration`,",
         "`--substeps`, `--pbd-substeps`, `--iterations`, `--pbd-blend`) override `[run]` and are checked alike.",
         "",

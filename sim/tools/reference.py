@@ -377,6 +377,8 @@ def _scenario_state(s: Scenario) -> dict:
         "base_pressure": s.base_pressure,
         "pressures": s.pressures,
         "inputs": {k: [v.t.tolist(), v.value.tolist()] for k, v in sorted(s.inputs.items())},
+        "controllers": {k: {f: ([v.t.tolist(), v.value.tolist()] if f == "setpoint" else v) for f, v in vars(c).items()}
+                        for k, c in sorted(s.controllers.items())},
     }
 
 
