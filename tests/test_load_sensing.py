@@ -20,7 +20,7 @@ import pytest
 
 from hydraulics.circuit import load_circuit
 from hydraulics.components import PressureCompensator, PumpLoadSensing
-from hydraulics.components.compensator import flow_with_derivatives as compensator_law
+from hydraulics.components.pressure_compensator import flow_with_derivatives as compensator_law
 from hydraulics.components.pump_load_sensing import flow_with_derivatives as pump_law
 from hydraulics.components.pump_load_sensing import step_end
 from hydraulics.fluid import Fluid

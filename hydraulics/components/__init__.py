@@ -19,7 +19,7 @@ from dataclasses import MISSING, fields
 
 from .accumulator import Accumulator
 from .check_valve import CheckValve
-from .compensator import PressureCompensator
+from .pressure_compensator import PressureCompensator
 from .counterbalance import CounterbalanceValve
 from .cylinder import Cylinder
 from .flow_control import FlowControlValve
