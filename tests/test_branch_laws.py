@@ -29,6 +29,7 @@ from hydraulics.fluid import Fluid
 from hydraulics.load import MassLoad, simulate
 from hydraulics.network import NetworkModel
 from reference.laws import orifice_textbook
+from reference.circuits import bench
 
 FLUID = Fluid(density=870.0, kinematic_viscosity=4.6e-5, reference_pressure=1.01325e5)
 
@@ -104,23 +105,7 @@ def test_each_component_lives_in_its_module_and_registry_line():
         assert users == {f"hydraulics/components/{module}.py", "hydraulics/components/__init__.py"}, cls.__name__
 
 
-CIRCUIT = """
-[fluid]
-density = 870.0
-bulk_modulus = 1.5e9
-kinematic_viscosity = 4.6e-5
-
-[[component]]
-name = "tank"
-type = "tank"
-ports = { port = "tank" }
-
-[[component]]
-name = "supply"
-type = "tank"
-pressure = 1.0e7
-ports = { port = "supply" }
-
+CIRCUIT = bench(1.0e7) + """
 [[component]]
 name = "valve"
 type = "valve_4_3"

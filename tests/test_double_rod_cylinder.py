@@ -25,6 +25,7 @@ from hydraulics.load import MassLoad, simulate
 from hydraulics.network import NetworkModel
 from sim.io.mcap_log import read_log
 from sim.run.runner import run
+from reference.circuits import bench
 
 P0 = 1.01325e5
 SCENES = Path(__file__).parent / "scenes"
@@ -43,22 +44,6 @@ def test_equal_areas_and_validation():
 
 
 CIRCUIT = """
-[fluid]
-density = 870.0
-bulk_modulus = 1.5e9
-kinematic_viscosity = 4.6e-5
-
-[[component]]
-name = "tank"
-type = "tank"
-ports = {{ port = "tank" }}
-
-[[component]]
-name = "supply"
-type = "tank"
-pressure = 1.0e7
-ports = {{ port = "supply" }}
-
 [[component]]
 name = "valve"
 type = "valve_4_3"
@@ -81,7 +66,7 @@ ports = {{ cap = "cap", rod = "rod" }}
 
 
 def _model(cap_rod):
-    return NetworkModel.from_circuit(parse_circuit(tomllib.loads(CIRCUIT.format(cap_rod=cap_rod)), "double rod"))
+    return NetworkModel.from_circuit(parse_circuit(tomllib.loads(bench(1.0e7) + CIRCUIT.format(cap_rod=cap_rod)), "double rod"))
 
 
 def test_force_has_no_ambient_term():

@@ -31,6 +31,7 @@ from hydraulics.network import NetworkModel
 from sim.io.mcap_log import read_log
 from sim.run.runner import run
 from reference.laws import orifice_textbook
+from reference.circuits import bench
 
 SCENES = Path(__file__).parent / "scenes"
 FLUID = Fluid(density=870.0, kinematic_viscosity=4.6e-5, reference_pressure=1.01325e5)
@@ -72,23 +73,7 @@ def test_blend_must_lie_at_positive_drops():
                         "c.toml: component 'f'")
 
 
-CIRCUIT = """
-[fluid]
-density = 870.0
-bulk_modulus = 1.5e9
-kinematic_viscosity = 4.6e-5
-
-[[component]]
-name = "tank"
-type = "tank"
-ports = { port = "tank" }
-
-[[component]]
-name = "supply"
-type = "tank"
-pressure = 2.0101325e7
-ports = { port = "supply" }
-
+CIRCUIT = bench(2.0101325e7) + """
 [[component]]
 name = "control"
 type = "flow_control_valve"

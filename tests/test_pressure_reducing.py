@@ -28,6 +28,7 @@ from hydraulics.network import NetworkModel
 from sim.io.mcap_log import read_log
 from sim.run.runner import run
 from reference.laws import orifice_textbook
+from reference.circuits import bench
 
 SCENES = Path(__file__).parent / "scenes"
 FLUID = Fluid(density=870.0, kinematic_viscosity=4.6e-5, reference_pressure=1.01325e5)
@@ -68,22 +69,6 @@ def test_regulating_valve_closes_with_outlet_pressure():
 
 
 CIRCUIT = """
-[fluid]
-density = 870.0
-bulk_modulus = 1.5e9
-kinematic_viscosity = 4.6e-5
-
-[[component]]
-name = "tank"
-type = "tank"
-ports = {{ port = "tank" }}
-
-[[component]]
-name = "supply"
-type = "tank"
-pressure = {p_in}
-ports = {{ port = "supply" }}
-
 [[component]]
 name = "reducer"
 type = "pressure_reducing_valve"
@@ -113,7 +98,7 @@ ports = {{ a = "reduced", b = "tank" }}
 def test_outlet_pressure_held_over_inlet_pressure_and_flow(p_in, load_area):
     """Steady outlet inside [p_set − w, p_set] (gauge) for inlets 120–250 bar and loads drawing up to 20 L/min,
     and equal to the root of Q_valve(p_in, p_out) = Q_orifice(p_out − p_tank) to 100 Pa."""
-    text = CIRCUIT.format(p_in=P0 + p_in, load_area=load_area)
+    text = bench(P0 + p_in) + CIRCUIT.format(load_area=load_area)
     model = NetworkModel.from_circuit(parse_circuit(tomllib.loads(text), "reducing"))
     state = model.state(node_pressure=np.full(model.node_count, P0))
     steady = steady_state(model, model.control(), state, pinned={})

@@ -23,27 +23,12 @@ from hydraulics.network import NetworkModel
 from hydraulics.steppers import ActuatorMotion, StepperImplicitEuler
 from sim.io.mcap_log import read_log
 from sim.run.runner import run
+from reference.circuits import bench
 
 SCENES = Path(__file__).parent / "scenes"
 OMEGA, ZETA = 2 * math.pi * 40.0, 0.4
 
 CIRCUIT = """
-[fluid]
-density = 870.0
-bulk_modulus = 1.5e9
-kinematic_viscosity = 4.6e-5
-
-[[component]]
-name = "tank"
-type = "tank"
-ports = {{ port = "tank" }}
-
-[[component]]
-name = "supply"
-type = "tank"
-pressure = 5.0e6
-ports = {{ port = "supply" }}
-
 [[component]]
 name = "servo"
 type = "valve_4_3"
@@ -69,7 +54,7 @@ ports = {{ port = "b" }}
 
 
 def circuit_text(dynamics="second_order"):
-    return CIRCUIT.format(dynamics=dynamics, omega=OMEGA, zeta=ZETA)
+    return bench(5.0e6) + CIRCUIT.format(dynamics=dynamics, omega=OMEGA, zeta=ZETA)
 
 
 def analytic(t, u):
