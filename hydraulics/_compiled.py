@@ -321,10 +321,16 @@ def fill_ratio_nb(p, pref, beta, air, n):
 
 def _state_law(cls):
     """The branch law of component class ``cls`` as ``law(row, state, h, p_from, p_to, p_pilot)`` (a stateless law
-    ignores ``state`` and ``h``) and its state update ``end(row, state, h, p_from, p_to, p_pilot, out)`` (none for
-    a stateless law); see :data:`hydraulics.components.BRANCH_LAWS`."""
+    ignores ``state`` and ``h``), its state update ``end(row, state, h, p_from, p_to, p_pilot, out)`` (none for
+    a stateless law) and its kink hook ``piece(row, state, h, p_from, p_to, p_pilot)`` (0 for a law without
+    kinks); see :data:`hydraulics.components.BRANCH_LAWS`."""
+    piece = getattr(cls, "LAW_PIECE", None)
+    if piece is None:
+        @_kernel
+        def piece(row, state, h, p_from, p_to, p_pilot):
+            return 0
     if law_states(cls):
-        return cls.BRANCH_LAW, cls.STATE_END
+        return cls.BRANCH_LAW, cls.STATE_END, piece
     static = cls.BRANCH_LAW
 
     @_kernel
@@ -335,13 +341,13 @@ def _state_law(cls):
     def end(row, state, h, p_from, p_to, p_pilot, out):
         return None
 
-    return law, end
+    return law, end, piece
 
 
 def _law_dispatch(laws, first=0):
-    """Kernels ``dispatch(kind, row, state, h, p_from, p_to, p_pilot)`` calling ``laws[kind - first][0]`` and
-    ``dispatch_end(kind, row, state, h, p_from, p_to, p_pilot, out)`` calling ``laws[kind - first][1]`` (the pairs
-    of :func:`_state_law` of :data:`hydraulics.components.BRANCH_LAWS`, in order): chains of closures, one ``if``
+    """Kernels ``dispatch(kind, row, state, h, p_from, p_to, p_pilot)``, ``dispatch_end(…, out)`` and
+    ``dispatch_piece(…)`` calling ``laws[kind - first]``'s law, state update and kink hook (the triples of
+    :func:`_state_law` of :data:`hydraulics.components.BRANCH_LAWS`, in order): chains of closures, one ``if``
     per law, built from the registry so that a new component needs no line here."""
     if not laws:
         @_kernel
@@ -352,8 +358,12 @@ def _law_dispatch(laws, first=0):
         def none_end(kind, row, state, h, p_from, p_to, p_pilot, out):
             return None
 
-        return none, none_end
-    (law, end), (rest, rest_end) = laws[0], _law_dispatch(laws[1:], first + 1)
+        @_kernel
+        def none_piece(kind, row, state, h, p_from, p_to, p_pilot):
+            return 0
+
+        return none, none_end, none_piece
+    (law, end, piece), (rest, rest_end, rest_piece) = laws[0], _law_dispatch(laws[1:], first + 1)
 
     @_kernel
     def dispatch(kind, row, state, h, p_from, p_to, p_pilot):
@@ -368,10 +378,16 @@ def _law_dispatch(laws, first=0):
         else:
             rest_end(kind, row, state, h, p_from, p_to, p_pilot, out)
 
-    return dispatch, dispatch_end
+    @_kernel
+    def dispatch_piece(kind, row, state, h, p_from, p_to, p_pilot):
+        if kind == first:
+            return piece(row, state, h, p_from, p_to, p_pilot)
+        return rest_piece(kind, row, state, h, p_from, p_to, p_pilot)
+
+    return dispatch, dispatch_end, dispatch_piece
 
 
-_branch_law, _branch_law_end = _law_dispatch(tuple(_state_law(cls) for cls in BRANCH_LAWS))
+_branch_law, _branch_law_end, _branch_law_piece = _law_dispatch(tuple(_state_law(cls) for cls in BRANCH_LAWS))
 _LAW_STATE_WIDTH = max([len(law_states(cls)) for cls in BRANCH_LAWS], default=0)
 _LAW_SOURCE = np.array(law_sources() or (0,), np.int64)  # 1: the law's power is pump work (its SOURCE)
 
@@ -1299,21 +1315,37 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
             for a in range(na):
                 doil[k, a] = rhs[j, a + 1]
                 dpdv[k, a] += dpdm[k] * rhs[j, a + 1]
-    if not _same_law_pieces(pnet, p_first, p):
+    if not _same_law_pieces(pnet, p_first, p, spool, dt):
         return False
     _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope)
     return True
 
 
 @_kernel
-def _same_law_pieces(pnet, pa, pb):
-    """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no relief, check valve or pump compensator
-    changes the piece of its law between the node pressures ``pa`` and ``pb`` [Pa]."""
+def _same_law_pieces(pnet, pa, pb, state, h):
+    """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no relief, check valve, pump compensator or law
+    component with a kink hook changes the piece of its law between the node pressures ``pa`` and ``pb`` [Pa] (the
+    law components over a step of ``h`` [s] from the component states ``state``)."""
     ic = _deref(pnet).ic
     for j in range((ic[IC_R1] - ic[IC_R0]) + (ic[IC_C1] - ic[IC_C0]) + (ic[IC_P1] - ic[IC_P0])):
         if _law_piece(pnet, j, pa) != _law_piece(pnet, j, pb):
             return False
+    for b in range(ic[IC_W0], ic[IC_W1]):
+        if _law_branch_piece(pnet, b, pa, state, h) != _law_branch_piece(pnet, b, pb, state, h):
+            return False
     return True
+
+
+@_kernel
+def _law_branch_piece(pnet, b, p, state, h):
+    """Piece of its law (the component's ``LAW_PIECE``) law branch ``b`` is on at the node pressures ``p`` [Pa] over
+    a step of ``h`` [s] from the component states ``state``."""
+    net = _deref(pnet)
+    br = net.br
+    i = b - net.ic[IC_W0]
+    pilot = br[b, T_PILOT]
+    return _branch_law_piece(net.law_kind[i], net.law[i], _law_state(state, net.law_state[i]), h, p[br[b, T_FROM]],
+                             p[br[b, T_TO]], p[pilot] if pilot >= 0 else 0.0)
 
 
 @_kernel
@@ -1878,14 +1910,17 @@ def _eval_rigid(F, I, spool):
 
 
 @_jit
-def _eval_law_pieces(F, I, p):
-    """NetworkModel.law_pieces at node pressures ``p`` [Pa]."""
+def _eval_law_pieces(F, I, p, state, h):
+    """NetworkModel.law_pieces at node pressures ``p`` [Pa] (law components over ``h`` [s] from ``state``)."""
     net = _unpack(F, I)
     pnet = _ref(net)
     ic = net.ic
-    out = np.empty((ic[IC_R1] - ic[IC_R0]) + (ic[IC_C1] - ic[IC_C0]) + (ic[IC_P1] - ic[IC_P0]), np.int64)
-    for j in range(out.size):
+    switching = (ic[IC_R1] - ic[IC_R0]) + (ic[IC_C1] - ic[IC_C0]) + (ic[IC_P1] - ic[IC_P0])
+    out = np.empty(switching + ic[IC_W1] - ic[IC_W0], np.int64)
+    for j in range(switching):
         out[j] = _law_piece(pnet, j, p)
+    for b in range(ic[IC_W0], ic[IC_W1]):
+        out[switching + b - ic[IC_W0]] = _law_branch_piece(pnet, b, p, state, h)
     return out
 
 

@@ -974,15 +974,20 @@ class NetworkModel:
         leakage area + full area·opening(|s|) (:func:`hydraulics.components.valve_4_3.metering_opening`)."""
         return self._rigid(spool)[2]
 
-    def law_pieces(self, pressure) -> np.ndarray:
+    def law_pieces(self, pressure, state=None, h=0.0) -> np.ndarray:
         """Which piece of its piecewise law every switching branch is on at ``pressure`` [Pa] (int array:
-        relief ramps, check-valve openings, pump compensators, in that order; see
-        :func:`hydraulics.components.ramps.ramp_piece`).
+        relief ramps, check-valve openings, pump compensators, in that order, see
+        :func:`hydraulics.components.ramps.ramp_piece`; then every law branch, by its component's ``LAW_PIECE``
+        over a step of ``h`` [s] from the component states ``state``, default :attr:`component_state_start`;
+        0 for a law without kinks).
 
         A step whose start and end differ here crosses a kink of the flow laws (a relief cracking, a check
-        valve opening fully, a compensator engaging): one Jacobian of the start does not describe it.
+        valve opening fully, a compensator engaging, a poppet reaching its seat): one Jacobian of the start does
+        not describe it.
         """
-        return self._kernel("law_pieces", _vector(pressure, self.node_count))
+        start = self.component_state_start if state is None else state
+        return self._kernel("law_pieces", _vector(pressure, self.node_count),
+                            _vector(start, self.component_state_count), float(h))
 
     def branch_flows(self, pressure, orifice_area, pump_speed, actuator_velocity, state=None, h=0.0) -> BranchFlows:
         """Flow [m³/s] of every branch and its pressure derivatives (the component laws of

@@ -73,6 +73,15 @@ def test_pump_holds_the_margin_in_steady_state():
     assert end[0] == 0.37
 
 
+def test_pump_kink_hook_numbers_regulator_and_cutoff():
+    from hydraulics.components.pump_load_sensing import law_piece
+    row, state = PUMP.law_row(FLUID), np.array([0.4])
+    inside = law_piece(row, state, 1e-3, P0, P0 + 1.2e7, P0 + 1e7)
+    starved = law_piece(row, state, 1e-3, P0, P0 + 5e6, P0 + 1e7)
+    cut = law_piece(row, state, 1e-3, P0, P0 + 2e7 + 1e5, P0 + 1.95e7)
+    assert (inside, starved, cut) == (3 + 1, 6 + 1, 9 + 3 + 1)
+
+
 COMPENSATOR = PressureCompensator(pressure_difference=1e6, regulation_band=2e5, area=3e-5)
 # (p_in, p_out, p_load): open (outlet 5 bar above the load), regulating, shut, reverse
 CPOINTS = [(P0 + 1.5e7, P0 + 1.05e7, P0 + 1e7), (P0 + 1.5e7, P0 + 1.09e7, P0 + 1e7), (P0 + 1.5e7, P0 + 1.11e7, P0 + 1e7),

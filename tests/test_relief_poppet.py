@@ -98,6 +98,19 @@ def test_poppet_seats_and_stops():
     assert tuple(end) == (1.0, 0.0)
 
 
+def test_kink_hook_tells_seat_moving_and_stop_apart():
+    """The network's law pieces (the poppet's kink hook) differ on the seat, lifting and at the stop, so a step that
+    crosses one is not accepted from the start's linearisation."""
+    model = NetworkModel.from_circuit(RIG)
+    supply = model.node("supply")
+    pieces = []
+    for dp in (5e6, 1.2e7, 3e7):
+        p = np.full(model.node_count, P0)
+        p[supply] += dp
+        pieces.append(int(model.law_pieces(p, h=0.01)[-1]))
+    assert pieces == [3, 4, 5]
+
+
 def test_full_open_pressure_must_exceed_cracking():
     with pytest.raises(ValueError, match="full_open_pressure"):
         poppet(full_open_pressure=9e6).check("c.toml: component 'relief'")

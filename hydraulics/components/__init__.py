@@ -83,6 +83,11 @@ and, for a component with states of its own (a poppet's lift and speed, …), al
 * ``STATE_END``, a compiled function ``end(row, state, h, p_from, p_to, p_pilot, out)`` writing those end states
   into ``out`` (called once the step's end pressures are known).
 
+A law with kinks (a poppet reaching its seat or stop, a regulator saturating) may declare its kink hook
+``LAW_PIECE``, a compiled function ``piece(row, state, h, p_from, p_to, p_pilot) -> int`` numbering the pieces of
+its law: a step whose start and end pressures are on different pieces is not accepted from one linearisation
+(:meth:`hydraulics.network.NetworkModel.law_pieces`).
+
 A law component that delivers power (a pump) sets ``SOURCE = True``: its flow's power enters the energy ledger
 as pump work instead of dissipation.
 

@@ -18,7 +18,7 @@ affine in the pressures inside the band: the network's Newton solve sees the flo
     ∂Q/∂p_out = −η_v·D·n·h/(τ·w),   ∂Q/∂p_LS = +η_v·D·n·h/(τ·w)   (LS term active; the cut-off term: ∂/∂p_out only,
     ∂Q/∂p_in = −∂Q/∂p_out),
 
-and zero where the regulator or the swash plate saturates.
+and zero where the regulator or the swash plate saturates (the kink hook :func:`law_piece` numbers those pieces).
 
 State: ``displacement_fraction`` α [-], 0 at rest.  Ports: ``inlet``, ``outlet``, ``ls`` (the LS line, read
 only).  The pump's work Q·(μ_out − μ_in) enters the energy ledger as pump work (:attr:`SOURCE`).
@@ -78,6 +78,19 @@ def swash_step(row, alpha, h, p_in, p_out, p_ls):
 
 
 @kernel
+def law_piece(row, state, h, p_in, p_out, p_ls):
+    """Kink hook: 9·(cut-off active) + 3·(regulator below, inside, above its band) + (swash plate at zero, between,
+    at full) at the end of the step."""
+    band = row[BAND]
+    ls_error = p_ls + row[MARGIN] - p_out
+    cut_error = row[CUTOFF] - (p_out - p_in)
+    error = ls_error if ls_error <= cut_error else cut_error
+    regulator = 0 if error <= -band else (2 if error >= band else 1)
+    alpha = swash_step(row, state[0], h, p_in, p_out, p_ls)[0]
+    return (9 if ls_error > cut_error else 0) + 3 * regulator + (0 if alpha <= 0.0 else (2 if alpha >= 1.0 else 1))
+
+
+@kernel
 def flow_with_derivatives(row, state, h, p_in, p_out, p_ls):
     """Flow Q [m³/s] from inlet to outlet at the end of a step of ``h`` [s] from the displacement fraction ``state[0]``
     and ∂Q/∂p_in, ∂Q/∂p_out, ∂Q/∂p_LS [m³/(s·Pa)] at the end pressures [Pa]."""
@@ -116,6 +129,7 @@ class PumpLoadSensing:
     STATE_UNITS = ("-",)
     BRANCH_LAW = flow_with_derivatives
     STATE_END = step_end
+    LAW_PIECE = law_piece
     SOURCE = True
     """Its flow's power Q·(μ_out − μ_in) is pump work, not dissipation."""
 

@@ -29,8 +29,9 @@ so the valve is as stable as a static one at any step and exact for the poppet's
 States: ``opening`` y [-] and ``opening_rate`` ẏ [1/s] (zero for the first-order poppet), both 0 at rest.
 Ports: ``inlet``, ``outlet``.  Packing: one row per valve, columns :data:`COLUMNS` (:meth:`law_row`).
 
-Limitations: no flow forces, no hysteresis, no bounce at the stops; the end stops are a kink of the law that
-the step acceptance does not see.
+Kink hook (:func:`law_piece`): the poppet on its seat, moving or at its stop, and the first-order target clipped.
+
+Limitations: no flow forces, no hysteresis, no bounce at the stops.
 
 References: Hopsan component library, *HydraulicPressureReliefValve* (first-order opening with time constant);
 H. E. Merritt, *Hydraulic Control Systems*, Wiley 1967, §5 (poppet valve dynamics); MathWorks, Simscape
@@ -111,6 +112,18 @@ def advance(row, state, h, dp):
 
 
 @kernel
+def law_piece(row, state, h, p_in, p_out, p_pilot):
+    """Kink hook: the piece of the law at the end of the step (3·target piece + poppet piece): the first-order
+    target's clip below, inside, above [0, 1] (0, 1, 2; always 1 for the second order) and the poppet on its seat,
+    moving, at its stop (0, 1, 2)."""
+    dp = p_in - p_out
+    z = (dp - row[CRACKING]) / row[SPAN]
+    clipped = 1 if row[ORDER] != 1.0 or 0.0 < z < 1.0 else (0 if z <= 0.0 else 2)
+    y = advance(row, state, h, dp)[0]
+    return 3 * clipped + (0 if y <= 0.0 else (2 if y >= 1.0 else 1))
+
+
+@kernel
 def flow_with_derivatives(row, state, h, p_in, p_out, p_pilot):
     """Flow Q [m³/s] from inlet to outlet at the end of a step of ``h`` [s] that starts at the poppet states
     ``state`` and ends at the absolute port pressures [Pa], and dQ/dp_in, dQ/dp_out, dQ/dp_pilot (= 0)
@@ -159,6 +172,7 @@ class ReliefPoppet:
     STATE_UNITS = ("-", "1/s")
     BRANCH_LAW = flow_with_derivatives
     STATE_END = step_end
+    LAW_PIECE = law_piece
 
     def check(self, where: str) -> None:
         if not self.full_open_pressure > self.cracking_pressure:
