@@ -129,9 +129,11 @@ def parse_circuit(data: dict, source: str = "<memory>") -> Circuit:
         for port in cls.PORTS:
             if port not in ports:
                 raise CircuitError(f"{where}, field 'ports': port '{port}' is unconnected; type '{kind}' has ports {list(cls.PORTS)}")
+        optional = tuple(getattr(cls, "OPTIONAL_PORTS", ()))
         for port, net in ports.items():
-            if port not in cls.PORTS:
-                raise CircuitError(f"{where}, field 'ports': unknown port '{port}'; type '{kind}' has ports {list(cls.PORTS)}")
+            if port not in cls.PORTS + optional:
+                raise CircuitError(f"{where}, field 'ports': unknown port '{port}'; type '{kind}' has ports {list(cls.PORTS)}"
+                                   + (f" and optionally {list(optional)}" if optional else ""))
             if not isinstance(net, str) or not net:
                 raise CircuitError(f"{where}, field 'ports.{port}': net name must be a non-empty string, got {net!r}")
         if len(cls.PORTS) > 1 and len(set(ports.values())) < len(ports) and kind != "hose":

@@ -557,6 +557,10 @@ class NetworkModel:
                 continue
             for edge, a, b, sign in (("P-A", P, A, 1), ("B-T", B, T, 1), ("P-B", P, B, -1), ("A-T", A, T, -1)):
                 add_orifice(f"{c.name}.{edge}", a, b, p.discharge_coefficient, p.leakage_area, p.max_area, 0.0, vi, sign)
+            if "LS" in c.ports:  # a load-sensing section: the LS port sees the work port the spool feeds
+                LS = node(c, "LS")
+                for edge, a, sign in (("A-LS", A, 1), ("B-LS", B, -1)):
+                    add_orifice(f"{c.name}.{edge}", a, LS, p.discharge_coefficient, 0.0, p.ls_area, 0.0, vi, sign)
             if p.centre in ("open", "tandem"):
                 add_orifice(f"{c.name}.P-T", P, T, p.discharge_coefficient, 0.0, 0.0, p.centre_area, vi, 0)
             if p.centre == "open":

@@ -39,7 +39,7 @@ class Valve43:
     opens P→A and B→T, s < 0 opens P→B and A→T; each metering edge opens
     linearly beyond the overlap.  Centre: ``closed`` (all blocked but leakage),
     ``open`` (P, T, A, B all connected at s = 0), ``tandem`` (P→T open, A and B
-    blocked at s = 0).
+    blocked at s = 0).  An LS port (optional) is connected to the work port being fed.
     """
 
     max_area: float = param("m^2", low=0.0, high=0.01)
@@ -62,7 +62,11 @@ class Valve43:
     """Second order: ζ [-]."""
     discharge_coefficient: float = param("-", low=0.0, high=1.0, default=0.7)
     """C_d [-]."""
+    ls_area: float = param("m^2", low=0.0, high=0.01, default=2e-6)
+    """With the optional port LS (load-sensing section): area of the passages A→LS (opening with s > 0) and B→LS
+    (s < 0) fully open [m²]; they open like the metering edges, so the LS port sees the work port being fed."""
     PORTS = ("P", "T", "A", "B")
+    OPTIONAL_PORTS = ("LS",)
     STATES = ("spool", "spool_rate")
     """The spool's position and (second order only) its rate."""
     STATE_UNITS = ("-", "1/s")

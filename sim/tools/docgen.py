@@ -122,8 +122,9 @@ def component_reference() -> str:
         ports = ", ".join(f"`{p}`" for p in getattr(cls, "PORTS", ()))
         lines += ["", f"## {kind}", "", f"`type = \"{kind}\"` (`{cls.__module__}.{cls.__name__}`). "
                   f"{_markdown(first_line(cls.__doc__))}", ""]
+        optional = ", ".join(f"`{p}`" for p in getattr(cls, "OPTIONAL_PORTS", ()))
         if ports:
-            lines += [f"Ports: {ports}.", ""]
+            lines += [f"Ports: {ports}" + (f"; optional: {optional}." if optional else "."), ""]
         states = ", ".join(f"`{name}` [{unit}]" for name, unit in zip(getattr(cls, "STATES", ()),
                                                                        getattr(cls, "STATE_UNITS", ())))
         if states:
