@@ -49,7 +49,7 @@ def test_component_rows_carry_the_metadata():
     assert "| `dead_volume_cap` | m^3 | [0, 1] | 0 |" in cylinder
     valve = page[page.index("## valve_4_3"):page.index("## relief_valve")]
     assert '| `centre` | - | `"closed"`, `"open"`, `"tandem"` | `"closed"` |' in valve
-    assert "Ports: `P`, `T`, `A`, `B`." in valve
+    assert "Ports: `P`, `T`, `A`, `B`; optional: `LS`." in valve
 
 
 def _scenario(tmp_path, text: str) -> Path:

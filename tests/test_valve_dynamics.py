@@ -113,7 +113,7 @@ def test_scenario_logs_the_analytic_spool(mode, tmp_path):
     (tmp_path / "step.scenario.toml").write_text(
         '[scene]\nmjcf = "rig.xml"\ncircuit = "servo.circuit.toml"\n'
         '[run]\ndt = 0.001\nduration = 0.1\n'
-        '[inputs]\nservo = { t = [0.0, 0.02, 0.02001], value = [0.0, 0.0, 0.5] }\n'
+        '[inputs]\nservo = { t = [0.0, 0.019999999, 0.02], value = [0.0, 0.0, 0.5] }\n'
         '[log]\nrate_hz = 1000\n', encoding="utf-8")
     result = run(tmp_path / "step.scenario.toml", out=tmp_path / "run.mcap", overrides={"mode": mode})
     assert result.status == "complete", result.message
@@ -121,7 +121,7 @@ def test_scenario_logs_the_analytic_spool(mode, tmp_path):
     valve = log.topic("/hydroplant/valves/servo")
     states = log.topic("/hydroplant/component_states")
     late = valve.t >= 0.025
-    # the command is sampled at each step's start; it reaches 0.5 in the step that starts at 0.021 s
-    s, rate = analytic(valve.t[late] - 0.021, 0.5)
+    # the command is sampled at each (sub)step's start: 0.5 from the step that starts at 0.02 s
+    s, rate = analytic(valve.t[late] - 0.02, 0.5)
     assert np.allclose(valve["spool"][late], s, rtol=0, atol=1e-9)
     assert np.allclose(states["state.servo_spool_rate"][late], rate, rtol=1e-6, atol=1e-6)

@@ -223,7 +223,16 @@ def law_pieces(model, pressure) -> np.ndarray:
     check = laws.clip_piece((dp[sl["check"]] - model.check_cracking) / (model.check_full_open - model.check_cracking))
     outlet = pressure[model.branch_to[sl["pump"]]]
     pump = laws.clip_piece((model.pump_compensator + model.pump_band - outlet) / model.pump_band)
-    return np.concatenate([relief, check, pump]).astype(int)
+    law = []  # the law branches: the component's own kink hook at its states at rest over a zero step, 0 without one
+    for i, b in enumerate(range(*sl["law"].indices(len(model.branch_names))) if "law" in sl else ()):
+        cls = BRANCH_LAWS[model.law_kind[i]]
+        piece = getattr(cls, "LAW_PIECE", None)
+        first = model.law_state_offset[i]
+        start = model.component_state_start[first:first + len(law_states(cls))].copy()
+        pilot = model.branch_pilot[b]
+        law.append(0 if piece is None else piece(model.law_table[i], start, 0.0, pressure[model.branch_from[b]],
+                                                  pressure[model.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0))
+    return np.concatenate([relief, check, pump, np.array(law, int)]).astype(int)
 
 
 def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -> BranchFlows:
