@@ -8,6 +8,13 @@ them in independent groups, each in its own process (``jobs`` at a time), by tak
 steps of the shipped scenes down each path, so the cache holds exactly the signatures the runs
 use.  With a warm cache each group only loads its kernels (about a second).
 
+The kernels go to the content-keyed folder :mod:`hydraulics.kernel_cache` chose, compiled for a generic CPU of
+the architecture.  Once every group is done the command records the build there (``hydroplant-kernels.json``);
+run again while that record covers the requested groups and the kernel sources still have the time stamps numba
+checks, it compiles nothing and starts no process.  After a build it removes the folders it had built for
+earlier sources of the same installation (no run of it can load them any more).  ``make`` runs it after pip
+installs the package, so a first run loads its kernels instead of compiling them.
+
 Groups (each group's kernels depend on each other, so one group is one process):
 
 ``mujoco``
@@ -36,6 +43,7 @@ Groups (each group's kernels depend on each other, so one group is one process):
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 import time
 import warnings
@@ -149,8 +157,19 @@ def add_parser(subparsers) -> None:
 
 
 def main(args) -> int:
+    from hydraulics import kernel_cache
+
+    cache = kernel_cache.CURRENT
+    where = cache.folder or "numba's default cache"
+    if kernel_cache.fits(cache, args.groups):
+        print(f"kernels ready: {', '.join(args.groups)} (built for these sources in {where}; nothing to compile)")
+        return 0
     start = time.perf_counter()
     times = precompile(args.groups, args.jobs)
+    kernel_cache.write_manifest(cache, args.groups)
+    for folder in kernel_cache.superseded(cache):  # built by this command for older sources of this installation
+        shutil.rmtree(folder, ignore_errors=True)
+        print(f"removed the kernel cache of earlier sources {folder}")
     print("kernels ready: " + ", ".join(f"{name} {seconds:.1f} s" for name, seconds in times.items())
-          + f" (wall {time.perf_counter() - start:.1f} s)")
+          + f" (wall {time.perf_counter() - start:.1f} s, {cache.cpu} CPU, in {where})")
     return 0
