@@ -74,9 +74,13 @@ def first_run(clone: Path, scenario: str, mode: str, env: dict) -> dict:
                      "--no-progress", "--out", str(Path(tmp) / "run.mcap")], clone, env)
     document = json.loads(out["stdout"])
     compiled = re.search(r"hydroplant: (\d+) functions compiled in", out["stderr"])
-    return dict(out, status=document["status"], reported=document["wall_time_s"], rtf=document["real_time_factor"],
-                compiled=int(compiled.group(1)) if compiled else 0,
-                announced="hydroplant: compiling kernels" in out["stderr"])
+    result = dict(out, status=document["status"], reported=document["wall_time_s"], rtf=document["real_time_factor"],
+                  compiled=int(compiled.group(1)) if compiled else 0,
+                  announced="hydroplant: compiling kernels" in out["stderr"])
+    print(f"  {mode}: process wall {result['wall']:.1f} s, CPU {result['cpu']:.1f} s, {result['compiled']} compiled, "
+          f"reported {result['reported']:.2f} s ({env.get('NUMBA_CACHE_DIR', 'install cache')}, "
+          f"{env.get('NUMBA_CPU_NAME', 'generic')})", file=sys.stderr, flush=True)
+    return result
 
 
 def host_cpu() -> dict:
@@ -114,7 +118,8 @@ def main(argv=None) -> int:
         ready = re.search(r"kernels ready: .*\(wall ([\d.]+) s", install["stdout"])
         rows.append(("install", "`make .venv/.installed` (pip, then `hydroplant compile`)", install,
                      f"compile {ready.group(1)} s wall" if ready else ""))
-        print("  install: done", file=sys.stderr, flush=True)
+        print(f"  install: wall {install['wall']:.1f} s, CPU {install['cpu']:.1f} s, {ready.group(0) if ready else ''}",
+              file=sys.stderr, flush=True)
         for mode in args.modes:  # after: the install's cache
             rows.append((mode, "first run after the install", first_run(clone, args.scenario, mode, clean_env()), ""))
         for mode in args.modes:  # before: an empty cache
