@@ -167,3 +167,22 @@ def test_numba_imported_first_keeps_its_own_settings():
                           timeout=120)
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout) == [False, "host", None, None]
+
+
+def test_compile_names_only_its_own_earlier_builds_as_superseded(tmp_path):
+    """``hydroplant compile`` removes the folders it built for earlier sources of this same installation; folders of
+    other installations or interpreters, and folders it did not build, stay."""
+    root = str(tmp_path / "src")
+    made = {}
+    for name, record_root, python in (("current", root, sys.executable), ("older", root, sys.executable),
+                                      ("other-checkout", str(tmp_path / "elsewhere"), sys.executable),
+                                      ("other-python", root, "/opt/python3.13/bin/python3"), ("unrecorded", None, None)):
+        folder = tmp_path / "caches" / (kc.PREFIX + name)
+        folder.mkdir(parents=True)
+        if record_root is not None:
+            (folder / kc.MANIFEST).write_text(json.dumps({"key": name, "root": record_root, "python": python}))
+        made[name] = str(folder)
+    (tmp_path / "caches" / "not-a-kernel-cache").mkdir()
+    cache = kc.KernelCache(folder=made["current"], key="current", keyed=True, toolchain=CHAIN)
+    assert kc.superseded(cache, root) == [made["older"]]
+    assert kc.superseded(replace(cache, keyed=False), root) == []  # a folder the user named: never pruned
