@@ -90,6 +90,29 @@ def host_cpu() -> dict:
     return {"NUMBA_CPU_NAME": llvm.get_host_cpu_name(), "NUMBA_CPU_FEATURES": llvm.get_host_cpu_features().flatten()}
 
 
+def cpu_cost(checkout: Path, scenario: str, modes, count: int, host_cache: Path) -> dict:
+    """{mode: {"reported": ratios, "cpu": ratios}}: ``count`` pairs of runs in ``checkout`` (its ``.venv``), the
+    install's generic-CPU kernels against kernels compiled for this CPU into ``host_cache`` (compiled by a first run
+    of each mode if not there yet), the order alternating within pairs."""
+    host = host_cpu()
+    host_cache.mkdir(parents=True, exist_ok=True)
+    generic_env, host_env = clean_env(), clean_env(NUMBA_CACHE_DIR=str(host_cache), **host)
+    out = {}
+    for mode in modes:
+        first_run(checkout, scenario, mode, host_env)  # compiles the host-CPU kernels (or loads them)
+        first_run(checkout, scenario, mode, generic_env)  # the generic ones, from the install's cache
+        ratios = {"reported": [], "cpu": []}
+        for i in range(count):
+            order = (("generic", generic_env), ("host", host_env))
+            got = {name: first_run(checkout, scenario, mode, env) for name, env in (order if i % 2 == 0 else order[::-1])}
+            for key in ratios:
+                ratios[key].append(got["generic"][key] / got["host"][key])
+        out[mode] = ratios
+        print(f"  {mode}: CPU-target pairs done: " + ", ".join(f"{k} {spread(v)}" for k, v in ratios.items()),
+              file=sys.stderr, flush=True)
+    return out
+
+
 def spread(values) -> str:
     values = sorted(values)
     return f"{statistics.median(values):.3f} ({values[0]:.3f}–{values[-1]:.3f})"
@@ -104,7 +127,14 @@ def main(argv=None) -> int:
     parser.add_argument("--no-cpu-cost", action="store_true", help="skip the generic-against-host CPU pairs")
     parser.add_argument("--markdown", action="store_true", help="Markdown tables (else plain text)")
     parser.add_argument("--keep", type=Path, metavar="DIR", help="clone into DIR (which must not exist) and keep it")
+    parser.add_argument("--cpu-cost-only", type=Path, metavar="HOST_CACHE",
+                        help="only the CPU-target pairs, in this checkout (its .venv and its built kernel cache), with "
+                             "the host-CPU kernels in HOST_CACHE (kept, reused when there)")
     args = parser.parse_args(argv)
+    if args.cpu_cost_only is not None:
+        pairs = cpu_cost(ROOT, args.scenario, args.modes, args.pairs, args.cpu_cost_only)
+        print_pairs(pairs, args)
+        return 0
 
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
                           check=True).stdout.strip()
@@ -130,21 +160,7 @@ def main(argv=None) -> int:
             rows.append((mode, "later run on that cache", first_run(clone, args.scenario, mode, env), ""))
             print(f"  {mode}: done", file=sys.stderr, flush=True)
         if not args.no_cpu_cost:
-            host = host_cpu()
-            host_cache = work / "host-cache"
-            host_cache.mkdir()
-            for mode in args.modes:
-                first_run(clone, args.scenario, mode, clean_env(NUMBA_CACHE_DIR=str(host_cache), **host))  # compile
-                generic_env, host_env = clean_env(), clean_env(NUMBA_CACHE_DIR=str(host_cache), **host)
-                ratios = {"reported": [], "cpu": []}
-                for i in range(args.pairs):
-                    order = (("generic", generic_env), ("host", host_env))
-                    got = dict((name, first_run(clone, args.scenario, mode, env)) for name, env in
-                               (order if i % 2 == 0 else order[::-1]))
-                    for key in ratios:
-                        ratios[key].append(got["generic"][key] / got["host"][key])
-                pairs[mode] = ratios
-                print(f"  {mode}: CPU-target pairs done", file=sys.stderr, flush=True)
+            pairs = cpu_cost(clone, args.scenario, args.modes, args.pairs, work / "host-cache")
         load.append(os.getloadavg()[0])
     finally:
         if args.keep is None:
@@ -167,6 +183,12 @@ def main(argv=None) -> int:
                  f"{r['reported']:.2f}" if run else "", f"{r['rtf']:.2f}" if run else "",
                  note or ("compilation announced" if run and r["announced"] else ""))
         print(("| " + " | ".join(cells) + " |") if args.markdown else "  ".join(f"{c:>14}" for c in cells))
+    print_pairs(pairs, args)
+    return 0
+
+
+def print_pairs(pairs: dict, args) -> None:
+    """The CPU-target table."""
     if pairs:
         print()
         print(f"Kernels compiled for a generic CPU against kernels compiled for this CPU ({host_cpu()['NUMBA_CPU_NAME']}), "
@@ -178,7 +200,6 @@ def main(argv=None) -> int:
         for mode, ratios in pairs.items():
             cells = (mode, spread(ratios["reported"]), spread(ratios["cpu"]))
             print(("| " + " | ".join(cells) + " |") if args.markdown else "  ".join(f"{c:>22}" for c in cells))
-    return 0
 
 
 if __name__ == "__main__":
