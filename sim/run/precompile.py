@@ -42,8 +42,11 @@ Groups (each group's kernels depend on each other, so one group is one process):
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import shutil
+import sys
 import tempfile
 import time
 import warnings
@@ -65,11 +68,25 @@ def _mujoco() -> None:
     from sim.io.scenario import load_scenario
     from sim.io.scene import load_scene
 
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, _without_run_announcement():
         run(EXCAVATOR, out=Path(tmp) / "compile.mcap", overrides={"duration": 0.02})  # fast plant + log records
     scene = load_scene(load_scenario(EXCAVATOR))
     MujocoPlantFast(scene).advance(2)
     MujocoPlant(scene).step()  # the compiled stepper's own kernels
+
+
+@contextlib.contextmanager
+def _without_run_announcement():
+    """Inside ``hydroplant compile``, the run's own announcement of a first-run compilation (and its advice to run
+    ``hydroplant compile``) is noise: its lines are dropped, any other line on stderr is passed on."""
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            yield
+    finally:
+        for line in captured.getvalue().splitlines():
+            if not line.startswith(("hydroplant: ", "\r", "  compiling: ")) and line.strip():
+                print(line, file=sys.stderr)
 
 
 def _pbd_plant(**options):
