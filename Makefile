@@ -21,7 +21,8 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 # The kernels were compiled at install: the run loads them and starts within seconds.  After an edit of a
-# kernel source the first run compiles what changed (announced on stderr); its reported wall time excludes that.
+# kernel source (a new cache key) the first run compiles its mode's kernels again, announced on stderr, unless
+# `hydroplant compile` ran first; its reported wall time excludes the compilation.
 run: $(STAMP)
 	$(VENV)/bin/hydroplant run models/excavator/dig.scenario.toml
 
