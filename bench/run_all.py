@@ -89,13 +89,15 @@ BENCHES = (
           "Python `controller(t, sensors)` against the compiled PID (see [controllers.md](controllers.md))."),
     Bench("bench_startup", (), "Start-up in fresh processes",
           "Import, scene load with the plant (cached kernels) and first step, in fresh interpreters."),
-    Bench("bench_first_run", ("--inline", "--markdown"), "The first run on a cold kernel cache",
-          "`hydroplant run` of the excavator dig (20 s) in each mode in a fresh process with an empty numba cache, "
-          "as on a fresh clone, then again on the cache it filled. The run compiles only the kernels its mode calls, "
-          "announces it on stderr, and compiles them before its clock starts: the reported wall time and real-time "
-          "factor (and the costs of `compare` and `tradeoff`, taken from them) exclude the compilation, which is "
-          "reported apart. The row `warm=False` compiles each kernel at its first call inside the timed loop, for "
-          "comparison. The process CPU time moves less than its wall time on a shared machine."),
+    Bench("bench_first_run", ("--markdown",), "The first run on a fresh clone",
+          "A fresh clone of the commit in a temporary folder with a fresh venv: `make .venv/.installed` (pip, then "
+          "`hydroplant compile` builds the content-keyed kernel cache, compiled for a generic CPU), then the first "
+          "`hydroplant run` of the excavator dig (20 s) in each mode on it (after); the same first run with an "
+          "empty kernel cache (before: it compiles the kernels its mode calls, announced on stderr, before its "
+          "clock starts) and a later run on the cache that filled. Whole-process wall and CPU times (children "
+          "included); the reported wall time and real-time factor are the run's own timed loop. Last table: the "
+          "generic-CPU kernels against kernels compiled for this machine's CPU, paired runs in fresh processes. "
+          "Target: each first run after the install within 10 s of wall time on 2 cores."),
     Bench("bench_install", ("--markdown",), "Installed size",
           "The default install and each extra in fresh venvs (site-packages beyond an empty venv; distributions "
           "installed, hydroplant included), against an install with the tools' libraries required."),

@@ -2,6 +2,8 @@
 
 import functools
 
+import hydraulics  # noqa: F401  (first: chooses numba's cache folder and CPU target, hydraulics.kernel_cache)
+
 
 @functools.lru_cache(maxsize=1)
 def version() -> str:

@@ -186,7 +186,8 @@ def test_compile_watch_announces_a_compilation_once_and_nothing_else():
     assert watch.count == 2  # outer and the callee it compiles in
     assert lines[0] == ("hydroplant: compiling kernels for boom/lift (pbd), first run only; later runs load them "
                         "from the cache")
-    assert re.fullmatch(r"hydroplant: 2 functions compiled in \d+ s", lines[1]) and len(lines) == 2
+    assert "`hydroplant compile` builds every mode's kernels" in lines[1]  # why, and how to avoid it
+    assert re.fullmatch(r"hydroplant: 2 functions compiled in \d+ s", lines[2]) and len(lines) == 3
     quiet = io.StringIO()
     with CompileWatch("boom/lift", "pbd", stream=quiet) as again:
         assert outer(2.0) == 5.0  # compiled already: no event, no line

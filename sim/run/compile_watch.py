@@ -1,14 +1,16 @@
 """The first run's kernel compilation: announced on stderr, shown while it lasts, kept out of the run's timing.
 
-The compiled kernels (numba, ``cache=True``) are compiled on their first call and kept in numba's disk cache
-(``__pycache__`` next to the sources, or ``NUMBA_CACHE_DIR``); a later process only loads them.  A run on a cold
-cache therefore spends minutes compiling before its first step.  :class:`CompileWatch` listens to numba's public
+The compiled kernels (numba, ``cache=True``) are compiled ahead of any run by ``hydroplant compile`` (``make`` runs
+it at install) into the content-keyed cache folder of :mod:`hydraulics.kernel_cache`, and a run only loads them.
+When that cache is missing or does not fit (other sources, another toolchain, or kernel files touched since it
+was built), numba compiles the kernels at their first call: minutes of CPU before the run's first step.  :class:`CompileWatch` listens to numba's public
 event API (``numba.core.event``, event kind ``"numba:compile"``, which numba broadcasts only when it compiles a
 function, never when it loads one from the disk cache) and
 
 * prints one line on stderr before the first compilation::
 
       hydroplant: compiling kernels for excavator/dig (pbd), first run only; later runs load them from the cache
+      hydroplant: no prebuilt kernel cache in FOLDER; `hydroplant compile` builds every mode's kernels ahead of a run
 
 * while it compiles, on a terminal (``stream.isatty()``), rewrites a progress line every second: the kernels
   compiled so far, the one being compiled and the elapsed time; on a pipe or a file only the first line and a
@@ -112,8 +114,12 @@ class CompileWatch:
     def _announce(self) -> None:
         if not self.show:
             return
+        from hydraulics import kernel_cache
+
         print(f"hydroplant: compiling kernels for {self.scene} ({self.mode}), first run only; "
               "later runs load them from the cache", file=self.stream, flush=True)
+        print(f"hydroplant: {kernel_cache.describe(kernel_cache.CURRENT)}; `hydroplant compile` builds every mode's "
+              "kernels ahead of a run", file=self.stream, flush=True)
         if self.tty:
             self._ticker = threading.Thread(target=self._tick, name="hydroplant-compile-progress", daemon=True)
             self._ticker.start()

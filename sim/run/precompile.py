@@ -8,6 +8,13 @@ them in independent groups, each in its own process (``jobs`` at a time), by tak
 steps of the shipped scenes down each path, so the cache holds exactly the signatures the runs
 use.  With a warm cache each group only loads its kernels (about a second).
 
+The kernels go to the content-keyed folder :mod:`hydraulics.kernel_cache` chose, compiled for a generic CPU of
+the architecture.  Once every group is done the command records the build there (``hydroplant-kernels.json``);
+run again while that record covers the requested groups and the kernel sources still have the time stamps numba
+checks, it compiles nothing and starts no process.  After a build it removes the folders it had built for
+earlier sources of the same installation (no run of it can load them any more).  ``make`` runs it after pip
+installs the package, so a first run loads its kernels instead of compiling them.
+
 Groups (each group's kernels depend on each other, so one group is one process):
 
 ``mujoco``
@@ -35,7 +42,11 @@ Groups (each group's kernels depend on each other, so one group is one process):
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
+import shutil
+import sys
 import tempfile
 import time
 import warnings
@@ -57,11 +68,25 @@ def _mujoco() -> None:
     from sim.io.scenario import load_scenario
     from sim.io.scene import load_scene
 
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as tmp, _without_run_announcement():
         run(EXCAVATOR, out=Path(tmp) / "compile.mcap", overrides={"duration": 0.02})  # fast plant + log records
     scene = load_scene(load_scenario(EXCAVATOR))
     MujocoPlantFast(scene).advance(2)
     MujocoPlant(scene).step()  # the compiled stepper's own kernels
+
+
+@contextlib.contextmanager
+def _without_run_announcement():
+    """Inside ``hydroplant compile``, the run's own announcement of a first-run compilation (and its advice to run
+    ``hydroplant compile``) is noise: its lines are dropped, any other line on stderr is passed on."""
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            yield
+    finally:
+        for line in captured.getvalue().splitlines():
+            if not line.startswith(("hydroplant: ", "\r", "  compiling: ")) and line.strip():
+                print(line, file=sys.stderr)
 
 
 def _pbd_plant(**options):
@@ -149,8 +174,19 @@ def add_parser(subparsers) -> None:
 
 
 def main(args) -> int:
+    from hydraulics import kernel_cache
+
+    cache = kernel_cache.CURRENT
+    where = cache.folder or "numba's default cache"
+    if kernel_cache.fits(cache, args.groups):
+        print(f"kernels ready: {', '.join(args.groups)} (built for these sources in {where}; nothing to compile)")
+        return 0
     start = time.perf_counter()
     times = precompile(args.groups, args.jobs)
+    kernel_cache.write_manifest(cache, args.groups)
+    for folder in kernel_cache.superseded(cache):  # built by this command for older sources of this installation
+        shutil.rmtree(folder, ignore_errors=True)
+        print(f"removed the kernel cache of earlier sources {folder}")
     print("kernels ready: " + ", ".join(f"{name} {seconds:.1f} s" for name, seconds in times.items())
-          + f" (wall {time.perf_counter() - start:.1f} s)")
+          + f" (wall {time.perf_counter() - start:.1f} s, {cache.cpu} CPU, in {where})")
     return 0
