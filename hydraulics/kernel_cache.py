@@ -52,10 +52,12 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 SOURCES = (
     "hydraulics/__init__.py", "hydraulics/_jit.py", "hydraulics/_compiled.py", "hydraulics/_compiled_rigid.py",
+    "hydraulics/controllers.py",
     "hydraulics/components/*.py", "hydraulics/coupling.py", "hydraulics/fluid.py", "hydraulics/network.py",
     "hydraulics/numerics.py", "hydraulics/steppers.py",
     "sim/io/log_schemas.py", "sim/io/log_writer.py", "sim/io/mcap_file.py",
-    "sim/plants/__init__.py", "sim/plants/inputs.py", "sim/plants/mujoco.py", "sim/plants/mujoco_fast.py",
+    "sim/plants/__init__.py", "sim/plants/controllers.py", "sim/plants/inputs.py", "sim/plants/mujoco.py",
+    "sim/plants/mujoco_fast.py",
     "sim/plants/pbd_block.py", "sim/plants/pbd_frame.py", "sim/plants/pbd_hydraulics.py",
     "sim/xpbd/__init__.py", "sim/xpbd/compiled.py",
 )
