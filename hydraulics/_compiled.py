@@ -1532,9 +1532,11 @@ def _commit_if_finite(oil, pres, spool, pos, vel, oil_new, p_new, spool_new, x_n
 
 @_kernel
 def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
-    """PlantBase._account over a step ``h`` [s]: adds pump work, motor work, hydraulic and friction dissipation [J]
-    to ``ledger[at]``, ``ledger[at + 1]``, ``ledger[at + 2]``, ``ledger[at + 3]`` (energy.branch_powers at the
-    pressures ``pres``, branch flows ``flow``, actuator velocities ``v``); ``mu``, ``friction``, ``fslope``: scratch."""
+    """PlantBase._account over a step ``h`` [s]: adds supplied work (pumps and fixed-pressure nodes), motor work,
+    hydraulic and friction dissipation [J] to ``ledger[at]``, ``ledger[at + 1]``, ``ledger[at + 2]``,
+    ``ledger[at + 3]`` (energy.branch_powers at the pressures ``pres``, branch flows ``flow``, actuator velocities
+    ``v``); ``mu``, ``friction``, ``fslope``: scratch.  A fixed node off the reference pressure (a pressure source)
+    supplies μ(p)·(its net outflow Σ Q_out − Σ Q_in over the branches at it)."""
     net = _deref(pnet)
     for i in range(pres.size):
         mu[i] = _potential(pnet, pres[i], quad)
@@ -1542,6 +1544,13 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     pump = 0.0
     for b in range(ic[IC_P0], ic[IC_P1]):
         pump += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+    pref = net.sc[S_PREF]
+    for b in range(ic[IC_NB]):  # pressure sources (a rigid chamber is a fixed node at p_ref: none)
+        k, j = br[b, 0], br[b, 1]
+        if net.fixed[k] and net.node[k, NODE_FIXED_P] != pref:
+            pump -= flow[b] * mu[k]
+        if net.fixed[j] and net.node[j, NODE_FIXED_P] != pref:
+            pump += flow[b] * mu[j]
     motor = 0.0
     for b in range(ic[IC_M0], ic[IC_M1]):
         motor += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])

@@ -9,8 +9,9 @@ accumulators) is
 with μ the pressure potential of :meth:`hydraulics.fluid.Fluid.pressure_potential`
 (∂U/∂m = μ, ∂U/∂V_g = −(p − p_ref)).  A branch carrying Q from node i to node j
 exchanges Q·(μ_i − μ_j): dissipated in orifices, valves and leaks, supplied by
-pumps, passed to the shaft of motors.  The sum closes exactly in continuous
-time; a stepper's residual is its numerical dissipation.
+pumps, passed to the shaft of motors.  A fixed node off the reference pressure (a
+pressure source) supplies μ(p)·(its net outflow).  The sum closes exactly in
+continuous time; a stepper's residual is its numerical dissipation.
 """
 
 from __future__ import annotations
@@ -72,13 +73,34 @@ def _ordered_sum(terms, axis):
 def branch_powers(model: NetworkModel, state: NetworkState, flow: np.ndarray) -> dict:
     """Power of each branch family [W] at the given pressures and branch flows.
 
-    Returns ``{"pump": supplied by pumps, "motor": delivered to motor shafts,
-    "dissipated": lost in orifices, valves, reliefs, checks and leaks,
+    Returns ``{"pump": supplied by pumps and pressure sources, "source": of that, supplied by pressure sources,
+    "motor": delivered to motor shafts, "dissipated": lost in orifices, valves, reliefs, checks and leaks,
     "rigid": delivered to rigid actuators (their metering loss and their work)}``.
+
+    A pressure source is a fixed node whose pressure differs from the reference pressure (a ``pressure_source``,
+    or a tank set off it); it supplies μ(p)·(its net outflow) (:func:`source_power`).
     """
     mu = model.fluid.pressure_potential(state.node_pressure)
     power = flow * (mu[model.branch_from] - mu[model.branch_to])
     sl = model.branch_slices
     dissipative = np.concatenate([power[sl[k]] for k in ("orifice", "laminar", "relief", "check", "law") if k in sl])
-    return {"pump": float(-np.sum(power[sl["pump"]])), "motor": float(np.sum(power[sl["motor"]])),
-            "dissipated": float(np.sum(dissipative)), "rigid": float(np.sum(power[sl["rigid"]]))}
+    source = source_power(model, flow)
+    return {"pump": float(-np.sum(power[sl["pump"]])) + source, "source": source,
+            "motor": float(np.sum(power[sl["motor"]])), "dissipated": float(np.sum(dissipative)),
+            "rigid": float(np.sum(power[sl["rigid"]]))}
+
+
+def source_power(model: NetworkModel, flow: np.ndarray) -> float:
+    """Power [W] the pressure sources deliver: Σ over the fixed nodes k off the reference pressure of
+    μ(p_k)·(Σ Q of the branches leaving k − Σ Q of those entering k), with the branch flows ``flow`` [m³/s].
+
+    The branch powers Q·(μ_from − μ_to) sum to Σ over all nodes of μ·(net outflow); over the free nodes that is the
+    change of their stored oil energy, so the fixed nodes' share is the work they supply (zero for a tank at the
+    reference pressure, where μ = 0).  A rigid actuator's chambers are fixed nodes at the reference: none."""
+    fixed = np.asarray(model.node_fixed, bool) & (model.node_fixed_pressure != model.fluid.reference_pressure)
+    if not fixed.any():
+        return 0.0
+    mu = np.where(fixed, model.fluid.pressure_potential(np.where(fixed, model.node_fixed_pressure,
+                                                                 model.fluid.reference_pressure)), 0.0)
+    flow = np.asarray(flow, float)
+    return float(flow @ mu[model.branch_from] - flow @ mu[model.branch_to])

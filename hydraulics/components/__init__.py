@@ -28,6 +28,7 @@ from .orifice import Orifice
 from .parameters import CircuitError, check_number, describe_range, param
 from .pilot_check import PilotCheckValve
 from .pressure_reducing import PressureReducingValve
+from .pressure_source import PressureSource
 from .pumps import PumpCompensated, PumpFixed
 from .relief import ReliefValve
 from .tank import Tank
@@ -53,6 +54,7 @@ COMPONENT_TYPES = {
     "counterbalance_valve": CounterbalanceValve,
     "pressure_reducing_valve": PressureReducingValve,
     "flow_control_valve": FlowControlValve,
+    "pressure_source": PressureSource,
 }
 """Circuit-file ``type`` name → parameter class."""
 

@@ -25,7 +25,8 @@ pressure
     gets the absolute bound ``NO_RELIEF_PRESSURE_LIMIT``.  A start pressure the
     scenario states (``[initial] pressures``) raises p_high to
     ``PRESSURE_BOUND_FACTOR`` times the highest of them when that is more (the
-    closed-cylinder benchmark starts its oil at 22 kbar on purpose).
+    closed-cylinder benchmark starts its oil at 22 kbar on purpose), and so does a
+    pressure source (a fixed node off the reference pressure, :func:`pressure_sources`).
 energy residual
     |residual| ≤ ``ENERGY_RESIDUAL_FRACTION``·(W_pump + |ΔE_stored|) + E_floor, with
     E_floor = max(``ENERGY_RESIDUAL_FLOOR``, ``ENERGY_RESIDUAL_FLOOR_PER_KG``·m_moving)
@@ -37,9 +38,10 @@ energy residual
     a brake) or an unstable coupling shows up here.  Not checked where the ledger
     is no balance (:func:`energy_unmetered`, the reason kept as ``energy_off``): at the
     ``incompressible`` fidelity (no pump work metered), with rigid actuators in a
-    compressible network (their trackers brake without metering what they take), and
-    with a fixed node at a pressure other than the reference (a pressure source whose
-    work Q·μ(p) no pump meters).
+    compressible network (their trackers brake without metering what they take).  A
+    fixed node at a pressure other than the reference (a ``pressure_source``) is
+    metered: its work μ(p)·(net outflow) is supplied work with the pumps'
+    (:func:`hydraulics.energy.source_power`).
 equality constraints
     MuJoCo mode: the length of each equality constraint's gap vector, its rows of
     ``efc_pos`` taken together (loop closures: ``connect``, ``weld``, ``joint``)
@@ -123,8 +125,8 @@ EQUALITY_TOLERANCE = 0.01  # [m | rad]
 JOINT_RANGE_TOLERANCE_HINGE = 0.05  # [rad] (≈ 2.9°)
 
 PA_PER_BAR = 1e5
-# Energy: a fixed node (a tank) whose pressure differs from the reference pressure by more than this is a pressure
-# source whose work the ledger does not meter [Pa]
+# Pressure: a fixed node (a tank, a pressure_source) whose pressure differs from the reference pressure by more than
+# this is a pressure source: its pressure enters the pressure bound (its work is supplied work in the ledger) [Pa]
 SOURCE_PRESSURE_TOLERANCE = 1.0e3  # [Pa]
 
 
@@ -137,7 +139,8 @@ def end_stop_tolerance(travel):
 
 def pressure_sources(plant) -> list[str]:
     """Names of the fixed nodes whose pressure differs from the reference pressure by more than
-    ``SOURCE_PRESSURE_TOLERANCE`` (pressure sources: the oil they give carries work no pump meters)."""
+    ``SOURCE_PRESSURE_TOLERANCE`` (pressure sources: their work is supplied work in the ledger, and a free node may
+    reach their pressure)."""
     net = plant.network
     fixed = np.flatnonzero(np.asarray(net.node_fixed, bool) & ~_rigid_chambers(net))
     pressure = np.asarray(plant.net_state.node_pressure, float)[fixed]
@@ -165,18 +168,15 @@ def energy_unmetered(plant) -> str:
     * the network is at the ``incompressible`` level: no pressure states, no metered pump work;
     * rigid actuators sit in a compressible network: their trackers take kinetic energy unmetered (the
       energy-growth check still covers them);
-    * a fixed node holds a pressure other than the reference (a tank at 200 bar as the supply): the oil it
-      gives or takes carries Q·μ(p) of work that no pump meters, and the residual would carry it.
+
+    A fixed node at a pressure other than the reference (a ``pressure_source``, a tank set off the reference) is
+    metered: its work μ(p)·(net outflow) counts as supplied work (:func:`hydraulics.energy.source_power`).
     """
     net = plant.network
     if net.fidelity == "incompressible" or getattr(plant.coupling, "name", "") == "incompressible":
         return "the incompressible level meters no pump work"
     if np.any(np.asarray(net.actuator_rigid, bool)):
         return "rigid actuators take kinetic energy through their trackers unmetered"
-    sources = pressure_sources(plant)
-    if sources:
-        names = ", ".join(repr(n) for n in sources)
-        return f"fixed-pressure node(s) {names} off the reference pressure do work the ledger does not meter"
     return ""
 
 
@@ -251,6 +251,14 @@ class RunMonitor:
         if given and PRESSURE_BOUND_FACTOR * max(given) > high:  # a start pressure the scenario states raises it
             high = PRESSURE_BOUND_FACTOR * max(given)
             self.pressure_basis = f"{PRESSURE_BOUND_FACTOR:g} x the highest start pressure of the scenario's initial.pressures"
+        self.sources = pressure_sources(plant)
+        if self.sources:  # a pressure source: a free node may reach its pressure (no relief protects against it)
+            source = {str(name): float(p) for name, p, fixed in zip(net.node_names, plant.net_state.node_pressure,
+                                                                    net.node_fixed) if fixed}
+            name = max(self.sources, key=source.get)
+            if PRESSURE_BOUND_FACTOR * source[name] > high:
+                high = PRESSURE_BOUND_FACTOR * source[name]
+                self.pressure_basis = f"{PRESSURE_BOUND_FACTOR:g} x the highest pressure source, '{name}' {_bar(source[name])}"
         floor = fluid.pressure_floor
         low = PRESSURE_FLOOR_FACTOR * floor if math.isfinite(floor) else -math.inf
         self.pressure_high = np.where(free, high, np.inf)
@@ -279,7 +287,6 @@ class RunMonitor:
         self.checks_joints = bool(np.any(limited))
         self.energy_off = energy_unmetered(plant)  # why the residual is not checked ("" when it is)
         self.energy = not self.energy_off
-        self.sources = pressure_sources(plant)  # (the runner's energy-growth check counts pump work only, too)
         moving = float(np.sum(np.asarray(m.body_mass)[np.asarray(m.body_weldid) != 0]))
         self.energy_floor = max(ENERGY_RESIDUAL_FLOOR, ENERGY_RESIDUAL_FLOOR_PER_KG * moving)  # [J]
         self._constraints = ConstraintErrors(plant)
