@@ -1569,6 +1569,18 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     ledger[at + 3] -= h * fw
 
 
+@_kernel
+def _account_rigid_oil(ledger, at, h, effort, v):
+    """The ledger of a step ``h`` [s] at the ``incompressible`` level (no oil states, no branch flows): the work the
+    rigid oil does on the actuators, Σ effort·v⁺·h [J] (``effort`` [N | N·m] at the end velocities ``v``), is the
+    supplied work ``ledger[at]`` (what the pumps deliver less the metering and relief losses, which this level does
+    not resolve); no hydraulic or friction loss (its law has no seal friction)."""
+    w = 0.0
+    for i in range(v.size):
+        w += effort[i] * v[i]
+    ledger[at] += h * w
+
+
 # ----------------------------------------------------------------------------
 # NetworkModel's evaluation methods (hydraulics.network): the same node relations, flows and efforts on the
 # packed network, called from Python through the cached entries of :func:`evaluation_entries`.  The ``*_rows``

@@ -35,9 +35,13 @@ def stored_energy_at(model: NetworkModel, oil, pressure, position, volumes=None)
     ``oil`` and ``pressure`` of shape (..., node_count), ``position`` (..., actuator_count)
     give shape (...), one energy per sample.  ``volumes`` may pass
     :meth:`NetworkModel.node_volume_at` of the same samples to save recomputing it.
+    At the ``incompressible`` level the oil is rigid and stores nothing: zero (its pressures are derived from the
+    efforts, not states whose compression holds energy).
     """
     fluid = model.fluid
     p = np.asarray(pressure, dtype=float)
+    if getattr(model, "fidelity", "") == "incompressible":
+        return np.zeros(p.shape[:-1])[()]
     dp = p - fluid.reference_pressure
     volume = (model.node_volume_at(position, p) if volumes is None else volumes)[0]
     extra_integral = 0.5 * model.node_wall_compliance * dp**2

@@ -155,6 +155,7 @@ class MujocoPlant(PlantBase):
         ids = self.binding.actuator_id
         d.ctrl[ids] = law.constant
         m.actuator_biasprm[ids, 2] = law.slope
+        self._applied = (law.constant, law.slope, law.lower, law.upper, v)  # (the ledger's applied force)
         if law.lower is not None:
             # MuJoCo clamps within the step and keeps the implicit term only while unclamped:
             # exactly a velocity tracker that stalls at its force limit
@@ -177,7 +178,16 @@ class MujocoPlant(PlantBase):
         return report
 
     def _account(self, report, velocity, dt) -> None:
-        super()._account(report, velocity, dt)
+        if self.coupling.name == "incompressible":  # rigid oil: the work of the forces MuJoCo applied is the supplied work
+            c, k, lo, hi, start = self._applied
+            force = c + k * velocity
+            if lo is not None:  # (MujocoPlantFast._applied_power)
+                at_start = c + k * start
+                clamped = (at_start <= lo) | (at_start >= hi)  # (MuJoCo: a force at its bound counts as clamped)
+                force = np.where(clamped, np.clip(at_start, lo, hi), force)
+            self.energy.pump_work += dt * float(force @ velocity)
+        else:
+            super()._account(report, velocity, dt)
         d = self.data
         self.energy.dissipated_mechanical -= dt * float((d.qfrc_passive + d.qfrc_constraint) @ d.qvel)
 

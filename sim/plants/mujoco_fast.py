@@ -459,7 +459,10 @@ def _finish_pending(ctx, pnet, V, T, R):
     for i in range(na):  # (bounds ±inf but for the incompressible law)
         effort[i] = C._clip(const[i] + slope[i] * v_end[i], V.lower[i], V.upper[i])
     # energy ledger (PlantBase._account, MujocoPlant._account); xe, ve are free again
-    C._account(pnet, fs, FS_PUMP, dt, pres, flow_out, v_end, V.quad, mu, xe, ve)
+    if kind == KIND_INCOMPRESSIBLE:  # rigid oil: the work of the forces MuJoCo applied is the supplied work
+        fs[FS_PUMP] += dt * _applied_power(ctx, V, v_end)
+    else:
+        C._account(pnet, fs, FS_PUMP, dt, pres, flow_out, v_end, V.quad, mu, xe, ve)
     if R.actuator.size:  # rigid branches (PlantBase._account): their delivery less the hydraulic force's work
         K.rigid_account(pnet, R, fs, FS_PUMP, dt, flow_out, mu, effort, xe, v_end)
     passive, constraint = V.passive_saved, V.constraint
@@ -482,6 +485,28 @@ def _prepare(ctx, V):
         adr = rowadr[aid]
         for q in range(rownnz[aid]):
             J[i, colind[adr + q]] = moment[adr + q]
+
+
+@_kernel
+def _applied_power(ctx, V, v_end):
+    """Σ F·v⁺ [W] of the forces MuJoCo applied over the step just taken (its ctrl, bias slope and force range, still
+    those of that step): F = clip(c + k·v) when the force at the start velocity v was at or beyond a bound (MuJoCo
+    then drops the implicit term), else c + k·v⁺ (the implicit term taken at the end velocity).  At the ``incompressible`` level the
+    hydraulic effort is that law clipped at v⁺; the two differ where MuJoCo's implicit term passes a bound."""
+    act, ctrl, bias, vs = V.act, V.ctrl, V.bias, V.vs
+    nbias = ctx[C_NBIAS]
+    power = 0.0
+    for i in range(v_end.size):
+        a = act[i]
+        c, k = ctrl[a], bias[a * nbias + 2]
+        force = c + k * v_end[i]
+        if V.flimited[a]:
+            lo, hi = V.frange[2 * a], V.frange[2 * a + 1]
+            start = c + k * vs[i]
+            if start <= lo or start >= hi:  # (MuJoCo's own test: a force at its bound counts as clamped)
+                force = C._clip(start, lo, hi)
+        power += force * v_end[i]
+    return power
 
 
 @_kernel
