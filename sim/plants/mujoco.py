@@ -30,6 +30,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from hydraulics import _compiled_rigid as K
 from hydraulics.coupling import make_coupling, start_velocity_guess
 from hydraulics.steppers import StepStatus
 
@@ -150,20 +151,26 @@ class MujocoPlant(PlantBase):
         moment = self.moments().copy()
         # linearise at the start-of-step velocities, the best guess of v⁺ (fewer Newton iterations), where it is
         # a short chord (coupling.start_velocity_guess)
-        law = self.coupling.begin(self.net_state, self.control, x, v, dt, effective_mass=self.effective_mass(moment),
+        meff = self.effective_mass(moment)
+        law = self.coupling.begin(self.net_state, self.control, x, v, dt, effective_mass=meff,
                                   velocity_guess=start_velocity_guess(self.network, x, v, dt))
         ids = self.binding.actuator_id
-        d.ctrl[ids] = law.constant
-        m.actuator_biasprm[ids, 2] = law.slope
-        self._applied = (law.constant, law.slope, law.lower, law.upper, v)  # (the ledger's applied force)
+        applied = (law.constant, law.slope, law.lower, law.upper)
+        if self.coupling.name == "incompressible":  # end stops: the end cap takes what pushes past an end
+            F, I = self.coupling.packed
+            applied = K.end_stop_hold_entry(F, I, self.coupling.table, np.asarray(x, float), np.asarray(v, float),
+                                            np.asarray(meff, float), float(dt), *applied)
+        d.ctrl[ids] = applied[0]
+        m.actuator_biasprm[ids, 2] = applied[1]
+        self._applied = (*applied, v)  # (the ledger's applied force)
         if law.lower is not None:
             # MuJoCo clamps within the step and keeps the implicit term only while unclamped:
             # exactly a velocity tracker that stalls at its force limit
             # (only actuators with finite bounds: the compressible ones of a mixed-fidelity network have none)
             bounded = np.isfinite(law.lower) | np.isfinite(law.upper)
             m.actuator_forcelimited[ids] = bounded
-            m.actuator_forcerange[ids, 0] = np.where(bounded, law.lower, 0.0)
-            m.actuator_forcerange[ids, 1] = np.where(bounded, law.upper, 0.0)
+            m.actuator_forcerange[ids, 0] = np.where(bounded, applied[2], 0.0)
+            m.actuator_forcerange[ids, 1] = np.where(bounded, applied[3], 0.0)
         mujoco.mj_step2(m, d)
         v_end = moment @ d.qvel
         x_end = x + dt * v_end

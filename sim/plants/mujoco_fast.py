@@ -13,8 +13,11 @@ from the network's own positions at the held start velocities.
 ``incompressible``: the law of :func:`hydraulics._compiled_rigid.incompressible_law`,
 its bounds written to MuJoCo's ``actuator_forcerange`` (``actuator_forcelimited``
 where finite, as :meth:`MujocoPlant.step` does: MuJoCo clamps within its step),
-and the finish :func:`hydraulics._compiled_rigid.incompressible_finish`
-(pressures derived from the clamped effort).
+at an end of the stroke as :func:`hydraulics._compiled_rigid.end_stop_hold` applies
+it (the end cap takes what pushes past the end), and the finish
+:func:`hydraulics._compiled_rigid.incompressible_finish` (pressures derived from
+the hydraulic law's clamped effort); the ledger's supplied work is that of the
+forces MuJoCo applied (``_applied_power``).
 
 MuJoCo calls the control callback once per ``mj_step``, after positions,
 velocities, actuator lengths/moments and the factorised mass matrix are
@@ -601,6 +604,13 @@ def _begin(ctx, pnet, V, T, R):
         for i in range(na):
             ctrl[act[i]] = const[i]
             bias[act[i] * ctx[C_NBIAS] + 2] = slope[i]
+        if kind == KIND_INCOMPRESSIBLE:  # end stops: the end cap takes what pushes past an end (V keeps the hydraulic law)
+            for i in range(na):
+                c, s, lo, hi = K.end_stop_hold(pnet, T, i, (xs, vs), meff, dt, (const[i], slope[i]), (V.lower[i], V.upper[i]))
+                ctrl[act[i]] = c
+                bias[act[i] * ctx[C_NBIAS] + 2] = s
+                V.frange[2 * act[i]] = lo
+                V.frange[2 * act[i] + 1] = hi
         C._copy(V.passive_saved, V.passive)
         ctx[C_PENDING] = 1
         return

@@ -113,7 +113,7 @@ import numpy as np
 # Stroke: tolerance beyond either end [m], at least this much ...
 STROKE_TOLERANCE = 0.01  # [m]
 # ... or this fraction of the stroke when that is more [-] (the end stops are soft: the excavator's dig at 1 kHz
-# goes 0.2 % past the bucket cylinder's stroke; at a 30 Hz frame the incompressible fidelity drives it 9 % past)
+# goes 0.2 % past the bucket cylinder's stroke; at a 30 Hz frame the incompressible level holds it within 0.03 %)
 STROKE_TOLERANCE_FRACTION = 0.05  # [-]
 # Pressure: a relief valve's pressure rise above its cracking pressure at full flow, as a fraction of it [-]
 RELIEF_OVERRIDE_FRACTION = 0.1  # [-] (direct-acting reliefs: 5-15 %)
@@ -136,7 +136,7 @@ ENERGY_LOSS_TIME = 0.02  # [s]
 EQUALITY_TOLERANCE = 0.01  # [m | rad]
 # Joint range: tolerance beyond a limited hinge's range [rad] and a limited slide's range [m] (MJCF limits are soft:
 # the excavator's dig at 1 kHz goes 0.007 rad past its bucket's range; at a 30 Hz frame, where MuJoCo's soft limits
-# have a time constant of at least 2·dt, the incompressible fidelity drives the bucket 0.27 rad past it)
+# have a time constant of at least 2·dt, the incompressible level's end stops hold the bucket within 0.4 mrad of it)
 JOINT_RANGE_TOLERANCE_HINGE = 0.05  # [rad] (≈ 2.9°)
 
 PA_PER_BAR = 1e5
