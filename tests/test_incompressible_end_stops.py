@@ -7,7 +7,7 @@ cylinder went 3.1 mm past its curl end and the bucket joint 7.3 mrad past its ra
 takes what pushes past the end (:func:`hydraulics._compiled_rigid.end_stop_hold`: the bound on that side dropped,
 the tracker at full gain), and the trackers keep their force at the start speed strictly inside their bounds (MuJoCo
 counts a force at its bound as clamped and drops the implicit term, which handed the light bucket the whole relief
-force for a 33 ms step and threw it about); before both, the bucket went 416 mrad (30 Hz) and 147 mrad (60 Hz) past
+force for a 33 ms step and threw it about); without both the bucket goes 416 mrad (30 Hz) and 147 mrad (60 Hz) past
 its range and its cylinder 160 mm past its stroke.
 """
 
