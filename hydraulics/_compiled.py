@@ -1668,9 +1668,11 @@ def _commit_if_finite(oil, pres, spool, pos, vel, oil_new, p_new, spool_new, x_n
 
 @_kernel
 def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
-    """PlantBase._account over a step ``h`` [s]: adds pump work, motor work, hydraulic and friction dissipation [J]
-    to ``ledger[at]``, ``ledger[at + 1]``, ``ledger[at + 2]``, ``ledger[at + 3]`` (energy.branch_powers at the
-    pressures ``pres``, branch flows ``flow``, actuator velocities ``v``); ``mu``, ``friction``, ``fslope``: scratch."""
+    """PlantBase._account over a step ``h`` [s]: adds supplied work (pumps and fixed-pressure nodes), motor work,
+    hydraulic and friction dissipation [J] to ``ledger[at]``, ``ledger[at + 1]``, ``ledger[at + 2]``,
+    ``ledger[at + 3]`` (energy.branch_powers at the pressures ``pres``, branch flows ``flow``, actuator velocities
+    ``v``); ``mu``, ``friction``, ``fslope``: scratch.  A fixed node off the reference pressure (a pressure source)
+    supplies μ(p)·(its net outflow Σ Q_out − Σ Q_in over the branches at it)."""
     net = _deref(pnet)
     for i in range(pres.size):
         mu[i] = _potential(pnet, pres[i], quad)
@@ -1678,6 +1680,13 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     pump = 0.0
     for b in range(ic[IC_P0], ic[IC_P1]):
         pump += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
+    pref = net.sc[S_PREF]
+    for b in range(ic[IC_NB]):  # pressure sources (a rigid chamber is a fixed node at p_ref: none)
+        k, j = br[b, 0], br[b, 1]
+        if net.fixed[k] and net.node[k, NODE_FIXED_P] != pref:
+            pump -= flow[b] * mu[k]
+        if net.fixed[j] and net.node[j, NODE_FIXED_P] != pref:
+            pump += flow[b] * mu[j]
     motor = 0.0
     for b in range(ic[IC_M0], ic[IC_M1]):
         motor += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
@@ -1698,6 +1707,18 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     for i in range(v.size):
         fw += friction[i] * v[i]
     ledger[at + 3] -= h * fw
+
+
+@_kernel
+def _account_rigid_oil(ledger, at, h, effort, v):
+    """The ledger of a step ``h`` [s] at the ``incompressible`` level (no oil states, no branch flows): the work the
+    rigid oil does on the actuators, Σ effort·v⁺·h [J] (``effort`` [N | N·m] at the end velocities ``v``), is the
+    supplied work ``ledger[at]`` (what the pumps deliver less the metering and relief losses, which this level does
+    not resolve); no hydraulic or friction loss (its law has no seal friction)."""
+    w = 0.0
+    for i in range(v.size):
+        w += effort[i] * v[i]
+    ledger[at] += h * w
 
 
 # ----------------------------------------------------------------------------

@@ -26,9 +26,10 @@ Equations (SI units; a motor's "area" is its displacement per radian D/2π [m³/
   ±p_relief·A.  End stops (:func:`stroke_speeds`): a cylinder within reach of an end of its stroke
   (``STOP_REACH``·max(v, v_t, 0)·h ≥ the distance left to the extended end, likewise retracting) tracks v_t
   clipped to [−x/h, (stroke − x)/h] within the same bounds, so x⁺ = x + h·v⁺ stays in [0, stroke] to the
-  tracker's residual while the load stays within the bounds.  **Limitation**: a load beyond the relief force
-  (a contact kick) still drives the rod past its end, where only the plant's own limits act; the stop knows the
-  stroke only, not a narrower joint range of the link it drives.
+  tracker's residual while the load stays within the bounds.  MuJoCo mode holds the end against any load
+  (:func:`end_stop_hold`: the end cap takes what pushes past it, the bound on that side dropped).
+  **Limitation**: in PBD mode a load beyond the relief force still drives the rod past its end, where the solver's
+  own joint and tendon limits act; the stop knows the stroke only, not a narrower joint range of the link it drives.
 * **Rigid actuators in a compressible network** (:func:`mixed_law`): the metered damper at the live supply
   pressure p_P(v⁺) = p_P,lin + (∂p_P/∂v)·(v⁺ − v_g), plus seal friction; the bounds are the forces at p_P on
   [cavitation floor, highest relief].
@@ -68,6 +69,12 @@ INCOMPRESSIBLE_TRACKING_GAIN = 100.0  # [-]
 # past an end of its stroke within the step tracks a speed that ends the step at that end at most (room for a load
 # that speeds it up within the step).
 STOP_REACH = 2.0  # [-]
+# End stops in MuJoCo mode (:func:`end_stop_hold`): a tracker's target within this relative tolerance (at least this
+# many m/s) of an end speed is a tracker of that end speed (the target read back as −const/slope differs by round-off)
+END_SPEED_MATCH = 1e-9  # [-]
+# Velocity tracker: a gain lowered to keep the force at the start velocity within its bound keeps it this factor inside
+# (MuJoCo counts a force at its bound as clamped: no implicit term for the step) [-]
+TRACKER_BOUND_MARGIN = 1.0 - 1e-9  # [-]
 # Force bound of an incompressible actuator in a circuit without relief valves, as a pressure.
 INCOMPRESSIBLE_UNBOUNDED_PRESSURE = 1e12  # Pa
 
@@ -247,11 +254,13 @@ def tracking_gain(gain, effective_mass, dt):
 def bounded_tracker(target, velocity, gain, lower, upper):
     """Velocity tracker F = K·(target − v⁺) as (constant, slope), K = ``gain`` lowered so that F at the start
     ``velocity`` stays within [``lower``, ``upper``]: MuJoCo applies a force clamped at the start of its step
-    explicitly, and the bound force over a long step would throw a light link far past its target."""
+    explicitly, and the bound force over a long step would throw a light link far past its target.  The lowered gain
+    keeps F at the start velocity a factor ``TRACKER_BOUND_MARGIN`` inside the bound: MuJoCo counts a force at its
+    bound as clamped and drops the implicit term, which would hand the load the whole bound force for the step."""
     error = target - velocity
     bound = upper if error >= 0 else -lower
     if abs(error) > 0:
-        gain = clip(bound / abs(error), 0.0, gain)
+        gain = clip(TRACKER_BOUND_MARGIN * bound / abs(error), 0.0, gain)
     return gain * target, -gain
 
 
@@ -378,6 +387,42 @@ def stroke_speeds(pnet, a, position, dt):
             x = position[a]
             return -x / dt, (cyl[c, C.CYL_STROKE] - x) / dt
     return -math.inf, math.inf
+
+
+@kernel
+def end_stop_hold(pnet, T, a, state, effective_mass, dt, law, bounds):
+    """The effort law of actuator ``a`` as MuJoCo mode applies it at an end stop: (const, slope, lower, upper).
+
+    Where :func:`incompressible_law` made ``a`` a tracker of an end speed (its target clipped to
+    v_hi = (stroke − x)/h or v_lo = −x/h of :func:`stroke_speeds`, so that the step ends at that end of the
+    stroke), the end cap takes whatever force pushes the rod further: the bound on that side is dropped
+    (−inf at the extended end, +inf at the retracted end) and the tracker keeps its full gain K = G·m_eff/h,
+    so a load beyond the relief force (the ground pushing the curled bucket) is held at the end too; the other
+    side keeps its hydraulic bound (a load pulling the rod off the end beyond it moves it).  Every other law is
+    returned unchanged.  ``law`` = (const, slope) and ``bounds`` = (lower, upper) of the actuator as
+    :func:`incompressible_law` wrote them, ``state`` = (start positions, start velocities).  The hydraulic effort
+    (and so the chamber pressures) stays ``law`` clipped to ``bounds``; the difference is the end cap's reaction.
+    A tracker's target is read back as −const/slope and counts as the end speed within ``END_SPEED_MATCH``
+    (relative, at least that many m/s).  **Limitation**: a rod whose hydraulic target lies inside the stroke while a
+    load beyond the relief force drives it to its end passes the end by at most one step's excess motion, then is
+    pulled back to it in the next step."""
+    position, velocity = state
+    const, slope = law
+    lower, upper = bounds
+    if not slope < 0.0:
+        return const, slope, lower, upper
+    v_lo, v_hi = stroke_speeds(pnet, a, position, dt)
+    if not math.isfinite(v_lo):
+        return const, slope, lower, upper
+    target = -const / slope
+    gain = tracking_gain(T.scalars[IS_GAIN], effective_mass[a], dt)
+    if abs(target - v_hi) <= END_SPEED_MATCH * maximum(1.0, abs(v_hi)):
+        c, k = bounded_tracker(v_hi, velocity[a], gain, -math.inf, upper)
+        return c, k, -math.inf, upper
+    if abs(target - v_lo) <= END_SPEED_MATCH * maximum(1.0, abs(v_lo)):
+        c, k = bounded_tracker(v_lo, velocity[a], gain, lower, math.inf)
+        return c, k, lower, math.inf
+    return const, slope, lower, upper
 
 
 @kernel
@@ -658,6 +703,18 @@ def _incompressible_law_python(F, I, T, spool0, command, speed, position, veloci
 
 
 @C._jit
+def _end_stop_hold_python(F, I, T, position, velocity, effective_mass, dt, const, slope, lower, upper):
+    net = C._unpack(F, I)
+    pnet = C._ref(net)
+    na = velocity.size
+    c, k, lo, hi = np.empty(na), np.empty(na), np.empty(na), np.empty(na)
+    for a in range(na):
+        c[a], k[a], lo[a], hi[a] = end_stop_hold(pnet, T, a, (position, velocity), effective_mass, dt,
+                                                 (const[a], slope[a]), (lower[a], upper[a]))
+    return c, k, lo, hi
+
+
+@C._jit
 def _mixed_law_python(F, I, R, spool0, command, velocity, effective_mass, dt, supply, const, slope):
     net = C._unpack(F, I)
     pnet = C._ref(net)
@@ -698,6 +755,11 @@ def _cached(fingerprint):
             raise ValueError("no fingerprint")
         return _incompressible_law_python(F, I, T, spool0, command, speed, position, velocity, effective_mass, dt)
 
+    def end_stop_hold_entry(F, I, T, position, velocity, effective_mass, dt, const, slope, lower, upper):
+        if fingerprint is None:  # never (see explicit_step)
+            raise ValueError("no fingerprint")
+        return _end_stop_hold_python(F, I, T, position, velocity, effective_mass, dt, const, slope, lower, upper)
+
     def mixed_law_entry(F, I, R, spool0, command, velocity, effective_mass, dt, supply, const, slope):
         if fingerprint is None:  # never (see explicit_step)
             raise ValueError("no fingerprint")
@@ -714,17 +776,17 @@ def _cached(fingerprint):
         _chamber_pressures_python(F, I, effort, pressure, actuators)
 
     entries = (explicit_step, incompressible_law_entry, mixed_law_entry, incompressible_finish_entry,
-               chamber_pressures_entry)
+               chamber_pressures_entry, end_stop_hold_entry)
     if not C.JIT_ENABLED:  # NUMBA_DISABLE_JIT=1: plain Python
         return entries
     return tuple(C._numba_cached(f) for f in entries)
 
 
 (explicit_step_entry, incompressible_law_entry, mixed_law_entry, incompressible_finish_entry,
- chamber_pressures_entry) = _cached(FINGERPRINT)
+ chamber_pressures_entry, end_stop_hold_entry) = _cached(FINGERPRINT)
 
 __all__ = ["IncompressibleTable", "RigidTable", "pack_incompressible", "pack_rigid",
            "flatten_incompressible", "unflatten_incompressible", "flatten_rigid", "unflatten_rigid", "explicit_substep",
            "incompressible_law", "mixed_law", "chamber_pressures", "incompressible_finish", "explicit_law",
            "explicit_finish", "rigid_law", "rigid_finish", "rigid_account",
-           "quadratic_damper", "bounded_tracker", "free_speed", "tracking_gain", "stroke_speeds"]
+           "quadratic_damper", "bounded_tracker", "free_speed", "tracking_gain", "stroke_speeds", "end_stop_hold"]

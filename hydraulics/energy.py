@@ -9,8 +9,9 @@ accumulators) is
 with μ the pressure potential of :meth:`hydraulics.fluid.Fluid.pressure_potential`
 (∂U/∂m = μ, ∂U/∂V_g = −(p − p_ref)).  A branch carrying Q from node i to node j
 exchanges Q·(μ_i − μ_j): dissipated in orifices, valves and leaks, supplied by
-pumps, passed to the shaft of motors.  The sum closes exactly in continuous
-time; a stepper's residual is its numerical dissipation.
+pumps, passed to the shaft of motors.  A fixed node off the reference pressure (a
+pressure source) supplies μ(p)·(its net outflow).  The sum closes exactly in
+continuous time; a stepper's residual is its numerical dissipation.
 """
 
 from __future__ import annotations
@@ -35,9 +36,13 @@ def stored_energy_at(model: NetworkModel, oil, pressure, position, volumes=None)
     ``oil`` and ``pressure`` of shape (..., node_count), ``position`` (..., actuator_count)
     give shape (...), one energy per sample.  ``volumes`` may pass
     :meth:`NetworkModel.node_volume_at` of the same samples to save recomputing it.
+    At the ``incompressible`` level the oil is rigid and stores nothing: zero (its pressures are derived from the
+    efforts, not states whose compression holds energy).
     """
     fluid = model.fluid
     p = np.asarray(pressure, dtype=float)
+    if getattr(model, "fidelity", "") == "incompressible":
+        return np.zeros(p.shape[:-1])[()]
     dp = p - fluid.reference_pressure
     volume = (model.node_volume_at(position, p) if volumes is None else volumes)[0]
     extra_integral = 0.5 * model.node_wall_compliance * dp**2
@@ -73,9 +78,12 @@ def _ordered_sum(terms, axis):
 def branch_powers(model: NetworkModel, state: NetworkState, flow: np.ndarray) -> dict:
     """Power of each branch family [W] at the given pressures and branch flows.
 
-    Returns ``{"pump": supplied by pumps, "motor": delivered to motor shafts,
-    "dissipated": lost in orifices, valves, reliefs, checks and leaks,
+    Returns ``{"pump": supplied by pumps and pressure sources, "source": of that, supplied by pressure sources,
+    "motor": delivered to motor shafts, "dissipated": lost in orifices, valves, reliefs, checks and leaks,
     "rigid": delivered to rigid actuators (their metering loss and their work)}``.
+
+    A pressure source is a fixed node whose pressure differs from the reference pressure (a ``pressure_source``,
+    or a tank set off it); it supplies μ(p)·(its net outflow) (:func:`source_power`).
     """
     mu = model.fluid.pressure_potential(state.node_pressure)
     power = flow * (mu[model.branch_from] - mu[model.branch_to])
@@ -84,6 +92,23 @@ def branch_powers(model: NetworkModel, state: NetworkState, flow: np.ndarray) ->
     source = np.array(law_sources(), bool)[model.law_kind] if len(law) else np.zeros(0, bool)  # pumps with a law
     dissipative = np.concatenate([power[sl[k]] for k in ("orifice", "laminar", "relief", "check") if k in sl]
                                  + [law[~source]])
-    return {"pump": float(-np.sum(np.concatenate([power[sl["pump"]], law[source]]))),
-            "motor": float(np.sum(power[sl["motor"]])),
-            "dissipated": float(np.sum(dissipative)), "rigid": float(np.sum(power[sl["rigid"]]))}
+    supplied = source_power(model, flow)
+    return {"pump": float(-np.sum(np.concatenate([power[sl["pump"]], law[source]]))) + supplied, "source": supplied,
+            "motor": float(np.sum(power[sl["motor"]])), "dissipated": float(np.sum(dissipative)),
+            "rigid": float(np.sum(power[sl["rigid"]]))}
+
+
+def source_power(model: NetworkModel, flow: np.ndarray) -> float:
+    """Power [W] the pressure sources deliver: Σ over the fixed nodes k off the reference pressure of
+    μ(p_k)·(Σ Q of the branches leaving k − Σ Q of those entering k), with the branch flows ``flow`` [m³/s].
+
+    The branch powers Q·(μ_from − μ_to) sum to Σ over all nodes of μ·(net outflow); over the free nodes that is the
+    change of their stored oil energy, so the fixed nodes' share is the work they supply (zero for a tank at the
+    reference pressure, where μ = 0).  A rigid actuator's chambers are fixed nodes at the reference: none."""
+    fixed = np.asarray(model.node_fixed, bool) & (model.node_fixed_pressure != model.fluid.reference_pressure)
+    if not fixed.any():
+        return 0.0
+    mu = np.where(fixed, model.fluid.pressure_potential(np.where(fixed, model.node_fixed_pressure,
+                                                                 model.fluid.reference_pressure)), 0.0)
+    flow = np.asarray(flow, float)
+    return float(flow @ mu[model.branch_from] - flow @ mu[model.branch_to])

@@ -102,6 +102,16 @@ class _UnionFind:
             self.parent[max(ra, rb)] = min(ra, rb)
 
 
+def _fixed(component) -> bool:
+    """Whether a component makes its one net a fixed node: its parameters have ``fixed_pressure(fluid)`` [Pa]."""
+    return hasattr(component.params, "fixed_pressure")
+
+
+def fixed_pressure_components(circuit: Circuit) -> list:
+    """The components that hold their net at a fixed pressure (tanks, pressure sources), in circuit order."""
+    return [c for c in circuit.components if _fixed(c)]
+
+
 def prune(circuit: Circuit, drives=None):
     """Drop components that no cylinder or motor reaches through shared nets (tank nets do not connect); a circuit
     without any cylinder or motor (a test rig) is kept whole.
@@ -113,7 +123,7 @@ def prune(circuit: Circuit, drives=None):
     hanging off the supply net) are dropped whole.
     Returns the reduced circuit and the names of the dropped components.
     """
-    tank_nets = {c.ports["port"] for c in circuit.by_kind("tank")}
+    tank_nets = {c.ports["port"] for c in fixed_pressure_components(circuit)}
     if drives is not None:
         circuit, dropped = _prune_undriven(circuit, set(drives), tank_nets)
         circuit, rest = prune(circuit)
@@ -136,7 +146,7 @@ def prune(circuit: Circuit, drives=None):
                     reached.add(other.name)
                     frontier.append(other)
     keep_tanks = {net for c in circuit.components if c.name in reached for net in c.ports.values()}
-    kept = tuple(c for c in circuit.components if c.name in reached or (c.kind == "tank" and c.ports["port"] in keep_tanks))
+    kept = tuple(c for c in circuit.components if c.name in reached or (_fixed(c) and c.ports["port"] in keep_tanks))
     pruned = tuple(c.name for c in circuit.components if c not in kept)
     if not pruned:
         return circuit, ()
@@ -164,7 +174,7 @@ def _prune_undriven(circuit: Circuit, drives: set, tank_nets: set):
                 uf.union(members[0], other)
         parts = {}
         for c in circuit.components:
-            if c.kind != "tank":
+            if not _fixed(c):
                 parts.setdefault(uf.find(index[c.name]), []).append(c.name)
         for names in parts.values():
             if set(names) & gone and not set(names) & (actuators - gone):
@@ -449,11 +459,12 @@ class NetworkModel:
         def node(c, port):
             return net_node[c.ports[port]]
 
-        for c in circuit.by_kind("tank"):
-            k = node(c, "port")
-            if fixed[k] and fixed_p[k] != c.params.pressure:
-                raise CircuitError(f"{circuit.source}: component '{c.name}': net '{c.ports['port']}' joins two tanks at different pressures")
-            fixed[k], fixed_p[k] = True, c.params.pressure
+        for c in fixed_pressure_components(circuit):
+            k, pressure = node(c, "port"), c.params.fixed_pressure(circuit.fluid)
+            if fixed[k] and fixed_p[k] != pressure:
+                raise CircuitError(f"{circuit.source}: component '{c.name}': net '{c.ports['port']}' joins two tanks or "
+                                   "pressure sources at different pressures")
+            fixed[k], fixed_p[k] = True, pressure
         # rigid actuators (incompressible among compressible ones): their chamber nets hold no pressure state
         rigid_node = {}  # node -> name of the rigid actuator whose chamber (or motor port) it is
         if network_fidelity != "incompressible":

@@ -295,8 +295,10 @@ def test_fast_plant_matches_python_plant_for_the_other_couplings(case):
         np.testing.assert_array_equal(fast.model.actuator_forcelimited, reference.model.actuator_forcelimited)
         np.testing.assert_allclose(fast.model.actuator_forcerange, reference.model.actuator_forcerange, rtol=1e-9,
                                    atol=1e-9 * (np.abs(reference.model.actuator_forcerange).max() + 1.0))
+        # (a stalled tracker keeps its force at the start speed TRACKER_BOUND_MARGIN inside its bound, so MuJoCo keeps
+        # its implicit term: the stalled boom creeps at 1 mm/s with its force within 3e-5 of the bound)
         clamped |= bool(np.any(reference.model.actuator_forcelimited)) and bool(np.any(
-            np.isclose(reference.effort, reference.model.actuator_forcerange[reference.binding.actuator_id].T, rtol=1e-12)))
+            np.isclose(reference.effort, reference.model.actuator_forcerange[reference.binding.actuator_id].T, rtol=1e-4)))
     if case == "push/incompressible":
         assert clamped  # the boom stalls at its bound
     assert np.any(fast.data.qvel != 0)

@@ -103,11 +103,10 @@ def test_incompressible_stalls_at_pressure_limit_when_bucket_pushes_into_ground(
 
 
 def test_incompressible_dig_cycle_is_stable_at_30_hz(tmp_path):
-    """The whole dig-and-dump cycle at a 30 Hz frame rate: no NaN, forces within the relief limits.  (The plausibility
-    monitor is off: at this frame MuJoCo's soft joint limits let the bucket go 0.27 rad past its range, which stops the
-    run at 2.1 s.)"""
+    """The whole dig-and-dump cycle at a 30 Hz frame rate completes with the plausibility monitor on (strokes, joint
+    ranges, pressures, energy residual): no NaN, pressures within the relief limits."""
     result = run(MODELS / "excavator" / "dig.scenario.toml", out=tmp_path / "dig30.mcap",
-                 overrides={"fidelity": "incompressible", "dt": 1 / 30, "monitor": False})
+                 overrides={"fidelity": "incompressible", "dt": 1 / 30})
     assert result.status == "complete" and result.simulated_time == pytest.approx(20.0)
     log = read_log(result.log_path)
     circuit = load_circuit(MODELS / "excavator" / "excavator.circuit.toml")

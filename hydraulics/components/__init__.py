@@ -29,6 +29,7 @@ from .orifice import Orifice
 from .parameters import CircuitError, check_number, describe_range, param
 from .pilot_check import PilotCheckValve
 from .pressure_reducing import PressureReducingValve
+from .pressure_source import PressureSource
 from .pump_load_sensing import PumpLoadSensing
 from .pumps import PumpCompensated, PumpFixed
 from .relief import ReliefValve
@@ -56,6 +57,7 @@ COMPONENT_TYPES = {
     "counterbalance_valve": CounterbalanceValve,
     "pressure_reducing_valve": PressureReducingValve,
     "flow_control_valve": FlowControlValve,
+    "pressure_source": PressureSource,
     "relief_valve_poppet": ReliefPoppet,
     "pump_load_sensing": PumpLoadSensing,
     "pressure_compensator": PressureCompensator,

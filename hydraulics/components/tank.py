@@ -20,3 +20,7 @@ class Tank:
     pressure: float = param("Pa", low=0.0, high=1e8, low_open=False, default=1.01325e5)
     """Absolute pressure [Pa]."""
     PORTS = ("port",)
+
+    def fixed_pressure(self, fluid) -> float:
+        """Absolute pressure [Pa] the network holds its net at (a component with this method is a fixed node)."""
+        return self.pressure

@@ -110,7 +110,11 @@ class PlantBase:
         return self.data.qpos, self.data.qvel
 
     def _account(self, report, velocity, dt) -> None:
-        """Add one step's pump work, hydraulic and friction losses to the ledger."""
+        """Add one step's pump work, hydraulic and friction losses to the ledger (at the ``incompressible`` level:
+        the work of the applied efforts as supplied work, :func:`hydraulics._compiled._account_rigid_oil`)."""
+        if getattr(self.coupling, "name", "") == "incompressible":
+            self.energy.pump_work += dt * float(np.asarray(self.effort, float) @ velocity)
+            return
         net = self.network
         powers = branch_powers(net, self.net_state, report.branch_flow)
         e = self.energy

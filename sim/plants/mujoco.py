@@ -31,6 +31,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from hydraulics import _compiled_rigid as K
 from hydraulics.coupling import SCHEME_ROSENBROCK, CouplingMixed, make_coupling, start_velocity_guess
 from hydraulics.steppers import StepStatus
 
@@ -158,19 +159,26 @@ class MujocoPlant(PlantBase):
         moment = self.moments().copy()
         # linearise at the start-of-step velocities, the best guess of v⁺ (fewer Newton iterations), where it is
         # a short chord (coupling.start_velocity_guess)
-        law = self.coupling.begin(self.net_state, self.control, x, v, dt, effective_mass=self.effective_mass(moment),
+        meff = self.effective_mass(moment)
+        law = self.coupling.begin(self.net_state, self.control, x, v, dt, effective_mass=meff,
                                   velocity_guess=start_velocity_guess(self.network, x, v, dt))
         ids = self.binding.actuator_id
-        d.ctrl[ids] = law.constant
-        m.actuator_biasprm[ids, 2] = law.slope
+        applied = (law.constant, law.slope, law.lower, law.upper)
+        if self.coupling.name == "incompressible":  # end stops: the end cap takes what pushes past an end
+            F, I = self.coupling.packed
+            applied = K.end_stop_hold_entry(F, I, self.coupling.table, np.asarray(x, float), np.asarray(v, float),
+                                            np.asarray(meff, float), float(dt), *applied)
+        d.ctrl[ids] = applied[0]
+        m.actuator_biasprm[ids, 2] = applied[1]
+        self._applied = (*applied, v)  # (the ledger's applied force)
         if law.lower is not None:
             # MuJoCo clamps within the step and keeps the implicit term only while unclamped:
             # exactly a velocity tracker that stalls at its force limit
             # (only actuators with finite bounds: the compressible ones of a mixed-fidelity network have none)
             bounded = np.isfinite(law.lower) | np.isfinite(law.upper)
             m.actuator_forcelimited[ids] = bounded
-            m.actuator_forcerange[ids, 0] = np.where(bounded, law.lower, 0.0)
-            m.actuator_forcerange[ids, 1] = np.where(bounded, law.upper, 0.0)
+            m.actuator_forcerange[ids, 0] = np.where(bounded, applied[2], 0.0)
+            m.actuator_forcerange[ids, 1] = np.where(bounded, applied[3], 0.0)
         mujoco.mj_step2(m, d)
         v_end = moment @ d.qvel
         x_end = self.end_position(x, v_end)
@@ -197,7 +205,16 @@ class MujocoPlant(PlantBase):
         return self.actuator_motion()[0]
 
     def _account(self, report, velocity, dt) -> None:
-        super()._account(report, velocity, dt)
+        if self.coupling.name == "incompressible":  # rigid oil: the work of the forces MuJoCo applied is the supplied work
+            c, k, lo, hi, start = self._applied
+            force = c + k * velocity
+            if lo is not None:  # (MujocoPlantFast._applied_power)
+                at_start = c + k * start
+                clamped = (at_start <= lo) | (at_start >= hi)  # (MuJoCo: a force at its bound counts as clamped)
+                force = np.where(clamped, np.clip(at_start, lo, hi), force)
+            self.energy.pump_work += dt * float(force @ velocity)
+        else:
+            super()._account(report, velocity, dt)
         d = self.data
         self.energy.dissipated_mechanical -= dt * float((d.qfrc_passive + d.qfrc_constraint) @ d.qvel)
 

@@ -13,8 +13,11 @@ from the network's own positions at the held start velocities.
 ``incompressible``: the law of :func:`hydraulics._compiled_rigid.incompressible_law`,
 its bounds written to MuJoCo's ``actuator_forcerange`` (``actuator_forcelimited``
 where finite, as :meth:`MujocoPlant.step` does: MuJoCo clamps within its step),
-and the finish :func:`hydraulics._compiled_rigid.incompressible_finish`
-(pressures derived from the clamped effort).
+at an end of the stroke as :func:`hydraulics._compiled_rigid.end_stop_hold` applies
+it (the end cap takes what pushes past the end), and the finish
+:func:`hydraulics._compiled_rigid.incompressible_finish` (pressures derived from
+the hydraulic law's clamped effort); the ledger's supplied work is that of the
+forces MuJoCo applied (``_applied_power``).
 
 MuJoCo calls the control callback once per ``mj_step``, after positions,
 velocities, actuator lengths/moments and the factorised mass matrix are
@@ -494,7 +497,10 @@ def _finish_pending(ctx, pnet, V, T, R):
     for i in range(na):  # (bounds ±inf but for the incompressible law)
         effort[i] = C._clip(const[i] + slope[i] * v_end[i], V.lower[i], V.upper[i])
     # energy ledger (PlantBase._account, MujocoPlant._account); xe, ve are free again
-    C._account(pnet, fs, FS_PUMP, dt, pres, flow_out, v_end, V.quad, mu, xe, ve)
+    if kind == KIND_INCOMPRESSIBLE:  # rigid oil: the work of the forces MuJoCo applied is the supplied work
+        fs[FS_PUMP] += dt * _applied_power(ctx, V, v_end)
+    else:
+        C._account(pnet, fs, FS_PUMP, dt, pres, flow_out, v_end, V.quad, mu, xe, ve)
     if R.actuator.size:  # rigid branches (PlantBase._account): their delivery less the hydraulic force's work
         K.rigid_account(pnet, R, fs, FS_PUMP, dt, flow_out, mu, effort, xe, v_end)
     passive, constraint = V.passive_saved, V.constraint
@@ -517,6 +523,28 @@ def _prepare(ctx, V):
         adr = rowadr[aid]
         for q in range(rownnz[aid]):
             J[i, colind[adr + q]] = moment[adr + q]
+
+
+@_kernel
+def _applied_power(ctx, V, v_end):
+    """Σ F·v⁺ [W] of the forces MuJoCo applied over the step just taken (its ctrl, bias slope and force range, still
+    those of that step): F = clip(c + k·v) when the force at the start velocity v was at or beyond a bound (MuJoCo
+    then drops the implicit term), else c + k·v⁺ (the implicit term taken at the end velocity).  At the ``incompressible`` level the
+    hydraulic effort is that law clipped at v⁺; the two differ where MuJoCo's implicit term passes a bound."""
+    act, ctrl, bias, vs = V.act, V.ctrl, V.bias, V.vs
+    nbias = ctx[C_NBIAS]
+    power = 0.0
+    for i in range(v_end.size):
+        a = act[i]
+        c, k = ctrl[a], bias[a * nbias + 2]
+        force = c + k * v_end[i]
+        if V.flimited[a]:
+            lo, hi = V.frange[2 * a], V.frange[2 * a + 1]
+            start = c + k * vs[i]
+            if start <= lo or start >= hi:  # (MuJoCo's own test: a force at its bound counts as clamped)
+                force = C._clip(start, lo, hi)
+        power += force * v_end[i]
+    return power
 
 
 @_kernel
@@ -611,6 +639,13 @@ def _begin(ctx, pnet, V, T, R):
         for i in range(na):
             ctrl[act[i]] = const[i]
             bias[act[i] * ctx[C_NBIAS] + 2] = slope[i]
+        if kind == KIND_INCOMPRESSIBLE:  # end stops: the end cap takes what pushes past an end (V keeps the hydraulic law)
+            for i in range(na):
+                c, s, lo, hi = K.end_stop_hold(pnet, T, i, (xs, vs), meff, dt, (const[i], slope[i]), (V.lower[i], V.upper[i]))
+                ctrl[act[i]] = c
+                bias[act[i] * ctx[C_NBIAS] + 2] = s
+                V.frange[2 * act[i]] = lo
+                V.frange[2 * act[i] + 1] = hi
         C._copy(V.passive_saved, V.passive)
         ctx[C_PENDING] = 1
         return

@@ -291,7 +291,10 @@ def _finish_core(pnet, buffers, control, motion, h, coupling, effort):
         if R.actuator.size:  # CouplingMixed.finish: rigid chambers carry the clamped effort less friction
             K.rigid_finish(pnet, R, (const, slope), (lower, upper), v_end, pres, W[:3 * na])
     # energy ledger (PlantBase._account, energy.branch_powers) at the state's pressures
-    C._account(pnet, ledger, L_PUMP, h, pres, flow, v_end, quad, mu, fric, dv)
+    if kind == KIND_INCOMPRESSIBLE:  # rigid oil: the efforts' work is the supplied work
+        C._account_rigid_oil(ledger, L_PUMP, h, effort, v_end)
+    else:
+        C._account(pnet, ledger, L_PUMP, h, pres, flow, v_end, quad, mu, fric, dv)
     if R.actuator.size:
         K.rigid_account(pnet, R, ledger, L_PUMP, h, flow, mu, effort, fric, v_end)
 

@@ -842,8 +842,8 @@ class _Loop:
         if batch is None:
             return True
         bad = None
-        # (no energy terms without oil; a pressure source's work is not metered: sim.run.monitor.energy_unmetered)
-        if check and plant.coupling.name != "incompressible" and not self.monitor.sources:
+        # (no energy terms without oil; a pressure source's work counts as pump work: hydraulics.energy.source_power)
+        if check and plant.coupling.name != "incompressible":
             e = plant.energy
             gained = batch["kinetic"] + batch["potential"] + batch["oil"] - e.initial_total
             allowed = ENERGY_GROWTH_LIMIT * (abs(e.initial_total) + batch["pump_work"]) + ENERGY_GROWTH_FLOOR

@@ -51,12 +51,16 @@ def free_speed(drive, resist):
         return np.sqrt(np.abs(drive) / resist)
 
 
+TRACKER_BOUND_MARGIN = 1.0 - 1e-9  # the lowered gain keeps F at ``velocity`` this factor inside its bound
+
+
 def bounded_tracker(target, velocity, gain, lower, upper):
-    """F = K·(target − v⁺), K lowered so F at ``velocity`` stays within [lower, upper]: (constant, slope)."""
+    """F = K·(target − v⁺), K lowered so F at ``velocity`` stays (a factor TRACKER_BOUND_MARGIN) inside [lower, upper]:
+    (constant, slope)."""
     error = target - velocity
     bound = np.where(error >= 0, upper, -lower)
     with np.errstate(divide="ignore", invalid="ignore"):
-        gain = np.where(np.abs(error) > 0, np.clip(bound / np.abs(error), 0.0, gain), gain)
+        gain = np.where(np.abs(error) > 0, np.clip(TRACKER_BOUND_MARGIN * bound / np.abs(error), 0.0, gain), gain)
     return gain * target, -gain
 
 
