@@ -778,8 +778,10 @@ def _lu_solve(a, b):
 
 
 @_kernel
-def _evaluate(pnet, oil, oil0, x, v, area, state, speed, h, geo, p, dpdm, flow, dflow, inflow, residual):
-    # pressures, ∂p/∂m, branch flows and the backward-Euler residual r = m − m₀ − h·ΣQ(p(m, x), v) (free nodes)
+def _evaluate(pnet, oil, oil0, x, v, components, speed, h, geo, p, dpdm, flow, dflow, inflow, residual):
+    # pressures, ∂p/∂m, branch flows and the backward-Euler residual r = m − m₀ − h·ΣQ(p(m, x), v) (free nodes);
+    # components: (the valves' open areas, the component states)
+    area, state = components
     _pressure(pnet, oil, x, geo, p, dpdm)
     _evaluate_flows(pnet, oil, oil0, v, area, state, speed, h, p, flow, dflow, inflow, residual)
 
@@ -938,7 +940,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out,
     rhs = 0
     jacobians = 0
     iterations = 0
-    _evaluate(pnet, oil, oil0, x, v, area, spool, speed, h, geo, p, dpdm, flow, dflow, inflow, residual)
+    _evaluate(pnet, oil, oil0, x, v, (area, spool), speed, h, geo, p, dpdm, flow, dflow, inflow, residual)
     _copy(p_first, p)
     rhs += 1
     for j in range(nf):
@@ -963,7 +965,7 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out,
             _copy(t_oil, oil)
             for j in range(nf):
                 t_oil[free[j]] = oil[free[j]] + step * delta[j, 0]
-            _evaluate(pnet, t_oil, oil0, x, v, area, spool, speed, h, geo, t_p, t_dpdm, t_flow, t_dflow, inflow,
+            _evaluate(pnet, t_oil, oil0, x, v, (area, spool), speed, h, geo, t_p, t_dpdm, t_flow, t_dflow, inflow,
                       t_residual)
             rhs += 1
             t_norm = _scaled_norm(t_residual, scale)
@@ -1277,7 +1279,7 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
         _copy(dpdm, dpdm_known)
         _evaluate_flows(pnet, oil0, oil0, velocity, area, spool, speed, dt, p_first, flow, dflow, inflow, residual)
     else:
-        _evaluate(pnet, oil0, oil0, x0, velocity, area, spool, speed, dt, geo, p_first, dpdm, flow, dflow, inflow,
+        _evaluate(pnet, oil0, oil0, x0, velocity, (area, spool), speed, dt, geo, p_first, dpdm, flow, dflow, inflow,
                   residual)
     _position_pressure_gradient(pnet, x0, geo, p_first, dpdm, dt, dvdx, dpdx_dt)
     _flow_jacobian(pnet, dflow, jq)

@@ -271,7 +271,7 @@ def test_law_pieces_compiled_matches_pure(name):
         pa = rng.uniform(1e5, 4e7, m.node_count)
         pb = pa + rng.choice([0.0, 1.0, 1e3, 1e6, -1e6, 2e7], m.node_count)
         expected = bool(np.array_equal(m.law_pieces(pa), m.law_pieces(pb)))
-        assert _same_law_pieces(net, pa, pb) == expected
+        assert _same_law_pieces(net, pa, pb, m.component_state_start.copy(), 0.0) == expected
         changed, same = changed + (not expected), same + expected
     assert changed > 50 and same > 20  # both outcomes exercised
 
