@@ -642,6 +642,9 @@ class NetworkModel:
             state_names.extend(f"{c.name}.{name}" for name in own)
             state_units.extend(law_class.STATE_UNITS if own else ())
             state_start.extend(c.params.state_start() if own else ())
+            if own and network_fidelity == "incompressible":
+                raise CircuitError(f"{circuit.source}: component '{c.name}' (type '{c.kind}') has states of its own "
+                                   f"{list(own)}, which the 'incompressible' level does not step; use 'compressible'")
             row = np.zeros(LAW_WIDTH)
             values = c.params.law_row(circuit.fluid)
             row[:len(values)] = values

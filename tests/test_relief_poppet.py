@@ -111,6 +111,11 @@ def test_kink_hook_tells_seat_moving_and_stop_apart():
     assert pieces == [3, 4, 5]
 
 
+def test_incompressible_level_refuses_a_component_with_states():
+    with pytest.raises(ValueError, match="component 'relief'.*states of its own.*'incompressible'"):
+        NetworkModel.from_circuit(RIG, fidelity="incompressible")
+
+
 def test_full_open_pressure_must_exceed_cracking():
     with pytest.raises(ValueError, match="full_open_pressure"):
         poppet(full_open_pressure=9e6).check("c.toml: component 'relief'")

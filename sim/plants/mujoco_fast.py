@@ -58,7 +58,7 @@ thin ``cfunc`` around :func:`_coupled_step` compiled with ``cache=True``: it
 bakes in no process-specific address — the pointer table is the external
 symbol ``CTX_SYMBOL`` and ``mj_solveM`` the external function
 ``SOLVEM_SYMBOL``, both registered with ``llvmlite.binding.add_symbol`` before
-the callback is loaded — so numba's disk cache (``sim/__pycache__``) holds it
+the callback is loaded — so numba's disk cache (the keyed folder of :mod:`hydraulics.kernel_cache`) holds it
 and a new process loads it in milliseconds instead of compiling it (≈ 3 s the
 first time after a change of this file or of the hydraulic kernel sources, ``hydraulics._jit.SOURCES``).
 numba keys a cached function by its own file only, so the callback carries a
@@ -834,7 +834,7 @@ def _mj_solveM_address():
 def callback():
     """The numba ``cfunc`` (MuJoCo ``mjfGeneric``) that couples one step.
 
-    Loaded from numba's disk cache (``__pycache__``), or compiled on first use
+    Loaded from numba's disk cache (:mod:`hydraulics.kernel_cache`), or compiled on first use
     (≈ 3 s, once per change of this file or of :mod:`hydraulics._compiled`).
     """
     global _CALLBACK, _CALLBACK_POINTER
