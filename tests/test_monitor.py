@@ -13,6 +13,7 @@ from sim.io.mcap_log import read_log
 from sim.io.scenario import ScenarioError, load_scenario
 from sim.run import monitor as M
 from sim.run.runner import run
+from reference.scenes import vertical_lift
 
 BOOM = MODELS / "boom"
 
@@ -308,28 +309,7 @@ def test_a_start_pose_inside_the_ground_is_refused_before_the_oil_is_driven_to_m
 
 
 # ------------------------------------------------------------------------ consistent tolerances
-LOAD_MJCF = """<mujoco model="load">
-  <compiler angle="radian" autolimits="false"/>
-  <option timestep="0.001" integrator="implicitfast" gravity="0 0 -9.81"/>
-  <worldbody>
-    <site name="lift_barrel" pos="0 0 0" size="0.01"/>
-    <body name="load" pos="0 0 0">
-      <joint name="z" type="slide" axis="0 0 1" limited="true" range="0.5 1.0"/>
-      <inertial pos="0 0 0" mass="10" diaginertia="0.01 0.01 0.01"/>
-      <site name="lift_rod" pos="0 0 0" size="0.01"/>
-    </body>
-  </worldbody>
-  <tendon>
-    <spatial name="lift" limited="true" range="0.5 1.0">
-      <site site="lift_barrel"/>
-      <site site="lift_rod"/>
-    </spatial>
-  </tendon>
-  <actuator>
-    <general name="lift" tendon="lift" ctrllimited="false" gaintype="fixed" gainprm="1" biastype="affine" biasprm="0 0 0"/>
-  </actuator>
-</mujoco>
-"""
+LOAD_MJCF = vertical_lift(mass=10.0)
 
 
 def _load_scene(tmp_path, *, start: float, mode: str, circuit: str | None = None):

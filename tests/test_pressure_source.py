@@ -23,6 +23,7 @@ from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 from sim.run import monitor as M
 from sim.run.runner import make_plant, run
+from reference.scenes import vertical_lift
 
 MASS = 200.0  # kg
 BORE = 0.05  # m
@@ -31,28 +32,7 @@ ORIFICE = 2.0e-6  # m²
 CD = 0.7
 G = 9.81
 
-MJCF = f"""<mujoco model="source_lift">
-  <compiler angle="radian" autolimits="false"/>
-  <option timestep="0.001" integrator="implicitfast" gravity="0 0 -{G}"/>
-  <worldbody>
-    <site name="lift_barrel" pos="0 0 0" size="0.01"/>
-    <body name="load" pos="0 0 0">
-      <joint name="z" type="slide" axis="0 0 1" limited="true" range="0.5 1.0"/>
-      <inertial pos="0 0 0" mass="{MASS}" diaginertia="0.1 0.1 0.1"/>
-      <site name="lift_rod" pos="0 0 0" size="0.01"/>
-    </body>
-  </worldbody>
-  <tendon>
-    <spatial name="lift" limited="true" range="0.5 1.0">
-      <site site="lift_barrel"/>
-      <site site="lift_rod"/>
-    </spatial>
-  </tendon>
-  <actuator>
-    <general name="lift" tendon="lift" ctrllimited="false" gaintype="fixed" gainprm="1" biastype="affine" biasprm="0 0 0"/>
-  </actuator>
-</mujoco>
-"""
+MJCF = vertical_lift(mass=MASS, inertia=0.1, gravity=G)
 
 CIRCUIT = f"""[fluid]
 density = 870.0
