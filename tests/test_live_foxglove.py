@@ -66,9 +66,11 @@ class Client:
             for channel in body["channels"]:
                 self.channels[channel["topic"]] = channel
 
-    def pump(self, idle: float = 0.05) -> None:
-        """Handle every message that arrives until none has for ``idle`` seconds."""
-        while True:
+    def pump(self, idle: float = 0.05, limit: float = 0.5) -> None:
+        """Handle every message that arrives until none has for ``idle`` seconds, or for ``limit`` seconds at most (a
+        stream faster than 1/``idle`` would otherwise keep the caller from ever checking what it waits for)."""
+        end = time.monotonic() + limit
+        while time.monotonic() < end:
             try:
                 self.handle(self.ws.recv(timeout=idle))
             except TimeoutError:
