@@ -197,8 +197,11 @@ class RunRecorder:
             first = block[name].start + index * width
             return np.arange(first, first + width)
 
-        self.joints = frame.joint_states_channel("/hydroplant/joint_states", plant.joint_names,
-                                                 columns=np.arange(block["joints"].start, block["joints"].stop), metadata=si)
+        self.joints = (  # a scene without joints (a test bench of the circuit alone) has no joint states
+            frame.joint_states_channel("/hydroplant/joint_states", plant.joint_names,
+                                       columns=np.arange(block["joints"].start, block["joints"].stop), metadata=si)
+            if nj else None
+        )
         def per_item(kind, schema, fields, names):
             """One channel /hydroplant/<kind>/<name> per named item, on its columns of block ``kind``."""
             return [frame.channel(f"/hydroplant/{kind}/{name}", schema, fields=list(fields),
@@ -229,8 +232,9 @@ class RunRecorder:
         self.solver = frame.channel("/hydroplant/solver", SOLVER, fields=list(SOLVER_FIELDS),
                                     columns=columns("solver", 0, len(SOLVER_FIELDS)), metadata=si)
         self.events = log.channel("/hydroplant/events", "foxglove.Log", log_schema())
-        self.tf = FrameTransformsChannel(log, plant.model)
-        frame.adopt(self.tf.channel, np.arange(block["xpos"].start, block["xquat"].stop), every=tf_every)
+        self.tf = FrameTransformsChannel(log, plant.model) if nbody > 1 else None  # the world alone moves nowhere
+        if self.tf is not None:
+            frame.adopt(self.tf.channel, np.arange(block["xpos"].start, block["xquat"].stop), every=tf_every)
         log_scene(log, plant.model)
         self.cylinder_scene = CylinderScene(frame, pins, block["cylinder_scene"], every=tf_every) if ncyl else None
         # index arrays of the samples (one numpy gather per topic family, no per-field Python)

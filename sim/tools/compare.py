@@ -469,15 +469,16 @@ COLORS = ("tab:blue", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pi
 
 
 def overlay_figure(ref_log, comparisons: list, path, *, title: str = "", max_cylinders: int = 3) -> Path:
-    """Reference vs every run: stroke and cap pressure of each cylinder over time (the seed's Figure 4)."""
+    """Reference vs every run: stroke and cap pressure of each cylinder over time (the seed's Figure 4); without
+    cylinders the joints, or a test bench's node pressures."""
     plt = _pyplot()
     ref = log_signals(ref_log)
     runs = [(c.label, log_signals(read_log(c.log_path)), c) for c in comparisons]
     cylinders = [n.removeprefix("stroke ") for n in ref if n.startswith("stroke ")][:max_cylinders]
     panels = [(f"stroke {c}", f"p_cap {c}") for c in cylinders]
-    if not panels:  # no cylinder: joints
-        joints = [n for n in ref if n.startswith("joint ")][:2 * max_cylinders]
-        panels = [tuple(joints[i:i + 2]) for i in range(0, len(joints), 2)]
+    if not panels:  # no cylinder: joints, or on a test bench the node pressures
+        shown = [n for n in ref if n.startswith(("joint ", "p "))][:2 * max_cylinders]
+        panels = [tuple(shown[i:i + 2]) for i in range(0, len(shown), 2)]
     rows = len(panels)
     fig, axes = plt.subplots(rows, 2, figsize=(10, 2.4 * rows + 1.0), squeeze=False, sharex=True, layout="constrained")
     for r, names in enumerate(panels):

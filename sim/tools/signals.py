@@ -32,6 +32,7 @@ KIND_DISPLAY = {"joint": (1e3, "mrad or mm"), "stroke": (1e3, "mm"), "pressure":
 JOINT_TOPIC = "/hydroplant/joint_states"
 CYLINDER_PREFIX = "/hydroplant/cylinders/"
 MOTOR_PREFIX = "/hydroplant/motors/"
+NODE_TOPIC = "/hydroplant/nodes"
 ENERGY_TOPIC = "/hydroplant/energy"
 TIME_MATCH_NS = 1000  # sample times closer than this [ns] count as the same instant
 DEFAULT_FILTER_WINDOW = 0.1  # s: window of the moving-average (filtered) error metric
@@ -65,7 +66,9 @@ class Signal:
 
 
 def log_signals(log) -> dict[str, Signal]:
-    """The compared signals of a run log (a path or a :class:`sim.io.mcap_log.RunLog`)."""
+    """The compared signals of a run log (a path or a :class:`sim.io.mcap_log.RunLog`): joint positions, cylinder
+    strokes and chamber pressures, motor port pressures; for a scene without any of these (a circuit on a test bench)
+    the node pressures."""
     if not hasattr(log, "topic"):
         log = read_log(log)
     out: dict[str, Signal] = {}
@@ -89,6 +92,12 @@ def log_signals(log) -> dict[str, Signal]:
             for label, column in (("p_a", "p_a_pa"), ("p_b", "p_b_pa")):
                 if column in data.fields:
                     out[f"{label} {motor}"] = Signal(f"{label} {motor}", "pressure", data.t, data[column])
+    if not out and NODE_TOPIC in log:  # a test bench of the circuit alone: its node pressures are what it shows
+        nodes = log.topic(NODE_TOPIC)
+        for name in nodes.fields:
+            if name.startswith("pressure_pa."):
+                node = name.removeprefix("pressure_pa.")
+                out[f"p {node}"] = Signal(f"p {node}", "pressure", nodes.t, nodes[name])
     return out
 
 
