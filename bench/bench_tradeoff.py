@@ -1,6 +1,6 @@
 """Accuracy against cost on the seed cylinder and the excavator approach: compare + tradeoff, printed.
 
-    python bench/bench_tradeoff.py [--full] [--docs] [--scenes seed,excavator] [--no-compare]
+    python bench/bench_tradeoff.py [--full] [--docs] [--scenes seed,excavator,excavator_ls] [--no-compare]
                                    [--scheduler tcp://host:port] [--workers N]
 
 1. Seed cylinder (the seed report's Figure 3 scene), 0.1 s at the seed's 1200 Hz: the converged
@@ -15,6 +15,10 @@
    0.1 s moving averages (:data:`FULL_DIG_TOLERANCE`, ladder from :data:`FULL_DIG_START_DT`),
    runs :data:`FULL_DIG_RUNS` (MuJoCo implicit / implicit-linear / rosenbrock / explicit at 1 ms, PBD at
    60 Hz × 10 and × 40 substeps and 1 kHz × 20, ``incompressible`` at 1/30 s in both modes).
+2c. ``--full-dig`` with the scene ``excavator_ls``: the load-sensing excavator's dig (``dig_ls``, the same spool
+   commands on the load-sensing circuit) compared the same way over its whole 20 s (:data:`LS_DIG_RUNS`: MuJoCo
+   implicit and implicit-linear at 1 ms, PBD at 1 kHz with the scenario's 20 substeps and at 60 Hz × 40); it has no
+   trade-off sweep.
 3. The tradeoff sweep of both (``--full``: every setting of :func:`sim.tools.tradeoff.sweep_settings`,
    3 timed runs each, fidelity levels included (``incompressible`` at a frame-rate step, ``lines``);
    default: the quick sweep, with ``incompressible`` at dt0 and ≈ 1/30 s).
@@ -45,6 +49,7 @@ from sim.tools.sweep import Cluster  # noqa: E402
 
 SEED = ROOT / "models/seed_cylinder/closed.scenario.toml"
 DIG = ROOT / "models/excavator/dig.scenario.toml"
+DIG_LS = ROOT / "models/excavator/dig_ls.scenario.toml"
 DIG_DURATION = 1.75  # s: up to just after the first contact (see the module docstring)
 DOCS = ROOT / "docs/figures"
 FULL_DIG_WINDOW = 0.1  # s: the reference of the full dig is proven on moving averages over this window
@@ -65,15 +70,24 @@ FULL_DIG_RUNS = {  # label -> (mode, coupling, overrides)
     "pbd-incompressible-30Hz": ("pbd", "implicit", {"dt": 1 / 30, "pbd_substeps": 10, "fidelity": "incompressible"}),
 }
 
+LS_DIG_RUNS = {  # the load-sensing excavator's runs against its reference (label -> mode, coupling, overrides)
+    "mujoco-implicit-1ms": ("mujoco", "implicit", {"dt": 1e-3}),
+    "mujoco-implicit-linear-1ms": ("mujoco", "implicit-linear", {"dt": 1e-3}),
+    "pbd-1kHz": ("pbd", "implicit", {"dt": 1e-3}),
+    "pbd-60Hz-x40": ("pbd", "implicit", {"dt": 1 / 60, "pbd_substeps": 40}),
+}
 
-def full_dig_compare(out: Path):
-    """The excavator comparison over the whole dig (see the module docstring, 2b)."""
-    specs = [RunSpec(mode, coupling, label) for label, (mode, coupling, _) in FULL_DIG_RUNS.items()
+
+def full_dig_compare(out: Path, scenario: Path = DIG, runs: dict = FULL_DIG_RUNS):
+    """A dig's comparison over the whole cycle (see the module docstring, 2b and 2c): ``runs`` maps a label to
+    (mode, coupling, overrides)."""
+    specs = [RunSpec(mode, coupling, label) for label, (mode, coupling, _) in runs.items()
              if mode == "mujoco" or "pbd" in default_modes()]
-    return compare_runs(DIG, specs, out, tolerance=FULL_DIG_TOLERANCE, filter_window=FULL_DIG_WINDOW, progress=True,
+    return compare_runs(scenario, specs, out, tolerance=FULL_DIG_TOLERANCE, filter_window=FULL_DIG_WINDOW,
+                        progress=True,
                         reference_options={"start_dt": FULL_DIG_START_DT, "max_steps": FULL_DIG_MAX_STEPS},
-                        run_overrides={label: o for label, (_, _, o) in FULL_DIG_RUNS.items()},
-                        figure_runs=[label for label in FULL_DIG_RUNS if "incompressible" not in label])
+                        run_overrides={label: o for label, (_, _, o) in runs.items()},
+                        figure_runs=[label for label in runs if "incompressible" not in label])
 
 
 def main(argv=None) -> int:
@@ -83,7 +97,8 @@ def main(argv=None) -> int:
     parser.add_argument("--scheduler", help="Dask scheduler address (default: local process pool)")
     parser.add_argument("--workers", type=int, help="local worker processes (default: CPU count)")
     parser.add_argument("--out", type=Path, default=ROOT / "logs/bench-tradeoff")
-    parser.add_argument("--scenes", default="seed,excavator", help="comma-separated subset of seed, excavator")
+    parser.add_argument("--scenes", default="seed,excavator,excavator_ls",
+                        help="comma-separated subset of seed, excavator, excavator_ls (the last with --full-dig only)")
     parser.add_argument("--no-compare", action="store_true", help="only the tradeoff sweeps (no compare runs)")
     parser.add_argument("--full-dig", action="store_true", help="excavator compare over the whole 20 s dig "
                         "(reference on 0.1 s moving averages)")
@@ -96,21 +111,22 @@ def main(argv=None) -> int:
     if "pbd" not in modes:
         print("PBD plant not importable: comparing MuJoCo explicit and implicit only")
     outputs = {}
-    for name, scenario, duration in (("seed", SEED, None), ("excavator", DIG, DIG_DURATION)):
-        if name not in scenes:
+    for name, scenario, duration in (("seed", SEED, None), ("excavator", DIG, DIG_DURATION),
+                                     ("excavator_ls", DIG_LS, None)):
+        if name not in scenes or (name == "excavator_ls" and (args.no_compare or not args.full_dig)):
             continue
         started = time.perf_counter()
         out = None if args.no_compare else args.out / f"{name}-compare"
-        if out is not None and name == "excavator" and args.full_dig:
-            out = args.out / "excavator-compare-full"
-            result = full_dig_compare(out)
+        if out is not None and name.startswith("excavator") and args.full_dig:
+            out = args.out / f"{name}-compare-full"
+            result = full_dig_compare(out, scenario, LS_DIG_RUNS if name == "excavator_ls" else FULL_DIG_RUNS)
             print(f"\n## {name}: compare, full dig ({time.perf_counter() - started:.0f} s), reference {result.reference_text}")
             print(summary_table(result.comparisons))
         elif out is not None:
             result = compare_runs(scenario, parse_runs(modes), out, duration=duration, progress=True)
             print(f"\n## {name}: compare ({time.perf_counter() - started:.0f} s), reference {result.reference_text}")
             print(summary_table(result.comparisons))
-        if args.no_tradeoff:
+        if args.no_tradeoff or name == "excavator_ls":
             outputs[name] = (out, None)
             continue
         started = time.perf_counter()
