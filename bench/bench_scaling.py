@@ -15,7 +15,9 @@ window).  Each size N is timed in both modes from the scene's initial state over
 1 ms frames × 1 substep), ``--reps`` rounds, every size once per round in alternation (paired).  Printed: µs per
 step (median and quartiles over the rounds), µs per step and actuator, and the scaling exponent
 log(t(N₂)/t(N₁))/log(N₂/N₁) between consecutive sizes and over N = 4 → 32, from each round's pair (median and
-quartiles).  An exponent of 1 is a cost linear in the number of actuators.
+quartiles).  An exponent of 1 is a cost linear in the number of actuators.  Beside them, ``bare``: plain
+``mj_step`` on the same MJCF over the same window with the effort law of the MuJoCo plant's first step held as
+constant controls (as ``bench_fast.py``), MuJoCo's own share of MuJoCo mode's step.
 
     .venv/bin/python bench/bench_scaling.py [--sizes 1 2 4 8 16 32] [--reps 5] [--window 0.3] [--markdown]
 """
@@ -29,6 +31,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import mujoco
+
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 from sim.run.runner import block_steps, make_plant
@@ -36,6 +40,7 @@ from sim.run.runner import block_steps, make_plant
 DT = 1e-3  # s
 LAYOUTS = ("shared", "each")
 MODES = ("mujoco", "pbd")
+LABELS = {"mujoco": "MuJoCo mode", "pbd": "PBD mode", "bare": "bare `mj_step`"}
 
 _FLUID = """[fluid]
 density = 870.0
@@ -183,6 +188,18 @@ def time_run(scenario, steps: int) -> float:
     return (time.perf_counter() - start) / steps
 
 
+def time_bare(scenario, steps: int) -> float:
+    """Seconds per step of plain ``mj_step`` from the scenario's initial state with the MuJoCo plant's first effort
+    law held as constant controls (``bench_fast.bare_start``)."""
+    from bench_fast import bare_start
+
+    plant = make_plant(load_scene(scenario))
+    data = bare_start(plant)
+    start = time.perf_counter()
+    mujoco.mj_step(plant.model, data, nstep=steps)
+    return (time.perf_counter() - start) / steps
+
+
 def quartiles(values):
     """(lower quartile, median, upper quartile) of ``values``."""
     if len(values) < 2:
@@ -213,6 +230,8 @@ def measure(sizes, reps: int, window: float, modes=MODES, layouts=LAYOUTS):
         for _ in range(reps):
             for (mode, layout, n), scenario in scenarios.items():
                 times.setdefault((mode, layout), {}).setdefault(n, []).append(time_run(scenario, steps))
+                if mode == "mujoco":
+                    times.setdefault(("bare", layout), {}).setdefault(n, []).append(time_bare(scenario, steps))
     return times
 
 
@@ -240,7 +259,7 @@ def report(times, sizes, markdown: bool):
     head = ["mode", "pumps", *[f"N = {n}" for n in sizes]]
     print("| " + " | ".join(head) + " |\n|" + "---|" * len(head))
     for (mode, layout), by_size in times.items():
-        row = [mode, "one for all" if layout == "shared" else "one each"]
+        row = [LABELS.get(mode, mode), "one for all" if layout == "shared" else "one each"]
         row += [f"{statistics.median(by_size[n]) * 1e6:.0f} µs ({statistics.median(by_size[n]) * 1e6 / n:.1f}/boom)"
                 for n in sizes]
         print("| " + " | ".join(row) + " |")
@@ -248,7 +267,7 @@ def report(times, sizes, markdown: bool):
     head = ["mode", "pumps", *[f"{a} → {b}" for a, b in pairs]]
     print("| " + " | ".join(head) + " |\n|" + "---|" * len(head))
     for mode, layout, cells in lines:
-        print("| " + " | ".join([mode, "one for all" if layout == "shared" else "one each", *cells]) + " |")
+        print("| " + " | ".join([LABELS.get(mode, mode), "one for all" if layout == "shared" else "one each", *cells]) + " |")
 
 
 def main():
