@@ -67,6 +67,7 @@ def _time_piece(F, I, oil, x, v, spool, speed, piece, reps):
     flow, dflow = np.empty(nb), np.empty((nb, C._W_BR))  # flow derivatives: branches × terminals
     residual = np.empty(nf)
     jac = np.empty((nf, nf))
+    lu, saved = np.empty(net.ic[C.IC_NLU]), np.empty(net.ic[C.IC_NLU])
     rhs = np.empty((nf, 1 + na))
     C._valve_areas(pnet, spool, area)
     C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
@@ -100,11 +101,11 @@ def _time_piece(F, I, oil, x, v, spool, speed, piece, reps):
             C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
             check += residual[nf - 1] if nf else 0.0
         else:
-            C._newton_matrix(pnet, dflow, dpdm, DT, jac)
+            C._newton_values(pnet, dflow, dpdm, DT, lu)
             for i in range(nf):
                 for j in range(1 + na):
                     rhs[i, j] = residual[i] * (1.0 + j)
-            C._lu_solve(jac, rhs)
+            C._newton_solve(pnet, lu, saved, jac, rhs)
             check += rhs[nf - 1, 0] if nf else 0.0
     return check
 

@@ -106,6 +106,16 @@ BENCHES = (
           "over the run, log size. Target T5: memory flat over a 10-minute run."),
     Bench("bench_network", (), "The network alone",
           "One 1 ms step of the excavator circuit called from Python, per stepper (no MuJoCo)."),
+    Bench("bench_scaling", ("--reps", "5", "--markdown"), "Scaling in machine size",
+          "N independent booms (the shipped boom's mechanics, valve, hoses and cylinder, side by side), N = 1 … 32, "
+          "fed by one pump for all (the supply gallery joins every valve: the Newton matrix is an arrowhead) or by a "
+          "pump each (N decoupled blocks), in MuJoCo mode (implicit coupling) and PBD mode (1 ms frames × 1 substep), "
+          "0.3 s from rest with every valve opening, beside bare `mj_step` with the first step's effort law held "
+          "(MuJoCo's own share); 5 rounds, every size once per round. µs per step (median), per "
+          "boom in brackets, and the exponent of the cost in N between sizes, median [quartiles] over the rounds' "
+          "pairs: 1 is a cost linear in the number of actuators; below 1 at small N, the per-step overheads. Target: at most "
+          "1.1 from N = 4 to 32 (see [numerics.md](numerics.md#cost-in-machine-size)). Small N are at the noise floor "
+          "of a shared machine: read the exponents from N = 4."),
     Bench("bench_mujoco", (), "MuJoCo mode per step",
           "µs per coupled step of the per-step plant against bare `mj_step`, per scene and coupling."),
     Bench("bench_fidelity", (), "Fidelity levels",

@@ -55,8 +55,10 @@ here recompiles them.
 for s**0.25 and a**1.5 in the orifice laws; for pure oil (no entrained air) the compliant-node inversion
 solves ln(1 + V_wall(p)/V_g) + (p − p_rigid)/β = 0, which is ln(V·φ/m) = 0 rewritten with
 ln φ = (p − p_ref)/β and p_rigid = p_ref + β·ln(m/V_g) (one log1p per iteration instead of two logs and an
-exp); β_eff = V/(∂V/∂p + V/β) with φ cancelled; dense solves by Gaussian elimination with partial pivoting
-(:func:`_lu_solve`); net inflows and flow Jacobians scattered per branch.
+exp); β_eff = V/(∂V/∂p + V/β) with φ cancelled; the Newton matrix factored by Gaussian elimination over its
+sparse pattern (:func:`sparse_pattern`, :func:`_newton_solve`: the operations of dense elimination on the pattern's
+entries, falling back to dense elimination with partial pivoting, :func:`_lu_solve`, where that would exchange rows);
+net inflows and flow Jacobians scattered per branch.
 """
 
 from __future__ import annotations
@@ -110,6 +112,11 @@ from .components import BRANCH_LAWS, LAW_WIDTH, law_sources, law_states
 _FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "lam", "rel", "chk", "pump", "law", "rig")
 _INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act",
                "law_kind", "rig_i", "mot_br_i", "law_state", "valve_rate")
+# the sparse solves' index arrays (sparse_pattern)
+_SPARSE_FIELDS = ("lu_row", "lu_col", "lu_diag", "lu_ptr", "lu_later", "lu_lower", "lu_upper", "lu_update", "branch_lu",
+                  "branch_jq", "jq_ptr", "jq_col", "node_actuator_ptr", "node_actuator", "actuator_node_ptr",
+                  "actuator_node")
+_INT_FIELDS = _INT_FIELDS + _SPARSE_FIELDS
 _NFF = len(_FLOAT_FIELDS)
 _NIF = len(_INT_FIELDS)
 _Net = namedtuple("_Net", _FLOAT_FIELDS + _INT_FIELDS)
@@ -127,10 +134,10 @@ INT_LAYOUT = (("node_count", "free_count", "actuator_count", "branch_count", "cy
                "accumulator_count", "valve_count", "pump_count")
               + tuple(f"{kind}_{end}" for kind in BRANCH_KINDS for end in ("start", "stop"))
               + ("newton_max_iterations", "line_search_halvings", "inversion_max_iterations", "fill_max_iterations",
-                 "state_count"))
+                 "state_count", "lu_entry_count", "jq_entry_count", "sparse_factorisation"))
 (IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_NPUMP, IC_O0, IC_O1, IC_L0, IC_L1, IC_R0, IC_R1, IC_C0,
  IC_C1, IC_P0, IC_P1, IC_M0, IC_M1, IC_W0, IC_W1, IC_G0, IC_G1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX,
- IC_FILL_MAX, IC_NSTATE) = range(len(INT_LAYOUT))
+ IC_FILL_MAX, IC_NSTATE, IC_NLU, IC_NJQ, IC_SPARSE) = range(len(INT_LAYOUT))
 # node table columns
 NODE_COLUMNS = ("fixed_pressure", "volume", "wall_compliance")
 NODE_FIXED_P, NODE_VOLUME, NODE_WALL = range(len(NODE_COLUMNS))
@@ -156,7 +163,8 @@ _W_RIG, _W_RIG_I = len(RIGID_COLUMNS), len(RIGID_INDEX_COLUMNS)
 PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W_VALVE, ori=_W_ORI, lam=0, rel=_W_REL,
                      chk=_W_CHK, pump=_W_PUMP, law=_W_LAW, rig=_W_RIG, ic=0, fixed=0, free=0, free_index=0, compliant=0,
                      acc_node=0, cyl_i=_W_CI, mot_i=_W_MI, br=_W_BR, or_valve=0, mot_br_act=0, law_kind=0, rig_i=_W_RIG_I,
-                     mot_br_i=0, law_state=0, valve_rate=0)
+                     mot_br_i=0, law_state=0, valve_rate=0,
+                     **{name: 2 * _W_BR if name.startswith("branch_") else 0 for name in _SPARSE_FIELDS})
 """Row width of every packed field (0: a vector): the description :func:`pack_network` packs by and the views of
 ``_unpack`` are generated from."""
 
@@ -195,6 +203,114 @@ def elimination_order(model: NetworkModel) -> np.ndarray:
     return free[np.argsort(joined.sum(axis=1), kind="stable")]
 
 
+def sparse_pattern(model: NetworkModel, free: np.ndarray) -> dict:
+    """The symbolic analysis of the sparse Newton solves, done once when a network is packed: index arrays that
+    the kernels' numeric factorisation, solves and Jacobian products follow (no Python object in a kernel).
+
+    **Newton matrix.**  J = I − h·(∂Q/∂p)·diag(∂p/∂m) on the free nodes (numbered by ``free``, the order of
+    :func:`elimination_order`) has an entry (i, j) where a branch ends at node i and reads the pressure of node j
+    (its from, to or pilot terminal).  The pattern is made symmetric and eliminated symbolically in the order of the
+    numbering: eliminating node k joins its later neighbours ``U(k)`` = {j > k} into a clique (the fill-in).  The
+    values live in one compact array, ``lu_entry_count`` entries in the rows' order (``lu_row``, ``lu_col``); per
+    step k of the elimination the kernels read the positions of the column below the pivot (``lu_lower``), of the
+    row right of it (``lu_upper``), of the pivot (``lu_diag``) and of every updated entry (``lu_update``: |U(k)|²
+    positions, row by row).  Gaussian elimination over this pattern performs the operations of dense elimination
+    without pivoting, in the same order, minus those on structural zeros: Σₖ |U(k)|² updates instead of Σₖ (n − k)²,
+    O(n) on a circuit of many small blocks joined through one hub (a pump's supply gallery) numbered last.
+
+    **Flow Jacobian rows.**  ∂(net inflow)/∂p on the free rows (all node columns) in compact rows ``jq_ptr`` /
+    ``jq_col`` (columns ascending); ``branch_jq`` and ``branch_lu`` give each branch's six entries (rows to, from ×
+    terminal columns from, to, pilot) in the two arrays (−1: none).
+
+    **Actuator patterns.**  The nodes whose volume moves with an actuator (``node_actuator_ptr`` / ``node_actuator``:
+    a cylinder's chambers) and the nodes whose pressure pushes an actuator (``actuator_node_ptr`` /
+    ``actuator_node``, ascending: cylinder chambers, motor ports), so that (∂Q/∂p)·(∂p/∂x) and
+    (∂f/∂p)·(∂p/∂v) skip structural zeros.
+
+    Example
+    -------
+    >>> from hydraulics.network import NetworkModel  # doctest: +SKIP
+    >>> pattern = sparse_pattern(model, elimination_order(model))  # doctest: +SKIP
+    >>> pattern["lu_update"].size  # Σₖ |U(k)|²: no fill-in on an arrowhead numbered hub last  # doctest: +SKIP
+    """
+    free = np.asarray(free, np.int64)
+    n, nf, na = model.node_count, len(free), model.actuator_count
+    index = np.full(n, -1, np.int64)
+    index[free] = np.arange(nf)
+    terminals = np.column_stack((model.branch_from, model.branch_to, model.branch_pilot)).astype(np.int64)
+    nb = len(terminals)
+    neighbours = [{i} for i in range(nf)]
+    jq_cols = [set() for _ in range(nf)]
+    for b in range(nb):
+        f, t = terminals[b, T_FROM], terminals[b, T_TO]
+        if f == t:
+            continue
+        for row in (t, f):
+            i = index[row]
+            if i < 0:
+                continue
+            for k in terminals[b]:
+                if k >= 0:
+                    jq_cols[i].add(int(k))
+                    if index[k] >= 0:
+                        neighbours[i].add(int(index[k]))
+                        neighbours[int(index[k])].add(i)
+    later = []
+    for k in range(nf):
+        up = sorted(j for j in neighbours[k] if j > k)
+        later.append(up)
+        for i in up:
+            neighbours[i].update(up)
+    entries = sorted({(k, k) for k in range(nf)} | {e for k in range(nf) for j in later[k] for e in ((k, j), (j, k))})
+    position = {e: q for q, e in enumerate(entries)}
+    jq_entries = [(i, c) for i in range(nf) for c in sorted(jq_cols[i])]
+    jq_position = {e: q for q, e in enumerate(jq_entries)}
+    branch_lu = np.full((nb, 2 * _W_BR), -1, np.int64)
+    branch_jq = np.full((nb, 2 * _W_BR), -1, np.int64)
+    for b in range(nb):
+        f, t = terminals[b, T_FROM], terminals[b, T_TO]
+        if f == t:
+            continue
+        for side, row in enumerate((t, f)):
+            i = index[row]
+            if i < 0:
+                continue
+            for j, k in enumerate(terminals[b]):
+                if k >= 0:
+                    branch_jq[b, side * _W_BR + j] = jq_position[i, int(k)]
+                    if index[k] >= 0:
+                        branch_lu[b, side * _W_BR + j] = position[i, int(index[k])]
+    node_actuators = [set() for _ in range(n)]
+    actuator_nodes = [set() for _ in range(na)]
+    for a, cap, rod in zip(model.cylinder_actuator, model.cylinder_cap_node, model.cylinder_rod_node):
+        node_actuators[cap].add(int(a))
+        node_actuators[rod].add(int(a))
+        actuator_nodes[a].update((int(cap), int(rod)))
+    for a, port_a, port_b in zip(model.motor_actuator, model.motor_a_node, model.motor_b_node):
+        actuator_nodes[a].update((int(port_a), int(port_b)))
+
+    def compact(lists):
+        ptr = np.concatenate([[0], np.cumsum([len(x) for x in lists])]).astype(np.int64)
+        flat = np.array([v for x in lists for v in sorted(x)], np.int64)
+        return ptr, flat
+
+    node_actuator_ptr, node_actuator = compact(node_actuators)
+    actuator_node_ptr, actuator_node = compact(actuator_nodes)
+    return dict(
+        lu_row=np.array([e[0] for e in entries], np.int64), lu_col=np.array([e[1] for e in entries], np.int64),
+        lu_diag=np.array([position[k, k] for k in range(nf)], np.int64),
+        lu_ptr=np.concatenate([[0], np.cumsum([len(u) for u in later])]).astype(np.int64),
+        lu_later=np.array([j for u in later for j in u], np.int64),
+        lu_lower=np.array([position[j, k] for k in range(nf) for j in later[k]], np.int64),
+        lu_upper=np.array([position[k, j] for k in range(nf) for j in later[k]], np.int64),
+        lu_update=np.array([position[i, j] for k in range(nf) for i in later[k] for j in later[k]], np.int64),
+        branch_lu=branch_lu, branch_jq=branch_jq,
+        jq_ptr=np.concatenate([[0], np.cumsum([len(jq_cols[i]) for i in range(nf)])]).astype(np.int64),
+        jq_col=np.array([e[1] for e in jq_entries], np.int64),
+        node_actuator_ptr=node_actuator_ptr, node_actuator=node_actuator,
+        actuator_node_ptr=actuator_node_ptr, actuator_node=actuator_node)
+
+
 def pack_network(model: NetworkModel):
     """Flat float64 / int64 arrays (F, I) holding everything the kernels need from ``model``."""
     fl = model.fluid
@@ -203,6 +319,7 @@ def pack_network(model: NetworkModel):
     free = elimination_order(model)
     free_index = np.full(n, -1, np.int64)
     free_index[free] = np.arange(len(free))
+    pattern = sparse_pattern(model, free)
     sc = _table(SCALAR_LAYOUT, 1,
                 reference_pressure=fl.reference_pressure, bulk_modulus=fl.bulk_modulus, air_fraction=fl.air_fraction,
                 polytropic_index=fl.polytropic_index, pressure_floor=fl.pressure_floor,
@@ -223,7 +340,9 @@ def pack_network(model: NetworkModel):
                 line_search_halvings=_numerics.LINE_SEARCH_HALVINGS,
                 inversion_max_iterations=_numerics.PRESSURE_INVERSION_MAX_ITERATIONS,
                 fill_max_iterations=_fluid.FILL_INVERSION_MAX_ITERATIONS,
-                state_count=model.component_state_count)[0].astype(np.int64)
+                state_count=model.component_state_count, lu_entry_count=len(pattern["lu_row"]),
+                jq_entry_count=len(pattern["jq_col"]),
+                sparse_factorisation=int(_numerics.SPARSE_FACTORISATION))[0].astype(np.int64)
     floats = dict(
         sc=sc,
         node=_table(NODE_COLUMNS, n, fixed_pressure=model.node_fixed_pressure, volume=model.node_volume,
@@ -259,6 +378,7 @@ def pack_network(model: NetworkModel):
         mot_br_i=np.searchsorted(model.motor_actuator, model.motor_branch_actuator),  # motor of each motor branch
         law_state=model.law_state_offset,
         valve_rate=model.valve_rate_offset,
+        **pattern,
     )
     fparts = [np.ascontiguousarray(floats[k], float).ravel() for k in _FLOAT_FIELDS]
     iparts = [np.ascontiguousarray(ints[k]).astype(np.int64).ravel() for k in _INT_FIELDS]
@@ -777,6 +897,131 @@ def _lu_solve(a, b):
     return True
 
 
+# ----------------------------------------------------------------------------
+# Sparse Newton solves over the fixed pattern of sparse_pattern (positions in one compact array of values)
+# ----------------------------------------------------------------------------
+@_kernel
+def _newton_values(pnet, dflow, dpdm, h, val):
+    """The Newton matrix I − h·(∂Q/∂p)[free, free]·diag(∂p/∂m[free]) in the compact layout of :func:`sparse_pattern`
+    (``val``: ``lu_entry_count`` entries, fill-in positions zero) from the branches' terminal derivatives ``dflow``:
+    the entries :func:`_newton_matrix` writes, summed in its order."""
+    net = _deref(pnet)
+    pos, row, col, free = net.branch_lu, net.lu_row, net.lu_col, net.free
+    for q in range(val.size):
+        val[q] = 0.0
+    for b in range(dflow.shape[0]):
+        for j in range(_W_BR):
+            q = pos[b, j]
+            if q >= 0:
+                val[q] += dflow[b, j]
+            q = pos[b, _W_BR + j]
+            if q >= 0:
+                val[q] -= dflow[b, j]
+    for q in range(val.size):
+        val[q] = (1.0 if row[q] == col[q] else 0.0) - h * val[q] * dpdm[free[col[q]]]
+
+
+@_kernel
+def _sparse_factor(pnet, val):
+    """LU factorisation in place of the compact matrix ``val`` (:func:`sparse_pattern`): the multipliers below the
+    diagonal, U on and above it.  Dense Gaussian elimination's operations (:func:`_lu_solve`: the multiplier
+    a[i, k]·(1/a[k, k]), zero multipliers skipped), in its order, on the pattern's entries only; the same results
+    while partial pivoting keeps every pivot on the diagonal (J is column diagonally dominant where the branches'
+    flows fall with the pressure they leave from).  Returns the number of columns eliminated: the pattern's size when
+    done, else the first column where partial pivoting would exchange rows or the pivot is zero (``val`` is then
+    partly factored: the caller solves densely from the assembled matrix, :func:`_newton_solve`)."""
+    net = _deref(pnet)
+    ptr, lower, upper, update, diag = net.lu_ptr, net.lu_lower, net.lu_upper, net.lu_update, net.lu_diag
+    o = 0
+    for k in range(diag.size):
+        s, e = ptr[k], ptr[k + 1]
+        pivot = val[diag[k]]
+        big = abs(pivot)
+        for t in range(s, e):
+            if abs(val[lower[t]]) > big:
+                return k
+        if pivot == 0.0:
+            return k
+        inv = 1.0 / pivot
+        m = e - s
+        for t in range(s, e):
+            l = val[lower[t]] * inv
+            val[lower[t]] = l
+            if l != 0.0:
+                r0 = o + (t - s) * m
+                for r in range(m):
+                    val[update[r0 + r]] -= l * val[upper[s + r]]
+        o += m * m
+    return diag.size
+
+
+@_kernel
+def _sparse_solve(pnet, val, b):
+    """Solve in place (x in ``b``, nf × columns) with the factors of :func:`_sparse_factor`: forward elimination,
+    then back substitution, each in dense elimination's order over the pattern."""
+    net = _deref(pnet)
+    ptr, later, lower, upper, diag = net.lu_ptr, net.lu_later, net.lu_lower, net.lu_upper, net.lu_diag
+    m = b.shape[1]
+    nf = diag.size
+    for k in range(nf):
+        for t in range(ptr[k], ptr[k + 1]):
+            l = val[lower[t]]
+            if l != 0.0:
+                i = later[t]
+                for j in range(m):
+                    b[i, j] -= l * b[k, j]
+    for k in range(nf - 1, -1, -1):
+        for t in range(ptr[k], ptr[k + 1]):
+            u = val[upper[t]]
+            if u != 0.0:
+                i = later[t]
+                for j in range(m):
+                    b[k, j] -= u * b[i, j]
+        d = val[diag[k]]
+        for j in range(m):
+            b[k, j] = b[k, j] / d
+
+
+@_kernel
+def _newton_solve(pnet, val, saved, dense, b):
+    """Solve J·x = b in place (x in ``b``, nf × columns) for the compact Newton matrix ``val``
+    (:func:`_newton_values`; destroyed): sparse elimination over the pattern (:func:`_sparse_factor`), or, where
+    partial pivoting would exchange rows, a zero pivot or the packed flag ``sparse_factorisation`` is 0, the
+    matrix scattered into ``dense`` (nf × nf) and :func:`_lu_solve` (the same results as the sparse path where no
+    rows are exchanged).  ``saved``: scratch of ``val``'s size.  Returns False for an exactly singular matrix."""
+    net = _deref(pnet)
+    nf = net.lu_diag.size
+    if net.ic[IC_SPARSE] != 0:
+        _copy(saved, val)
+        if _sparse_factor(pnet, val) == nf:
+            _sparse_solve(pnet, val, b)
+            return True
+        _copy(val, saved)
+    dense[:, :] = 0.0
+    row, col = net.lu_row, net.lu_col
+    for q in range(val.size):
+        dense[row[q], col[q]] = val[q]
+    return _lu_solve(dense, b)
+
+
+@_kernel
+def _flow_jacobian_rows(pnet, dflow, jq):
+    """∂(net inflow)/∂p on the free rows, all node columns, in the compact rows of :func:`sparse_pattern`
+    (``jq_ptr``, ``jq_col``): the entries :func:`_flow_jacobian` writes, summed in its order."""
+    net = _deref(pnet)
+    pos = net.branch_jq
+    for q in range(jq.size):
+        jq[q] = 0.0
+    for b in range(dflow.shape[0]):
+        for j in range(_W_BR):
+            q = pos[b, j]
+            if q >= 0:
+                jq[q] += dflow[b, j]
+            q = pos[b, _W_BR + j]
+            if q >= 0:
+                jq[q] -= dflow[b, j]
+
+
 @_kernel
 def _evaluate(pnet, oil, oil0, x, v, components, speed, h, geo, p, dpdm, flow, dflow, inflow, residual):
     # pressures, ∂p/∂m, branch flows and the backward-Euler residual r = m − m₀ − h·ΣQ(p(m, x), v) (free nodes);
@@ -878,7 +1123,7 @@ def _take2(W, offset, rows, cols):
 def _solve_work_size(ic):
     """Scratch entries _solve_core needs (float64)."""
     n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
-    return _area_count(ic) + 8 * n + (2 + 2 * _W_BR) * nb + 4 * nf + nf * nf
+    return _area_count(ic) + 8 * n + (2 + 2 * _W_BR) * nb + 4 * nf + nf * nf + 2 * ic[IC_NLU]
 
 
 @_kernel
@@ -891,8 +1136,8 @@ def _step_work_size(ic):
 def _linearize_work_size(ic):
     """Scratch entries _linearize_core needs (float64)."""
     n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
-    return (_solve_work_size(ic) + (1 + _W_BR) * nb + 2 * n + 5 * n * na + _area_count(ic) + n * n + nf * na + nf * nf
-            + na)
+    return (_solve_work_size(ic) + (1 + _W_BR) * nb + 2 * n + 5 * n * na + _area_count(ic) + ic[IC_NJQ] + nf * na
+            + nf * nf + 2 * ic[IC_NLU] + na)
 
 
 def work_size(F, I) -> int:
@@ -933,6 +1178,8 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out,
     scale, o = _take(W, o, nf)
     delta_flat, o = _take(W, o, nf)
     jac_flat, o = _take(W, o, nf * nf)
+    lu, o = _take(W, o, ic[IC_NLU])
+    saved, o = _take(W, o, ic[IC_NLU])
     delta = _matrix(delta_flat, nf, 1)
     jac = _matrix(jac_flat, nf, nf)
     _valve_areas(pnet, spool, area)
@@ -952,11 +1199,11 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out,
     for _ in range(ic[IC_NEWTON_MAX]):
         if converged:
             break
-        _newton_matrix(pnet, dflow, dpdm, h, jac)
+        _newton_values(pnet, dflow, dpdm, h, lu)
         jacobians += 1
         for j in range(nf):
             delta[j, 0] = -residual[j]
-        if not _lu_solve(jac, delta):
+        if not _newton_solve(pnet, lu, saved, jac, delta):
             break
         iterations += 1
         step = _trust_step(pnet, oil, delta_flat, geo, p)
@@ -1074,18 +1321,6 @@ def _step_python_entry(F, I, oil0, spool0, command, speed, x, v, h, update_spool
 
 
 @_kernel
-def _newton_matrix_of(pnet, jq, dpdm, h, jac):
-    """I − h·jq[free, free]·diag(∂p/∂m[free]) from the node × node flow Jacobian ``jq`` (:func:`_newton_matrix`'s
-    matrix, for callers that have ``jq`` already)."""
-    net = _deref(pnet)
-    free = net.free
-    nf = free.size
-    for i in range(nf):
-        for j in range(nf):
-            jac[i, j] = (1.0 if i == j else 0.0) - h * jq[free[i], free[j]] * dpdm[free[j]]
-
-
-@_kernel
 def _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt):
     """dt·∂p/∂x at fixed oil, −dt·φ(p)·(∂V/∂x)·∂p/∂m [Pa·s/m or Pa·s/rad], into ``dpdx_dt`` (n × na) at actuator
     positions ``x`` (geometric node volumes ``geo`` [m³]) and node pressures ``p`` with their ∂p/∂m ``dpdm``;
@@ -1110,7 +1345,8 @@ def _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt):
 def _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, col):
     """−∂r/∂v of the backward-Euler residual r = m⁺ − m − dt·ΣQ(p(m⁺, x + dt·v), v) on the free nodes,
     dt·((∂Q/∂p)·dt·∂p/∂x + ∂Q/∂v) [m³·s/m or m³·s/rad], into columns ``col`` … ``col + na − 1`` of ``rhs`` (nf rows);
-    ``jq``: the node × node flow Jacobian ∂(net inflow)/∂p, ``area``: :func:`_valve_areas` (the rigid branches' rates),
+    ``jq``: the flow Jacobian ∂(net inflow)/∂p on the free rows (:func:`_flow_jacobian_rows`; the product skips the
+    columns of nodes no actuator moves, where dt·∂p/∂x is zero), ``area``: :func:`_valve_areas` (the rigid branches' rates),
     ``mg`` (n × na): scratch (∂Q/∂v of the motor and rigid branches)."""
     net = _deref(pnet)
     ic, free = net.ic, net.free
@@ -1128,13 +1364,18 @@ def _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, col):
         rate = area[nor + i]
         mg[br[b, 0], net.rig_i[i, GI_ACT]] += -rate
         mg[br[b, 1], net.rig_i[i, GI_ACT]] += rate
+    ptr, cols, moved_ptr, moved = net.jq_ptr, net.jq_col, net.node_actuator_ptr, net.node_actuator
     for j in range(free.size):
         k = free[j]
         for a in range(na):
-            s = 0.0
-            for i in range(jq.shape[1]):
-                s += jq[k, i] * dpdx_dt[i, a]
-            rhs[j, col + a] = dt * (s + mg[k, a])
+            rhs[j, col + a] = 0.0
+        for q in range(ptr[j], ptr[j + 1]):  # columns ascending: the dense sum's order, its zero terms skipped
+            i = cols[q]
+            for t in range(moved_ptr[i], moved_ptr[i + 1]):
+                a = moved[t]
+                rhs[j, col + a] += jq[q] * dpdx_dt[i, a]
+        for a in range(na):
+            rhs[j, col + a] = dt * (rhs[j, col + a] + mg[k, a])
 
 
 @_kernel
@@ -1150,12 +1391,15 @@ def _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope):
     _friction_effort(pnet, velocity, friction, slope)
     for a in range(na):
         effort[a] = effort[a] + friction[a]
-    # effort_pressure_gradient @ dpdv + diag(friction slope)
+    # effort_pressure_gradient @ dpdv + diag(friction slope), over the nodes pushing each actuator (ascending)
     _effort_pressure_gradient(pnet, epg)
+    net = _deref(pnet)
+    ptr, nodes = net.actuator_node_ptr, net.actuator_node
     for a in range(na):
         for b in range(na):
             s = 0.0
-            for k in range(p.size):
+            for t in range(ptr[a], ptr[a + 1]):
+                k = nodes[t]
                 s += epg[a, k] * dpdv[k, b]
             gradient[a, b] = s + (slope[a] if a == b else 0.0)
 
@@ -1188,24 +1432,26 @@ def _linearize_core(pnet, W, start, dt, out, oil_init):
     dvdx, o = _take2(W, o, n, na)
     dpdx_dt, o = _take2(W, o, n, na)  # dt·∂p/∂x
     area, o = _take(W, o, _area_count(ic))
-    jq, o = _take2(W, o, n, n)
+    jq, o = _take(W, o, ic[IC_NJQ])
     mg, o = _take2(W, o, n, na)
     rhs, o = _take2(W, o, nf, na)
     jac, o = _take2(W, o, nf, nf)
+    lu, o = _take(W, o, ic[IC_NLU])
+    saved, o = _take(W, o, ic[IC_NLU])
     dpdv, o = _take2(W, o, n, na)
     epg, o = _take2(W, o, na, n)
     slope, o = _take(W, o, na)
     _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt)
     _valve_areas(pnet, spool, area)
     _branch_flows(pnet, p, area, speed, velocity, flow2, dflow, spool, dt)
-    _flow_jacobian(pnet, dflow, jq)
+    _flow_jacobian_rows(pnet, dflow, jq)
     _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, 0)
-    _newton_matrix_of(pnet, jq, dpdm, dt, jac)
+    _newton_values(pnet, dflow, dpdm, dt, lu)
     _copy2(dpdv, dpdx_dt)
     singular = False
     doil[:, :] = 0.0
     if nf:
-        if _lu_solve(jac, rhs):  # rhs now holds doil = −J⁻¹·drdv
+        if _newton_solve(pnet, lu, saved, jac, rhs):  # rhs now holds doil = −J⁻¹·drdv
             for j in range(nf):
                 k = free[j]
                 for a in range(na):
@@ -1268,9 +1514,11 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
     dpdx_dt, o = _take2(W, o, n, na)
     mg, o = _take2(W, o, n, na)
     dpdv, o = _take2(W, o, n, na)
-    jq, o = _take2(W, o, n, n)
+    jq, o = _take(W, o, ic[IC_NJQ])
     rhs, o = _take2(W, o, nf, na + 1)
     jac, o = _take2(W, o, nf, nf)
+    lu, o = _take(W, o, ic[IC_NLU])
+    saved, o = _take(W, o, ic[IC_NLU])
     epg, o = _take2(W, o, na, n)
     slope, o = _take(W, o, na)
     _valve_areas(pnet, spool, area)
@@ -1282,7 +1530,7 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
         _evaluate(pnet, oil0, oil0, x0, velocity, (area, spool), speed, dt, geo, p_first, dpdm, flow, dflow, inflow,
                   residual)
     _position_pressure_gradient(pnet, x0, geo, p_first, dpdm, dt, dvdx, dpdx_dt)
-    _flow_jacobian(pnet, dflow, jq)
+    _flow_jacobian_rows(pnet, dflow, jq)
     _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, 1)
     for j in range(nf):  # dt·ΣQ(p₀, v) (= −residual) + dt·(∂Q/∂p)·(dt·∂p/∂x)·v (= (−∂r/∂v − dt·∂Q_motor/∂v)·v)
         k = free[j]
@@ -1290,12 +1538,13 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
         for a in range(na):
             s += (rhs[j, a + 1] - dt * mg[k, a]) * velocity[a]
         rhs[j, 0] = s
-    _newton_matrix_of(pnet, jq, dpdm, dt, jac)
+    _newton_values(pnet, dflow, dpdm, dt, lu)
     _copy(oil, oil0)
     _copy2(dpdv, dpdx_dt)
-    for i in range(n):  # p₀ + (dt·∂p/∂x)·v; + (∂p/∂m)·Δ below
+    for i in range(n):  # p₀ + (dt·∂p/∂x)·v (the actuators moving node i's volume); + (∂p/∂m)·Δ below
         s = p_first[i]
-        for a in range(na):
+        for t in range(net.node_actuator_ptr[i], net.node_actuator_ptr[i + 1]):
+            a = net.node_actuator[t]
             s += dpdx_dt[i, a] * velocity[a]
         p[i] = s
     doil[:, :] = 0.0
@@ -1306,7 +1555,7 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
     istats[IS_JAC] = 1
     istats[IS_SINGULAR] = 0
     if nf:
-        if not _lu_solve(jac, rhs):
+        if not _newton_solve(pnet, lu, saved, jac, rhs):
             return False
         if _trust_step(pnet, oil0, rhs[:, 0], geo, p_first) < 1.0:
             return False

@@ -32,6 +32,13 @@ pressures after a valve slam."""
 TRUST_FRACTION = 0.5
 """Relative part of the trust region [-] (see :data:`TRUST_PRESSURE`)."""
 
+# Linear algebra of the Newton solves (hydraulics._compiled.sparse_pattern)
+SPARSE_FACTORISATION = True
+"""Factor the Newton matrix over its sparse pattern: elimination restricted to the entries the circuit's branches
+and their fill-in make, O(n) on a circuit of many blocks joined through one supply gallery.  False: dense Gaussian
+elimination with partial pivoting (for comparison; O(n²) per solve, n the free nodes).  Both give the same results
+where partial pivoting keeps the diagonal; where it would exchange rows, the sparse path hands over to the dense one."""
+
 # Pressure inversion of compliant nodes (elastic walls, accumulators; hydraulics.network)
 PRESSURE_INVERSION_MAX_ITERATIONS = 60
 """Newton iterations of a compliant node's pressure inversion; it converges in fewer than 8 from the rigid guess."""

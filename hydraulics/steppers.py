@@ -299,8 +299,10 @@ class StepperImplicitEuler(Stepper):
     (:func:`hydraulics._compiled._step_core`, :func:`hydraulics._compiled._linearize_core`,
     :func:`hydraulics._compiled._linearize_one_step_core`), loaded from numba's disk cache (≈ 0.2 s per
     process) or compiled when the cache is cold (≈ 15–20 s, once).  ``NUMBA_DISABLE_JIT=1`` runs the same
-    kernels as Python.  Dense solves use Gaussian elimination with partial pivoting with the free nodes
-    numbered hub last (:func:`hydraulics._compiled.elimination_order`: no fill-in on an arrowhead circuit).
+    kernels as Python.  The Newton matrix is factored over its sparse pattern with the free nodes numbered
+    hub last (:func:`hydraulics._compiled.elimination_order`: no fill-in on an arrowhead circuit;
+    :func:`hydraulics._compiled.sparse_pattern`: the symbolic analysis, done once), in the operations and order of
+    dense Gaussian elimination with partial pivoting, which takes over where pivoting would exchange rows.
 
     **Limitations**: order 1 (the step error is O(h²) per step); a failed Newton solve (after
     NEWTON_MAX_ITERATIONS) is reported, not retried with a smaller step.

@@ -430,6 +430,9 @@ def _articulated_into(work, x, q, model, out):
                     jv[j, b, c] = aj[c]
     for i in range(nj):  # (every entry of mass and rhs is written below)
         for k in range(nj):
+            if not (subtree[i, jnt_body[k]] or subtree[k, jnt_body[i]]):
+                mass[i, k] = 0.0  # disjoint subtrees (another tree, or sibling branches): no body moves with both
+                continue
             s = 0.0
             for b in range(nb):
                 s += body_mass[b] * (jv[i, b, 0] * jv[k, b, 0] + jv[i, b, 1] * jv[k, b, 1] + jv[i, b, 2] * jv[k, b, 2])
@@ -487,12 +490,14 @@ def _articulated_into(work, x, q, model, out):
                     M[r, c] -= f * M[col, c]
                 for c in range(na + 1):
                     rhs[r, c] -= f * rhs[col, c]
-    for col in range(nj - 1, -1, -1):
+    for col in range(nj - 1, -1, -1):  # back substitution, U's zeros skipped (independent trees: block diagonal)
+        for k in range(col + 1, nj):
+            u = M[col, k]
+            if u != 0.0:
+                for c in range(na + 1):
+                    rhs[col, c] -= u * rhs[k, c]
         for c in range(na + 1):
-            s = rhs[col, c]
-            for k in range(col + 1, nj):
-                s -= M[col, k] * rhs[k, c]
-            rhs[col, c] = s / M[col, col]
+            rhs[col, c] = rhs[col, c] / M[col, col]
     dq = rhs
     for a in range(na):
         s = 0.0
@@ -512,24 +517,24 @@ def _articulated_into(work, x, q, model, out):
             for c in range(3):
                 gjv[i, g, c] /= gm
     ncol = nr + nm + 1
-    for r in range(ncol):
+    for r in range(ncol):  # Σ over the joints that move with the column (dq ≠ 0), in the joints' order
         col = cyl[r] if r < nr else (mot[r - nr] if r < nr + nm else na)
+        target = mobility[r] if r < nr else (motor_response[r - nr] if r < nr + nm else group_gravity)
         for g in range(ng):
-            root = group_root[g]
             for c in range(6):
-                s = 0.0
-                if group_dynamic[g]:
-                    for i in range(nj):
-                        if c < 3:
-                            s += dq[i, col] * gjv[i, g, c]
-                        elif hinge[i] and subtree[i, root]:
-                            s += dq[i, col] * axis[i, c - 3]
-                if r < nr:
-                    mobility[r, g, c] = s
-                elif r < nr + nm:
-                    motor_response[r - nr, g, c] = s
-                else:
-                    group_gravity[g, c] = s
+                target[g, c] = 0.0
+        for i in range(nj):
+            d = dq[i, col]
+            if d == 0.0:
+                continue
+            for g in range(ng):
+                if not group_dynamic[g]:
+                    continue
+                for c in range(3):
+                    target[g, c] += d * gjv[i, g, c]
+                if hinge[i] and subtree[i, group_root[g]]:
+                    for c in range(3):
+                        target[g, 3 + c] += d * axis[i, c]
     return True
 
 

@@ -1020,6 +1020,15 @@ def _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, reverse):
 
 
 @_leaf
+def _still(mob, row, group):
+    """True when row ``row``'s unit impulse does not move group ``group`` (its mobility there is zero)."""
+    for c in range(6):
+        if mob[row, group, c] != 0.0:
+            return False
+    return True
+
+
+@_leaf
 def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob, work):
     """The active cylinder rows as one block through their articulated mobility ``mob``; ``work``: the
     ``RowBlockWork`` (for at least ``len(act)`` rows)."""
@@ -1046,6 +1055,8 @@ def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob, wo
         n = (d[0] / ell, d[1] / ell, d[2] / ell)
         for j in range(k):
             jj = act[j]
+            if _still(mob, jj, ga) and _still(mob, jj, gb):
+                continue  # row j's impulse moves neither of row m's groups (another tree): A[m, j] = 0
             cb = _cross((mob[jj, gb, 3], mob[jj, gb, 4], mob[jj, gb, 5]), rbw)
             ca = _cross((mob[jj, ga, 3], mob[jj, ga, 4], mob[jj, ga, 5]), raw)
             A[m, j] = (n[0] * (mob[jj, gb, 0] + cb[0] - mob[jj, ga, 0] - ca[0])
