@@ -14,8 +14,9 @@ so the outlet stays in [p_L + Δp_set − w, p_L + Δp_set] while the inlet can 
 Ports: ``inlet`` (pump), ``outlet`` (to the metering edge), ``load`` (the section's work port or its LS signal).
 Packing: the regulated orifice's row (:data:`hydraulics.components.regulated.COLUMNS`, setting = Δp_set).
 
-Limitations: quasi-static spool; no check function (reverse flow passes the same area); a post-compensator
-(flow sharing) is the same law with the LS line as ``load``.
+Limitations: quasi-static spool; no check function (reverse flow passes the same area).  Downstream of the
+metering edge (flow sharing) the spool balances its *inlet* against the LS line instead: the kind
+``post_compensator`` (:mod:`hydraulics.components.post_compensator`).
 
 References: H. Exner et al., *Hydraulics: Basic Principles and Components*, Bosch Rexroth 2011 (load-sensing
 directional valves: individual pressure compensators upstream and downstream of the metering orifice).
