@@ -20,6 +20,7 @@ from dataclasses import MISSING, fields
 from .accumulator import Accumulator
 from .check_valve import CheckValve
 from .pressure_compensator import PressureCompensator
+from .post_compensator import PostCompensator
 from .counterbalance import CounterbalanceValve
 from .cylinder import Cylinder
 from .flow_control import FlowControlValve
@@ -61,6 +62,7 @@ COMPONENT_TYPES = {
     "relief_valve_poppet": ReliefPoppet,
     "pump_load_sensing": PumpLoadSensing,
     "pressure_compensator": PressureCompensator,
+    "post_compensator": PostCompensator,
 }
 """Circuit-file ``type`` name → parameter class."""
 
@@ -146,5 +148,5 @@ def build_component(kind: str, table: dict, where: str):
 
 __all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "law_sources", "law_states", "check_number", "describe_range", "param",
            "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "Motor", "Orifice",
-           "PilotCheckValve", "PressureCompensator", "PressureReducingValve", "PumpCompensated", "PumpLoadSensing", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",
+           "PilotCheckValve", "PostCompensator", "PressureCompensator", "PressureReducingValve", "PumpCompensated", "PumpLoadSensing", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",
            "ThrottleCheckValve", "Valve43", "Volume"]
