@@ -142,6 +142,7 @@ from sim.plants.controllers import advance_controlled
 from sim.plants.inputs import input_plan, sample_inputs
 from sim.plants.base import PlantBase
 from sim.plants.mujoco_fast import MujocoPlantFast
+from sim.io.record_row import RECORD_ROW
 from sim.io.scenario import ScenarioError
 from sim.io.scene import Scene, initial_qpos_qvel
 from sim.xpbd import LengthConstraint, SolverXPBD, XpbdModel, XpbdOptions
@@ -411,10 +412,10 @@ class PbdPlant(PlantBase):
         """Floats per recorded row: ``RunRecorder.capture``'s raw layout for a plant with ``joint_state`` (node
         pressures and oil, scalar-joint positions and rates, 4 per actuator, 2 per valve, 1 per pump and branch,
         2 solver and 6 energy terms, 7 per body)."""
-        net = self.network
-        n, na = net.node_count, net.actuator_count
-        return (2 * n + 2 * len(self.scalar_joints) + 4 * na + len(net.valve_names) + net.component_state_count
-                + len(net.pump_names) + len(net.branch_names) + 8 + 7 * self.xmodel.nbody + self.controller_state.size)
+        net, nj = self.network, len(self.scalar_joints)
+        return RECORD_ROW.size(n=net.node_count, nq=nj, nv=nj, na=net.actuator_count, nvalve=len(net.valve_names),
+                               nstate=net.component_state_count, npump=len(net.pump_names), nb=len(net.branch_names),
+                               nbody=self.xmodel.nbody, nctl=self.controller_state.shape[0])
 
     def record_next(self, record: np.ndarray, every: int = 1) -> None:
         """Make the next :meth:`advance` record the samples after every step whose index becomes a multiple of

@@ -47,6 +47,8 @@ from numba import njit
 from hydraulics import _compiled as C
 from hydraulics import controllers as CT
 
+from sim.io import record_row
+from sim.io.record_row import RECORD_ROW
 from sim.xpbd import compiled as XC
 from sim.plants import pbd_frame as FN
 from sim.plants import pbd_hydraulics as H
@@ -183,11 +185,7 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
     return nframe, BLOCK_OK
 
 
-@njit(cache=True)
-def _put(row, o, values):
-    for i in range(values.size):
-        row[o + i] = values[i]
-    return o + values.size
+_record_views = njit(inline="always")(RECORD_ROW.carver(C._matrix))
 
 
 def _control(control, step, dt, hyd, qpos, qvel, cmd, speed, k):
@@ -203,55 +201,43 @@ def _control(control, step, dt, hyd, qpos, qvel, cmd, speed, k):
 @njit(cache=True)
 def _record_row(row, hyd, qpos, qvel, rq, rd, effort, cmd, speed, kinetic, potential, dissipated_mechanical, xb, qb,
                 controller_state):
-    """One raw sample in the layout of ``RunRecorder.capture`` for a plant with ``joint_state``: node pressures [Pa],
-    scalar-joint positions and rates, node oil, actuator positions, velocities, efforts, θ, valve commands, spools,
-    pump speeds, branch flows, Newton iterations and residual [Pa], kinetic, potential energy, pump work, hydraulic,
-    friction and mechanical dissipation [J], body-frame positions [m] and quaternions; returns whether the node
-    pressures and joints are finite (``RunRecorder.captured_finite``).  ``hyd``: the network's
-    ``pbd_hydraulics.HydraulicBuffers``."""
+    """One raw sample (:data:`sim.io.record_row.RECORD_ROW`, the scalar joints ``rq``/``rd`` of ``qpos``/``qvel`` as
+    its joints) for a plant with ``joint_state``; returns whether the node pressures and joints are finite
+    (``RunRecorder.captured_finite``).  ``hyd``: the network's ``pbd_hydraulics.HydraulicBuffers``."""
     ledger = hyd.ledger
-    o = _put(row, 0, hyd.pressure)
+    r, _ = _record_views(row, 0, hyd.pressure.size, rq.size, rd.size, hyd.position.size, cmd.size, hyd.spool.size,
+                         speed.size, hyd.flow.size, xb.shape[0], controller_state.shape[0])
+    C._copy(r.p, hyd.pressure)
     for i in range(rq.size):
-        row[o + i] = qpos[rq[i]]
-    o += rq.size
+        r.qpos[i] = qpos[rq[i]]
     for i in range(rd.size):
-        row[o + i] = qvel[rd[i]]
-    o += rd.size
+        r.qvel[i] = qvel[rd[i]]
     finite = True
-    for i in range(o):
+    for i in range(r.p.size + r.qpos.size + r.qvel.size):  # (the row starts with them)
         if not np.isfinite(row[i]):
             finite = False
-    o = _put(row, o, hyd.oil)
-    o = _put(row, o, hyd.position)
-    o = _put(row, o, hyd.velocity)
-    o = _put(row, o, effort)
-    o = _put(row, o, hyd.theta)
-    o = _put(row, o, cmd)
-    o = _put(row, o, hyd.spool)
-    o = _put(row, o, speed)
-    o = _put(row, o, hyd.flow)
-    row[o], row[o + 1] = hyd.istats[H.I_NEWTON], ledger[H.L_RESIDUAL]
-    row[o + 2], row[o + 3] = kinetic, potential
-    row[o + 4], row[o + 5], row[o + 6] = ledger[H.L_PUMP], ledger[H.L_DISS_H], ledger[H.L_DISS_F]
-    row[o + 7] = dissipated_mechanical
-    o += 8
-    for b in range(xb.shape[0]):
-        for c in range(3):
-            row[o] = xb[b, c]
-            o += 1
-    for b in range(qb.shape[0]):
-        for c in range(4):
-            row[o] = qb[b, c]
-            o += 1
-    for i in range(controller_state.shape[0]):  # the controllers' states (hydraulics.controllers.STATE_COLUMNS)
-        for c in range(controller_state.shape[1]):
-            row[o] = controller_state[i, c]
-            o += 1
+    C._copy(r.oil, hyd.oil)
+    C._copy(r.x, hyd.position)
+    C._copy(r.v, hyd.velocity)
+    C._copy(r.effort, effort)
+    C._copy(r.theta, hyd.theta)
+    C._copy(r.cmd, cmd)
+    C._copy(r.spool, hyd.spool)
+    C._copy(r.speed, speed)
+    C._copy(r.flow, hyd.flow)
+    r.solver[0], r.solver[1] = hyd.istats[H.I_NEWTON], ledger[H.L_RESIDUAL]
+    r.energy[0], r.energy[1] = kinetic, potential
+    r.energy[2], r.energy[3], r.energy[4] = ledger[H.L_PUMP], ledger[H.L_DISS_H], ledger[H.L_DISS_F]
+    r.energy[5] = dissipated_mechanical
+    C._copy2(r.xpos, xb)
+    C._copy2(r.xquat, qb)
+    C._copy2(r.controllers, controller_state)  # the controllers' states (hydraulics.controllers.STATE_COLUMNS)
     return finite
 
 
 # this file and everything frame_nb compiles in, taken at import: part of the cache key
-SOURCE_SHA256 = C.source_sha256(__file__, FN.__file__, H.__file__, XC.__file__, CT.__file__, *C.SOURCES)
+SOURCE_SHA256 = C.source_sha256(__file__, FN.__file__, H.__file__, XC.__file__, CT.__file__, record_row.__file__,
+                                *C.SOURCES)
 
 
 _BLOCK = {}
