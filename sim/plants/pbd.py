@@ -439,12 +439,15 @@ class PbdPlant(PlantBase):
         Same results as ``n`` calls of :meth:`step` to round-off (``tests/test_pbd_block.py``); with ``record``
         the samples of :meth:`record_next`.
         """
+        from sim.plants.pbd_block import CLOCK, REC
+
         ctx = self._block_context()
         rec = ctx["rec"]
         rows = self.record_rows(self.step_index, n, every) if record is not None else 0
         if rows > (0 if record is None else len(record)):
             raise ValueError(f"`record` has {len(record)} rows, {rows} needed")
-        rec[:] = (rows, every, self.step_index, 0, 0)
+        rec[:] = 0
+        rec[REC.ROWS], rec[REC.EVERY], rec[REC.FIRST] = rows, every, self.step_index
         fc = ctx["frame"]
         solver, st, net, e = self.solver, self.state, self._net, self.energy
         nsub = solver.substeps
@@ -453,7 +456,8 @@ class PbdPlant(PlantBase):
         net.load(self.net_state, e)
         fc["x"][:], fc["v"][:], fc["ell"][:] = self._x, self._v, self._ell  # (the views of fc["actuators"])
         clock = ctx["clock"]
-        clock[:] = (st.time, net._time, e.dissipated_mechanical, self._mechanical)
+        clock[CLOCK.TIME], clock[CLOCK.NET_TIME] = st.time, net._time
+        clock[CLOCK.DISSIPATED], clock[CLOCK.MECHANICAL] = e.dissipated_mechanical, self._mechanical
         hint = ctx["hint"]
         hint[:] = st.qpos_hint
         pmax, pmin, xmax, xmin = ctx["pmax"], ctx["pmin"], ctx["xmax"], ctx["xmin"]
@@ -467,7 +471,7 @@ class PbdPlant(PlantBase):
                                      fc["actuators"], BlockTrack(clock, hint, pmax, pmin, xmax, xmin), ctx["plant"], ctx["buffers"],
                                      self._frame_settings(h), Recording(ctx["no_record"] if record is None else record, rec),
                                      self._block_control(ctx, n))
-        self.recorded, self.recorded_finite = int(rec[3]), not rec[4]
+        self.recorded, self.recorded_finite = int(rec[REC.COUNT]), not rec[REC.BAD]
         if status == BLOCK_SINGULAR:
             raise np.linalg.LinAlgError("Matrix is singular.")
         if done == 0:
@@ -475,17 +479,17 @@ class PbdPlant(PlantBase):
         last = done * nsub - 1  # the controls of the last substep taken (as after the hooks)
         self.control.valve_command[:] = cmd[last]
         self.control.pump_speed[:] = speed[last]
-        net._time = float(clock[1])
+        net._time = float(clock[CLOCK.NET_TIME])
         self.net_state, self._report = net.store(e)
         self.last_report = self._report
-        e.dissipated_mechanical, self._mechanical = float(clock[2]), float(clock[3])
+        e.dissipated_mechanical, self._mechanical = float(clock[CLOCK.DISSIPATED]), float(clock[CLOCK.MECHANICAL])
         self._x, self._v, self._ell = fc["x"].copy(), fc["v"].copy(), fc["ell"].copy()
         self.effort = fc["actuators"].effort.copy()
         self._motor_effort = fc["actuators"].motor_effort.copy()
         self.theta = net.theta.copy()
         self.node_pressure_max, self.node_pressure_min = pmax.copy(), pmin.copy()
         self.actuator_position_max, self.actuator_position_min = xmax.copy(), xmin.copy()
-        st.time = float(clock[0])
+        st.time = float(clock[CLOCK.TIME])
         st.qpos_hint = hint.copy()
         solver.last_forces = []
         self.frame_steps += done
@@ -536,7 +540,7 @@ class PbdPlant(PlantBase):
         ctx = getattr(self, "_block_ctx", None)
         if ctx is not None:
             return ctx
-        from sim.plants.pbd_block import BlockBuffers, BlockPlant, ContactCandidates
+        from sim.plants.pbd_block import CLOCK, REC, BlockBuffers, BlockPlant, ContactCandidates
         from sim.plants.pbd_frame import Articulated, RigidState
         from sim.xpbd.compiled import ContactRows
 
@@ -571,9 +575,9 @@ class PbdPlant(PlantBase):
         ctx = dict(frame=fc, plant=plant,
                    buffers=buffers,
                    cmd=np.zeros((0, len(self.network.valve_names))), speed=np.zeros((0, len(self.network.pump_names))),
-                   clock=np.zeros(4), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
+                   clock=np.zeros(len(CLOCK)), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
                    pmin=np.zeros(self.network.node_count), xmax=np.zeros(self.network.actuator_count),
-                   xmin=np.zeros(self.network.actuator_count), rec=np.zeros(5, np.int64),
+                   xmin=np.zeros(self.network.actuator_count), rec=np.zeros(len(REC), np.int64),
                    no_record=np.zeros((0, self.record_width)))
         self._block_ctx = ctx
         return ctx
@@ -644,6 +648,7 @@ class PbdPlant(PlantBase):
         ctx = getattr(self, "_frame_ctx", None)
         if ctx is not None:
             return ctx
+        from sim.plants.pbd_frame import OUT as FRAME_OUT
         from sim.plants.pbd_frame import Actuation, ActuatorState
 
         xm, net = self.xmodel, self.network
@@ -658,7 +663,7 @@ class PbdPlant(PlantBase):
             maxis=_c64(np.asarray(self._axis_inertial).reshape(-1, 3)[self.motor_joint].reshape(-1, 3)),
             morigin=_c64(np.asarray(self._origin_inertial).reshape(-1, 3)[mb].reshape(-1, 3)))
         actuators = ActuatorState(x=np.zeros(na), v=np.zeros(na), ell=np.zeros(nr), effort=np.zeros(na),
-                                  motor_effort=np.zeros(nm), out=np.zeros(2))
+                                  motor_effort=np.zeros(nm), out=np.zeros(len(FRAME_OUT)))
         ctx = dict(inputs=input_plan(net, self.control, self.scene.scenario.inputs), x=actuators.x, v=actuators.v,
                    ell=actuators.ell, actuators=actuators, actuation=actuation)
         ctx.update(self._articulated_context())

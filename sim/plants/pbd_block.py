@@ -22,12 +22,12 @@ Blocks of many steps equal blocks of one and the Python hooks to round-off (``te
 ``tests/test_pbd_fast.py``).
 
 Recording (as ``MujocoPlantFast.advance(n, record, every)``, the ``Recording`` layout): after every step but
-the block's last whose step index becomes a multiple of ``rec[1]`` (``rec[2]``: the step index at the block's
-start), the next of ``rec[0]`` rows of ``record`` receives the raw sample the runner's recorder
-would capture after that step (``_record_row``); ``rec[3]`` counts the rows written, ``rec[4]``
+the block's last whose step index becomes a multiple of ``rec[REC.EVERY]`` (``rec[REC.FIRST]``: the step index at
+the block's start), the next of ``rec[REC.ROWS]`` rows of ``record`` receives the raw sample the runner's recorder
+would capture after that step (``_record_row``); ``rec[REC.COUNT]`` counts the rows written, ``rec[REC.BAD]``
 is 1 when one of them had a non-finite pressure or joint.
 
-``track.clock`` (float64, 4): body time [s], network time [s], dissipated mechanical energy [J],
+``track.clock`` (float64, by :data:`CLOCK`): body time [s], network time [s], dissipated mechanical energy [J],
 kinetic + potential energy [J] at the start of the block; updated in place.
 Returns (frames done, status): ``BLOCK_OK`` (all frames, or stopped after a failed hydraulic
 step: the plant reads the status from ``istats``) or ``BLOCK_SINGULAR`` (the coupling's linearisation was
@@ -48,6 +48,7 @@ from hydraulics import _compiled as C
 from hydraulics import controllers as CT
 
 from sim.io import record_row
+from hydraulics.layout import slots
 from sim.io.record_row import RECORD_ROW
 from sim.xpbd import compiled as XC
 from sim.plants import pbd_frame as FN
@@ -83,8 +84,15 @@ BlockBuffers = namedtuple("BlockBuffers", [  # outputs and work arrays, made onc
     "xb", "qb", "qpos", "qvel",  # body frames, generalized coordinates (``compiled.qpos_qvel``)
 ])
 
+CLOCK = slots(("TIME", "NET_TIME", "DISSIPATED", "MECHANICAL"))
+"""Entries of ``BlockTrack.clock`` (float64): body time [s], network time [s], dissipated mechanical energy [J],
+kinetic + potential energy [J]."""
+REC = slots(("ROWS", "EVERY", "FIRST", "COUNT", "BAD"))
+"""Entries of ``Recording.rec`` (int64): rows to record, every how many steps, the block's first step index, rows
+written, 1 when a written row was not finite."""
+
 BlockTrack = namedtuple("BlockTrack", [  # running values, updated in place
-    "clock",  # body time [s], network time [s], dissipated mechanical [J], kinetic + potential [J], (4,)
+    "clock",  # (len(CLOCK),) by CLOCK
     "hint",  # hinge-unwrapping hint, (nq,)
     "pressure_max", "pressure_min",  # running node-pressure extremes [Pa], (n,)
     "position_max", "position_min",  # running actuator-position extremes [m or rad], (na,)
@@ -98,7 +106,7 @@ Control = namedtuple("Control", [  # the PID controllers (hydraulics.controllers
 
 Recording = namedtuple("Recording", [
     "record",  # the rows to fill, (rows, width)
-    "rec",  # (rows, every, first step index, rows written, a row was not finite), int64 (5,)
+    "rec",  # int64 (len(REC),) by REC
 ])
 
 
@@ -121,9 +129,9 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
     istats, ledger, pres = hyd.istats, hyd.ledger, hyd.pressure
     substeps = settings.substeps
     fout = actuators.out
-    rows, every, first_step = rec[0], rec[1], rec[2]
-    rec[3] = 0  # rows recorded
-    rec[4] = 0  # a recorded row was not finite
+    rows, every, first_step = rec[REC.ROWS], rec[REC.EVERY], rec[REC.FIRST]
+    rec[REC.COUNT] = 0
+    rec[REC.BAD] = 0
     # the frames' work arrays, made once for the block (room for every contact candidate)
     jt = model.jt
     work = FN._frame_work_jit(actuation.cyl.size, actuators.x.size, Xg.shape[0], jt.shape[0], art.mobility.shape,
@@ -158,16 +166,16 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
                                C.borrowed(work), (transport, art_contacts, joint_space))
         if status != FN.FRAME_OK:
             return k, BLOCK_SINGULAR
-        for _ in range(int(fout[1])):  # network time: + h per successful substep
-            clock[1] += settings.h
-        clock[0] = clock[0] + dt
+        for _ in range(int(fout[FN.OUT.SUBSTEPS_OK])):  # network time: + h per successful substep
+            clock[CLOCK.NET_TIME] += settings.h
+        clock[CLOCK.TIME] = clock[CLOCK.TIME] + dt
         XC.qpos_qvel(bx, bq, bv, bw, hint, tree, xb, qb, qpos, qvel)
         hint[:] = qpos
         kin, pot = XC.energies(bx, bq, bv, bw, plant.root, plant.from_root_quat, plant.from_root_pos, plant.group_mass,
                                plant.group_inertia, model.gravity)
         mechanical = 0 + kin + pot  # sum((kinetic, potential)), as the Python hooks
-        clock[2] += fout[0] - (mechanical - clock[3])
-        clock[3] = mechanical
+        clock[CLOCK.DISSIPATED] += fout[FN.OUT.WORK] - (mechanical - clock[CLOCK.MECHANICAL])
+        clock[CLOCK.MECHANICAL] = mechanical
         if istats[H.I_STATUS] != H.ST_OK:
             return k + 1, BLOCK_OK
         for i in range(pres.size):
@@ -176,12 +184,12 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
         for i in range(pos.size):
             xmax[i] = max(xmax[i], pos[i])
             xmin[i] = min(xmin[i], pos[i])
-        if rec[3] < rows and k < nframe - 1 and (first_step + k + 1) % every == 0:
+        if rec[REC.COUNT] < rows and k < nframe - 1 and (first_step + k + 1) % every == 0:
             last = (k + 1) * substeps - 1
-            if not _record_row(record[rec[3]], hyd, qpos, qvel, plant.record_qpos, plant.record_qvel, actuators.effort,
-                               cmd[last], speed[last], kin, pot, clock[2], xb, qb, control.state):
-                rec[4] = 1
-            rec[3] += 1
+            if not _record_row(record[rec[REC.COUNT]], hyd, qpos, qvel, plant.record_qpos, plant.record_qvel, actuators.effort,
+                               cmd[last], speed[last], kin, pot, clock[CLOCK.DISSIPATED], xb, qb, control.state):
+                rec[REC.BAD] = 1
+            rec[REC.COUNT] += 1
     return nframe, BLOCK_OK
 
 
