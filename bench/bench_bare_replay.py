@@ -43,7 +43,8 @@ SCENARIO = Path(__file__).resolve().parents[1] / "models" / "excavator" / "dig.s
 DT = 1e-3  # s
 IMPLICIT_COUPLINGS = tuple(c for c in COUPLINGS if c != "explicit")  # those that are stable on the excavator at 1 kHz
 # the replay callback's table (int64): step, rows, actuators, biasprm width, addresses of ctrl, biasprm, the rows, ids
-R_K, R_ROWS, R_NA, R_NBIAS, R_CTRL, R_BIAS, R_TABLE, R_ACT = range(8)
+REPLAY_TABLE = ("step", "rows", "actuators", "bias_width", "ctrl", "biasprm", "table", "ids")
+R_K, R_ROWS, R_NA, R_NBIAS, R_CTRL, R_BIAS, R_TABLE, R_ACT = range(len(REPLAY_TABLE))
 
 
 def replay_callback(table_address: int):

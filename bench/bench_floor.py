@@ -48,11 +48,11 @@ from hydraulics.fluid import POTENTIAL_QUADRATURE_POINTS
 from bench_fast import DT, SCENES, bare_start  # the same scenes, step and bare loop as bench_fast.py
 
 PIECES = ("pressures", "flows", "evaluation", "factorisation")
-PRESSURES, FLOWS, EVALUATION, FACTORISATION = range(4)
+PRESSURES, FLOWS, EVALUATION, FACTORISATION = range(len(PIECES))
 # the pieces of a rosenbrock step (hydraulics.coupling): its one-step linearisation, the same at a known start
 # evaluation (MuJoCo mode: the previous step's end), its linear finish and the energy ledger
 STEP_PIECES = ("one-step", "one-step known", "linear finish", "ledger")
-ONE_STEP, ONE_STEP_KNOWN, LINEAR_FINISH, LEDGER = range(4, 8)
+ONE_STEP, ONE_STEP_KNOWN, LINEAR_FINISH, LEDGER = range(len(PIECES), len(PIECES) + len(STEP_PIECES))
 
 
 @numba.njit(cache=True)

@@ -102,6 +102,7 @@ from .components.relief import R_CRACK, R_GRAD, R_WIDTH
 from .components.valve_4_3 import V_OVERLAP, V_TAU
 from .components.parameters import table as _table
 from .components import BRANCH_LAWS, LAW_WIDTH, law_sources, law_states
+from .layout import Layout
 
 
 # ----------------------------------------------------------------------------
@@ -170,8 +171,11 @@ PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W
 
 # status codes returned by the kernels
 _OK, _NEWTON_FAILED = 0, 1
-# istats entries
-(IS_STATUS, IS_NEWTON, IS_RHS, IS_JAC, IS_WORST, IS_SINGULAR) = range(6)
+ISTATS = ("status", "newton", "rhs", "jac", "worst", "singular")
+"""The kernels' int64 counters ``istats`` (indices ``IS_*``, this order): status code, Newton iterations, right-hand
+side and Jacobian evaluations, worst node (-1: none), singular matrix (1)."""
+(IS_STATUS, IS_NEWTON, IS_RHS, IS_JAC, IS_WORST, IS_SINGULAR) = range(len(ISTATS))
+NIS = len(ISTATS)
 
 # Arguments of the step and linearisation kernels, as named tuples of arrays (numba passes them by value; views only)
 StepStart = namedtuple("StepStart", ("oil", "spool", "command", "speed", "position", "velocity"))
@@ -1106,38 +1110,74 @@ def _copy2(dst, src):
             dst[i, j] = src[i, j]
 
 
-@_kernel
-def _take(W, offset, count):
-    """``count`` entries of the scratch buffer W from ``offset``, and the next offset (a view: no allocation)."""
-    return W[offset:offset + count], offset + count
+# ----------------------------------------------------------------------------
+# Scratch layouts of the cores (hydraulics.layout: sizes, offsets and views generated from each description).
+# Dimensions: n nodes, nf free nodes, na actuators, nb branches, narea valve-area entries (_area_count),
+# nsolve: the length of the solve scratch that a larger scratch starts with.
+# ----------------------------------------------------------------------------
+SOLVE_SCRATCH = Layout("solve_scratch", ("n", "nb", "nf", "narea", "nlu"), (
+    ("area", "narea"),  # valve areas [m²]
+    ("geo", "n"), ("inflow", "n"), ("oil", "n"), ("p", "n"), ("dpdm", "n"),  # iterate: volumes, ΣQ, m, p, ∂p/∂m
+    ("t_oil", "n"), ("t_p", "n"), ("t_dpdm", "n"),  # line-search trial
+    ("flow", "nb"), ("dflow", "nb", _W_BR), ("t_flow", "nb"), ("t_dflow", "nb", _W_BR),  # flows, ∂Q/∂p at terminals
+    ("residual", "nf"), ("t_residual", "nf"), ("scale", "nf"), ("delta", "nf"),  # r, trial r, β/V, Newton step
+    ("jac", "nf", "nf"),  # Newton matrix (dense fallback)
+    ("lu", "nlu"), ("saved", "nlu"),  # Newton matrix on the circuit's sparse pattern, and its copy
+))
+"""Scratch of :func:`_solve_core` (from the start of ``W``)."""
+STEP_SCRATCH = Layout("step_scratch", ("nsolve", "n"), (("solve", "nsolve"), ("dpdm", "n"), ("geo", "n")))
+"""Scratch of :func:`_step_core`: the solve's, then the end evaluation's ∂p/∂m and volumes."""
+LINEARIZE_SCRATCH = Layout("linearize_scratch", ("nsolve", "n", "na", "nb", "nf", "narea", "njq", "nlu"), (
+    ("solve", "nsolve"),
+    ("dflow", "nb", _W_BR), ("flow2", "nb"), ("dpdm", "n"), ("geo", "n"),
+    ("dvdx", "n", "na"), ("dpdx_dt", "n", "na"),  # ∂V/∂x, dt·∂p/∂x
+    ("area", "narea"), ("jq", "njq"), ("mg", "n", "na"), ("rhs", "nf", "na"), ("jac", "nf", "nf"),
+    ("lu", "nlu"), ("saved", "nlu"),
+    ("dpdv", "n", "na"), ("epg", "na", "n"), ("slope", "na"),
+))
+"""Scratch of :func:`_linearize_core`: the solve's, then the linearisation's."""
+ONE_STEP_SCRATCH = Layout("one_step_scratch", ("n", "na", "nb", "nf", "narea", "njq", "nlu"), (
+    ("area", "narea"), ("geo", "n"), ("inflow", "n"), ("dpdm", "n"), ("dflow", "nb", _W_BR), ("residual", "nf"),
+    ("dvdx", "n", "na"), ("dpdx_dt", "n", "na"), ("mg", "n", "na"), ("dpdv", "n", "na"), ("jq", "njq"),
+    ("rhs", "nf", "na + 1"), ("jac", "nf", "nf"), ("lu", "nlu"), ("saved", "nlu"), ("epg", "na", "n"), ("slope", "na"),
+))
+"""Scratch of :func:`_linearize_one_step_from` (no longer than :data:`LINEARIZE_SCRATCH`)."""
+LINEAR_FINISH_SCRATCH = Layout("linear_finish_scratch", ("n", "narea"), (("area", "narea"), ("geo", "n"),
+                                                                         ("dpdm", "n")))
+"""Scratch of :func:`_linear_finish`."""
+LINEARIZATION_KEPT = (("guess", "na"), ("lin_oil", "n"), ("lin_spool", "nvalve"), ("doil", "n", "na"))
+"""What a coupling's begin keeps for its finish (fields of the plants' persistent buffers, dimensions n, na and
+nvalve component states): velocity guess [m/s or rad/s], predicted oil m_lin [m³], predicted spools and states [-],
+∂m⁺/∂v (n × na)."""
 
-
-@_kernel
-def _take2(W, offset, rows, cols):
-    """``rows`` × ``cols`` entries of the scratch buffer W from ``offset`` as a 2-D view, and the next offset."""
-    flat, offset = _take(W, offset, rows * cols)
-    return _matrix(flat, rows, cols), offset
+_solve_scratch = _inline(SOLVE_SCRATCH.carver(_matrix))
+_step_scratch = _inline(STEP_SCRATCH.carver(_matrix))
+_linearize_scratch = _inline(LINEARIZE_SCRATCH.carver(_matrix))
+_one_step_scratch = _inline(ONE_STEP_SCRATCH.carver(_matrix))
+_linear_finish_scratch = _inline(LINEAR_FINISH_SCRATCH.carver(_matrix))
+_solve_scratch_size = _kernel(SOLVE_SCRATCH.sizer())
+_step_scratch_size = _kernel(STEP_SCRATCH.sizer())
+_linearize_scratch_size = _kernel(LINEARIZE_SCRATCH.sizer())
+_linear_finish_scratch_size = _kernel(LINEAR_FINISH_SCRATCH.sizer())
 
 
 @_kernel
 def _solve_work_size(ic):
-    """Scratch entries _solve_core needs (float64)."""
-    n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
-    return _area_count(ic) + 8 * n + (2 + 2 * _W_BR) * nb + 4 * nf + nf * nf + 2 * ic[IC_NLU]
+    """Scratch entries _solve_core needs (float64): :data:`SOLVE_SCRATCH`."""
+    return _solve_scratch_size(ic[IC_N], ic[IC_NB], ic[IC_NF], _area_count(ic), ic[IC_NLU])
 
 
 @_kernel
 def _step_work_size(ic):
-    """Scratch entries _step_core needs (float64)."""
-    return _solve_work_size(ic) + 2 * ic[IC_N]
+    """Scratch entries _step_core needs (float64): :data:`STEP_SCRATCH`."""
+    return _step_scratch_size(_solve_work_size(ic), ic[IC_N])
 
 
 @_kernel
 def _linearize_work_size(ic):
-    """Scratch entries _linearize_core needs (float64)."""
-    n, nf, na, nb = ic[IC_N], ic[IC_NF], ic[IC_NA], ic[IC_NB]
-    return (_solve_work_size(ic) + (1 + _W_BR) * nb + 2 * n + 5 * n * na + _area_count(ic) + ic[IC_NJQ] + nf * na
-            + nf * nf + 2 * ic[IC_NLU] + na)
+    """Scratch entries _linearize_core needs (float64): :data:`LINEARIZE_SCRATCH`."""
+    return _linearize_scratch_size(_solve_work_size(ic), ic[IC_N], ic[IC_NA], ic[IC_NB], ic[IC_NF], _area_count(ic),
+                                   ic[IC_NJQ], ic[IC_NLU])
 
 
 def work_size(F, I) -> int:
@@ -1159,29 +1199,11 @@ def _solve_core(pnet, oil0, x, v, spool, speed, h, oil_out, flow_out, dflow_out,
     ic, sc, free = net.ic, net.sc, net.free
     n, nf, nb = ic[IC_N], ic[IC_NF], ic[IC_NB]
     halvings = ic[IC_HALVINGS]
-    o = 0
-    area, o = _take(W, o, _area_count(ic))
-    geo, o = _take(W, o, n)
-    inflow, o = _take(W, o, n)
-    oil, o = _take(W, o, n)
-    p, o = _take(W, o, n)
-    dpdm, o = _take(W, o, n)
-    t_oil, o = _take(W, o, n)
-    t_p, o = _take(W, o, n)
-    t_dpdm, o = _take(W, o, n)
-    flow, o = _take(W, o, nb)
-    dflow, o = _take2(W, o, nb, _W_BR)
-    t_flow, o = _take(W, o, nb)
-    t_dflow, o = _take2(W, o, nb, _W_BR)
-    residual, o = _take(W, o, nf)
-    t_residual, o = _take(W, o, nf)
-    scale, o = _take(W, o, nf)
-    delta_flat, o = _take(W, o, nf)
-    jac_flat, o = _take(W, o, nf * nf)
-    lu, o = _take(W, o, ic[IC_NLU])
-    saved, o = _take(W, o, ic[IC_NLU])
+    ws, _ = _solve_scratch(W, 0, n, nb, nf, _area_count(ic), ic[IC_NLU])
+    area, geo, inflow, oil, p, dpdm, lu, saved = ws.area, ws.geo, ws.inflow, ws.oil, ws.p, ws.dpdm, ws.lu, ws.saved
+    t_oil, t_p, t_dpdm, flow, dflow, t_flow, t_dflow = ws.t_oil, ws.t_p, ws.t_dpdm, ws.flow, ws.dflow, ws.t_flow, ws.t_dflow
+    residual, t_residual, scale, delta_flat, jac = ws.residual, ws.t_residual, ws.scale, ws.delta, ws.jac
     delta = _matrix(delta_flat, nf, 1)
-    jac = _matrix(jac_flat, nf, nf)
     _valve_areas(pnet, spool, area)
     _copy(oil, oil_init)
     rhs = 0
@@ -1295,9 +1317,8 @@ def _step_core(pnet, W, start, h, update_spool, out, oil_init):
         _spool_end(pnet, spool0, command, h, spool)
     else:
         _copy(spool, spool0)
-    s = _solve_work_size(net.ic)
-    dpdm, o = _take(W, s, n)
-    geo, o = _take(W, o, n)
+    ws, _ = _step_scratch(W, 0, _solve_work_size(net.ic), n)
+    dpdm, geo = ws.dpdm, ws.geo
     norm = _solve_core(pnet, oil0, x, v, spool, speed, h, oil, flow, dflow, istats, W, p, oil_init)
     _pressure(pnet, oil, x, geo, p, dpdm)
     _law_states_end(pnet, spool, h, p)
@@ -1314,7 +1335,7 @@ def _step_python_entry(F, I, oil0, spool0, command, speed, x, v, h, update_spool
     W = np.empty(_step_work_size(net.ic))
     spool = np.empty(spool0.size)
     oil, p, flow, dflow = np.empty(n), np.empty(n), np.empty(nb), np.empty((nb, _W_BR))
-    istats = np.zeros(6, np.int64)
+    istats = np.zeros(NIS, np.int64)
     norm = _step_core(pnet, W, StepStart(oil0, spool0, command, speed, x, v), h, update_spool,
                       StepOut(oil, p, spool, flow, dflow, istats), oil_init)
     return oil, p, spool, flow, dflow, istats, norm
@@ -1422,25 +1443,12 @@ def _linearize_core(pnet, W, start, dt, out, oil_init):
     for a in range(na):
         x[a] = x0[a] + dt * velocity[a]
     _spool_end(pnet, spool0, command, dt, spool)
-    o = _solve_work_size(ic)
-    dflow, o = _take2(W, o, nb, _W_BR)
-    flow2, o = _take(W, o, nb)
-    dpdm, o = _take(W, o, n)
-    geo, o = _take(W, o, n)
+    ws, _ = _linearize_scratch(W, 0, _solve_work_size(ic), n, na, nb, nf, _area_count(ic), ic[IC_NJQ], ic[IC_NLU])
+    dflow, flow2, dpdm, geo = ws.dflow, ws.flow2, ws.dpdm, ws.geo
     norm = _solve_core(pnet, oil0, x, velocity, spool, speed, dt, oil, flow, dflow, istats, W, p_first, oil_init)
     _pressure(pnet, oil, x, geo, p, dpdm)
-    dvdx, o = _take2(W, o, n, na)
-    dpdx_dt, o = _take2(W, o, n, na)  # dt·∂p/∂x
-    area, o = _take(W, o, _area_count(ic))
-    jq, o = _take(W, o, ic[IC_NJQ])
-    mg, o = _take2(W, o, n, na)
-    rhs, o = _take2(W, o, nf, na)
-    jac, o = _take2(W, o, nf, nf)
-    lu, o = _take(W, o, ic[IC_NLU])
-    saved, o = _take(W, o, ic[IC_NLU])
-    dpdv, o = _take2(W, o, n, na)
-    epg, o = _take2(W, o, na, n)
-    slope, o = _take(W, o, na)
+    dvdx, dpdx_dt, area, jq, mg, rhs, jac = ws.dvdx, ws.dpdx_dt, ws.area, ws.jq, ws.mg, ws.rhs, ws.jac  # dt·∂p/∂x
+    lu, saved, dpdv, epg, slope = ws.lu, ws.saved, ws.dpdv, ws.epg, ws.slope
     _position_pressure_gradient(pnet, x, geo, p, dpdm, dt, dvdx, dpdx_dt)
     _valve_areas(pnet, spool, area)
     _branch_flows(pnet, p, area, speed, velocity, flow2, dflow, spool, dt)
@@ -1503,24 +1511,10 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
     for a in range(na):
         x[a] = x0[a] + dt * velocity[a]
     _spool_end(pnet, spool0, command, dt, spool)
-    o = 0
-    area, o = _take(W, o, _area_count(ic))
-    geo, o = _take(W, o, n)
-    inflow, o = _take(W, o, n)
-    dpdm, o = _take(W, o, n)
-    dflow, o = _take2(W, o, nb, _W_BR)
-    residual, o = _take(W, o, nf)
-    dvdx, o = _take2(W, o, n, na)
-    dpdx_dt, o = _take2(W, o, n, na)
-    mg, o = _take2(W, o, n, na)
-    dpdv, o = _take2(W, o, n, na)
-    jq, o = _take(W, o, ic[IC_NJQ])
-    rhs, o = _take2(W, o, nf, na + 1)
-    jac, o = _take2(W, o, nf, nf)
-    lu, o = _take(W, o, ic[IC_NLU])
-    saved, o = _take(W, o, ic[IC_NLU])
-    epg, o = _take2(W, o, na, n)
-    slope, o = _take(W, o, na)
+    ws, _ = _one_step_scratch(W, 0, n, na, nb, nf, _area_count(ic), ic[IC_NJQ], ic[IC_NLU])
+    area, geo, inflow, dpdm, dflow, residual = ws.area, ws.geo, ws.inflow, ws.dpdm, ws.dflow, ws.residual
+    dvdx, dpdx_dt, mg, dpdv, jq, rhs, jac = ws.dvdx, ws.dpdx_dt, ws.mg, ws.dpdv, ws.jq, ws.rhs, ws.jac
+    lu, saved, epg, slope = ws.lu, ws.saved, ws.epg, ws.slope
     _valve_areas(pnet, spool, area)
     if known:
         _copy(geo, geo_known)
@@ -1627,7 +1621,7 @@ def _linearize_python_entry(F, I, oil0, spool0, command, speed, x0, velocity, dt
     n, na, nb = ic[IC_N], ic[IC_NA], ic[IC_NB]
     W = np.empty(_linearize_work_size(ic))
     oil, p, spool, x, flow = np.empty(n), np.empty(n), np.empty(spool0.size), np.empty(na), np.empty(nb)
-    istats = np.zeros(6, np.int64)
+    istats = np.zeros(NIS, np.int64)
     effort, gradient, p_first, doil = np.empty(na), np.empty((na, na)), np.empty(n), np.empty((n, na))
     norm = _linearize_any(newton, pnet, W, StepStart(oil0, spool0, command, speed, x0, velocity), dt,
                           LinearizationOut(oil, p, spool, x, flow, istats, effort, gradient, p_first, doil), oil_init)
@@ -1639,18 +1633,6 @@ def _linearize_python_entry(F, I, oil0, spool0, command, speed, x0, velocity, dt
 # (sim.plants.mujoco_fast: MuJoCo's control callback; sim.plants.pbd_hydraulics: the PBD plant's hooks).
 # Pure hydraulics on the packed network; allocation-free.
 # ----------------------------------------------------------------------------
-@_kernel
-def _take_linearization(S, o, n, na, nvalve):
-    """Views of what the coupling's begin keeps for its finish, carved from ``S`` at offset ``o``
-    (na + n + nvalve + n·na entries): velocity guess [m/s or rad/s] (na), predicted oil m_lin [m³] (n),
-    predicted spools [-] (nvalve), ∂m⁺/∂v (n × na); returns them and the offset after them."""
-    guess, o = _take(S, o, na)
-    lin_oil, o = _take(S, o, n)
-    lin_spool, o = _take(S, o, nvalve)
-    doil, o = _take2(S, o, n, na)
-    return guess, lin_oil, lin_spool, doil, o
-
-
 @_kernel
 def _pressure_effort(pnet, p, out):
     """NetworkModel.pressure_effort: actuator efforts [N or N·m] of the node pressures ``p`` [Pa] into ``out``."""
@@ -1889,13 +1871,11 @@ def _linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow, h):
     ``oil`` (m⁺ [m³]) at the end positions ``x``, and the branch flows ``flow`` [m³/s] at the linearisation's
     spools ``spool``, pump speeds ``speed`` and end velocities ``v`` (no Newton solve) over the step of ``h`` [s]; the
     stateful law branches' states in ``spool`` are advanced to its end.  ``W``: scratch of at least
-    (:func:`_area_count` + 2·nodes) entries; ``dflow``: scratch (branches × terminals)."""
+    :data:`LINEAR_FINISH_SCRATCH` entries; ``dflow``: scratch (branches × terminals)."""
     net = _deref(pnet)
     n = oil.size
-    o = 0
-    area, o = _take(W, o, _area_count(net.ic))
-    geo, o = _take(W, o, n)
-    dpdm, o = _take(W, o, n)
+    ws, _ = _linear_finish_scratch(W, 0, n, _area_count(net.ic))
+    area, geo, dpdm = ws.area, ws.geo, ws.dpdm
     _pressure(pnet, oil, x, geo, p, dpdm)
     _valve_areas(pnet, spool, area)
     _branch_flows(pnet, p, area, speed, v, flow, dflow, spool, h)
@@ -2426,7 +2406,7 @@ def _linearize_at_guess_python_entry(F, I, oil0, spool0, command, speed, x0, gue
     n, na, nb = ic[IC_N], ic[IC_NA], ic[IC_NB]
     W = np.empty(_linearize_work_size(ic))
     oil, p, spool, x, flow = np.empty(n), np.empty(n), np.empty(spool0.size), np.empty(na), np.empty(nb)
-    istats = np.zeros(6, np.int64)
+    istats = np.zeros(NIS, np.int64)
     effort, gradient, p_first, doil = np.empty(na), np.empty((na, na)), np.empty(n), np.empty((n, na))
     v = guess.copy()
     _, norm = _linearize_at_guess(newton, pnet, W, StepStart(oil0, spool0, command, speed, x0, v), dt,
@@ -2462,7 +2442,7 @@ def _linear_finish_python_entry(F, I, oil, spool, x, v, speed, h):
     net = _unpack(F, I)
     ic = net.ic
     n, nb = ic[IC_N], ic[IC_NB]
-    W = np.empty(_area_count(ic) + 2 * n)
+    W = np.empty(_linear_finish_scratch_size(n, _area_count(ic)))
     p, flow, dflow = np.empty(n), np.empty(nb), np.empty((nb, _W_BR))
     _linear_finish(_ref(net), W, oil, spool, x, v, speed, p, flow, dflow, h)
     return p, flow

@@ -53,7 +53,7 @@ from collections import namedtuple
 import numpy as np
 
 from . import _compiled as C
-from ._jit import FINGERPRINT, clip, kernel, maximum, minimum
+from ._jit import FINGERPRINT, clip, inline, kernel, matrix, maximum, minimum
 from .components import pumps as _pumps
 from .components import valve_4_3 as _valve
 from .components.cylinder import CI_ACT, CI_CAP, CI_ROD
@@ -61,6 +61,7 @@ from .components.motor import MI_A, MI_ACT, MI_B
 from .components.parameters import table
 from .components.pumps import P_DISP, P_EFF
 from .components.valve_4_3 import V_OVERLAP
+from .layout import Layout
 
 # Incompressible fidelity: the rod follows its metered flow with this stiffness relative to
 # m_eff/h (the velocity error left after one step is about 1/(1 + gain) of the demand change).
@@ -267,10 +268,49 @@ def bounded_tracker(target, velocity, gain, lower, upper):
 # ----------------------------------------------------------------------------
 # Network kernels (allocation-free, on the packed network)
 # ----------------------------------------------------------------------------
+# Scratch layouts (hydraulics.layout): n nodes, na actuators, nr rigid branches, narea valve-area entries
+# (_compiled._area_count, at most the branch count), nmixed: the length of mixed_law's scratch.
+EXPLICIT_SCRATCH = Layout("explicit_scratch", ("n", "narea"),
+                          (("geo", "n"), ("dpdm", "n"), ("inflow", "n"), ("area", "narea")))
+"""Scratch of :func:`explicit_substep`: geometric volumes [m³], ∂p/∂m [Pa/m³], net inflow [m³/s], valve areas [m²]."""
+MIXED_LAW_SCRATCH = Layout("mixed_law_scratch", ("na",),
+                           (("friction", "na"), ("fslope", "na"), ("target", "na"), ("tracking", "na")))
+"""Scratch of :func:`mixed_law`."""
+EXPLICIT_LAW_SCRATCH = Layout("explicit_law_scratch", ("na",), (("friction", "na"), ("damping", "na")))
+"""Scratch of :func:`explicit_law`."""
+RIGID_LAW_SCRATCH = Layout("rigid_law_scratch", ("nr", "n", "nmixed"), (
+    ("p_supply", "nr"), ("gradient", "nr"), ("v_guess", "nr"), ("geo", "n"), ("p", "n"), ("dpdm", "n"),
+    ("mixed", "nmixed")))
+"""Scratch of :func:`rigid_law`: the supply terms per rigid branch, the pressure law's outputs, then
+:data:`MIXED_LAW_SCRATCH`."""
+RIGID_FINISH_SCRATCH = Layout("rigid_finish_scratch", ("na",), (("friction", "na"), ("fslope", "na"),
+                                                                 ("hydraulic", "na")))
+"""Scratch of :func:`rigid_finish`."""
+
+_explicit_scratch = inline(EXPLICIT_SCRATCH.carver(matrix))
+_mixed_law_scratch = inline(MIXED_LAW_SCRATCH.carver(matrix))
+_explicit_law_scratch = inline(EXPLICIT_LAW_SCRATCH.carver(matrix))
+_rigid_law_scratch = inline(RIGID_LAW_SCRATCH.carver(matrix))
+_rigid_finish_scratch = inline(RIGID_FINISH_SCRATCH.carver(matrix))
+_explicit_scratch_size = kernel(EXPLICIT_SCRATCH.sizer())
+_mixed_law_scratch_size = kernel(MIXED_LAW_SCRATCH.sizer())
+
+
 @kernel
 def explicit_work_size(ic):
-    """Scratch entries :func:`explicit_substep` takes: geometric volumes, ∂p/∂m, net inflow, valve areas."""
-    return 3 * ic[C.IC_N] + C._area_count(ic)
+    """Scratch entries :func:`explicit_substep` takes (:data:`EXPLICIT_SCRATCH`)."""
+    return _explicit_scratch_size(ic[C.IC_N], C._area_count(ic))
+
+
+def coupled_work_size(newton, n, na, nb, nr) -> int:
+    """Length of a plant's float64 scratch ``W`` for its compiled steps: the longest of the Newton kernels'
+    ``newton`` (``_compiled.work_size``) and this module's layouts for ``n`` nodes, ``na`` actuators, ``nb`` branches
+    (an upper bound of the valve-area entries) and ``nr`` rigid branches: :data:`EXPLICIT_SCRATCH`, the
+    incompressible finish's volumes (n), :data:`EXPLICIT_LAW_SCRATCH`, :data:`RIGID_LAW_SCRATCH`,
+    :data:`RIGID_FINISH_SCRATCH`."""
+    return max(int(newton), EXPLICIT_SCRATCH.size(n=n, narea=nb), n, EXPLICIT_LAW_SCRATCH.size(na=na),
+               RIGID_LAW_SCRATCH.size(nr=nr, n=n, nmixed=MIXED_LAW_SCRATCH.size(na=na)),
+               RIGID_FINISH_SCRATCH.size(na=na))
 
 
 @kernel
@@ -283,10 +323,8 @@ def explicit_substep(pnet, W, start, x_end, h, out):
     oil, p, spool, flow, dflow, istats = out
     net = C._deref(pnet)
     n = net.ic[C.IC_N]
-    geo, o = C._take(W, 0, n)
-    dpdm, o = C._take(W, o, n)
-    inflow, o = C._take(W, o, n)
-    area, o = C._take(W, o, C._area_count(net.ic))
+    ws, _ = _explicit_scratch(W, 0, n, C._area_count(net.ic))
+    geo, dpdm, inflow, area = ws.geo, ws.dpdm, ws.inflow, ws.area
     C._spool_end(pnet, spool0, command, h, spool)
     C._pressure(pnet, oil0, x, geo, p, dpdm)
     C._valve_areas(pnet, spool0, area)
@@ -500,16 +538,14 @@ def mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, la
     ``supply`` = (p_P [Pa], ∂p_P/∂v [Pa·s/m], v_g [m/s]) per rigid branch: the supply pressure at the
     linearisation's velocities v_g, its gradient with respect to the branch's own actuator velocity (zero for an
     explicit inner coupling).  ``spool0``, ``command``: start spools and commands (the law takes the end spools);
-    ``scratch``: 4·actuators entries."""
+    ``scratch``: :data:`MIXED_LAW_SCRATCH`."""
     net = C._deref(pnet)
     const, slope = law
     lower, upper = bounds
     p_supply, dp_dv, v_guess = supply
     na = velocity.size
-    friction, o = C._take(scratch, 0, na)
-    fslope, o = C._take(scratch, o, na)
-    target, o = C._take(scratch, o, na)
-    tracking, o = C._take(scratch, o, na)
+    ws, _ = _mixed_law_scratch(scratch, 0, na)
+    friction, fslope, target, tracking = ws.friction, ws.fslope, ws.target, ws.tracking
     for a in range(na):
         lower[a], upper[a] = R.force_lower[a], R.force_upper[a]
         tracking[a] = 1.0 if R.rigid[a] else 0.0
@@ -563,11 +599,11 @@ def mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, la
 @kernel
 def explicit_law(pnet, pressure, velocity, law, scratch):
     """CouplingExplicit.begin: the effort of the start ``pressure`` [Pa] plus the seal friction at the start
-    ``velocity`` into ``law`` = (const, slope), slope 0 (the effort is held over the step); ``scratch``: 2·actuators."""
+    ``velocity`` into ``law`` = (const, slope), slope 0 (the effort is held over the step); ``scratch``: :data:`EXPLICIT_LAW_SCRATCH`."""
     const, slope = law
     na = velocity.size
-    friction, o = C._take(scratch, 0, na)
-    damping, o = C._take(scratch, o, na)
+    ws, _ = _explicit_law_scratch(scratch, 0, na)
+    friction, damping = ws.friction, ws.damping
     C._pressure_effort(pnet, pressure, const)
     C._friction_effort(pnet, velocity, friction, damping)
     for a in range(na):
@@ -609,15 +645,10 @@ def rigid_law(pnet, R, spool0, command, velocity, effective_mass, dt, lin, impli
     ``lin`` = (pressures [Pa], oil [m³], positions [m | rad], ∂m⁺/∂v, velocities [m/s | rad/s]) of the inner
     coupling's linearisation: with ``implicit`` the supply pressure p_P is its end pressure, with the gradient
     ∂p_P/∂v = (∂p/∂m)·(∂m⁺/∂v) at its oil and positions, about its velocities; otherwise (the explicit coupling)
-    the start pressure, held (the other members are not read).  ``W``: scratch (3·rigid branches + 3·nodes +
-    4·actuators)."""
+    the start pressure, held (the other members are not read).  ``W``: scratch (:data:`RIGID_LAW_SCRATCH`)."""
     nr, n, na = R.actuator.size, lin[0].size, velocity.size
-    p_supply, o = C._take(W, 0, nr)
-    gradient, o = C._take(W, o, nr)
-    v_guess, o = C._take(W, o, nr)
-    geo, o = C._take(W, o, n)
-    p, o = C._take(W, o, n)
-    dpdm, o = C._take(W, o, n)
+    ws, _ = _rigid_law_scratch(W, 0, nr, n, _mixed_law_scratch_size(na))
+    p_supply, gradient, v_guess, geo, p, dpdm = ws.p_supply, ws.gradient, ws.v_guess, ws.geo, ws.p, ws.dpdm
     pressure, oil, position, doil, guess = lin
     if implicit:
         C._pressure(pnet, oil, position, geo, p, dpdm)
@@ -627,7 +658,7 @@ def rigid_law(pnet, R, spool0, command, velocity, effective_mass, dt, lin, impli
         gradient[k] = dpdm[node] * doil[node, a] if implicit else 0.0
         v_guess[k] = guess[a] if implicit else 0.0
     mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, (p_supply, gradient, v_guess), law, bounds,
-              W[o:o + 4 * na])
+              ws.mixed)
     for a in range(na):
         if R.rigid[a]:
             theta[a] = 1.0
@@ -637,13 +668,12 @@ def rigid_law(pnet, R, spool0, command, velocity, effective_mass, dt, lin, impli
 def rigid_finish(pnet, R, law, bounds, v_end, pressure, scratch):
     """CouplingMixed.finish after a successful inner finish: the rigid actuators' chamber pressures [Pa] carry the
     applied effort clip(const + slope·v⁺, lower, upper) less the seal friction at ``v_end``; ``scratch``:
-    3·actuators."""
+    :data:`RIGID_FINISH_SCRATCH`."""
     const, slope = law
     lower, upper = bounds
     na = v_end.size
-    friction, o = C._take(scratch, 0, na)
-    fslope, o = C._take(scratch, o, na)
-    hydraulic, o = C._take(scratch, o, na)
+    ws, _ = _rigid_finish_scratch(scratch, 0, na)
+    friction, fslope, hydraulic = ws.friction, ws.fslope, ws.hydraulic
     C._friction_effort(pnet, v_end, friction, fslope)
     for a in range(na):
         hydraulic[a] = clip(const[a] + slope[a] * v_end[a], lower[a], upper[a]) - friction[a]
@@ -684,7 +714,7 @@ def _explicit_step_python(F, I, start, x_end, h):
     W = np.empty(explicit_work_size(net.ic))
     oil, p, spool, flow = np.empty(n), np.empty(n), np.empty(start[1].size), np.empty(nb)
     dflow = np.empty((nb, C._W_BR))
-    istats = np.zeros(6, np.int64)
+    istats = np.zeros(C.NIS, np.int64)
     explicit_substep(pnet, W, start, x_end, h, C.StepOut(oil, p, spool, flow, dflow, istats))
     return oil, p, spool, flow
 

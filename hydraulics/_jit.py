@@ -72,10 +72,11 @@ def source_sha256(*paths) -> str:
 
 _PACKAGE = os.path.dirname(os.path.abspath(__file__))
 SOURCES = tuple([os.path.join(_PACKAGE, "_jit.py"), os.path.join(_PACKAGE, "_compiled.py"),
-                os.path.join(_PACKAGE, "_compiled_rigid.py")]
+                os.path.join(_PACKAGE, "_compiled_rigid.py"), os.path.join(_PACKAGE, "layout.py")]
                 + sorted(glob.glob(os.path.join(_PACKAGE, "components", "*.py"))))
 """The files whose functions the hydraulic kernels compile in: this module, :mod:`hydraulics._compiled`,
-:mod:`hydraulics._compiled_rigid` and every component module (their laws).  A cached entry point carries :data:`FINGERPRINT`, their digest."""
+:mod:`hydraulics._compiled_rigid`, :mod:`hydraulics.layout` (the generated scratch views) and every component
+module (their laws).  A cached entry point carries :data:`FINGERPRINT`, their digest."""
 FINGERPRINT = source_sha256(*SOURCES)
 """sha256 of :data:`SOURCES` and numba's version, taken at import (see :func:`source_sha256`)."""
 

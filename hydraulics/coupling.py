@@ -199,7 +199,8 @@ def secant_oil_guess(state: NetworkState):
 # How an implicit coupling linearises and finishes its step (``CouplingImplicit.scheme``; the compiled coupled
 # steps of both plants branch on it): Newton linearisation and Newton finish (implicit), Newton linearisation and
 # linear finish (implicit-linear), one-Newton-step linearisation and linear finish (rosenbrock).
-SCHEME_NEWTON, SCHEME_LINEAR_FINISH, SCHEME_ROSENBROCK = range(3)
+SCHEMES = ("newton", "linear_finish", "rosenbrock")
+SCHEME_NEWTON, SCHEME_LINEAR_FINISH, SCHEME_ROSENBROCK = range(len(SCHEMES))
 
 
 class CouplingImplicit(Coupling):

@@ -575,11 +575,10 @@ class JointStatesChannel(Channel):
         effort : array_like, shape (joint_count,), optional
             Joint efforts [N·m] or [N]; NaN (not set) when omitted.
         """
-        joint_count = len(self.joint_names)
-        row = self.claim(step_index)
-        row[:joint_count] = position
-        row[joint_count:2 * joint_count] = np.nan if velocity is None else velocity
-        row[2 * joint_count:] = np.nan if effort is None else effort
+        row = self.claim(step_index).reshape(3, len(self.joint_names))  # (position, velocity, effort) rows
+        row[0] = position
+        row[1] = np.nan if velocity is None else velocity
+        row[2] = np.nan if effort is None else effort
         self.commit()
 
 

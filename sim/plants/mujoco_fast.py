@@ -47,7 +47,7 @@ state :class:`MujocoPlant` sees after ``mj_step1``.  In the callback of step k:
    the step has no nonlinear solve at all, and the step ends at MuJoCo's actuator
    positions (:meth:`MujocoPlant.end_position`; the block's last step after an
    ``mj_fwdPosition`` from Python): its end pressures p(m⁺, x⁺), kept in the scratch
-   with their geometric volumes and ∂p/∂m (``_start_evaluation``), are the next
+   with their geometric volumes and ∂p/∂m (``PLANT_SCRATCH``: geo, p0, dpdm, known), are the next
    step's start pressures, so each step evaluates the pressure law once.
 
 **Cost and caching.**  The callback allocates nothing: every temporary lives
@@ -148,6 +148,9 @@ from hydraulics import controllers as CT
 from hydraulics.coupling import (SCHEME_ROSENBROCK, CouplingExplicit, CouplingImplicit, CouplingIncompressible,
                                  CouplingMixed)
 from hydraulics.fluid import POTENTIAL_QUADRATURE_POINTS, potential_quadrature
+from hydraulics.layout import Layout, slots
+from sim.io import record_row
+from sim.io.record_row import RECORD_ROW
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepperExplicitEuler, StepperImplicitEuler, StepReport, StepStatus
 
@@ -170,27 +173,42 @@ except ImportError:  # pragma: no cover
 # ----------------------------------------------------------------------------
 # Pointer table layout (int64).  Sizes and counters first, then addresses.
 # ----------------------------------------------------------------------------
-(
-    C_NA, C_NV, C_NU, C_N, C_NB, C_NVALVE, C_NPUMP, C_NBIAS, C_SUBSTEPS, C_NCYL,
-    C_K, C_PENDING, C_FAILED, C_STATUS, C_WORST, C_NEWTON, C_RHS, C_JAC, C_NF, C_NI, C_NW, C_NS, C_ROWS, C_MODE,
-    P_F, P_I, P_ACT, P_CLOSED, P_LENGTH, P_AVEL, P_MOMENT, P_ROWADR, P_ROWNNZ, P_COLIND, P_QVEL, P_CTRL, P_BIASPRM,
-    P_PASSIVE, P_CONSTRAINT, P_J, P_MINVJ, P_OIL, P_PRESSURE, P_SPOOL, P_XPOS, P_XVEL, P_CMD, P_SPEED,
-    P_XSTART, P_VSTART, P_CONST, P_SLOPE, P_THETA, P_MEFF, P_EFFORT, P_FLOW, P_PASSIVE_SAVED, P_FS, P_QUAD,
-    P_WORK, P_SCRATCH, P_ISTATS, P_PMAX, P_PMIN, C_LINEAR,
-    C_NQ, C_NBODY, C_REC_ROWS, C_REC_EVERY, C_REC_FIRST, C_REC_COUNT, C_REC_BAD, C_END_FINITE, C_REC_WIDTH,
-    P_QPOS, P_BXPOS, P_BXQUAT, P_ENERGY, P_REC, P_OIL_CHANGE, P_XMAX, P_XMIN,
-    C_KIND, C_NTF, C_NTI, P_TF, P_TI, P_LOWER, P_UPPER, P_FLIMITED, P_FRANGE, C_NR,
-    P_CTL_TABLE, P_CTL_STATE, P_CTL_SET, C_NCTL, C_STEP0,  # controllers (hydraulics.controllers), C_STEP0: first step
-    NCTX,
-) = range(98)
-# C_KIND: the coupling the callback steps
-KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(3)
-
-# float scalars (P_FS): step, residual of the last step, ledger terms
-FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD = range(8)  # ledger: C._account's order
-NFS = 8
-ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
-MODE_STEP, MODE_FINISH = range(2)  # C_MODE: a coupled step (from mj_step), or only finish the pending step
+CTX_SLOTS = (
+    # sizes and counters
+    "C_NA", "C_NV", "C_NU", "C_N", "C_NB", "C_NVALVE", "C_NPUMP", "C_NBIAS", "C_SUBSTEPS", "C_NCYL",
+    "C_K", "C_PENDING", "C_FAILED", "C_STATUS", "C_WORST", "C_NEWTON", "C_RHS", "C_JAC", "C_NF", "C_NI", "C_NW",
+    "C_NS", "C_ROWS", "C_MODE",
+    # addresses
+    "P_F", "P_I", "P_ACT", "P_CLOSED", "P_LENGTH", "P_AVEL", "P_MOMENT", "P_ROWADR", "P_ROWNNZ", "P_COLIND", "P_QVEL",
+    "P_CTRL", "P_BIASPRM", "P_PASSIVE", "P_CONSTRAINT", "P_J", "P_MINVJ", "P_OIL", "P_PRESSURE", "P_SPOOL", "P_XPOS",
+    "P_XVEL", "P_CMD", "P_SPEED", "P_XSTART", "P_VSTART", "P_CONST", "P_SLOPE", "P_THETA", "P_MEFF", "P_EFFORT",
+    "P_FLOW", "P_PASSIVE_SAVED", "P_FS", "P_QUAD", "P_WORK", "P_SCRATCH", "P_ISTATS", "P_PMAX", "P_PMIN", "C_LINEAR",
+    # the record (MujocoPlantFast.advance)
+    "C_NQ", "C_NBODY", "C_REC_ROWS", "C_REC_EVERY", "C_REC_FIRST", "C_REC_COUNT", "C_REC_BAD", "C_END_FINITE",
+    "C_REC_WIDTH", "P_QPOS", "P_BXPOS", "P_BXQUAT", "P_ENERGY", "P_REC", "P_OIL_CHANGE", "P_XMAX", "P_XMIN",
+    # coupling tables and force bounds
+    "C_KIND", "C_NTF", "C_NTI", "P_TF", "P_TI", "P_LOWER", "P_UPPER", "P_FLIMITED", "P_FRANGE", "C_NR",
+    # controllers (hydraulics.controllers); C_STEP0: first step
+    "P_CTL_TABLE", "P_CTL_STATE", "P_CTL_SET", "C_NCTL", "C_STEP0",
+)
+"""Names of the pointer table's int64 entries (C_*: sizes and counters, P_*: addresses), in table order;
+``SLOT.<name>`` is an entry's index (:func:`hydraulics.layout.slots`)."""
+SLOT = slots(CTX_SLOTS)
+NCTX = len(CTX_SLOTS)
+KINDS = ("implicit", "explicit", "incompressible")
+"""SLOT.C_KIND: the coupling the callback steps (``KIND_*``)."""
+KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(len(KINDS))
+FLOAT_SCALARS = ("dt", "norm", "pump", "motor", "diss_h", "diss_f", "diss_m", "nquad")
+"""The float scalars (SLOT.P_FS, indices ``FS_*``): step [s], residual of the last step [Pa], then the ledger terms
+[J] in C._account's order."""
+FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD = range(len(FLOAT_SCALARS))
+NFS = len(FLOAT_SCALARS)
+STATUSES = ("ok", "newton", "nonfinite", "singular")
+"""SLOT.C_STATUS: the step's outcome (``ST_*``)."""
+ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(len(STATUSES))
+MODES = ("step", "finish")
+"""SLOT.C_MODE: a coupled step (from mj_step), or only finish the pending step (``MODE_*``)."""
+MODE_STEP, MODE_FINISH = range(len(MODES))
 
 # Symbols the cached callback resolves when it is loaded (registered below with llvmlite):
 # the pointer table and MuJoCo's mj_solveM.  Nothing process-specific is baked into the
@@ -199,15 +217,26 @@ CTX_SYMBOL = "hydroplant_fast_plant_ctx"
 SOLVEM_SYMBOL = "hydroplant_mj_solveM"
 
 
-def _finish_scratch(na, n, nb, nstate):
-    return 4 * na + 6 * n + (1 + C._W_BR) * nb + nstate
+PLANT_SCRATCH = Layout("plant_scratch", ("n", "na", "nb", "nvalve"), (
+    # _finish_pending's temporaries: end velocities and positions, substep motion [m, m/s | rad, rad/s]; end oil,
+    # pressures, ledger temporaries; flows and their terminal derivatives; end states; predicted, start, initial oil
+    ("v_end", "na"), ("x_end", "na"), ("xe", "na"), ("ve", "na"), ("o2", "n"), ("p2", "n"), ("mu", "n"),
+    ("fl", "nb"), ("dfl", "nb", C._W_BR), ("sp2", "nvalve"), ("mpred", "n"), ("mstart", "n"), ("minit", "n"))
+    # what _begin keeps for _finish_pending (until the step is finished)
+    + C.LINEARIZATION_KEPT
+    # _begin's temporaries: effort-law terms per actuator; start volumes, pressures p₀ and ∂p/∂m (also the
+    # rosenbrock finish's end evaluation, the known flag below); the linearisation's outputs; warm-start oil
+    + (("fg", "na"), ("fslope_guess", "na"), ("end_const", "na"), ("end_slope", "na"), ("pressure_start", "na"),
+       ("friction", "na"), ("damping", "na"), ("effort_end", "na"), ("geo", "n"), ("p0", "n"), ("dpdm", "n"),
+       ("lin_p", "n"), ("gradient", "na", "na"), ("lin_x", "na"), ("lin_flow", "nb"), ("oil_warm", "n"),
+       # 1 when the finish just before wrote p(m, x) at the positions this step starts from into geo, p0, dpdm
+       ("known", 1)))
+"""The plant's float64 scratch (SLOT.P_SCRATCH), n nodes, na actuators, nb branches, nvalve component states."""
 
 
 def scratch_size(na, n, nb, nstate):
-    """Length of the plant's float64 scratch (P_SCRATCH): _finish_pending's part, then _begin's (whose first
-    part — velocity guess, predicted oil and spool, ∂m⁺/∂v — persists until the step is finished), then the flag
-    of a known start evaluation (:func:`_start_evaluation`)."""
-    return _finish_scratch(na, n, nb, nstate) + 9 * na + 5 * n + na * na + n + nstate + na + nb + n * na + 1
+    """Length of the plant's float64 scratch (SLOT.P_SCRATCH): :data:`PLANT_SCRATCH`."""
+    return PLANT_SCRATCH.size(n=n, na=na, nb=nb, nvalve=nstate)
 
 
 _JIT = _NUMBA and C.JIT_ENABLED  # False under NUMBA_DISABLE_JIT=1: the callback runs as Python (below)
@@ -293,20 +322,7 @@ else:  # the same callback as Python (NUMBA_DISABLE_JIT=1, for debugging): ctype
     _kernel = _inline = _jit
 
 
-_finish_scratch_nb = _kernel(_finish_scratch)
-
-
-@_kernel
-def _start_evaluation(S, na, n, nb, nstate):
-    """Views of _begin's geometric volumes, start pressures p₀ and ∂p/∂m in the scratch ``S`` (after its guess,
-    predicted oil and spool, ∂m⁺/∂v and eight actuator vectors), and the last entry of ``S``: 1 when the finish
-    just before wrote p(m, x) of the state's oil at the positions this step starts from into them (``rosenbrock``:
-    its step ends at MuJoCo's positions), else 0."""
-    o = _finish_scratch_nb(na, n, nb, nstate) + na + n + nstate + n * na + 8 * na
-    geo, o = C._take(S, o, n)
-    p0, o = C._take(S, o, n)
-    dpdm, o = C._take(S, o, n)
-    return geo, p0, dpdm, S[S.size - 1:]  # (S: the whole scratch, scratch_size entries)
+_plant_scratch = _inline(PLANT_SCRATCH.carver(C._matrix))
 
 
 @_jit  # returns a view of foreign memory (no NRT reference to drop)
@@ -341,13 +357,13 @@ _Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W',
 def _views(ctx, nstate):
     """The arrays of the pointer table as views (built here, in reference-counted code: the kernels below
     run without numba's reference counting and cannot create arrays)."""
-    na, nv, nu, n, nb = ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N], ctx[C_NB]
-    nvalve, npump = ctx[C_NVALVE], ctx[C_NPUMP]
-    rowadr, rownnz = _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu)
+    na, nv, nu, n, nb = ctx[SLOT.C_NA], ctx[SLOT.C_NV], ctx[SLOT.C_NU], ctx[SLOT.C_N], ctx[SLOT.C_NB]
+    nvalve, npump = ctx[SLOT.C_NVALVE], ctx[SLOT.C_NPUMP]
+    rowadr, rownnz = _vi32(ctx, SLOT.P_ROWADR, nu), _vi32(ctx, SLOT.P_ROWNNZ, nu)
     nnz = 0
     for a in range(nu):
         nnz = max(nnz, rowadr[a] + rownnz[a])
-    return _Views(_vf(ctx, P_FS, NFS), _mf(ctx, P_J, na, nv), _mf(ctx, P_MINVJ, na, nv), _vf(ctx, P_QVEL, nv), _vf(ctx, P_XSTART, na), _vf(ctx, P_VSTART, na), _vf(ctx, P_SCRATCH, ctx[C_NS]), _vf(ctx, P_WORK, ctx[C_NW]), _vi64(ctx, P_ISTATS, 6), _mf(ctx, P_CMD, ctx[C_ROWS], nvalve), _mf(ctx, P_SPEED, ctx[C_ROWS], npump), _vf(ctx, P_OIL, n), _vf(ctx, P_PRESSURE, n), _vf(ctx, P_SPOOL, nstate), _vf(ctx, P_XPOS, na), _vf(ctx, P_XVEL, na), _vf(ctx, P_FLOW, nb), _vf(ctx, P_CONST, na), _vf(ctx, P_SLOPE, na), _vf(ctx, P_EFFORT, na), _vf(ctx, P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, P_PASSIVE_SAVED, nv), _vf(ctx, P_CONSTRAINT, nv), _vf(ctx, P_PASSIVE, nv), _vi64(ctx, P_ACT, na), _vf(ctx, P_CLOSED, na), _vf(ctx, P_LENGTH, nu), _vf(ctx, P_AVEL, nu), _vf(ctx, P_MEFF, na), _vf(ctx, P_THETA, na), _vf(ctx, P_CTRL, nu), _vf(ctx, P_BIASPRM, nu * ctx[C_NBIAS]), _vi32(ctx, P_ROWADR, nu), _vi32(ctx, P_ROWNNZ, nu), _vi32(ctx, P_COLIND, nnz), _vf(ctx, P_MOMENT, nnz), _vf(ctx, P_PMAX, n), _vf(ctx, P_PMIN, n), _vf(ctx, P_OIL_CHANGE, n), _vf(ctx, P_XMAX, na), _vf(ctx, P_XMIN, na), _vf(ctx, P_LOWER, na), _vf(ctx, P_UPPER, na), _vu8(ctx, P_FLIMITED, nu), _vf(ctx, P_FRANGE, 2 * nu))
+    return _Views(_vf(ctx, SLOT.P_FS, NFS), _mf(ctx, SLOT.P_J, na, nv), _mf(ctx, SLOT.P_MINVJ, na, nv), _vf(ctx, SLOT.P_QVEL, nv), _vf(ctx, SLOT.P_XSTART, na), _vf(ctx, SLOT.P_VSTART, na), _vf(ctx, SLOT.P_SCRATCH, ctx[SLOT.C_NS]), _vf(ctx, SLOT.P_WORK, ctx[SLOT.C_NW]), _vi64(ctx, SLOT.P_ISTATS, C.NIS), _mf(ctx, SLOT.P_CMD, ctx[SLOT.C_ROWS], nvalve), _mf(ctx, SLOT.P_SPEED, ctx[SLOT.C_ROWS], npump), _vf(ctx, SLOT.P_OIL, n), _vf(ctx, SLOT.P_PRESSURE, n), _vf(ctx, SLOT.P_SPOOL, nstate), _vf(ctx, SLOT.P_XPOS, na), _vf(ctx, SLOT.P_XVEL, na), _vf(ctx, SLOT.P_FLOW, nb), _vf(ctx, SLOT.P_CONST, na), _vf(ctx, SLOT.P_SLOPE, na), _vf(ctx, SLOT.P_EFFORT, na), _vf(ctx, SLOT.P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, SLOT.P_PASSIVE_SAVED, nv), _vf(ctx, SLOT.P_CONSTRAINT, nv), _vf(ctx, SLOT.P_PASSIVE, nv), _vi64(ctx, SLOT.P_ACT, na), _vf(ctx, SLOT.P_CLOSED, na), _vf(ctx, SLOT.P_LENGTH, nu), _vf(ctx, SLOT.P_AVEL, nu), _vf(ctx, SLOT.P_MEFF, na), _vf(ctx, SLOT.P_THETA, na), _vf(ctx, SLOT.P_CTRL, nu), _vf(ctx, SLOT.P_BIASPRM, nu * ctx[SLOT.C_NBIAS]), _vi32(ctx, SLOT.P_ROWADR, nu), _vi32(ctx, SLOT.P_ROWNNZ, nu), _vi32(ctx, SLOT.P_COLIND, nnz), _vf(ctx, SLOT.P_MOMENT, nnz), _vf(ctx, SLOT.P_PMAX, n), _vf(ctx, SLOT.P_PMIN, n), _vf(ctx, SLOT.P_OIL_CHANGE, n), _vf(ctx, SLOT.P_XMAX, na), _vf(ctx, SLOT.P_XMIN, na), _vf(ctx, SLOT.P_LOWER, na), _vf(ctx, SLOT.P_UPPER, na), _vu8(ctx, SLOT.P_FLIMITED, nu), _vf(ctx, SLOT.P_FRANGE, 2 * nu))
 
 
 @_kernel
@@ -364,38 +380,26 @@ def _widen(values, high, low, n):
 @_kernel
 def _finish_pending(ctx, pnet, V, T, R):
     """Finish the pending step with the realised velocities J_prev·q̇ (MujocoPlant.step after mj_step2)."""
-    if ctx[C_PENDING] == 0:
+    if ctx[SLOT.C_PENDING] == 0:
         return
-    ctx[C_PENDING] = 0
-    if ctx[C_FAILED] >= 0:
+    ctx[SLOT.C_PENDING] = 0
+    if ctx[SLOT.C_FAILED] >= 0:
         return
-    na, nv, n, nb = ctx[C_NA], ctx[C_NV], ctx[C_N], ctx[C_NB]
-    nvalve, npump = ctx[C_NVALVE], ctx[C_NPUMP]
-    k = ctx[C_K] - 1
+    na, nv, n, nb = ctx[SLOT.C_NA], ctx[SLOT.C_NV], ctx[SLOT.C_N], ctx[SLOT.C_NB]
+    nvalve, npump = ctx[SLOT.C_NVALVE], ctx[SLOT.C_NPUMP]
+    k = ctx[SLOT.C_K] - 1
     fs = V.fs
     dt = fs[FS_DT]
     J = V.J
     qvel = V.qvel
     xs, vs = V.xs, V.vs
-    S = V.S  # carved below (scratch_size)
     W = V.W
     istats = V.istats
-    o = 0
-    v_end, o = C._take(S, o, na)
-    x_end, o = C._take(S, o, na)
-    xe, o = C._take(S, o, na)
-    ve, o = C._take(S, o, na)
-    o2, o = C._take(S, o, n)
-    p2, o = C._take(S, o, n)
-    mu, o = C._take(S, o, n)
-    fl, o = C._take(S, o, nb)
-    dfl, o = C._take2(S, o, nb, C._W_BR)  # branches × terminals
-    sp2, o = C._take(S, o, V.spool.size)
-    mpred, o = C._take(S, o, n)
-    mstart, o = C._take(S, o, n)
-    minit, o = C._take(S, o, n)
+    ws, _ = _plant_scratch(V.S, 0, n, na, nb, V.spool.size)
+    v_end, x_end, xe, ve, o2, p2, mu = ws.v_end, ws.x_end, ws.xe, ws.ve, ws.o2, ws.p2, ws.mu
+    fl, dfl, sp2, mpred, mstart, minit = ws.fl, ws.dfl, ws.sp2, ws.mpred, ws.mstart, ws.minit  # dfl: branches × terminals
     # what _begin left for this step: velocity guess, predicted oil and spool, ∂m⁺/∂v
-    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, V.spool.size)
+    guess, lin_oil, lin_spool, doil = ws.guess, ws.lin_oil, ws.lin_spool, ws.doil
     for i in range(na):
         s = 0.0
         for j in range(nv):
@@ -409,13 +413,13 @@ def _finish_pending(ctx, pnet, V, T, R):
     oil, pres, spool = V.oil, V.pres, V.spool
     pos, vel = V.pos, V.vel
     flow_out = V.flow
-    substeps = ctx[C_SUBSTEPS]
+    substeps = ctx[SLOT.C_SUBSTEPS]
     h = dt / substeps
     newton, rhs, jac = 0, 0, 0
     residual = 0.0
     status, worst = ST_OK, -1
     C._copy(mstart, oil)
-    kind = ctx[C_KIND]
+    kind = ctx[SLOT.C_KIND]
     if kind == KIND_EXPLICIT:  # CouplingExplicit.finish (x_end, xe, ve: free in this branch and until the ledger)
         worst, rhs = K.explicit_finish(pnet, W, (oil, pres, spool, pos, vel), flow_out, vs, (cmd, speed), dt,
                                        substeps, (o2, p2, sp2, fl, dfl, istats, x_end, xe, ve))
@@ -429,11 +433,11 @@ def _finish_pending(ctx, pnet, V, T, R):
         for b in range(nb):
             flow_out[b] = 0.0
         substeps = 0
-    elif ctx[C_LINEAR]:  # implicit-linear, rosenbrock: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
+    elif ctx[SLOT.C_LINEAR]:  # implicit-linear, rosenbrock: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
         substeps = 0
         C._copy(sp2, lin_spool)
-        if ctx[C_LINEAR] == SCHEME_ROSENBROCK:  # x⁺: MuJoCo's positions (MujocoPlant.end_position), so that
-            geo0, p0, dpdm0, known = _start_evaluation(S, na, n, nb, V.spool.size)  # p(m⁺, x⁺) is the next step's p₀
+        if ctx[SLOT.C_LINEAR] == SCHEME_ROSENBROCK:  # x⁺: MuJoCo's positions (MujocoPlant.end_position), so that
+            geo0, p0, dpdm0, known = ws.geo, ws.p0, ws.dpdm, ws.known  # p(m⁺, x⁺) is the next step's p₀
             act, length, closed = V.act, V.length, V.closed
             for i in range(na):
                 x_end[i] = length[act[i]] - closed[i]
@@ -443,7 +447,7 @@ def _finish_pending(ctx, pnet, V, T, R):
             C._valve_areas(pnet, sp2, area)
             C._branch_flows(pnet, p2, area, speed, v_end, fl, dfl, sp2, dt)
             C._law_states_end(pnet, sp2, dt, p2)
-            known[0] = 1.0 if ctx[C_MODE] == MODE_STEP else 0.0  # (_commit_if_finite below clears it on failure)
+            known[0] = 1.0 if ctx[SLOT.C_MODE] == MODE_STEP else 0.0  # (_commit_if_finite below clears it on failure)
         else:
             C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfl, dt)
         rhs = 1
@@ -451,7 +455,7 @@ def _finish_pending(ctx, pnet, V, T, R):
         bad = C._commit_if_finite(oil, pres, spool, pos, vel, mpred, p2, sp2, x_end, v_end)
         if bad >= 0:
             status, worst = ST_NONFINITE, bad
-            S[S.size - 1] = 0.0  # (no known start evaluation)
+            ws.known[0] = 0.0  # (no known start evaluation)
     for s in range(substeps):
         if substeps > 1:  # ActuatorMotion.part: linear interpolation to the substep end
             frac = (s + 1) / substeps
@@ -480,12 +484,12 @@ def _finish_pending(ctx, pnet, V, T, R):
             status, worst = ST_NONFINITE, bad
             break
     if R.actuator.size and status == ST_OK:  # CouplingMixed.finish: rigid chambers carry the clamped effort less friction
-        K.rigid_finish(pnet, R, (V.const, V.slope), (V.lower, V.upper), v_end, pres, W[:3 * na])
-    ctx[C_NEWTON], ctx[C_RHS], ctx[C_JAC] = newton, rhs, jac
-    ctx[C_STATUS], ctx[C_WORST] = status, worst
+        K.rigid_finish(pnet, R, (V.const, V.slope), (V.lower, V.upper), v_end, pres, W)
+    ctx[SLOT.C_NEWTON], ctx[SLOT.C_RHS], ctx[SLOT.C_JAC] = newton, rhs, jac
+    ctx[SLOT.C_STATUS], ctx[SLOT.C_WORST] = status, worst
     fs[FS_NORM] = residual
     if status != ST_OK:
-        ctx[C_FAILED] = k
+        ctx[SLOT.C_FAILED] = k
     else:  # the step's oil change (NetworkState.node_oil_change), running extremes of the end-of-step pressures
         oil_change = V.oil_change  # and actuator coordinates
         for i in range(n):  # (none from the incompressible coupling: it has no oil states)
@@ -513,7 +517,7 @@ def _finish_pending(ctx, pnet, V, T, R):
 @_kernel
 def _prepare(ctx, V):
     """Dense moments J of the current step from MuJoCo's sparse actuator_moment."""
-    na, nv = ctx[C_NA], ctx[C_NV]
+    na, nv = ctx[SLOT.C_NA], ctx[SLOT.C_NV]
     J = V.J
     act = V.act
     rowadr, rownnz, colind, moment = V.rowadr, V.rownnz, V.colind, V.moment
@@ -532,7 +536,7 @@ def _applied_power(ctx, V, v_end):
     then drops the implicit term), else c + k·v⁺ (the implicit term taken at the end velocity).  At the ``incompressible`` level the
     hydraulic effort is that law clipped at v⁺; the two differ where MuJoCo's implicit term passes a bound."""
     act, ctrl, bias, vs = V.act, V.ctrl, V.bias, V.vs
-    nbias = ctx[C_NBIAS]
+    nbias = ctx[SLOT.C_NBIAS]
     power = 0.0
     for i in range(v_end.size):
         a = act[i]
@@ -571,14 +575,14 @@ def _rigid_law(pnet, V, R, cmd, dt, lin, implicit, W):
 @_kernel
 def _begin(ctx, pnet, V, T, R):
     """After M⁻¹·Jᵀ: the effort law of the step (CouplingImplicit.begin; CouplingExplicit.begin or
-    CouplingIncompressible.begin with the table ``T`` by ``C_KIND``), written to ctrl and biasprm (and the
+    CouplingIncompressible.begin with the table ``T`` by ``SLOT.C_KIND``), written to ctrl and biasprm (and the
     incompressible law's bounds to MuJoCo's force ranges)."""
-    k = ctx[C_K]
-    ctx[C_K] = k + 1
-    if ctx[C_FAILED] >= 0:
+    k = ctx[SLOT.C_K]
+    ctx[SLOT.C_K] = k + 1
+    if ctx[SLOT.C_FAILED] >= 0:
         return  # hydraulics frozen after a failed step: hold the last law
-    na, nv, nu, n = ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N]
-    nb, nvalve, npump = ctx[C_NB], ctx[C_NVALVE], ctx[C_NPUMP]
+    na, nv, nu, n = ctx[SLOT.C_NA], ctx[SLOT.C_NV], ctx[SLOT.C_NU], ctx[SLOT.C_N]
+    nb, nvalve, npump = ctx[SLOT.C_NB], ctx[SLOT.C_NVALVE], ctx[SLOT.C_NPUMP]
     fs = V.fs
     dt = fs[FS_DT]
     act = V.act
@@ -588,29 +592,15 @@ def _begin(ctx, pnet, V, T, R):
     xs, vs = V.xs, V.vs
     meff, theta = V.meff, V.theta
     const, slope = V.const, V.slope
-    S = V.S
     W = V.W
     istats = V.istats
-    o = _finish_scratch_nb(na, n, nb, V.spool.size)  # after _finish_pending's part
+    ws, _ = _plant_scratch(V.S, 0, n, na, nb, V.spool.size)
     # kept for _finish_pending
-    guess, lin_oil, lin_spool, doil, o = C._take_linearization(S, o, n, na, V.spool.size)
-    fg, o = C._take(S, o, na)
-    fslope_guess, o = C._take(S, o, na)
-    end_const, o = C._take(S, o, na)
-    end_slope, o = C._take(S, o, na)
-    pressure_start, o = C._take(S, o, na)
-    friction, o = C._take(S, o, na)
-    damping, o = C._take(S, o, na)
-    effort_end, o = C._take(S, o, na)
-    geo, o = C._take(S, o, n)
-    p0, o = C._take(S, o, n)
-    dpdm, o = C._take(S, o, n)
-    lin_p, o = C._take(S, o, n)
-    g, o = C._take(S, o, na * na)
-    gradient = C._matrix(g, na, na)
-    lin_x, o = C._take(S, o, na)
-    lin_flow, o = C._take(S, o, nb)
-    oil_warm, o = C._take(S, o, n)
+    guess, lin_oil, lin_spool, doil = ws.guess, ws.lin_oil, ws.lin_spool, ws.doil
+    fg, fslope_guess, end_const, end_slope = ws.fg, ws.fslope_guess, ws.end_const, ws.end_slope
+    pressure_start, friction, damping, effort_end = ws.pressure_start, ws.friction, ws.damping, ws.effort_end
+    geo, p0, dpdm, lin_p, gradient = ws.geo, ws.p0, ws.dpdm, ws.lin_p, ws.gradient
+    lin_x, lin_flow, oil_warm = ws.lin_x, ws.lin_flow, ws.oil_warm
     for i in range(na):
         xs[i] = length[act[i]] - closed[i]
         vs[i] = avel[act[i]]
@@ -622,7 +612,7 @@ def _begin(ctx, pnet, V, T, R):
     speed = V.speed[k]
     oil, spool = V.oil, V.spool
     ctrl, bias = V.ctrl, V.bias
-    kind = ctx[C_KIND]
+    kind = ctx[SLOT.C_KIND]
     if kind != KIND_IMPLICIT:
         if kind == KIND_EXPLICIT:  # CouplingExplicit.begin: the start pressures' effort and friction, slope 0
             K.explicit_law(pnet, V.pres, vs, (const, slope), W)
@@ -638,22 +628,22 @@ def _begin(ctx, pnet, V, T, R):
             _write_bounds(act, V.lower, V.upper, V.flimited, V.frange)
         for i in range(na):
             ctrl[act[i]] = const[i]
-            bias[act[i] * ctx[C_NBIAS] + 2] = slope[i]
+            bias[act[i] * ctx[SLOT.C_NBIAS] + 2] = slope[i]
         if kind == KIND_INCOMPRESSIBLE:  # end stops: the end cap takes what pushes past an end (V keeps the hydraulic law)
             for i in range(na):
                 c, s, lo, hi = K.end_stop_hold(pnet, T, i, (xs, vs), meff, dt, (const[i], slope[i]), (V.lower[i], V.upper[i]))
                 ctrl[act[i]] = c
-                bias[act[i] * ctx[C_NBIAS] + 2] = s
+                bias[act[i] * ctx[SLOT.C_NBIAS] + 2] = s
                 V.frange[2 * act[i]] = lo
                 V.frange[2 * act[i] + 1] = hi
         C._copy(V.passive_saved, V.passive)
-        ctx[C_PENDING] = 1
+        ctx[SLOT.C_PENDING] = 1
         return
     C._secant_oil_guess(oil, V.oil_change, oil_warm)
     # predicted end velocities: the start velocities where their chord is short (coupling.start_velocity_guess),
     # clipped so the cylinders stay inside their stroke; the held actuators where that linearisation is useless
     out = C.LinearizationOut(lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient, p0, doil)
-    _, _, _, known = _start_evaluation(S, na, n, nb, V.spool.size)
+    known = ws.known
     done, held = False, False
     if known[0] != 0.0:  # rosenbrock after a finished step: p₀, geo and ∂p/∂m are its end evaluation
         known[0] = 0.0  # (_linearize_at_start_velocity's one-step path, its pressure law not evaluated again)
@@ -663,11 +653,11 @@ def _begin(ctx, pnet, V, T, R):
                                            dpdm)
                 and (held or C._linearization_usable(istats, lin_p, gradient)))
     if not done:
-        held = C._linearize_at_start_velocity(ctx[C_LINEAR] != SCHEME_ROSENBROCK, pnet, W,
+        held = C._linearize_at_start_velocity(ctx[SLOT.C_LINEAR] != SCHEME_ROSENBROCK, pnet, W,
                                               C.StepStart(oil, spool, cmd, speed, xs, vs), dt, guess, out, oil_warm)
     if istats[C.IS_SINGULAR]:
-        ctx[C_STATUS] = ST_SINGULAR
-        ctx[C_FAILED] = k
+        ctx[SLOT.C_STATUS] = ST_SINGULAR
+        ctx[SLOT.C_FAILED] = k
         return
     C._effort_law_terms(pnet, guess, lin_p, vs, gradient, fg, fslope_guess, end_const, end_slope, friction, damping)
     if not held and not C._one_step_accepted(istats):
@@ -680,16 +670,12 @@ def _begin(ctx, pnet, V, T, R):
         _rigid_law(pnet, V, R, cmd, dt, (lin_p, lin_oil, lin_x, doil, guess), True, W)
     for i in range(na):
         ctrl[act[i]] = const[i]
-        bias[act[i] * ctx[C_NBIAS] + 2] = slope[i]
+        bias[act[i] * ctx[SLOT.C_NBIAS] + 2] = slope[i]
     C._copy(V.passive_saved, V.passive)
-    ctx[C_PENDING] = 1
+    ctx[SLOT.C_PENDING] = 1
 
 
-@_kernel
-def _put(row, o, values):
-    for i in range(values.size):
-        row[o + i] = values[i]
-    return o + values.size
+_record_views = _inline(RECORD_ROW.carver(C._matrix))
 
 
 @_jit
@@ -702,35 +688,39 @@ def _record(ctx, V):
     state that ends step k: ``xpos``, ``xquat`` and ``energy`` are those :meth:`MujocoPlant.mechanical_energy`
     would compute after step k.
     """
-    count = ctx[C_REC_COUNT]
-    j = ctx[C_K] - 1  # block-local index of the step just finished
-    first = ctx[C_REC_FIRST]
-    if count >= ctx[C_REC_ROWS] or j < first or ctx[C_FAILED] >= 0 or (j - first) % ctx[C_REC_EVERY] != 0:
+    count = ctx[SLOT.C_REC_COUNT]
+    j = ctx[SLOT.C_K] - 1  # block-local index of the step just finished
+    first = ctx[SLOT.C_REC_FIRST]
+    if count >= ctx[SLOT.C_REC_ROWS] or j < first or ctx[SLOT.C_FAILED] >= 0 or (j - first) % ctx[SLOT.C_REC_EVERY] != 0:
         return
-    width = ctx[C_REC_WIDTH]
-    row = carray(_pf64(ctx[P_REC] + 8 * count * width), (width,))
+    width = ctx[SLOT.C_REC_WIDTH]
+    row = carray(_pf64(ctx[SLOT.P_REC] + 8 * count * width), (width,))
     fs = V.fs
-    o = _put(row, 0, V.pres)
-    o = _put(row, o, _vf(ctx, P_QPOS, ctx[C_NQ]))
-    o = _put(row, o, V.qvel)
-    o = _put(row, o, V.oil)
-    o = _put(row, o, V.pos)
-    o = _put(row, o, V.vel)
-    o = _put(row, o, V.effort)
-    o = _put(row, o, V.theta)
-    o = _put(row, o, V.cmd[j])
-    o = _put(row, o, V.spool)
-    o = _put(row, o, V.speed[j])
-    o = _put(row, o, V.flow)
-    energy = _vf(ctx, P_ENERGY, 2)  # MuJoCo's (potential, kinetic)
-    row[o], row[o + 1], row[o + 2], row[o + 3] = ctx[C_NEWTON], fs[FS_NORM], energy[1], energy[0]
-    row[o + 4], row[o + 5], row[o + 6], row[o + 7] = fs[FS_PUMP], fs[FS_DISS_H], fs[FS_DISS_F], fs[FS_DISS_M]
-    o = _put(row, o + 8, _vf(ctx, P_BXPOS, 3 * ctx[C_NBODY]))
-    o = _put(row, o, _vf(ctx, P_BXQUAT, 4 * ctx[C_NBODY]))
-    _put(row, o, _vf(ctx, P_CTL_STATE, ctx[C_NCTL] * _CTL_STATES))
-    ctx[C_REC_COUNT] = count + 1
+    nbody, nctl = ctx[SLOT.C_NBODY], ctx[SLOT.C_NCTL]
+    r, _ = _record_views(row, 0, ctx[SLOT.C_N], ctx[SLOT.C_NQ], ctx[SLOT.C_NV], ctx[SLOT.C_NA], ctx[SLOT.C_NVALVE],
+                         V.spool.size, ctx[SLOT.C_NPUMP], ctx[SLOT.C_NB], nbody, nctl)  # (RECORD_ROW)
+    C._copy(r.p, V.pres)
+    C._copy(r.qpos, _vf(ctx, SLOT.P_QPOS, ctx[SLOT.C_NQ]))
+    C._copy(r.qvel, V.qvel)
+    C._copy(r.oil, V.oil)
+    C._copy(r.x, V.pos)
+    C._copy(r.v, V.vel)
+    C._copy(r.effort, V.effort)
+    C._copy(r.theta, V.theta)
+    C._copy(r.cmd, V.cmd[j])
+    C._copy(r.spool, V.spool)
+    C._copy(r.speed, V.speed[j])
+    C._copy(r.flow, V.flow)
+    energy = _vf(ctx, SLOT.P_ENERGY, 2)  # MuJoCo's (potential, kinetic)
+    r.solver[0], r.solver[1] = ctx[SLOT.C_NEWTON], fs[FS_NORM]
+    r.energy[0], r.energy[1], r.energy[2] = energy[1], energy[0], fs[FS_PUMP]
+    r.energy[3], r.energy[4], r.energy[5] = fs[FS_DISS_H], fs[FS_DISS_F], fs[FS_DISS_M]
+    C._copy2(r.xpos, _mf(ctx, SLOT.P_BXPOS, nbody, 3))
+    C._copy2(r.xquat, _mf(ctx, SLOT.P_BXQUAT, nbody, 4))
+    C._copy2(r.controllers, _mf(ctx, SLOT.P_CTL_STATE, nctl, _CTL_STATES))
+    ctx[SLOT.C_REC_COUNT] = count + 1
     if not _state_finite(ctx, V):
-        ctx[C_REC_BAD] += 1
+        ctx[SLOT.C_REC_BAD] += 1
 
 
 @_jit
@@ -739,7 +729,7 @@ def _state_finite(ctx, V):
     s = 0.0
     for x in V.pres:
         s += x * 0.0
-    for x in _vf(ctx, P_QPOS, ctx[C_NQ]):
+    for x in _vf(ctx, SLOT.P_QPOS, ctx[SLOT.C_NQ]):
         s += x * 0.0
     for x in V.qvel:
         s += x * 0.0
@@ -756,25 +746,25 @@ _unflatten_rigid = _inline(K.unflatten_rigid)
 def _coupled_step(address, m, d):
     """The whole callback: finish step k−1, moments, M⁻¹·Jᵀ (MuJoCo's mj_solveM), effort law of step k."""
     ctx = carray(_pi64(address), (NCTX,))
-    F = carray(_pf64(ctx[P_F]), (ctx[C_NF],))
-    I = carray(_pi64(ctx[P_I]), (ctx[C_NI],))
+    F = carray(_pf64(ctx[SLOT.P_F]), (ctx[SLOT.C_NF],))
+    I = carray(_pi64(ctx[SLOT.P_I]), (ctx[SLOT.C_NI],))
     net = _unpack(F, I)
     pnet = C._ref(net)
     V = _views(ctx, net.ic[C.IC_NSTATE])
-    na = ctx[C_NA]
-    TF = carray(_pf64(ctx[P_TF]), (ctx[C_NTF],))
-    TI = carray(_pi64(ctx[P_TI]), (ctx[C_NTI],))
-    T = _unflatten_incompressible(TF, TI, na)  # (TF, TI hold the table of C_KIND's coupling: T or R)
-    R = _unflatten_rigid(TF, TI, na, ctx[C_NR])
+    na = ctx[SLOT.C_NA]
+    TF = carray(_pf64(ctx[SLOT.P_TF]), (ctx[SLOT.C_NTF],))
+    TI = carray(_pi64(ctx[SLOT.P_TI]), (ctx[SLOT.C_NTI],))
+    T = _unflatten_incompressible(TF, TI, na)  # (TF, TI hold the table of SLOT.C_KIND's coupling: T or R)
+    R = _unflatten_rigid(TF, TI, na, ctx[SLOT.C_NR])
     _finish_pending(ctx, pnet, V, T, R)
-    if ctx[C_MODE] == MODE_FINISH:  # called from Python after the block: finish its last step only
-        ctx[C_END_FINITE] = _state_finite(ctx, V)
+    if ctx[SLOT.C_MODE] == MODE_FINISH:  # called from Python after the block: finish its last step only
+        ctx[SLOT.C_END_FINITE] = _state_finite(ctx, V)
         return
-    if ctx[P_REC] != 0:
+    if ctx[SLOT.P_REC] != 0:
         _record(ctx, V)
     _prepare(ctx, V)
-    _mj_solveM_nb(m, d, _pvoid(ctx[P_MINVJ]), _pvoid(ctx[P_J]), np.int32(ctx[C_NA]))
-    if ctx[C_NCTL] > 0 and ctx[C_FAILED] < 0:
+    _mj_solveM_nb(m, d, _pvoid(ctx[SLOT.P_MINVJ]), _pvoid(ctx[SLOT.P_J]), np.int32(ctx[SLOT.C_NA]))
+    if ctx[SLOT.C_NCTL] > 0 and ctx[SLOT.C_FAILED] < 0:
         _control(ctx, V)
     _begin(ctx, pnet, V, T, R)
 
@@ -787,12 +777,12 @@ def _control(ctx, V):
     """The controllers of step k (:func:`hydraulics.controllers.update`) from the step's start state (the network's
     actuator motion, pressures and last flows, MuJoCo's qpos/qvel), writing row k of the commands before the step's
     effort law (``_begin``) reads it."""
-    k, nctl = ctx[C_K], ctx[C_NCTL]
-    table = _mf(ctx, P_CTL_TABLE, nctl, _CTL_COLUMNS)
-    state = _mf(ctx, P_CTL_STATE, nctl, _CTL_STATES)
-    setpoint = _mf(ctx, P_CTL_SET, ctx[C_ROWS], nctl)[k]
-    sources = (V.pos, V.vel, _vf(ctx, P_QPOS, ctx[C_NQ]), V.qvel, V.pres, V.flow)  # CT.SOURCES
-    CT.update(table, state, setpoint, ctx[C_STEP0] + k, V.fs[FS_DT], sources, V.cmd[k], V.speed[k])
+    k, nctl = ctx[SLOT.C_K], ctx[SLOT.C_NCTL]
+    table = _mf(ctx, SLOT.P_CTL_TABLE, nctl, _CTL_COLUMNS)
+    state = _mf(ctx, SLOT.P_CTL_STATE, nctl, _CTL_STATES)
+    setpoint = _mf(ctx, SLOT.P_CTL_SET, ctx[SLOT.C_ROWS], nctl)[k]
+    sources = (V.pos, V.vel, _vf(ctx, SLOT.P_QPOS, ctx[SLOT.C_NQ]), V.qvel, V.pres, V.flow)  # CT.SOURCES
+    CT.update(table, state, setpoint, ctx[SLOT.C_STEP0] + k, V.fs[FS_DT], sources, V.cmd[k], V.speed[k])
 
 
 def _callback_function(fingerprint):
@@ -808,7 +798,7 @@ def _callback_function(fingerprint):
 
 
 # this file and the hydraulic kernel sources (everything the callback compiles in), taken at import: part of the cache key
-SOURCE_SHA256 = C.source_sha256(__file__, CT.__file__, *C.SOURCES)
+SOURCE_SHA256 = C.source_sha256(__file__, CT.__file__, record_row.__file__, *C.SOURCES)
 
 
 # ----------------------------------------------------------------------------
@@ -817,9 +807,9 @@ SOURCE_SHA256 = C.source_sha256(__file__, CT.__file__, *C.SOURCES)
 _CTX = np.zeros(NCTX, np.int64)  # the pointer table the callback reads (symbol CTX_SYMBOL)
 _CALLBACK = None
 _CALLBACK_POINTER = None  # its ctypes function pointer, for mujoco.set_mjcb_control
-_BLOCK_START = np.array([0, 0, -1, ST_OK, -1], np.int64)  # C_K … C_WORST at the start of a block
-assert (C_PENDING, C_FAILED, C_STATUS, C_WORST) == (C_K + 1, C_K + 2, C_K + 3, C_K + 4)
-assert (C_STATUS, C_WORST, C_NEWTON, C_RHS, C_JAC) == (C_FAILED + 1, C_FAILED + 2, C_FAILED + 3, C_FAILED + 4, C_FAILED + 5)
+_BLOCK_START = np.array([0, 0, -1, ST_OK, -1], np.int64)  # SLOT.C_K … SLOT.C_WORST at the start of a block
+assert (SLOT.C_PENDING, SLOT.C_FAILED, SLOT.C_STATUS, SLOT.C_WORST) == (SLOT.C_K + 1, SLOT.C_K + 2, SLOT.C_K + 3, SLOT.C_K + 4)
+assert (SLOT.C_STATUS, SLOT.C_WORST, SLOT.C_NEWTON, SLOT.C_RHS, SLOT.C_JAC) == (SLOT.C_FAILED + 1, SLOT.C_FAILED + 2, SLOT.C_FAILED + 3, SLOT.C_FAILED + 4, SLOT.C_FAILED + 5)
 _LOCK = threading.Lock()
 
 
@@ -854,11 +844,11 @@ def callback():
 
 def _finish_python():
     """Finish the block's last step (after mj_step returned) through the callback itself, in finish-only mode."""
-    _CTX[C_MODE] = MODE_FINISH
+    _CTX[SLOT.C_MODE] = MODE_FINISH
     try:
         _CALLBACK_POINTER(None, None)
     finally:
-        _CTX[C_MODE] = MODE_STEP
+        _CTX[SLOT.C_MODE] = MODE_STEP
 
 
 # ----------------------------------------------------------------------------
@@ -897,7 +887,7 @@ class MujocoPlantFast(MujocoPlant):
             self._TF, self._TI = K.flatten_incompressible(coupling.table)
         else:  # its rigid actuators (none without CouplingMixed)
             self._TF, self._TI = K.flatten_rigid(K.pack_rigid(net))
-        # the callback views both tables in these arrays (only C_KIND's is read): long enough for either
+        # the callback views both tables in these arrays (only SLOT.C_KIND's is read): long enough for either
         nr = len(net.rigid_branch_actuator)
         nf = max(8 * na + len(K.INCOMPRESSIBLE_SCALARS), 2 * na + 6 * nr + len(K.RIGID_SCALARS))
         self._TF = np.concatenate([self._TF, np.zeros(max(nf - self._TF.size, 0))])
@@ -916,9 +906,9 @@ class MujocoPlantFast(MujocoPlant):
         self._const, self._slope, self._theta, self._meff, self._effort = (np.zeros(na) for _ in range(5))
         self._flow = np.zeros(len(net.branch_names))
         self._passive = np.zeros(nv)
-        self._work = np.zeros(max(C.work_size(self._F, self._I), 4 * n + len(net.branch_names), 3 * nr + 3 * n + 4 * na))
+        self._work = np.zeros(K.coupled_work_size(C.work_size(self._F, self._I), n, na, len(net.branch_names), nr))
         self._scratch = np.zeros(scratch_size(na, n, len(net.branch_names), net.component_state_count))
-        self._istats = np.zeros(6, np.int64)
+        self._istats = np.zeros(C.NIS, np.int64)
         self._pmax, self._pmin = np.zeros(n), np.zeros(n)
         self._xmax, self._xmin = np.zeros(na), np.zeros(na)
         self._fs = np.zeros(NFS)
@@ -931,30 +921,30 @@ class MujocoPlantFast(MujocoPlant):
                   d.qfrc_constraint, m.actuator_biasprm):
             assert a.flags.c_contiguous and a.dtype == np.float64
         ctx = np.zeros(NCTX, np.int64)
-        ctx[C_NA], ctx[C_NV], ctx[C_NU], ctx[C_N], ctx[C_NB] = na, nv, m.nu, n, len(net.branch_names)
-        ctx[C_NVALVE], ctx[C_NPUMP], ctx[C_NBIAS] = len(net.valve_names), len(net.pump_names), m.actuator_biasprm.shape[1]
-        ctx[C_SUBSTEPS], ctx[C_NCYL] = stepper.substeps, len(net.cylinder_actuator)
-        ctx[C_LINEAR] = inner.scheme if kind == KIND_IMPLICIT else 0  # hydraulics.coupling.SCHEME_*
-        ctx[C_KIND], ctx[C_NTF], ctx[C_NTI] = kind, self._TF.size, self._TI.size
-        ctx[C_NR] = nr if kind != KIND_INCOMPRESSIBLE else 0
+        ctx[SLOT.C_NA], ctx[SLOT.C_NV], ctx[SLOT.C_NU], ctx[SLOT.C_N], ctx[SLOT.C_NB] = na, nv, m.nu, n, len(net.branch_names)
+        ctx[SLOT.C_NVALVE], ctx[SLOT.C_NPUMP], ctx[SLOT.C_NBIAS] = len(net.valve_names), len(net.pump_names), m.actuator_biasprm.shape[1]
+        ctx[SLOT.C_SUBSTEPS], ctx[SLOT.C_NCYL] = stepper.substeps, len(net.cylinder_actuator)
+        ctx[SLOT.C_LINEAR] = inner.scheme if kind == KIND_IMPLICIT else 0  # hydraulics.coupling.SCHEME_*
+        ctx[SLOT.C_KIND], ctx[SLOT.C_NTF], ctx[SLOT.C_NTI] = kind, self._TF.size, self._TI.size
+        ctx[SLOT.C_NR] = nr if kind != KIND_INCOMPRESSIBLE else 0
         self._record_width = self.record_width
-        ctx[C_NQ], ctx[C_NBODY], ctx[C_REC_WIDTH] = m.nq, m.nbody, self._record_width
-        ctx[C_NF], ctx[C_NI], ctx[C_NW], ctx[C_NS] = self._F.size, self._I.size, self._work.size, self._scratch.size
+        ctx[SLOT.C_NQ], ctx[SLOT.C_NBODY], ctx[SLOT.C_REC_WIDTH] = m.nq, m.nbody, self._record_width
+        ctx[SLOT.C_NF], ctx[SLOT.C_NI], ctx[SLOT.C_NW], ctx[SLOT.C_NS] = self._F.size, self._I.size, self._work.size, self._scratch.size
         addresses = {
-            P_F: self._F, P_I: self._I, P_ACT: self._act, P_CLOSED: self._closed, P_LENGTH: d.actuator_length,
-            P_AVEL: d.actuator_velocity, P_MOMENT: d.actuator_moment, P_ROWADR: d.moment_rowadr, P_ROWNNZ: d.moment_rownnz,
-            P_COLIND: d.moment_colind, P_QVEL: d.qvel, P_CTRL: d.ctrl, P_BIASPRM: m.actuator_biasprm,
-            P_PASSIVE: d.qfrc_passive, P_CONSTRAINT: d.qfrc_constraint, P_J: self._J, P_MINVJ: self._MinvJ,
-            P_OIL: self._oil, P_PRESSURE: self._p, P_SPOOL: self._spool, P_XPOS: self._x, P_XVEL: self._v,
-            P_XSTART: self._xs, P_VSTART: self._vs, P_CONST: self._const, P_SLOPE: self._slope, P_THETA: self._theta,
-            P_MEFF: self._meff, P_EFFORT: self._effort, P_FLOW: self._flow, P_PASSIVE_SAVED: self._passive, P_FS: self._fs,
-            P_QUAD: self._quad, P_WORK: self._work, P_SCRATCH: self._scratch, P_ISTATS: self._istats,
-            P_PMAX: self._pmax, P_PMIN: self._pmin, P_XMAX: self._xmax, P_XMIN: self._xmin, P_OIL_CHANGE: self._oil_change, P_QPOS: d.qpos, P_BXPOS: d.xpos, P_BXQUAT: d.xquat, P_ENERGY: d.energy,
-            P_TF: self._TF, P_TI: self._TI, P_LOWER: self._lower, P_UPPER: self._upper,
-            P_FLIMITED: m.actuator_forcelimited, P_FRANGE: m.actuator_forcerange,
-            P_CTL_TABLE: self.controllers.table, P_CTL_STATE: self.controllers.state,
+            SLOT.P_F: self._F, SLOT.P_I: self._I, SLOT.P_ACT: self._act, SLOT.P_CLOSED: self._closed, SLOT.P_LENGTH: d.actuator_length,
+            SLOT.P_AVEL: d.actuator_velocity, SLOT.P_MOMENT: d.actuator_moment, SLOT.P_ROWADR: d.moment_rowadr, SLOT.P_ROWNNZ: d.moment_rownnz,
+            SLOT.P_COLIND: d.moment_colind, SLOT.P_QVEL: d.qvel, SLOT.P_CTRL: d.ctrl, SLOT.P_BIASPRM: m.actuator_biasprm,
+            SLOT.P_PASSIVE: d.qfrc_passive, SLOT.P_CONSTRAINT: d.qfrc_constraint, SLOT.P_J: self._J, SLOT.P_MINVJ: self._MinvJ,
+            SLOT.P_OIL: self._oil, SLOT.P_PRESSURE: self._p, SLOT.P_SPOOL: self._spool, SLOT.P_XPOS: self._x, SLOT.P_XVEL: self._v,
+            SLOT.P_XSTART: self._xs, SLOT.P_VSTART: self._vs, SLOT.P_CONST: self._const, SLOT.P_SLOPE: self._slope, SLOT.P_THETA: self._theta,
+            SLOT.P_MEFF: self._meff, SLOT.P_EFFORT: self._effort, SLOT.P_FLOW: self._flow, SLOT.P_PASSIVE_SAVED: self._passive, SLOT.P_FS: self._fs,
+            SLOT.P_QUAD: self._quad, SLOT.P_WORK: self._work, SLOT.P_SCRATCH: self._scratch, SLOT.P_ISTATS: self._istats,
+            SLOT.P_PMAX: self._pmax, SLOT.P_PMIN: self._pmin, SLOT.P_XMAX: self._xmax, SLOT.P_XMIN: self._xmin, SLOT.P_OIL_CHANGE: self._oil_change, SLOT.P_QPOS: d.qpos, SLOT.P_BXPOS: d.xpos, SLOT.P_BXQUAT: d.xquat, SLOT.P_ENERGY: d.energy,
+            SLOT.P_TF: self._TF, SLOT.P_TI: self._TI, SLOT.P_LOWER: self._lower, SLOT.P_UPPER: self._upper,
+            SLOT.P_FLIMITED: m.actuator_forcelimited, SLOT.P_FRANGE: m.actuator_forcerange,
+            SLOT.P_CTL_TABLE: self.controllers.table, SLOT.P_CTL_STATE: self.controllers.state,
         }
-        ctx[C_NCTL] = len(self.controllers)
+        ctx[SLOT.C_NCTL] = len(self.controllers)
         assert m.actuator_forcelimited.dtype.itemsize == 1 and m.actuator_forcelimited.flags.c_contiguous  # bool (mjtByte)
         assert m.actuator_forcerange.dtype == np.float64 and m.actuator_forcerange.flags.c_contiguous
         for a in (d.qpos, d.xpos, d.xquat, d.energy):
@@ -962,7 +952,7 @@ class MujocoPlantFast(MujocoPlant):
         assert d.moment_rowadr.dtype == np.int32 and d.moment_colind.dtype == np.int32
         for slot, array in addresses.items():
             ctx[slot] = array.ctypes.data
-        ctx[P_REC] = 0  # set by advance() for a block that records
+        ctx[SLOT.P_REC] = 0  # set by advance() for a block that records
         self._keep = addresses  # the arrays must outlive the table
         self._ctx = ctx
         callback()
@@ -984,8 +974,8 @@ class MujocoPlantFast(MujocoPlant):
             self._setpoint = np.zeros((self._capacity, len(self.controllers)))
             # the callback reads rows of the whole buffers (row stride = capacity rows)
             ctx = self._ctx
-            ctx[P_CMD], ctx[P_SPEED], ctx[C_ROWS] = self._cmd.ctypes.data, self._speed.ctypes.data, self._capacity
-            ctx[P_CTL_SET] = self._setpoint.ctypes.data
+            ctx[SLOT.P_CMD], ctx[SLOT.P_SPEED], ctx[SLOT.C_ROWS] = self._cmd.ctypes.data, self._speed.ctypes.data, self._capacity
+            ctx[SLOT.P_CTL_SET] = self._setpoint.ctypes.data
         cmd, speed = self._cmd[:n], self._speed[:n]
         cmd[:] = self.control.valve_command
         speed[:] = self.control.pump_speed
@@ -1006,9 +996,9 @@ class MujocoPlantFast(MujocoPlant):
     def record_width(self) -> int:
         """Floats per row of :meth:`advance`'s ``record`` (see :meth:`record_row` for the layout)."""
         m, net = self.model, self.network
-        n, na = net.node_count, net.actuator_count
-        return (2 * n + m.nq + m.nv + 4 * na + len(net.valve_names) + net.component_state_count + len(net.pump_names)
-                + len(net.branch_names) + 8 + 7 * m.nbody + self.controller_state.size)
+        return RECORD_ROW.size(n=net.node_count, nq=m.nq, nv=m.nv, na=net.actuator_count, nvalve=len(net.valve_names),
+                               nstate=net.component_state_count, npump=len(net.pump_names), nb=len(net.branch_names),
+                               nbody=m.nbody, nctl=self.controller_state.shape[0])
 
     def record_row(self, out: np.ndarray) -> None:
         """Write the current state into ``out`` (``record_width`` floats), as :meth:`advance` records a step.
@@ -1127,11 +1117,11 @@ class MujocoPlantFast(MujocoPlant):
         fs[FS_DISS_F], fs[FS_DISS_M] = e.dissipated_friction, e.dissipated_mechanical
         cmd, speed = self._sample_inputs(n)
         ctx = self._ctx
-        ctx[C_STEP0] = self.step_index
-        ctx[C_K:C_WORST + 1] = _BLOCK_START  # C_K, C_PENDING, C_FAILED, C_STATUS, C_WORST
+        ctx[SLOT.C_STEP0] = self.step_index
+        ctx[SLOT.C_K:SLOT.C_WORST + 1] = _BLOCK_START  # SLOT.C_K, SLOT.C_PENDING, SLOT.C_FAILED, SLOT.C_STATUS, SLOT.C_WORST
         if rows:
-            ctx[P_REC] = record.ctypes.data
-            ctx[C_REC_ROWS:C_REC_BAD + 1] = (rows, every, first, 0, 0)  # rows, every, first, count, bad
+            ctx[SLOT.P_REC] = record.ctypes.data
+            ctx[SLOT.C_REC_ROWS:SLOT.C_REC_BAD + 1] = (rows, every, first, 0, 0)  # rows, every, first, count, bad
         if not _LOCK.acquire(blocking=False):
             raise RuntimeError("another MujocoPlantFast is stepping in this process (MuJoCo's control callback is global)")
         resets = mujoco_resets(self.data)
@@ -1146,13 +1136,13 @@ class MujocoPlantFast(MujocoPlant):
             if self.realised_end:  # the last step ends at MuJoCo's positions too (MujocoPlant.end_position)
                 mujoco.mj_fwdPosition(self.model, self.data)
             _finish_python()
-            failed, status, worst, newton, rhs, jac = _CTX[C_FAILED:C_JAC + 1].tolist()
+            failed, status, worst, newton, rhs, jac = _CTX[SLOT.C_FAILED:SLOT.C_JAC + 1].tolist()
             if rows:
-                self.recorded, bad = _CTX[C_REC_COUNT:C_REC_BAD + 1].tolist()
+                self.recorded, bad = _CTX[SLOT.C_REC_COUNT:SLOT.C_REC_BAD + 1].tolist()
                 self.recorded_finite = bad == 0
-            self.end_finite = bool(_CTX[C_END_FINITE])
+            self.end_finite = bool(_CTX[SLOT.C_END_FINITE])
         finally:
-            ctx[P_REC] = _CTX[P_REC] = 0
+            ctx[SLOT.P_REC] = _CTX[SLOT.P_REC] = 0
             _LOCK.release()
         steps = n if failed < 0 else failed + 1
         last = steps - 1

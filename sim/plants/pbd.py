@@ -142,6 +142,7 @@ from sim.plants.controllers import advance_controlled
 from sim.plants.inputs import input_plan, sample_inputs
 from sim.plants.base import PlantBase
 from sim.plants.mujoco_fast import MujocoPlantFast
+from sim.io.record_row import RECORD_ROW
 from sim.io.scenario import ScenarioError
 from sim.io.scene import Scene, initial_qpos_qvel
 from sim.xpbd import LengthConstraint, SolverXPBD, XpbdModel, XpbdOptions
@@ -411,10 +412,10 @@ class PbdPlant(PlantBase):
         """Floats per recorded row: ``RunRecorder.capture``'s raw layout for a plant with ``joint_state`` (node
         pressures and oil, scalar-joint positions and rates, 4 per actuator, 2 per valve, 1 per pump and branch,
         2 solver and 6 energy terms, 7 per body)."""
-        net = self.network
-        n, na = net.node_count, net.actuator_count
-        return (2 * n + 2 * len(self.scalar_joints) + 4 * na + len(net.valve_names) + net.component_state_count
-                + len(net.pump_names) + len(net.branch_names) + 8 + 7 * self.xmodel.nbody + self.controller_state.size)
+        net, nj = self.network, len(self.scalar_joints)
+        return RECORD_ROW.size(n=net.node_count, nq=nj, nv=nj, na=net.actuator_count, nvalve=len(net.valve_names),
+                               nstate=net.component_state_count, npump=len(net.pump_names), nb=len(net.branch_names),
+                               nbody=self.xmodel.nbody, nctl=self.controller_state.shape[0])
 
     def record_next(self, record: np.ndarray, every: int = 1) -> None:
         """Make the next :meth:`advance` record the samples after every step whose index becomes a multiple of
@@ -438,12 +439,15 @@ class PbdPlant(PlantBase):
         Same results as ``n`` calls of :meth:`step` to round-off (``tests/test_pbd_block.py``); with ``record``
         the samples of :meth:`record_next`.
         """
+        from sim.plants.pbd_block import CLOCK, REC
+
         ctx = self._block_context()
         rec = ctx["rec"]
         rows = self.record_rows(self.step_index, n, every) if record is not None else 0
         if rows > (0 if record is None else len(record)):
             raise ValueError(f"`record` has {len(record)} rows, {rows} needed")
-        rec[:] = (rows, every, self.step_index, 0, 0)
+        rec[:] = 0
+        rec[REC.ROWS], rec[REC.EVERY], rec[REC.FIRST] = rows, every, self.step_index
         fc = ctx["frame"]
         solver, st, net, e = self.solver, self.state, self._net, self.energy
         nsub = solver.substeps
@@ -452,7 +456,8 @@ class PbdPlant(PlantBase):
         net.load(self.net_state, e)
         fc["x"][:], fc["v"][:], fc["ell"][:] = self._x, self._v, self._ell  # (the views of fc["actuators"])
         clock = ctx["clock"]
-        clock[:] = (st.time, net._time, e.dissipated_mechanical, self._mechanical)
+        clock[CLOCK.TIME], clock[CLOCK.NET_TIME] = st.time, net._time
+        clock[CLOCK.DISSIPATED], clock[CLOCK.MECHANICAL] = e.dissipated_mechanical, self._mechanical
         hint = ctx["hint"]
         hint[:] = st.qpos_hint
         pmax, pmin, xmax, xmin = ctx["pmax"], ctx["pmin"], ctx["xmax"], ctx["xmin"]
@@ -466,7 +471,7 @@ class PbdPlant(PlantBase):
                                      fc["actuators"], BlockTrack(clock, hint, pmax, pmin, xmax, xmin), ctx["plant"], ctx["buffers"],
                                      self._frame_settings(h), Recording(ctx["no_record"] if record is None else record, rec),
                                      self._block_control(ctx, n))
-        self.recorded, self.recorded_finite = int(rec[3]), not rec[4]
+        self.recorded, self.recorded_finite = int(rec[REC.COUNT]), not rec[REC.BAD]
         if status == BLOCK_SINGULAR:
             raise np.linalg.LinAlgError("Matrix is singular.")
         if done == 0:
@@ -474,17 +479,17 @@ class PbdPlant(PlantBase):
         last = done * nsub - 1  # the controls of the last substep taken (as after the hooks)
         self.control.valve_command[:] = cmd[last]
         self.control.pump_speed[:] = speed[last]
-        net._time = float(clock[1])
+        net._time = float(clock[CLOCK.NET_TIME])
         self.net_state, self._report = net.store(e)
         self.last_report = self._report
-        e.dissipated_mechanical, self._mechanical = float(clock[2]), float(clock[3])
+        e.dissipated_mechanical, self._mechanical = float(clock[CLOCK.DISSIPATED]), float(clock[CLOCK.MECHANICAL])
         self._x, self._v, self._ell = fc["x"].copy(), fc["v"].copy(), fc["ell"].copy()
         self.effort = fc["actuators"].effort.copy()
         self._motor_effort = fc["actuators"].motor_effort.copy()
         self.theta = net.theta.copy()
         self.node_pressure_max, self.node_pressure_min = pmax.copy(), pmin.copy()
         self.actuator_position_max, self.actuator_position_min = xmax.copy(), xmin.copy()
-        st.time = float(clock[0])
+        st.time = float(clock[CLOCK.TIME])
         st.qpos_hint = hint.copy()
         solver.last_forces = []
         self.frame_steps += done
@@ -535,7 +540,7 @@ class PbdPlant(PlantBase):
         ctx = getattr(self, "_block_ctx", None)
         if ctx is not None:
             return ctx
-        from sim.plants.pbd_block import BlockBuffers, BlockPlant, ContactCandidates
+        from sim.plants.pbd_block import CLOCK, REC, BlockBuffers, BlockPlant, ContactCandidates
         from sim.plants.pbd_frame import Articulated, RigidState
         from sim.xpbd.compiled import ContactRows
 
@@ -570,9 +575,9 @@ class PbdPlant(PlantBase):
         ctx = dict(frame=fc, plant=plant,
                    buffers=buffers,
                    cmd=np.zeros((0, len(self.network.valve_names))), speed=np.zeros((0, len(self.network.pump_names))),
-                   clock=np.zeros(4), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
+                   clock=np.zeros(len(CLOCK)), hint=np.zeros(nq), pmax=np.zeros(self.network.node_count),
                    pmin=np.zeros(self.network.node_count), xmax=np.zeros(self.network.actuator_count),
-                   xmin=np.zeros(self.network.actuator_count), rec=np.zeros(5, np.int64),
+                   xmin=np.zeros(self.network.actuator_count), rec=np.zeros(len(REC), np.int64),
                    no_record=np.zeros((0, self.record_width)))
         self._block_ctx = ctx
         return ctx
@@ -643,6 +648,7 @@ class PbdPlant(PlantBase):
         ctx = getattr(self, "_frame_ctx", None)
         if ctx is not None:
             return ctx
+        from sim.plants.pbd_frame import OUT as FRAME_OUT
         from sim.plants.pbd_frame import Actuation, ActuatorState
 
         xm, net = self.xmodel, self.network
@@ -657,7 +663,7 @@ class PbdPlant(PlantBase):
             maxis=_c64(np.asarray(self._axis_inertial).reshape(-1, 3)[self.motor_joint].reshape(-1, 3)),
             morigin=_c64(np.asarray(self._origin_inertial).reshape(-1, 3)[mb].reshape(-1, 3)))
         actuators = ActuatorState(x=np.zeros(na), v=np.zeros(na), ell=np.zeros(nr), effort=np.zeros(na),
-                                  motor_effort=np.zeros(nm), out=np.zeros(2))
+                                  motor_effort=np.zeros(nm), out=np.zeros(len(FRAME_OUT)))
         ctx = dict(inputs=input_plan(net, self.control, self.scene.scenario.inputs), x=actuators.x, v=actuators.v,
                    ell=actuators.ell, actuators=actuators, actuation=actuation)
         ctx.update(self._articulated_context())

@@ -22,12 +22,12 @@ Blocks of many steps equal blocks of one and the Python hooks to round-off (``te
 ``tests/test_pbd_fast.py``).
 
 Recording (as ``MujocoPlantFast.advance(n, record, every)``, the ``Recording`` layout): after every step but
-the block's last whose step index becomes a multiple of ``rec[1]`` (``rec[2]``: the step index at the block's
-start), the next of ``rec[0]`` rows of ``record`` receives the raw sample the runner's recorder
-would capture after that step (``_record_row``); ``rec[3]`` counts the rows written, ``rec[4]``
+the block's last whose step index becomes a multiple of ``rec[REC.EVERY]`` (``rec[REC.FIRST]``: the step index at
+the block's start), the next of ``rec[REC.ROWS]`` rows of ``record`` receives the raw sample the runner's recorder
+would capture after that step (``_record_row``); ``rec[REC.COUNT]`` counts the rows written, ``rec[REC.BAD]``
 is 1 when one of them had a non-finite pressure or joint.
 
-``track.clock`` (float64, 4): body time [s], network time [s], dissipated mechanical energy [J],
+``track.clock`` (float64, by :data:`CLOCK`): body time [s], network time [s], dissipated mechanical energy [J],
 kinetic + potential energy [J] at the start of the block; updated in place.
 Returns (frames done, status): ``BLOCK_OK`` (all frames, or stopped after a failed hydraulic
 step: the plant reads the status from ``istats``) or ``BLOCK_SINGULAR`` (the coupling's linearisation was
@@ -47,6 +47,9 @@ from numba import njit
 from hydraulics import _compiled as C
 from hydraulics import controllers as CT
 
+from sim.io import record_row
+from hydraulics.layout import slots
+from sim.io.record_row import RECORD_ROW
 from sim.xpbd import compiled as XC
 from sim.plants import pbd_frame as FN
 from sim.plants import pbd_hydraulics as H
@@ -81,8 +84,15 @@ BlockBuffers = namedtuple("BlockBuffers", [  # outputs and work arrays, made onc
     "xb", "qb", "qpos", "qvel",  # body frames, generalized coordinates (``compiled.qpos_qvel``)
 ])
 
+CLOCK = slots(("TIME", "NET_TIME", "DISSIPATED", "MECHANICAL"))
+"""Entries of ``BlockTrack.clock`` (float64): body time [s], network time [s], dissipated mechanical energy [J],
+kinetic + potential energy [J]."""
+REC = slots(("ROWS", "EVERY", "FIRST", "COUNT", "BAD"))
+"""Entries of ``Recording.rec`` (int64): rows to record, every how many steps, the block's first step index, rows
+written, 1 when a written row was not finite."""
+
 BlockTrack = namedtuple("BlockTrack", [  # running values, updated in place
-    "clock",  # body time [s], network time [s], dissipated mechanical [J], kinetic + potential [J], (4,)
+    "clock",  # (len(CLOCK),) by CLOCK
     "hint",  # hinge-unwrapping hint, (nq,)
     "pressure_max", "pressure_min",  # running node-pressure extremes [Pa], (n,)
     "position_max", "position_min",  # running actuator-position extremes [m or rad], (na,)
@@ -96,7 +106,7 @@ Control = namedtuple("Control", [  # the PID controllers (hydraulics.controllers
 
 Recording = namedtuple("Recording", [
     "record",  # the rows to fill, (rows, width)
-    "rec",  # (rows, every, first step index, rows written, a row was not finite), int64 (5,)
+    "rec",  # int64 (len(REC),) by REC
 ])
 
 
@@ -119,9 +129,9 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
     istats, ledger, pres = hyd.istats, hyd.ledger, hyd.pressure
     substeps = settings.substeps
     fout = actuators.out
-    rows, every, first_step = rec[0], rec[1], rec[2]
-    rec[3] = 0  # rows recorded
-    rec[4] = 0  # a recorded row was not finite
+    rows, every, first_step = rec[REC.ROWS], rec[REC.EVERY], rec[REC.FIRST]
+    rec[REC.COUNT] = 0
+    rec[REC.BAD] = 0
     # the frames' work arrays, made once for the block (room for every contact candidate)
     jt = model.jt
     work = FN._frame_work_jit(actuation.cyl.size, actuators.x.size, Xg.shape[0], jt.shape[0], art.mobility.shape,
@@ -156,16 +166,16 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
                                C.borrowed(work), (transport, art_contacts, joint_space))
         if status != FN.FRAME_OK:
             return k, BLOCK_SINGULAR
-        for _ in range(int(fout[1])):  # network time: + h per successful substep
-            clock[1] += settings.h
-        clock[0] = clock[0] + dt
+        for _ in range(int(fout[FN.OUT.SUBSTEPS_OK])):  # network time: + h per successful substep
+            clock[CLOCK.NET_TIME] += settings.h
+        clock[CLOCK.TIME] = clock[CLOCK.TIME] + dt
         XC.qpos_qvel(bx, bq, bv, bw, hint, tree, xb, qb, qpos, qvel)
         hint[:] = qpos
         kin, pot = XC.energies(bx, bq, bv, bw, plant.root, plant.from_root_quat, plant.from_root_pos, plant.group_mass,
                                plant.group_inertia, model.gravity)
         mechanical = 0 + kin + pot  # sum((kinetic, potential)), as the Python hooks
-        clock[2] += fout[0] - (mechanical - clock[3])
-        clock[3] = mechanical
+        clock[CLOCK.DISSIPATED] += fout[FN.OUT.WORK] - (mechanical - clock[CLOCK.MECHANICAL])
+        clock[CLOCK.MECHANICAL] = mechanical
         if istats[H.I_STATUS] != H.ST_OK:
             return k + 1, BLOCK_OK
         for i in range(pres.size):
@@ -174,20 +184,16 @@ def _block(nframe, dt, cmd, speed, hyd, bodies, actuators, track, plant, buffers
         for i in range(pos.size):
             xmax[i] = max(xmax[i], pos[i])
             xmin[i] = min(xmin[i], pos[i])
-        if rec[3] < rows and k < nframe - 1 and (first_step + k + 1) % every == 0:
+        if rec[REC.COUNT] < rows and k < nframe - 1 and (first_step + k + 1) % every == 0:
             last = (k + 1) * substeps - 1
-            if not _record_row(record[rec[3]], hyd, qpos, qvel, plant.record_qpos, plant.record_qvel, actuators.effort,
-                               cmd[last], speed[last], kin, pot, clock[2], xb, qb, control.state):
-                rec[4] = 1
-            rec[3] += 1
+            if not _record_row(record[rec[REC.COUNT]], hyd, qpos, qvel, plant.record_qpos, plant.record_qvel, actuators.effort,
+                               cmd[last], speed[last], kin, pot, clock[CLOCK.DISSIPATED], xb, qb, control.state):
+                rec[REC.BAD] = 1
+            rec[REC.COUNT] += 1
     return nframe, BLOCK_OK
 
 
-@njit(cache=True)
-def _put(row, o, values):
-    for i in range(values.size):
-        row[o + i] = values[i]
-    return o + values.size
+_record_views = njit(inline="always")(RECORD_ROW.carver(C._matrix))
 
 
 def _control(control, step, dt, hyd, qpos, qvel, cmd, speed, k):
@@ -203,55 +209,43 @@ def _control(control, step, dt, hyd, qpos, qvel, cmd, speed, k):
 @njit(cache=True)
 def _record_row(row, hyd, qpos, qvel, rq, rd, effort, cmd, speed, kinetic, potential, dissipated_mechanical, xb, qb,
                 controller_state):
-    """One raw sample in the layout of ``RunRecorder.capture`` for a plant with ``joint_state``: node pressures [Pa],
-    scalar-joint positions and rates, node oil, actuator positions, velocities, efforts, θ, valve commands, spools,
-    pump speeds, branch flows, Newton iterations and residual [Pa], kinetic, potential energy, pump work, hydraulic,
-    friction and mechanical dissipation [J], body-frame positions [m] and quaternions; returns whether the node
-    pressures and joints are finite (``RunRecorder.captured_finite``).  ``hyd``: the network's
-    ``pbd_hydraulics.HydraulicBuffers``."""
+    """One raw sample (:data:`sim.io.record_row.RECORD_ROW`, the scalar joints ``rq``/``rd`` of ``qpos``/``qvel`` as
+    its joints) for a plant with ``joint_state``; returns whether the node pressures and joints are finite
+    (``RunRecorder.captured_finite``).  ``hyd``: the network's ``pbd_hydraulics.HydraulicBuffers``."""
     ledger = hyd.ledger
-    o = _put(row, 0, hyd.pressure)
+    r, _ = _record_views(row, 0, hyd.pressure.size, rq.size, rd.size, hyd.position.size, cmd.size, hyd.spool.size,
+                         speed.size, hyd.flow.size, xb.shape[0], controller_state.shape[0])
+    C._copy(r.p, hyd.pressure)
     for i in range(rq.size):
-        row[o + i] = qpos[rq[i]]
-    o += rq.size
+        r.qpos[i] = qpos[rq[i]]
     for i in range(rd.size):
-        row[o + i] = qvel[rd[i]]
-    o += rd.size
+        r.qvel[i] = qvel[rd[i]]
     finite = True
-    for i in range(o):
+    for i in range(r.p.size + r.qpos.size + r.qvel.size):  # (the row starts with them)
         if not np.isfinite(row[i]):
             finite = False
-    o = _put(row, o, hyd.oil)
-    o = _put(row, o, hyd.position)
-    o = _put(row, o, hyd.velocity)
-    o = _put(row, o, effort)
-    o = _put(row, o, hyd.theta)
-    o = _put(row, o, cmd)
-    o = _put(row, o, hyd.spool)
-    o = _put(row, o, speed)
-    o = _put(row, o, hyd.flow)
-    row[o], row[o + 1] = hyd.istats[H.I_NEWTON], ledger[H.L_RESIDUAL]
-    row[o + 2], row[o + 3] = kinetic, potential
-    row[o + 4], row[o + 5], row[o + 6] = ledger[H.L_PUMP], ledger[H.L_DISS_H], ledger[H.L_DISS_F]
-    row[o + 7] = dissipated_mechanical
-    o += 8
-    for b in range(xb.shape[0]):
-        for c in range(3):
-            row[o] = xb[b, c]
-            o += 1
-    for b in range(qb.shape[0]):
-        for c in range(4):
-            row[o] = qb[b, c]
-            o += 1
-    for i in range(controller_state.shape[0]):  # the controllers' states (hydraulics.controllers.STATE_COLUMNS)
-        for c in range(controller_state.shape[1]):
-            row[o] = controller_state[i, c]
-            o += 1
+    C._copy(r.oil, hyd.oil)
+    C._copy(r.x, hyd.position)
+    C._copy(r.v, hyd.velocity)
+    C._copy(r.effort, effort)
+    C._copy(r.theta, hyd.theta)
+    C._copy(r.cmd, cmd)
+    C._copy(r.spool, hyd.spool)
+    C._copy(r.speed, speed)
+    C._copy(r.flow, hyd.flow)
+    r.solver[0], r.solver[1] = hyd.istats[H.I_NEWTON], ledger[H.L_RESIDUAL]
+    r.energy[0], r.energy[1] = kinetic, potential
+    r.energy[2], r.energy[3], r.energy[4] = ledger[H.L_PUMP], ledger[H.L_DISS_H], ledger[H.L_DISS_F]
+    r.energy[5] = dissipated_mechanical
+    C._copy2(r.xpos, xb)
+    C._copy2(r.xquat, qb)
+    C._copy2(r.controllers, controller_state)  # the controllers' states (hydraulics.controllers.STATE_COLUMNS)
     return finite
 
 
 # this file and everything frame_nb compiles in, taken at import: part of the cache key
-SOURCE_SHA256 = C.source_sha256(__file__, FN.__file__, H.__file__, XC.__file__, CT.__file__, *C.SOURCES)
+SOURCE_SHA256 = C.source_sha256(__file__, FN.__file__, H.__file__, XC.__file__, CT.__file__, record_row.__file__,
+                                *C.SOURCES)
 
 
 _BLOCK = {}

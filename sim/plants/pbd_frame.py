@@ -38,9 +38,14 @@ import numpy as np
 from numba import njit
 
 from hydraulics import _compiled as C
+from hydraulics.layout import slots
 
 from sim.xpbd import compiled as XC
 from sim.plants import pbd_hydraulics as H
+
+OUT = slots(("WORK", "SUBSTEPS_OK"))
+"""Entries of ``ActuatorState.out`` (float64): the frame's work of the efforts on the bodies [J], its successful
+hydraulic substeps."""
 
 IMPLICIT_SLOPE_LIMIT = -1e-9  # [N·s/m]: a law slope above this is an explicit row force, not a compliant row
 
@@ -75,7 +80,7 @@ ActuatorState = namedtuple("ActuatorState", [
     "ell",  # cylinder row length [m], (nr,)
     "effort",  # actuator effort [N or N·m], (na,)
     "motor_effort",  # motor effort [N·m], (nm,)
-    "out",  # (work of the efforts on the bodies [J], successful hydraulic substeps), (2,)
+    "out",  # work of the efforts on the bodies [J], successful hydraulic substeps: (len(OUT),) by OUT
 ])
 
 Articulated = namedtuple("Articulated", [
@@ -210,7 +215,7 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
         gg[:, :] = 0.0
     hh = h * h
     work = 0.0
-    out[1] = 0.0
+    out[OUT.SUBSTEPS_OK] = 0.0
     # articulated responses carried to each substep's pose (SolverXPBD.transport_response)
     nj = jt.shape[0]
     carry = (joint_space and transport and nj > 0 and substeps > 1 and XC.group_jacobian(Xg, Qg, IM, jt, jg, jvec, Gk)
@@ -218,7 +223,7 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
     for k in range(substeps):
         control = (cmd[k], speed[k])
         if not H._begin_core(pnet, hyd, control, x, v, h, coupling, meff):
-            out[0] = work
+            out[OUT.WORK] = work
             return FRAME_SINGULAR
         nact = 0
         any_force = False
@@ -323,7 +328,7 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
         for i in range(nm):
             effort[mot[i]] = motor_effort[i]
         H._finish_core(pnet, hyd, control, (x_end, v_end, v), h, coupling, effort)
-        out[1] += istats[H.I_LAST_OK]
+        out[OUT.SUBSTEPS_OK] += istats[H.I_LAST_OK]
         # v_next: cylinder speeds as the bodies now move; work trapezoidal in the actuator speeds
         for r in range(nr):
             v_end[cyl[r]] = rate[r]
@@ -336,7 +341,7 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
         for a in range(na):
             x[a] = x_end[a]
             v[a] = v_end[a]
-    out[0] = work
+    out[OUT.WORK] = work
     return FRAME_OK
 
 

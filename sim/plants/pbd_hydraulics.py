@@ -32,6 +32,7 @@ from hydraulics import _compiled_rigid as K
 from hydraulics.coupling import (SCHEME_NEWTON, SCHEME_ROSENBROCK, CouplingExplicit, CouplingImplicit,
                                  CouplingIncompressible, CouplingMixed)
 from hydraulics.fluid import potential_quadrature
+from hydraulics.layout import Layout
 from hydraulics.network import NetworkState
 from hydraulics.steppers import StepperExplicitEuler, StepperImplicitEuler, StepReport, StepStatus
 
@@ -42,15 +43,22 @@ try:  # pragma: no branch
 except ImportError:  # pragma: no cover
     _NUMBA = False
 
-# int counters (istats of the frame): _compiled's 6 per-call slots, then the step's totals and failure
-(I_NEWTON, I_RHS, I_JAC, I_STATUS, I_WORST, I_LAST_OK) = range(6, 12)
-NI = 12
-# float ledger: pump work, motor work, hydraulic and friction dissipation [J], residual max, failing residual
-(L_PUMP, L_MOTOR, L_DISS_H, L_DISS_F, L_RESIDUAL, L_FAIL_NORM) = range(6)  # the first four in C._account's order
-NL = 6
-ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(4)
-# the coupling the compiled steps take (:func:`coupling_kind`)
-KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(3)
+TOTALS = ("newton", "rhs", "jac", "status", "worst", "last_ok")
+"""The frame's int counters (istats, indices ``I_*``) after _compiled's per-call entries (``C.ISTATS``): the step's
+totals and failure."""
+(I_NEWTON, I_RHS, I_JAC, I_STATUS, I_WORST, I_LAST_OK) = range(C.NIS, C.NIS + len(TOTALS))
+NI = C.NIS + len(TOTALS)
+LEDGER = ("pump", "motor", "diss_h", "diss_f", "residual", "fail_norm")
+"""The float ledger (indices ``L_*``): pump work, motor work, hydraulic and friction dissipation [J] (the first four
+in C._account's order), residual max, failing residual [Pa]."""
+(L_PUMP, L_MOTOR, L_DISS_H, L_DISS_F, L_RESIDUAL, L_FAIL_NORM) = range(len(LEDGER))
+NL = len(LEDGER)
+STATUSES = ("ok", "newton", "nonfinite", "singular")
+"""The step's outcome (``ST_*``)."""
+ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(len(STATUSES))
+KINDS = ("implicit", "explicit", "incompressible")
+"""The coupling the compiled steps take (``KIND_*``, :func:`coupling_kind`)."""
+KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(len(KINDS))
 
 # The network's buffers for the compiled steps, made once per plant (:class:`NetworkBuffers`); n nodes,
 # na actuators, nb branches, nvalve valves.
@@ -108,38 +116,46 @@ else:  # pragma: no cover
         return function
 
 
-def _begin_temporaries(n, na, nb, nvalve):
-    return na * 7 + 3 * n + na * na + na + nb
+KEEP = Layout("keep", ("n", "na", "nb", "nvalve"), (
+    # the last substep's oil change [m³] (NetworkState.node_oil_change, the next substep's warm start; persists
+    # across substeps and steps: NetworkBuffers.load / store move it)
+    (("oil_change", "n"),)
+    # what begin leaves for finish
+    + C.LINEARIZATION_KEPT
+    # begin's temporaries: effort-law terms per actuator, the linearisation's pressures and first-evaluation
+    # pressures [Pa], effort gradient, positions, flows, warm-start oil
+    + (("fg", "na"), ("fsg", "na"), ("end_const", "na"), ("end_slope", "na"), ("friction", "na"), ("damping", "na"),
+       ("pressure_start", "na"), ("lin_p", "n"), ("p_first", "n"), ("gradient", "na", "na"), ("lin_x", "na"),
+       ("lin_flow", "nb"), ("oil_warm", "n"))
+    # finish's temporaries: predicted, end and start oil, end pressures, ledger temporaries; actuator temporaries;
+    # flows and their terminal derivatives; end states
+    + (("mpred", "n"), ("o2", "n"), ("p2", "n"), ("mu", "n"), ("start", "n"), ("dv", "na"), ("fric", "na"),
+       ("xs", "na"), ("xb", "na"), ("xe", "na"), ("dflow", "nb", C._W_BR), ("fl", "nb"), ("sp2", "nvalve"))))
+"""The float64 buffer S of the compiled steps (n nodes, na actuators, nb branches, nvalve component states)."""
 
 
 def keep_size(n, na, nb, nvalve):
-    """Length of the float64 buffer S: the last substep's oil change [m³] (``NetworkState.node_oil_change``, the
-    next substep's warm start, which persists across substeps and steps; :meth:`NetworkBuffers.load` / ``store``
-    move it), what begin leaves for finish (``C._take_linearization``), then begin's and finish's temporaries."""
-    return n + (na + n + nvalve + n * na) + _begin_temporaries(n, na, nb, nvalve) + (5 * n + 5 * na + (1 + C._W_BR) * nb + nvalve)
+    """Length of the float64 buffer S: :data:`KEEP`."""
+    return KEEP.size(n=n, na=na, nb=nb, nvalve=nvalve)
 
 
 def work_size(F, I, n, na, nb, nr):
-    """Length of the float64 scratch W for ``n`` nodes, ``na`` actuators, ``nb`` branches and ``nr`` rigid branches:
-    the Newton kernels' (``_compiled.work_size``), the explicit substep's (3·n + valve areas ≤ 4·n + nb) and the
-    rigid actuators' law's, whichever is longest."""
-    return max(C.work_size(F, I), 4 * n + nb, 3 * nr + 3 * n + 4 * na)
+    """Length of the float64 scratch W for ``n`` nodes, ``na`` actuators, ``nb`` branches and ``nr`` rigid branches
+    (``_compiled_rigid.coupled_work_size`` over the Newton kernels' ``_compiled.work_size``)."""
+    return K.coupled_work_size(C.work_size(F, I), n, na, nb, nr)
 
 
-_begin_temporaries_nb = _kernel(_begin_temporaries)
+if _NUMBA:
+    _keep = numba.njit(error_model="numpy", nogil=True, inline="always")(KEEP.carver(C._matrix))
+else:  # pragma: no cover
+    _keep = KEEP.carver(C._matrix)
 
 
 @_kernel
-def _kept(pnet, buffers):
-    """The sizes (nodes n, actuators na, branches nb, valves nvalve) and the head of ``buffers.S`` that begin and
-    finish share (see :func:`keep_size`): the last substep's oil change [m³], then what begin leaves for finish
-    (``C._take_linearization``: guess, linearisation oil, spools and oil slopes); ``o`` is the offset after them."""
+def _sizes(pnet, buffers):
+    """The dimensions of :data:`KEEP`: nodes n, actuators na, branches nb, component states nvalve."""
     ic = C._deref(pnet).ic
-    n, na, nb = ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB]
-    nvalve = buffers.spool.size
-    oil_change, o = C._take(buffers.S, 0, n)
-    guess, lin_oil, lin_spool, doil, o = C._take_linearization(buffers.S, o, n, na, nvalve)
-    return n, na, nb, nvalve, oil_change, guess, lin_oil, lin_spool, doil, o
+    return ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB], buffers.spool.size
 
 
 @_kernel
@@ -165,7 +181,9 @@ def _begin_core(pnet, buffers, control, x, v, h, coupling, effective_mass):
     cmd, speed = control
     kind, scheme, blend = coupling
     R = buffers.rigid
-    n, na, nb, nvalve, oil_change, guess, lin_oil, lin_spool, doil, o = _kept(pnet, buffers)
+    n, na, nb, nvalve = _sizes(pnet, buffers)
+    ws, _ = _keep(S, 0, n, na, nb, nvalve)
+    oil_change, guess, lin_oil, lin_spool, doil = ws.oil_change, ws.guess, ws.lin_oil, ws.lin_spool, ws.doil
     if kind == KIND_INCOMPRESSIBLE:
         C._spool_end(pnet, spool, cmd, h, lin_spool)
         K.incompressible_law(pnet, buffers.incompressible, lin_spool, speed, (x, v), effective_mass, h,
@@ -179,20 +197,9 @@ def _begin_core(pnet, buffers, control, x, v, h, coupling, effective_mass):
             K.rigid_law(pnet, R, spool, cmd, v, effective_mass, h, (pres, oil, x, doil, x), False, (const, slope),
                         (lower, upper), theta, W)
         return True
-    fg, o = C._take(S, o, na)
-    fsg, o = C._take(S, o, na)
-    end_const, o = C._take(S, o, na)
-    end_slope, o = C._take(S, o, na)
-    friction, o = C._take(S, o, na)
-    damping, o = C._take(S, o, na)
-    pressure_start, o = C._take(S, o, na)
-    lin_p, o = C._take(S, o, n)
-    p_first, o = C._take(S, o, n)
-    g, o = C._take(S, o, na * na)
-    gradient = C._matrix(g, na, na)
-    lin_x, o = C._take(S, o, na)
-    lin_flow, o = C._take(S, o, nb)
-    oil_warm, o = C._take(S, o, n)
+    fg, fsg, end_const, end_slope, friction = ws.fg, ws.fsg, ws.end_const, ws.end_slope, ws.friction
+    damping, pressure_start, lin_p, p_first, gradient = ws.damping, ws.pressure_start, ws.lin_p, ws.p_first, ws.gradient
+    lin_x, lin_flow, oil_warm = ws.lin_x, ws.lin_flow, ws.oil_warm
     C._secant_oil_guess(oil, oil_change, oil_warm)
     effort_end = fg  # overwritten by the guess's friction below
     # linearised at the start velocities where their chord is short (coupling.start_velocity_guess), kept inside the
@@ -230,21 +237,12 @@ def _finish_core(pnet, buffers, control, motion, h, coupling, effort):
     cmd, speed = control
     x_end, v_end, v_start = motion
     kind, scheme = coupling[0], coupling[1]
-    n, na, nb, nvalve, oil_change, guess, lin_oil, lin_spool, doil, o = _kept(pnet, buffers)
-    o += _begin_temporaries_nb(n, na, nb, nvalve)
-    mpred, o = C._take(S, o, n)
-    o2, o = C._take(S, o, n)
-    p2, o = C._take(S, o, n)
-    mu, o = C._take(S, o, n)
-    start, o = C._take(S, o, n)
-    dv, o = C._take(S, o, na)
-    fric, o = C._take(S, o, na)
-    xs, o = C._take(S, o, na)
-    xb, o = C._take(S, o, na)
-    xe, o = C._take(S, o, na)
-    dflow, o = C._take2(S, o, nb, C._W_BR)  # branches × terminals
-    fl, o = C._take(S, o, nb)
-    sp2, o = C._take(S, o, nvalve)
+    n, na, nb, nvalve = _sizes(pnet, buffers)
+    ws, _ = _keep(S, 0, n, na, nb, nvalve)
+    oil_change, guess, lin_oil, lin_spool, doil = ws.oil_change, ws.guess, ws.lin_oil, ws.lin_spool, ws.doil
+    mpred, o2, p2, mu, start = ws.mpred, ws.o2, ws.p2, ws.mu, ws.start
+    dv, fric, xs, xb, xe = ws.dv, ws.fric, ws.xs, ws.xb, ws.xe
+    dflow, fl, sp2 = ws.dflow, ws.fl, ws.sp2  # dflow: branches × terminals
     C._copy(start, oil)
     norm = 0.0
     istats[I_LAST_OK] = 0
@@ -385,5 +383,7 @@ class NetworkBuffers:
         return state, report
 
     def _oil_change(self) -> np.ndarray:
-        """The view of S holding the last substep's oil change [m³] (see :func:`keep_size`)."""
-        return self._S[:self.network.node_count]
+        """The view of S holding the last substep's oil change [m³] (:data:`KEEP`)."""
+        net = self.network
+        return KEEP.views(self._S, n=net.node_count, na=net.actuator_count, nb=len(net.branch_names),
+                          nvalve=self.spool.size).oil_change

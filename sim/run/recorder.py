@@ -42,6 +42,7 @@ import re
 import numpy as np
 
 from hydraulics.controllers import LOGGED as CONTROLLER_COLUMNS, STATE_COLUMNS as CONTROLLER_STATE_COLUMNS
+from sim.io.record_row import RECORD_ROW
 from hydraulics.energy import stored_energy_at
 
 from sim.io.foxglove_scene import CylinderPins, CylinderScene, FrameTransformsChannel, log_scene
@@ -253,24 +254,24 @@ class RunRecorder:
         # np.concatenate; everything derived (volumes, stiffness, stored energy, efforts, pump
         # powers) is computed per batch in derive().
         # (node pressures and joints first and adjacent: captured_finite() sums one slice)
-        raw_sizes = {"p": nnode, "joints": 2 * nj, "oil": nnode, "x": net.actuator_count, "v": net.actuator_count,
-                     "effort": net.actuator_count, "theta": net.actuator_count, "cmd": nvalve,
-                     "spool": net.component_state_count,
-                     "speed": npump, "flow": nflow, "solver": 2, "energy": 6, "poses": 7 * nbody,
-                     "controllers": nctl * len(CONTROLLER_STATE_COLUMNS)}
+        # (sim.io.record_row.RECORD_ROW; "joints": its qpos and qvel, "poses": its xpos and xquat)
         # A MuJoCo plant's joints are read as the whole qpos/qvel (two plain copies) and selected per batch
         from sim.plants.mujoco import MujocoPlant
 
         self._mj = getattr(type(plant), "joint_state", None) is MujocoPlant.joint_state
+        nq = nv = nj
         if self._mj:
             m = plant.model
-            raw_sizes["joints"] = m.nq + m.nv
+            nq, nv = m.nq, m.nv
             self._joint_columns = np.concatenate([m.jnt_qposadr[plant.scalar_joints],
                                                   m.nq + m.jnt_dofadr[plant.scalar_joints]]).astype(np.intp)
-        raw_start = np.cumsum([0, *raw_sizes.values()])
-        self._rawcols = {name: slice(int(raw_start[i]), int(raw_start[i + 1])) for i, name in enumerate(raw_sizes)}
+        raw_dims = dict(n=nnode, nq=nq, nv=nv, na=net.actuator_count, nvalve=nvalve, nstate=net.component_state_count,
+                        npump=npump, nb=nflow, nbody=nbody, nctl=nctl)
+        self._rawcols = {name: slice(*span) for name, span in RECORD_ROW.offsets(**raw_dims).items()}
+        b = self._rawcols
+        b["joints"], b["poses"] = slice(b["qpos"].start, b["qvel"].stop), slice(b["xpos"].start, b["xquat"].stop)
         capacity = max(1, min(int(RING_SIZE if ring_size is None else ring_size), log._batch_size))
-        self._raw = np.zeros((capacity, int(raw_start[-1])))
+        self._raw = np.zeros((capacity, RECORD_ROW.size(**raw_dims)))
         self._raw_steps = np.zeros(capacity, dtype=np.int64)
         self._spare_rings: list[tuple[np.ndarray, np.ndarray]] = []  # rings whose rows are in the log, to fill again
         self._counting = np.arange(capacity, dtype=np.int64)
