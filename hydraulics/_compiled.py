@@ -92,7 +92,8 @@ from .components import motor as _motor
 from .components.accumulator import ACC_GAS, ACC_INDEX, ACC_PRE
 from .components.check_valve import K_AREA, K_C, K_CRACK, K_FULL, K_K, K_LEAK
 from .components.cylinder import (CI_ACT, CI_CAP, CI_ROD, CYL_CAP_AREA, CYL_COULOMB, CYL_DEAD_CAP, CYL_DEAD_ROD,
-                                  CYL_ROD_AREA, CYL_STATIC, CYL_STRIBECK, CYL_STROKE, CYL_VISCOUS)
+                                  CYL_PRESSURE_FRICTION, CYL_ROD_AREA, CYL_STATIC, CYL_STRIBECK, CYL_STROKE,
+                                  CYL_VISCOUS)
 from .components.motor import MI_A, MI_ACT, MI_B
 from .components.orifice import O_BASE, O_C, O_CENTRE, O_K, O_MAX, O_SIGN
 from .components.pumps import P_BAND, P_COMP, P_DISP, P_EFF
@@ -1140,18 +1141,20 @@ def _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, col):
 @_kernel
 def _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope):
     """NetworkModel.actuator_effort at pressures ``p`` [Pa] and velocities ``velocity`` into ``effort`` [N or N·m],
-    and ∂effort/∂v⁺ = (∂f/∂p)·(∂p/∂v⁺) + diag(friction slope) into ``gradient`` (na × na) from ``dpdv`` (n × na);
+    and ∂effort/∂v⁺ = (∂f/∂p)·(∂p/∂v⁺) + diag(friction slope) into ``gradient`` (na × na) from ``dpdv`` (n × na),
+    ∂f/∂p holding the seal friction's pressure dependence (:func:`_friction_pressure_gradient`);
     ``epg`` (na × n), ``slope`` (na): scratch."""
     na = effort.size
     if na == 0:
         return
     _pressure_effort(pnet, p, effort)
     friction = gradient[0]  # (scratch until the gradient is written below)
-    _friction_effort(pnet, velocity, friction, slope)
+    _friction_effort(pnet, p, velocity, friction, slope)
     for a in range(na):
         effort[a] = effort[a] + friction[a]
-    # effort_pressure_gradient @ dpdv + diag(friction slope)
+    # (effort_pressure_gradient + the friction's) @ dpdv + diag(friction slope)
     _effort_pressure_gradient(pnet, epg)
+    _friction_pressure_gradient(pnet, p, velocity, epg)
     for a in range(na):
         for b in range(na):
             s = 0.0
@@ -1417,19 +1420,53 @@ def _pressure_effort(pnet, p, out):
 
 
 @_kernel
-def _friction_effort(pnet, v, effort, slope):
-    """NetworkModel.friction_effort: cylinder friction efforts [N] at velocities ``v`` [m/s] and their slopes
-    ∂effort/∂v [N·s/m] (zero for motors)."""
+def _seal_load(pnet, c, p):
+    """The seal load F_p [N] of cylinder ``c`` at node pressures ``p`` [Pa] and its slopes ∂F_p/∂p_cap, ∂F_p/∂p_rod
+    [m²] (:func:`hydraulics.components.cylinder.seal_load`); zeros without pressure dependence or without
+    pressures (``p`` empty: the rigid actuators, which have none)."""
+    net = _deref(pnet)
+    cyl, ci = net.cyl, net.cyl_i
+    kp = cyl[c, CYL_PRESSURE_FRICTION]
+    if kp == 0.0 or p.size == 0:
+        return 0.0, 0.0, 0.0
+    return _cylinder.seal_load(p[ci[c, CI_CAP]], p[ci[c, CI_ROD]], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
+                               net.sc[S_PREF], kp)
+
+
+@_kernel
+def _friction_effort(pnet, p, v, effort, slope):
+    """NetworkModel.friction_effort: cylinder friction efforts [N] at node pressures ``p`` [Pa] (their seal load;
+    empty: none) and velocities ``v`` [m/s], and their slopes ∂effort/∂v [N·s/m] at those pressures (zero for
+    motors)."""
     net = _deref(pnet)
     effort[:] = 0.0
     slope[:] = 0.0
     cyl, ci = net.cyl, net.cyl_i
     for c in range(cyl.shape[0]):
         a = ci[c, CI_ACT]
-        f, df = _cylinder.friction_force_with_derivative(v[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC], cyl[c, CYL_STRIBECK],
-                                                  cyl[c, CYL_VISCOUS], net.sc[S_VREG])
+        load, _, _ = _seal_load(pnet, c, p)
+        f, df, _ = _cylinder.friction_force_with_derivative(v[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC],
+                                                            cyl[c, CYL_STRIBECK], cyl[c, CYL_VISCOUS], net.sc[S_VREG], load)
         effort[a] = -f
         slope[a] = -df
+
+
+@_kernel
+def _friction_pressure_gradient(pnet, p, v, epg):
+    """Add the seal friction's ∂effort/∂p_node [m²] at node pressures ``p`` [Pa] and velocities ``v`` [m/s] to
+    ``epg`` (na × n): −(∂F_f/∂F_p)·(∂F_p/∂p) on the chambers of every cylinder with pressure-dependent friction."""
+    net = _deref(pnet)
+    cyl, ci = net.cyl, net.cyl_i
+    for c in range(cyl.shape[0]):
+        if cyl[c, CYL_PRESSURE_FRICTION] == 0.0:
+            continue
+        a = ci[c, CI_ACT]
+        load, dcap, drod = _seal_load(pnet, c, p)
+        _, _, dload = _cylinder.friction_force_with_derivative(v[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC],
+                                                               cyl[c, CYL_STRIBECK], cyl[c, CYL_VISCOUS], net.sc[S_VREG],
+                                                               load)
+        epg[a, ci[c, CI_CAP]] += -dload * dcap
+        epg[a, ci[c, CI_ROD]] += -dload * drod
 
 
 @_kernel
@@ -1563,13 +1600,14 @@ def _effort_law_terms(pnet, guess, p_end, v, gradient, fg, fsg, end_const, end_s
     """The terms of CouplingImplicit.begin's effort law c + s·v⁺ from a linearisation at velocities ``guess``
     (end pressures ``p_end`` [Pa], effort gradient ``gradient`` ∂f/∂v⁺) and the start velocities ``v``:
 
-    end_slope = diag(gradient) − friction slope at the guess (the pressure part's slope),
-    end_const = pressure effort(p_end) − end_slope·guess, friction = friction effort(v),
+    end_slope = diag(gradient) − friction slope at the guess (the pressure part's slope, with the seal
+    friction's pressure dependence), end_const = pressure effort(p_end) − end_slope·guess, friction = friction
+    effort(v) at the seal load of p_end,
     damping = min(friction slope at v, 0) (no negative damping in the implicit law).
     The law at blend θ: c = (1 − θ)·f_pressure(start) + θ·end_const + friction − damping·v, s = θ·end_slope + damping.
     ``fg``, ``fsg``: scratch (friction effort and slope at the guess).
     """
-    _friction_effort(pnet, guess, fg, fsg)
+    _friction_effort(pnet, p_end, guess, fg, fsg)
     _pressure_effort(pnet, p_end, end_const)
     same = True  # (the guess is the start velocity but where its chord is long or it leaves the stroke)
     for i in range(guess.size):
@@ -1579,7 +1617,7 @@ def _effort_law_terms(pnet, guess, p_end, v, gradient, fg, fsg, end_const, end_s
         _copy(friction, fg)
         _copy(damping, fsg)
     else:
-        _friction_effort(pnet, v, friction, damping)
+        _friction_effort(pnet, p_end, v, friction, damping)
     for i in range(guess.size):
         pslope = gradient[i, i] - fsg[i]
         end_const[i] = end_const[i] - pslope * guess[i]
@@ -1704,7 +1742,7 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     ledger[at] += h * -pump
     ledger[at + 1] += h * motor
     ledger[at + 2] += h * dissipated
-    _friction_effort(pnet, v, friction, fslope)
+    _friction_effort(pnet, pres, v, friction, fslope)
     fw = 0.0
     for i in range(v.size):
         fw += friction[i] * v[i]
@@ -1998,13 +2036,14 @@ def _eval_pressure_effort(F, I, P):
 
 
 @_jit
-def _eval_friction_effort(F, I, V):
-    """NetworkModel.friction_effort: −F_f [N] and its slope per row of velocities ``V``."""
+def _eval_friction_effort(F, I, V, P):
+    """NetworkModel.friction_effort: −F_f [N] and its slope per row of velocities ``V`` and node pressures ``P``
+    (rows of width 0: no seal load)."""
     net = _unpack(F, I)
     pnet = _ref(net)
     effort, slope = np.empty(V.shape), np.empty(V.shape)
     for r in range(V.shape[0]):
-        _friction_effort(pnet, V[r], effort[r], slope[r])
+        _friction_effort(pnet, P[r], V[r], effort[r], slope[r])
     return effort, slope
 
 

@@ -514,7 +514,7 @@ def mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, la
         lower[a], upper[a] = R.force_lower[a], R.force_upper[a]
         tracking[a] = 1.0 if R.rigid[a] else 0.0
         target[a] = 0.0
-    C._friction_effort(pnet, velocity, friction, fslope)
+    C._friction_effort(pnet, velocity[:0], velocity, friction, fslope)  # (rigid actuators: no seal load)
     rho, pref, floor, top = R.scalars[RS_DENSITY], net.sc[C.S_PREF], net.sc[C.S_FLOOR], R.scalars[RS_TOP]
     for k in range(R.actuator.size):
         a, valve = R.actuator[k], R.valve[k]
@@ -569,7 +569,7 @@ def explicit_law(pnet, pressure, velocity, law, scratch):
     friction, o = C._take(scratch, 0, na)
     damping, o = C._take(scratch, o, na)
     C._pressure_effort(pnet, pressure, const)
-    C._friction_effort(pnet, velocity, friction, damping)
+    C._friction_effort(pnet, pressure, velocity, friction, damping)
     for a in range(na):
         const[a] += friction[a]
         slope[a] = 0.0
@@ -644,7 +644,7 @@ def rigid_finish(pnet, R, law, bounds, v_end, pressure, scratch):
     friction, o = C._take(scratch, 0, na)
     fslope, o = C._take(scratch, o, na)
     hydraulic, o = C._take(scratch, o, na)
-    C._friction_effort(pnet, v_end, friction, fslope)
+    C._friction_effort(pnet, v_end[:0], v_end, friction, fslope)  # (rigid actuators: no seal load)
     for a in range(na):
         hydraulic[a] = clip(const[a] + slope[a] * v_end[a], lower[a], upper[a]) - friction[a]
     chamber_pressures(pnet, hydraulic, pressure, R.rigid, False)

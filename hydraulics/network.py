@@ -343,6 +343,7 @@ class NetworkModel:
     cylinder_static: np.ndarray
     cylinder_stribeck: np.ndarray
     cylinder_viscous: np.ndarray
+    cylinder_pressure_friction: np.ndarray  # -, k_p of the seal friction's pressure dependence
     motor_actuator: np.ndarray
     motor_a_node: np.ndarray
     motor_b_node: np.ndarray
@@ -429,6 +430,11 @@ class NetworkModel:
             raise CircuitError(f"{circuit.source}: fidelity {fidelity!r} is not one of {FIDELITIES}")
         circuit, pruned = prune(circuit)
         levels, network_fidelity = resolve_fidelity(circuit, fidelity, actuator_fidelity)
+        for c, level in zip(circuit.by_kind("cylinder", "motor"), levels):
+            if level == "incompressible" and c.kind == "cylinder" and c.params.friction_pressure_coefficient > 0.0:
+                raise CircuitError(f"{circuit.source}: component '{c.name}', field 'friction_pressure_coefficient': "
+                                   "must be 0 at fidelity 'incompressible' (no chamber pressures while its step is solved); "
+                                   "use 'compressible'")
         line_set = line_hoses(circuit, fidelity, actuator_fidelity)
         if line_set and network_fidelity == "compressible":
             network_fidelity = "lines"  # a hose of no actuator follows the default level
@@ -724,6 +730,7 @@ class NetworkModel:
             cylinder_static=column(cyl, "static_friction"),
             cylinder_stribeck=column(cyl, "stribeck_velocity"),
             cylinder_viscous=column(cyl, "viscous_friction"),
+            cylinder_pressure_friction=column(cyl, "friction_pressure_coefficient"),
             motor_actuator=f([act_names.index(c.name) for c in mot], int),
             motor_a_node=f([node(c, "a") for c in mot], int),
             motor_b_node=f([node(c, "b") for c in mot], int),
@@ -1061,10 +1068,17 @@ class NetworkModel:
         P, lead = _rows(pressure, self.node_count)
         return self._kernel("pressure_effort", P).reshape(lead + (self.actuator_count,))
 
-    def friction_effort(self, velocity):
-        """Seal friction acting on every actuator (−F_f(v), opposing motion) and its velocity derivative."""
-        V, lead = _rows(velocity, self.actuator_count)
-        effort, slope = self._kernel("friction_effort", V)
+    def friction_effort(self, velocity, pressure=None):
+        """Seal friction acting on every actuator (−F_f(v, p), opposing motion) and its velocity derivative at the
+        node ``pressure`` [Pa] (its seal load, :func:`hydraulics.components.cylinder.seal_load`; ``None``: at
+        the reference pressure, no seal load, as for the rigid actuators, which have no pressure-dependent
+        friction)."""
+        if pressure is None:
+            V, lead = _rows(velocity, self.actuator_count)
+            P = np.zeros((V.shape[0], 0))
+        else:
+            (V, P), lead = _broadcast_rows((velocity, self.actuator_count), (pressure, self.node_count))
+        effort, slope = self._kernel("friction_effort", V, P)
         return effort.reshape(lead + (self.actuator_count,)), slope.reshape(lead + (self.actuator_count,))
 
     def actuator_effort(self, pressure, velocity):
@@ -1073,7 +1087,7 @@ class NetworkModel:
         The derivative is the friction slope only (the pressure part depends on
         v through the network; see :meth:`StepperImplicitEuler.linearize`).
         """
-        friction, slope = self.friction_effort(velocity)
+        friction, slope = self.friction_effort(velocity, pressure)
         return self.pressure_effort(pressure) + friction, slope
 
     def effort_pressure_gradient(self) -> np.ndarray:

@@ -9,8 +9,11 @@ equal-area cylinder) and A_rod = π·(D² − d²)/4 on the rod side.  With rod 
   (:func:`chamber_volumes`);
 * F = p_cap·A_cap − p_rod·A_rod − p_amb·(A_cap − A_rod), absolute pressures, the rods' own cross-sections at
   ambient pressure (:func:`pressure_force`; 0 ambient term for a double-rod cylinder);
-* F_f = [F_c + (F_s − F_c)·exp(−(v/v_s)²)]·tanh(v/v_reg) + b·v, the force on the rod being −F_f
-  (:func:`friction_force_with_derivative`, v_reg = :data:`FRICTION_REGULARISATION_VELOCITY`);
+* F_f = [F_c + F_p + (F_s − F_c)·exp(−(v/v_s)²)]·tanh(v/v_reg) + b·v, the force on the rod being −F_f
+  (:func:`friction_force_with_derivative`, v_reg = :data:`FRICTION_REGULARISATION_VELOCITY`), where the
+  seal load F_p = k_p·(max(p_cap − p_amb, 0)·A_cap + max(p_rod − p_amb, 0)·A_rod) (:func:`seal_load`) raises
+  the sliding and the breakaway friction alike with the gauge pressures on the seals (the pressure-dependent
+  Coulomb friction of Simscape Fluids' cylinder friction block; breakaway F_s + F_p, sliding F_c + F_p);
 * k = β·A²/V, the oil column of one chamber as a spring, and ω_h = sqrt(Σk/m), the actuator's hydraulic
   frequency on an inertia m (:func:`hydraulic_stiffness`, :func:`hydraulic_natural_frequency`).
 
@@ -64,6 +67,11 @@ class Cylinder:
     """Stribeck velocity v_s [m/s]."""
     viscous_friction: float = param("N*s/m", low=0.0, high=1e8, low_open=False, default=0.0)
     """Viscous friction coefficient b [N·s/m]."""
+    friction_pressure_coefficient: float = param("-", low=0.0, high=0.5, low_open=False, default=0.0)
+    """Pressure dependence k_p [-] of the seal friction: the sliding and the breakaway friction grow by
+    k_p·(p_cap·A_cap + p_rod·A_rod), gauge pressures (seal friction of the order of 1–5 % of the pressure force
+    on the seals: k_p ≈ 0.01–0.05); 0 turns it off.  Not at the ``incompressible`` fidelity (no chamber
+    pressures while the step is solved)."""
     leakage_conductance: float = param("m^3/(s*Pa)", low=0.0, high=1e-6, low_open=False, default=0.0)
     """Internal cap↔rod leakage conductance [m³/(s·Pa)]."""
     PORTS = ("cap", "rod")
@@ -105,16 +113,29 @@ def pressure_force(cap_pressure, rod_pressure, cap_area, rod_area, ambient):
 
 
 @kernel
-def friction_force_with_derivative(v, coulomb, static, stribeck_velocity, viscous, v_reg):
-    """Seal friction F_f [N] (sign of v) at rod velocity ``v`` [m/s] and dF_f/dv [N·s/m]; ``v_reg`` [m/s]."""
+def seal_load(cap_pressure, rod_pressure, cap_area, rod_area, ambient, coefficient):
+    """Pressure part F_p = k_p·(max(p_cap − p_amb, 0)·A_cap + max(p_rod − p_amb, 0)·A_rod) [N] of the seal
+    friction at absolute chamber pressures [Pa], areas [m²], ambient pressure [Pa] and ``coefficient`` k_p [-];
+    returns (F_p, ∂F_p/∂p_cap, ∂F_p/∂p_rod) [N, m², m²] (a chamber below ambient presses no seal: slope 0)."""
+    gc = cap_pressure - ambient
+    gr = rod_pressure - ambient
+    dcap = coefficient * cap_area if gc > 0.0 else 0.0
+    drod = coefficient * rod_area if gr > 0.0 else 0.0
+    return dcap * gc + drod * gr, dcap, drod
+
+
+@kernel
+def friction_force_with_derivative(v, coulomb, static, stribeck_velocity, viscous, v_reg, load):
+    """Seal friction F_f [N] (sign of v) at rod velocity ``v`` [m/s] with the seal load ``load`` F_p [N]
+    (:func:`seal_load`; 0 without pressure dependence), dF_f/dv [N·s/m] and dF_f/dF_p [-]; ``v_reg`` [m/s]."""
     vs = maximum(stribeck_velocity, 1e-12)
     r = v / vs
     stribeck = math.exp(-(r * r))
-    level = coulomb + (static - coulomb) * stribeck
+    level = coulomb + load + (static - coulomb) * stribeck
     dlevel = (static - coulomb) * stribeck * (-2.0 * v / (vs * vs))
     th = math.tanh(v / v_reg)
     dth = (1.0 - th * th) / v_reg
-    return level * th + viscous * v, dlevel * th + level * dth + viscous
+    return level * th + viscous * v, dlevel * th + level * dth + viscous, th
 
 
 @kernel
@@ -132,10 +153,11 @@ def hydraulic_natural_frequency(stiffness, mass):
     return math.sqrt(stiffness / mass)
 
 
-COLUMNS = ("cap_area", "rod_area", "stroke", "dead_cap", "dead_rod", "coulomb", "static", "stribeck", "viscous")
-"""Cylinder table: areas [m²], stroke [m], dead volumes [m³], friction F_c, F_s [N], v_s [m/s], b [N·s/m]."""
-CYL_CAP_AREA, CYL_ROD_AREA, CYL_STROKE, CYL_DEAD_CAP, CYL_DEAD_ROD, CYL_COULOMB, CYL_STATIC, CYL_STRIBECK, CYL_VISCOUS = \
-    range(len(COLUMNS))
+COLUMNS = ("cap_area", "rod_area", "stroke", "dead_cap", "dead_rod", "coulomb", "static", "stribeck", "viscous",
+           "pressure_friction")
+"""Cylinder table: areas [m²], stroke [m], dead volumes [m³], friction F_c, F_s [N], v_s [m/s], b [N·s/m], k_p [-]."""
+(CYL_CAP_AREA, CYL_ROD_AREA, CYL_STROKE, CYL_DEAD_CAP, CYL_DEAD_ROD, CYL_COULOMB, CYL_STATIC, CYL_STRIBECK, CYL_VISCOUS,
+ CYL_PRESSURE_FRICTION) = range(len(COLUMNS))
 INDEX_COLUMNS = ("actuator", "cap", "rod")
 """Cylinder index table: actuator number, cap node, rod node."""
 CI_ACT, CI_CAP, CI_ROD = range(len(INDEX_COLUMNS))
@@ -147,7 +169,7 @@ def pack(model) -> np.ndarray:
     return table(COLUMNS, len(m.cylinder_actuator), cap_area=m.cylinder_cap_area, rod_area=m.cylinder_rod_area,
                  stroke=m.cylinder_stroke, dead_cap=m.cylinder_dead_cap, dead_rod=m.cylinder_dead_rod,
                  coulomb=m.cylinder_coulomb, static=m.cylinder_static, stribeck=m.cylinder_stribeck,
-                 viscous=m.cylinder_viscous)
+                 viscous=m.cylinder_viscous, pressure_friction=m.cylinder_pressure_friction)
 
 
 def pack_index(model) -> np.ndarray:

@@ -121,7 +121,7 @@ class PlantBase:
         e.pump_work += dt * powers["pump"]
         e.motor_work += dt * powers["motor"]
         e.dissipated_hydraulic += dt * powers["dissipated"]
-        friction, _ = net.friction_effort(velocity)
+        friction, _ = net.friction_effort(velocity, self.net_state.node_pressure)
         e.dissipated_friction -= dt * float(friction @ velocity)
         if powers["rigid"]:
             # rigid actuators: what their branches deliver minus the work of their hydraulic force is metering loss
