@@ -352,9 +352,10 @@ def pressure_effort(model, pressure):
     return effort
 
 
-def friction_effort(model, velocity, pressure=None):
-    """Seal friction acting on every actuator (−F_f(v), opposing motion) and its velocity derivative, with the
-    seal load of the node ``pressure`` (None: none)."""
+def friction_effort(model, velocity, pressure=None, position=None):
+    """Seal friction and end cushions acting on every actuator (−F_f(v) − F_k(x, v), opposing motion) and its
+    velocity derivative (a central difference for the cushions), with the seal load of the node ``pressure`` and
+    the cushions at the actuator ``position`` (None: none)."""
     effort = np.zeros(model.actuator_count)
     slope = np.zeros(model.actuator_count)
     for c, a in enumerate(model.cylinder_actuator):
@@ -367,16 +368,26 @@ def friction_effort(model, velocity, pressure=None):
         )
         effort[a] = -friction
         slope[a] = -dfriction
+        if position is not None:
+            def cushion(v):
+                return laws.cushion_force(
+                    position[a], v, model.cylinder_stroke[c], model.cylinder_cap_area[c], model.cylinder_rod_area[c],
+                    model.cylinder_cushion_length_cap[c], model.cylinder_cushion_length_rod[c],
+                    model.cylinder_cushion_area_cap[c], model.cylinder_cushion_area_rod[c], model.cylinder_cushion_cd[c],
+                    model.fluid.density)
+            h = 1e-7 * max(abs(velocity[a]), 1e-6)
+            effort[a] -= cushion(velocity[a])
+            slope[a] -= (cushion(velocity[a] + h) - cushion(velocity[a] - h)) / (2 * h)
     return effort, slope
 
 
-def actuator_effort(model, pressure, velocity):
+def actuator_effort(model, pressure, velocity, position=None):
     """Total effort (pressure + friction) on every actuator and its derivative with respect to its own velocity.
 
     The derivative is the friction slope only (the pressure part depends on
     v through the network; see :meth:`StepperImplicitEuler.linearize`).
     """
-    friction, slope = friction_effort(model, velocity, pressure)
+    friction, slope = friction_effort(model, velocity, pressure, position)
     return pressure_effort(model, pressure) + friction, slope
 
 
