@@ -92,7 +92,7 @@ from .components import motor as _motor
 from .components.accumulator import ACC_GAS, ACC_INDEX, ACC_PRE
 from .components.check_valve import K_AREA, K_C, K_CRACK, K_FULL, K_K, K_LEAK
 from .components.cylinder import (CI_ACT, CI_CAP, CI_ROD, CYL_CAP_AREA, CYL_COULOMB, CYL_CUSHION_CAP, CYL_CUSHION_K_CAP,
-                                  CYL_CUSHION_K_ROD, CYL_CUSHION_ROD, CYL_DEAD_CAP, CYL_DEAD_ROD,
+                                  CYL_CUSHION_CHECK, CYL_CUSHION_K_ROD, CYL_CUSHION_ROD, CYL_DEAD_CAP, CYL_DEAD_ROD,
                                   CYL_PRESSURE_FRICTION, CYL_ROD_AREA, CYL_STATIC, CYL_STRIBECK, CYL_STROKE,
                                   CYL_VISCOUS)
 from .components.motor import MI_A, MI_ACT, MI_B
@@ -1452,7 +1452,7 @@ def _friction_effort(pnet, p, x, v, effort, slope):
         if x.size > 0 and (cyl[c, CYL_CUSHION_CAP] > 0.0 or cyl[c, CYL_CUSHION_ROD] > 0.0):
             fk, dfk = _cylinder.cushion_force_with_derivative(x[a], v[a], cyl[c, CYL_STROKE], cyl[c, CYL_CUSHION_CAP],
                                                               cyl[c, CYL_CUSHION_K_CAP], cyl[c, CYL_CUSHION_ROD],
-                                                              cyl[c, CYL_CUSHION_K_ROD])
+                                                              cyl[c, CYL_CUSHION_K_ROD], cyl[c, CYL_CUSHION_CHECK])
             f += fk
             df += dfk
         effort[a] = -f

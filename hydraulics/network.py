@@ -349,6 +349,7 @@ class NetworkModel:
     cylinder_cushion_area_cap: np.ndarray  # m², cushion orifice
     cylinder_cushion_area_rod: np.ndarray  # m²
     cylinder_cushion_cd: np.ndarray  # -
+    cylinder_cushion_check: np.ndarray  # 1.0: a check valve frees the return from the cushion, 0.0: none
     motor_actuator: np.ndarray
     motor_a_node: np.ndarray
     motor_b_node: np.ndarray
@@ -743,6 +744,7 @@ class NetworkModel:
             cylinder_cushion_area_cap=column(cyl, "cushion_area_cap"),
             cylinder_cushion_area_rod=column(cyl, "cushion_area_rod"),
             cylinder_cushion_cd=column(cyl, "cushion_discharge_coefficient"),
+            cylinder_cushion_check=f([1.0 if c.params.cushion_return == "check" else 0.0 for c in cyl], float),
             motor_actuator=f([act_names.index(c.name) for c in mot], int),
             motor_a_node=f([node(c, "a") for c in mot], int),
             motor_b_node=f([node(c, "b") for c in mot], int),

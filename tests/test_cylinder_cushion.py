@@ -2,10 +2,10 @@
 
 Within the cushion length of an end the closing chamber's outflow A·|v| passes the cushion orifice a_k:
 Δp_k = (ρ/2)·(A·v/(C_d·a_k))², a force Δp_k·A against the motion (quasi-steady), engaged C¹ over the cushion's
-first fifth; the returning stroke bypasses it (check valve).
+first fifth; the returning stroke bypasses it (check valve) or, with ``cushion_return = "orifice"``, meets it too.
 
-* The law: the network's effort equals the oracle's at both ends, none on the return stroke, none outside the
-  cushion, the full Δp_k·A inside it; the slope is its velocity derivative.
+* The law: the network's effort equals the oracle's at both ends, none on the return stroke (but without the check
+  valve), none outside the cushion, the full Δp_k·A inside it; the slope is its velocity derivative.
 * Into the end (scenario, both modes): a 200 kg load on a vertical slide lowers itself on its 50 mm cylinder, the
   cap's oil leaving through a 3 mm² orifice to the tank (rod side on the tank), into a 30 mm cap-end cushion with
   a 1.5 mm² orifice (C_d = 0.7 both).  Quasi-steady, with Q = A·v·φ(p) leaving the cap:
@@ -82,8 +82,8 @@ ports = {{ cap = "cap", rod = "tank" }}
 """
 
 
-def _model():
-    return NetworkModel.from_circuit(parse_circuit(tomllib.loads(CIRCUIT), "cushion"))
+def _model(text=CIRCUIT):
+    return NetworkModel.from_circuit(parse_circuit(tomllib.loads(text), "cushion"))
 
 
 def test_cushion_force_and_slope():
@@ -102,6 +102,18 @@ def test_cushion_force_and_slope():
         for v in (-0.1, -1e-3, 0.0, 2e-3, 0.3):
             for k, o in zip(m.friction_effort(np.array([v]), p, np.array([x])),
                             ref.friction_effort(m, np.array([v]), p, np.array([x]))):
+                np.testing.assert_allclose(k, o, rtol=1e-6, atol=1e-6)
+    # without the check valve the return stroke out of the cushion meets the same orifice law
+    free = _model(CIRCUIT.replace("cushion_discharge_coefficient", 'cushion_return = "orifice"\ncushion_discharge_coefficient'))
+    for x, v, expected in ((0.01, 0.05, -0.5 * rho * (AREA * 0.05 / (CD * CUSHION)) ** 2 * AREA),
+                           (0.47, -0.05, 0.5 * rho * (rod_area * 0.05 / (CD * 1e-6)) ** 2 * rod_area),
+                           (0.01, -0.05, 0.5 * rho * (AREA * 0.05 / (CD * CUSHION)) ** 2 * AREA), (0.2, 0.05, 0.0)):
+        effort, _ = free.friction_effort(np.array([v]), p, np.array([x]))
+        assert effort[0] == pytest.approx(expected, rel=1e-12, abs=1e-9), (x, v)
+    for x in np.linspace(0.0, 0.5, 21):
+        for v in (-0.1, 0.0, 2e-3, 0.3):
+            for k, o in zip(free.friction_effort(np.array([v]), p, np.array([x])),
+                            ref.friction_effort(free, np.array([v]), p, np.array([x]))):
                 np.testing.assert_allclose(k, o, rtol=1e-6, atol=1e-6)
     # without positions (the rigid actuators) and at fidelity 'incompressible': no cushion
     assert m.friction_effort(np.array([-0.05]), p)[0][0] == 0.0

@@ -19,7 +19,8 @@ equal-area cylinder) and A_rod = π·(D² − d²)/4 on the rod side.  With rod 
   a_k, discharge coefficient C_d), quasi-steady and turbulent: Δp_k = (ρ/2)·(A·v/(C_d·a_k))², the force on the
   piston F_k = s(d)·Δp_k·A opposing the motion, s(d) = 3t² − 2t³, t = clip(d/(L/5), 0, 1), of the depth d into
   the cushion (the spear entering its bore over the first fifth: C¹ in x).  The returning stroke's inflow
-  bypasses the cushion through its check valve (no force).  Limitations: the cushion's own oil volume is not a
+  bypasses the cushion through its check valve (no force; ``cushion_return = "check"``) or passes the cushion
+  orifice too (``"orifice"``: the same force against the return).  Limitations: the cushion's own oil volume is not a
   state (its compression time β-scale is taken as short against the deceleration); the chamber's net holds the
   port-side pressure, the cushion's Δp_k shows in the applied force (its difference to the pressure force);
 * k = β·A²/V, the oil column of one chamber as a spring, and ω_h = sqrt(Σk/m), the actuator's hydraulic
@@ -94,6 +95,9 @@ class Cylinder:
     """Flow area a_k of the rod-end cushion orifice [m²] (read with a rod-end cushion only)."""
     cushion_discharge_coefficient: float = param("-", low=0.0, high=1.0, default=0.7)
     """Discharge coefficient C_d of the cushion orifices [-]."""
+    cushion_return: str = param("-", default="check", choices=("check", "orifice"))
+    """The return stroke's inflow into a cushioned chamber: ``check`` bypasses the cushion through a check valve
+    (free return), ``orifice`` passes the cushion orifice too (the same force against the return)."""
     PORTS = ("cap", "rod")
 
     def __post_init__(self):
@@ -178,19 +182,23 @@ def cushion_engagement(depth, length):
 
 
 @kernel
-def cushion_force_with_derivative(x, v, stroke, length_cap, k_cap, length_rod, k_rod):
+def cushion_force_with_derivative(x, v, stroke, length_cap, k_cap, length_rod, k_rod, check):
     """End-cushion force F_k [N] (sign of v: opposing the motion, the force on the rod being −F_k) at rod extension
     ``x`` [m] and velocity ``v`` [m/s] and dF_k/dv [N·s/m]: s·K·v·|v| on the chamber that closes (the cap's when
     retracting within ``length_cap`` of x = 0, the rod's when extending within ``length_rod`` of the stroke),
-    K = ``k_cap`` or ``k_rod`` [N·s²/m²] (:func:`cushion_coefficient`), s = :func:`cushion_engagement`; zero for
-    the other direction (the check valve's return)."""
-    if v < 0.0 and length_cap > 0.0:
+    K = ``k_cap`` or ``k_rod`` [N·s²/m²] (:func:`cushion_coefficient`), s = :func:`cushion_engagement`; for the
+    other direction zero with a ``check`` valve (1.0), the same law without one (0.0)."""
+    f = 0.0
+    df = 0.0
+    if length_cap > 0.0 and (v < 0.0 or check == 0.0):
         s, _ = cushion_engagement(length_cap - x, length_cap)
-        return -s * k_cap * v * v, -2.0 * s * k_cap * v
-    if v > 0.0 and length_rod > 0.0:
+        f += s * k_cap * v * abs(v)
+        df += 2.0 * s * k_cap * abs(v)
+    if length_rod > 0.0 and (v > 0.0 or check == 0.0):
         s, _ = cushion_engagement(x - (stroke - length_rod), length_rod)
-        return s * k_rod * v * v, 2.0 * s * k_rod * v
-    return 0.0, 0.0
+        f += s * k_rod * v * abs(v)
+        df += 2.0 * s * k_rod * abs(v)
+    return f, df
 
 
 @kernel
@@ -209,11 +217,13 @@ def hydraulic_natural_frequency(stiffness, mass):
 
 
 COLUMNS = ("cap_area", "rod_area", "stroke", "dead_cap", "dead_rod", "coulomb", "static", "stribeck", "viscous",
-           "pressure_friction", "cushion_cap", "cushion_k_cap", "cushion_rod", "cushion_k_rod")
+           "pressure_friction", "cushion_cap", "cushion_k_cap", "cushion_rod", "cushion_k_rod", "cushion_check")
 """Cylinder table: areas [m²], stroke [m], dead volumes [m³], friction F_c, F_s [N], v_s [m/s], b [N·s/m], k_p [-],
-cushion lengths [m] and coefficients K [N·s²/m²] (:func:`cushion_coefficient`) at the cap and the rod end."""
+cushion lengths [m] and coefficients K [N·s²/m²] (:func:`cushion_coefficient`) at the cap and the rod end, 1.0
+for a check valve on the cushions' return (0.0: none)."""
 (CYL_CAP_AREA, CYL_ROD_AREA, CYL_STROKE, CYL_DEAD_CAP, CYL_DEAD_ROD, CYL_COULOMB, CYL_STATIC, CYL_STRIBECK, CYL_VISCOUS,
- CYL_PRESSURE_FRICTION, CYL_CUSHION_CAP, CYL_CUSHION_K_CAP, CYL_CUSHION_ROD, CYL_CUSHION_K_ROD) = range(len(COLUMNS))
+ CYL_PRESSURE_FRICTION, CYL_CUSHION_CAP, CYL_CUSHION_K_CAP, CYL_CUSHION_ROD, CYL_CUSHION_K_ROD, CYL_CUSHION_CHECK) = \
+    range(len(COLUMNS))
 INDEX_COLUMNS = ("actuator", "cap", "rod")
 """Cylinder index table: actuator number, cap node, rod node."""
 CI_ACT, CI_CAP, CI_ROD = range(len(INDEX_COLUMNS))
@@ -230,7 +240,8 @@ def pack(model) -> np.ndarray:
                  cushion_cap=m.cylinder_cushion_length_cap,
                  cushion_k_cap=cushion_coefficient(m.cylinder_cap_area, cd, m.cylinder_cushion_area_cap, rho),
                  cushion_rod=m.cylinder_cushion_length_rod,
-                 cushion_k_rod=cushion_coefficient(m.cylinder_rod_area, cd, m.cylinder_cushion_area_rod, rho))
+                 cushion_k_rod=cushion_coefficient(m.cylinder_rod_area, cd, m.cylinder_cushion_area_rod, rho),
+                 cushion_check=m.cylinder_cushion_check)
 
 
 def pack_index(model) -> np.ndarray:

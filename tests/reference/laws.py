@@ -266,21 +266,23 @@ def seal_load(cap_pressure, rod_pressure, cap_area, rod_area, ambient_pressure, 
                           + max(rod_pressure - ambient_pressure, 0.0) * rod_area)
 
 
-def cushion_force(x, v, stroke, cap_area, rod_area, length_cap, length_rod, orifice_cap, orifice_rod, cd, density):
+def cushion_force(x, v, stroke, cap_area, rod_area, length_cap, length_rod, orifice_cap, orifice_rod, cd, density,
+                  check=True):
     """End-cushion force [N] opposing motion (sign of v): the closing chamber's outflow A·|v| through the cushion
     orifice, Δp = (ρ/2)·(A·v/(C_d·a))², force s·Δp·A with the engagement s = smoothstep of the depth into the
-    cushion over its first fifth; no force on the returning stroke (its check valve)."""
+    cushion over its first fifth; no force on the returning stroke with a ``check`` valve, the same law without."""
     def engagement(depth, length):
         t = min(max(depth / (0.2 * length), 0.0), 1.0)
         return t * t * (3.0 - 2.0 * t)
 
-    if v < 0.0 and length_cap > 0.0:
+    force = 0.0
+    if length_cap > 0.0 and (v < 0.0 or not check):
         dp = 0.5 * density * (cap_area * v / (cd * orifice_cap)) ** 2
-        return -engagement(length_cap - x, length_cap) * dp * cap_area
-    if v > 0.0 and length_rod > 0.0:
+        force += math.copysign(engagement(length_cap - x, length_cap) * dp * cap_area, v)
+    if length_rod > 0.0 and (v > 0.0 or not check):
         dp = 0.5 * density * (rod_area * v / (cd * orifice_rod)) ** 2
-        return engagement(x - (stroke - length_rod), length_rod) * dp * rod_area
-    return 0.0
+        force += math.copysign(engagement(x - (stroke - length_rod), length_rod) * dp * rod_area, v)
+    return force
 
 
 def friction_force_with_derivative(velocity, coulomb, static, stribeck_velocity, viscous, seal=0.0):

@@ -374,7 +374,7 @@ def friction_effort(model, velocity, pressure=None, position=None):
                     position[a], v, model.cylinder_stroke[c], model.cylinder_cap_area[c], model.cylinder_rod_area[c],
                     model.cylinder_cushion_length_cap[c], model.cylinder_cushion_length_rod[c],
                     model.cylinder_cushion_area_cap[c], model.cylinder_cushion_area_rod[c], model.cylinder_cushion_cd[c],
-                    model.fluid.density)
+                    model.fluid.density, model.cylinder_cushion_check[c] == 1.0)
             h = 1e-7 * max(abs(velocity[a]), 1e-6)
             effort[a] -= cushion(velocity[a])
             slope[a] -= (cushion(velocity[a] + h) - cushion(velocity[a] - h)) / (2 * h)
