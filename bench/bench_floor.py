@@ -88,7 +88,7 @@ def _time_piece(F, I, oil, x, v, spool, speed, piece, reps):
             C._linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow)
             check += p[n - 1]
         elif piece == LEDGER:
-            C._account(pnet, ledger, 2, DT, p, flow, v, quad, mu, geo, dpdm)
+            C._account(pnet, ledger, 2, DT, p, x, flow, v, quad, mu, geo, dpdm)
             check += ledger[4]
         elif piece == PRESSURES:
             C._pressure(pnet, oil, x, geo, p, dpdm)

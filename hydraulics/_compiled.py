@@ -93,8 +93,10 @@ from .components import valve_4_3 as _valve
 from .components import motor as _motor
 from .components.accumulator import ACC_GAS, ACC_INDEX, ACC_PRE
 from .components.check_valve import K_AREA, K_C, K_CRACK, K_FULL, K_K, K_LEAK
-from .components.cylinder import (CI_ACT, CI_CAP, CI_ROD, CYL_CAP_AREA, CYL_COULOMB, CYL_DEAD_CAP, CYL_DEAD_ROD,
-                                  CYL_ROD_AREA, CYL_STATIC, CYL_STRIBECK, CYL_STROKE, CYL_VISCOUS)
+from .components.cylinder import (CI_ACT, CI_CAP, CI_ROD, CYL_CAP_AREA, CYL_COULOMB, CYL_CUSHION_CAP, CYL_CUSHION_K_CAP,
+                                  CYL_CUSHION_CHECK, CYL_CUSHION_K_ROD, CYL_CUSHION_ROD, CYL_DEAD_CAP, CYL_DEAD_ROD,
+                                  CYL_PRESSURE_FRICTION, CYL_ROD_AREA, CYL_STATIC, CYL_STRIBECK, CYL_STROKE,
+                                  CYL_VISCOUS)
 from .components.motor import MI_A, MI_ACT, MI_B
 from .components.orifice import O_BASE, O_C, O_CENTRE, O_K, O_MAX, O_SIGN
 from .components.pumps import P_BAND, P_COMP, P_DISP, P_EFF
@@ -1400,20 +1402,24 @@ def _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, col):
 
 
 @_kernel
-def _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope):
-    """NetworkModel.actuator_effort at pressures ``p`` [Pa] and velocities ``velocity`` into ``effort`` [N or N·m],
-    and ∂effort/∂v⁺ = (∂f/∂p)·(∂p/∂v⁺) + diag(friction slope) into ``gradient`` (na × na) from ``dpdv`` (n × na);
+def _effort_gradient(pnet, p, x, velocity, dpdv, effort, gradient, epg, slope):
+    """NetworkModel.actuator_effort at pressures ``p`` [Pa], positions ``x`` [m or rad] and velocities ``velocity``
+    into ``effort`` [N or N·m],
+    and ∂effort/∂v⁺ = (∂f/∂p)·(∂p/∂v⁺) + diag(friction slope) into ``gradient`` (na × na) from ``dpdv`` (n × na),
+    ∂f/∂p holding the seal friction's pressure dependence (:func:`_friction_pressure_gradient`);
     ``epg`` (na × n), ``slope`` (na): scratch."""
     na = effort.size
     if na == 0:
         return
     _pressure_effort(pnet, p, effort)
     friction = gradient[0]  # (scratch until the gradient is written below)
-    _friction_effort(pnet, velocity, friction, slope)
+    _friction_effort(pnet, p, x, velocity, friction, slope)
     for a in range(na):
         effort[a] = effort[a] + friction[a]
-    # effort_pressure_gradient @ dpdv + diag(friction slope), over the nodes pushing each actuator (ascending)
+    # (effort_pressure_gradient + the seal friction's) @ dpdv + diag(friction slope), over the nodes pushing each
+    # actuator (ascending; the friction's pressure terms sit on the same chamber nodes)
     _effort_pressure_gradient(pnet, epg)
+    _friction_pressure_gradient(pnet, p, velocity, epg)
     net = _deref(pnet)
     ptr, nodes = net.actuator_node_ptr, net.actuator_node
     for a in range(na):
@@ -1468,7 +1474,7 @@ def _linearize_core(pnet, W, start, dt, out, oil_init):
         else:
             singular = True
     istats[IS_SINGULAR] = 1 if singular else 0
-    _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope)
+    _effort_gradient(pnet, p, x, velocity, dpdv, effort, gradient, epg, slope)
     return norm
 
 
@@ -1562,7 +1568,7 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
                 dpdv[k, a] += dpdm[k] * rhs[j, a + 1]
     if not _same_law_pieces(pnet, p_first, p, spool, dt):
         return False
-    _effort_gradient(pnet, p, velocity, dpdv, effort, gradient, epg, slope)
+    _effort_gradient(pnet, p, x, velocity, dpdv, effort, gradient, epg, slope)
     return True
 
 
@@ -1648,19 +1654,59 @@ def _pressure_effort(pnet, p, out):
 
 
 @_kernel
-def _friction_effort(pnet, v, effort, slope):
-    """NetworkModel.friction_effort: cylinder friction efforts [N] at velocities ``v`` [m/s] and their slopes
-    ∂effort/∂v [N·s/m] (zero for motors)."""
+def _seal_load(pnet, c, p):
+    """The seal load F_p [N] of cylinder ``c`` at node pressures ``p`` [Pa] and its slopes ∂F_p/∂p_cap, ∂F_p/∂p_rod
+    [m²] (:func:`hydraulics.components.cylinder.seal_load`); zeros without pressure dependence or without
+    pressures (``p`` empty: the rigid actuators, which have none)."""
+    net = _deref(pnet)
+    cyl, ci = net.cyl, net.cyl_i
+    kp = cyl[c, CYL_PRESSURE_FRICTION]
+    if kp == 0.0 or p.size == 0:
+        return 0.0, 0.0, 0.0
+    return _cylinder.seal_load(p[ci[c, CI_CAP]], p[ci[c, CI_ROD]], cyl[c, CYL_CAP_AREA], cyl[c, CYL_ROD_AREA],
+                               net.sc[S_PREF], kp)
+
+
+@_kernel
+def _friction_effort(pnet, p, x, v, effort, slope):
+    """NetworkModel.friction_effort: cylinder friction and end-cushion efforts [N] at node pressures ``p`` [Pa]
+    (their seal load; empty: none), actuator positions ``x`` [m] (the cushions; empty: none) and velocities ``v``
+    [m/s], and their slopes ∂effort/∂v [N·s/m] at those pressures and positions (zero for motors)."""
     net = _deref(pnet)
     effort[:] = 0.0
     slope[:] = 0.0
     cyl, ci = net.cyl, net.cyl_i
     for c in range(cyl.shape[0]):
         a = ci[c, CI_ACT]
-        f, df = _cylinder.friction_force_with_derivative(v[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC], cyl[c, CYL_STRIBECK],
-                                                  cyl[c, CYL_VISCOUS], net.sc[S_VREG])
+        load, _, _ = _seal_load(pnet, c, p)
+        f, df, _ = _cylinder.friction_force_with_derivative(v[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC],
+                                                            cyl[c, CYL_STRIBECK], cyl[c, CYL_VISCOUS], net.sc[S_VREG], load)
+        if x.size > 0 and (cyl[c, CYL_CUSHION_CAP] > 0.0 or cyl[c, CYL_CUSHION_ROD] > 0.0):
+            fk, dfk = _cylinder.cushion_force_with_derivative(x[a], v[a], cyl[c, CYL_STROKE], cyl[c, CYL_CUSHION_CAP],
+                                                              cyl[c, CYL_CUSHION_K_CAP], cyl[c, CYL_CUSHION_ROD],
+                                                              cyl[c, CYL_CUSHION_K_ROD], cyl[c, CYL_CUSHION_CHECK])
+            f += fk
+            df += dfk
         effort[a] = -f
         slope[a] = -df
+
+
+@_kernel
+def _friction_pressure_gradient(pnet, p, v, epg):
+    """Add the seal friction's ∂effort/∂p_node [m²] at node pressures ``p`` [Pa] and velocities ``v`` [m/s] to
+    ``epg`` (na × n): −(∂F_f/∂F_p)·(∂F_p/∂p) on the chambers of every cylinder with pressure-dependent friction."""
+    net = _deref(pnet)
+    cyl, ci = net.cyl, net.cyl_i
+    for c in range(cyl.shape[0]):
+        if cyl[c, CYL_PRESSURE_FRICTION] == 0.0:
+            continue
+        a = ci[c, CI_ACT]
+        load, dcap, drod = _seal_load(pnet, c, p)
+        _, _, dload = _cylinder.friction_force_with_derivative(v[a], cyl[c, CYL_COULOMB], cyl[c, CYL_STATIC],
+                                                               cyl[c, CYL_STRIBECK], cyl[c, CYL_VISCOUS], net.sc[S_VREG],
+                                                               load)
+        epg[a, ci[c, CI_CAP]] += -dload * dcap
+        epg[a, ci[c, CI_ROD]] += -dload * drod
 
 
 @_kernel
@@ -1790,17 +1836,19 @@ def _linearize_at_start_velocity(newton, pnet, W, start, dt, guess, out, oil_war
 
 
 @_kernel
-def _effort_law_terms(pnet, guess, p_end, v, gradient, fg, fsg, end_const, end_slope, friction, damping):
+def _effort_law_terms(pnet, guess, p_end, x_end, v, gradient, fg, fsg, end_const, end_slope, friction, damping):
     """The terms of CouplingImplicit.begin's effort law c + s·v⁺ from a linearisation at velocities ``guess``
-    (end pressures ``p_end`` [Pa], effort gradient ``gradient`` ∂f/∂v⁺) and the start velocities ``v``:
+    (end pressures ``p_end`` [Pa], end positions ``x_end`` [m or rad], effort gradient ``gradient`` ∂f/∂v⁺) and the
+    start velocities ``v`` (friction and cushions at p_end and x_end):
 
-    end_slope = diag(gradient) − friction slope at the guess (the pressure part's slope),
-    end_const = pressure effort(p_end) − end_slope·guess, friction = friction effort(v),
+    end_slope = diag(gradient) − friction slope at the guess (the pressure part's slope, with the seal
+    friction's pressure dependence), end_const = pressure effort(p_end) − end_slope·guess, friction = friction
+    effort(v) at the seal load of p_end,
     damping = min(friction slope at v, 0) (no negative damping in the implicit law).
     The law at blend θ: c = (1 − θ)·f_pressure(start) + θ·end_const + friction − damping·v, s = θ·end_slope + damping.
     ``fg``, ``fsg``: scratch (friction effort and slope at the guess).
     """
-    _friction_effort(pnet, guess, fg, fsg)
+    _friction_effort(pnet, p_end, x_end, guess, fg, fsg)
     _pressure_effort(pnet, p_end, end_const)
     same = True  # (the guess is the start velocity but where its chord is long or it leaves the stroke)
     for i in range(guess.size):
@@ -1810,7 +1858,7 @@ def _effort_law_terms(pnet, guess, p_end, v, gradient, fg, fsg, end_const, end_s
         _copy(friction, fg)
         _copy(damping, fsg)
     else:
-        _friction_effort(pnet, v, friction, damping)
+        _friction_effort(pnet, p_end, x_end, v, friction, damping)
     for i in range(guess.size):
         pslope = gradient[i, i] - fsg[i]
         end_const[i] = end_const[i] - pslope * guess[i]
@@ -1898,11 +1946,11 @@ def _commit_if_finite(oil, pres, spool, pos, vel, oil_new, p_new, spool_new, x_n
 
 
 @_kernel
-def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
+def _account(pnet, ledger, at, h, pres, x, flow, v, quad, mu, friction, fslope):
     """PlantBase._account over a step ``h`` [s]: adds supplied work (pumps and fixed-pressure nodes), motor work,
     hydraulic and friction dissipation [J] to ``ledger[at]``, ``ledger[at + 1]``, ``ledger[at + 2]``,
-    ``ledger[at + 3]`` (energy.branch_powers at the pressures ``pres``, branch flows ``flow``, actuator velocities
-    ``v``); ``mu``, ``friction``, ``fslope``: scratch.  A fixed node off the reference pressure (a pressure source)
+    ``ledger[at + 3]`` (energy.branch_powers at the pressures ``pres``, branch flows ``flow``, actuator positions
+    ``x`` and velocities ``v``; the cushions' loss with the friction's); ``mu``, ``friction``, ``fslope``: scratch.  A fixed node off the reference pressure (a pressure source)
     supplies μ(p)·(its net outflow Σ Q_out − Σ Q_in over the branches at it)."""
     net = _deref(pnet)
     for i in range(pres.size):
@@ -1933,7 +1981,7 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     ledger[at] += h * -pump
     ledger[at + 1] += h * motor
     ledger[at + 2] += h * dissipated
-    _friction_effort(pnet, v, friction, fslope)
+    _friction_effort(pnet, pres, x, v, friction, fslope)
     fw = 0.0
     for i in range(v.size):
         fw += friction[i] * v[i]
@@ -2227,13 +2275,14 @@ def _eval_pressure_effort(F, I, P):
 
 
 @_jit
-def _eval_friction_effort(F, I, V):
-    """NetworkModel.friction_effort: −F_f [N] and its slope per row of velocities ``V``."""
+def _eval_friction_effort(F, I, V, P, X):
+    """NetworkModel.friction_effort: −F_f − F_k [N] and its slope per row of velocities ``V``, node pressures ``P``
+    and positions ``X`` (rows of width 0: no seal load, no cushions)."""
     net = _unpack(F, I)
     pnet = _ref(net)
     effort, slope = np.empty(V.shape), np.empty(V.shape)
     for r in range(V.shape[0]):
-        _friction_effort(pnet, V[r], effort[r], slope[r])
+        _friction_effort(pnet, P[r], X[r], V[r], effort[r], slope[r])
     return effort, slope
 
 
@@ -2416,13 +2465,13 @@ def _linearize_at_guess_python_entry(F, I, oil0, spool0, command, speed, x0, gue
 
 
 @_jit
-def _effort_law_python_entry(F, I, guess, p_end, v, gradient, pressure_start, effective_mass, dt, blend):
+def _effort_law_python_entry(F, I, guess, p_end, x_end, v, gradient, pressure_start, effective_mass, dt, blend):
     """:func:`_effort_law_terms` then :func:`_blended_law`: (constant [N or N·m], slope [N·s/m or N·m·s/rad], θ)."""
     pnet = _ref(_unpack(F, I))
     na = v.size
     fg, fsg, end_const, end_slope = np.empty(na), np.empty(na), np.empty(na), np.empty(na)
     friction, damping, theta, const, slope = np.empty(na), np.empty(na), np.empty(na), np.empty(na), np.empty(na)
-    _effort_law_terms(pnet, guess, p_end, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
+    _effort_law_terms(pnet, guess, p_end, x_end, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
     _blended_law(blend, end_const, end_slope, pressure_start, friction, damping, v, effective_mass, dt, theta, const,
                  slope)
     return const, slope, theta
@@ -2499,10 +2548,10 @@ def _coupling_entries(fingerprint):
             raise ValueError("no fingerprint")
         return _linearize_at_guess_python_entry(F, I, oil0, spool0, command, speed, x0, guess, dt, newton, oil_warm)
 
-    def effort_law(F, I, guess, p_end, v, gradient, pressure_start, effective_mass, dt, blend):
+    def effort_law(F, I, guess, p_end, x_end, v, gradient, pressure_start, effective_mass, dt, blend):
         if fingerprint is None:  # never
             raise ValueError("no fingerprint")
-        return _effort_law_python_entry(F, I, guess, p_end, v, gradient, pressure_start, effective_mass, dt, blend)
+        return _effort_law_python_entry(F, I, guess, p_end, x_end, v, gradient, pressure_start, effective_mass, dt, blend)
 
     def start_velocity_guess(F, I, x, v, dt):
         if fingerprint is None:  # never

@@ -550,7 +550,7 @@ def mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, la
         lower[a], upper[a] = R.force_lower[a], R.force_upper[a]
         tracking[a] = 1.0 if R.rigid[a] else 0.0
         target[a] = 0.0
-    C._friction_effort(pnet, velocity, friction, fslope)
+    C._friction_effort(pnet, velocity[:0], velocity[:0], velocity, friction, fslope)  # (rigid: no seal load, no cushion)
     rho, pref, floor, top = R.scalars[RS_DENSITY], net.sc[C.S_PREF], net.sc[C.S_FLOOR], R.scalars[RS_TOP]
     for k in range(R.actuator.size):
         a, valve = R.actuator[k], R.valve[k]
@@ -597,15 +597,16 @@ def mixed_law(pnet, R, spool0, command, velocity, effective_mass, dt, supply, la
 # The coupled steps' pieces (the plants' compiled steps call these between their own motion updates)
 # ----------------------------------------------------------------------------
 @kernel
-def explicit_law(pnet, pressure, velocity, law, scratch):
-    """CouplingExplicit.begin: the effort of the start ``pressure`` [Pa] plus the seal friction at the start
-    ``velocity`` into ``law`` = (const, slope), slope 0 (the effort is held over the step); ``scratch``: :data:`EXPLICIT_LAW_SCRATCH`."""
+def explicit_law(pnet, pressure, position, velocity, law, scratch):
+    """CouplingExplicit.begin: the effort of the start ``pressure`` [Pa] plus the seal friction and end cushions at
+    the start ``position`` and ``velocity`` into ``law`` = (const, slope), slope 0 (the effort is held over the
+    step); ``scratch``: :data:`EXPLICIT_LAW_SCRATCH`."""
     const, slope = law
     na = velocity.size
     ws, _ = _explicit_law_scratch(scratch, 0, na)
     friction, damping = ws.friction, ws.damping
     C._pressure_effort(pnet, pressure, const)
-    C._friction_effort(pnet, velocity, friction, damping)
+    C._friction_effort(pnet, pressure, position, velocity, friction, damping)
     for a in range(na):
         const[a] += friction[a]
         slope[a] = 0.0
@@ -674,7 +675,7 @@ def rigid_finish(pnet, R, law, bounds, v_end, pressure, scratch):
     na = v_end.size
     ws, _ = _rigid_finish_scratch(scratch, 0, na)
     friction, fslope, hydraulic = ws.friction, ws.fslope, ws.hydraulic
-    C._friction_effort(pnet, v_end, friction, fslope)
+    C._friction_effort(pnet, v_end[:0], v_end[:0], v_end, friction, fslope)  # (rigid: no seal load, no cushion)
     for a in range(na):
         hydraulic[a] = clip(const[a] + slope[a] * v_end[a], lower[a], upper[a]) - friction[a]
     chamber_pressures(pnet, hydraulic, pressure, R.rigid, False)

@@ -167,7 +167,7 @@ class CouplingExplicit(Coupling):
     name = "explicit"
 
     def begin(self, state, control, position, velocity, dt, *, effective_mass=None, velocity_guess=None):
-        effort, _ = self.model.actuator_effort(state.node_pressure, np.asarray(velocity, float))
+        effort, _ = self.model.actuator_effort(state.node_pressure, np.asarray(velocity, float), np.asarray(position, float))
         return EffortLaw(effort, np.zeros_like(effort))
 
     def finish(self, state, control, position_start, position_end, velocity_start, velocity_end, dt):
@@ -247,7 +247,8 @@ class CouplingImplicit(Coupling):
         C = _compiled
         F, I = self.predictor._F, self.predictor._I
         constant, slope, theta = C.effort_law_kernel(
-            F, I, C._f64(lin.velocity), C._f64(lin.state.node_pressure), C._f64(start_velocity),
+            F, I, C._f64(lin.velocity), C._f64(lin.state.node_pressure), C._f64(lin.state.actuator_position),
+            C._f64(start_velocity),
             C._f64(lin.effort_velocity_gradient), C._f64(pressure_start), C._f64(mass), float(dt), blend)
         self.last_theta = theta
         return EffortLaw(constant, slope)

@@ -121,7 +121,7 @@ def simulate(
         out["m"].append(state.node_oil.copy())
         out["it"].append(iterations)
 
-    effort0, _ = model.actuator_effort(state.node_pressure, v)
+    effort0, _ = model.actuator_effort(state.node_pressure, v, x)
     record(0.0, state, effort0[a], 0)
     status, message = "complete", ""
     for n in range(steps):
@@ -202,7 +202,7 @@ def simulate_reference(
         vel, spool, command = unpack(t, y)
         pressure, _ = model.pressure(oil, x_all)
         flows = model.branch_flows(pressure, model.valve_areas(spool), control.pump_speed, vel)
-        effort, _ = model.actuator_effort(pressure, vel)
+        effort, _ = model.actuator_effort(pressure, vel, x_all)
         dy = np.empty_like(y)
         dy[0] = y[1]
         dy[1] = (effort[a] + load.force) / load.mass
@@ -223,7 +223,7 @@ def simulate_reference(
         vel, _, _ = unpack(t, y)
         pressure, _ = model.pressure(oil, x_all)
         pressures.append(pressure)
-        efforts.append(model.actuator_effort(pressure, vel)[0][a])
+        efforts.append(model.actuator_effort(pressure, vel, x_all)[0][a])
         oils.append(oil.copy())
     return Trajectory(
         sol.t, sol.y[0], sol.y[1], np.array(pressures), np.array(efforts), np.array(oils),

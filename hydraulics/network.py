@@ -343,6 +343,13 @@ class NetworkModel:
     cylinder_static: np.ndarray
     cylinder_stribeck: np.ndarray
     cylinder_viscous: np.ndarray
+    cylinder_pressure_friction: np.ndarray  # -, k_p of the seal friction's pressure dependence
+    cylinder_cushion_length_cap: np.ndarray  # m, 0: no cushion
+    cylinder_cushion_length_rod: np.ndarray  # m
+    cylinder_cushion_area_cap: np.ndarray  # m², cushion orifice
+    cylinder_cushion_area_rod: np.ndarray  # m²
+    cylinder_cushion_cd: np.ndarray  # -
+    cylinder_cushion_check: np.ndarray  # 1.0: a check valve frees the return from the cushion, 0.0: none
     motor_actuator: np.ndarray
     motor_a_node: np.ndarray
     motor_b_node: np.ndarray
@@ -429,6 +436,13 @@ class NetworkModel:
             raise CircuitError(f"{circuit.source}: fidelity {fidelity!r} is not one of {FIDELITIES}")
         circuit, pruned = prune(circuit)
         levels, network_fidelity = resolve_fidelity(circuit, fidelity, actuator_fidelity)
+        for c, level in zip(circuit.by_kind("cylinder", "motor"), levels):
+            if level != "incompressible" or c.kind != "cylinder":
+                continue
+            for name in ("friction_pressure_coefficient", "cushion_length_cap", "cushion_length_rod"):
+                if getattr(c.params, name) > 0.0:
+                    raise CircuitError(f"{circuit.source}: component '{c.name}', field '{name}': must be 0 at fidelity "
+                                       "'incompressible' (its rigid oil law has no seal load or cushion); use 'compressible'")
         line_set = line_hoses(circuit, fidelity, actuator_fidelity)
         if line_set and network_fidelity == "compressible":
             network_fidelity = "lines"  # a hose of no actuator follows the default level
@@ -724,6 +738,13 @@ class NetworkModel:
             cylinder_static=column(cyl, "static_friction"),
             cylinder_stribeck=column(cyl, "stribeck_velocity"),
             cylinder_viscous=column(cyl, "viscous_friction"),
+            cylinder_pressure_friction=column(cyl, "friction_pressure_coefficient"),
+            cylinder_cushion_length_cap=column(cyl, "cushion_length_cap"),
+            cylinder_cushion_length_rod=column(cyl, "cushion_length_rod"),
+            cylinder_cushion_area_cap=column(cyl, "cushion_area_cap"),
+            cylinder_cushion_area_rod=column(cyl, "cushion_area_rod"),
+            cylinder_cushion_cd=column(cyl, "cushion_discharge_coefficient"),
+            cylinder_cushion_check=f([1.0 if c.params.cushion_return == "check" else 0.0 for c in cyl], float),
             motor_actuator=f([act_names.index(c.name) for c in mot], int),
             motor_a_node=f([node(c, "a") for c in mot], int),
             motor_b_node=f([node(c, "b") for c in mot], int),
@@ -1061,19 +1082,28 @@ class NetworkModel:
         P, lead = _rows(pressure, self.node_count)
         return self._kernel("pressure_effort", P).reshape(lead + (self.actuator_count,))
 
-    def friction_effort(self, velocity):
-        """Seal friction acting on every actuator (−F_f(v), opposing motion) and its velocity derivative."""
-        V, lead = _rows(velocity, self.actuator_count)
-        effort, slope = self._kernel("friction_effort", V)
+    def friction_effort(self, velocity, pressure=None, position=None):
+        """Seal friction and end cushions acting on every actuator (−F_f(v, p) − F_k(x, v), opposing motion) and
+        their velocity derivative at the node ``pressure`` [Pa] (the seal load,
+        :func:`hydraulics.components.cylinder.seal_load`) and the actuator ``position`` [m] (the cushions,
+        :func:`hydraulics.components.cylinder.cushion_force_with_derivative`); ``None``: without that part, as
+        for the rigid actuators, which have neither)."""
+        P = np.zeros(0) if pressure is None else pressure
+        X = np.zeros(0) if position is None else position
+        (V, P, X), lead = _broadcast_rows((velocity, self.actuator_count),
+                                          (P, 0 if pressure is None else self.node_count),
+                                          (X, 0 if position is None else self.actuator_count))
+        effort, slope = self._kernel("friction_effort", V, P, X)
         return effort.reshape(lead + (self.actuator_count,)), slope.reshape(lead + (self.actuator_count,))
 
-    def actuator_effort(self, pressure, velocity):
-        """Total effort (pressure + friction) on every actuator and its derivative with respect to its own velocity.
+    def actuator_effort(self, pressure, velocity, position=None):
+        """Total effort (pressure + friction, + end cushions at the actuator ``position`` if given) on every actuator
+        and its derivative with respect to its own velocity.
 
         The derivative is the friction slope only (the pressure part depends on
         v through the network; see :meth:`StepperImplicitEuler.linearize`).
         """
-        friction, slope = self.friction_effort(velocity)
+        friction, slope = self.friction_effort(velocity, pressure, position)
         return self.pressure_effort(pressure) + friction, slope
 
     def effort_pressure_gradient(self) -> np.ndarray:

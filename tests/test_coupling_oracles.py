@@ -116,11 +116,13 @@ def test_effort_law_matches_oracle(name, seed, blend, dt):
     guess = np.where(rng.uniform(size=m.actuator_count) < 0.3, 0.0, v * rng.uniform(0.5, 1.5, m.actuator_count))
     gradient = np.diag(-10.0 ** rng.uniform(3, 9, m.actuator_count)) + rng.normal(0, 1e3, (m.actuator_count,) * 2)
     lin = SimpleNamespace(velocity=guess, effort_velocity_gradient=gradient,
-                          state=SimpleNamespace(node_pressure=rng.uniform(1e5, 3e7, m.node_count)))
+                          state=SimpleNamespace(node_pressure=rng.uniform(1e5, 3e7, m.node_count),
+                                                actuator_position=state.actuator_position))
     pressure_start = m.pressure_effort(state.node_pressure)
     mass = 10.0 ** rng.uniform(0, 5, m.actuator_count)
     F, I = C.packed(m)
-    got = C.effort_law_kernel(F, I, guess, lin.state.node_pressure, v, gradient, pressure_start, mass, dt, blend)
+    got = C.effort_law_kernel(F, I, guess, lin.state.node_pressure, lin.state.actuator_position, v, gradient,
+                              pressure_start, mass, dt, blend)
     expected = oracle.effort_law(m, lin, v, pressure_start, mass if blend else None, dt)
     for a, b in zip(got, expected):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9 * np.max(np.abs(b)))

@@ -122,16 +122,27 @@ def test_hydraulic_stiffness_and_frequency(beta, cap_area, cap_volume, rod_area,
 
 
 @EXAMPLES
-@given(st.floats(-2.0, 2.0), st.floats(0.0, 1e5), st.floats(0.0, 2.0), st.floats(1e-4, 0.5), st.floats(0.0, 1e5))
-def test_friction(v, coulomb, static_ratio, stribeck, viscous):
-    """Stribeck–Coulomb–viscous friction and its velocity derivative."""
+@given(st.floats(-2.0, 2.0), st.floats(0.0, 1e5), st.floats(0.0, 2.0), st.floats(1e-4, 0.5), st.floats(0.0, 1e5),
+       st.floats(0.0, 1e5))
+def test_friction(v, coulomb, static_ratio, stribeck, viscous, seal):
+    """Stribeck–Coulomb–viscous friction with a seal load, its velocity and seal-load derivatives."""
     static = coulomb * static_ratio
-    oracle = laws.friction_force_with_derivative(v, coulomb, static, stribeck, viscous)
+    oracle = laws.friction_force_with_derivative(v, coulomb, static, stribeck, viscous, seal)
     kernel = cylinder.friction_force_with_derivative(v, coulomb, static, stribeck, viscous,
-                                                     cylinder.FRICTION_REGULARISATION_VELOCITY)
-    scale = max(coulomb, static) + viscous * abs(v)
+                                                     cylinder.FRICTION_REGULARISATION_VELOCITY, seal)
+    scale = max(coulomb, static) + seal + viscous * abs(v)
     close(kernel[:1], oracle[:1], scale=scale)
-    close(kernel[1:], oracle[1:], scale=max(coulomb, static) / cylinder.FRICTION_REGULARISATION_VELOCITY + viscous)
+    close(kernel[1:2], oracle[1:2], scale=(max(coulomb, static) + seal) / cylinder.FRICTION_REGULARISATION_VELOCITY + viscous)
+    close(kernel[2:], oracle[2:], scale=1.0)
+
+
+@EXAMPLES
+@given(st.floats(0.0, 5e7), st.floats(0.0, 5e7), st.floats(1e-4, 0.1), st.floats(1e-4, 0.1), st.floats(0.0, 0.5))
+def test_seal_load(p_cap, p_rod, cap_area, rod_area, coefficient):
+    """Pressure part of the seal friction and its pressure slopes (absolute pressures around 1 bar ambient)."""
+    kernel = cylinder.seal_load(p_cap, p_rod, cap_area, rod_area, 1e5, coefficient)
+    close(kernel[:1], (laws.seal_load(p_cap, p_rod, cap_area, rod_area, 1e5, coefficient),), scale=5e6)
+    close(kernel[1:], (coefficient * cap_area * (p_cap > 1e5), coefficient * rod_area * (p_rod > 1e5)), scale=0.1)
 
 
 @EXAMPLES

@@ -149,7 +149,7 @@ def test_efforts(case, seed):
     m = model(case)
     x, p, oil, spool, speed, v = sample(m, seed)
     close(m.pressure_effort(p), ref.pressure_effort(m, p))
-    for k, o in zip(m.friction_effort(v), ref.friction_effort(m, v)):
+    for k, o in zip(m.friction_effort(v, p, x), ref.friction_effort(m, v, p, x)):
         close(k, o)
     for k, o in zip(m.actuator_effort(p, v), ref.actuator_effort(m, p, v)):
         close(k, o)

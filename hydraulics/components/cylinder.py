@@ -9,8 +9,20 @@ equal-area cylinder) and A_rod = π·(D² − d²)/4 on the rod side.  With rod 
   (:func:`chamber_volumes`);
 * F = p_cap·A_cap − p_rod·A_rod − p_amb·(A_cap − A_rod), absolute pressures, the rods' own cross-sections at
   ambient pressure (:func:`pressure_force`; 0 ambient term for a double-rod cylinder);
-* F_f = [F_c + (F_s − F_c)·exp(−(v/v_s)²)]·tanh(v/v_reg) + b·v, the force on the rod being −F_f
-  (:func:`friction_force_with_derivative`, v_reg = :data:`FRICTION_REGULARISATION_VELOCITY`);
+* F_f = [F_c + F_p + (F_s − F_c)·exp(−(v/v_s)²)]·tanh(v/v_reg) + b·v, the force on the rod being −F_f
+  (:func:`friction_force_with_derivative`, v_reg = :data:`FRICTION_REGULARISATION_VELOCITY`), where the
+  seal load F_p = k_p·(max(p_cap − p_amb, 0)·A_cap + max(p_rod − p_amb, 0)·A_rod) (:func:`seal_load`) raises
+  the sliding and the breakaway friction alike with the gauge pressures on the seals (the pressure-dependent
+  Coulomb friction of Simscape Fluids' cylinder friction block; breakaway F_s + F_p, sliding F_c + F_p);
+* end cushions (:func:`cushion_force_with_derivative`): within ``cushion_length_cap`` L of x = 0 (of x = stroke
+  for ``cushion_length_rod``) the closing chamber's outflow A·|v| leaves through the cushion orifice (flow area
+  a_k, discharge coefficient C_d), quasi-steady and turbulent: Δp_k = (ρ/2)·(A·v/(C_d·a_k))², the force on the
+  piston F_k = s(d)·Δp_k·A opposing the motion, s(d) = 3t² − 2t³, t = clip(d/(L/5), 0, 1), of the depth d into
+  the cushion (the spear entering its bore over the first fifth: C¹ in x).  The returning stroke's inflow
+  bypasses the cushion through its check valve (no force; ``cushion_return = "check"``) or passes the cushion
+  orifice too (``"orifice"``: the same force against the return).  Limitations: the cushion's own oil volume is not a
+  state (its compression time β-scale is taken as short against the deceleration); the chamber's net holds the
+  port-side pressure, the cushion's Δp_k shows in the applied force (its difference to the pressure force);
 * k = β·A²/V, the oil column of one chamber as a spring, and ω_h = sqrt(Σk/m), the actuator's hydraulic
   frequency on an inertia m (:func:`hydraulic_stiffness`, :func:`hydraulic_natural_frequency`).
 
@@ -64,8 +76,28 @@ class Cylinder:
     """Stribeck velocity v_s [m/s]."""
     viscous_friction: float = param("N*s/m", low=0.0, high=1e8, low_open=False, default=0.0)
     """Viscous friction coefficient b [N·s/m]."""
+    friction_pressure_coefficient: float = param("-", low=0.0, high=0.5, low_open=False, default=0.0)
+    """Pressure dependence k_p [-] of the seal friction: the sliding and the breakaway friction grow by
+    k_p·(p_cap·A_cap + p_rod·A_rod), gauge pressures (seal friction of the order of 1–5 % of the pressure force
+    on the seals: k_p ≈ 0.01–0.05); 0 turns it off.  Not at the ``incompressible`` fidelity (no chamber
+    pressures while the step is solved)."""
     leakage_conductance: float = param("m^3/(s*Pa)", low=0.0, high=1e-6, low_open=False, default=0.0)
     """Internal cap↔rod leakage conductance [m³/(s·Pa)]."""
+    cushion_length_cap: float = param("m", low=0.0, high=20.0, low_open=False, default=0.0)
+    """Cap-end cushion length L [m] (0: no cushion): within L of full retraction the cap chamber's outflow
+    passes the cushion orifice; the two cushions together must fit in the stroke."""
+    cushion_length_rod: float = param("m", low=0.0, high=20.0, low_open=False, default=0.0)
+    """Rod-end cushion length L [m] (0: no cushion): within L of full extension the rod chamber's outflow passes
+    the cushion orifice."""
+    cushion_area_cap: float = param("m^2", low=0.0, high=1.0, default=1e-6)
+    """Flow area a_k of the cap-end cushion orifice [m²] (read with a cap-end cushion only)."""
+    cushion_area_rod: float = param("m^2", low=0.0, high=1.0, default=1e-6)
+    """Flow area a_k of the rod-end cushion orifice [m²] (read with a rod-end cushion only)."""
+    cushion_discharge_coefficient: float = param("-", low=0.0, high=1.0, default=0.7)
+    """Discharge coefficient C_d of the cushion orifices [-]."""
+    cushion_return: str = param("-", default="check", choices=("check", "orifice"))
+    """The return stroke's inflow into a cushioned chamber: ``check`` bypasses the cushion through a check valve
+    (free return), ``orifice`` passes the cushion orifice too (the same force against the return)."""
     PORTS = ("cap", "rod")
 
     def __post_init__(self):
@@ -78,6 +110,9 @@ class Cylinder:
             if getattr(self, name) >= self.bore:
                 raise CircuitError(
                     f"{where}, field '{name}': {getattr(self, name)!r} m must be smaller than bore {self.bore!r} m")
+        if self.cushion_length_cap + self.cushion_length_rod > self.stroke:
+            raise CircuitError(f"{where}, field 'cushion_length_rod': cushion_length_cap + cushion_length_rod = "
+                               f"{self.cushion_length_cap + self.cushion_length_rod!r} m must not exceed stroke {self.stroke!r} m")
 
     @property
     def cap_area(self) -> float:
@@ -105,16 +140,65 @@ def pressure_force(cap_pressure, rod_pressure, cap_area, rod_area, ambient):
 
 
 @kernel
-def friction_force_with_derivative(v, coulomb, static, stribeck_velocity, viscous, v_reg):
-    """Seal friction F_f [N] (sign of v) at rod velocity ``v`` [m/s] and dF_f/dv [N·s/m]; ``v_reg`` [m/s]."""
+def seal_load(cap_pressure, rod_pressure, cap_area, rod_area, ambient, coefficient):
+    """Pressure part F_p = k_p·(max(p_cap − p_amb, 0)·A_cap + max(p_rod − p_amb, 0)·A_rod) [N] of the seal
+    friction at absolute chamber pressures [Pa], areas [m²], ambient pressure [Pa] and ``coefficient`` k_p [-];
+    returns (F_p, ∂F_p/∂p_cap, ∂F_p/∂p_rod) [N, m², m²] (a chamber below ambient presses no seal: slope 0)."""
+    gc = cap_pressure - ambient
+    gr = rod_pressure - ambient
+    dcap = coefficient * cap_area if gc > 0.0 else 0.0
+    drod = coefficient * rod_area if gr > 0.0 else 0.0
+    return dcap * gc + drod * gr, dcap, drod
+
+
+@kernel
+def friction_force_with_derivative(v, coulomb, static, stribeck_velocity, viscous, v_reg, load):
+    """Seal friction F_f [N] (sign of v) at rod velocity ``v`` [m/s] with the seal load ``load`` F_p [N]
+    (:func:`seal_load`; 0 without pressure dependence), dF_f/dv [N·s/m] and dF_f/dF_p [-]; ``v_reg`` [m/s]."""
     vs = maximum(stribeck_velocity, 1e-12)
     r = v / vs
     stribeck = math.exp(-(r * r))
-    level = coulomb + (static - coulomb) * stribeck
+    level = coulomb + load + (static - coulomb) * stribeck
     dlevel = (static - coulomb) * stribeck * (-2.0 * v / (vs * vs))
     th = math.tanh(v / v_reg)
     dth = (1.0 - th * th) / v_reg
-    return level * th + viscous * v, dlevel * th + level * dth + viscous
+    return level * th + viscous * v, dlevel * th + level * dth + viscous, th
+
+
+def cushion_coefficient(area, discharge_coefficient, orifice_area, density):
+    """K = ρ·A³/(2·(C_d·a_k)²) [N·s²/m²] of a cushion: its fully engaged force K·v² at rod speed v, piston area A
+    [m²], discharge coefficient C_d [-], cushion orifice area a_k [m²], oil density ρ [kg/m³]."""
+    return density * area**3 / (2.0 * (discharge_coefficient * orifice_area) ** 2)
+
+
+@kernel
+def cushion_engagement(depth, length):
+    """s = 3t² − 2t³, t = clip(depth/(length/5), 0, 1) [-]: how far the cushion's restriction is engaged at the
+    ``depth`` [m] into a cushion of ``length`` [m], and ds/d(depth) [1/m]."""
+    width = 0.2 * length
+    t = clip(depth / width, 0.0, 1.0)
+    inside = 1.0 if (depth > 0.0 and depth < width) else 0.0
+    return t * t * (3.0 - 2.0 * t), inside * 6.0 * t * (1.0 - t) / width
+
+
+@kernel
+def cushion_force_with_derivative(x, v, stroke, length_cap, k_cap, length_rod, k_rod, check):
+    """End-cushion force F_k [N] (sign of v: opposing the motion, the force on the rod being −F_k) at rod extension
+    ``x`` [m] and velocity ``v`` [m/s] and dF_k/dv [N·s/m]: s·K·v·|v| on the chamber that closes (the cap's when
+    retracting within ``length_cap`` of x = 0, the rod's when extending within ``length_rod`` of the stroke),
+    K = ``k_cap`` or ``k_rod`` [N·s²/m²] (:func:`cushion_coefficient`), s = :func:`cushion_engagement`; for the
+    other direction zero with a ``check`` valve (1.0), the same law without one (0.0)."""
+    f = 0.0
+    df = 0.0
+    if length_cap > 0.0 and (v < 0.0 or check == 0.0):
+        s, _ = cushion_engagement(length_cap - x, length_cap)
+        f += s * k_cap * v * abs(v)
+        df += 2.0 * s * k_cap * abs(v)
+    if length_rod > 0.0 and (v > 0.0 or check == 0.0):
+        s, _ = cushion_engagement(x - (stroke - length_rod), length_rod)
+        f += s * k_rod * v * abs(v)
+        df += 2.0 * s * k_rod * abs(v)
+    return f, df
 
 
 @kernel
@@ -132,9 +216,13 @@ def hydraulic_natural_frequency(stiffness, mass):
     return math.sqrt(stiffness / mass)
 
 
-COLUMNS = ("cap_area", "rod_area", "stroke", "dead_cap", "dead_rod", "coulomb", "static", "stribeck", "viscous")
-"""Cylinder table: areas [m²], stroke [m], dead volumes [m³], friction F_c, F_s [N], v_s [m/s], b [N·s/m]."""
-CYL_CAP_AREA, CYL_ROD_AREA, CYL_STROKE, CYL_DEAD_CAP, CYL_DEAD_ROD, CYL_COULOMB, CYL_STATIC, CYL_STRIBECK, CYL_VISCOUS = \
+COLUMNS = ("cap_area", "rod_area", "stroke", "dead_cap", "dead_rod", "coulomb", "static", "stribeck", "viscous",
+           "pressure_friction", "cushion_cap", "cushion_k_cap", "cushion_rod", "cushion_k_rod", "cushion_check")
+"""Cylinder table: areas [m²], stroke [m], dead volumes [m³], friction F_c, F_s [N], v_s [m/s], b [N·s/m], k_p [-],
+cushion lengths [m] and coefficients K [N·s²/m²] (:func:`cushion_coefficient`) at the cap and the rod end, 1.0
+for a check valve on the cushions' return (0.0: none)."""
+(CYL_CAP_AREA, CYL_ROD_AREA, CYL_STROKE, CYL_DEAD_CAP, CYL_DEAD_ROD, CYL_COULOMB, CYL_STATIC, CYL_STRIBECK, CYL_VISCOUS,
+ CYL_PRESSURE_FRICTION, CYL_CUSHION_CAP, CYL_CUSHION_K_CAP, CYL_CUSHION_ROD, CYL_CUSHION_K_ROD, CYL_CUSHION_CHECK) = \
     range(len(COLUMNS))
 INDEX_COLUMNS = ("actuator", "cap", "rod")
 """Cylinder index table: actuator number, cap node, rod node."""
@@ -144,10 +232,16 @@ CI_ACT, CI_CAP, CI_ROD = range(len(INDEX_COLUMNS))
 def pack(model) -> np.ndarray:
     """The cylinder table of a :class:`~hydraulics.network.NetworkModel`, columns :data:`COLUMNS`."""
     m = model
+    rho, cd = m.fluid.density, m.cylinder_cushion_cd
     return table(COLUMNS, len(m.cylinder_actuator), cap_area=m.cylinder_cap_area, rod_area=m.cylinder_rod_area,
                  stroke=m.cylinder_stroke, dead_cap=m.cylinder_dead_cap, dead_rod=m.cylinder_dead_rod,
                  coulomb=m.cylinder_coulomb, static=m.cylinder_static, stribeck=m.cylinder_stribeck,
-                 viscous=m.cylinder_viscous)
+                 viscous=m.cylinder_viscous, pressure_friction=m.cylinder_pressure_friction,
+                 cushion_cap=m.cylinder_cushion_length_cap,
+                 cushion_k_cap=cushion_coefficient(m.cylinder_cap_area, cd, m.cylinder_cushion_area_cap, rho),
+                 cushion_rod=m.cylinder_cushion_length_rod,
+                 cushion_k_rod=cushion_coefficient(m.cylinder_rod_area, cd, m.cylinder_cushion_area_rod, rho),
+                 cushion_check=m.cylinder_cushion_check)
 
 
 def pack_index(model) -> np.ndarray:

@@ -64,7 +64,8 @@ class PlantBase:
                 p[self.network.node(net)] = value
             self.net_state = self.network.state(actuator_position=position, node_pressure=p)
         self.net_state.actuator_velocity = np.array(velocity, float)
-        self.effort = self.network.actuator_effort(self.net_state.node_pressure, self.net_state.actuator_velocity)[0]
+        self.effort = self.network.actuator_effort(self.net_state.node_pressure, self.net_state.actuator_velocity,
+                                                   self.net_state.actuator_position)[0]
         self.last_report = None
         self.theta = np.ones(self.network.actuator_count)
         self.energy = EnergyLedger()
@@ -121,7 +122,7 @@ class PlantBase:
         e.pump_work += dt * powers["pump"]
         e.motor_work += dt * powers["motor"]
         e.dissipated_hydraulic += dt * powers["dissipated"]
-        friction, _ = net.friction_effort(velocity)
+        friction, _ = net.friction_effort(velocity, self.net_state.node_pressure, self.net_state.actuator_position)
         e.dissipated_friction -= dt * float(friction @ velocity)
         if powers["rigid"]:
             # rigid actuators: what their branches deliver minus the work of their hydraulic force is metering loss

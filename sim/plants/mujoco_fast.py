@@ -504,7 +504,7 @@ def _finish_pending(ctx, pnet, V, T, R):
     if kind == KIND_INCOMPRESSIBLE:  # rigid oil: the work of the forces MuJoCo applied is the supplied work
         fs[FS_PUMP] += dt * _applied_power(ctx, V, v_end)
     else:
-        C._account(pnet, fs, FS_PUMP, dt, pres, flow_out, v_end, V.quad, mu, xe, ve)
+        C._account(pnet, fs, FS_PUMP, dt, pres, pos, flow_out, v_end, V.quad, mu, xe, ve)
     if R.actuator.size:  # rigid branches (PlantBase._account): their delivery less the hydraulic force's work
         K.rigid_account(pnet, R, fs, FS_PUMP, dt, flow_out, mu, effort, xe, v_end)
     passive, constraint = V.passive_saved, V.constraint
@@ -615,7 +615,7 @@ def _begin(ctx, pnet, V, T, R):
     kind = ctx[SLOT.C_KIND]
     if kind != KIND_IMPLICIT:
         if kind == KIND_EXPLICIT:  # CouplingExplicit.begin: the start pressures' effort and friction, slope 0
-            K.explicit_law(pnet, V.pres, vs, (const, slope), W)
+            K.explicit_law(pnet, V.pres, xs, vs, (const, slope), W)
             if R.actuator.size:  # CouplingMixed around it: the rigid actuators' law at the start supply pressure
                 _rigid_law(pnet, V, R, cmd, dt, (V.pres, oil, xs, doil, xs), False, W)
                 for i in range(na):
@@ -659,7 +659,8 @@ def _begin(ctx, pnet, V, T, R):
         ctx[SLOT.C_STATUS] = ST_SINGULAR
         ctx[SLOT.C_FAILED] = k
         return
-    C._effort_law_terms(pnet, guess, lin_p, vs, gradient, fg, fslope_guess, end_const, end_slope, friction, damping)
+    C._effort_law_terms(pnet, guess, lin_p, lin_x, vs, gradient, fg, fslope_guess, end_const, end_slope, friction,
+                        damping)
     if not held and not C._one_step_accepted(istats):
         # the linearisation's first evaluation was at x + dt·guess ≠ x: the start pressures separately
         # (rosenbrock's one step evaluates at x itself)

@@ -191,7 +191,7 @@ def _begin_core(pnet, buffers, control, x, v, h, coupling, effective_mass):
         theta[:] = 1.0
         return True
     if kind == KIND_EXPLICIT:
-        K.explicit_law(pnet, pres, v, (const, slope), W)
+        K.explicit_law(pnet, pres, x, v, (const, slope), W)
         theta[:] = 1.0
         if R.actuator.size:  # the rigid actuators' law at the start supply pressure
             K.rigid_law(pnet, R, spool, cmd, v, effective_mass, h, (pres, oil, x, doil, x), False, (const, slope),
@@ -209,7 +209,7 @@ def _begin_core(pnet, buffers, control, x, v, h, coupling, effective_mass):
                                                       gradient, p_first, doil), oil_warm)
     if istats[C.IS_SINGULAR]:
         return False
-    C._effort_law_terms(pnet, guess, lin_p, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
+    C._effort_law_terms(pnet, guess, lin_p, lin_x, v, gradient, fg, fsg, end_const, end_slope, friction, damping)
     C._pressure_effort(pnet, pres, pressure_start)
     C._blended_law(blend, end_const, end_slope, pressure_start, friction, damping, v, effective_mass, h, theta, const,
                    slope)
@@ -292,7 +292,7 @@ def _finish_core(pnet, buffers, control, motion, h, coupling, effort):
     if kind == KIND_INCOMPRESSIBLE:  # rigid oil: the efforts' work is the supplied work
         C._account_rigid_oil(ledger, L_PUMP, h, effort, v_end)
     else:
-        C._account(pnet, ledger, L_PUMP, h, pres, flow, v_end, quad, mu, fric, dv)
+        C._account(pnet, ledger, L_PUMP, h, pres, pos, flow, v_end, quad, mu, fric, dv)
     if R.actuator.size:
         K.rigid_account(pnet, R, ledger, L_PUMP, h, flow, mu, effort, fric, v_end)
 

@@ -73,13 +73,15 @@ def predicted_oil(lin, velocity_end):
 def effort_law(model, lin, start_velocity, pressure_start, effective_mass, dt):
     """(constant, slope, θ) of the implicit effort law: the pressure part of the backward-Euler law at the guess
     blended with the start pressure force ``pressure_start`` [N] by θ (θ = 1 without effective masses), plus the
-    friction linearised at the start velocity with its dissipative slope only."""
+    friction linearised at the start velocity with its dissipative slope only, its seal load at the linearisation's
+    end pressures."""
     velocity = lin.velocity
-    _, friction_slope_at_guess = model.friction_effort(velocity)
+    p_end, x_end = lin.state.node_pressure, lin.state.actuator_position
+    _, friction_slope_at_guess = model.friction_effort(velocity, p_end, x_end)
     pressure_slope = np.diag(lin.effort_velocity_gradient) - friction_slope_at_guess
     pressure_end = model.pressure_effort(lin.state.node_pressure)
     theta = np.ones_like(pressure_slope) if effective_mass is None else blend_factor(pressure_slope, effective_mass, dt)
-    friction, friction_slope = model.friction_effort(start_velocity)
+    friction, friction_slope = model.friction_effort(start_velocity, p_end, x_end)
     friction_slope = np.minimum(friction_slope, 0.0)
     constant = ((1.0 - theta) * pressure_start + theta * (pressure_end - pressure_slope * velocity)
                 + friction - friction_slope * start_velocity)

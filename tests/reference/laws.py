@@ -260,21 +260,46 @@ def cylinder_pressure_force(cap_pressure, rod_pressure, cap_area, rod_area, ambi
     return cap_pressure * cap_area - rod_pressure * rod_area - ambient_pressure * (cap_area - rod_area)
 
 
-def friction_force_with_derivative(velocity, coulomb, static, stribeck_velocity, viscous):
-    """Seal friction [N] opposing motion, and its derivative with respect to velocity.
+def seal_load(cap_pressure, rod_pressure, cap_area, rod_area, ambient_pressure, coefficient):
+    """Pressure part of the seal friction [N]: F_p = k_p·(max(p_cap − p_amb, 0)·A_cap + max(p_rod − p_amb, 0)·A_rod)."""
+    return coefficient * (max(cap_pressure - ambient_pressure, 0.0) * cap_area
+                          + max(rod_pressure - ambient_pressure, 0.0) * rod_area)
 
-    F_f = [F_c + (F_s − F_c)·exp(−(v/v_s)²)]·tanh(v/v_reg) + b·v, with
-    v_reg = ``FRICTION_REGULARISATION_VELOCITY``.  F_s = F_c turns the Stribeck
-    term off.  The sign is that of v: the force on the rod is −F_f.
+
+def cushion_force(x, v, stroke, cap_area, rod_area, length_cap, length_rod, orifice_cap, orifice_rod, cd, density,
+                  check=True):
+    """End-cushion force [N] opposing motion (sign of v): the closing chamber's outflow A·|v| through the cushion
+    orifice, Δp = (ρ/2)·(A·v/(C_d·a))², force s·Δp·A with the engagement s = smoothstep of the depth into the
+    cushion over its first fifth; no force on the returning stroke with a ``check`` valve, the same law without."""
+    def engagement(depth, length):
+        t = min(max(depth / (0.2 * length), 0.0), 1.0)
+        return t * t * (3.0 - 2.0 * t)
+
+    force = 0.0
+    if length_cap > 0.0 and (v < 0.0 or not check):
+        dp = 0.5 * density * (cap_area * v / (cd * orifice_cap)) ** 2
+        force += math.copysign(engagement(length_cap - x, length_cap) * dp * cap_area, v)
+    if length_rod > 0.0 and (v > 0.0 or not check):
+        dp = 0.5 * density * (rod_area * v / (cd * orifice_rod)) ** 2
+        force += math.copysign(engagement(x - (stroke - length_rod), length_rod) * dp * rod_area, v)
+    return force
+
+
+def friction_force_with_derivative(velocity, coulomb, static, stribeck_velocity, viscous, seal=0.0):
+    """Seal friction [N] opposing motion, its derivative with respect to velocity and to the seal load.
+
+    F_f = [F_c + F_p + (F_s − F_c)·exp(−(v/v_s)²)]·tanh(v/v_reg) + b·v, with
+    v_reg = ``FRICTION_REGULARISATION_VELOCITY`` and the seal load F_p = ``seal`` [N].  F_s = F_c turns
+    the Stribeck term off.  The sign is that of v: the force on the rod is −F_f; ∂F_f/∂F_p = tanh(v/v_reg).
     """
     v = np.asarray(velocity, dtype=float)
     vs = np.maximum(stribeck_velocity, 1e-12)
     stribeck = np.exp(-((v / vs) ** 2))
-    level = coulomb + (static - coulomb) * stribeck
+    level = coulomb + seal + (static - coulomb) * stribeck
     dlevel = (static - coulomb) * stribeck * (-2.0 * v / vs**2)
     th = np.tanh(v / FRICTION_REGULARISATION_VELOCITY)
     dth = (1.0 - th * th) / FRICTION_REGULARISATION_VELOCITY
-    return level * th + viscous * v, dlevel * th + level * dth + viscous
+    return level * th + viscous * v, dlevel * th + level * dth + viscous, th
 
 
 def metered_actuator_force(direction, area_in, area_out, orifice_in, orifice_out, supply_pressure, tank_pressure, density,

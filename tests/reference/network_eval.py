@@ -352,27 +352,42 @@ def pressure_effort(model, pressure):
     return effort
 
 
-def friction_effort(model, velocity):
-    """Seal friction acting on every actuator (−F_f(v), opposing motion) and its velocity derivative."""
+def friction_effort(model, velocity, pressure=None, position=None):
+    """Seal friction and end cushions acting on every actuator (−F_f(v) − F_k(x, v), opposing motion) and its
+    velocity derivative (a central difference for the cushions), with the seal load of the node ``pressure`` and
+    the cushions at the actuator ``position`` (None: none)."""
     effort = np.zeros(model.actuator_count)
     slope = np.zeros(model.actuator_count)
-    if len(model.cylinder_actuator):
-        friction, dfriction = laws.friction_force_with_derivative(
-            velocity[model.cylinder_actuator], model.cylinder_coulomb, model.cylinder_static,
-            model.cylinder_stribeck, model.cylinder_viscous,
+    for c, a in enumerate(model.cylinder_actuator):
+        seal = 0.0 if pressure is None else laws.seal_load(
+            pressure[model.cylinder_cap_node[c]], pressure[model.cylinder_rod_node[c]], model.cylinder_cap_area[c],
+            model.cylinder_rod_area[c], model.fluid.reference_pressure, model.cylinder_pressure_friction[c])
+        friction, dfriction, _ = laws.friction_force_with_derivative(
+            velocity[a], model.cylinder_coulomb[c], model.cylinder_static[c],
+            model.cylinder_stribeck[c], model.cylinder_viscous[c], seal,
         )
-        effort[model.cylinder_actuator] = -friction
-        slope[model.cylinder_actuator] = -dfriction
+        effort[a] = -friction
+        slope[a] = -dfriction
+        if position is not None:
+            def cushion(v):
+                return laws.cushion_force(
+                    position[a], v, model.cylinder_stroke[c], model.cylinder_cap_area[c], model.cylinder_rod_area[c],
+                    model.cylinder_cushion_length_cap[c], model.cylinder_cushion_length_rod[c],
+                    model.cylinder_cushion_area_cap[c], model.cylinder_cushion_area_rod[c], model.cylinder_cushion_cd[c],
+                    model.fluid.density, model.cylinder_cushion_check[c] == 1.0)
+            h = 1e-7 * max(abs(velocity[a]), 1e-6)
+            effort[a] -= cushion(velocity[a])
+            slope[a] -= (cushion(velocity[a] + h) - cushion(velocity[a] - h)) / (2 * h)
     return effort, slope
 
 
-def actuator_effort(model, pressure, velocity):
+def actuator_effort(model, pressure, velocity, position=None):
     """Total effort (pressure + friction) on every actuator and its derivative with respect to its own velocity.
 
     The derivative is the friction slope only (the pressure part depends on
     v through the network; see :meth:`StepperImplicitEuler.linearize`).
     """
-    friction, slope = friction_effort(model, velocity)
+    friction, slope = friction_effort(model, velocity, pressure, position)
     return pressure_effort(model, pressure) + friction, slope
 
 
