@@ -103,7 +103,7 @@ from .components import BRANCH_LAWS, LAW_WIDTH, law_sources, law_states
 # I starts with the float-field offsets (len(_FLOAT_FIELDS) + 1, into F) and the
 # int-field offsets (len(_INT_FIELDS) + 1, into I).
 # ----------------------------------------------------------------------------
-_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "lam", "pump", "law", "rig")
+_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "pump", "law", "rig")
 _INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act",
                "law_kind", "rig_i", "mot_br_i", "law_state", "valve_rate")
 _NFF = len(_FLOAT_FIELDS)
@@ -118,13 +118,13 @@ SCALAR_LAYOUT = ("reference_pressure", "bulk_modulus", "air_fraction", "polytrop
 (S_PREF, S_BETA, S_AIR, S_NPOLY, S_FLOOR, S_PHI_FLOOR, S_NEWTON_PTOL, S_NEWTON_RTOL, S_SUFFICIENT, S_TRUST_P, S_TRUST_F,
  S_PINV_TOL, S_FILL_TOL, S_VREG, S_GUESS) = range(len(SCALAR_LAYOUT))
 # ic: int scalars, by name: sizes, then each branch kind's [start, stop) (NetworkModel.branch_slices), then limits
-BRANCH_KINDS = ("orifice", "laminar", "pump", "motor", "law", "rigid")
+BRANCH_KINDS = ("orifice", "pump", "motor", "law", "rigid")
 INT_LAYOUT = (("node_count", "free_count", "actuator_count", "branch_count", "cylinder_count", "motor_count",
                "accumulator_count", "valve_count", "pump_count")
               + tuple(f"{kind}_{end}" for kind in BRANCH_KINDS for end in ("start", "stop"))
               + ("newton_max_iterations", "line_search_halvings", "inversion_max_iterations", "fill_max_iterations",
                  "state_count"))
-(IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_NPUMP, IC_O0, IC_O1, IC_L0, IC_L1,
+(IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_NPUMP, IC_O0, IC_O1,
  IC_P0, IC_P1, IC_M0, IC_M1, IC_W0, IC_W1, IC_G0, IC_G1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX,
  IC_FILL_MAX, IC_NSTATE) = range(len(INT_LAYOUT))
 # node table columns
@@ -149,8 +149,8 @@ RIGID_INDEX_COLUMNS = ("valve", "actuator")
 GI_VALVE, GI_ACT = range(len(RIGID_INDEX_COLUMNS))
 _W_RIG, _W_RIG_I = len(RIGID_COLUMNS), len(RIGID_INDEX_COLUMNS)
 
-PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W_VALVE, ori=_W_ORI, lam=0,
-                     pump=_W_PUMP, law=_W_LAW, rig=_W_RIG, ic=0, fixed=0, free=0, free_index=0, compliant=0,
+PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W_VALVE, ori=_W_ORI, pump=_W_PUMP,
+                     law=_W_LAW, rig=_W_RIG, ic=0, fixed=0, free=0, free_index=0, compliant=0,
                      acc_node=0, cyl_i=_W_CI, mot_i=_W_MI, br=_W_BR, or_valve=0, mot_br_act=0, law_kind=0, rig_i=_W_RIG_I,
                      mot_br_i=0, law_state=0, valve_rate=0)
 """Row width of every packed field (0: a vector): the description :func:`pack_network` packs by and the views of
@@ -229,7 +229,6 @@ def pack_network(model: NetworkModel):
         mot=model.motor_displacement,
         valve=_valve.pack(model),
         ori=_orifice.pack(model),
-        lam=model.laminar_conductance,
         pump=_pumps.pack(model),
         law=model.law_table,
         rig=_table(RIGID_COLUMNS, len(model.rigid_branch_actuator), extend_area=model.rigid_extend_area,
@@ -614,9 +613,6 @@ def _branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h):
         i = b - ic[IC_O0]
         q, g = _orifice.flow_with_derivative(area[i], net.ori[i, O_K], net.ori[i, O_C], p[br[b, 0]] - p[br[b, 1]])
         flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
-    for b in range(ic[IC_L0], ic[IC_L1]):
-        g = net.lam[b - ic[IC_L0]]
-        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = g * (p[br[b, 0]] - p[br[b, 1]]), g, -g
     pump = net.pump
     for b in range(ic[IC_P0], ic[IC_P1]):
         i = b - ic[IC_P0]
@@ -1676,7 +1672,7 @@ def _account(pnet, ledger, at, h, pres, flow, v, quad, mu, friction, fslope):
     for b in range(ic[IC_M0], ic[IC_M1]):
         motor += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
     dissipated = 0.0
-    for b in range(ic[IC_O0], ic[IC_L1]):  # orifices and laminar leaks (then the law branches)
+    for b in range(ic[IC_O0], ic[IC_O1]):  # the valve edges (then the law branches)
         dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
     for b in range(ic[IC_W0], ic[IC_W1]):
         power = flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])

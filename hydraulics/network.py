@@ -18,12 +18,13 @@ Nodes
 Branches
     Flow laws Q [m³/s at reference density] from a ``from`` to a ``to`` node, each
     with analytic derivatives with respect to the pressure of each of its terminals:
-    orifices (fixed, valve edges), laminar leaks, pumps (sources), motors (flow set by
+    valve edges (orifices whose area the spool sets), pumps (sources), motors (flow set by
     the shaft speed), rigid branches (the flow a rigid actuator's rod displaces, set by
     its speed and its valve's direction; see ``FIDELITIES``) and *law branches*: the
     components that bring their own law (:data:`hydraulics.components.BRANCH_LAWS`:
-    relief and check valves, counterbalance valves, …), which may read a third, pilot
-    terminal (``branch_pilot``).  The law branches are grouped by law, in the order of
+    laminar resistances of hose lines and actuator leaks, fixed orifices, relief and
+    check valves, counterbalance valves, …), which may read a third, pilot terminal
+    (``branch_pilot``).  The law branches are grouped by law, in the order of
     ``BRANCH_LAWS``, each law's in circuit order (:meth:`NetworkModel.law_branches`).
 
 Actuators
@@ -41,7 +42,7 @@ import numpy as np
 
 from .circuit import Circuit
 from .components import BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, CircuitError, law_states
-from .components.hose import line_conductance
+from .components.hose import LaminarResistance, line_conductance
 from .numerics import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE  # noqa: F401 (documented here)
 
 
@@ -365,7 +366,6 @@ class NetworkModel:
     orifice_centre_area: np.ndarray
     orifice_valve: np.ndarray  # valve index or -1
     orifice_sign: np.ndarray  # +1 opens with s > 0, -1 with s < 0, 0 no metering
-    laminar_conductance: np.ndarray
     pump_index: np.ndarray  # per pump branch: index into pump_names
     pump_displacement: np.ndarray
     pump_efficiency: np.ndarray
@@ -522,7 +522,7 @@ class NetworkModel:
             b_from.append(a)
             b_to.append(b)
 
-        # orifice-law branches: fixed orifices and valve edges
+        # orifice-law branches: the valve edges
         start = len(branch_names)
         o_cd, o_base, o_max, o_centre, o_valve, o_sign = [], [], [], [], [], []
 
@@ -535,9 +535,6 @@ class NetworkModel:
             o_valve.append(valve)
             o_sign.append(sign)
 
-        for c in circuit.by_kind("orifice"):
-            if keep(c, node(c, "a"), node(c, "b")):
-                add_orifice(c.name, node(c, "a"), node(c, "b"), c.params.discharge_coefficient, c.params.area)
         valves = circuit.by_kind("valve_4_3")
         rigid_valve = {}  # rigid actuator name -> (valve index, +1 if port A feeds its cap / motor port a, else -1)
         for vi, c in enumerate(valves):
@@ -573,28 +570,22 @@ class NetworkModel:
                 add_orifice(f"{c.name}.B-T(centre)", B, T, p.discharge_coefficient, 0.0, 0.0, p.centre_area, vi, 0)
         slices["orifice"] = slice(start, len(branch_names))
 
-        start = len(branch_names)
-        lam = []
-        for c in cyl:
-            if c.params.leakage_conductance > 0 and keep(c, node(c, "cap"), node(c, "rod")):
-                add_branch(f"{c.name}.leakage", node(c, "cap"), node(c, "rod"))
-                lam.append(c.params.leakage_conductance)
-        for c in mot:
-            if c.params.leakage_conductance > 0 and keep(c, node(c, "a"), node(c, "b")):
-                add_branch(f"{c.name}.leakage", node(c, "a"), node(c, "b"))
-                lam.append(c.params.leakage_conductance)
-        if line_set:
-            viscosity = circuit.fluid.density * circuit.fluid.kinematic_viscosity
-            for c in circuit.by_kind("hose"):
-                if c.name not in line_set:
-                    continue
-                add_branch(f"{c.name}.line", node(c, "a"), node(c, "b"))
-                lam.append(line_conductance(c.params.inner_diameter, c.params.length, viscosity))
-        slices["laminar"] = slice(start, len(branch_names))
-
         # law branches: from the component's first port to its second; a third port is a pilot terminal.  Their
-        # states are numbered in circuit order; the branches are grouped by law (BRANCH_LAWS order).
-        law_entries = []  # (law index, component, first state or -1)
+        # states are numbered in circuit order; the branches are grouped by law (BRANCH_LAWS order).  First the
+        # laminar resistances the network makes: actuator leaks (cylinders, then motors), hose lines.
+        law_entries = []  # (law index, branch name, from node, to node, pilot node or -1, parameters, first state or -1)
+        laminar = BRANCH_LAWS.index(LaminarResistance)
+        for c in cyl + mot:
+            a, b = (node(c, "cap"), node(c, "rod")) if c.kind == "cylinder" else (node(c, "a"), node(c, "b"))
+            if c.params.leakage_conductance > 0 and keep(c, a, b):
+                law_entries.append((laminar, f"{c.name}.leakage", a, b, -1,
+                                    LaminarResistance(conductance=c.params.leakage_conductance), -1))
+        viscosity = circuit.fluid.density * circuit.fluid.kinematic_viscosity
+        for c in circuit.by_kind("hose"):
+            if c.name in line_set:
+                conductance = line_conductance(c.params.inner_diameter, c.params.length, viscosity)
+                law_entries.append((laminar, f"{c.name}.line", node(c, "a"), node(c, "b"), -1,
+                                    LaminarResistance(conductance=conductance), -1))
         state_names = [v.name for v in valves]
         state_units = ["-"] * len(valves)
         state_start = [0.0] * len(valves)
@@ -603,7 +594,9 @@ class NetworkModel:
             if law_class not in BRANCH_LAWS or not keep(c, node(c, law_class.PORTS[0]), node(c, law_class.PORTS[1])):
                 continue
             own = law_states(law_class)
-            law_entries.append((BRANCH_LAWS.index(law_class), c, len(state_names) if own else -1))
+            pilot = node(c, law_class.PORTS[2]) if len(law_class.PORTS) > 2 else -1
+            law_entries.append((BRANCH_LAWS.index(law_class), c.name, node(c, law_class.PORTS[0]),
+                                node(c, law_class.PORTS[1]), pilot, c.params, len(state_names) if own else -1))
             state_names.extend(f"{c.name}.{name}" for name in own)
             state_units.extend(law_class.STATE_UNITS if own else ())
             state_start.extend(c.params.state_start() if own else ())
@@ -613,14 +606,13 @@ class NetworkModel:
         law_entries.sort(key=lambda entry: entry[0])
         start = len(branch_names)
         law_pilot, law_kind, law_rows, law_state_offset = [], [], [], []
-        for kind, c, offset in law_entries:
-            law_class = BRANCH_LAWS[kind]
-            add_branch(c.name, node(c, law_class.PORTS[0]), node(c, law_class.PORTS[1]))
-            law_pilot.append(node(c, law_class.PORTS[2]) if len(law_class.PORTS) > 2 else -1)
+        for kind, name, a, b, pilot, params, offset in law_entries:
+            add_branch(name, a, b)
+            law_pilot.append(pilot)
             law_kind.append(kind)
             law_state_offset.append(offset)
             row = np.zeros(LAW_WIDTH)
-            values = c.params.law_row(circuit.fluid)
+            values = params.law_row(circuit.fluid)
             row[:len(values)] = values
             law_rows.append(row)
         slices["law"] = slice(start, len(branch_names))
@@ -731,7 +723,6 @@ class NetworkModel:
             orifice_centre_area=f(o_centre, float),
             orifice_valve=f(o_valve, int),
             orifice_sign=f(o_sign, float),
-            laminar_conductance=f(lam, float),
             pump_index=np.arange(len(pumps)),
             pump_displacement=column(pumps, "displacement"),
             pump_efficiency=column(pumps, "volumetric_efficiency", 1.0),
@@ -808,21 +799,23 @@ class NetworkModel:
         except ValueError:
             raise KeyError(f"no cylinder or motor called {name!r}; actuators: {list(self.actuator_names)}") from None
 
-    def law_branches(self, kind: str) -> slice:
-        """The branches of the law components of circuit type ``kind`` (e.g. ``"relief_valve"``): a slice of the
-        branches (the law branches are grouped by law), empty when the circuit has none."""
+    def law_branches(self, kind) -> slice:
+        """The branches of the law components of circuit type ``kind`` (e.g. ``"relief_valve"``, or a class of
+        :data:`~hydraulics.components.BRANCH_LAWS`): a slice of the branches (the law branches are grouped by
+        law), empty when the circuit has none."""
         law = self.branch_slices["law"]
-        index = BRANCH_LAWS.index(COMPONENT_TYPES[kind])
+        index = BRANCH_LAWS.index(kind if isinstance(kind, type) else COMPONENT_TYPES[kind])
         first, last = np.searchsorted(self.law_kind, (index, index + 1))
         return slice(law.start + int(first), law.start + int(last))
 
-    def law_parameter(self, kind: str, column: str) -> np.ndarray:
+    def law_parameter(self, kind, column: str) -> np.ndarray:
         """Column ``column`` of the law rows of every component of circuit type ``kind`` (in the order of
         :meth:`law_branches`), e.g. ``law_parameter("relief_valve", "cracking")`` [Pa]."""
         rows = self.law_branches(kind)
         law = self.branch_slices["law"]
         table = self.law_table[rows.start - law.start:rows.stop - law.start]
-        return table[:, COMPONENT_TYPES[kind].LAW_COLUMNS.index(column)].copy()
+        cls = kind if isinstance(kind, type) else COMPONENT_TYPES[kind]
+        return table[:, cls.LAW_COLUMNS.index(column)].copy()
 
     @property
     def relief_branches(self) -> slice:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydraulics.components import BRANCH_LAWS, CheckValve, ReliefValve, law_states
+from hydraulics.components import BRANCH_LAWS, CheckValve, LaminarResistance, Orifice, ReliefValve, law_states
 from hydraulics.components.relief import REGULARISATION as RELIEF_REGULARISATION
 from hydraulics.network import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE, BranchFlows
 
@@ -266,9 +266,16 @@ def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -
     q, g = laws.orifice_flow_with_derivative(orifice_area[s], model.orifice_cd, dp[s], fluid.density, fluid.kinematic_viscosity)
     flow[s], dfrom[s], dto[s] = q, g, -g
 
-    s = sl["laminar"]
-    flow[s] = model.laminar_conductance * dp[s]
-    dfrom[s], dto[s] = model.laminar_conductance, -model.laminar_conductance
+    s, conductance = model.law_branches(LaminarResistance), model.law_parameter(LaminarResistance, "conductance")
+    flow[s] = conductance * dp[s]
+    dfrom[s], dto[s] = conductance, -conductance
+
+    s = model.law_branches("orifice")  # the fixed orifices, from the circuit's parameters
+    params = [model.circuit.component(name).params for name in model.branch_names[s]]
+    q, g = laws.orifice_flow_with_derivative(np.array([p.area for p in params], float),
+                                             np.array([p.discharge_coefficient for p in params], float),
+                                             dp[s], fluid.density, fluid.kinematic_viscosity)
+    flow[s], dfrom[s], dto[s] = q, g, -g
 
     s = model.relief_branches
     q, g = laws.relief_flow_with_derivative(
@@ -304,7 +311,7 @@ def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -
     for i, b in enumerate(range(s.start, s.stop)):  # the compiled law of each other component, called from Python
         pilot = model.branch_pilot[b]
         cls = BRANCH_LAWS[model.law_kind[i]]
-        if cls in (ReliefValve, CheckValve):  # computed above by the formulas of tests.reference.laws
+        if cls in (LaminarResistance, Orifice, ReliefValve, CheckValve):  # above, by the formulas of reference.laws
             continue
         ports = (pressure[model.branch_from[b]], pressure[model.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0)
         if law_states(cls):  # at the component's states at rest, over a step of zero length
