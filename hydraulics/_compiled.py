@@ -83,16 +83,13 @@ from ._jit import maximum as _maximum
 from ._jit import minimum as _minimum
 from ._jit import ref as _ref
 from .components import accumulator as _accumulator
-from .components import check_valve as _check_valve
 from .components import cylinder as _cylinder
 from .components import orifice as _orifice
 from .components import pumps as _pumps
 from .components import ramps as _ramps
-from .components import relief as _relief
 from .components import valve_4_3 as _valve
 from .components import motor as _motor
 from .components.accumulator import ACC_GAS, ACC_INDEX, ACC_PRE
-from .components.check_valve import K_AREA, K_C, K_CRACK, K_FULL, K_K, K_LEAK
 from .components.cylinder import (CI_ACT, CI_CAP, CI_ROD, CYL_CAP_AREA, CYL_COULOMB, CYL_CUSHION_CAP, CYL_CUSHION_K_CAP,
                                   CYL_CUSHION_CHECK, CYL_CUSHION_K_ROD, CYL_CUSHION_ROD, CYL_DEAD_CAP, CYL_DEAD_ROD,
                                   CYL_PRESSURE_FRICTION, CYL_ROD_AREA, CYL_STATIC, CYL_STRIBECK, CYL_STROKE,
@@ -100,7 +97,6 @@ from .components.cylinder import (CI_ACT, CI_CAP, CI_ROD, CYL_CAP_AREA, CYL_COUL
 from .components.motor import MI_A, MI_ACT, MI_B
 from .components.orifice import O_BASE, O_C, O_CENTRE, O_K, O_MAX, O_SIGN
 from .components.pumps import P_BAND, P_COMP, P_DISP, P_EFF
-from .components.relief import R_CRACK, R_GRAD, R_WIDTH
 from .components.valve_4_3 import V_OVERLAP, V_TAU
 from .components.parameters import table as _table
 from .components import BRANCH_LAWS, LAW_WIDTH, law_sources, law_states
@@ -112,7 +108,7 @@ from .layout import Layout
 # I starts with the float-field offsets (len(_FLOAT_FIELDS) + 1, into F) and the
 # int-field offsets (len(_INT_FIELDS) + 1, into I).
 # ----------------------------------------------------------------------------
-_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "lam", "rel", "chk", "pump", "law", "rig")
+_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "pump", "law", "rig")
 _INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act",
                "law_kind", "rig_i", "mot_br_i", "law_state", "valve_rate")
 # the sparse solves' index arrays (sparse_pattern)
@@ -132,21 +128,21 @@ SCALAR_LAYOUT = ("reference_pressure", "bulk_modulus", "air_fraction", "polytrop
 (S_PREF, S_BETA, S_AIR, S_NPOLY, S_FLOOR, S_PHI_FLOOR, S_NEWTON_PTOL, S_NEWTON_RTOL, S_SUFFICIENT, S_TRUST_P, S_TRUST_F,
  S_PINV_TOL, S_FILL_TOL, S_VREG, S_GUESS) = range(len(SCALAR_LAYOUT))
 # ic: int scalars, by name: sizes, then each branch kind's [start, stop) (NetworkModel.branch_slices), then limits
-BRANCH_KINDS = ("orifice", "laminar", "relief", "check", "pump", "motor", "law", "rigid")
+BRANCH_KINDS = ("orifice", "pump", "motor", "law", "rigid")
 INT_LAYOUT = (("node_count", "free_count", "actuator_count", "branch_count", "cylinder_count", "motor_count",
                "accumulator_count", "valve_count", "pump_count")
               + tuple(f"{kind}_{end}" for kind in BRANCH_KINDS for end in ("start", "stop"))
               + ("newton_max_iterations", "line_search_halvings", "inversion_max_iterations", "fill_max_iterations",
                  "state_count", "lu_entry_count", "jq_entry_count", "sparse_factorisation"))
-(IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_NPUMP, IC_O0, IC_O1, IC_L0, IC_L1, IC_R0, IC_R1, IC_C0,
- IC_C1, IC_P0, IC_P1, IC_M0, IC_M1, IC_W0, IC_W1, IC_G0, IC_G1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX,
+(IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_NPUMP, IC_O0, IC_O1,
+ IC_P0, IC_P1, IC_M0, IC_M1, IC_W0, IC_W1, IC_G0, IC_G1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX,
  IC_FILL_MAX, IC_NSTATE, IC_NLU, IC_NJQ, IC_SPARSE) = range(len(INT_LAYOUT))
 # node table columns
 NODE_COLUMNS = ("fixed_pressure", "volume", "wall_compliance")
 NODE_FIXED_P, NODE_VOLUME, NODE_WALL = range(len(NODE_COLUMNS))
 # widths of the component tables (compile-time constants of _unpack)
 _W_NODE, _W_ACC, _W_CYL, _W_VALVE = len(NODE_COLUMNS), len(_accumulator.COLUMNS), len(_cylinder.COLUMNS), len(_valve.COLUMNS)
-_W_ORI, _W_REL, _W_CHK, _W_PUMP = len(_orifice.COLUMNS), len(_relief.COLUMNS), len(_check_valve.COLUMNS), len(_pumps.COLUMNS)
+_W_ORI, _W_PUMP = len(_orifice.COLUMNS), len(_pumps.COLUMNS)
 _W_CI, _W_MI = len(_cylinder.INDEX_COLUMNS), len(_motor.INDEX_COLUMNS)
 # branch terminals (columns of ``br`` and of the flow derivatives ``dflow``): flow from FROM to TO; PILOT: a
 # third terminal whose pressure the law reads (-1: none)
@@ -163,8 +159,8 @@ RIGID_INDEX_COLUMNS = ("valve", "actuator")
 GI_VALVE, GI_ACT = range(len(RIGID_INDEX_COLUMNS))
 _W_RIG, _W_RIG_I = len(RIGID_COLUMNS), len(RIGID_INDEX_COLUMNS)
 
-PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W_VALVE, ori=_W_ORI, lam=0, rel=_W_REL,
-                     chk=_W_CHK, pump=_W_PUMP, law=_W_LAW, rig=_W_RIG, ic=0, fixed=0, free=0, free_index=0, compliant=0,
+PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W_VALVE, ori=_W_ORI, pump=_W_PUMP,
+                     law=_W_LAW, rig=_W_RIG, ic=0, fixed=0, free=0, free_index=0, compliant=0,
                      acc_node=0, cyl_i=_W_CI, mot_i=_W_MI, br=_W_BR, or_valve=0, mot_br_act=0, law_kind=0, rig_i=_W_RIG_I,
                      mot_br_i=0, law_state=0, valve_rate=0,
                      **{name: 2 * _W_BR if name.startswith("branch_") else 0 for name in _SPARSE_FIELDS})
@@ -358,9 +354,6 @@ def pack_network(model: NetworkModel):
         mot=model.motor_displacement,
         valve=_valve.pack(model),
         ori=_orifice.pack(model),
-        lam=model.laminar_conductance,
-        rel=_relief.pack(model),
-        chk=_check_valve.pack(model),
         pump=_pumps.pack(model),
         law=model.law_table,
         rig=_table(RIGID_COLUMNS, len(model.rigid_branch_actuator), extend_area=model.rigid_extend_area,
@@ -745,20 +738,6 @@ def _branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h):
     for b in range(ic[IC_O0], ic[IC_O1]):
         i = b - ic[IC_O0]
         q, g = _orifice.flow_with_derivative(area[i], net.ori[i, O_K], net.ori[i, O_C], p[br[b, 0]] - p[br[b, 1]])
-        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
-    for b in range(ic[IC_L0], ic[IC_L1]):
-        g = net.lam[b - ic[IC_L0]]
-        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = g * (p[br[b, 0]] - p[br[b, 1]]), g, -g
-    rel = net.rel
-    for b in range(ic[IC_R0], ic[IC_R1]):
-        i = b - ic[IC_R0]
-        q, g = _relief.flow_with_derivative(p[br[b, 0]] - p[br[b, 1]], rel[i, R_CRACK], rel[i, R_GRAD], rel[i, R_WIDTH])
-        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
-    chk = net.chk
-    for b in range(ic[IC_C0], ic[IC_C1]):
-        i = b - ic[IC_C0]
-        q, g = _check_valve.flow_with_derivative(p[br[b, 0]] - p[br[b, 1]], chk[i, K_CRACK], chk[i, K_FULL], chk[i, K_AREA],
-                                                 chk[i, K_LEAK], chk[i, K_K], chk[i, K_C])
         flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
     pump = net.pump
     for b in range(ic[IC_P0], ic[IC_P1]):
@@ -1574,11 +1553,11 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
 
 @_kernel
 def _same_law_pieces(pnet, pa, pb, state, h):
-    """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no relief, check valve, pump compensator or law
-    component with a kink hook changes the piece of its law between the node pressures ``pa`` and ``pb`` [Pa] (the
-    law components over a step of ``h`` [s] from the component states ``state``)."""
+    """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no pump compensator or law component with a kink
+    hook (a relief, a check valve, …) changes the piece of its law between the node pressures ``pa`` and ``pb``
+    [Pa] (the law components over a step of ``h`` [s] from the component states ``state``)."""
     ic = _deref(pnet).ic
-    for j in range((ic[IC_R1] - ic[IC_R0]) + (ic[IC_C1] - ic[IC_C0]) + (ic[IC_P1] - ic[IC_P0])):
+    for j in range(ic[IC_P1] - ic[IC_P0]):
         if _law_piece(pnet, j, pa) != _law_piece(pnet, j, pb):
             return False
     for b in range(ic[IC_W0], ic[IC_W1]):
@@ -1970,7 +1949,7 @@ def _account(pnet, ledger, at, h, pres, x, flow, v, quad, mu, friction, fslope):
     for b in range(ic[IC_M0], ic[IC_M1]):
         motor += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
     dissipated = 0.0
-    for b in range(ic[IC_O0], ic[IC_C1]):
+    for b in range(ic[IC_O0], ic[IC_O1]):  # the valve edges (then the law branches)
         dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
     for b in range(ic[IC_W0], ic[IC_W1]):
         power = flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
@@ -2025,22 +2004,12 @@ def _rigid_rate(pnet, spool, j):
 
 @_kernel
 def _law_piece(pnet, j, p):
-    """Piece (0, 1, 2) of its law that the ``j``-th switching branch (reliefs, check valves, pumps in that order) is on
-    at node pressures ``p`` [Pa] (NetworkModel.law_pieces)."""
+    """Piece (0, 1, 2) of its compensator's law that the ``j``-th pump branch is on at node pressures ``p`` [Pa]
+    (NetworkModel.law_pieces)."""
     net = _deref(pnet)
     ic, br = net.ic, net.br
-    nrel, nchk = ic[IC_R1] - ic[IC_R0], ic[IC_C1] - ic[IC_C0]
-    if j < nrel:
-        b, rel = ic[IC_R0] + j, net.rel
-        return _ramps.ramp_piece(p[br[b, T_FROM]] - p[br[b, T_TO]] - rel[j, R_CRACK], rel[j, R_WIDTH])
-    if j < nrel + nchk:
-        i = j - nrel
-        b, chk = ic[IC_C0] + i, net.chk
-        z = (p[br[b, T_FROM]] - p[br[b, T_TO]] - chk[i, K_CRACK]) / (chk[i, K_FULL] - chk[i, K_CRACK])
-        return _ramps.ramp_piece(z, 1.0)
-    i = j - nrel - nchk
-    b, pump = ic[IC_P0] + i, net.pump
-    return _ramps.ramp_piece((pump[i, P_COMP] + pump[i, P_BAND] - p[br[b, T_TO]]) / pump[i, P_BAND], 1.0)
+    b, pump = ic[IC_P0] + j, net.pump
+    return _ramps.ramp_piece((pump[j, P_COMP] + pump[j, P_BAND] - p[br[b, T_TO]]) / pump[j, P_BAND], 1.0)
 
 
 @_kernel
@@ -2215,7 +2184,7 @@ def _eval_law_pieces(F, I, p, state, h):
     net = _unpack(F, I)
     pnet = _ref(net)
     ic = net.ic
-    switching = (ic[IC_R1] - ic[IC_R0]) + (ic[IC_C1] - ic[IC_C0]) + (ic[IC_P1] - ic[IC_P0])
+    switching = ic[IC_P1] - ic[IC_P0]
     out = np.empty(switching + ic[IC_W1] - ic[IC_W0], np.int64)
     for j in range(switching):
         out[j] = _law_piece(pnet, j, p)

@@ -18,12 +18,14 @@ Nodes
 Branches
     Flow laws Q [m³/s at reference density] from a ``from`` to a ``to`` node, each
     with analytic derivatives with respect to the pressure of each of its terminals:
-    orifices (fixed, valve edges, check valves), laminar leaks, relief valves, pumps
-    (sources), motors (flow set by the shaft speed), rigid branches (the flow a rigid
-    actuator's rod displaces, set by its speed and its valve's direction; see
-    ``FIDELITIES``) and *law branches*: the components that bring their own law
-    (:data:`hydraulics.components.BRANCH_LAWS`), which may read a third, pilot
-    terminal (``branch_pilot``).
+    valve edges (orifices whose area the spool sets), pumps (sources), motors (flow set by
+    the shaft speed), rigid branches (the flow a rigid actuator's rod displaces, set by
+    its speed and its valve's direction; see ``FIDELITIES``) and *law branches*: the
+    components that bring their own law (:data:`hydraulics.components.BRANCH_LAWS`:
+    laminar resistances of hose lines and actuator leaks, fixed orifices, relief and
+    check valves, counterbalance valves, …), which may read a third, pilot terminal
+    (``branch_pilot``).  The law branches are grouped by law, in the order of
+    ``BRANCH_LAWS``, each law's in circuit order (:meth:`NetworkModel.law_branches`).
 
 Actuators
     Cylinders (coordinate: rod extension x [m], effort: force [N]) and motors
@@ -40,7 +42,7 @@ import numpy as np
 
 from .circuit import Circuit
 from .components import BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, CircuitError, law_states
-from .components.hose import line_conductance
+from .components.hose import LaminarResistance, line_conductance
 from .numerics import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE  # noqa: F401 (documented here)
 
 
@@ -371,14 +373,6 @@ class NetworkModel:
     orifice_centre_area: np.ndarray
     orifice_valve: np.ndarray  # valve index or -1
     orifice_sign: np.ndarray  # +1 opens with s > 0, -1 with s < 0, 0 no metering
-    laminar_conductance: np.ndarray
-    relief_cracking: np.ndarray
-    relief_gradient: np.ndarray
-    check_cracking: np.ndarray
-    check_full_open: np.ndarray
-    check_area: np.ndarray
-    check_leakage: np.ndarray
-    check_cd: np.ndarray
     pump_index: np.ndarray  # per pump branch: index into pump_names
     pump_displacement: np.ndarray
     pump_efficiency: np.ndarray
@@ -542,7 +536,7 @@ class NetworkModel:
             b_from.append(a)
             b_to.append(b)
 
-        # orifice-law branches: fixed orifices and valve edges
+        # orifice-law branches: the valve edges
         start = len(branch_names)
         o_cd, o_base, o_max, o_centre, o_valve, o_sign = [], [], [], [], [], []
 
@@ -555,9 +549,6 @@ class NetworkModel:
             o_valve.append(valve)
             o_sign.append(sign)
 
-        for c in circuit.by_kind("orifice"):
-            if keep(c, node(c, "a"), node(c, "b")):
-                add_orifice(c.name, node(c, "a"), node(c, "b"), c.params.discharge_coefficient, c.params.area)
         valves = circuit.by_kind("valve_4_3")
         rigid_valve = {}  # rigid actuator name -> (valve index, +1 if port A feeds its cap / motor port a, else -1)
         for vi, c in enumerate(valves):
@@ -593,36 +584,52 @@ class NetworkModel:
                 add_orifice(f"{c.name}.B-T(centre)", B, T, p.discharge_coefficient, 0.0, 0.0, p.centre_area, vi, 0)
         slices["orifice"] = slice(start, len(branch_names))
 
+        # law branches: from the component's first port to its second; a third port is a pilot terminal.  Their
+        # states are numbered in circuit order; the branches are grouped by law (BRANCH_LAWS order).  First the
+        # laminar resistances the network makes: actuator leaks (cylinders, then motors), hose lines.
+        law_entries = []  # (law index, branch name, from node, to node, pilot node or -1, parameters, first state or -1)
+        laminar = BRANCH_LAWS.index(LaminarResistance)
+        for c in cyl + mot:
+            a, b = (node(c, "cap"), node(c, "rod")) if c.kind == "cylinder" else (node(c, "a"), node(c, "b"))
+            if c.params.leakage_conductance > 0 and keep(c, a, b):
+                law_entries.append((laminar, f"{c.name}.leakage", a, b, -1,
+                                    LaminarResistance(conductance=c.params.leakage_conductance), -1))
+        viscosity = circuit.fluid.density * circuit.fluid.kinematic_viscosity
+        for c in circuit.by_kind("hose"):
+            if c.name in line_set:
+                conductance = line_conductance(c.params.inner_diameter, c.params.length, viscosity)
+                law_entries.append((laminar, f"{c.name}.line", node(c, "a"), node(c, "b"), -1,
+                                    LaminarResistance(conductance=conductance), -1))
+        state_names = [v.name for v in valves]
+        state_units = ["-"] * len(valves)
+        state_start = [0.0] * len(valves)
+        for c in circuit.components:
+            law_class = COMPONENT_TYPES[c.kind]
+            if law_class not in BRANCH_LAWS or not keep(c, node(c, law_class.PORTS[0]), node(c, law_class.PORTS[1])):
+                continue
+            own = law_states(law_class)
+            pilot = node(c, law_class.PORTS[2]) if len(law_class.PORTS) > 2 else -1
+            law_entries.append((BRANCH_LAWS.index(law_class), c.name, node(c, law_class.PORTS[0]),
+                                node(c, law_class.PORTS[1]), pilot, c.params, len(state_names) if own else -1))
+            state_names.extend(f"{c.name}.{name}" for name in own)
+            state_units.extend(law_class.STATE_UNITS if own else ())
+            state_start.extend(c.params.state_start() if own else ())
+            if own and network_fidelity == "incompressible":
+                raise CircuitError(f"{circuit.source}: component '{c.name}' (type '{c.kind}') has states of its own "
+                                   f"{list(own)}, which the 'incompressible' level does not step; use 'compressible'")
+        law_entries.sort(key=lambda entry: entry[0])
         start = len(branch_names)
-        lam = []
-        for c in cyl:
-            if c.params.leakage_conductance > 0 and keep(c, node(c, "cap"), node(c, "rod")):
-                add_branch(f"{c.name}.leakage", node(c, "cap"), node(c, "rod"))
-                lam.append(c.params.leakage_conductance)
-        for c in mot:
-            if c.params.leakage_conductance > 0 and keep(c, node(c, "a"), node(c, "b")):
-                add_branch(f"{c.name}.leakage", node(c, "a"), node(c, "b"))
-                lam.append(c.params.leakage_conductance)
-        if line_set:
-            viscosity = circuit.fluid.density * circuit.fluid.kinematic_viscosity
-            for c in circuit.by_kind("hose"):
-                if c.name not in line_set:
-                    continue
-                add_branch(f"{c.name}.line", node(c, "a"), node(c, "b"))
-                lam.append(line_conductance(c.params.inner_diameter, c.params.length, viscosity))
-        slices["laminar"] = slice(start, len(branch_names))
-
-        start = len(branch_names)
-        relief = [c for c in circuit.by_kind("relief_valve") if keep(c, node(c, "inlet"), node(c, "outlet"))]
-        for c in relief:
-            add_branch(c.name, node(c, "inlet"), node(c, "outlet"))
-        slices["relief"] = slice(start, len(branch_names))
-
-        start = len(branch_names)
-        checks = [c for c in circuit.by_kind("check_valve") if keep(c, node(c, "inlet"), node(c, "outlet"))]
-        for c in checks:
-            add_branch(c.name, node(c, "inlet"), node(c, "outlet"))
-        slices["check"] = slice(start, len(branch_names))
+        law_pilot, law_kind, law_rows, law_state_offset = [], [], [], []
+        for kind, name, a, b, pilot, params, offset in law_entries:
+            add_branch(name, a, b)
+            law_pilot.append(pilot)
+            law_kind.append(kind)
+            law_state_offset.append(offset)
+            row = np.zeros(LAW_WIDTH)
+            values = params.law_row(circuit.fluid)
+            row[:len(values)] = values
+            law_rows.append(row)
+        slices["law"] = slice(start, len(branch_names))
 
         start = len(branch_names)
         pumps = circuit.by_kind("pump_fixed", "pump_compensated")
@@ -637,33 +644,6 @@ class NetworkModel:
             add_branch(c.name, node(c, "a"), node(c, "b"))
         slices["motor"] = slice(start, len(branch_names))
 
-        # law branches: from the component's first port to its second; a third port is a pilot terminal
-        start = len(branch_names)
-        law_pilot, law_kind, law_rows = [], [], []
-        state_names = [v.name for v in valves]
-        state_units = ["-"] * len(valves)
-        state_start = [0.0] * len(valves)
-        law_state_offset = []
-        for c in circuit.components:
-            law_class = COMPONENT_TYPES[c.kind]
-            if law_class not in BRANCH_LAWS or not keep(c, node(c, law_class.PORTS[0]), node(c, law_class.PORTS[1])):
-                continue
-            add_branch(c.name, node(c, law_class.PORTS[0]), node(c, law_class.PORTS[1]))
-            law_pilot.append(node(c, law_class.PORTS[2]) if len(law_class.PORTS) > 2 else -1)
-            law_kind.append(BRANCH_LAWS.index(law_class))
-            own = law_states(law_class)
-            law_state_offset.append(len(state_names) if own else -1)
-            state_names.extend(f"{c.name}.{name}" for name in own)
-            state_units.extend(law_class.STATE_UNITS if own else ())
-            state_start.extend(c.params.state_start() if own else ())
-            if own and network_fidelity == "incompressible":
-                raise CircuitError(f"{circuit.source}: component '{c.name}' (type '{c.kind}') has states of its own "
-                                   f"{list(own)}, which the 'incompressible' level does not step; use 'compressible'")
-            row = np.zeros(LAW_WIDTH)
-            values = c.params.law_row(circuit.fluid)
-            row[:len(values)] = values
-            law_rows.append(row)
-        slices["law"] = slice(start, len(branch_names))
         valve_rate_offset = []
         for v in valves:
             second = v.params.dynamics == "second_order"
@@ -764,14 +744,6 @@ class NetworkModel:
             orifice_centre_area=f(o_centre, float),
             orifice_valve=f(o_valve, int),
             orifice_sign=f(o_sign, float),
-            laminar_conductance=f(lam, float),
-            relief_cracking=column(relief, "cracking_pressure"),
-            relief_gradient=column(relief, "gradient"),
-            check_cracking=column(checks, "cracking_pressure"),
-            check_full_open=column(checks, "full_open_pressure"),
-            check_area=column(checks, "area"),
-            check_leakage=column(checks, "leakage_area"),
-            check_cd=column(checks, "discharge_coefficient"),
             pump_index=np.arange(len(pumps)),
             pump_displacement=column(pumps, "displacement"),
             pump_efficiency=column(pumps, "volumetric_efficiency", 1.0),
@@ -847,6 +819,39 @@ class NetworkModel:
             return self.actuator_names.index(name)
         except ValueError:
             raise KeyError(f"no cylinder or motor called {name!r}; actuators: {list(self.actuator_names)}") from None
+
+    def law_branches(self, kind) -> slice:
+        """The branches of the law components of circuit type ``kind`` (e.g. ``"relief_valve"``, or a class of
+        :data:`~hydraulics.components.BRANCH_LAWS`): a slice of the branches (the law branches are grouped by
+        law), empty when the circuit has none."""
+        law = self.branch_slices["law"]
+        index = BRANCH_LAWS.index(kind if isinstance(kind, type) else COMPONENT_TYPES[kind])
+        first, last = np.searchsorted(self.law_kind, (index, index + 1))
+        return slice(law.start + int(first), law.start + int(last))
+
+    def law_parameter(self, kind, column: str) -> np.ndarray:
+        """Column ``column`` of the law rows of every component of circuit type ``kind`` (in the order of
+        :meth:`law_branches`), e.g. ``law_parameter("relief_valve", "cracking")`` [Pa]."""
+        rows = self.law_branches(kind)
+        law = self.branch_slices["law"]
+        table = self.law_table[rows.start - law.start:rows.stop - law.start]
+        cls = kind if isinstance(kind, type) else COMPONENT_TYPES[kind]
+        return table[:, cls.LAW_COLUMNS.index(column)].copy()
+
+    @property
+    def relief_branches(self) -> slice:
+        """The branches of the relief valves (``relief_valve``; a slice, see :meth:`law_branches`)."""
+        return self.law_branches("relief_valve")
+
+    @property
+    def relief_cracking(self) -> np.ndarray:
+        """Cracking pressure [Pa] of every relief valve (branches :attr:`relief_branches`)."""
+        return self.law_parameter("relief_valve", "cracking")
+
+    @property
+    def relief_gradient(self) -> np.ndarray:
+        """Pressure–flow gradient G [m³/(s·Pa)] of every relief valve (branches :attr:`relief_branches`)."""
+        return self.law_parameter("relief_valve", "gradient")
 
     # ------------------------------------------------------- factories
     def control(self, **values) -> NetworkControl:
@@ -1014,11 +1019,10 @@ class NetworkModel:
         return self._rigid(spool)[2]
 
     def law_pieces(self, pressure, state=None, h=0.0) -> np.ndarray:
-        """Which piece of its piecewise law every switching branch is on at ``pressure`` [Pa] (int array:
-        relief ramps, check-valve openings, pump compensators, in that order, see
-        :func:`hydraulics.components.ramps.ramp_piece`; then every law branch, by its component's ``LAW_PIECE``
-        over a step of ``h`` [s] from the component states ``state``, default :attr:`component_state_start`;
-        0 for a law without kinks).
+        """Which piece of its piecewise law every switching branch is on at ``pressure`` [Pa] (int array: the
+        pump compensators, see :func:`hydraulics.components.ramps.ramp_piece`; then every law branch (relief
+        ramps, check-valve openings, …), by its component's ``LAW_PIECE`` over a step of ``h`` [s] from the
+        component states ``state``, default :attr:`component_state_start`; 0 for a law without kinks).
 
         A step whose start and end differ here crosses a kink of the flow laws (a relief cracking, a check
         valve opening fully, a compensator engaging, a poppet reaching its seat): one Jacobian of the start does

@@ -87,7 +87,7 @@ def run_both(name, steps=300, amplitude=0.05, substeps=1):
     control = m.control()
     floor_hit = relief_flow = 0.0
     history = []
-    relief = m.branch_slices["relief"]
+    relief = m.relief_branches
     for n in range(steps):
         control.valve_command[:] = command_at(m, n)
         x0, v0 = motion_at(m, n * DT, amplitude)

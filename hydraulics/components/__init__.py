@@ -24,7 +24,7 @@ from .post_compensator import PostCompensator
 from .counterbalance import CounterbalanceValve
 from .cylinder import Cylinder
 from .flow_control import FlowControlValve
-from .hose import Hose
+from .hose import Hose, LaminarResistance
 from .motor import Motor
 from .orifice import Orifice
 from .parameters import CircuitError, check_number, describe_range, param
@@ -66,8 +66,10 @@ COMPONENT_TYPES = {
 }
 """Circuit-file ``type`` name → parameter class."""
 
-BRANCH_LAWS = tuple(cls for cls in COMPONENT_TYPES.values() if hasattr(cls, "BRANCH_LAW"))
-"""The component classes that bring their own branch law, in registry order (their law number in the network).
+BRANCH_LAWS = (LaminarResistance,) + tuple(cls for cls in COMPONENT_TYPES.values() if hasattr(cls, "BRANCH_LAW"))
+"""The component classes that bring their own branch law (their law number in the network is their place here):
+:class:`LaminarResistance` (the branches the network makes for hose lines and actuator leakage, no circuit-file
+type), then the registry's, in registry order.
 
 Such a class declares
 
@@ -147,6 +149,7 @@ def build_component(kind: str, table: dict, where: str):
 
 
 __all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "law_sources", "law_states", "check_number", "describe_range", "param",
-           "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "Motor", "Orifice",
-           "PilotCheckValve", "PostCompensator", "PressureCompensator", "PressureReducingValve", "PumpCompensated", "PumpLoadSensing", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",
+           "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "LaminarResistance",
+           "Motor", "Orifice", "PilotCheckValve", "PostCompensator", "PressureCompensator", "PressureReducingValve",
+           "PumpCompensated", "PumpLoadSensing", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",
            "ThrottleCheckValve", "Valve43", "Volume"]

@@ -12,8 +12,9 @@ Q = k·Δp·A^(3/2)/(A²Δp² + c²)^(1/4) with k = C_d·sqrt(2/ρ) and c = p_tr
 References: H. E. Merritt, *Hydraulic Control Systems*, Wiley 1967, §2.4 (orifice flow, critical Reynolds
 number 10–1000; 150 is the value several lumped-parameter tools use).
 
-Packing: the network's orifice branches (fixed orifices and the metering edges of 4/3 valves) form one
-table, columns :data:`COLUMNS` (:func:`pack`).
+Packing: the metering edges of the 4/3 valves form the network's orifice-branch table, columns :data:`COLUMNS`
+(:func:`pack`); a fixed :class:`Orifice` is a law component (:data:`hydraulics.components.BRANCH_LAWS`), one row
+of :data:`LAW_COLUMNS` per orifice read by :func:`branch_law`.
 
 Example
 -------
@@ -34,17 +35,6 @@ from .._jit import kernel
 from .parameters import param, table
 
 CRITICAL_REYNOLDS = 150.0  # [-] laminar–turbulent transition of a sharp-edged orifice (Merritt §2.4: 10–1000)
-
-
-@dataclass(frozen=True, kw_only=True)
-class Orifice:
-    """Fixed orifice (law: :func:`flow_with_derivative`)."""
-
-    area: float = param("m^2", low=0.0, high=0.1)
-    """Open area A [m²]."""
-    discharge_coefficient: float = param("-", low=0.0, high=1.0, default=0.7)
-    """C_d [-]."""
-    PORTS = ("a", "b")
 
 
 def coefficients(discharge_coefficient, density, kinematic_viscosity):
@@ -80,8 +70,39 @@ def flow_area_derivative(area, k, c, dp):
     return k * dp * math.sqrt(area) * (a_dp_sq + 1.5 * c * c) / (s * math.sqrt(math.sqrt(s)))
 
 
+LAW_COLUMNS = ("area", "k", "c")
+"""Row of one fixed orifice: area A [m²], law constants k, c (:func:`coefficients`)."""
+F_AREA, F_K, F_C = range(len(LAW_COLUMNS))
+
+
+@kernel
+def branch_law(row, p_a, p_b, p_pilot):
+    """Flow Q [m³/s] from ``a`` to ``b`` through a fixed orifice and ∂Q/∂p_a, ∂Q/∂p_b, ∂Q/∂p_pilot (= 0)
+    [m³/(s·Pa)] at absolute port pressures [Pa]; ``row``: columns :data:`LAW_COLUMNS`."""
+    q, g = flow_with_derivative(row[F_AREA], row[F_K], row[F_C], p_a - p_b)
+    return q, g, -g, 0.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class Orifice:
+    """Fixed orifice (ports a, b); law :func:`branch_law`."""
+
+    area: float = param("m^2", low=0.0, high=0.1)
+    """Open area A [m²]."""
+    discharge_coefficient: float = param("-", low=0.0, high=1.0, default=0.7)
+    """C_d [-]."""
+    PORTS = ("a", "b")
+    LAW_COLUMNS = LAW_COLUMNS
+    BRANCH_LAW = branch_law
+
+    def law_row(self, fluid) -> np.ndarray:
+        """This orifice's row of :data:`LAW_COLUMNS` in ``fluid`` (a :class:`~hydraulics.fluid.Fluid`)."""
+        k, c = coefficients(self.discharge_coefficient, fluid.density, fluid.kinematic_viscosity)
+        return table(LAW_COLUMNS, 1, area=self.area, k=k, c=c)[0]
+
+
 COLUMNS = ("k", "c", "base_area", "max_area", "centre_area", "sign")
-"""Orifice-branch table: law constants k, c; area when closed [m²] (leakage, or the fixed area); metering area
+"""Orifice-branch table: law constants k, c; area when closed [m²] (leakage); metering area
 fully open [m²]; open/tandem centre passage area [m²]; metering direction (+1 opens with s > 0, −1 with s < 0,
 0 no metering)."""
 O_K, O_C, O_BASE, O_MAX, O_CENTRE, O_SIGN = range(len(COLUMNS))

@@ -443,7 +443,7 @@ def relief_limits(network, net_state) -> list:
     Returns a list of (relief name, node names joined by '/', V [m³] of the
     smaller end, β_eff [Pa] there, G [m³/(s·Pa)], limit [s]).
     """
-    s = network.branch_slices["relief"]
+    s = network.relief_branches
     beta = network.effective_bulk_modulus(net_state.node_pressure, net_state.actuator_position)
     volume, _ = network.node_volume_at(net_state.actuator_position, net_state.node_pressure)
     out = []

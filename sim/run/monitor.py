@@ -261,7 +261,7 @@ class RunMonitor:
         relief = np.asarray(net.relief_cracking, float)
         if len(relief):
             worst = int(np.argmax(relief))
-            s = net.branch_slices["relief"]
+            s = net.relief_branches
             name = net.branch_names[s.start + worst]
             high = PRESSURE_BOUND_FACTOR * (1.0 + RELIEF_OVERRIDE_FRACTION) * float(relief[worst]) + fluid.reference_pressure
             self.pressure_basis = (f"{PRESSURE_BOUND_FACTOR:g} x (highest relief setting, '{name}' {_bar(float(relief[worst]))}, "

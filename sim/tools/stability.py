@@ -281,7 +281,7 @@ class SceneFacts:
 
 def relief_ceiling(network) -> float:
     """Highest pressure [Pa] a relief lets a node reach: outlet + cracking + full pump flow / gradient (0 without reliefs)."""
-    s = network.branch_slices["relief"]
+    s = network.relief_branches
     if s.stop == s.start:
         return 0.0
     flow = float(np.sum(network.pump_displacement * network.pump_nominal_speed[network.pump_index] * network.pump_efficiency)) if len(network.pump_names) else 0.0

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hydraulics.components import BRANCH_LAWS, law_states
+from hydraulics.components import BRANCH_LAWS, CheckValve, LaminarResistance, Orifice, ReliefValve, law_states
 from hydraulics.components.relief import REGULARISATION as RELIEF_REGULARISATION
 from hydraulics.network import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE, BranchFlows
 
@@ -211,28 +211,45 @@ def rigid_metering_area(model, spool):
 
 
 def law_pieces(model, pressure) -> np.ndarray:
-    """Which piece of its piecewise law every switching branch is on at ``pressure`` [Pa] (int array:
-    relief ramps, check-valve openings, pump compensators, in that order; see :func:`laws.ramp_piece`).
+    """Which piece of its piecewise law every switching branch is on at ``pressure`` [Pa] (int array: pump
+    compensators, then every law branch: relief ramps and check-valve openings by their own formulas here, the
+    other law components by their kink hook; see :func:`laws.ramp_piece`).
 
     A step whose start and end differ here crosses a kink of the flow laws (a relief cracking, a check
     valve opening fully, a compensator engaging): one Jacobian of the start does not describe it.
     """
     dp = pressure[model.branch_from] - pressure[model.branch_to]
     sl = model.branch_slices
-    relief = laws.ramp_piece(dp[sl["relief"]] - model.relief_cracking, RELIEF_REGULARISATION * model.relief_cracking)
-    check = laws.clip_piece((dp[sl["check"]] - model.check_cracking) / (model.check_full_open - model.check_cracking))
+    relief = laws.ramp_piece(dp[model.relief_branches] - model.relief_cracking,
+                             RELIEF_REGULARISATION * model.relief_cracking)
+    check = _check_parameters(model)
+    check = laws.clip_piece((dp[model.law_branches("check_valve")] - check["cracking"]) / (check["full_open"] - check["cracking"]))
+    own = {ReliefValve: iter(relief), CheckValve: iter(check)}
     outlet = pressure[model.branch_to[sl["pump"]]]
     pump = laws.clip_piece((model.pump_compensator + model.pump_band - outlet) / model.pump_band)
     law = []  # the law branches: the component's own kink hook at its states at rest over a zero step, 0 without one
     for i, b in enumerate(range(*sl["law"].indices(len(model.branch_names))) if "law" in sl else ()):
         cls = BRANCH_LAWS[model.law_kind[i]]
+        if cls in own:
+            law.append(next(own[cls]))
+            continue
         piece = getattr(cls, "LAW_PIECE", None)
         first = model.law_state_offset[i]
         start = model.component_state_start[first:first + len(law_states(cls))].copy()
         pilot = model.branch_pilot[b]
         law.append(0 if piece is None else piece(model.law_table[i], start, 0.0, pressure[model.branch_from[b]],
                                                   pressure[model.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0))
-    return np.concatenate([relief, check, pump, np.array(law, int)]).astype(int)
+    return np.concatenate([pump, np.array(law, int)]).astype(int)
+
+
+def _check_parameters(model) -> dict:
+    """The check valves' parameters by name (cracking, full_open [Pa], area, leakage [m²], cd [-]), from the
+    components of the circuit in the order of ``model.law_branches("check_valve")``."""
+    names = model.branch_names[model.law_branches("check_valve")]
+    params = [model.circuit.component(name).params for name in names]
+    return {key: np.array([getattr(p, field) for p in params], float) for key, field in
+            (("cracking", "cracking_pressure"), ("full_open", "full_open_pressure"), ("area", "area"),
+             ("leakage", "leakage_area"), ("cd", "discharge_coefficient"))}
 
 
 def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -> BranchFlows:
@@ -249,20 +266,27 @@ def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -
     q, g = laws.orifice_flow_with_derivative(orifice_area[s], model.orifice_cd, dp[s], fluid.density, fluid.kinematic_viscosity)
     flow[s], dfrom[s], dto[s] = q, g, -g
 
-    s = sl["laminar"]
-    flow[s] = model.laminar_conductance * dp[s]
-    dfrom[s], dto[s] = model.laminar_conductance, -model.laminar_conductance
+    s, conductance = model.law_branches(LaminarResistance), model.law_parameter(LaminarResistance, "conductance")
+    flow[s] = conductance * dp[s]
+    dfrom[s], dto[s] = conductance, -conductance
 
-    s = sl["relief"]
+    s = model.law_branches("orifice")  # the fixed orifices, from the circuit's parameters
+    params = [model.circuit.component(name).params for name in model.branch_names[s]]
+    q, g = laws.orifice_flow_with_derivative(np.array([p.area for p in params], float),
+                                             np.array([p.discharge_coefficient for p in params], float),
+                                             dp[s], fluid.density, fluid.kinematic_viscosity)
+    flow[s], dfrom[s], dto[s] = q, g, -g
+
+    s = model.relief_branches
     q, g = laws.relief_flow_with_derivative(
         dp[s], model.relief_cracking, model.relief_gradient, RELIEF_REGULARISATION * model.relief_cracking
     )
     flow[s], dfrom[s], dto[s] = q, g, -g
 
-    s = sl["check"]
-    area, darea = laws.check_valve_area_with_derivative(dp[s], model.check_cracking, model.check_full_open, model.check_area, model.check_leakage)
-    q, g = laws.orifice_flow_with_derivative(area, model.check_cd, dp[s], fluid.density, fluid.kinematic_viscosity)
-    g = g + laws.orifice_flow_area_derivative(area, model.check_cd, dp[s], fluid.density, fluid.kinematic_viscosity) * darea
+    s, check = model.law_branches("check_valve"), _check_parameters(model)
+    area, darea = laws.check_valve_area_with_derivative(dp[s], check["cracking"], check["full_open"], check["area"], check["leakage"])
+    q, g = laws.orifice_flow_with_derivative(area, check["cd"], dp[s], fluid.density, fluid.kinematic_viscosity)
+    g = g + laws.orifice_flow_area_derivative(area, check["cd"], dp[s], fluid.density, fluid.kinematic_viscosity) * darea
     flow[s], dfrom[s], dto[s] = q, g, -g
 
     s = sl["pump"]
@@ -284,9 +308,11 @@ def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -
     if s.stop == s.start:
         return BranchFlows(flow, dfrom, dto)
     dpilot = np.zeros(nb)
-    for i, b in enumerate(range(s.start, s.stop)):  # the compiled law of each component, called from Python
+    for i, b in enumerate(range(s.start, s.stop)):  # the compiled law of each other component, called from Python
         pilot = model.branch_pilot[b]
         cls = BRANCH_LAWS[model.law_kind[i]]
+        if cls in (LaminarResistance, Orifice, ReliefValve, CheckValve):  # above, by the formulas of reference.laws
+            continue
         ports = (pressure[model.branch_from[b]], pressure[model.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0)
         if law_states(cls):  # at the component's states at rest, over a step of zero length
             first = model.law_state_offset[i]
