@@ -30,6 +30,7 @@ from scipy.optimize import brentq
 from reference import laws
 from reference import network_eval as ref
 from reference.laws import orifice_textbook
+from reference.circuits import bench, lift_cylinder, orifice
 from reference.scenes import vertical_lift
 from hydraulics.circuit import load_circuit, parse_circuit
 from hydraulics.components import CircuitError, build_component
@@ -46,40 +47,9 @@ LENGTH = 0.03  # m
 CD = 0.7
 G = 9.81
 
-CIRCUIT = f"""[fluid]
-density = 870.0
-bulk_modulus = 1.5e9
-kinematic_viscosity = 4.6e-5
-reference_pressure = 1.01325e5
-cavitation_pressure = 3.0e3
-
-[[component]]
-name = "tank"
-type = "tank"
-ports = {{ port = "tank" }}
-
-[[component]]
-name = "drain"
-type = "orifice"
-area = {LINE!r}
-discharge_coefficient = {CD!r}
-ports = {{ a = "cap", b = "tank" }}
-
-[[component]]
-name = "lift"
-type = "cylinder"
-bore = {BORE!r}
-rod_diameter = 0.028
-stroke = 0.5
-dead_volume_cap = 2.0e-5
-dead_volume_rod = 2.0e-5
-cushion_length_cap = {LENGTH!r}
-cushion_area_cap = {CUSHION!r}
-cushion_length_rod = 0.04
-cushion_area_rod = 1.0e-6
-cushion_discharge_coefficient = {CD!r}
-ports = {{ cap = "cap", rod = "tank" }}
-"""
+CIRCUIT = (bench() + orifice("drain", "cap", "tank", LINE, CD)
+           + lift_cylinder(BORE, cushion_length_cap=LENGTH, cushion_area_cap=CUSHION, cushion_length_rod=0.04,
+                           cushion_area_rod=1.0e-6, cushion_discharge_coefficient=CD))
 
 
 def _model(text=CIRCUIT):

@@ -29,6 +29,7 @@ from scipy.optimize import brentq
 from reference import laws
 from reference import network_eval as ref
 from reference.laws import orifice_textbook
+from reference.circuits import bench, lift_cylinder, orifice, pressure_source
 from reference.scenes import vertical_lift
 from hydraulics.circuit import load_circuit, parse_circuit
 from hydraulics.components import CircuitError
@@ -49,47 +50,11 @@ COULOMB = 500.0  # N
 KP = 0.05  # -
 BREAKAWAY = (MASS * G + COULOMB) / (AREA * (1.0 - KP))  # Pa gauge: cap pressure that starts the load up
 
-CIRCUIT = """[fluid]
-density = 870.0
-bulk_modulus = 1.5e9
-kinematic_viscosity = 4.6e-5
-reference_pressure = 1.01325e5
-cavitation_pressure = 3.0e3
-
-[[component]]
-name = "tank"
-type = "tank"
-ports = {{ port = "tank" }}
-
-[[component]]
-name = "source"
-type = "pressure_source"
-pressure = {source!r}
-ports = {{ port = "supply" }}
-
-[[component]]
-name = "feed"
-type = "orifice"
-area = {orifice!r}
-discharge_coefficient = {cd!r}
-ports = {{ a = "supply", b = "cap" }}
-
-[[component]]
-name = "lift"
-type = "cylinder"
-bore = {bore!r}
-rod_diameter = 0.028
-stroke = 0.5
-dead_volume_cap = 2.0e-5
-dead_volume_rod = 2.0e-5
-coulomb_friction = {coulomb!r}
-friction_pressure_coefficient = {kp!r}
-ports = {{ cap = "cap", rod = "tank" }}
-"""
 
 
 def _circuit(source, kp=KP):
-    return CIRCUIT.format(source=float(source), orifice=ORIFICE, cd=CD, bore=BORE, coulomb=COULOMB, kp=kp)
+    return (bench() + pressure_source(source) + orifice("feed", "supply", "cap", ORIFICE, CD)
+            + lift_cylinder(BORE, coulomb_friction=COULOMB, friction_pressure_coefficient=kp))
 
 
 def test_friction_effort_and_breakaway_at_pressure():

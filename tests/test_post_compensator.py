@@ -18,6 +18,7 @@ import pytest
 from hydraulics.components import PostCompensator
 from hydraulics.components.post_compensator import flow_with_derivatives as post_law
 from hydraulics.fluid import Fluid
+from reference.circuits import bench, orifice
 from reference.laws import orifice_textbook
 from sim.io.mcap_log import read_log
 from sim.run.runner import run
@@ -67,16 +68,7 @@ MJCF = """<mujoco model="two_lifts">
 </mujoco>
 """
 
-HEAD = """[fluid]
-density = 870.0
-bulk_modulus = 1.5e9
-kinematic_viscosity = 4.6e-5
-
-[[component]]
-name = "tank"
-type = "tank"
-ports = { port = "tank" }
-
+HEAD = bench() + """
 [[component]]
 name = "pump"
 type = "pump_load_sensing"
@@ -101,12 +93,7 @@ type = "volume"
 volume = 1.0e-5
 ports = { port = "ls" }
 
-[[component]]
-name = "ls_bleed"
-type = "orifice"
-area = 2.0e-8
-ports = { a = "ls", b = "tank" }
-"""
+""" + orifice("ls_bleed", "ls", "tank", 2.0e-8)
 
 SECTION = """
 [[component]]
@@ -119,12 +106,7 @@ dead_volume_cap = 5.0e-5
 dead_volume_rod = 5.0e-5
 ports = {{ cap = "{s}_cap", rod = "{s}_rod" }}
 
-[[component]]
-name = "{s}_return"
-type = "orifice"
-area = 1.0e-4
-ports = {{ a = "{s}_rod", b = "tank" }}
-
+{s_return}
 [[component]]
 name = "{s}_inner_volume"
 type = "volume"
@@ -141,12 +123,7 @@ ports = {{ inlet = "{signal}", outlet = "ls" }}
 """
 
 POST = """
-[[component]]
-name = "{s}_meter"
-type = "orifice"
-area = {area}
-ports = {{ a = "supply", b = "{s}_inner" }}
-
+{meter}
 [[component]]
 name = "{s}_compensator"
 type = "post_compensator"
@@ -163,13 +140,7 @@ pressure_difference = 1.2e6
 regulation_band = 1.0e6
 area = 1.0e-4
 ports = {{ inlet = "supply", outlet = "{s}_inner", load = "{s}_cap" }}
-
-[[component]]
-name = "{s}_meter"
-type = "orifice"
-area = {area}
-ports = {{ a = "{s}_inner", b = "{s}_cap" }}
-"""
+{meter}"""
 
 SCENARIO = """[scene]
 mjcf = "lifts.xml"
@@ -197,8 +168,11 @@ def lift(tmp_path, kind, mode):
     pump saturated, both rising)."""
     (tmp_path / "lifts.xml").write_text(MJCF, encoding="utf-8")
     template, signal = (POST, "{s}_inner") if kind == "post" else (PRE, "{s}_cap")
-    circuit = HEAD + "".join(SECTION.format(s=s, signal=signal.format(s=s)) + template.format(s=s, area=a)
-                             for s, a in AREAS.items())
+    meters = {"post": ("supply", "{s}_inner"), "pre": ("{s}_inner", "{s}_cap")}[kind]
+    circuit = HEAD + "".join(
+        SECTION.format(s=s, signal=signal.format(s=s), s_return=orifice(f"{s}_return", f"{s}_rod", "tank", 1.0e-4))
+        + template.format(s=s, meter=orifice(f"{s}_meter", *(m.format(s=s) for m in meters), a))
+        for s, a in AREAS.items())
     (tmp_path / f"{kind}.circuit.toml").write_text(circuit, encoding="utf-8")
     scenario = tmp_path / f"{kind}-{mode}.scenario.toml"
     scenario.write_text(SCENARIO.format(circuit=f"{kind}.circuit.toml", mode=mode), encoding="utf-8")

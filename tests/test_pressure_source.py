@@ -23,6 +23,7 @@ from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
 from sim.run import monitor as M
 from sim.run.runner import make_plant, run
+from reference.circuits import bench, lift_cylinder, orifice, pressure_source
 from reference.scenes import vertical_lift
 
 MASS = 200.0  # kg
@@ -34,41 +35,7 @@ G = 9.81
 
 MJCF = vertical_lift(mass=MASS, inertia=0.1, gravity=G)
 
-CIRCUIT = f"""[fluid]
-density = 870.0
-bulk_modulus = 1.5e9
-kinematic_viscosity = 4.6e-5
-reference_pressure = 1.01325e5
-cavitation_pressure = 3.0e3
-
-[[component]]
-name = "tank"
-type = "tank"
-ports = {{ port = "tank" }}
-
-[[component]]
-name = "source"
-type = "pressure_source"
-pressure = {SOURCE!r}
-ports = {{ port = "supply" }}
-
-[[component]]
-name = "feed"
-type = "orifice"
-area = {ORIFICE!r}
-discharge_coefficient = {CD!r}
-ports = {{ a = "supply", b = "cap" }}
-
-[[component]]
-name = "lift"
-type = "cylinder"
-bore = {BORE!r}
-rod_diameter = 0.028
-stroke = 0.5
-dead_volume_cap = 2.0e-5
-dead_volume_rod = 2.0e-5
-ports = {{ cap = "cap", rod = "tank" }}
-"""
+CIRCUIT = (bench() + pressure_source(SOURCE) + orifice("feed", "supply", "cap", ORIFICE, CD) + lift_cylinder(BORE))
 
 
 def _scene(tmp_path, mode):
