@@ -886,22 +886,31 @@ def _lu_solve(a, b):
 # Sparse Newton solves over the fixed pattern of sparse_pattern (positions in one compact array of values)
 # ----------------------------------------------------------------------------
 @_kernel
+def _scatter_branch_derivatives(pos, dflow, out):
+    """Sum each branch's terminal derivatives ``dflow`` (branches × terminals) into the compact array ``out``:
+    ``pos[b, j]`` is the entry of branch b's terminal j on its *to* node's row (added), ``pos[b, W + j]`` on its
+    *from* node's row (subtracted), −1 where that row is not kept; branches in order, so the sums are the dense
+    assembly's."""
+    for q in range(out.size):
+        out[q] = 0.0
+    for b in range(dflow.shape[0]):
+        for j in range(_W_BR):
+            q = pos[b, j]
+            if q >= 0:
+                out[q] += dflow[b, j]
+            q = pos[b, _W_BR + j]
+            if q >= 0:
+                out[q] -= dflow[b, j]
+
+
+@_kernel
 def _newton_values(pnet, dflow, dpdm, h, val):
     """The Newton matrix I − h·(∂Q/∂p)[free, free]·diag(∂p/∂m[free]) in the compact layout of :func:`sparse_pattern`
     (``val``: ``lu_entry_count`` entries, fill-in positions zero) from the branches' terminal derivatives ``dflow``:
     the entries :func:`_newton_matrix` writes, summed in its order."""
     net = _deref(pnet)
     pos, row, col, free = net.branch_lu, net.lu_row, net.lu_col, net.free
-    for q in range(val.size):
-        val[q] = 0.0
-    for b in range(dflow.shape[0]):
-        for j in range(_W_BR):
-            q = pos[b, j]
-            if q >= 0:
-                val[q] += dflow[b, j]
-            q = pos[b, _W_BR + j]
-            if q >= 0:
-                val[q] -= dflow[b, j]
+    _scatter_branch_derivatives(pos, dflow, val)
     for q in range(val.size):
         val[q] = (1.0 if row[q] == col[q] else 0.0) - h * val[q] * dpdm[free[col[q]]]
 
@@ -995,16 +1004,7 @@ def _flow_jacobian_rows(pnet, dflow, jq):
     (``jq_ptr``, ``jq_col``): the entries :func:`_flow_jacobian` writes, summed in its order."""
     net = _deref(pnet)
     pos = net.branch_jq
-    for q in range(jq.size):
-        jq[q] = 0.0
-    for b in range(dflow.shape[0]):
-        for j in range(_W_BR):
-            q = pos[b, j]
-            if q >= 0:
-                jq[q] += dflow[b, j]
-            q = pos[b, _W_BR + j]
-            if q >= 0:
-                jq[q] -= dflow[b, j]
+    _scatter_branch_derivatives(pos, dflow, jq)
 
 
 @_kernel
