@@ -88,6 +88,7 @@ from .components import orifice as _orifice
 from .components import pumps as _pumps
 from .components import ramps as _ramps
 from .components import valve_4_3 as _valve
+from .components import metering as _metering
 from .components import motor as _motor
 from .components.accumulator import ACC_GAS, ACC_INDEX, ACC_PRE
 from .components.cylinder import (CI_ACT, CI_CAP, CI_ROD, CYL_CAP_AREA, CYL_COULOMB, CYL_CUSHION_CAP, CYL_CUSHION_K_CAP,
@@ -108,7 +109,7 @@ from .layout import Layout
 # I starts with the float-field offsets (len(_FLOAT_FIELDS) + 1, into F) and the
 # int-field offsets (len(_INT_FIELDS) + 1, into I).
 # ----------------------------------------------------------------------------
-_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "pump", "law", "rig")
+_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "pump", "law", "rig", "meter", "knots")
 _INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act",
                "law_kind", "rig_i", "mot_br_i", "law_state", "valve_rate")
 # the sparse solves' index arrays (sparse_pattern)
@@ -160,7 +161,7 @@ GI_VALVE, GI_ACT = range(len(RIGID_INDEX_COLUMNS))
 _W_RIG, _W_RIG_I = len(RIGID_COLUMNS), len(RIGID_INDEX_COLUMNS)
 
 PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W_VALVE, ori=_W_ORI, pump=_W_PUMP,
-                     law=_W_LAW, rig=_W_RIG, ic=0, fixed=0, free=0, free_index=0, compliant=0,
+                     law=_W_LAW, rig=_W_RIG, meter=len(_metering.COLUMNS), knots=len(_metering.KNOT_COLUMNS), ic=0, fixed=0, free=0, free_index=0, compliant=0,
                      acc_node=0, cyl_i=_W_CI, mot_i=_W_MI, br=_W_BR, or_valve=0, mot_br_act=0, law_kind=0, rig_i=_W_RIG_I,
                      mot_br_i=0, law_state=0, valve_rate=0,
                      **{name: 2 * _W_BR if name.startswith("branch_") else 0 for name in _SPARSE_FIELDS})
@@ -359,6 +360,8 @@ def pack_network(model: NetworkModel):
         rig=_table(RIGID_COLUMNS, len(model.rigid_branch_actuator), extend_area=model.rigid_extend_area,
                    retract_area=model.rigid_retract_area, sign=model.rigid_sign, base_area=model.rigid_base_area,
                    max_area=model.rigid_max_area),
+        meter=model.orifice_metering,
+        knots=model.metering_knots,
     )
     ints = dict(
         ic=ic,
@@ -721,7 +724,8 @@ def _valve_areas(pnet, spool, area):
             vi = ov[i]
             s = spool[vi] if vi >= 0 else 0.0
             overlap = net.valve[vi, V_OVERLAP] if vi >= 0 else 0.0
-            a = a + ori[i, O_MAX] * _valve.metering_opening(ori[i, O_SIGN] * s, overlap)
+            x = ori[i, O_SIGN] * s
+            a = a + _metering.edge_area(net.meter[i], net.knots, ori[i, O_MAX], x, _valve.metering_opening(x, overlap))
             a = a + ori[i, O_CENTRE] * _valve.centre_opening(s, overlap)
         area[i] = a
 

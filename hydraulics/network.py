@@ -41,7 +41,8 @@ from functools import cached_property
 import numpy as np
 
 from .circuit import Circuit
-from .components import BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, CircuitError, law_states
+from .components import BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, VALVE_KINDS, CircuitError, law_states
+from .components.metering import characteristics as metering_characteristics
 from .components.hose import LaminarResistance, line_conductance
 from .numerics import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE  # noqa: F401 (documented here)
 
@@ -411,6 +412,10 @@ class NetworkModel:
     component_state_names: tuple = ()  # "valve" for a spool, "component.state" for a law component's state
     component_state_units: tuple = ()
     component_state_start: np.ndarray = field(default_factory=lambda: np.zeros(0))  # values at rest
+    # metering characteristic of every orifice branch (hydraulics.components.metering.COLUMNS: exponent, first
+    # knot, knot count) and the knot table of the tabulated edges (metering.KNOT_COLUMNS)
+    orifice_metering: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    metering_knots: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     # ------------------------------------------------------------------ build
     @classmethod
@@ -536,11 +541,11 @@ class NetworkModel:
             b_from.append(a)
             b_to.append(b)
 
-        # orifice-law branches: the valve edges
+        # orifice-law branches: the valves' passages (their kinds declare them: VALVE_KINDS, edges())
         start = len(branch_names)
-        o_cd, o_base, o_max, o_centre, o_valve, o_sign = [], [], [], [], [], []
+        o_cd, o_base, o_max, o_centre, o_valve, o_sign, o_edge = [], [], [], [], [], [], []
 
-        def add_orifice(name, a, b, cd, base, maxa=0.0, centre=0.0, valve=-1, sign=0):
+        def add_orifice(name, a, b, cd, base, maxa=0.0, centre=0.0, valve=-1, sign=0, edge=(None, None)):
             add_branch(name, a, b)
             o_cd.append(cd)
             o_base.append(base)
@@ -548,14 +553,26 @@ class NetworkModel:
             o_centre.append(centre)
             o_valve.append(valve)
             o_sign.append(sign)
+            o_edge.append(edge)
 
-        valves = circuit.by_kind("valve_4_3")
+        valves = circuit.by_kind(*VALVE_KINDS)
+        for c in valves if network_fidelity == "incompressible" else ():
+            if c.kind != "valve_4_3" or c.params.metering != "linear":
+                what = f"field 'metering': {c.params.metering!r}" if c.kind == "valve_4_3" else f"type '{c.kind}'"
+                raise CircuitError(
+                    f"{circuit.source}: component '{c.name}', {what} at fidelity 'incompressible' (its rigid oil law "
+                    "meters through linear 4/3 valves only); use a linear valve_4_3 or the fidelity 'compressible'")
         rigid_valve = {}  # rigid actuator name -> (valve index, +1 if port A feeds its cap / motor port a, else -1)
         for vi, c in enumerate(valves):
             p = c.params
-            P, T, A, B = (node(c, q) for q in ("P", "T", "A", "B"))
-            if A in rigid_node or B in rigid_node:
-                actuator = circuit.component(rigid_node.get(A, rigid_node.get(B)))
+            if any(node(c, q) in rigid_node for q in c.ports):
+                actuator = circuit.component(rigid_node[next(node(c, q) for q in c.ports if node(c, q) in rigid_node)])
+                if c.kind != "valve_4_3":
+                    raise CircuitError(
+                        f"{circuit.source}: {c.kind} '{c.name}' meters actuator '{actuator.name}' (fidelity "
+                        f"'incompressible'), which only a valve_4_3's ports A and B can; give '{actuator.name}' the "
+                        "fidelity 'compressible'")
+                P, T, A, B = (node(c, q) for q in ("P", "T", "A", "B"))
                 ports = [node(actuator, q) for q in actuator.ports]  # cap, rod / a, b
                 if {A, B} != set(ports) or P in rigid_node or T in rigid_node:
                     raise CircuitError(
@@ -567,22 +584,20 @@ class NetworkModel:
                         f"'{c.ports['T']}' must be a tank (the rigid actuator returns its oil there)")
                 if actuator.name in rigid_valve:
                     raise CircuitError(f"{circuit.source}: actuator '{actuator.name}' (fidelity 'incompressible') is metered by two valves")
+                if p.metering != "linear":
+                    raise CircuitError(
+                        f"{circuit.source}: valve '{c.name}', field 'metering': {p.metering!r} with actuator "
+                        f"'{actuator.name}' of fidelity 'incompressible' (its rigid law meters linearly); use \"linear\" "
+                        "or the fidelity 'compressible'")
                 rigid_valve[actuator.name] = (vi, 1 if A == ports[0] else -1)
-                if p.centre in ("open", "tandem"):
-                    add_orifice(f"{c.name}.P-T", P, T, p.discharge_coefficient, 0.0, 0.0, p.centre_area, vi, 0)
-                continue
-            for edge, a, b, sign in (("P-A", P, A, 1), ("B-T", B, T, 1), ("P-B", P, B, -1), ("A-T", A, T, -1)):
-                add_orifice(f"{c.name}.{edge}", a, b, p.discharge_coefficient, p.leakage_area, p.max_area, 0.0, vi, sign)
-            if "LS" in c.ports:  # a load-sensing section: the LS port sees the work port the spool feeds
-                LS = node(c, "LS")
-                for edge, a, sign in (("A-LS", A, 1), ("B-LS", B, -1)):
-                    add_orifice(f"{c.name}.{edge}", a, LS, p.discharge_coefficient, 0.0, p.ls_area, 0.0, vi, sign)
-            if p.centre in ("open", "tandem"):
-                add_orifice(f"{c.name}.P-T", P, T, p.discharge_coefficient, 0.0, 0.0, p.centre_area, vi, 0)
-            if p.centre == "open":
-                add_orifice(f"{c.name}.A-T(centre)", A, T, p.discharge_coefficient, 0.0, 0.0, p.centre_area, vi, 0)
-                add_orifice(f"{c.name}.B-T(centre)", B, T, p.discharge_coefficient, 0.0, 0.0, p.centre_area, vi, 0)
+                passages = p.centre_passages()
+            else:
+                passages = p.edges(c.ports)
+            for name, a, b, sign, base, full, centre, edge in passages:
+                add_orifice(f"{c.name}.{name}", node(c, a), node(c, b), p.discharge_coefficient, base, full, centre,
+                            vi, sign, (p, edge))
         slices["orifice"] = slice(start, len(branch_names))
+        orifice_metering, metering_knots = metering_characteristics(o_edge)
 
         # law branches: from the component's first port to its second; a third port is a pilot terminal.  Their
         # states are numbered in circuit order; the branches are grouped by law (BRANCH_LAWS order).  First the
@@ -774,6 +789,8 @@ class NetworkModel:
             component_state_names=tuple(state_names),
             component_state_units=tuple(state_units),
             component_state_start=np.array(state_start, float),
+            orifice_metering=orifice_metering,
+            metering_knots=metering_knots,
         )
         return model
 

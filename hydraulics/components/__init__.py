@@ -25,6 +25,7 @@ from .counterbalance import CounterbalanceValve
 from .cylinder import Cylinder
 from .flow_control import FlowControlValve
 from .hose import Hose, LaminarResistance
+from .metering import check_table
 from .motor import Motor
 from .orifice import Orifice
 from .parameters import CircuitError, check_number, describe_range, param
@@ -38,6 +39,7 @@ from .relief_poppet import ReliefPoppet
 from .tank import Tank
 from .throttle_check import ThrottleCheckValve
 from .valve_4_3 import Valve43
+from .variable_orifice import VariableOrifice
 from .volume import Volume
 
 COMPONENT_TYPES = {
@@ -63,8 +65,12 @@ COMPONENT_TYPES = {
     "pump_load_sensing": PumpLoadSensing,
     "pressure_compensator": PressureCompensator,
     "post_compensator": PostCompensator,
+    "variable_orifice": VariableOrifice,
 }
 """Circuit-file ``type`` name → parameter class."""
+VALVE_KINDS = tuple(kind for kind, cls in COMPONENT_TYPES.items() if hasattr(cls, "METERING_EDGES"))
+"""The types whose passages a commanded spool meters (``METERING_EDGES``, ``edges(ports)``, ``COMMAND_RANGE``):
+the network's valves, commanded by name (:attr:`hydraulics.network.NetworkModel.valve_names`)."""
 
 BRANCH_LAWS = (LaminarResistance,) + tuple(cls for cls in COMPONENT_TYPES.values() if hasattr(cls, "BRANCH_LAW"))
 """The component classes that bring their own branch law (their law number in the network is their place here):
@@ -135,7 +141,12 @@ def build_component(kind: str, table: dict, where: str):
                 raise CircuitError(f"{where}: missing field '{name}' ({describe_range(meta)})")
             continue
         value = table[name]
-        if meta["choices"]:
+        if meta.get("tables"):
+            if not isinstance(value, dict):
+                raise CircuitError(f"{where}, field '{name}': expected {describe_range(meta)}, got {value!r}")
+            values[name] = tuple((str(key), tuple(zip(*check_table(knots, f"{where}, field '{name}', table '{key}'"))))
+                                 for key, knots in value.items())
+        elif meta["choices"]:
             if value not in meta["choices"]:
                 raise CircuitError(f"{where}, field '{name}': {value!r} is not {describe_range(meta)}")
             values[name] = value
@@ -148,8 +159,8 @@ def build_component(kind: str, table: dict, where: str):
     return component
 
 
-__all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "CircuitError", "build_component", "law_sources", "law_states", "check_number", "describe_range", "param",
+__all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "VALVE_KINDS", "CircuitError", "build_component", "law_sources", "law_states", "check_number", "describe_range", "param",
            "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "LaminarResistance",
            "Motor", "Orifice", "PilotCheckValve", "PostCompensator", "PressureCompensator", "PressureReducingValve",
            "PumpCompensated", "PumpLoadSensing", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",
-           "ThrottleCheckValve", "Valve43", "Volume"]
+           "ThrottleCheckValve", "Valve43", "VariableOrifice", "Volume"]

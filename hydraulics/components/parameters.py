@@ -32,8 +32,18 @@ def param(unit: str, *, low=None, high=None, low_open=True, default=MISSING, cho
     return field(default=default, metadata={"unit": unit, "low": low, "high": high, "low_open": low_open, "choices": choices})
 
 
+def tables_param(unit: str):
+    """A dataclass field holding named knot tables, written in a circuit file as a TOML table of name = [[x, y], …]
+    (e.g. a valve's area table per metering edge); ``unit`` names the units of x and y.  Stored as a tuple of
+    (name, ((x, y), …)) pairs, empty by default; the component's ``check`` validates names and knots."""
+    return field(default=(), metadata={"unit": unit, "low": None, "high": None, "low_open": True, "choices": None,
+                                       "tables": True})
+
+
 def describe_range(meta) -> str:
     """Human text of a field's allowed range, e.g. '(0, 1] m'."""
+    if meta.get("tables"):
+        return f"a table of name = [[x, y], ...] ({meta['unit']})"
     if meta["choices"]:
         return "one of " + ", ".join(repr(c) for c in meta["choices"])
     low = "-inf" if meta["low"] is None else f"{meta['low']:g}"

@@ -28,7 +28,8 @@ import numpy as np
 
 from .._jit import clip, kernel, maximum
 from .dynamics import second_order_transition
-from .parameters import param, table
+from .metering import CHARACTERISTICS
+from .parameters import CircuitError, param, table, tables_param
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -65,11 +66,58 @@ class Valve43:
     ls_area: float = param("m^2", low=0.0, high=0.01, default=2e-6)
     """With the optional port LS (load-sensing section): area of the passages A→LS (opening with s > 0) and B→LS
     (s < 0) fully open [m²]; they open like the metering edges, so the LS port sees the work port being fed."""
+    metering: str = param("-", default="linear", choices=CHARACTERISTICS)
+    """Area against spool travel of the metering edges (:mod:`hydraulics.components.metering`): linear beyond the
+    overlap, exponential (``metering_exponent``) or tabulated per edge (``area_table``)."""
+    metering_exponent: float = param("-", low=-30.0, high=30.0, low_open=False, default=3.0)
+    """Exponential edges: exponent a of A_max·(e^(a·y) − 1)/(e^a − 1) [-] (a > 0 progressive, a < 0 degressive)."""
+    area_table: tuple = tables_param("-, m^2")
+    """Tabulated edges: per metering edge (``"P-A"``, ``"B-T"``, ``"P-B"``, ``"A-T"``) its knots
+    [[travel, area], …], travel along the edge's opening direction in [−1, 1] [-], area above leakage [m²]
+    (monotone C¹ interpolation, overlap included); an edge without a table stays linear."""
     PORTS = ("P", "T", "A", "B")
     OPTIONAL_PORTS = ("LS",)
     STATES = ("spool", "spool_rate")
     """The spool's position and (second order only) its rate."""
     STATE_UNITS = ("-", "1/s")
+    METERING_EDGES = ("P-A", "B-T", "P-B", "A-T")
+    """The edges the spool meters (a valve kind declares them: the network builds a valve's orifice branches from
+    :meth:`edges`, and its spool from the fields ``time_constant``, ``overlap``, ``dynamics``)."""
+    COMMAND_RANGE = (-1.0, 1.0)
+    """Allowed spool command [-]."""
+
+    def edges(self, ports) -> list:
+        """The valve's orifice passages for the connected ``ports``, in branch order: tuples (name, from port,
+        to port, direction sign (+1 opens with s > 0, −1 with s < 0, 0 a centre passage), leakage area, metered area
+        fully open, centre area [m²], metering edge name or None)."""
+        leak, full = self.leakage_area, self.max_area
+        out = [(edge, edge[0], edge[2:], sign, leak, full, 0.0, edge)
+               for edge, sign in (("P-A", 1), ("B-T", 1), ("P-B", -1), ("A-T", -1))]
+        if "LS" in ports:  # a load-sensing section: the LS port sees the work port the spool feeds
+            out += [("A-LS", "A", "LS", 1, 0.0, self.ls_area, 0.0, None), ("B-LS", "B", "LS", -1, 0.0, self.ls_area, 0.0, None)]
+        return out + self.centre_passages()
+
+    def centre_passages(self) -> list:
+        """The open and tandem centres' passages (as :meth:`edges`): P-T, and for an open centre A-T and B-T."""
+        out = []
+        if self.centre in ("open", "tandem"):
+            out.append(("P-T", "P", "T", 0, 0.0, 0.0, self.centre_area, None))
+        if self.centre == "open":
+            out += [("A-T(centre)", "A", "T", 0, 0.0, 0.0, self.centre_area, None),
+                    ("B-T(centre)", "B", "T", 0, 0.0, 0.0, self.centre_area, None)]
+        return out
+
+    def check(self, where: str) -> None:
+        """Area tables name metering edges and go with ``metering = "table"``."""
+        tables = dict(self.area_table)
+        unknown = sorted(set(tables) - set(self.METERING_EDGES))
+        if unknown:
+            raise CircuitError(f"{where}, field 'area_table': unknown edge(s) {unknown}; edges: {list(self.METERING_EDGES)}")
+        if tables and self.metering != "table":
+            raise CircuitError(f"{where}, field 'area_table': given with metering = {self.metering!r}; set metering = \"table\"")
+        if self.metering == "table" and not tables:
+            raise CircuitError(f"{where}, field 'area_table': metering = \"table\" needs a table for at least one of "
+                               f"{list(self.METERING_EDGES)}")
 
 
 @kernel

@@ -549,7 +549,8 @@ PUMP_KINDS = ("pump_fixed", "pump_compensated")
 def input_range(circuit, name: str):
     """Allowed range ``(low, high, unit)`` of the scenario input ``name`` of ``circuit``, or None if no valve or pump has it.
 
-    A valve's spool command is in :data:`VALVE_COMMAND_RANGE` [-]; a pump's shaft speed in the range
+    A valve's spool command is in its type's ``COMMAND_RANGE`` [-] (:data:`VALVE_COMMAND_RANGE` for the 4/3 valve,
+    [0, 1] for a variable orifice); a pump's shaft speed in the range
     of its type's ``speed`` field [rev/s] (``[0, 1000]`` rev/s for :class:`hydraulics.components.PumpFixed`
     and :class:`~hydraulics.components.PumpCompensated`: the pumps turn one way; 1000 rev/s is 60 000 rpm,
     beyond any hydraulic pump).
@@ -560,8 +561,9 @@ def input_range(circuit, name: str):
         if c.kind in PUMP_KINDS:
             meta = {f.name: f.metadata for f in dataclasses.fields(COMPONENT_TYPES[c.kind])}["speed"]
             return float(meta["low"]), float(meta["high"]), meta["unit"]
-        if c.kind == "valve_4_3":
-            return (*VALVE_COMMAND_RANGE, "")
+        command_range = getattr(COMPONENT_TYPES[c.kind], "COMMAND_RANGE", None)
+        if command_range is not None:  # a valve kind's spool (or opening) command
+            return (*command_range, "")
     return None
 
 

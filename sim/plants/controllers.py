@@ -71,9 +71,11 @@ def resolve_sensor(kind: str, name: str, network, model, where: str) -> int:
 
 
 def resolve_output(name: str, network, where: str):
-    """(output kind index, index, (low, high) range) of the input ``name``: a valve [-] or a pump [rev/s]."""
+    """(output kind index, index, (low, high) range) of the input ``name``: a valve [-] (its type's
+    ``COMMAND_RANGE``) or a pump [rev/s]."""
     if name in network.valve_names:
-        return 0, network.valve_names.index(name), VALVE_COMMAND_RANGE
+        kind = network.circuit.component(name).kind
+        return 0, network.valve_names.index(name), getattr(COMPONENT_TYPES[kind], "COMMAND_RANGE", VALVE_COMMAND_RANGE)
     if name in network.pump_names:
         return 1, network.pump_names.index(name), PUMP_SPEED_RANGE
     raise ScenarioError(f"{where}, field 'output': no valve or pump called '{name}'; inputs: "

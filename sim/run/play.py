@@ -740,9 +740,10 @@ def main(args) -> int:
         scenario = load_scenario(scenario)
         if scenario.mapping is None:
             from hydraulics.circuit import load_circuit  # noqa: PLC0415
+            from hydraulics.components import VALVE_KINDS  # noqa: PLC0415
             from sim.live.mapping import Mapping  # noqa: PLC0415
 
-            valves = {c.name for c in load_circuit(scenario.circuit).by_kind("valve_4_3")}
+            valves = {c.name for c in load_circuit(scenario.circuit).by_kind(*VALVE_KINDS)}
             preset = Mapping.preset(args.pattern)  # the pattern's functions this machine has
             scenario = dataclasses.replace(scenario, mapping=Mapping(
                 {axis: m for axis, m in preset.axes.items() if m.valve in valves}, args.pattern))

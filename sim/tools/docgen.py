@@ -65,7 +65,7 @@ def format_value(value) -> str:
     """A default or bound as written in a TOML file (``inf`` for infinity)."""
     if value is dataclasses.MISSING:
         return "required"
-    if value is None:
+    if value is None or value == ():
         return "—"
     if isinstance(value, bool):
         return "true" if value else "false"
@@ -80,6 +80,8 @@ def format_range(meta) -> str:
     """A field's allowed values from its ``param`` metadata, e.g. ``(0, 0.05]`` or ``"closed", "open"``."""
     if meta.get("choices"):
         return ", ".join(f'`"{c}"`' for c in meta["choices"])
+    if meta.get("tables"):
+        return "`{ name = [[x, y], ...] }`"
     low, high = meta.get("low"), meta.get("high")
     left = "(" if meta.get("low_open", True) or low is None else "["
     return f"{left}{'-inf' if low is None else format(low, 'g')}, {'inf' if high is None else format(high, 'g')}]"
