@@ -31,7 +31,14 @@ Ports: ``inlet``, ``outlet``.  Packing: one row per valve, columns :data:`COLUMN
 
 Kink hook (:func:`law_piece`): the poppet on its seat, moving or at its stop, and the first-order target clipped.
 
-Limitations: no flow forces, no hysteresis, no bounce at the stops.
+**Hysteresis** (``reseat_pressure`` below the cracking pressure): an opened poppet closes at a lower pressure than
+it opened, as friction and flow forces make a real one do.  The target is then the play operator of the opening
+characteristic, z = clip(y, z_o(Δp), z_o(Δp) + w) with w = (p_crack − p_reseat)/(p_full − p_crack) and y the opening
+at the start of the step: rising pressure drives the poppet along z_o (cracking at p_crack), falling pressure along
+z_o + w (reseating at p_reseat), and in between the poppet holds its opening (dz/dΔp = 0 there; its band is a piece
+of the kink hook).
+
+Limitations: no flow forces, no bounce at the stops.
 
 References: Hopsan component library, *HydraulicPressureReliefValve* (first-order opening with time constant);
 H. E. Merritt, *Hydraulic Control Systems*, Wiley 1967, §5 (poppet valve dynamics); MathWorks, Simscape
@@ -63,10 +70,11 @@ from .orifice import flow_area_derivative as orifice_flow_area_derivative
 from .orifice import flow_with_derivative as orifice_flow_with_derivative
 from .parameters import CircuitError, param, table
 
-COLUMNS = ("cracking", "span", "area", "leakage", "k", "c", "order", "tau", "omega", "zeta")
+COLUMNS = ("cracking", "span", "area", "leakage", "k", "c", "order", "tau", "omega", "zeta", "play")
 """Row of one valve: cracking pressure [Pa], p_full − p_crack [Pa], full and closed area [m²], orifice-law constants
-k, c, dynamics order (1 or 2), time constant τ [s], natural frequency ω [rad/s], damping ratio ζ [-]."""
-CRACKING, SPAN, AREA, LEAKAGE, K, C, ORDER, TAU, OMEGA, ZETA = range(len(COLUMNS))
+k, c, dynamics order (1 or 2), time constant τ [s], natural frequency ω [rad/s], damping ratio ζ [-], hysteresis
+band w = (p_crack − p_reseat)/(p_full − p_crack) [-]."""
+CRACKING, SPAN, AREA, LEAKAGE, K, C, ORDER, TAU, OMEGA, ZETA, PLAY = range(len(COLUMNS))
 STATES = ("opening", "opening_rate")
 """The states of one valve: normalised opening y [-], its rate ẏ [1/s]."""
 Y, RATE = range(len(STATES))
@@ -81,11 +89,17 @@ def transition(row, h):
 
 
 @kernel
-def target(row, dp):
+def target(row, opening, dp):
     """The opening the pressure drives the poppet to, z [-], and dz/dΔp [1/Pa] (clipped to [0, 1] for the first-order
-    poppet)."""
+    poppet), from the poppet's ``opening`` y at the start of the step: with hysteresis (band w > 0) the play
+    operator z = clip(y, z_o, z_o + w) of the opening characteristic z_o = (Δp − p_crack)/span."""
     span = row[SPAN]
     z = (dp - row[CRACKING]) / span
+    if row[PLAY] > 0.0:
+        if opening > z + row[PLAY]:
+            z = z + row[PLAY]
+        elif opening > z:  # inside the band: the target holds the opening
+            return opening, 0.0
     if row[ORDER] == 1.0:
         if z <= 0.0:
             return 0.0, 0.0
@@ -98,9 +112,9 @@ def target(row, dp):
 def advance(row, state, h, dp):
     """Opening y⁺ [-], rate ẏ⁺ [1/s] after ``h`` [s] with the differential pressure ``dp`` [Pa] held, and ∂y⁺/∂Δp
     [1/Pa]."""
-    z, dz = target(row, dp)
-    f11, f12, f21, f22 = transition(row, h)
     y0, r0 = state[Y], state[RATE]
+    z, dz = target(row, y0, dp)
+    f11, f12, f21, f22 = transition(row, h)
     y = z + f11 * (y0 - z) + f12 * r0
     rate = f21 * (y0 - z) + f22 * r0
     slope = (1.0 - f11) * dz
@@ -118,9 +132,13 @@ def law_piece(row, state, h, p_in, p_out, p_pilot):
     moving, at its stop (0, 1, 2)."""
     dp = p_in - p_out
     z = (dp - row[CRACKING]) / row[SPAN]
+    play = 0
+    if row[PLAY] > 0.0:  # the hysteresis band: the opening's target on its opening side, held, on its reseat side
+        play = 2 if state[Y] > z + row[PLAY] else (1 if state[Y] > z else 0)
+        z = z + row[PLAY] if play == 2 else (state[Y] if play == 1 else z)
     clipped = 1 if row[ORDER] != 1.0 or 0.0 < z < 1.0 else (0 if z <= 0.0 else 2)
     y = advance(row, state, h, dp)[0]
-    return 3 * clipped + (0 if y <= 0.0 else (2 if y >= 1.0 else 1))
+    return 9 * play + 3 * clipped + (0 if y <= 0.0 else (2 if y >= 1.0 else 1))
 
 
 @kernel
@@ -166,6 +184,9 @@ class ReliefPoppet:
     """Second order: ω = √(k/m) [rad/s]."""
     damping_ratio: float = param("-", low=0.0, high=100.0, low_open=False, default=0.5)
     """Second order: ζ [-]."""
+    reseat_pressure: float = param("Pa", low=0.0, high=1e9, low_open=False, default=None)
+    """Differential pressure below which an opened poppet closes again [Pa] (≤ cracking; the hysteresis band is
+    p_crack − p_reseat); default: the cracking pressure, no hysteresis."""
     PORTS = ("inlet", "outlet")
     LAW_COLUMNS = COLUMNS
     STATES = STATES
@@ -175,6 +196,9 @@ class ReliefPoppet:
     LAW_PIECE = law_piece
 
     def check(self, where: str) -> None:
+        if self.reseat_pressure is not None and self.reseat_pressure > self.cracking_pressure:
+            raise CircuitError(f"{where}, field 'reseat_pressure': {self.reseat_pressure!r} is above cracking_pressure "
+                               f"({self.cracking_pressure!r} Pa); allowed: [0, cracking_pressure] Pa")
         if not self.full_open_pressure > self.cracking_pressure:
             raise CircuitError(f"{where}, field 'full_open_pressure': {self.full_open_pressure!r} is not above "
                                f"cracking_pressure ({self.cracking_pressure!r} Pa)")
@@ -189,4 +213,10 @@ class ReliefPoppet:
         return table(COLUMNS, 1, cracking=self.cracking_pressure, span=self.full_open_pressure - self.cracking_pressure,
                      area=self.area, leakage=self.leakage_area, k=k, c=c,
                      order=1.0 if self.dynamics == "first_order" else 2.0, tau=self.time_constant,
-                     omega=self.natural_frequency, zeta=self.damping_ratio)[0]
+                     omega=self.natural_frequency, zeta=self.damping_ratio, play=self.play())[0]
+
+    def play(self) -> float:
+        """Hysteresis band w = (p_crack − p_reseat)/(p_full − p_crack) [-] (0 without hysteresis)."""
+        if self.reseat_pressure is None:
+            return 0.0
+        return (self.cracking_pressure - self.reseat_pressure) / (self.full_open_pressure - self.cracking_pressure)

@@ -1,0 +1,144 @@
+"""Hysteresis of the relief valve with poppet dynamics: it cracks at its cracking pressure and reseats at its reseat
+pressure.
+
+* Law: a quasi-static sweep of the differential pressure up and down (first-order poppet, steps much longer than
+  its lag) follows the opening characteristic (Δp − p_crack)/span rising and (Δp − p_reseat)/span falling, and
+  holds its opening in between; the total derivative is the central difference, zero inside the band.
+* Rig, both modes: a pump ramped up and down on a 2 L volume relieved by the valve; the supply pressure where the
+  poppet first lifts equals the cracking pressure, and where the pump has stopped and the poppet seated, the
+  reseat pressure (each within 1 %).  Without hysteresis the stopped pump leaves the cracking pressure.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hydraulics.components import CircuitError, build_component
+from hydraulics.components.relief_poppet import ReliefPoppet, flow_with_derivatives, law_piece, step_end
+from hydraulics.fluid import Fluid
+from reference.circuits import bench
+from sim.io.mcap_log import read_log
+from sim.run.runner import run
+
+FLUID = Fluid(density=870.0, kinematic_viscosity=4.6e-5, reference_pressure=1.0e5)
+P0 = FLUID.reference_pressure
+CRACK, FULL, RESEAT = 1.0e7, 1.5e7, 0.8e7
+
+
+def valve(**changes) -> ReliefPoppet:
+    values = dict(cracking_pressure=CRACK, full_open_pressure=FULL, reseat_pressure=RESEAT, area=2e-5,
+                  dynamics="first_order", time_constant=1e-4)
+    values.update(changes)
+    return ReliefPoppet(**values)
+
+
+def test_a_quasi_static_sweep_opens_on_one_characteristic_and_closes_on_the_other():
+    row, state, span = valve().law_row(FLUID), np.zeros(2), FULL - CRACK
+    up = np.linspace(0.0, 1.4e7, 141)
+    openings_up = []
+    for dp in up:
+        step_end(row, state, 0.01, P0 + dp, P0, 0.0, state)
+        openings_up.append(state[0])
+    assert np.allclose(openings_up, np.clip((up - CRACK) / span, 0.0, 1.0), atol=1e-12)
+    peak = state[0]
+    down = up[::-1]
+    openings_down = []
+    for dp in down:
+        step_end(row, state, 0.01, P0 + dp, P0, 0.0, state)
+        openings_down.append(state[0])
+    expected = np.minimum(peak, np.clip((down - RESEAT) / span, 0.0, 1.0))
+    assert np.allclose(openings_down, expected, atol=1e-12)
+    held = (down < 1.4e7) & (down > RESEAT + peak * span)
+    assert held.any() and np.all(np.array(openings_down)[held] == peak)
+
+
+@pytest.mark.parametrize("opening", [0.15, 0.55, 0.95])
+@pytest.mark.parametrize("dp", [0.87e7, 1.07e7, 1.22e7, 1.43e7])
+def test_derivative_and_kink_hook_inside_and_outside_the_band(opening, dp):
+    """dQ/dp_in equals the central difference (1 Pa) of the end-of-step flow away from the band's edges; inside the
+    band (the opening held) only the orifice's own slope remains; the kink hook numbers the three band pieces apart."""
+    row, h = valve(dynamics="second_order", natural_frequency=300.0, damping_ratio=0.7).law_row(FLUID), 1e-3
+    state = np.array([opening, 0.0])
+    q, d_in, d_out, _ = flow_with_derivatives(row, state, h, P0 + dp, P0, 0.0)
+    numeric = (flow_with_derivatives(row, state, h, P0 + dp + 1.0, P0, 0.0)[0]
+               - flow_with_derivatives(row, state, h, P0 + dp - 1.0, P0, 0.0)[0]) / 2
+    assert d_in == pytest.approx(numeric, rel=1e-5) and d_out == -d_in
+    span = FULL - CRACK
+    z_open, z_close = (dp - CRACK) / span, (dp - RESEAT) / span
+    band = 0 if opening <= z_open else (1 if opening <= z_close else 2)
+    assert law_piece(row, state, h, P0 + dp, P0, 0.0) // 9 == band
+
+
+def test_reseat_above_cracking_is_refused():
+    with pytest.raises(CircuitError, match="field 'reseat_pressure'.*above cracking_pressure"):
+        build_component("relief_valve_poppet", dict(cracking_pressure=CRACK, full_open_pressure=FULL,
+                                                    reseat_pressure=1.1e7, area=2e-5), "rig.toml: component 'relief'")
+
+
+RIG_MJCF = """<mujoco model="relief_rig">
+  <worldbody><geom name="bench" type="box" size="0.3 0.2 0.02" contype="0" conaffinity="0"/></worldbody>
+</mujoco>
+"""
+RIG = bench() + """
+[[component]]
+name = "pump"
+type = "pump_fixed"
+displacement = 1.0e-5
+speed = 0.0
+volumetric_efficiency = 1.0
+ports = { inlet = "tank", outlet = "supply" }
+
+[[component]]
+name = "supply_volume"
+type = "volume"
+volume = 2.0e-3
+ports = { port = "supply" }
+
+[[component]]
+name = "relief"
+type = "relief_valve_poppet"
+cracking_pressure = 1.0e7
+full_open_pressure = 1.5e7
+area = 2.0e-5
+leakage_area = 0.0
+natural_frequency = 300.0
+damping_ratio = 0.9
+%s
+ports = { inlet = "supply", outlet = "tank" }
+"""
+SCENARIO = """
+[scene]
+mjcf = "rig.xml"
+circuit = "rig.circuit.toml"
+
+[run]
+mode = "%s"
+dt = 0.001
+duration = 3.0
+
+[inputs]
+pump = { t = [0.0, 1.0, 2.0], value = [0.0, 30.0, 0.0] }
+
+[log]
+rate_hz = 1000
+"""
+
+
+@pytest.mark.parametrize("mode", ["mujoco", "pbd"])
+@pytest.mark.parametrize("reseat", [RESEAT, None])
+def test_the_rig_cracks_at_the_cracking_pressure_and_reseats_at_the_reseat_pressure(tmp_path, mode, reseat):
+    (tmp_path / "rig.xml").write_text(RIG_MJCF, encoding="utf-8")
+    (tmp_path / "rig.circuit.toml").write_text(RIG % (f"reseat_pressure = {reseat!r}" if reseat else ""),
+                                               encoding="utf-8")
+    scenario = tmp_path / "rig.scenario.toml"
+    scenario.write_text(SCENARIO % mode, encoding="utf-8")
+    result = run(scenario, out=tmp_path / "rig.mcap")
+    assert result.status == "complete", result.message
+    log = read_log(result.log_path)
+    supply = log.topic("/hydroplant/nodes")["pressure_pa.supply"] - P0
+    opening = log.topic("/hydroplant/component_states")["state.relief_opening"]
+    lifted = int(np.argmax(opening > 1e-4))
+    assert opening[lifted] > 1e-4 and supply[lifted] == pytest.approx(CRACK, rel=1e-2)
+    assert opening[-1] == 0.0
+    assert supply[-1] == pytest.approx(reseat or CRACK, rel=1e-2)
