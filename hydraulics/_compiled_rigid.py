@@ -61,7 +61,7 @@ from .components.motor import MI_A, MI_ACT, MI_B
 from .components.parameters import table
 from .components.pumps import P_DISP, P_EFF
 from .components.valve_4_3 import V_OVERLAP
-from .layout import Layout
+from .layout import Layout, table_carver
 
 # Incompressible fidelity: the rod follows its metered flow with this stiffness relative to
 # m_eff/h (the velocity error left after one step is about 1/(1 + gain) of the demand change).
@@ -181,42 +181,53 @@ def pack_rigid(model) -> RigidTable:
                       i(model.branch_from[s]), i(model.branch_to[s]), scalars)
 
 
-_W_EDGE, _N_IS, _N_RS = len(EDGE_COLUMNS), len(INCOMPRESSIBLE_SCALARS), len(RIGID_SCALARS)
+INCOMPRESSIBLE_FLOATS = Layout("incompressible_floats", ("na",), (
+    ("edge_cd", "na", len(EDGE_COLUMNS)), ("extend_area", "na"), ("retract_area", "na"), ("force_lower", "na"),
+    ("force_upper", "na"), ("scalars", len(INCOMPRESSIBLE_SCALARS))))
+"""The float64 fields of an :class:`IncompressibleTable` of ``na`` actuators, flattened (:func:`flatten_incompressible`)."""
+INCOMPRESSIBLE_INTS = Layout("incompressible_ints", ("na",), (("edges", "na", len(EDGE_COLUMNS)),))
+"""The int64 fields of an :class:`IncompressibleTable`, flattened."""
+RIGID_FLOATS = Layout("rigid_floats", ("na", "nr"), (
+    ("force_lower", "na"), ("force_upper", "na"), ("sign", "nr"), ("extend_area", "nr"), ("retract_area", "nr"),
+    ("cd", "nr"), ("base_area", "nr"), ("max_area", "nr"), ("scalars", len(RIGID_SCALARS))))
+"""The float64 fields of a :class:`RigidTable` of ``na`` actuators and ``nr`` rigid branches, flattened
+(:func:`flatten_rigid`): per actuator, then per rigid branch, then the scalars."""
+RIGID_INTS = Layout("rigid_ints", ("na", "nr"), (("rigid", "na"), ("actuator", "nr"), ("valve", "nr"), ("supply", "nr"),
+                                                 ("tank", "nr")))
+"""The int64 fields of a :class:`RigidTable`, flattened."""
 
 
-def flatten_incompressible(T: IncompressibleTable):
-    """``T`` as one float64 and one int64 array (for a caller that passes addresses, the fast MuJoCo plant);
-    :func:`unflatten_incompressible` rebuilds the table.  Order: the fields of :class:`IncompressibleTable`."""
-    floats = np.concatenate([np.ravel(T.edge_cd), T.extend_area, T.retract_area, T.force_lower, T.force_upper, T.scalars])
-    return np.ascontiguousarray(floats, np.float64), np.ascontiguousarray(np.ravel(T.edges), np.int64)
+def table_sizes(na, nr) -> tuple[int, int]:
+    """(float64, int64) lengths that hold either flattened table of ``na`` actuators and ``nr`` rigid branches: the
+    larger of :data:`INCOMPRESSIBLE_FLOATS` and :data:`RIGID_FLOATS`, of :data:`INCOMPRESSIBLE_INTS` and
+    :data:`RIGID_INTS` (a caller that views both tables in the same arrays, the fast MuJoCo plant)."""
+    return (max(INCOMPRESSIBLE_FLOATS.size(na=na), RIGID_FLOATS.size(na=na, nr=nr)),
+            max(INCOMPRESSIBLE_INTS.size(na=na), RIGID_INTS.size(na=na, nr=nr)))
 
 
-@C._jit
-def unflatten_incompressible(TF, TI, na):
-    """The :class:`IncompressibleTable` of ``na`` actuators held in :func:`flatten_incompressible`'s arrays (views)."""
-    o = _W_EDGE * na
-    return IncompressibleTable(C._matrix(TI[:o], na, _W_EDGE), C._matrix(TF[:o], na, _W_EDGE), TF[o:o + na],
-                               TF[o + na:o + 2 * na], TF[o + 2 * na:o + 3 * na], TF[o + 3 * na:o + 4 * na],
-                               TF[o + 4 * na:o + 4 * na + _N_IS])
+def flatten_incompressible(T: IncompressibleTable, sizes: tuple[int, int] | None = None):
+    """``T`` as one float64 and one int64 array (:data:`INCOMPRESSIBLE_FLOATS`, :data:`INCOMPRESSIBLE_INTS`; for a
+    caller that passes addresses, the fast MuJoCo plant), of ``sizes`` entries when given (:func:`table_sizes`; padded
+    with 0 and −1); :func:`unflatten_incompressible` rebuilds the table."""
+    na = len(T.extend_area)
+    nf, ni = sizes if sizes is not None else (None, None)
+    return (INCOMPRESSIBLE_FLOATS.gather(T, np.float64, nf, 0.0, na=na),
+            INCOMPRESSIBLE_INTS.gather(T, np.int64, ni, -1, na=na))
 
 
-def flatten_rigid(T: RigidTable):
-    """``T`` as one float64 and one int64 array (see :func:`flatten_incompressible`); :func:`unflatten_rigid`
-    rebuilds it.  Order: per actuator, then per rigid branch, then the scalars."""
-    floats = np.concatenate([T.force_lower, T.force_upper, T.sign, T.extend_area, T.retract_area, T.cd, T.base_area,
-                             T.max_area, T.scalars])
-    ints = np.concatenate([T.rigid, T.actuator, T.valve, T.supply, T.tank])
-    return np.ascontiguousarray(floats, np.float64), np.ascontiguousarray(ints, np.int64)
+unflatten_incompressible = C._jit(table_carver(IncompressibleTable, ((INCOMPRESSIBLE_FLOATS, "TF"),
+                                                                     (INCOMPRESSIBLE_INTS, "TI")), ("na",), matrix))
 
 
-@C._jit
-def unflatten_rigid(TF, TI, na, nr):
-    """The :class:`RigidTable` of ``na`` actuators and ``nr`` rigid branches held in :func:`flatten_rigid`'s arrays."""
-    b = 2 * na
-    return RigidTable(TI[:na], TF[:na], TF[na:b], TI[na:na + nr], TI[na + nr:na + 2 * nr], TF[b:b + nr],
-                      TF[b + nr:b + 2 * nr], TF[b + 2 * nr:b + 3 * nr], TF[b + 3 * nr:b + 4 * nr],
-                      TF[b + 4 * nr:b + 5 * nr], TF[b + 5 * nr:b + 6 * nr], TI[na + 2 * nr:na + 3 * nr],
-                      TI[na + 3 * nr:na + 4 * nr], TF[b + 6 * nr:b + 6 * nr + _N_RS])
+def flatten_rigid(T: RigidTable, sizes: tuple[int, int] | None = None):
+    """``T`` as one float64 and one int64 array (:data:`RIGID_FLOATS`, :data:`RIGID_INTS`; see
+    :func:`flatten_incompressible`); :func:`unflatten_rigid` rebuilds it."""
+    na, nr = len(T.rigid), len(T.actuator)
+    nf, ni = sizes if sizes is not None else (None, None)
+    return RIGID_FLOATS.gather(T, np.float64, nf, 0.0, na=na, nr=nr), RIGID_INTS.gather(T, np.int64, ni, -1, na=na, nr=nr)
+
+
+unflatten_rigid = C._jit(table_carver(RigidTable, ((RIGID_FLOATS, "TF"), (RIGID_INTS, "TI")), ("na", "nr"), matrix))
 
 
 # ----------------------------------------------------------------------------

@@ -17,7 +17,13 @@ A layout nested in another is a field whose size is a dimension of the outer one
 inner kernel carves it from its own start), or its fields are spliced into the outer list
 (``Layout(..., INNER.fields + (...))``): either way each field is written once.
 
-:func:`slots` makes the named indices of an int64 table (a pointer table) from one tuple of names.
+:func:`table_carver` carves one named tuple from several buffers, each described by a layout (a table of float64 and
+int64 columns flattened into one array of each dtype).
+
+:func:`slots` makes the named indices of an int64 table from one tuple of names; a :class:`PointerTable` describes an
+int64 table that holds counters, dimensions and the addresses of typed arrays (what a C callback reads instead of
+arguments), and generates its slot names, the named tuple of its arrays, the numba-compilable function that views
+them, and the check of each registered array against the description.
 
 Example
 -------
@@ -35,7 +41,10 @@ Example
 from __future__ import annotations
 
 import keyword
+import math
 from collections import namedtuple
+
+import numpy as np
 
 
 class Layout:
@@ -114,15 +123,21 @@ class Layout:
         """Source of ``carve(W, o, *dims)``: one slice per field from offset ``o`` (matrices through ``_matrix``),
         returned as a :attr:`View` with the offset after the last field."""
         lines = [f"def carve(W, o, {', '.join(self.dims)}):" if self.dims else "def carve(W, o):"]
+        lines += self._slices("W")
+        lines.append(f"    return _View({', '.join(self.names)}), o")
+        return "\n".join(lines) + "\n"
+
+    def _slices(self, buffer: str) -> list[str]:
+        """Statements binding each field to its slice of ``buffer`` from offset ``o`` and advancing ``o``."""
+        lines = []
         for name, rows, cols in self.fields:
             count = self._term(rows, cols)
             if cols is None:
-                lines.append(f"    {name} = W[o:o + {count}]")
+                lines.append(f"    {name} = {buffer}[o:o + {count}]")
             else:
-                lines.append(f"    {name} = _matrix(W[o:o + {count}], {rows}, {cols})")
+                lines.append(f"    {name} = _matrix({buffer}[o:o + {count}], {rows}, {cols})")
             lines.append(f"    o = o + {count}")
-        lines.append(f"    return _View({', '.join(self.names)}), o")
-        return "\n".join(lines) + "\n"
+        return lines
 
     def _generated(self, source: str, namespace: dict, what: str):
         exec(compile(source, f"<hydraulics.layout.{self.name}.{what}>", "exec"), namespace)
@@ -151,8 +166,168 @@ class Layout:
             out.append(buffer[offset + start:offset + stop].reshape(shapes[name]))
         return self.View(*out)
 
+    def gather(self, source, dtype, length: int | None = None, fill=0, **dims):
+        """A new flat array of ``dtype`` holding the fields of ``source`` (an object with an attribute per field, a
+        named tuple) in the layout's order, each checked to have its described number of entries; padded with
+        ``fill`` to ``length`` entries when given (at least :meth:`size`).  :meth:`views` or :meth:`carver` (or
+        :func:`table_carver` for a table split over several buffers) read it back."""
+        out = np.full(self.size(**dims) if length is None else int(length), fill, dtype)
+        if out.size < self.size(**dims):
+            raise ValueError(f"layout {self.name}: {out.size} entries cannot hold {self.size(**dims)} for {dims}")
+        for name, (start, stop) in self.offsets(**dims).items():
+            values = np.ravel(getattr(source, name))
+            if values.size != stop - start:
+                raise ValueError(f"layout {self.name}: field {name} has {values.size} entries, {stop - start} described "
+                                 f"for {dims}")
+            out[start:stop] = values
+        return out
+
     def __repr__(self):
         return f"Layout({self.name!r}, {self.dims}, {self.names})"
+
+
+def table_carver(view, parts, dims: tuple[str, ...], matrix):
+    """``carve(*buffers, *dims)``: the named tuple ``view`` of the fields of several flat buffers, each described by a
+    :class:`Layout` (``parts``: ``(layout, buffer name)`` per buffer, e.g. a float64 and an int64 array holding one
+    table), every field of ``view`` found in exactly one layout; ``dims``: the union of the layouts' dimensions, in
+    the order the function takes them.  Generated source, compiled like :meth:`Layout.carver` (inline it in a
+    kernel); ``matrix`` as there."""
+    names = [n for layout, _ in parts for n in layout.names]
+    if sorted(names) != sorted(view._fields):
+        raise ValueError(f"{view.__name__}: the layouts' fields {names} are not the tuple's {view._fields}")
+    buffers = [b for _, b in parts]
+    for layout, _ in parts:
+        if not set(layout.dims) <= set(dims):
+            raise ValueError(f"{view.__name__}: layout {layout.name} takes {layout.dims}, not all in {dims}")
+    if set(buffers) & (set(names) | set(dims) | {"o"}) or len(set(buffers)) != len(buffers):
+        raise ValueError(f"{view.__name__}: a buffer named twice or like a field or dimension: {buffers}")
+    lines = [f"def carve({', '.join(buffers + list(dims))}):"]
+    for layout, buffer in parts:
+        lines.append("    o = 0")
+        lines += layout._slices(buffer)
+    lines.append(f"    return _View({', '.join(view._fields)})")
+    source = "\n".join(lines) + "\n"
+    namespace = {"_View": view, "_matrix": matrix}
+    exec(compile(source, f"<hydraulics.layout.{view.__name__}.carve>", "exec"), namespace)
+    function = namespace["carve"]
+    function.__doc__ = (f"The {view.__name__} held in {', '.join(buffers)} ({', '.join(l.name for l, _ in parts)}) "
+                        f"as views.")
+    function.source = source
+    return function
+
+
+class PointerTable:
+    """An int64 table of named integers and of the addresses of typed arrays, described once.
+
+    A compiled callback that cannot take arguments (a C callback) reads its arrays through such a table: their
+    addresses and the dimensions that size them.  ``scalars``: the names of the table's plain integer entries
+    (counters, flags), in table order; ``dims``: the arrays' dimensions, each held in the entry ``C_<DIM>`` (upper
+    case) after the scalars; ``arrays``: ``(name, dtype, rows)`` for a vector, ``(name, dtype, rows, cols)`` for a
+    C-contiguous matrix, ``dtype`` a numpy dtype name, ``rows``/``cols`` an ``int`` or a Python expression in
+    ``dims``, the address in the entry ``P_<NAME>`` after the dimensions.  Generated from it:
+
+    * :attr:`SLOT`: every entry's index (:func:`slots`), :attr:`names` the entries' names, ``len`` the table's length;
+    * :attr:`View`: the named tuple of the arrays; :meth:`viewer` (source :meth:`viewer_source`): ``views(ctx)``, every
+      array as a view of the memory the table points to (``carray`` of the address cast to a pointer of its dtype,
+      numba-compilable; inline it where the views are used);
+    * :meth:`register`: writes dimensions and addresses into a table after checking each array's dtype, contiguity
+      and size against the description; :meth:`shapes`.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> T = PointerTable("demo", ("C_STEP",), ("n",), (("oil", "float64", "n"), ("table", "int64", "n", 2)))
+    >>> T.names, T.SLOT.P_OIL
+    (('C_STEP', 'C_N', 'P_OIL', 'P_TABLE'), 2)
+    >>> ctx, oil = np.zeros(len(T), np.int64), np.zeros(3)
+    >>> T.register(ctx, {"oil": oil, "table": np.zeros((3, 2), np.int64)}, n=3)
+    >>> int(ctx[T.SLOT.C_N]), int(ctx[T.SLOT.P_OIL]) == oil.ctypes.data
+    (3, True)
+    """
+
+    def __init__(self, name: str, scalars: tuple[str, ...], dims: tuple[str, ...], arrays: tuple[tuple, ...]):
+        self.name = name
+        self.dims = tuple(dims)
+        self.arrays = tuple((a[0], str(a[1]), tuple(a[2:])) for a in arrays)
+        fields = [a[0] for a in self.arrays]
+        for n in fields + list(self.dims):
+            if not n.isidentifier() or keyword.iskeyword(n) or n.startswith("_") or n == "ctx":
+                raise ValueError(f"pointer table {name}: {n!r} is not a plain identifier (or is the table's ctx)")
+        if set(fields) & set(self.dims):
+            raise ValueError(f"pointer table {name}: an array named like a dimension: {fields}, {self.dims}")
+        for field, _, shape in self.arrays:
+            if len(shape) not in (1, 2):
+                raise ValueError(f"pointer table {name}: {field} has {len(shape)} dimensions (1 or 2 described)")
+        self.names = tuple(scalars) + tuple(f"C_{d.upper()}" for d in self.dims) + tuple(f"P_{f.upper()}" for f in fields)
+        self.SLOT = slots(self.names)  # (refuses a name twice, e.g. arrays J and j)
+        self._dim_slots = tuple(getattr(self.SLOT, f"C_{d.upper()}") for d in self.dims)
+        self._pointer_slots = tuple(getattr(self.SLOT, f"P_{f.upper()}") for f in fields)
+        self._index = {f: i for i, f in enumerate(fields)}
+        self._dtypes = tuple(np.dtype(dtype) for _, dtype, _ in self.arrays)
+        self.View = namedtuple(f"{name.title().replace('_', '')}Views", fields)
+        self.View.__doc__ = f"Views of the arrays of the {name} pointer table ({', '.join(fields)})."
+        shapes = ", ".join("(" + "".join(f"({e}), " for e in shape) + ")" for _, _, shape in self.arrays)
+        source = f"def shapes({', '.join(self.dims)}):\n    return ({shapes}{',' if len(self.arrays) == 1 else ''})\n"
+        namespace = {"__builtins__": {}}
+        exec(compile(source, f"<hydraulics.layout.{name}.shapes>", "exec"), namespace)
+        self._shapes = namespace["shapes"]  # (read on each registration: one call, no eval per array)
+        self.shapes(**{d: 1 for d in self.dims})  # every expression in the dimensions
+
+    def __len__(self):
+        return len(self.names)
+
+    def shapes(self, **dims) -> dict[str, tuple[int, ...]]:
+        """Each array's shape for the dimensions ``dims`` (every name of :attr:`dims`)."""
+        if set(dims) != set(self.dims):
+            raise TypeError(f"pointer table {self.name} takes the dimensions {self.dims}, got {sorted(dims)}")
+        return dict(zip(self.View._fields, self._shapes(*(int(dims[d]) for d in self.dims))))
+
+    def viewer_source(self) -> str:
+        """Source of ``views(ctx)``: the dimensions read from the table, then each array through
+        ``_carray(_cast_<dtype>(address), shape)``, returned as a :attr:`View`."""
+        lines = ["def views(ctx):"]
+        lines += [f"    {d} = ctx[{getattr(self.SLOT, f'C_{d.upper()}')}]" for d in self.dims]
+        for field, dtype, shape in self.arrays:
+            extent = ", ".join(f"({e})" for e in shape)
+            lines.append(f"    {field} = _carray(_cast_{dtype}(ctx[{getattr(self.SLOT, f'P_{field.upper()}')}]), "
+                         f"({extent},))")
+        lines.append(f"    return _View({', '.join(self.View._fields)})")
+        return "\n".join(lines) + "\n"
+
+    def viewer(self, carray, casts: dict):
+        """The Python function of :meth:`viewer_source`; ``carray(pointer, shape)`` makes a view of foreign memory
+        (``numba.carray``), ``casts[dtype](address)`` the typed pointer of an address."""
+        namespace = {"_View": self.View, "_carray": carray, **{f"_cast_{k}": v for k, v in casts.items()}}
+        exec(compile(self.viewer_source(), f"<hydraulics.layout.{self.name}.views>", "exec"), namespace)
+        function = namespace["views"]
+        function.__doc__ = f"The arrays of the {self.name} pointer table as views ({', '.join(self.View._fields)})."
+        return function
+
+    def register(self, ctx, arrays: dict, **dims) -> None:
+        """Write ``dims`` (some of :attr:`dims`) and the addresses of ``arrays`` (name → numpy array, some of the
+        described ones) into the table ``ctx`` (int64, ``len(self)`` entries).  Each array must have its described
+        dtype, be C-contiguous and hold as many entries as its described shape for the table's dimensions (those
+        given here, the others as ``ctx`` holds them); a ``ValueError`` says which does not.  The caller keeps the
+        arrays alive as long as the table is read."""
+        unknown = (set(dims) - set(self.dims)) | (set(arrays) - set(self.View._fields))
+        if unknown:
+            raise TypeError(f"pointer table {self.name}: unknown dimensions or arrays {sorted(unknown)}")
+        for d, value in dims.items():
+            ctx[getattr(self.SLOT, f"C_{d.upper()}")] = int(value)
+        shapes = self._shapes(*(int(ctx[s]) for s in self._dim_slots))
+        for field, array in arrays.items():
+            index = self._index[field]
+            dtype, shape = self._dtypes[index], shapes[index]
+            size = math.prod(shape)
+            if not (isinstance(array, np.ndarray) and array.dtype == dtype and array.flags.c_contiguous
+                    and array.size == size):
+                raise ValueError(f"pointer table {self.name}: {field} must be a C-contiguous {dtype} array of {size} "
+                                 f"entries {shape}, got {getattr(array, 'dtype', type(array))} "
+                                 f"{getattr(array, 'shape', '')}")
+            ctx[self._pointer_slots[index]] = array.ctypes.data
+
+    def __repr__(self):
+        return f"PointerTable({self.name!r}, {self.dims}, {self.View._fields})"
 
 
 def slots(names: tuple[str, ...]):

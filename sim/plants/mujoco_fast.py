@@ -137,7 +137,6 @@ import ctypes
 import math
 import os
 import threading
-from collections import namedtuple
 
 import mujoco
 import numpy as np
@@ -148,7 +147,7 @@ from hydraulics import controllers as CT
 from hydraulics.coupling import (SCHEME_ROSENBROCK, CouplingExplicit, CouplingImplicit, CouplingIncompressible,
                                  CouplingMixed)
 from hydraulics.fluid import POTENTIAL_QUADRATURE_POINTS, potential_quadrature
-from hydraulics.layout import Layout, slots
+from hydraulics.layout import Layout, PointerTable
 from sim.io import record_row
 from sim.io.record_row import RECORD_ROW
 from hydraulics.network import NetworkState
@@ -171,38 +170,61 @@ except ImportError:  # pragma: no cover
 
 
 # ----------------------------------------------------------------------------
-# Pointer table layout (int64).  Sizes and counters first, then addresses.
+# The pointer table (int64): counters, the arrays' dimensions, the arrays' addresses.
 # ----------------------------------------------------------------------------
-CTX_SLOTS = (
-    # sizes and counters
-    "C_NA", "C_NV", "C_NU", "C_N", "C_NB", "C_NVALVE", "C_NPUMP", "C_NBIAS", "C_SUBSTEPS", "C_NCYL",
-    "C_K", "C_PENDING", "C_FAILED", "C_STATUS", "C_WORST", "C_NEWTON", "C_RHS", "C_JAC", "C_NF", "C_NI", "C_NW",
-    "C_NS", "C_ROWS", "C_MODE",
-    # addresses
-    "P_F", "P_I", "P_ACT", "P_CLOSED", "P_LENGTH", "P_AVEL", "P_MOMENT", "P_ROWADR", "P_ROWNNZ", "P_COLIND", "P_QVEL",
-    "P_CTRL", "P_BIASPRM", "P_PASSIVE", "P_CONSTRAINT", "P_J", "P_MINVJ", "P_OIL", "P_PRESSURE", "P_SPOOL", "P_XPOS",
-    "P_XVEL", "P_CMD", "P_SPEED", "P_XSTART", "P_VSTART", "P_CONST", "P_SLOPE", "P_THETA", "P_MEFF", "P_EFFORT",
-    "P_FLOW", "P_PASSIVE_SAVED", "P_FS", "P_QUAD", "P_WORK", "P_SCRATCH", "P_ISTATS", "P_PMAX", "P_PMIN", "C_LINEAR",
-    # the record (MujocoPlantFast.advance)
-    "C_NQ", "C_NBODY", "C_REC_ROWS", "C_REC_EVERY", "C_REC_FIRST", "C_REC_COUNT", "C_REC_BAD", "C_END_FINITE",
-    "C_REC_WIDTH", "P_QPOS", "P_BXPOS", "P_BXQUAT", "P_ENERGY", "P_REC", "P_OIL_CHANGE", "P_XMAX", "P_XMIN",
-    # coupling tables and force bounds
-    "C_KIND", "C_NTF", "C_NTI", "P_TF", "P_TI", "P_LOWER", "P_UPPER", "P_FLIMITED", "P_FRANGE", "C_NR",
-    # controllers (hydraulics.controllers); C_STEP0: first step
-    "P_CTL_TABLE", "P_CTL_STATE", "P_CTL_SET", "C_NCTL", "C_STEP0",
-)
-"""Names of the pointer table's int64 entries (C_*: sizes and counters, P_*: addresses), in table order;
-``SLOT.<name>`` is an entry's index (:func:`hydraulics.layout.slots`)."""
-SLOT = slots(CTX_SLOTS)
-NCTX = len(CTX_SLOTS)
-KINDS = ("implicit", "explicit", "incompressible")
-"""SLOT.C_KIND: the coupling the callback steps (``KIND_*``)."""
-KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(len(KINDS))
 FLOAT_SCALARS = ("dt", "norm", "pump", "motor", "diss_h", "diss_f", "diss_m", "nquad")
 """The float scalars (SLOT.P_FS, indices ``FS_*``): step [s], residual of the last step [Pa], then the ledger terms
 [J] in C._account's order."""
 FS_DT, FS_NORM, FS_PUMP, FS_MOTOR, FS_DISS_H, FS_DISS_F, FS_DISS_M, FS_NQUAD = range(len(FLOAT_SCALARS))
 NFS = len(FLOAT_SCALARS)
+POINTERS = PointerTable("fast_plant", (
+    # counters and flags of the block: steps done, a step pending its finish, the failed step, its outcome
+    "C_SUBSTEPS", "C_K", "C_PENDING", "C_FAILED", "C_STATUS", "C_WORST", "C_NEWTON", "C_RHS", "C_JAC", "C_MODE",
+    "C_LINEAR", "C_KIND", "C_NR", "C_STEP0", "C_END_FINITE",
+    # the record (MujocoPlantFast.advance): every how many steps, the first recorded step, rows written, bad rows
+    "C_REC_EVERY", "C_REC_FIRST", "C_REC_COUNT", "C_REC_BAD"),
+    # na actuators, nv dofs, nu MuJoCo actuators, n nodes, nb branches, nvalve valves, npump pumps, nbias bias
+    # parameters per MuJoCo actuator, nstate component states, nnz entries of MuJoCo's sparse actuator moments, rows of
+    # the block's inputs, nf/ni packed network floats/ints, nw/ns work/scratch floats, ntf/nti coupling table
+    # floats/ints, nq MuJoCo coordinates, nbody bodies, nctl controllers, rec_rows × rec_width the block's record
+    ("na", "nv", "nu", "n", "nb", "nvalve", "npump", "nbias", "nstate", "nnz", "rows", "nf", "ni", "nw", "ns", "ntf",
+     "nti", "nq", "nbody", "nctl", "rec_rows", "rec_width"), (
+    # the packed network (hydraulics._compiled) and the coupling table of SLOT.C_KIND (hydraulics._compiled_rigid)
+    ("F", "float64", "nf"), ("I", "int64", "ni"), ("TF", "float64", "ntf"), ("TI", "int64", "nti"),
+    # MuJoCo's model and data: actuator lengths and velocities, sparse moments, qvel, ctrl, biasprm, passive and
+    # constraint forces, force limits, qpos, body poses, (potential, kinetic) energy
+    ("length", "float64", "nu"), ("avel", "float64", "nu"), ("moment", "float64", "nnz"), ("rowadr", "int32", "nu"),
+    ("rownnz", "int32", "nu"), ("colind", "int32", "nnz"), ("qvel", "float64", "nv"), ("ctrl", "float64", "nu"),
+    ("bias", "float64", "nu * nbias"), ("passive", "float64", "nv"), ("constraint", "float64", "nv"),
+    ("flimited", "bool", "nu"), ("frange", "float64", "2 * nu"), ("qpos", "float64", "nq"),
+    ("bxpos", "float64", "nbody", 3), ("bxquat", "float64", "nbody", 4), ("energy", "float64", 2),
+    # the actuators: MuJoCo actuator of each, closed length; dense moments J and M⁻¹·Jᵀ; start positions and
+    # velocities; the effort law (const + slope·v within [lower, upper]), θ, effective masses, applied effort;
+    # passive forces at the step's start
+    ("act", "int64", "na"), ("closed", "float64", "na"), ("J", "float64", "na", "nv"), ("MinvJ", "float64", "na", "nv"),
+    ("xs", "float64", "na"), ("vs", "float64", "na"), ("const", "float64", "na"), ("slope", "float64", "na"),
+    ("lower", "float64", "na"), ("upper", "float64", "na"), ("theta", "float64", "na"), ("meff", "float64", "na"),
+    ("effort", "float64", "na"), ("passive_saved", "float64", "nv"),
+    # the network state, the step's oil change and flows, the running extremes
+    ("oil", "float64", "n"), ("pres", "float64", "n"), ("spool", "float64", "nstate"), ("pos", "float64", "na"),
+    ("vel", "float64", "na"), ("flow", "float64", "nb"), ("oil_change", "float64", "n"), ("pmax", "float64", "n"),
+    ("pmin", "float64", "n"), ("xmax", "float64", "na"), ("xmin", "float64", "na"),
+    # float scalars (FLOAT_SCALARS), the potential's quadrature, the kernels' work and the plant's scratch, counters
+    ("fs", "float64", NFS), ("quad", "float64", 2 * POTENTIAL_QUADRATURE_POINTS), ("W", "float64", "nw"),
+    ("S", "float64", "ns"), ("istats", "int64", C.NIS),
+    # per block: every step's valve commands and pump speeds, the controllers (hydraulics.controllers) and their
+    # setpoints, the record
+    ("cmd", "float64", "rows", "nvalve"), ("speed", "float64", "rows", "npump"),
+    ("ctl_table", "float64", "nctl", len(CT.PID_COLUMNS)), ("ctl_state", "float64", "nctl", len(CT.STATE_COLUMNS)),
+    ("ctl_set", "float64", "rows", "nctl"), ("rec", "float64", "rec_rows", "rec_width")))
+"""The control callback's int64 table (:class:`hydraulics.layout.PointerTable`): ``SLOT.<name>`` is an entry's index
+(C_*: counters and dimensions, P_*: addresses), :func:`_views` the arrays it points to."""
+SLOT = POINTERS.SLOT
+CTX_SLOTS = POINTERS.names
+NCTX = len(POINTERS)
+KINDS = ("implicit", "explicit", "incompressible")
+"""SLOT.C_KIND: the coupling the callback steps (``KIND_*``)."""
+KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(len(KINDS))
 STATUSES = ("ok", "newton", "nonfinite", "singular")
 """SLOT.C_STATUS: the step's outcome (``ST_*``)."""
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(len(STATUSES))
@@ -231,11 +253,11 @@ PLANT_SCRATCH = Layout("plant_scratch", ("n", "na", "nb", "nvalve"), (
        ("lin_p", "n"), ("gradient", "na", "na"), ("lin_x", "na"), ("lin_flow", "nb"), ("oil_warm", "n"),
        # 1 when the finish just before wrote p(m, x) at the positions this step starts from into geo, p0, dpdm
        ("known", 1)))
-"""The plant's float64 scratch (SLOT.P_SCRATCH), n nodes, na actuators, nb branches, nvalve component states."""
+"""The plant's float64 scratch (SLOT.P_S), n nodes, na actuators, nb branches, nvalve component states."""
 
 
 def scratch_size(na, n, nb, nstate):
-    """Length of the plant's float64 scratch (SLOT.P_SCRATCH): :data:`PLANT_SCRATCH`."""
+    """Length of the plant's float64 scratch (SLOT.P_S): :data:`PLANT_SCRATCH`."""
     return PLANT_SCRATCH.size(n=n, na=na, nb=nb, nvalve=nstate)
 
 
@@ -260,6 +282,7 @@ if _JIT:
     _pi32 = _pointer_cast(types.CPointer(types.int32))
     _pu8 = _pointer_cast(types.CPointer(types.uint8))
     _pvoid = _pointer_cast(types.voidptr)
+    _carray = carray
 
     @intrinsic
     def _ctx_address(typingctx):
@@ -308,6 +331,10 @@ else:  # the same callback as Python (NUMBA_DISABLE_JIT=1, for debugging): ctype
     def _pvoid(addr):
         return int(addr)
 
+    def _carray(pointer, shape):
+        """``carray``; zeros for a null pointer (an entry not set for this block, never read)."""
+        return carray(pointer, shape) if pointer else np.zeros(shape, np.dtype(pointer._type_))
+
     def _ctx_address():
         return int(_CTX.ctypes.data)
 
@@ -325,45 +352,9 @@ else:  # the same callback as Python (NUMBA_DISABLE_JIT=1, for debugging): ctype
 _plant_scratch = _inline(PLANT_SCRATCH.carver(C._matrix))
 
 
-@_jit  # returns a view of foreign memory (no NRT reference to drop)
-def _vf(ctx, slot, n):
-    return carray(_pf64(ctx[slot]), (n,))
-
-
-@_jit  # returns a view of foreign memory (no NRT reference to drop)
-def _mf(ctx, slot, rows, cols):
-    return carray(_pf64(ctx[slot]), (rows, cols))
-
-
-@_jit  # returns a view of foreign memory (no NRT reference to drop)
-def _vi32(ctx, slot, n):
-    return carray(_pi32(ctx[slot]), (n,))
-
-
-@_jit  # returns a view of foreign memory (no NRT reference to drop)
-def _vi64(ctx, slot, n):
-    return carray(_pi64(ctx[slot]), (n,))
-
-
-@_jit  # returns a view of foreign memory (no NRT reference to drop)
-def _vu8(ctx, slot, n):
-    return carray(_pu8(ctx[slot]), (n,))
-
-
-_Views = namedtuple("_Views", ('fs', 'J', 'MinvJ', 'qvel', 'xs', 'vs', 'S', 'W', 'istats', 'cmd', 'speed', 'oil', 'pres', 'spool', 'pos', 'vel', 'flow', 'const', 'slope', 'effort', 'quad', 'passive_saved', 'constraint', 'passive', 'act', 'closed', 'length', 'avel', 'meff', 'theta', 'ctrl', 'bias', 'rowadr', 'rownnz', 'colind', 'moment', 'pmax', 'pmin', 'oil_change', 'xmax', 'xmin', 'lower', 'upper', 'flimited', 'frange'))
-
-
-@_inline
-def _views(ctx, nstate):
-    """The arrays of the pointer table as views (built here, in reference-counted code: the kernels below
-    run without numba's reference counting and cannot create arrays)."""
-    na, nv, nu, n, nb = ctx[SLOT.C_NA], ctx[SLOT.C_NV], ctx[SLOT.C_NU], ctx[SLOT.C_N], ctx[SLOT.C_NB]
-    nvalve, npump = ctx[SLOT.C_NVALVE], ctx[SLOT.C_NPUMP]
-    rowadr, rownnz = _vi32(ctx, SLOT.P_ROWADR, nu), _vi32(ctx, SLOT.P_ROWNNZ, nu)
-    nnz = 0
-    for a in range(nu):
-        nnz = max(nnz, rowadr[a] + rownnz[a])
-    return _Views(_vf(ctx, SLOT.P_FS, NFS), _mf(ctx, SLOT.P_J, na, nv), _mf(ctx, SLOT.P_MINVJ, na, nv), _vf(ctx, SLOT.P_QVEL, nv), _vf(ctx, SLOT.P_XSTART, na), _vf(ctx, SLOT.P_VSTART, na), _vf(ctx, SLOT.P_SCRATCH, ctx[SLOT.C_NS]), _vf(ctx, SLOT.P_WORK, ctx[SLOT.C_NW]), _vi64(ctx, SLOT.P_ISTATS, C.NIS), _mf(ctx, SLOT.P_CMD, ctx[SLOT.C_ROWS], nvalve), _mf(ctx, SLOT.P_SPEED, ctx[SLOT.C_ROWS], npump), _vf(ctx, SLOT.P_OIL, n), _vf(ctx, SLOT.P_PRESSURE, n), _vf(ctx, SLOT.P_SPOOL, nstate), _vf(ctx, SLOT.P_XPOS, na), _vf(ctx, SLOT.P_XVEL, na), _vf(ctx, SLOT.P_FLOW, nb), _vf(ctx, SLOT.P_CONST, na), _vf(ctx, SLOT.P_SLOPE, na), _vf(ctx, SLOT.P_EFFORT, na), _vf(ctx, SLOT.P_QUAD, 2 * POTENTIAL_QUADRATURE_POINTS), _vf(ctx, SLOT.P_PASSIVE_SAVED, nv), _vf(ctx, SLOT.P_CONSTRAINT, nv), _vf(ctx, SLOT.P_PASSIVE, nv), _vi64(ctx, SLOT.P_ACT, na), _vf(ctx, SLOT.P_CLOSED, na), _vf(ctx, SLOT.P_LENGTH, nu), _vf(ctx, SLOT.P_AVEL, nu), _vf(ctx, SLOT.P_MEFF, na), _vf(ctx, SLOT.P_THETA, na), _vf(ctx, SLOT.P_CTRL, nu), _vf(ctx, SLOT.P_BIASPRM, nu * ctx[SLOT.C_NBIAS]), _vi32(ctx, SLOT.P_ROWADR, nu), _vi32(ctx, SLOT.P_ROWNNZ, nu), _vi32(ctx, SLOT.P_COLIND, nnz), _vf(ctx, SLOT.P_MOMENT, nnz), _vf(ctx, SLOT.P_PMAX, n), _vf(ctx, SLOT.P_PMIN, n), _vf(ctx, SLOT.P_OIL_CHANGE, n), _vf(ctx, SLOT.P_XMAX, na), _vf(ctx, SLOT.P_XMIN, na), _vf(ctx, SLOT.P_LOWER, na), _vf(ctx, SLOT.P_UPPER, na), _vu8(ctx, SLOT.P_FLIMITED, nu), _vf(ctx, SLOT.P_FRANGE, 2 * nu))
+# the arrays of the pointer table as views (built inline in the callback, in reference-counted code: the kernels below
+# run without numba's reference counting and cannot create arrays)
+_views = _inline(POINTERS.viewer(_carray, {"float64": _pf64, "int64": _pi64, "int32": _pi32, "bool": _pu8}))
 
 
 @_kernel
@@ -694,14 +685,13 @@ def _record(ctx, V):
     first = ctx[SLOT.C_REC_FIRST]
     if count >= ctx[SLOT.C_REC_ROWS] or j < first or ctx[SLOT.C_FAILED] >= 0 or (j - first) % ctx[SLOT.C_REC_EVERY] != 0:
         return
-    width = ctx[SLOT.C_REC_WIDTH]
-    row = carray(_pf64(ctx[SLOT.P_REC] + 8 * count * width), (width,))
+    row = V.rec[count]
     fs = V.fs
     nbody, nctl = ctx[SLOT.C_NBODY], ctx[SLOT.C_NCTL]
     r, _ = _record_views(row, 0, ctx[SLOT.C_N], ctx[SLOT.C_NQ], ctx[SLOT.C_NV], ctx[SLOT.C_NA], ctx[SLOT.C_NVALVE],
                          V.spool.size, ctx[SLOT.C_NPUMP], ctx[SLOT.C_NB], nbody, nctl)  # (RECORD_ROW)
     C._copy(r.p, V.pres)
-    C._copy(r.qpos, _vf(ctx, SLOT.P_QPOS, ctx[SLOT.C_NQ]))
+    C._copy(r.qpos, V.qpos)
     C._copy(r.qvel, V.qvel)
     C._copy(r.oil, V.oil)
     C._copy(r.x, V.pos)
@@ -712,13 +702,13 @@ def _record(ctx, V):
     C._copy(r.spool, V.spool)
     C._copy(r.speed, V.speed[j])
     C._copy(r.flow, V.flow)
-    energy = _vf(ctx, SLOT.P_ENERGY, 2)  # MuJoCo's (potential, kinetic)
+    energy = V.energy  # MuJoCo's (potential, kinetic)
     r.solver[0], r.solver[1] = ctx[SLOT.C_NEWTON], fs[FS_NORM]
     r.energy[0], r.energy[1], r.energy[2] = energy[1], energy[0], fs[FS_PUMP]
     r.energy[3], r.energy[4], r.energy[5] = fs[FS_DISS_H], fs[FS_DISS_F], fs[FS_DISS_M]
-    C._copy2(r.xpos, _mf(ctx, SLOT.P_BXPOS, nbody, 3))
-    C._copy2(r.xquat, _mf(ctx, SLOT.P_BXQUAT, nbody, 4))
-    C._copy2(r.controllers, _mf(ctx, SLOT.P_CTL_STATE, nctl, _CTL_STATES))
+    C._copy2(r.xpos, V.bxpos)
+    C._copy2(r.xquat, V.bxquat)
+    C._copy2(r.controllers, V.ctl_state)
     ctx[SLOT.C_REC_COUNT] = count + 1
     if not _state_finite(ctx, V):
         ctx[SLOT.C_REC_BAD] += 1
@@ -730,7 +720,7 @@ def _state_finite(ctx, V):
     s = 0.0
     for x in V.pres:
         s += x * 0.0
-    for x in _vf(ctx, SLOT.P_QPOS, ctx[SLOT.C_NQ]):
+    for x in V.qpos:
         s += x * 0.0
     for x in V.qvel:
         s += x * 0.0
@@ -747,16 +737,12 @@ _unflatten_rigid = _inline(K.unflatten_rigid)
 def _coupled_step(address, m, d):
     """The whole callback: finish step k−1, moments, M⁻¹·Jᵀ (MuJoCo's mj_solveM), effort law of step k."""
     ctx = carray(_pi64(address), (NCTX,))
-    F = carray(_pf64(ctx[SLOT.P_F]), (ctx[SLOT.C_NF],))
-    I = carray(_pi64(ctx[SLOT.P_I]), (ctx[SLOT.C_NI],))
-    net = _unpack(F, I)
+    V = _views(ctx)
+    net = _unpack(V.F, V.I)
     pnet = C._ref(net)
-    V = _views(ctx, net.ic[C.IC_NSTATE])
     na = ctx[SLOT.C_NA]
-    TF = carray(_pf64(ctx[SLOT.P_TF]), (ctx[SLOT.C_NTF],))
-    TI = carray(_pi64(ctx[SLOT.P_TI]), (ctx[SLOT.C_NTI],))
-    T = _unflatten_incompressible(TF, TI, na)  # (TF, TI hold the table of SLOT.C_KIND's coupling: T or R)
-    R = _unflatten_rigid(TF, TI, na, ctx[SLOT.C_NR])
+    T = _unflatten_incompressible(V.TF, V.TI, na)  # (TF, TI hold the table of SLOT.C_KIND's coupling: T or R)
+    R = _unflatten_rigid(V.TF, V.TI, na, ctx[SLOT.C_NR])
     _finish_pending(ctx, pnet, V, T, R)
     if ctx[SLOT.C_MODE] == MODE_FINISH:  # called from Python after the block: finish its last step only
         ctx[SLOT.C_END_FINITE] = _state_finite(ctx, V)
@@ -770,20 +756,14 @@ def _coupled_step(address, m, d):
     _begin(ctx, pnet, V, T, R)
 
 
-_CTL_COLUMNS, _CTL_STATES = len(CT.PID_COLUMNS), len(CT.STATE_COLUMNS)
-
-
 @_jit
 def _control(ctx, V):
     """The controllers of step k (:func:`hydraulics.controllers.update`) from the step's start state (the network's
     actuator motion, pressures and last flows, MuJoCo's qpos/qvel), writing row k of the commands before the step's
     effort law (``_begin``) reads it."""
-    k, nctl = ctx[SLOT.C_K], ctx[SLOT.C_NCTL]
-    table = _mf(ctx, SLOT.P_CTL_TABLE, nctl, _CTL_COLUMNS)
-    state = _mf(ctx, SLOT.P_CTL_STATE, nctl, _CTL_STATES)
-    setpoint = _mf(ctx, SLOT.P_CTL_SET, ctx[SLOT.C_ROWS], nctl)[k]
-    sources = (V.pos, V.vel, _vf(ctx, SLOT.P_QPOS, ctx[SLOT.C_NQ]), V.qvel, V.pres, V.flow)  # CT.SOURCES
-    CT.update(table, state, setpoint, ctx[SLOT.C_STEP0] + k, V.fs[FS_DT], sources, V.cmd[k], V.speed[k])
+    k = ctx[SLOT.C_K]
+    sources = (V.pos, V.vel, V.qpos, V.qvel, V.pres, V.flow)  # CT.SOURCES
+    CT.update(V.ctl_table, V.ctl_state, V.ctl_set[k], ctx[SLOT.C_STEP0] + k, V.fs[FS_DT], sources, V.cmd[k], V.speed[k])
 
 
 def _callback_function(fingerprint):
@@ -808,9 +788,9 @@ SOURCE_SHA256 = C.source_sha256(__file__, CT.__file__, record_row.__file__, *C.S
 _CTX = np.zeros(NCTX, np.int64)  # the pointer table the callback reads (symbol CTX_SYMBOL)
 _CALLBACK = None
 _CALLBACK_POINTER = None  # its ctypes function pointer, for mujoco.set_mjcb_control
-_BLOCK_START = np.array([0, 0, -1, ST_OK, -1], np.int64)  # SLOT.C_K … SLOT.C_WORST at the start of a block
-assert (SLOT.C_PENDING, SLOT.C_FAILED, SLOT.C_STATUS, SLOT.C_WORST) == (SLOT.C_K + 1, SLOT.C_K + 2, SLOT.C_K + 3, SLOT.C_K + 4)
-assert (SLOT.C_STATUS, SLOT.C_WORST, SLOT.C_NEWTON, SLOT.C_RHS, SLOT.C_JAC) == (SLOT.C_FAILED + 1, SLOT.C_FAILED + 2, SLOT.C_FAILED + 3, SLOT.C_FAILED + 4, SLOT.C_FAILED + 5)
+_BLOCK_START = [SLOT.C_K, SLOT.C_PENDING, SLOT.C_FAILED, SLOT.C_STATUS, SLOT.C_WORST], (0, 0, -1, ST_OK, -1)
+"""The entries a block starts from: no step done or pending, none failed."""
+_OUTCOME = [SLOT.C_FAILED, SLOT.C_STATUS, SLOT.C_WORST, SLOT.C_NEWTON, SLOT.C_RHS, SLOT.C_JAC]
 _LOCK = threading.Lock()
 
 
@@ -884,16 +864,12 @@ class MujocoPlantFast(MujocoPlant):
             return
         m, d, net = self.model, self.data, self.network
         na, nv = net.actuator_count, m.nv
-        if kind == KIND_INCOMPRESSIBLE:
-            self._TF, self._TI = K.flatten_incompressible(coupling.table)
-        else:  # its rigid actuators (none without CouplingMixed)
-            self._TF, self._TI = K.flatten_rigid(K.pack_rigid(net))
         # the callback views both tables in these arrays (only SLOT.C_KIND's is read): long enough for either
         nr = len(net.rigid_branch_actuator)
-        nf = max(8 * na + len(K.INCOMPRESSIBLE_SCALARS), 2 * na + 6 * nr + len(K.RIGID_SCALARS))
-        self._TF = np.concatenate([self._TF, np.zeros(max(nf - self._TF.size, 0))])
-        ni = max(4 * na, na + 4 * nr)
-        self._TI = np.concatenate([self._TI, np.full(max(ni - self._TI.size, 0), -1, np.int64)])
+        if kind == KIND_INCOMPRESSIBLE:
+            self._TF, self._TI = K.flatten_incompressible(coupling.table, K.table_sizes(na, nr))
+        else:  # its rigid actuators (none without CouplingMixed)
+            self._TF, self._TI = K.flatten_rigid(K.pack_rigid(net), K.table_sizes(na, nr))
         self._lower, self._upper = np.full(na, -np.inf), np.full(na, np.inf)
         self._act = np.ascontiguousarray(self.binding.actuator_id, np.int64)
         self._closed = np.ascontiguousarray(self.binding.closed_length, np.float64)
@@ -918,43 +894,31 @@ class MujocoPlantFast(MujocoPlant):
         self._capacity = 0
         self._cmd = self._speed = None
         self._inputs = input_plan(net, self.control, scenario.inputs)
-        for a in (d.qvel, d.ctrl, d.actuator_length, d.actuator_velocity, d.actuator_moment, d.qfrc_passive,
-                  d.qfrc_constraint, m.actuator_biasprm):
-            assert a.flags.c_contiguous and a.dtype == np.float64
         ctx = np.zeros(NCTX, np.int64)
-        ctx[SLOT.C_NA], ctx[SLOT.C_NV], ctx[SLOT.C_NU], ctx[SLOT.C_N], ctx[SLOT.C_NB] = na, nv, m.nu, n, len(net.branch_names)
-        ctx[SLOT.C_NVALVE], ctx[SLOT.C_NPUMP], ctx[SLOT.C_NBIAS] = len(net.valve_names), len(net.pump_names), m.actuator_biasprm.shape[1]
-        ctx[SLOT.C_SUBSTEPS], ctx[SLOT.C_NCYL] = stepper.substeps, len(net.cylinder_actuator)
+        ctx[SLOT.C_SUBSTEPS] = stepper.substeps
         ctx[SLOT.C_LINEAR] = inner.scheme if kind == KIND_IMPLICIT else 0  # hydraulics.coupling.SCHEME_*
-        ctx[SLOT.C_KIND], ctx[SLOT.C_NTF], ctx[SLOT.C_NTI] = kind, self._TF.size, self._TI.size
+        ctx[SLOT.C_KIND] = kind
         ctx[SLOT.C_NR] = nr if kind != KIND_INCOMPRESSIBLE else 0
         self._record_width = self.record_width
-        ctx[SLOT.C_NQ], ctx[SLOT.C_NBODY], ctx[SLOT.C_REC_WIDTH] = m.nq, m.nbody, self._record_width
-        ctx[SLOT.C_NF], ctx[SLOT.C_NI], ctx[SLOT.C_NW], ctx[SLOT.C_NS] = self._F.size, self._I.size, self._work.size, self._scratch.size
-        addresses = {
-            SLOT.P_F: self._F, SLOT.P_I: self._I, SLOT.P_ACT: self._act, SLOT.P_CLOSED: self._closed, SLOT.P_LENGTH: d.actuator_length,
-            SLOT.P_AVEL: d.actuator_velocity, SLOT.P_MOMENT: d.actuator_moment, SLOT.P_ROWADR: d.moment_rowadr, SLOT.P_ROWNNZ: d.moment_rownnz,
-            SLOT.P_COLIND: d.moment_colind, SLOT.P_QVEL: d.qvel, SLOT.P_CTRL: d.ctrl, SLOT.P_BIASPRM: m.actuator_biasprm,
-            SLOT.P_PASSIVE: d.qfrc_passive, SLOT.P_CONSTRAINT: d.qfrc_constraint, SLOT.P_J: self._J, SLOT.P_MINVJ: self._MinvJ,
-            SLOT.P_OIL: self._oil, SLOT.P_PRESSURE: self._p, SLOT.P_SPOOL: self._spool, SLOT.P_XPOS: self._x, SLOT.P_XVEL: self._v,
-            SLOT.P_XSTART: self._xs, SLOT.P_VSTART: self._vs, SLOT.P_CONST: self._const, SLOT.P_SLOPE: self._slope, SLOT.P_THETA: self._theta,
-            SLOT.P_MEFF: self._meff, SLOT.P_EFFORT: self._effort, SLOT.P_FLOW: self._flow, SLOT.P_PASSIVE_SAVED: self._passive, SLOT.P_FS: self._fs,
-            SLOT.P_QUAD: self._quad, SLOT.P_WORK: self._work, SLOT.P_SCRATCH: self._scratch, SLOT.P_ISTATS: self._istats,
-            SLOT.P_PMAX: self._pmax, SLOT.P_PMIN: self._pmin, SLOT.P_XMAX: self._xmax, SLOT.P_XMIN: self._xmin, SLOT.P_OIL_CHANGE: self._oil_change, SLOT.P_QPOS: d.qpos, SLOT.P_BXPOS: d.xpos, SLOT.P_BXQUAT: d.xquat, SLOT.P_ENERGY: d.energy,
-            SLOT.P_TF: self._TF, SLOT.P_TI: self._TI, SLOT.P_LOWER: self._lower, SLOT.P_UPPER: self._upper,
-            SLOT.P_FLIMITED: m.actuator_forcelimited, SLOT.P_FRANGE: m.actuator_forcerange,
-            SLOT.P_CTL_TABLE: self.controllers.table, SLOT.P_CTL_STATE: self.controllers.state,
-        }
-        ctx[SLOT.C_NCTL] = len(self.controllers)
-        assert m.actuator_forcelimited.dtype.itemsize == 1 and m.actuator_forcelimited.flags.c_contiguous  # bool (mjtByte)
-        assert m.actuator_forcerange.dtype == np.float64 and m.actuator_forcerange.flags.c_contiguous
-        for a in (d.qpos, d.xpos, d.xquat, d.energy):
-            assert a.flags.c_contiguous and a.dtype == np.float64
-        assert d.moment_rowadr.dtype == np.int32 and d.moment_colind.dtype == np.int32
-        for slot, array in addresses.items():
-            ctx[slot] = array.ctypes.data
+        arrays = dict(
+            F=self._F, I=self._I, TF=self._TF, TI=self._TI, length=d.actuator_length, avel=d.actuator_velocity,
+            moment=d.actuator_moment, rowadr=d.moment_rowadr, rownnz=d.moment_rownnz, colind=d.moment_colind, qvel=d.qvel,
+            ctrl=d.ctrl, bias=m.actuator_biasprm, passive=d.qfrc_passive, constraint=d.qfrc_constraint,
+            flimited=m.actuator_forcelimited, frange=m.actuator_forcerange, qpos=d.qpos, bxpos=d.xpos, bxquat=d.xquat,
+            energy=d.energy, act=self._act, closed=self._closed, J=self._J, MinvJ=self._MinvJ, xs=self._xs, vs=self._vs,
+            const=self._const, slope=self._slope, lower=self._lower, upper=self._upper, theta=self._theta, meff=self._meff,
+            effort=self._effort, passive_saved=self._passive, oil=self._oil, pres=self._p, spool=self._spool, pos=self._x,
+            vel=self._v, flow=self._flow, oil_change=self._oil_change, pmax=self._pmax, pmin=self._pmin, xmax=self._xmax,
+            xmin=self._xmin, fs=self._fs, quad=self._quad, W=self._work, S=self._scratch, istats=self._istats,
+            ctl_table=self.controllers.table, ctl_state=self.controllers.state)
+        # (checked against POINTERS: dtype, contiguity, size; cmd, speed, ctl_set: _sample_inputs; rec: advance)
+        POINTERS.register(ctx, arrays, na=na, nv=nv, nu=m.nu, n=n, nb=len(net.branch_names), nvalve=len(net.valve_names),
+                          npump=len(net.pump_names), nbias=m.actuator_biasprm.shape[1], nstate=net.component_state_count,
+                          nnz=d.actuator_moment.size, rows=0, nf=self._F.size, ni=self._I.size, nw=self._work.size,
+                          ns=self._scratch.size, ntf=self._TF.size, nti=self._TI.size, nq=m.nq, nbody=m.nbody,
+                          nctl=len(self.controllers), rec_rows=0, rec_width=self._record_width)
         ctx[SLOT.P_REC] = 0  # set by advance() for a block that records
-        self._keep = addresses  # the arrays must outlive the table
+        self._keep = arrays  # the arrays must outlive the table
         self._ctx = ctx
         callback()
 
@@ -974,9 +938,8 @@ class MujocoPlantFast(MujocoPlant):
             self._step_numbers = np.arange(self._capacity)
             self._setpoint = np.zeros((self._capacity, len(self.controllers)))
             # the callback reads rows of the whole buffers (row stride = capacity rows)
-            ctx = self._ctx
-            ctx[SLOT.P_CMD], ctx[SLOT.P_SPEED], ctx[SLOT.C_ROWS] = self._cmd.ctypes.data, self._speed.ctypes.data, self._capacity
-            ctx[SLOT.P_CTL_SET] = self._setpoint.ctypes.data
+            POINTERS.register(self._ctx, dict(cmd=self._cmd, speed=self._speed, ctl_set=self._setpoint),
+                              rows=self._capacity)
         cmd, speed = self._cmd[:n], self._speed[:n]
         cmd[:] = self.control.valve_command
         speed[:] = self.control.pump_speed
@@ -1119,10 +1082,10 @@ class MujocoPlantFast(MujocoPlant):
         cmd, speed = self._sample_inputs(n)
         ctx = self._ctx
         ctx[SLOT.C_STEP0] = self.step_index
-        ctx[SLOT.C_K:SLOT.C_WORST + 1] = _BLOCK_START  # SLOT.C_K, SLOT.C_PENDING, SLOT.C_FAILED, SLOT.C_STATUS, SLOT.C_WORST
+        ctx[_BLOCK_START[0]] = _BLOCK_START[1]
         if rows:
-            ctx[SLOT.P_REC] = record.ctypes.data
-            ctx[SLOT.C_REC_ROWS:SLOT.C_REC_BAD + 1] = (rows, every, first, 0, 0)  # rows, every, first, count, bad
+            POINTERS.register(ctx, dict(rec=record[:rows]), rec_rows=rows)
+            ctx[[SLOT.C_REC_EVERY, SLOT.C_REC_FIRST, SLOT.C_REC_COUNT, SLOT.C_REC_BAD]] = every, first, 0, 0
         if not _LOCK.acquire(blocking=False):
             raise RuntimeError("another MujocoPlantFast is stepping in this process (MuJoCo's control callback is global)")
         resets = mujoco_resets(self.data)
@@ -1137,13 +1100,13 @@ class MujocoPlantFast(MujocoPlant):
             if self.realised_end:  # the last step ends at MuJoCo's positions too (MujocoPlant.end_position)
                 mujoco.mj_fwdPosition(self.model, self.data)
             _finish_python()
-            failed, status, worst, newton, rhs, jac = _CTX[SLOT.C_FAILED:SLOT.C_JAC + 1].tolist()
+            failed, status, worst, newton, rhs, jac = _CTX[_OUTCOME].tolist()
             if rows:
-                self.recorded, bad = _CTX[SLOT.C_REC_COUNT:SLOT.C_REC_BAD + 1].tolist()
+                self.recorded, bad = _CTX[[SLOT.C_REC_COUNT, SLOT.C_REC_BAD]].tolist()
                 self.recorded_finite = bad == 0
             self.end_finite = bool(_CTX[SLOT.C_END_FINITE])
         finally:
-            ctx[SLOT.P_REC] = _CTX[SLOT.P_REC] = 0
+            ctx[SLOT.P_REC] = _CTX[SLOT.P_REC] = ctx[SLOT.C_REC_ROWS] = _CTX[SLOT.C_REC_ROWS] = 0
             _LOCK.release()
         steps = n if failed < 0 else failed + 1
         last = steps - 1

@@ -221,9 +221,10 @@ def _record_row(row, hyd, qpos, qvel, rq, rd, effort, cmd, speed, kinetic, poten
     for i in range(rd.size):
         r.qvel[i] = qvel[rd[i]]
     finite = True
-    for i in range(r.p.size + r.qpos.size + r.qvel.size):  # (the row starts with them)
-        if not np.isfinite(row[i]):
-            finite = False
+    for part in (r.p, r.qpos, r.qvel):
+        for x in part:
+            if not np.isfinite(x):
+                finite = False
     C._copy(r.oil, hyd.oil)
     C._copy(r.x, hyd.position)
     C._copy(r.v, hyd.velocity)
