@@ -23,6 +23,17 @@ the run-to-run spread (±15 %) is larger than the logging's cost.  Wall time is 
 threads) is given beside it, in brackets.  Targets: 100 Hz ≤ 5 %, every step ≤ 25 % (paired wall
 median), on the MuJoCo-mode dig.
 
+Where the cost lands: the CPU time of the run's own thread (the stepping, the checks, the recorder's
+``derive`` and ``push``; paired median over the no-log run's) and that of the other threads (the
+log's writer thread: fields, encoding, merge, compression, writes; µs per step).  With a second core
+free for the writer, the wall-time overhead tends to the run's thread's share; on a machine whose
+cores are busy with other jobs it tends to the process's.  The writer can only overlap the stepping
+if the block releases Python's GIL while it steps (``mj_step`` of the bindings does, and the control
+callback is a numba ``cfunc`` that never takes it): ``GIL while stepping`` gives the rate of a
+Python thread counting while the plant advances blocks of ``block_steps(dt)`` steps, relative to its
+rate while the main thread sleeps (0 % if the block held the GIL; below 100 % when the two threads
+share a core with other jobs).
+
 Fixed cost of a log: opening it (run metadata, attachments), registering the run's channels and the
 scene, and closing it (last batch, summary), timed alone on a one-sample log.
 
@@ -117,13 +128,14 @@ def scenario(seconds: float, plant: dict, **overrides):
     return load_scenario(DIG).with_overrides(duration=seconds, **plant, **overrides)
 
 
-def no_log(seconds: float, plant: dict) -> tuple[float, float]:
-    """Wall and CPU time of everything run() does except logging (see module docstring) [s]."""
+def no_log(seconds: float, plant: dict) -> tuple[float, float, float]:
+    """Wall, process CPU and this thread's CPU time of everything run() does except logging (see module
+    docstring) [s]."""
     from sim.run.guards import check_plant
     from sim.run.runner import block_steps, make_plant
     from sim.io.scene import load_scene
 
-    t, c = time.perf_counter(), time.process_time()
+    t, c, m = time.perf_counter(), time.process_time(), time.thread_time()
     run_scenario = scenario(seconds, plant)
     plant = make_plant(load_scene(run_scenario))
     check_plant(plant)  # run() checks the load-time guards whether it logs or not
@@ -133,16 +145,16 @@ def no_log(seconds: float, plant: dict) -> tuple[float, float]:
         report = plant.advance(min(block, steps - plant.step_index))
         if not (report.success and plant.end_finite):
             raise RuntimeError(report.message)
-    return time.perf_counter() - t, time.process_time() - c
+    return time.perf_counter() - t, time.process_time() - c, time.thread_time() - m
 
 
-def with_log(seconds: float, plant: dict, rate_hz: float, out: Path) -> tuple[float, float]:
-    """Wall and CPU time of ``run()`` logging at ``rate_hz`` [s]."""
+def with_log(seconds: float, plant: dict, rate_hz: float, out: Path) -> tuple[float, float, float]:
+    """Wall, process CPU and this thread's CPU time of ``run()`` logging at ``rate_hz`` [s]."""
     from sim.run.runner import run
 
-    t, c = time.perf_counter(), time.process_time()
+    t, c, m = time.perf_counter(), time.process_time(), time.thread_time()
     result = run(scenario(seconds, plant, log_rate_hz=rate_hz), out=out)
-    elapsed = time.perf_counter() - t, time.process_time() - c
+    elapsed = time.perf_counter() - t, time.process_time() - c, time.thread_time() - m
     assert result.status == "complete", result.message
     out.unlink()
     return elapsed
@@ -260,6 +272,43 @@ def sample_parts(samples: int, out: Path) -> dict:
     return {**parts, "record": record * 1e6, "messages": messages, "bytes": size, "ring": recorder.room}
 
 
+def gil_while_stepping(plant_overrides: dict, blocks: int = 20) -> tuple[float, int]:
+    """Rate of a Python thread counting while the main thread advances the plant in blocks of the runner's size,
+    over its rate while the main thread sleeps for as long (see the module docstring), and that block size [steps]."""
+    import threading
+
+    from sim.io.scene import load_scene
+    from sim.run.runner import block_steps, make_plant
+
+    run_scenario = scenario(30.0, plant_overrides)
+    plant = make_plant(load_scene(run_scenario))
+    block = block_steps(run_scenario.dt)
+    plant.advance(block)  # (warm)
+    count, done = [0], threading.Event()
+
+    def counter() -> None:
+        n = 0
+        while not done.is_set():
+            n += 1
+            count[0] = n
+
+    thread = threading.Thread(target=counter, daemon=True)
+    thread.start()
+    try:
+        time.sleep(0.05)
+        c0, t0 = count[0], time.perf_counter()
+        for _ in range(blocks):
+            plant.advance(block)
+        stepping, seconds = count[0] - c0, time.perf_counter() - t0
+        c0, t0 = count[0], time.perf_counter()
+        time.sleep(seconds)
+        alone = (count[0] - c0) / (time.perf_counter() - t0)
+    finally:
+        done.set()
+        thread.join()
+    return stepping / seconds / alone, block
+
+
 def paired(values: list, base: list) -> tuple[float, float, float]:
     """Median and quartiles of value / base − 1 over the pairs (wall time)."""
     ratios = sorted(v[0] / b[0] - 1.0 for v, b in zip(values, base))
@@ -299,6 +348,7 @@ def main() -> None:
             base_wall, base_cpu = (statistics.median(v[k] for v in base) for k in (0, 1))
             print(f"{label}: excavator dig, {seconds:g} s at 1 kHz ({steps} steps), {args.reps} interleaved runs per "
                   f"configuration, medians (wall time; CPU time of the process in brackets):")
+            split = []
             for name, values in times.items():
                 wall, cpu = (statistics.median(v[k] for v in values) for k in (0, 1))
                 line = f"  {name:12s} {wall:7.3f} s [{cpu:7.3f} s]  {wall / steps * 1e6:7.2f} µs/step [{cpu / steps * 1e6:7.2f}]"
@@ -309,7 +359,15 @@ def main() -> None:
                              f"[CPU {cpu_over:+6.1%}], {(wall - base_wall) / steps * 1e6:+.2f} µs/step")
                     if plant.get("mode") != "pbd" and name in TARGETS:
                         line += f"; target ≤ {TARGETS[name]:.0%}: {'met' if median <= TARGETS[name] else 'NOT met'}"
+                    own = statistics.median(v[2] / b[2] - 1.0 for v, b in zip(values, base))
+                    others = statistics.median(((v[1] - v[2]) - (b[1] - b[2])) / steps * 1e6 for v, b in zip(values, base))
+                    split.append(f"{name} {own:+.1%}, {others:+.2f} µs/step")
                 print(line, flush=True)
+            print(f"  CPU time of the run's thread (paired median) and of the other threads: {'; '.join(split)}")
+            if plant.get("mode") != "pbd":
+                rate, block = gil_while_stepping(plant)
+                print(f"  GIL while stepping: a Python thread counts at {rate:.0%} of its rate alone while the plant "
+                      f"advances blocks of {block} steps", flush=True)
         if not args.no_parts:
             fixed = fixed_cost(out)
             print(f"fixed cost of a run's log: open {fixed['open']:.2f} ms, channels and scene {fixed['channels']:.2f} ms, "
