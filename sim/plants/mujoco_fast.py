@@ -220,7 +220,6 @@ POINTERS = PointerTable("fast_plant", (
 """The control callback's int64 table (:class:`hydraulics.layout.PointerTable`): ``SLOT.<name>`` is an entry's index
 (C_*: counters and dimensions, P_*: addresses), :func:`_views` the arrays it points to."""
 SLOT = POINTERS.SLOT
-CTX_SLOTS = POINTERS.names
 NCTX = len(POINTERS)
 KINDS = ("implicit", "explicit", "incompressible")
 """SLOT.C_KIND: the coupling the callback steps (``KIND_*``)."""
