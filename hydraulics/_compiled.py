@@ -98,7 +98,7 @@ from .components.cylinder import (CI_ACT, CI_CAP, CI_ROD, CYL_CAP_AREA, CYL_COUL
 from .components.motor import MI_A, MI_ACT, MI_B
 from .components.orifice import O_BASE, O_C, O_CENTRE, O_K, O_MAX, O_SIGN
 from .components.pumps import P_BAND, P_COMP, P_DISP, P_EFF
-from .components.valve_4_3 import V_OVERLAP, V_TAU
+from .components.valve_4_3 import V_LOW, V_OVERLAP, V_TAU
 from .components.parameters import table as _table
 from .components import BRANCH_LAWS, LAW_WIDTH, law_sources, law_states
 from .layout import Layout
@@ -1281,9 +1281,10 @@ def _spool_end(pnet, spool0, command, h, spool):
     for i in range(nv):
         r = net.valve_rate[i]
         if r < 0:
-            spool[i] = _valve.spool_step(spool0[i], _clip(command[i], -1.0, 1.0), net.valve[i, V_TAU], h)
+            spool[i] = _valve.spool_step(spool0[i], _clip(command[i], net.valve[i, V_LOW], 1.0), net.valve[i, V_TAU], h)
         else:
-            spool[i], spool[r] = _valve.valve_step(net.valve[i], spool0[i], spool0[r], _clip(command[i], -1.0, 1.0), h)
+            spool[i], spool[r] = _valve.valve_step(net.valve[i], spool0[i], spool0[r],
+                                                   _clip(command[i], net.valve[i, V_LOW], 1.0), h)
 
 
 # ----------------------------------------------------------------------------

@@ -156,7 +156,7 @@ def steady_state(model: NetworkModel, control: NetworkControl, state: NetworkSta
     values = np.array([pinned[k] for k in nodes])
     state = state.copy()
     state.valve_spool = state.valve_spool.copy()  # the valves' spools at their commands, other states kept
-    state.valve_spool[:len(model.valve_names)] = np.clip(control.valve_command, -1.0, 1.0)
+    state.valve_spool[:len(model.valve_names)] = model.valve_commands(control.valve_command)
 
     def pin(state):
         p = state.node_pressure.copy()

@@ -194,7 +194,7 @@ def simulate_reference(
         vel[a] = y[1]
         oil[free] = y[2 : 2 + nf]
         apply_inputs(model, control, inputs, t)
-        command = np.clip(control.valve_command, -1.0, 1.0)
+        command = model.valve_commands(control.valve_command)
         spool = np.where(tau > 0, y[2 + nf :], command)
         return vel, spool, command
 

@@ -412,6 +412,7 @@ class NetworkModel:
     component_state_names: tuple = ()  # "valve" for a spool, "component.state" for a law component's state
     component_state_units: tuple = ()
     component_state_start: np.ndarray = field(default_factory=lambda: np.zeros(0))  # values at rest
+    valve_command_low: np.ndarray = field(default_factory=lambda: np.zeros(0))  # lowest command of each valve [-]
     # metering characteristic of every orifice branch (hydraulics.components.metering.COLUMNS: exponent, first
     # knot, knot count) and the knot table of the tabulated edges (metering.KNOT_COLUMNS)
     orifice_metering: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -789,6 +790,7 @@ class NetworkModel:
             component_state_names=tuple(state_names),
             component_state_units=tuple(state_units),
             component_state_start=np.array(state_start, float),
+            valve_command_low=f([COMPONENT_TYPES[c.kind].COMMAND_RANGE[0] for c in valves], float),
             orifice_metering=orifice_metering,
             metering_knots=metering_knots,
         )
@@ -1006,6 +1008,11 @@ class NetworkModel:
         return self._kernel("bulk_modulus", P, V, D).reshape(lead + (n,))
 
     # ------------------------------------------------------------ flows
+    def valve_commands(self, command) -> np.ndarray:
+        """The valves' commands [-] held to their kinds' ranges (``COMMAND_RANGE``: [−1, 1] for a 4/3 valve, [0, 1]
+        for a variable orifice), as the kernels hold them."""
+        return np.clip(np.asarray(command, float), self.valve_command_low, 1.0)
+
     def valve_areas(self, spool):
         """Open area [m²] of every orifice-law branch for the given spool positions, followed (when the
         network has rigid actuators) by the displacement rate of every rigid branch (:meth:`rigid_rates`)."""

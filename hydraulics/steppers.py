@@ -219,11 +219,12 @@ class Stepper:
         return current, report
 
     def _spool_end(self, state, control, h):
-        """Spools [-] after ``h`` [s] of τ·ds/dt = u − s with the commands u clipped to [−1, 1] held
+        """Spools [-] after ``h`` [s] of τ·ds/dt = u − s with the commands u held to their ranges
         (:func:`hydraulics.components.valve_4_3.spool_step`)."""
         nv = len(self.model.valve_names)
         spool = state.valve_spool.copy()  # (then the law components' states, advanced by the step's kernel)
-        spool[:nv] = _compiled.spool_steps(state.valve_spool[:nv], control.valve_command, self.model.valve_time_constant, h)
+        spool[:nv] = _compiled.spool_steps(state.valve_spool[:nv], self.model.valve_commands(control.valve_command),
+                                           self.model.valve_time_constant, h)
         return spool
 
     def _net_inflow(self, flows):
@@ -467,7 +468,7 @@ class StepperReference(Stepper):
         report = StepReport()
 
         def spool_at(t):
-            return _compiled.spool_steps(state.valve_spool, control.valve_command, tau, t) if t > 0 else state.valve_spool
+            return _compiled.spool_steps(state.valve_spool, m.valve_commands(control.valve_command), tau, t) if t > 0 else state.valve_spool
 
         def evaluate(t, y):
             x, v = motion.hermite(t / h, h)

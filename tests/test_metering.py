@@ -110,6 +110,41 @@ def test_bad_metering_fields_are_refused_naming_the_field(fields, message):
     assert message in str(error.value) and "valves.toml" in str(error.value)
 
 
+@pytest.mark.parametrize(("fields", "message"), [
+    ('metering = "table"\narea_table = { "a-b" = [[-0.5, 0.0], [1.0, 1e-5]] }\n', "outside the command range [0, 1]"),
+    ('metering = "table"\narea_table = { "P-A" = [[0.0, 0.0], [1.0, 1e-5]] }\n', "unknown edge(s) ['P-A']; edges: ['a-b']"),
+    ('metering = "table"\narea_table = { "a-b" = [[false, 0.0], [true, 1e-5]] }\n', "table 'a-b': expected a list"),
+    ('metering = "table"\narea_table = { "a-b" = [["0", 0.0], [1.0, 1e-5]] }\n', "table 'a-b': expected a list"),
+    ('max_area = 2.0\n', "field 'max_area': 2.0 is outside the allowed range (0, 0.01] m^2"),
+])
+def test_bad_throttle_fields_are_refused_naming_the_field(fields, message):
+    text = bench(2e7) + ('\n[[component]]\nname = "t"\ntype = "variable_orifice"\n'
+                         + ("" if "max_area" in fields else "max_area = 1e-5\n") + fields
+                         + 'ports = { a = "supply", b = "tank" }\n')
+    with pytest.raises(CircuitError) as error:
+        parse_circuit(tomllib.loads(text), "throttle.toml")
+    assert message in str(error.value) and "throttle.toml: component 't'" in str(error.value)
+
+
+def test_a_throttle_in_an_incompressible_network_is_refused():
+    """The rigid oil law knows 4/3 valves only: a variable orifice there is refused, naming its type."""
+    cylinder = ('\n[[component]]\nname = "cyl"\ntype = "cylinder"\nbore = 0.05\nrod_diameter = 0.028\nstroke = 0.5\n'
+                'ports = { cap = "a", rod = "b" }\n')
+    throttle = '\n[[component]]\nname = "t"\ntype = "variable_orifice"\nmax_area = 1e-5\nports = { a = "a", b = "tank" }\n'
+    with pytest.raises(CircuitError, match="component 't', type 'variable_orifice' at fidelity 'incompressible'"):
+        network_from_toml(bench(2e7) + valve("v") + cylinder + throttle, actuator_fidelity={"cyl": "incompressible"})
+
+
+def test_a_throttle_command_below_zero_holds_it_shut():
+    """The kernels hold a variable orifice's command to [0, 1] (a 4/3 valve's to [−1, 1]): a negative command leaves
+    its opening at 0, not below, so it reopens without delay."""
+    model = network_from_toml(bench(2e7) + valve("v") + volume_nets()
+                              + '\n[[component]]\nname = "t"\ntype = "variable_orifice"\nmax_area = 1e-5\n'
+                                'time_constant = 0.01\nports = { a = "a", b = "tank" }\n')
+    assert model.valve_names == ("v", "t")
+    assert model.valve_commands([-0.7, -0.7]).tolist() == [-0.7, 0.0]
+
+
 def test_a_shaped_valve_on_an_incompressible_actuator_is_refused():
     """The rigid oil law meters linearly: a non-linear characteristic there is refused, naming the field."""
     cylinder = ('\n[[component]]\nname = "cyl"\ntype = "cylinder"\nbore = 0.05\nrod_diameter = 0.028\nstroke = 0.5\n'

@@ -1,6 +1,7 @@
 """Property tests: every evaluation method of ``NetworkModel`` (compiled kernels on the packed model) against its
 numpy formulation (``tests/reference/network_eval.py``, the oracle), on random states and inputs of the shipped
-circuits at every fidelity, of circuits with rigid actuators, entrained air, accumulators and law branches.
+circuits at every fidelity, of circuits with rigid actuators, entrained air, accumulators and law branches, and of
+the boom with tabulated metering edges and a variable orifice.
 
 Tolerance: 1e-12 relative to each quantity's largest magnitude over the network (terms cancel in net flows and
 efforts), exact for the discrete outputs (law pieces, rigid directions).  Node pressures of compliant nodes
@@ -31,7 +32,12 @@ SHIPPED = {"boom": MODELS / "boom" / "boom.circuit.toml", "excavator": EXCAVATOR
            "seed_cylinder": MODELS / "seed_cylinder" / "seed_cylinder.circuit.toml",
            "lift": MODELS / "lift_1dof" / "lift.circuit.toml"}
 CASES = ([f"{name}:{fidelity}" for name in SHIPPED for fidelity in ("compressible", "lines")]
-         + ["excavator:rigid_front", "excavator:rigid_boom", "all_kinds", "all_kinds:lines", "law_branches"])
+         + ["excavator:rigid_front", "excavator:rigid_boom", "all_kinds", "all_kinds:lines", "law_branches", "metering"])
+METERED = ('type = "valve_4_3"            # closed-centre directional valve, CETOP 3 / NG6 class\n',
+           'type = "valve_4_3"\nmetering = "table"\narea_table = { "P-A" = [[0.05, 0.0], [0.3, 2e-6], [1.0, 1.5e-5]], '
+           '"A-T" = [[0.1, 0.0], [0.6, 1.2e-5], [1.0, 1.6e-5]] }\n')
+THROTTLE = ('\n[[component]]\nname = "bleed"\ntype = "variable_orifice"\nmax_area = 2e-6\nmetering = "exponential"\n'
+            'metering_exponent = 2.5\nports = { a = "supply", b = "tank" }\n')
 
 _models = {}
 
@@ -44,6 +50,10 @@ def model(case: str) -> NetworkModel:
             m = network_from_toml(ALL_KINDS, fidelity=variant or "compressible")
         elif name == "law_branches":
             m = network_from_toml(LAW_BRANCHES)
+        elif name == "metering":  # the boom with tabulated edges and an exponential bleed throttle
+            text = SHIPPED["boom"].read_text(encoding="utf-8")
+            assert text.count(METERED[0]) == 1
+            m = network_from_toml(text.replace(*METERED) + THROTTLE)
         elif variant == "rigid_front":
             m = NetworkModel.from_circuit(load_circuit(EXCAVATOR), actuator_fidelity={
                 "stick_cyl": "incompressible", "bucket_cyl": "incompressible", "swing_motor": "incompressible"})

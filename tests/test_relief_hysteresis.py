@@ -34,7 +34,7 @@ def valve(**changes) -> ReliefPoppet:
 
 
 def test_a_quasi_static_sweep_opens_on_one_characteristic_and_closes_on_the_other():
-    row, state, span = valve().law_row(FLUID), np.zeros(2), FULL - CRACK
+    row, state, span = valve().law_row(FLUID), np.zeros(3), FULL - CRACK
     up = np.linspace(0.0, 1.4e7, 141)
     openings_up = []
     for dp in up:
@@ -59,7 +59,7 @@ def test_derivative_and_kink_hook_inside_and_outside_the_band(opening, dp):
     """dQ/dp_in equals the central difference (1 Pa) of the end-of-step flow away from the band's edges; inside the
     band (the opening held) only the orifice's own slope remains; the kink hook numbers the three band pieces apart."""
     row, h = valve(dynamics="second_order", natural_frequency=300.0, damping_ratio=0.7).law_row(FLUID), 1e-3
-    state = np.array([opening, 0.0])
+    state = np.array([opening, 0.0, opening])  # the play's memory at the opening: the poppet at rest on its target
     q, d_in, d_out, _ = flow_with_derivatives(row, state, h, P0 + dp, P0, 0.0)
     numeric = (flow_with_derivatives(row, state, h, P0 + dp + 1.0, P0, 0.0)[0]
                - flow_with_derivatives(row, state, h, P0 + dp - 1.0, P0, 0.0)[0]) / 2
@@ -68,6 +68,19 @@ def test_derivative_and_kink_hook_inside_and_outside_the_band(opening, dp):
     z_open, z_close = (dp - CRACK) / span, (dp - RESEAT) / span
     band = 0 if opening <= z_open else (1 if opening <= z_close else 2)
     assert law_piece(row, state, h, P0 + dp, P0, 0.0) // 9 == band
+
+
+@pytest.mark.parametrize("h", [1e-3, 1e-4, 1e-5, 1e-6])
+def test_an_underdamped_poppet_settles_on_the_characteristic_whatever_the_step(h):
+    """At a constant 12 MPa (static opening 0.4) an underdamped poppet (ζ = 0.3) swings about its target and settles
+    on it: its swings do not move the play's output (the target), for every step size."""
+    row = valve(dynamics="second_order", natural_frequency=300.0, damping_ratio=0.3, reseat_pressure=0.9e7).law_row(FLUID)
+    state = np.zeros(3)
+    peak = 0.0
+    for _ in range(int(round(0.2 / h))):
+        step_end(row, state, h, P0 + 1.2e7, P0, 0.0, state)
+        peak = max(peak, state[0])
+    assert peak > 0.5 and state[0] == pytest.approx(0.4, abs=1e-6) and state[2] == pytest.approx(0.4, abs=1e-12)
 
 
 def test_reseat_above_cracking_is_refused():

@@ -56,7 +56,7 @@ def test_first_order_transition():
     assert transition(row, 0.001) == pytest.approx((np.exp(-0.25), 0.0, 0.0, 0.0), rel=1e-14)
 
 
-STATES = [np.array([0.0, 0.0]), np.array([0.3, 20.0]), np.array([0.9, -40.0])]
+STATES = [np.array([0.0, 0.0, 0.0]), np.array([0.3, 20.0, 0.0]), np.array([0.9, -40.0, 0.0])]
 
 
 @pytest.mark.parametrize("dynamics", ["first_order", "second_order"])
@@ -72,14 +72,15 @@ def test_total_derivative_and_end_state(dynamics, state, dp):
     numeric = (flow_with_derivatives(row, state, h, P0 + dp + 1.0, P0, 0.0)[0]
                - flow_with_derivatives(row, state, h, P0 + dp - 1.0, P0, 0.0)[0]) / 2
     assert d_in == pytest.approx(numeric, rel=1e-5) and d_out == -d_in and d_x == 0.0
-    end = np.empty(2)
+    end = np.empty(3)
     step_end(row, state, h, P0 + dp, P0, 0.0, end)
     z = (dp - valve.cracking_pressure) / (valve.full_open_pressure - valve.cracking_pressure)
     if dynamics == "first_order":
-        expected = np.array([z + np.exp(-h / valve.time_constant) * (state[0] - z), 0.0])
+        expected = np.array([z + np.exp(-h / valve.time_constant) * (state[0] - z), 0.0, 0.0])
     else:
         w, zeta = valve.natural_frequency, valve.damping_ratio
-        expected = np.array([z, 0.0]) + expm(np.array([[0.0, 1.0], [-w**2, -2 * zeta * w]]) * h) @ (state - [z, 0.0])
+        moved = np.array([z, 0.0]) + expm(np.array([[0.0, 1.0], [-w**2, -2 * zeta * w]]) * h) @ (state[:2] - [z, 0.0])
+        expected = np.append(moved, 0.0)
     expected[0] = min(max(expected[0], 0.0), 1.0)
     if expected[0] in (0.0, 1.0):
         expected[1] = 0.0
@@ -91,11 +92,11 @@ def test_total_derivative_and_end_state(dynamics, state, dp):
 def test_poppet_seats_and_stops():
     """Below cracking the poppet stays on its seat (no flow beyond leakage); far above it sits at its stop."""
     row = poppet().law_row(FLUID)
-    end = np.empty(2)
-    step_end(row, np.zeros(2), 0.01, P0 + 5e6, P0, 0.0, end)
-    assert tuple(end) == (0.0, 0.0)
-    step_end(row, np.array([0.99, 100.0]), 0.01, P0 + 3e7, P0, 0.0, end)
-    assert tuple(end) == (1.0, 0.0)
+    end = np.empty(3)
+    step_end(row, np.zeros(3), 0.01, P0 + 5e6, P0, 0.0, end)
+    assert tuple(end) == (0.0, 0.0, 0.0)
+    step_end(row, np.array([0.99, 100.0, 0.0]), 0.01, P0 + 3e7, P0, 0.0, end)
+    assert tuple(end) == (1.0, 0.0, 0.0)
 
 
 def test_kink_hook_tells_seat_moving_and_stop_apart():

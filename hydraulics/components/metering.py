@@ -118,15 +118,39 @@ def check_table(value, where: str) -> tuple:
 
     shape = "a list of at least two [travel, area] pairs, travel [-] strictly increasing in [-1, 1], area in [0, 0.01] m^2"
     try:
-        pairs = [(float(x), float(a)) for x, a in value]
+        pairs = [(x, a) for x, a in value]
     except (TypeError, ValueError):
         raise CircuitError(f"{where}: expected {shape}, got {value!r}") from None
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) for pair in pairs for v in pair):
+        raise CircuitError(f"{where}: expected {shape}, got {value!r}")
+    pairs = [(float(x), float(a)) for x, a in pairs]
     travel, area = zip(*pairs) if pairs else ((), ())
     if (len(pairs) < 2 or not all(map(math.isfinite, travel + area))
             or any(b <= a for a, b in zip(travel, travel[1:])) or travel[0] < -1.0 or travel[-1] > 1.0
             or min(area) < 0.0 or max(area) > TABLE_AREA_LIMIT):
         raise CircuitError(f"{where}: expected {shape}, got {value!r}")
     return travel, area
+
+
+def check_edge_tables(valve, where: str) -> None:
+    """A valve's ``area_table`` names only its kind's ``METERING_EDGES``, with travel within its ``COMMAND_RANGE``,
+    and is given exactly when ``metering = "table"``; raises
+    :class:`~hydraulics.components.parameters.CircuitError` naming ``where`` and the field."""
+    from .parameters import CircuitError  # noqa: PLC0415
+
+    edges, low = type(valve).METERING_EDGES, type(valve).COMMAND_RANGE[0]
+    tables = dict(valve.area_table)
+    unknown = sorted(set(tables) - set(edges))
+    if unknown:
+        raise CircuitError(f"{where}, field 'area_table': unknown edge(s) {unknown}; edges: {list(edges)}")
+    if tables and valve.metering != "table":
+        raise CircuitError(f"{where}, field 'area_table': given with metering = {valve.metering!r}; set metering = \"table\"")
+    if valve.metering == "table" and not tables:
+        raise CircuitError(f"{where}, field 'area_table': metering = \"table\" needs a table for at least one of {list(edges)}")
+    for edge, knots in tables.items():  # ((x_0, A_0), (x_1, A_1), …), travel increasing
+        if knots[0][0] < low:
+            raise CircuitError(f"{where}, field 'area_table', table '{edge}': travel {knots[0][0]!r} is outside the "
+                               f"command range [{low:g}, 1]")
 
 
 def characteristics(edges) -> tuple[np.ndarray, np.ndarray]:

@@ -29,14 +29,16 @@ so the valve is as stable as a static one at any step and exact for the poppet's
 States: ``opening`` y [-] and ``opening_rate`` ẏ [1/s] (zero for the first-order poppet), both 0 at rest.
 Ports: ``inlet``, ``outlet``.  Packing: one row per valve, columns :data:`COLUMNS` (:meth:`law_row`).
 
-Kink hook (:func:`law_piece`): the poppet on its seat, moving or at its stop, and the first-order target clipped.
+Kink hook (:func:`law_piece`): the poppet on its seat, moving or at its stop, the first-order target clipped, and
+the hysteresis band's piece.
 
 **Hysteresis** (``reseat_pressure`` below the cracking pressure): an opened poppet closes at a lower pressure than
 it opened, as friction and flow forces make a real one do.  The target is then the play operator of the opening
-characteristic, z = clip(y, z_o(Δp), z_o(Δp) + w) with w = (p_crack − p_reseat)/(p_full − p_crack) and y the opening
-at the start of the step: rising pressure drives the poppet along z_o (cracking at p_crack), falling pressure along
-z_o + w (reseating at p_reseat), and in between the poppet holds its opening (dz/dΔp = 0 there; its band is a piece
-of the kink hook).
+characteristic, z = clip(z⁻, z_o(Δp), z_o(Δp) + w) with w = (p_crack − p_reseat)/(p_full − p_crack) and z⁻ the
+play's output at the start of the step (a state of its own, ``play``, so that a poppet swinging about its target
+does not move the target): rising pressure drives the poppet along z_o (cracking at p_crack), falling pressure
+along z_o + w (reseating at p_reseat), and in between the target holds (dz/dΔp = 0 there; the band is a piece of
+the kink hook).
 
 Limitations: no flow forces, no bounce at the stops.
 
@@ -51,7 +53,7 @@ Example
 >>> valve = ReliefPoppet(cracking_pressure=1e7, full_open_pressure=1.2e7, area=2e-5, dynamics="second_order",
 ...                      natural_frequency=300.0, damping_ratio=0.3)
 >>> row, ambient = valve.law_row(Fluid()), Fluid().reference_pressure
->>> state = np.zeros(2)
+>>> state = np.zeros(3)
 >>> step_end(row, state, 1e-3, ambient + 1.1e7, ambient, 0.0, state)  # halfway open, 1 ms on
 >>> 0.0 < state[0] < 0.5 < state[1] * 1e-3
 True
@@ -75,9 +77,10 @@ COLUMNS = ("cracking", "span", "area", "leakage", "k", "c", "order", "tau", "ome
 k, c, dynamics order (1 or 2), time constant τ [s], natural frequency ω [rad/s], damping ratio ζ [-], hysteresis
 band w = (p_crack − p_reseat)/(p_full − p_crack) [-]."""
 CRACKING, SPAN, AREA, LEAKAGE, K, C, ORDER, TAU, OMEGA, ZETA, PLAY = range(len(COLUMNS))
-STATES = ("opening", "opening_rate")
-"""The states of one valve: normalised opening y [-], its rate ẏ [1/s]."""
-Y, RATE = range(len(STATES))
+STATES = ("opening", "opening_rate", "play")
+"""The states of one valve: normalised opening y [-], its rate ẏ [1/s], and the hysteresis play's output z [-] (its
+memory; 0 without hysteresis)."""
+Y, RATE, MEMORY = range(len(STATES))
 
 
 @kernel
@@ -89,23 +92,31 @@ def transition(row, h):
 
 
 @kernel
-def target(row, opening, dp):
-    """The opening the pressure drives the poppet to, z [-], and dz/dΔp [1/Pa] (clipped to [0, 1] for the first-order
-    poppet), from the poppet's ``opening`` y at the start of the step: with hysteresis (band w > 0) the play
-    operator z = clip(y, z_o, z_o + w) of the opening characteristic z_o = (Δp − p_crack)/span."""
-    span = row[SPAN]
-    z = (dp - row[CRACKING]) / span
+def play_output(row, memory, dp):
+    """The characteristic's output z [-] at the differential pressure ``dp`` [Pa] and its band piece: without
+    hysteresis z = z_o = (Δp − p_crack)/span (piece 0); with it (band w > 0) the play operator of its previous output
+    ``memory``, z = clip(memory, z_o, z_o + w): on the opening line (0), held inside the band (1), on the reseat line
+    (2)."""
+    z = (dp - row[CRACKING]) / row[SPAN]
     if row[PLAY] > 0.0:
-        if opening > z + row[PLAY]:
-            z = z + row[PLAY]
-        elif opening > z:  # inside the band: the target holds the opening
-            return opening, 0.0
+        if memory > z + row[PLAY]:
+            return z + row[PLAY], 2
+        if memory > z:
+            return memory, 1
+    return z, 0
+
+
+@kernel
+def target(row, memory, dp):
+    """The opening the pressure drives the poppet to, z [-] (:func:`play_output` from the play's ``memory``), and
+    dz/dΔp [1/Pa] (0 inside the hysteresis band); clipped to [0, 1] for the first-order poppet."""
+    z, piece = play_output(row, memory, dp)
     if row[ORDER] == 1.0:
         if z <= 0.0:
             return 0.0, 0.0
         if z >= 1.0:
             return 1.0, 0.0
-    return z, 1.0 / span
+    return z, (0.0 if piece == 1 else 1.0 / row[SPAN])
 
 
 @kernel
@@ -113,7 +124,7 @@ def advance(row, state, h, dp):
     """Opening y⁺ [-], rate ẏ⁺ [1/s] after ``h`` [s] with the differential pressure ``dp`` [Pa] held, and ∂y⁺/∂Δp
     [1/Pa]."""
     y0, r0 = state[Y], state[RATE]
-    z, dz = target(row, y0, dp)
+    z, dz = target(row, state[MEMORY], dp)
     f11, f12, f21, f22 = transition(row, h)
     y = z + f11 * (y0 - z) + f12 * r0
     rate = f21 * (y0 - z) + f22 * r0
@@ -127,15 +138,12 @@ def advance(row, state, h, dp):
 
 @kernel
 def law_piece(row, state, h, p_in, p_out, p_pilot):
-    """Kink hook: the piece of the law at the end of the step (3·target piece + poppet piece): the first-order
-    target's clip below, inside, above [0, 1] (0, 1, 2; always 1 for the second order) and the poppet on its seat,
-    moving, at its stop (0, 1, 2)."""
+    """Kink hook: the piece of the law at the end of the step (9·band piece + 3·target piece + poppet piece): the
+    hysteresis band's piece of :func:`play_output` (0 without hysteresis), the first-order target's clip below,
+    inside, above [0, 1] (0, 1, 2; always 1 for the second order) and the poppet on its seat, moving, at its stop
+    (0, 1, 2)."""
     dp = p_in - p_out
-    z = (dp - row[CRACKING]) / row[SPAN]
-    play = 0
-    if row[PLAY] > 0.0:  # the hysteresis band: the opening's target on its opening side, held, on its reseat side
-        play = 2 if state[Y] > z + row[PLAY] else (1 if state[Y] > z else 0)
-        z = z + row[PLAY] if play == 2 else (state[Y] if play == 1 else z)
+    z, play = play_output(row, state[MEMORY], dp)
     clipped = 1 if row[ORDER] != 1.0 or 0.0 < z < 1.0 else (0 if z <= 0.0 else 2)
     y = advance(row, state, h, dp)[0]
     return 9 * play + 3 * clipped + (0 if y <= 0.0 else (2 if y >= 1.0 else 1))
@@ -157,8 +165,10 @@ def flow_with_derivatives(row, state, h, p_in, p_out, p_pilot):
 @kernel
 def step_end(row, state, h, p_in, p_out, p_pilot, out):
     """The poppet states at the end of the step of :func:`flow_with_derivatives` into ``out`` (may be ``state``)."""
-    y, rate, slope = advance(row, state, h, p_in - p_out)
-    out[Y], out[RATE] = y, rate
+    dp = p_in - p_out
+    y, rate, slope = advance(row, state, h, dp)
+    memory = play_output(row, state[MEMORY], dp)[0] if row[PLAY] > 0.0 else 0.0
+    out[Y], out[RATE], out[MEMORY] = y, rate, memory
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -190,7 +200,7 @@ class ReliefPoppet:
     PORTS = ("inlet", "outlet")
     LAW_COLUMNS = COLUMNS
     STATES = STATES
-    STATE_UNITS = ("-", "1/s")
+    STATE_UNITS = ("-", "1/s", "-")
     BRANCH_LAW = flow_with_derivatives
     STATE_END = step_end
     LAW_PIECE = law_piece
@@ -204,8 +214,8 @@ class ReliefPoppet:
                                f"cracking_pressure ({self.cracking_pressure!r} Pa)")
 
     def state_start(self) -> tuple:
-        """The poppet at rest on its seat: (opening, opening_rate) = (0, 0)."""
-        return (0.0, 0.0)
+        """The poppet at rest on its seat, the play at zero: (opening, opening_rate, play) = (0, 0, 0)."""
+        return (0.0, 0.0, 0.0)
 
     def law_row(self, fluid) -> np.ndarray:
         """This valve's row of :data:`COLUMNS` in ``fluid`` (a :class:`~hydraulics.fluid.Fluid`)."""

@@ -28,8 +28,8 @@ import numpy as np
 
 from .._jit import clip, kernel, maximum
 from .dynamics import second_order_transition
-from .metering import CHARACTERISTICS
-from .parameters import CircuitError, param, table, tables_param
+from .metering import CHARACTERISTICS, check_edge_tables
+from .parameters import param, table, tables_param
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -65,7 +65,8 @@ class Valve43:
     """C_d [-]."""
     ls_area: float = param("m^2", low=0.0, high=0.01, default=2e-6)
     """With the optional port LS (load-sensing section): area of the passages A→LS (opening with s > 0) and B→LS
-    (s < 0) fully open [m²]; they open like the metering edges, so the LS port sees the work port being fed."""
+    (s < 0) fully open [m²]; they open linearly beyond the overlap whatever ``metering`` says, so the LS port sees
+    the work port being fed from the overlap on."""
     metering: str = param("-", default="linear", choices=CHARACTERISTICS)
     """Area against spool travel of the metering edges (:mod:`hydraulics.components.metering`): linear beyond the
     overlap, exponential (``metering_exponent``) or tabulated per edge (``area_table``)."""
@@ -108,17 +109,8 @@ class Valve43:
         return out
 
     def check(self, where: str) -> None:
-        """Area tables name metering edges and go with ``metering = "table"``."""
-        tables = dict(self.area_table)
-        unknown = sorted(set(tables) - set(self.METERING_EDGES))
-        if unknown:
-            raise CircuitError(f"{where}, field 'area_table': unknown edge(s) {unknown}; edges: {list(self.METERING_EDGES)}")
-        if tables and self.metering != "table":
-            raise CircuitError(f"{where}, field 'area_table': given with metering = {self.metering!r}; set metering = \"table\"")
-        if self.metering == "table" and not tables:
-            raise CircuitError(f"{where}, field 'area_table': metering = \"table\" needs a table for at least one of "
-                               f"{list(self.METERING_EDGES)}")
-
+        """Area tables name metering edges and go with ``metering = "table"`` (:func:`~hydraulics.components.metering.check_edge_tables`)."""
+        check_edge_tables(self, where)
 
 @kernel
 def spool_step(spool, command, tau, dt):
@@ -198,14 +190,14 @@ def displaced_rate(direction, extend_area, retract_area):
     return 0.0
 
 
-COLUMNS = ("time_constant", "overlap", "order", "omega", "zeta")
+COLUMNS = ("time_constant", "overlap", "order", "omega", "zeta", "command_low")
 """Spool table: time constant τ [s], overlap ε [-], spool order (1 or 2), natural frequency ω [rad/s], damping ratio
-ζ [-]."""
-V_TAU, V_OVERLAP, V_ORDER, V_OMEGA, V_ZETA = range(len(COLUMNS))
+ζ [-], lowest command [-] (the valve kind's ``COMMAND_RANGE``; the highest is 1 for every kind)."""
+V_TAU, V_OVERLAP, V_ORDER, V_OMEGA, V_ZETA, V_LOW = range(len(COLUMNS))
 
 
 def pack(model) -> np.ndarray:
     """The spool table of a :class:`~hydraulics.network.NetworkModel`, columns :data:`COLUMNS`."""
     return table(COLUMNS, len(model.valve_names), time_constant=model.valve_time_constant, overlap=model.valve_overlap,
                  order=np.where(model.valve_rate_offset >= 0, 2.0, 1.0), omega=model.valve_omega,
-                 zeta=model.valve_zeta)
+                 zeta=model.valve_zeta, command_low=model.valve_command_low)

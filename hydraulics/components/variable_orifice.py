@@ -27,8 +27,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .metering import CHARACTERISTICS
-from .parameters import CircuitError, param, tables_param
+from .metering import CHARACTERISTICS, check_edge_tables
+from .parameters import param, tables_param
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -58,8 +58,8 @@ class VariableOrifice:
     area_table: tuple = tables_param("-, m^2")
     """Tabulated opening: ``{"a-b" = [[opening, area], …]}``, opening in [0, 1] [-], area above leakage [m²]."""
     PORTS = ("a", "b")
-    STATES = ("opening", "opening_rate")
-    """The opening and (second order only) its rate."""
+    STATES = ("spool", "spool_rate")
+    """The opening (logged as the valve's spool) and (second order only) its rate."""
     STATE_UNITS = ("-", "1/s")
     METERING_EDGES = ("a-b",)
     """Its one metering edge (a valve kind: see :class:`~hydraulics.components.valve_4_3.Valve43`)."""
@@ -72,9 +72,5 @@ class VariableOrifice:
         return [("a-b", "a", "b", 1, self.leakage_area, self.max_area, 0.0, "a-b")]
 
     def check(self, where: str) -> None:
-        """The area table, if any, is the edge ``"a-b"``'s and goes with ``metering = "table"``."""
-        tables = dict(self.area_table)
-        if set(tables) - {"a-b"}:
-            raise CircuitError(f"{where}, field 'area_table': unknown edge(s) {sorted(set(tables) - {'a-b'})}; edges: ['a-b']")
-        if (self.metering == "table") != bool(tables):
-            raise CircuitError(f"{where}, field 'area_table': give the table of edge \"a-b\" exactly when metering = \"table\"")
+        """The area table, if any, is the edge ``"a-b"``'s, within [0, 1], and goes with ``metering = "table"``."""
+        check_edge_tables(self, where)

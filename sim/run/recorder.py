@@ -90,7 +90,8 @@ MOTOR_FIELDS = {
     "p_b_pa": "Port B absolute pressure [Pa]",
     "torque_nm": "Shaft torque applied to the mechanics [N*m]",
 }
-VALVE_FIELDS = {"command": "Spool command [-], -1..1", "spool": "Spool position [-], -1..1"}
+VALVE_FIELDS = {"command": "Spool command [-], -1..1 (a variable orifice's opening: 0..1)",
+                "spool": "Spool position [-], -1..1 (a variable orifice's opening: 0..1)"}
 PUMP_FIELDS = {
     "speed_rps": "Shaft speed [rev/s]",
     "flow_m3ps": "Delivered flow [m^3/s]",

@@ -264,6 +264,7 @@ class SceneFacts:
     limited_cylinders: tuple  # cylinders whose tendon has an end stop
     pull_sign: dict  # valve-driven actuator name -> -1/+1: direction the load pulls
     valve_actuator: dict  # valve name -> actuator name it drives (or "")
+    valve_low: dict  # valve name -> its lowest command [-] (-1 for a 4/3 valve, 0 for a variable orifice)
     full_flow: float  # m³/s: delivery of all pumps at nominal speed
     full_speed: dict  # cylinder -> v_full [m/s] (all pump flow through the cap area)
     stroke: dict  # cylinder -> stroke [m]
@@ -337,7 +338,8 @@ def scene_facts(scenario_path, grid: Grid = DEFAULT_GRID) -> SceneFacts:
         scenario=str(scenario.path), scene=scenario.scene_name, mjcf=str(scenario.mjcf), circuit=str(scenario.circuit),
         valves=tuple(net.valve_names), pumps={p: float(net.pump_nominal_speed[i]) for i, p in enumerate(net.pump_names)},
         cylinders=cylinders, motors=motors, limited_cylinders=tuple(c for c in limited if c in cylinders),
-        pull_sign=pull_sign, valve_actuator=valve_actuator, full_flow=flow, full_speed=full_speed, stroke=stroke,
+        pull_sign=pull_sign, valve_actuator=valve_actuator,
+        valve_low=dict(zip(net.valve_names, net.valve_command_low.tolist())), full_flow=flow, full_speed=full_speed, stroke=stroke,
         bulk_modulus=fluid.bulk_modulus, reference_pressure=fluid.reference_pressure,
         cavitation_pressure=fluid.cavitation_pressure, pressure_ceiling=ceiling, omega_h_max=omega, duration=duration,
     )
@@ -556,11 +558,13 @@ def write_variant(facts: SceneFacts, config: Config, directory) -> Path:
             ratio = config.bulk_modulus / facts.bulk_modulus
             ref = facts.reference_pressure
             initial["pressures"] = {k: ref + (float(v) - ref) * ratio for k, v in initial["pressures"].items()}
+    from hydraulics.components import VALVE_KINDS  # noqa: PLC0415  (the tool's start-up imports no kernel module)
+
     for component in circuit.get("component", []):
         if component.get("type") == "cylinder" and config.dead_volume is not None:
             component["dead_volume_cap"] = float(config.dead_volume)
             component["dead_volume_rod"] = float(config.dead_volume)
-        if component.get("type") == "valve_4_3" and config.event == "valve_slam":
+        if component.get("type") in VALVE_KINDS and config.event == "valve_slam":
             component["time_constant"] = 0.0
     circuit_path = directory / Path(facts.circuit).name
     circuit_path.write_text(dump_toml(circuit))
@@ -589,7 +593,7 @@ def write_variant(facts: SceneFacts, config: Config, directory) -> Path:
     elif config.event == "cavitation":
         inputs = {name: _schedule([(0.0, 0.0)]) for name in facts.pumps}
         for valve in facts.valves:
-            sign = facts.pull_sign.get(facts.valve_actuator.get(valve, ""), -1)
+            sign = max(facts.pull_sign.get(facts.valve_actuator.get(valve, ""), -1), facts.valve_low[valve])
             inputs[valve] = _step(0.0, float(sign), at)
     if config.event != "none":
         scenario.pop("inputs_csv", None)

@@ -17,6 +17,7 @@ Example
 from __future__ import annotations
 
 import numpy as np
+from scipy.interpolate import PchipInterpolator
 
 from hydraulics.components import BRANCH_LAWS, CheckValve, LaminarResistance, Orifice, ReliefValve, law_states
 from hydraulics.components.relief import REGULARISATION as RELIEF_REGULARISATION
@@ -181,11 +182,33 @@ def valve_areas(model, spool):
         has_valve = model.orifice_valve >= 0
         s = np.where(has_valve, spool[np.maximum(model.orifice_valve, 0)], 0.0)
         overlap = np.where(has_valve, model.valve_overlap[np.maximum(model.orifice_valve, 0)], 0.0)
-        area = area + model.orifice_max_area * laws.metering_opening(model.orifice_sign * s, overlap)
+        travel = model.orifice_sign * s
+        opening = laws.metering_opening(travel, overlap)
+        area = area + np.array([metered_area(model, b, travel[b], opening[b]) for b in range(len(area))])
         area = area + model.orifice_centre_area * laws.centre_opening(s, overlap)
     if len(model.rigid_branch_actuator):
         area = np.concatenate([area, rigid_rates(model, spool)])
     return area
+
+
+def metered_area(model, branch, travel, opening):
+    """Area above leakage [m²] of orifice branch ``branch`` at spool travel ``travel`` and linear opening ``opening``,
+    read from its valve's circuit parameters: A_max·y (linear), A_max·expm1(a·y)/expm1(a) (exponential), or scipy's
+    PCHIP through the edge's table held at its end values (tabulated)."""
+    valve = model.orifice_valve[branch]
+    if valve < 0:
+        return 0.0
+    params = model.circuit.component(model.valve_names[valve]).params
+    edge = model.branch_names[branch].split(".", 1)[1]
+    kind = getattr(params, "metering", "linear") if edge in type(params).METERING_EDGES else "linear"
+    full = model.orifice_max_area[branch]
+    if kind == "exponential":
+        return full * np.expm1(params.metering_exponent * opening) / np.expm1(params.metering_exponent)
+    tables = dict(getattr(params, "area_table", ()))
+    if kind == "table" and edge in tables:
+        knots = np.array(tables[edge], float).T
+        return float(PchipInterpolator(*knots)(np.clip(travel, knots[0, 0], knots[0, -1])))
+    return full * opening
 
 
 def rigid_direction(model, spool):
