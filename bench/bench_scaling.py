@@ -141,6 +141,8 @@ _BOOM_BODY = """
 def write_scene(folder: Path, n: int, layout: str) -> Path:
     """MJCF, circuit and scenario of ``n`` booms with one pump (``layout`` "shared") or a pump each ("each") in
     ``folder``; returns the scenario's path."""
+    if layout not in LAYOUTS:
+        raise ValueError(f"write_scene: layout {layout!r} is not one of {LAYOUTS}")
     bodies = "".join(_BOOM_BODY.format(i=i, y=f"{1.0 * i:.1f}") for i in range(n))
     tendons = "".join(f'\n    <spatial name="cyl{i}" limited="true" range="0.66 1.06" width="0.03">'
                       f'<site site="barrel{i}"/><site site="rod{i}"/></spatial>' for i in range(n))

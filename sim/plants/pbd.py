@@ -661,7 +661,7 @@ class PbdPlant(PlantBase):
             mhinge=np.ascontiguousarray(self._hinge[self.motor_joint], np.bool_), mbody=mb,
             mparent=np.array([int(xm.body_parent[b]) for b in mb], np.int64),
             maxis=_c64(np.asarray(self._axis_inertial).reshape(-1, 3)[self.motor_joint].reshape(-1, 3)),
-            morigin=_c64(np.asarray(self._origin_inertial).reshape(-1, 3)[mb].reshape(-1, 3)))
+            morigin=_c64(np.asarray(self._origin_inertial).reshape(-1, 3)[mb].reshape(-1, 3)), islands=self._islands())
         actuators = ActuatorState(x=np.zeros(na), v=np.zeros(na), ell=np.zeros(nr), effort=np.zeros(na),
                                   motor_effort=np.zeros(nm), out=np.zeros(len(FRAME_OUT)))
         ctx = dict(inputs=input_plan(net, self.control, self.scene.scenario.inputs), x=actuators.x, v=actuators.v,
@@ -690,12 +690,24 @@ class PbdPlant(PlantBase):
             row_sites=np.ascontiguousarray(self._row_sites, np.int64), cyl=_i64(self.cylinders), mot=_i64(self.motors),
             mot_dof=_i64(xm.jnt_dofadr[self.motor_joint]), gear=_c64(self.motor_gear), body_group=_i64(xm.body_group),
             group_mass=_c64(xm.group_mass), group_root=_i64(xm.group_root),
-            group_dynamic=np.ascontiguousarray(xm.group_dynamic, np.bool_))
+            group_dynamic=np.ascontiguousarray(xm.group_dynamic, np.bool_), islands=self._islands())
         ctx["articulated"] = Articulated(mobility=np.zeros((nr, ng, 6)), group_gravity=np.zeros((ng, 6)),
                                          motor_response=np.zeros((nm, ng, 6)), motor_inverse_inertia=np.zeros(nm),
                                          effective_mass=np.zeros(na))
         self._articulated_ctx = ctx
         return ctx
+
+    def _islands(self):
+        """The mechanism's ``compiled.Islands`` (kinematic trees joined by the cylinder rows; made once): the
+        articulated response and the rows' block are solved island by island."""
+        isl = getattr(self, "_islands_memo", None)
+        if isl is None:
+            from sim.xpbd.compiled import islands
+
+            xm = self.xmodel
+            isl = self._islands_memo = islands(xm.body_parent, xm.body_group, xm.jnt_body,
+                                               np.asarray(xm.site_body)[self._row_sites], self.motor_joint)
+        return isl
 
     # ------------------------------------------------------------- observation
     def _state_key(self):

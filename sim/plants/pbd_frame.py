@@ -72,6 +72,7 @@ Actuation = namedtuple("Actuation", [
     "mparent",  # its parent body, (nm,)
     "maxis",  # motor joint axis in the body's inertial frame, (nm, 3)
     "morigin",  # the motor body's frame origin in its inertial frame [m] (slides: the point whose rate counts), (nm, 3)
+    "islands",  # ``compiled.Islands`` of the mechanism (rows, motors and groups by island)
 ])
 
 ActuatorState = namedtuple("ActuatorState", [
@@ -103,6 +104,7 @@ ArticulatedModel = namedtuple("ArticulatedModel", [
     "row_sites",  # sites (a, b) of each cylinder row, (nr, 2)
     "cyl", "mot", "mot_dof", "gear",  # actuators of the rows and motors, motor DOFs and gears
     "body_group", "group_mass", "group_root", "group_dynamic",  # rigid groups
+    "islands",  # ``compiled.Islands``: the joints, bodies, groups, rows and motors of each island
 ])
 
 FrameSettings = namedtuple("FrameSettings", [
@@ -195,7 +197,8 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
     Fe, Te, gg, tau = fwork.force, fwork.torque, fwork.group_acceleration, fwork.joint_torque
     lam, ell, rate, x_end, v_end = fwork.lam, fwork.length, fwork.rate, fwork.x_end, fwork.v_end
     Gk, P0, mobk, swork = fwork.G, fwork.P0, fwork.mobility, fwork.substep
-    Gc, Minv = swork.G, swork.Minv
+    isl = actuation.islands
+    nisl = isl.row_ptr.shape[0] - 1
     # hinge motors' torques as impulses where there is no joint-space response (a runtime bool: one signature)
     use_tau = False
     if not joint_space:
@@ -206,11 +209,7 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
     row_out = XC.RowOutputs(lam, ell, rate)
     for r in range(nr):
         lo[r], hi[r], rforce[r] = -np.inf, np.inf, 0.0
-    tau[:] = 0.0
-    Gk[:, :, :] = 0.0
-    P0[:, :] = 0.0
-    Gc[:, :, :] = 0.0
-    Minv[:, :] = 0.0
+    tau[:] = 0.0  # (G, P0, and the substep's G, M⁻¹ are written where they are used: group_jacobian, ...)
     if not joint_space:
         gg[:, :] = 0.0
     hh = h * h
@@ -248,13 +247,19 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
             a = mot[i]
             damping = max(-slope[a], 0.0) * gear[i] ** 2 * h * minv[i]
             motor_effort[i] = C._clip((const[a] + slope[a] * v[a]) / (1.0 + damping), lower[a], upper[a])
-        if joint_space:  # motor efforts through the articulated response, with gravity
-            for g in range(ng):
-                for c in range(6):
-                    s = 0.0
-                    for i in range(nm):
-                        s += motor_effort[i] * mresp[i, g, c]
-                    gg[g, c] = gg0[g, c] + s if nm else gg0[g, c]
+        if joint_space:  # motor efforts through the articulated response (zero outside the motor's island), gravity
+            gg[:, :] = gg0
+            if nm:
+                for island in range(nisl):
+                    m0, m1 = isl.motor_ptr[island], isl.motor_ptr[island + 1]
+                    for t in range(isl.group_ptr[island], isl.group_ptr[island + 1]):
+                        g = isl.groups[t]
+                        for c in range(6):
+                            s = 0.0
+                            for u in range(m0, m1):
+                                i = isl.motors[u]
+                                s += motor_effort[i] * mresp[i, g, c]
+                            gg[g, c] = gg0[g, c] + s
         Fe[:, :] = 0.0
         Te[:, :] = 0.0
         if not joint_space:  # as joint forces: hinge torques as impulses, slide forces on the two groups
@@ -269,12 +274,16 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
                 d = (Xg[g2, 0] - Xg[g1, 0], Xg[g2, 1] - Xg[g1, 1], Xg[g2, 2] - Xg[g1, 2])
                 _pair_force(g1, g2, d, (0.0, 0.0, 0.0), (f * axis[0], f * axis[1], f * axis[2]), Fe, Te)
         if any_force and joint_space and not naive:  # explicit row forces through the articulated response
-            for g in range(ng):
-                for c in range(6):
-                    s = 0.0
-                    for r in range(nr):
-                        s += rforce[r] * mob[r, g, c]
-                    gg[g, c] += s
+            for island in range(nisl):
+                r0, r1 = isl.row_ptr[island], isl.row_ptr[island + 1]
+                for t in range(isl.group_ptr[island], isl.group_ptr[island + 1]):
+                    g = isl.groups[t]
+                    for c in range(6):
+                        s = 0.0
+                        for u in range(r0, r1):
+                            r = isl.rows[u]
+                            s += rforce[r] * mob[r, g, c]
+                        gg[g, c] += s
         elif any_force:  # explicit row forces on the rows' two groups (plain XPBD, the seed's scheme)
             for r in range(nr):
                 if rforce[r] == 0.0:
@@ -286,14 +295,14 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
                      Xg[gb, 2] + rb[2] - Xg[ga, 2] - ra[2])
                 f = rforce[r] / np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
                 _pair_force(ga, gb, ra, rb, (f * d[0], f * d[1], f * d[2]), Fe, Te)
+        row_mobility = mob  # the step's responses as given (read only)
         if carry and k > 0:
             XC.group_jacobian(Xg, Qg, IM, jt, jg, jvec, Gk)
             for r in range(nr):
                 XC.transport(Gk, P0, mob[r], mobk[r])
             XC.transport(Gk, P0, gg, gg)
-        elif joint_space:
-            mobk[:, :, :] = mob
-        rows = XC.SubstepRows(rgroup, rvec, act[:nact], tgt, at, lo, hi, nact > 0 and joint_space, mobk)
+            row_mobility = mobk
+        rows = XC.SubstepRows(rgroup, rvec, act[:nact], tgt, at, lo, hi, nact > 0 and joint_space, row_mobility, isl)
         XC.substep_core(Xg, Qg, Vg, Wg, model, rows, contacts, loads, options, h, row_out, swork)
         XC.scatter(Xg, Qg, Vg, Wg, model.body_group, model.in_group_quat, model.in_group_pos, bx, bq, bv, bw)
         # end of the substep: realised motion
@@ -370,10 +379,11 @@ def compile_helpers() -> None:
 def articulated_work(nb, nj, na, ng):
     """The work arrays of ``_articulated_into`` for ``nb`` bodies, ``nj`` joints, ``na`` actuators and ``ng`` groups
     (made once per block by ``pbd_block``): body frames, joint axes and anchors, joint-to-body Jacobians, mass
-    matrix, right-hand sides, moment arms, the eliminated matrix and the group Jacobians."""
+    matrix, right-hand sides, moment arms, the eliminated matrix, the group Jacobians and an island's actuator
+    columns."""
     return (np.empty((nb, 3)), np.empty((nb, 4)), np.empty((nj, 3)), np.empty((nj, 3)), np.empty((nj, nb, 3)),
             np.empty((nj, nb, 3)), np.empty((nj, nj)), np.empty((nj, na + 1)), np.empty((na, nj)), np.empty((nj, nj)),
-            np.empty((nj, ng, 3)))
+            np.empty((nj, ng, 3)), np.empty(na + 1, np.int64))
 
 
 def _articulated(x, q, model, out):
@@ -385,22 +395,46 @@ def _articulated(x, q, model, out):
     return _articulated_into_jit(work, x, q, model, out)
 
 
+@njit(inline="always")
+def _island_columns(isl, island, cyl, mot, na, cols):
+    """The actuator columns of island ``island`` (its rows' and motors' actuators, then the gravity column ``na``)
+    into ``cols``; returns how many."""
+    n = 0
+    for t in range(isl.row_ptr[island], isl.row_ptr[island + 1]):
+        cols[n] = cyl[isl.rows[t]]
+        n += 1
+    for t in range(isl.motor_ptr[island], isl.motor_ptr[island + 1]):
+        cols[n] = mot[isl.motors[t]]
+        n += 1
+    cols[n] = na
+    return n + 1
+
+
 def _articulated_into(work, x, q, model, out):
-    """``_articulated`` on the work arrays ``work`` (:func:`articulated_work`; overwritten): no allocation."""
+    """``_articulated`` on the work arrays ``work`` (:func:`articulated_work`; overwritten): no allocation.
+
+    Island by island (``model.islands``, ``compiled.islands``): a joint moves only its island's bodies, so the mass
+    matrix M, the moment arms Jᵀ and Δq = M⁻¹·[Jᵀ, Q_gravity] are block diagonal by island and each island's
+    block is built and eliminated on its own — the operations of the whole matrix without its zero blocks, so
+    the results equal the whole matrix's (``compiled.single_island``) — in O(Σ nᵢ²) for nᵢ joints, bodies and
+    actuators of island i.  The outputs' entries outside a column's island (mobility and responses of the groups
+    of other islands) are not written: zero in the buffers the plant makes."""
     body_iquat, body_ipos, jnt_body, jnt_axis, jnt_pos = model.iquat, model.ipos, model.jnt_body, model.jnt_axis, model.jnt_pos
     hinge, subtree, body_mass, inertia, armature = model.hinge, model.subtree, model.body_mass, model.inertia, model.armature
     gravity, site_body, site_pos, row_sites = model.gravity, model.site_body, model.site_pos, model.row_sites
     cyl, mot, mot_dof, gear = model.cyl, model.mot, model.mot_dof, model.gear
     body_group, group_mass, group_root, group_dynamic = model.body_group, model.group_mass, model.group_root, model.group_dynamic
+    isl = model.islands
+    jptr, jl, bptr, bl, gptr, gl = isl.joint_ptr, isl.joints, isl.body_ptr, isl.bodies, isl.group_ptr, isl.groups
+    rptr, rl, mptr, ml, jisl = isl.row_ptr, isl.rows, isl.motor_ptr, isl.motors, isl.joint_island
+    nisl = jptr.size - 1
     mobility, group_gravity, motor_response = out.mobility, out.group_gravity, out.motor_response
     motor_inverse_inertia, effective_mass = out.motor_inverse_inertia, out.effective_mass
     nb = x.shape[0]
     nj = jnt_body.shape[0]
     na = effective_mass.size
-    nr = cyl.size
     nm = mot.size
-    ng = group_mass.size
-    xb, qb, axis, anchor, jv, jwl, mass, rhs, moment, M, gjv = work
+    xb, qb, axis, anchor, jv, jwl, mass, rhs, moment, M, gjv, cols = work
     for b in range(nb):
         qc = (body_iquat[b, 0], -body_iquat[b, 1], -body_iquat[b, 2], -body_iquat[b, 3])
         qq = XC._qmul(XC._q4(q, b), qc)
@@ -416,11 +450,14 @@ def _articulated_into(work, x, q, model, out):
         for c in range(3):
             axis[j, c] = a[c]
             anchor[j, c] = xb[jb, c] + p[c]
-    jv[:, :, :] = 0.0
-    jwl[:, :, :] = 0.0
-    for j in range(nj):
+    for j in range(nj):  # joint-to-body Jacobians on the joint's island's bodies (the others never read)
+        island = jisl[j]
         aj = XC._v3(axis, j)
-        for b in range(nb):
+        for t in range(bptr[island], bptr[island + 1]):
+            b = bl[t]
+            for c in range(3):
+                jv[j, b, c] = 0.0
+                jwl[j, b, c] = 0.0
             if not subtree[j, b]:
                 continue
             if hinge[j]:
@@ -433,113 +470,166 @@ def _articulated_into(work, x, q, model, out):
             else:
                 for c in range(3):
                     jv[j, b, c] = aj[c]
-    for i in range(nj):  # (every entry of mass and rhs is written below)
-        for k in range(nj):
-            if not (subtree[i, jnt_body[k]] or subtree[k, jnt_body[i]]):
-                mass[i, k] = 0.0  # disjoint subtrees (another tree, or sibling branches): no body moves with both
-                continue
+    for island in range(nisl):
+        j0, j1, b0, b1 = jptr[island], jptr[island + 1], bptr[island], bptr[island + 1]
+        for ti in range(j0, j1):  # (every entry of the island's mass block and gravity column is written below)
+            i = jl[ti]
+            for tk in range(j0, j1):
+                k = jl[tk]
+                if not (subtree[i, jnt_body[k]] or subtree[k, jnt_body[i]]):
+                    mass[i, k] = 0.0  # sibling branches: no body moves with both
+                    continue
+                s = 0.0
+                for t in range(b0, b1):
+                    b = bl[t]
+                    s += body_mass[b] * (jv[i, b, 0] * jv[k, b, 0] + jv[i, b, 1] * jv[k, b, 1] + jv[i, b, 2] * jv[k, b, 2])
+                for t in range(b0, b1):
+                    b = bl[t]
+                    s += (inertia[b, 0] * jwl[i, b, 0] * jwl[k, b, 0] + inertia[b, 1] * jwl[i, b, 1] * jwl[k, b, 1]
+                          + inertia[b, 2] * jwl[i, b, 2] * jwl[k, b, 2])
+                mass[i, k] = s + armature[i] if i == k else s
             s = 0.0
-            for b in range(nb):
-                s += body_mass[b] * (jv[i, b, 0] * jv[k, b, 0] + jv[i, b, 1] * jv[k, b, 1] + jv[i, b, 2] * jv[k, b, 2])
-            for b in range(nb):
-                s += (inertia[b, 0] * jwl[i, b, 0] * jwl[k, b, 0] + inertia[b, 1] * jwl[i, b, 1] * jwl[k, b, 1]
-                      + inertia[b, 2] * jwl[i, b, 2] * jwl[k, b, 2])
-            mass[i, k] = s + armature[i] if i == k else s
-        s = 0.0
-        for b in range(nb):
-            s += body_mass[b] * (jv[i, b, 0] * gravity[0] + jv[i, b, 1] * gravity[1] + jv[i, b, 2] * gravity[2])
-        rhs[i, na] = s
-    moment[:, :] = 0.0
-    for i in range(nm):
-        moment[mot[i], mot_dof[i]] = gear[i]
-    for r in range(nr):
-        sa, sb = row_sites[r, 0], row_sites[r, 1]
-        ba, bb = site_body[sa], site_body[sb]
-        pa = XC._rot(XC._q4(q, ba), XC._v3(site_pos, sa))
-        pb = XC._rot(XC._q4(q, bb), XC._v3(site_pos, sb))
-        A = (x[ba, 0] + pa[0], x[ba, 1] + pa[1], x[ba, 2] + pa[2])
-        B = (x[bb, 0] + pb[0], x[bb, 1] + pb[1], x[bb, 2] + pb[2])
-        d = (B[0] - A[0], B[1] - A[1], B[2] - A[2])
-        ln = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        n = (d[0] / ln, d[1] / ln, d[2] / ln)
-        for j in range(nj):
-            aj = XC._v3(axis, j)
-            jb_ = (0.0, 0.0, 0.0)
-            ja_ = (0.0, 0.0, 0.0)
-            if subtree[j, bb]:
-                jb_ = XC._cross(aj, (B[0] - anchor[j, 0], B[1] - anchor[j, 1], B[2] - anchor[j, 2])) if hinge[j] else aj
-            if subtree[j, ba]:
-                ja_ = XC._cross(aj, (A[0] - anchor[j, 0], A[1] - anchor[j, 1], A[2] - anchor[j, 2])) if hinge[j] else aj
-            moment[cyl[r], j] = n[0] * (jb_[0] - ja_[0]) + n[1] * (jb_[1] - ja_[1]) + n[2] * (jb_[2] - ja_[2])
-    for a in range(na):
-        for i in range(nj):
-            rhs[i, a] = moment[a, i]
-    # dq = M⁻¹·[Jᵀ, Q_gravity]: Gaussian elimination with partial pivoting
-    M[:, :] = mass
-    for col in range(nj):
-        piv = col
-        for r in range(col + 1, nj):
-            if abs(M[r, col]) > abs(M[piv, col]):
-                piv = r
-        if M[piv, col] == 0.0 or not np.isfinite(M[piv, col]):
-            return False
-        if piv != col:
-            for c in range(nj):
-                M[col, c], M[piv, c] = M[piv, c], M[col, c]
-            for c in range(na + 1):
-                rhs[col, c], rhs[piv, c] = rhs[piv, c], rhs[col, c]
-        for r in range(col + 1, nj):
-            f = M[r, col] / M[col, col]
-            if f != 0.0:
-                for c in range(col, nj):
-                    M[r, c] -= f * M[col, c]
-                for c in range(na + 1):
-                    rhs[r, c] -= f * rhs[col, c]
-    for col in range(nj - 1, -1, -1):  # back substitution, U's zeros skipped (independent trees: block diagonal)
-        for k in range(col + 1, nj):
-            u = M[col, k]
-            if u != 0.0:
-                for c in range(na + 1):
-                    rhs[col, c] -= u * rhs[k, c]
-        for c in range(na + 1):
-            rhs[col, c] = rhs[col, c] / M[col, col]
+            for t in range(b0, b1):
+                b = bl[t]
+                s += body_mass[b] * (jv[i, b, 0] * gravity[0] + jv[i, b, 1] * gravity[1] + jv[i, b, 2] * gravity[2])
+            rhs[i, na] = s
+        for t in range(mptr[island], mptr[island + 1]):  # motor moment arms: the gear on the motor's joint
+            i = ml[t]
+            for tk in range(j0, j1):
+                moment[mot[i], jl[tk]] = 0.0
+            moment[mot[i], mot_dof[i]] = gear[i]
+        for t in range(rptr[island], rptr[island + 1]):  # cylinder rows: n·(∂B/∂q − ∂A/∂q)
+            r = rl[t]
+            sa, sb = row_sites[r, 0], row_sites[r, 1]
+            ba, bb = site_body[sa], site_body[sb]
+            pa = XC._rot(XC._q4(q, ba), XC._v3(site_pos, sa))
+            pb = XC._rot(XC._q4(q, bb), XC._v3(site_pos, sb))
+            A = (x[ba, 0] + pa[0], x[ba, 1] + pa[1], x[ba, 2] + pa[2])
+            B = (x[bb, 0] + pb[0], x[bb, 1] + pb[1], x[bb, 2] + pb[2])
+            d = (B[0] - A[0], B[1] - A[1], B[2] - A[2])
+            ln = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            n = (d[0] / ln, d[1] / ln, d[2] / ln)
+            for tk in range(j0, j1):
+                j = jl[tk]
+                aj = XC._v3(axis, j)
+                jb_ = (0.0, 0.0, 0.0)
+                ja_ = (0.0, 0.0, 0.0)
+                if subtree[j, bb]:
+                    jb_ = XC._cross(aj, (B[0] - anchor[j, 0], B[1] - anchor[j, 1], B[2] - anchor[j, 2])) if hinge[j] else aj
+                if subtree[j, ba]:
+                    ja_ = XC._cross(aj, (A[0] - anchor[j, 0], A[1] - anchor[j, 1], A[2] - anchor[j, 2])) if hinge[j] else aj
+                moment[cyl[r], j] = n[0] * (jb_[0] - ja_[0]) + n[1] * (jb_[1] - ja_[1]) + n[2] * (jb_[2] - ja_[2])
+        nc = _island_columns(isl, island, cyl, mot, na, cols)
+        for ti in range(j0, j1):
+            i = jl[ti]
+            for u in range(nc - 1):
+                rhs[i, cols[u]] = moment[cols[u], i]
+        # dq = M⁻¹·[Jᵀ, Q_gravity] on the island's block: Gaussian elimination with partial pivoting
+        for ti in range(j0, j1):
+            for tk in range(j0, j1):
+                M[jl[ti], jl[tk]] = mass[jl[ti], jl[tk]]
+        for tc in range(j0, j1):
+            col = jl[tc]
+            piv = col
+            for tr in range(tc + 1, j1):
+                r = jl[tr]
+                if abs(M[r, col]) > abs(M[piv, col]):
+                    piv = r
+            if M[piv, col] == 0.0 or not np.isfinite(M[piv, col]):
+                return False
+            if piv != col:
+                for tk in range(j0, j1):
+                    c = jl[tk]
+                    M[col, c], M[piv, c] = M[piv, c], M[col, c]
+                for u in range(nc):
+                    c = cols[u]
+                    rhs[col, c], rhs[piv, c] = rhs[piv, c], rhs[col, c]
+            for tr in range(tc + 1, j1):
+                r = jl[tr]
+                f = M[r, col] / M[col, col]
+                if f != 0.0:
+                    for tk in range(tc, j1):
+                        c = jl[tk]
+                        M[r, c] -= f * M[col, c]
+                    for u in range(nc):
+                        c = cols[u]
+                        rhs[r, c] -= f * rhs[col, c]
+        for tc in range(j1 - 1, j0 - 1, -1):  # back substitution, U's zeros skipped (sibling branches)
+            col = jl[tc]
+            for tk in range(tc + 1, j1):
+                k = jl[tk]
+                uu = M[col, k]
+                if uu != 0.0:
+                    for u in range(nc):
+                        c = cols[u]
+                        rhs[col, c] -= uu * rhs[k, c]
+            for u in range(nc):
+                c = cols[u]
+                rhs[col, c] = rhs[col, c] / M[col, col]
     dq = rhs
-    for a in range(na):
-        s = 0.0
-        for i in range(nj):
-            s += moment[a, i] * dq[i, a]
-        effective_mass[a] = 1.0 / s if s != 0.0 else np.inf
+    for a in range(na):  # an actuator of no island's joints moves nothing: 1/0
+        effective_mass[a] = np.inf
+    for island in range(nisl):
+        nc = _island_columns(isl, island, cyl, mot, na, cols)
+        for u in range(nc - 1):
+            a = cols[u]
+            s = 0.0
+            for ti in range(jptr[island], jptr[island + 1]):
+                i = jl[ti]
+                s += moment[a, i] * dq[i, a]
+            effective_mass[a] = 1.0 / s if s != 0.0 else np.inf
     for i in range(nm):
         motor_inverse_inertia[i] = dq[mot_dof[i], mot[i]] / gear[i]
-    gjv[:, :, :] = 0.0
-    for i in range(nj):
-        for b in range(nb):
-            g = body_group[b]
-            for c in range(3):
-                gjv[i, g, c] += jv[i, b, c] * body_mass[b]
-        for g in range(ng):
-            gm = group_mass[g] if group_mass[g] > 0 else 1.0
-            for c in range(3):
-                gjv[i, g, c] /= gm
-    ncol = nr + nm + 1
-    for r in range(ncol):  # Σ over the joints that move with the column (dq ≠ 0), in the joints' order
-        col = cyl[r] if r < nr else (mot[r - nr] if r < nr + nm else na)
-        target = mobility[r] if r < nr else (motor_response[r - nr] if r < nr + nm else group_gravity)
-        for g in range(ng):
-            for c in range(6):
-                target[g, c] = 0.0
-        for i in range(nj):
-            d = dq[i, col]
-            if d == 0.0:
-                continue
-            for g in range(ng):
-                if not group_dynamic[g]:
-                    continue
+    for island in range(nisl):  # group-COM Jacobians: the mass-weighted body rows of each group
+        for ti in range(jptr[island], jptr[island + 1]):
+            i = jl[ti]
+            for t in range(gptr[island], gptr[island + 1]):
+                g = gl[t]
                 for c in range(3):
-                    target[g, c] += d * gjv[i, g, c]
-                if hinge[i] and subtree[i, group_root[g]]:
+                    gjv[i, g, c] = 0.0
+            for t in range(bptr[island], bptr[island + 1]):
+                b = bl[t]
+                g = body_group[b]
+                if g == 0:
+                    continue  # a static body (whole-model island): no Jacobian
+                for c in range(3):
+                    gjv[i, g, c] += jv[i, b, c] * body_mass[b]
+            for t in range(gptr[island], gptr[island + 1]):
+                g = gl[t]
+                gm = group_mass[g] if group_mass[g] > 0 else 1.0
+                for c in range(3):
+                    gjv[i, g, c] /= gm
+    # the responses: Σ over the island's joints that move with the column (dq ≠ 0), in the joints' order
+    for island in range(nisl):
+        j0, j1, g0, g1 = jptr[island], jptr[island + 1], gptr[island], gptr[island + 1]
+        nc = _island_columns(isl, island, cyl, mot, na, cols)
+        nr_ = rptr[island + 1] - rptr[island]
+        for u in range(nc):
+            col = cols[u]
+            if u < nr_:
+                target = mobility[rl[rptr[island] + u]]
+            elif u < nc - 1:
+                target = motor_response[ml[mptr[island] + u - nr_]]
+            else:
+                target = group_gravity
+            for t in range(g0, g1):
+                g = gl[t]
+                for c in range(6):
+                    target[g, c] = 0.0
+            for ti in range(j0, j1):
+                i = jl[ti]
+                d = dq[i, col]
+                if d == 0.0:
+                    continue
+                for t in range(g0, g1):
+                    g = gl[t]
+                    if not group_dynamic[g]:
+                        continue
                     for c in range(3):
-                        target[g, 3 + c] += d * axis[i, c]
+                        target[g, c] += d * gjv[i, g, c]
+                    if hinge[i] and subtree[i, group_root[g]]:
+                        for c in range(3):
+                            target[g, 3 + c] += d * axis[i, c]
     return True
 
 

@@ -86,6 +86,16 @@ SubstepRows = namedtuple("SubstepRows", [
     "upper",  # upper bound on λ [N·s²], (nr,)
     "use_block",  # solve the active rows as one block through ``mobility`` (bool)
     "mobility",  # articulated row mobility, (nr, ng, 6)
+    "islands",  # ``Islands``: the rows' and groups' islands (one block per island)
+])
+
+Islands = namedtuple("Islands", [  # parts of the mechanism that do not move one another, in compressed rows
+    "joint_ptr", "joints",  # joints of island i: joints[joint_ptr[i]:joint_ptr[i + 1]], ascending
+    "body_ptr", "bodies",  # its moving bodies (rigid group > 0), ascending
+    "group_ptr", "groups",  # its moving rigid groups, ascending
+    "row_ptr", "rows",  # its length rows, ascending
+    "motor_ptr", "motors",  # its motors (indices into the plant's motor list), ascending
+    "joint_island",  # island of each joint, (nj,)
 ])
 
 SubstepLoads = namedtuple("SubstepLoads", [
@@ -142,7 +152,9 @@ ContactWork = namedtuple("ContactWork", [  # per contact candidate, for up to nc
 ])
 
 RowBlockWork = namedtuple("RowBlockWork", [  # the length rows' block system, for up to nr active rows
-    "matrix", "augmented", "vectors",  # (nr, nr), (nr, nr + 1), (3, nr): rhs, live flags, Δλ
+    "matrix", "augmented",  # one island's block and its augmented copy, (nr, nr), (nr, nr + 1)
+    "vectors",  # (4, nr): rhs, live flags, Δλ (by position in the active rows), the island's solution
+    "index",  # (2, nr) int: position of each row among the active rows (−1: inactive), the island's positions
 ])
 
 SubstepWork = namedtuple("SubstepWork", [
@@ -160,6 +172,91 @@ BodyTree = namedtuple("BodyTree", [
     "jnt_type", "jnt_body", "jnt_qposadr", "jnt_dofadr", "jnt_axis",  # MuJoCo joints
     "qpos0",  # reference configuration, (nq,)
 ])
+
+def islands(body_parent, body_group, jnt_body, row_bodies, motor_joint) -> Islands:
+    """The ``Islands`` of a mechanism: its moving bodies (rigid group > 0) joined to their moving parents (the
+    kinematic trees hanging from static bodies) and to the other moving end of each length row; a row or joint
+    with no moving body is an island of its own.
+
+    No body of one island moves with a joint of another, so the joint-space mass matrix, the rows' articulated
+    mobility (Δq = M⁻¹·Jᵀ) and the rows' block matrix are block diagonal by island: the kernels that take the
+    ``Islands`` (``_solve_rows_block``, ``sim.plants.pbd_frame._articulated_into``) visit each island's joints,
+    bodies, groups and rows only, O(Σ nᵢ²) instead of O(n²): linear in the number of islands for islands of
+    bounded size (N identical machines side by side).  :func:`single_island` puts everything into one island
+    (the whole blocks).
+
+    ``body_parent``, ``body_group`` (nb,); ``jnt_body`` (nj,); ``row_bodies`` (nr, 2) the bodies of each row's
+    two sites; ``motor_joint`` (nm,) each motor's joint.
+
+    >>> isl = islands([0, 0, 1, 0], [0, 1, 1, 2], [1, 3], [[0, 1], [0, 3]], [1])
+    >>> isl.joint_island.tolist(), isl.rows.tolist(), isl.row_ptr.tolist(), isl.motor_ptr.tolist()
+    ([0, 1], [0, 1], [0, 1, 2], [0, 0, 1])
+    """
+    body_parent, body_group = np.asarray(body_parent, np.int64), np.asarray(body_group, np.int64)
+    jnt_body, motor_joint = np.asarray(jnt_body, np.int64), np.asarray(motor_joint, np.int64)
+    row_bodies = np.asarray(row_bodies, np.int64).reshape(-1, 2)
+    nb, nj, nr = body_parent.size, jnt_body.size, row_bodies.shape[0]
+    link = list(range(nb + nj + nr))  # union-find: bodies, then a node per joint, then a node per row
+
+    def find(a):
+        while link[a] != a:
+            link[a] = link[link[a]]
+            a = link[a]
+        return a
+
+    def join(a, b):
+        a, b = find(a), find(b)
+        if a != b:
+            link[max(a, b)] = min(a, b)
+
+    moving = body_group > 0
+    for b in range(nb):
+        if moving[b] and moving[body_parent[b]]:
+            join(b, int(body_parent[b]))
+    for j in range(nj):
+        if moving[jnt_body[j]]:
+            join(nb + j, int(jnt_body[j]))
+    for r in range(nr):
+        for b in row_bodies[r]:
+            if moving[b]:
+                join(nb + nj + r, int(b))
+    label = {}
+    for node in [b for b in range(nb) if moving[b]] + list(range(nb, nb + nj + nr)):
+        label.setdefault(find(node), len(label))
+    body_island = [label[find(b)] if moving[b] else -1 for b in range(nb)]
+    joint_island = [label[find(nb + j)] for j in range(nj)]
+    row_island = [label[find(nb + nj + r)] for r in range(nr)]
+    motor_island = [joint_island[j] for j in motor_joint]
+    group_island = {}
+    for b in range(nb):
+        if moving[b]:
+            group_island[int(body_group[b])] = body_island[b]
+    n = len(label)
+
+    def rows_of(island_of):
+        members = [[] for _ in range(n)]
+        for index, island in enumerate(island_of):
+            if island >= 0:
+                members[island].append(index)
+        ptr = np.zeros(n + 1, np.int64)
+        ptr[1:] = np.cumsum([len(m) for m in members])
+        flat = np.array([i for m in members for i in m], np.int64)
+        return ptr, flat
+
+    ngroup = int(body_group.max()) + 1 if nb else 0
+    groups = [group_island.get(g, -1) for g in range(ngroup)]
+    return Islands(*rows_of(joint_island), *rows_of(body_island), *rows_of(groups), *rows_of(row_island),
+                   *rows_of(motor_island), np.array(joint_island, np.int64))
+
+
+def single_island(nb, ng, nj, nr, nm) -> Islands:
+    """One island holding every body, moving group (1 … ng − 1), joint, row and motor: the
+    kernels then solve the whole blocks (no structure assumed of a row mobility given from outside)."""
+    def one(first, n):
+        return np.array([0, max(n - first, 0)], np.int64), np.arange(first, max(n, first), dtype=np.int64)
+
+    return Islands(*one(0, nj), *one(0, nb), *one(1, ng), *one(0, nr), *one(0, nm), np.zeros(nj, np.int64))
+
 
 # Kernels that allocate nothing are compiled without numba's reference counting (``_nrt=False``): in a
 # reference-counted function every array argument and view costs an NRT_incref/NRT_decref pair.  On the excavator
@@ -1029,47 +1126,86 @@ def _still(mob, row, group):
 
 
 @_leaf
-def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob, work):
+def _island_members(isl, island, position, members):
+    """The positions among the active rows (``position``: −1 for an inactive row) of island ``island``'s active
+    rows, in the islands' row order, into ``members``; returns how many."""
+    n = 0
+    for t in range(isl.row_ptr[island], isl.row_ptr[island + 1]):
+        m = position[isl.rows[t]]
+        if m >= 0:
+            members[n] = m
+            n += 1
+    return n
+
+
+@_leaf
+def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob, isl, work):
     """The active cylinder rows as one block through their articulated mobility ``mob``; ``work``: the
-    ``RowBlockWork`` (for at least ``len(act)`` rows)."""
+    ``RowBlockWork`` (for at least ``len(act)`` rows).
+
+    The block W Δλ = −C − α̃λ with W[m, j] = n_m·(Δp_b − Δp_a) of row m's sites per unit λ of row j is block
+    diagonal by ``isl`` (``Islands``: row j's impulse moves only its island's groups), so each island's block is
+    solved on its own — the same eliminations as the whole block's, without the zero entries between islands —
+    and the groups of each island are moved by its rows' Δλ.  Work O(Σ kᵢ²) for kᵢ active rows in island i.
+    The rows of an island are taken in ``isl.rows`` order (ascending, as ``act``).  A singular island block falls
+    back to Gauss-Seidel over all active rows (``_solve_rows``), before any row's λ changed."""
     k = act.shape[0]
-    A = work.matrix[:k, :k]
-    rhs = work.vectors[0, :k]
+    rhs_all, sol_all = work.vectors[0], work.vectors[3]
     live = work.vectors[1, :k]  # 1.0 for a row with a usable direction
     dlam = work.vectors[2, :k]
-    M = work.augmented[:k, :k + 1]
+    position, members = work.index[0], work.index[1]
+    for r in range(rg.shape[0]):
+        position[r] = -1
     for m in range(k):
-        rhs[m] = 0.0
+        position[act[m]] = m
         live[m] = 0.0
         dlam[m] = 0.0
-        for j in range(k):
-            A[m, j] = 0.0
+    nisl = isl.row_ptr.shape[0] - 1
     anylive = False
-    for m in range(k):
-        i = act[m]
-        ga, gb, raw, rbw, d = _row_geometry(X, Q, rg, rvec, i)
-        ell = math.sqrt(_dot(d, d))
-        if ell < _EPS:
-            A[m, m] = 1.0
+    for island in range(nisl):
+        n = _island_members(isl, island, position, members)
+        if n == 0:
             continue
-        n = (d[0] / ell, d[1] / ell, d[2] / ell)
-        for j in range(k):
-            jj = act[j]
-            if _still(mob, jj, ga) and _still(mob, jj, gb):
-                continue  # row j's impulse moves neither of row m's groups (another tree): A[m, j] = 0
-            cb = _cross((mob[jj, gb, 3], mob[jj, gb, 4], mob[jj, gb, 5]), rbw)
-            ca = _cross((mob[jj, ga, 3], mob[jj, ga, 4], mob[jj, ga, 5]), raw)
-            A[m, j] = (n[0] * (mob[jj, gb, 0] + cb[0] - mob[jj, ga, 0] - ca[0])
-                       + n[1] * (mob[jj, gb, 1] + cb[1] - mob[jj, ga, 1] - ca[1])
-                       + n[2] * (mob[jj, gb, 2] + cb[2] - mob[jj, ga, 2] - ca[2]))
-        A[m, m] += at[i]
-        rhs[m] = -(ell - tgt[i]) - at[i] * lam[i]
-        live[m] = 1.0
+        A = work.matrix[:n, :n]
+        rhs = rhs_all[:n]
+        x = sol_all[:n]
+        M = work.augmented[:n, :n + 1]
+        for a in range(n):
+            rhs[a] = 0.0
+            x[a] = 0.0
+            for b in range(n):
+                A[a, b] = 0.0
+        here = False
+        for a in range(n):
+            i = act[members[a]]
+            ga, gb, raw, rbw, d = _row_geometry(X, Q, rg, rvec, i)
+            ell = math.sqrt(_dot(d, d))
+            if ell < _EPS:
+                A[a, a] = 1.0
+                continue
+            nv = (d[0] / ell, d[1] / ell, d[2] / ell)
+            for b in range(n):
+                jj = act[members[b]]
+                if _still(mob, jj, ga) and _still(mob, jj, gb):
+                    continue  # row jj's impulse moves neither of row i's groups: A[a, b] = 0
+                cb = _cross((mob[jj, gb, 3], mob[jj, gb, 4], mob[jj, gb, 5]), rbw)
+                ca = _cross((mob[jj, ga, 3], mob[jj, ga, 4], mob[jj, ga, 5]), raw)
+                A[a, b] = (nv[0] * (mob[jj, gb, 0] + cb[0] - mob[jj, ga, 0] - ca[0])
+                           + nv[1] * (mob[jj, gb, 1] + cb[1] - mob[jj, ga, 1] - ca[1])
+                           + nv[2] * (mob[jj, gb, 2] + cb[2] - mob[jj, ga, 2] - ca[2]))
+            A[a, a] += at[i]
+            rhs[a] = -(ell - tgt[i]) - at[i] * lam[i]
+            live[members[a]] = 1.0
+            here = True
+        if not here:
+            continue
+        if not _solve_dense_in(A, rhs, x, M):
+            _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, False)
+            return
+        for a in range(n):
+            dlam[members[a]] = x[a]
         anylive = True
     if not anylive:
-        return
-    if not _solve_dense_in(A, rhs, dlam, M):
-        _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, False)
         return
     for m in range(k):
         i = act[m]
@@ -1079,25 +1215,30 @@ def _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam, mob, wo
             new = lam[i]
         dlam[m] = new - lam[i]
         lam[i] = new
-    for g in range(1, X.shape[0]):
-        if IM[g] == 0.0:
+    for island in range(nisl):
+        n = _island_members(isl, island, position, members)
+        if n == 0:
             continue
-        m0 = m1 = m2 = m3 = m4 = m5 = 0.0
-        for j in range(k):
-            dl = dlam[j]
-            if dl != 0.0:
-                r = act[j]
-                m0 += dl * mob[r, g, 0]
-                m1 += dl * mob[r, g, 1]
-                m2 += dl * mob[r, g, 2]
-                m3 += dl * mob[r, g, 3]
-                m4 += dl * mob[r, g, 4]
-                m5 += dl * mob[r, g, 5]
-        X[g, 0] = X[g, 0] + m0
-        X[g, 1] = X[g, 1] + m1
-        X[g, 2] = X[g, 2] + m2
-        if m3 != 0.0 or m4 != 0.0 or m5 != 0.0:
-            _setq(Q, g, _qadd(_q4(Q, g), (m3, m4, m5), 1.0))
+        for t in range(isl.group_ptr[island], isl.group_ptr[island + 1]):
+            g = isl.groups[t]
+            if IM[g] == 0.0:
+                continue
+            m0 = m1 = m2 = m3 = m4 = m5 = 0.0
+            for a in range(n):
+                dl = dlam[members[a]]
+                if dl != 0.0:
+                    r = act[members[a]]
+                    m0 += dl * mob[r, g, 0]
+                    m1 += dl * mob[r, g, 1]
+                    m2 += dl * mob[r, g, 2]
+                    m3 += dl * mob[r, g, 3]
+                    m4 += dl * mob[r, g, 4]
+                    m5 += dl * mob[r, g, 5]
+            X[g, 0] = X[g, 0] + m0
+            X[g, 1] = X[g, 1] + m1
+            X[g, 2] = X[g, 2] + m2
+            if m3 != 0.0 or m4 != 0.0 or m5 != 0.0:
+                _setq(Q, g, _qadd(_q4(Q, g), (m3, m4, m5), 1.0))
 
 
 # ---------------------------------------------------------------------------- soft pyramidal contacts
@@ -1546,7 +1687,7 @@ def substep_work(ng, nj, ntl, ncap, nr):
                            np.zeros(ncap), np.zeros((ncap, 2, 3)), np.zeros(ncap, np.int64), np.zeros(ncap, np.int64),
                            np.zeros(1, np.int64), np.zeros((ncap, 4)), np.zeros(ncap, np.int64),
                            np.zeros(ncap, np.int64))
-    rows = RowBlockWork(np.zeros((nr, nr)), np.zeros((nr, nr + 1)), np.zeros((3, nr)))
+    rows = RowBlockWork(np.zeros((nr, nr)), np.zeros((nr, nr + 1)), np.zeros((4, nr)), np.zeros((2, nr), np.int64))
     return SubstepWork(np.zeros((nj, 3)), np.zeros(nj), np.zeros((ntl, 3)), np.zeros(ntl), contacts, np.zeros((ng, 3)),
                        np.zeros((ng, 4)), np.zeros((nj, 3)), np.zeros(nj + ntl), rows,
                        np.zeros((ng, 6, nj)), np.zeros((nj, nj)))
@@ -1574,7 +1715,7 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
     jlo, jhi, jdamp = model.jlo, model.jhi, model.jdamp
     et, eg, evec, eqoff = model.et, model.eg, model.evec, model.eqoff
     rg, rvec, act, tgt, at, lo, hi = rows.group, rows.vec, rows.active, rows.target, rows.compliance, rows.lower, rows.upper
-    use_block, mob = rows.use_block, rows.mobility
+    use_block, mob, isl = rows.use_block, rows.mobility, rows.islands
     use_gg, gg, F, T = loads.use_group_acceleration, loads.group_acceleration, loads.force, loads.torque
     use_tau, tau = loads.use_joint_torque, loads.joint_torque
     iterations, symmetric, art_contacts = options.iterations, options.symmetric, options.articulated_contacts
@@ -1694,7 +1835,7 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)
                 if act.shape[0]:
                     if use_block:
-                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work.rows)
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, isl, work.rows)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 if nc:
@@ -1704,7 +1845,7 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
                     _solve_contacts(X, Q, Xp, Qp, IM, II, contacts, cw, rev, cart, Gc, Minv)
                 if act.shape[0]:
                     if use_block:
-                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work.rows)
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, isl, work.rows)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, rev)
                 _solve_eqs(X, Q, IM, II, et, eg, evec, eqoff, rev)
@@ -1717,7 +1858,7 @@ def substep_core(X, Q, V, W, model, rows, contacts, loads, options, h, out, work
                 # last row pass makes each row's end length the one its law c + s·v⁺ was solved for
                 if act.shape[0] and et.shape[0]:
                     if use_block:
-                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, work.rows)
+                        _solve_rows_block(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, mob, isl, work.rows)
                     else:
                         _solve_rows(X, Q, IM, II, rg, rvec, act, tgt, at, lo, hi, lam_rows, False)
     # velocity update

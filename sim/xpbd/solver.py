@@ -550,7 +550,8 @@ class SolverXPBD:
         state, forces)`` receives the updated state and the row forces.  The per-substep
         ``SubstepForces`` of the last step are also kept in ``self.last_forces``.
         """
-        from sim.xpbd.compiled import RowOutputs, SubstepLoads, SubstepOptions, SubstepRows, substep_core, substep_work
+        from sim.xpbd.compiled import (RowOutputs, SubstepLoads, SubstepOptions, SubstepRows, single_island, substep_core,
+                                       substep_work)
 
         x, q, v, w = self._gather(state)
         contacts = self._flat_contacts(self._collect_contacts(x, q, v, w, dt))
@@ -576,6 +577,8 @@ class SolverXPBD:
                                  self.articulated_contacts, self.soft_contacts, self.pyramid_friction,
                                  self.velocity_sweeps)
         work = substep_work(ng, nj, len(fm.jlim) - nj, len(contacts.group), nr)  # the substeps' work arrays
+        # a row mobility given from outside: no structure assumed, the rows' block solved whole
+        whole = single_island(m.nbody, ng, nj, nr, 0)
         Gk = P0 = None
         if self.transport_response and nj:  # compiled.group_jacobian / jacobian_pinv / transport
             from sim.xpbd.compiled import group_jacobian, jacobian_pinv, transport
@@ -621,7 +624,7 @@ class SolverXPBD:
             lam = np.zeros(nr)
             ell = np.zeros(nr)
             rate = np.zeros(nr)
-            substep_core(X, Q, V, W, fm, SubstepRows(rg, rvec, act, tgt, at, lo, hi, use_block, mob), contacts,
+            substep_core(X, Q, V, W, fm, SubstepRows(rg, rvec, act, tgt, at, lo, hi, use_block, mob, whole), contacts,
                          SubstepLoads(use_gg, gg, F, T, use_tau, tau), options, float(h), RowOutputs(lam, ell, rate), work)
             if after is not None or nr:
                 active = np.zeros(nr, dtype=bool)
