@@ -1571,6 +1571,37 @@ def _same_law_pieces(pnet, pa, pb, state, h):
     return True
 
 
+LINEAR_FINISH_PRESSURE = 1e5  # Pa
+"""Absolute part of the pressure error a linear finish may leave (:func:`_linear_finish_accepted`)."""
+LINEAR_FINISH_FRACTION = 1e-2
+"""Relative part of that error [-] (of the node's end pressure)."""
+
+
+@_kernel
+def _linear_finish_accepted(pnet, oil0, oil, p_start, p, dpdm, flow, inflow, state, h):
+    """Whether ``rosenbrock``'s linear finish m⁺ = m_lin + (∂m/∂v)·(v⁺ − v_g) is accepted (CouplingRosenbrock.finish):
+    every end pressure ``p`` [Pa] finite; every switching branch on the piece of its law it is on at the start
+    pressures ``p_start`` (:func:`_same_law_pieces` over the step of ``h`` [s] from the component states ``state``);
+    and the backward-Euler residual r = m⁺ − m₀ − h·ΣQ(p, v⁺) [m³] of every free node (oil ``oil0`` → ``oil``, branch
+    flows ``flow`` [m³/s] at the end) worth at most max(LINEAR_FINISH_PRESSURE, LINEAR_FINISH_FRACTION·|p|) of
+    pressure, |r|·∂p/∂m (``dpdm`` [Pa/m³] at the end).  ``inflow``: scratch (n).  On the 1 kHz excavator dig the
+    residual's pressure is below 5 kPa in 99 % of the steps; a valve slam at 1/30 s leaves tens of bar."""
+    for i in range(p.size):
+        if not np.isfinite(p[i]):
+            return False
+    if not _same_law_pieces(pnet, p_start, p, state, h):
+        return False
+    net = _deref(pnet)
+    _net_inflow(pnet, flow, inflow)
+    free = net.free
+    for j in range(free.size):
+        k = free[j]
+        error = abs(oil[k] - oil0[k] - h * inflow[k]) * dpdm[k]
+        if not error <= _maximum(LINEAR_FINISH_PRESSURE, LINEAR_FINISH_FRACTION * abs(p[k])):
+            return False
+    return True
+
+
 @_kernel
 def _law_branch_piece(pnet, b, p, state, h):
     """Piece of its law (the component's ``LAW_PIECE``) law branch ``b`` is on at the node pressures ``p`` [Pa] over
@@ -2472,6 +2503,18 @@ def _linear_finish_python_entry(F, I, oil, spool, x, v, speed, h):
 
 
 @_jit
+def _linear_finish_accepted_python_entry(F, I, oil0, oil, p_start, p, x, flow, state, h):
+    """:func:`_linear_finish_accepted` of the linear finish that ended at oil ``oil`` [m³], pressures ``p`` [Pa],
+    actuator positions ``x`` and branch flows ``flow`` [m³/s] (∂p/∂m evaluated here, as :func:`_linear_finish` does)."""
+    net = _unpack(F, I)
+    pnet = _ref(net)
+    n = net.ic[IC_N]
+    geo, p_end, dpdm, inflow = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    _pressure(pnet, oil, x, geo, p_end, dpdm)
+    return _linear_finish_accepted(pnet, oil0, oil, p_start, p, dpdm, flow, inflow, state, h)
+
+
+@_jit
 def _predicted_oil_python_entry(lin_oil, doil, guess, v_end):
     """:func:`_predicted_oil` with an allocated output [m³]."""
     out, dv = np.empty(lin_oil.size), np.empty(guess.size)
@@ -2537,6 +2580,11 @@ def _coupling_entries(fingerprint):
             raise ValueError("no fingerprint")
         return _linear_finish_python_entry(F, I, oil, spool, x, v, speed, h)
 
+    def linear_finish_accepted(F, I, oil0, oil, p_start, p, x, flow, state, h):
+        if fingerprint is None:  # never
+            raise ValueError("no fingerprint")
+        return _linear_finish_accepted_python_entry(F, I, oil0, oil, p_start, p, x, flow, state, h)
+
     def predicted_oil(lin_oil, doil, guess, v_end):
         if fingerprint is None:  # never
             raise ValueError("no fingerprint")
@@ -2562,13 +2610,14 @@ def _coupling_entries(fingerprint):
             raise ValueError("no fingerprint")
         return _work_size_python_entry(I)
 
-    functions = (linearize_at_guess, effort_law, start_velocity_guess, linear_finish, predicted_oil, secant_oil_guess,
-                 blend_factor, spool_steps, work_sizes)
+    functions = (linearize_at_guess, effort_law, start_velocity_guess, linear_finish, linear_finish_accepted,
+                 predicted_oil, secant_oil_guess, blend_factor, spool_steps, work_sizes)
     return tuple(_numba_cached(f) for f in functions)
 
 
-(linearize_at_guess_kernel, effort_law_kernel, start_velocity_guess_kernel, linear_finish_kernel, predicted_oil_kernel,
- secant_oil_guess_kernel, blend_factor_kernel, _spool_steps_kernel, _work_size_kernel) = _coupling_entries(FINGERPRINT)
+(linearize_at_guess_kernel, effort_law_kernel, start_velocity_guess_kernel, linear_finish_kernel,
+ linear_finish_accepted_kernel, predicted_oil_kernel, secant_oil_guess_kernel, blend_factor_kernel, _spool_steps_kernel,
+ _work_size_kernel) = _coupling_entries(FINGERPRINT)
 
 
 def _f64(a):

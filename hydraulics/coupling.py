@@ -85,7 +85,11 @@ coupling can finish the hydraulic step.  Two schemes:
     linear oil column; oil of a closed network conserved to round-off.  A step whose update leaves the
     Newton trust region, or that puts a relief, check valve or pump
     compensator on another piece of its law (:meth:`NetworkModel.law_pieces`),
-    is solved by Newton instead (:meth:`StepperImplicitEuler.linearize`).
+    is solved by Newton instead (:meth:`StepperImplicitEuler.linearize`); so is a
+    finish whose end pressures are not finite, put such a branch on another piece
+    of its law than the start of the step, or leave a backward-Euler residual worth
+    more than max(1 bar, 1 % of p) of pressure: ``implicit``'s Newton finish from the
+    prediction m⁺ (:meth:`CouplingRosenbrock.finish`).
 """
 
 from __future__ import annotations
@@ -322,6 +326,29 @@ class CouplingRosenbrock(CouplingImplicitLinear):
     name = "rosenbrock"
     newton = False
     scheme = SCHEME_ROSENBROCK
+
+    def finish(self, state, control, position_start, position_end, velocity_start, velocity_end, dt):
+        """The linear finish, accepted where its end pressures are finite, every switching branch is on the piece
+        of its law it was on at the start of the step (:meth:`NetworkModel.law_pieces` over the step from the
+        linearisation's component states) and the backward-Euler residual of the end state is worth at most
+        max(LINEAR_FINISH_PRESSURE, LINEAR_FINISH_FRACTION·|p|) of pressure on every free node
+        (:func:`hydraulics._compiled._linear_finish_accepted`); otherwise the step is solved by Newton from the
+        prediction m⁺, as ``implicit`` finishes it (a relief cracking within the step, or a valve slam at a step
+        the oil column does not resolve: the linear finish overshoots there).  The report then counts the
+        rejected evaluation with Newton's."""
+        lin = self.last_linearization
+        start_states = None if lin is None else lin.state.valve_spool.copy()  # (the finish advances them in place)
+        new, report = super().finish(state, control, position_start, position_end, velocity_start, velocity_end, dt)
+        C = _compiled
+        if report.status != StepStatus.NONFINITE and C.linear_finish_accepted_kernel(
+                self.predictor._F, self.predictor._I, C._f64(state.node_oil), C._f64(new.node_oil),
+                C._f64(state.node_pressure), C._f64(new.node_pressure), C._f64(new.actuator_position),
+                C._f64(report.branch_flow), start_states, float(dt)):
+            return new, report
+        new, newton = CouplingImplicit.finish(self, state, control, position_start, position_end, velocity_start,
+                                              velocity_end, dt)
+        newton.rhs_evaluations += 1
+        return new, newton
 
 
 def _f64(a):

@@ -425,7 +425,9 @@ def _finish_pending(ctx, pnet, V, T, R):
         substeps = 0
     elif ctx[SLOT.C_LINEAR]:  # implicit-linear, rosenbrock: m⁺ = prediction, end pressures and flows (CouplingImplicitLinear.finish)
         substeps = 0
+        rhs = 1
         C._copy(sp2, lin_spool)
+        linear = True
         if ctx[SLOT.C_LINEAR] == SCHEME_ROSENBROCK:  # x⁺: MuJoCo's positions (MujocoPlant.end_position), so that
             geo0, p0, dpdm0, known = ws.geo, ws.p0, ws.dpdm, ws.known  # p(m⁺, x⁺) is the next step's p₀
             act, length, closed = V.act, V.length, V.closed
@@ -436,16 +438,22 @@ def _finish_pending(ctx, pnet, V, T, R):
             area = W[:C._area_count(C._deref(pnet).ic)]
             C._valve_areas(pnet, sp2, area)
             C._branch_flows(pnet, p2, area, speed, v_end, fl, dfl, sp2, dt)
-            C._law_states_end(pnet, sp2, dt, p2)
-            known[0] = 1.0 if ctx[SLOT.C_MODE] == MODE_STEP else 0.0  # (_commit_if_finite below clears it on failure)
+            # accepted (CouplingRosenbrock.finish), else Newton from m⁺ below (mu: scratch until the ledger)
+            linear = C._linear_finish_accepted(pnet, oil, mpred, pres, p2, dpdm0, fl, mu, sp2, dt)
+            if linear:
+                C._law_states_end(pnet, sp2, dt, p2)
+                known[0] = 1.0 if ctx[SLOT.C_MODE] == MODE_STEP else 0.0  # (_commit_if_finite below clears it on failure)
+            else:
+                known[0] = 0.0
+                substeps = 1
         else:
             C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dfl, dt)
-        rhs = 1
-        C._copy(flow_out, fl)
-        bad = C._commit_if_finite(oil, pres, spool, pos, vel, mpred, p2, sp2, x_end, v_end)
-        if bad >= 0:
-            status, worst = ST_NONFINITE, bad
-            ws.known[0] = 0.0  # (no known start evaluation)
+        if linear:
+            C._copy(flow_out, fl)
+            bad = C._commit_if_finite(oil, pres, spool, pos, vel, mpred, p2, sp2, x_end, v_end)
+            if bad >= 0:
+                status, worst = ST_NONFINITE, bad
+                ws.known[0] = 0.0  # (no known start evaluation)
     for s in range(substeps):
         if substeps > 1:  # ActuatorMotion.part: linear interpolation to the substep end
             frac = (s + 1) / substeps

@@ -177,11 +177,41 @@ class CouplingImplicitLinearOracle(CouplingImplicitOracle):
                             oil - state.node_oil), report
 
 
+def linear_finish_accepted(model, state, new, flow, spool, dt):
+    """Whether ``rosenbrock``'s linear finish from ``state`` to ``new`` (branch flows ``flow`` [m³/s] at the end) is
+    accepted (``_linear_finish_accepted``): finite end pressures, every switching branch on its start piece
+    (``model.law_pieces`` over ``dt`` [s] from the component states ``spool``), and every free node's backward-Euler
+    residual r = m⁺ − m − dt·N·Q worth |r|·∂p/∂m ≤ max(LINEAR_FINISH_PRESSURE, LINEAR_FINISH_FRACTION·|p⁺|)."""
+    from hydraulics import _compiled
+
+    p = new.node_pressure
+    if not np.all(np.isfinite(p)):
+        return False
+    if not np.array_equal(model.law_pieces(state.node_pressure, spool, dt), model.law_pieces(p, spool, dt)):
+        return False
+    free = model.free_nodes
+    _, dpdm = model.pressure(new.node_oil, new.actuator_position)
+    residual = new.node_oil[free] - state.node_oil[free] - dt * (model.incidence @ flow)[free]
+    allowed = np.maximum(_compiled.LINEAR_FINISH_PRESSURE, _compiled.LINEAR_FINISH_FRACTION * np.abs(p[free]))
+    return bool(np.all(np.abs(residual) * dpdm[free] <= allowed))
+
+
 class CouplingRosenbrockOracle(CouplingImplicitLinearOracle):
-    """``rosenbrock`` in numpy: ``implicit-linear`` with the one-Newton-step linearisation."""
+    """``rosenbrock`` in numpy: ``implicit-linear`` with the one-Newton-step linearisation, its finish by Newton where
+    :func:`linear_finish_accepted` rejects the linear one."""
 
     name = "rosenbrock"
     newton = False
+
+    def finish(self, state, control, position_start, position_end, velocity_start, velocity_end, dt):
+        spool = self.last_linearization.state.valve_spool.copy()
+        new, report = super().finish(state, control, position_start, position_end, velocity_start, velocity_end, dt)
+        if report.success and linear_finish_accepted(self.model, state, new, report.branch_flow, spool, dt):
+            return new, report
+        new, report = CouplingImplicitOracle.finish(self, state, control, position_start, position_end, velocity_start,
+                                                    velocity_end, dt)
+        report.rhs_evaluations += 1
+        return new, report
 
 
 ORACLES = {"implicit": CouplingImplicitOracle, "implicit-linear": CouplingImplicitLinearOracle,
