@@ -259,18 +259,28 @@ def _finish_core(pnet, buffers, control, motion, h, coupling, effort):
         istats[I_RHS] += rhs
     else:
         C._predicted_oil(lin_oil, doil, guess, v_end, dv, mpred)
-        if scheme == SCHEME_NEWTON:
+        newton = scheme == SCHEME_NEWTON
+        if not newton:  # m⁺ = the prediction, at the linearisation's spools
+            C._copy(o2, mpred)
+            C._copy(sp2, lin_spool)
+            istats[I_RHS] += 1
+            if scheme == SCHEME_ROSENBROCK:  # accepted (CouplingRosenbrock.finish), else Newton from m⁺ below
+                end, _ = C._linear_finish_scratch(W, 0, n, C._area_count(C._deref(pnet).ic))
+                C._pressure(pnet, mpred, x_end, end.geo, p2, end.dpdm)
+                C._valve_areas(pnet, sp2, end.area)
+                C._branch_flows(pnet, p2, end.area, speed, v_end, fl, dflow, sp2, h)
+                newton = not C._linear_finish_accepted(pnet, oil, mpred, pres, p2, end.dpdm, fl, mu, sp2, h)
+                if not newton:
+                    C._law_states_end(pnet, sp2, h, p2)
+            else:
+                C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dflow, h)
+            istats[C.IS_STATUS] = C._OK
+        if newton:
             norm = C._step_core(pnet, W, C.StepStart(oil, spool, cmd, speed, x_end, v_end), h, True,
                                 C.StepOut(o2, p2, sp2, fl, dflow, istats), mpred)
             istats[I_NEWTON] += istats[C.IS_NEWTON]
             istats[I_RHS] += istats[C.IS_RHS]
             istats[I_JAC] += istats[C.IS_JAC]
-        else:  # m⁺ = the prediction, at the linearisation's spools
-            C._copy(o2, mpred)
-            C._copy(sp2, lin_spool)
-            C._linear_finish(pnet, W, mpred, sp2, x_end, v_end, speed, p2, fl, dflow, h)
-            istats[C.IS_STATUS] = C._OK
-            istats[I_RHS] += 1
         if norm > ledger[L_RESIDUAL]:
             ledger[L_RESIDUAL] = norm
         C._copy(flow, fl)
