@@ -18,6 +18,7 @@ from scipy.optimize import brentq
 from conftest import network_from_toml
 from hydraulics.circuit import parse_circuit
 from hydraulics.components import CircuitError
+from hydraulics.components.metering import knot_slopes
 from hydraulics.fluid import Fluid
 from reference.circuits import bench
 from reference.laws import orifice_textbook
@@ -75,6 +76,22 @@ def test_a_tabulated_edge_is_c1_and_monotone_through_its_knots():
         assert right == pytest.approx(left, rel=1e-3, abs=1e-9)
     values = [area(s) for s in np.linspace(0.0, 1.0, 401)]
     assert np.all(np.diff(values) >= -1e-20)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_knot_slopes_are_scipys_pchip_slopes(seed):
+    """The knots' slopes equal scipy's PchipInterpolator's derivative at the knots on random tables: monotone,
+    with flat stretches, and with turning points (two to nine knots, uneven spacing)."""
+    rng = np.random.default_rng(seed)
+    count = int(rng.integers(2, 10))
+    travel = np.sort(rng.uniform(-1.0, 1.0, count))
+    area = rng.uniform(0.0, 1e-4, count)
+    if seed % 3 == 0:
+        area = np.sort(area)
+    if seed % 3 == 1 and count > 3:
+        area[1:3] = area[1]
+    expected = PchipInterpolator(travel, area).derivative()(travel)
+    np.testing.assert_allclose(knot_slopes(travel, area), expected, rtol=1e-12, atol=1e-18)
 
 
 @pytest.mark.parametrize("exponent", [3.0, -2.0, 0.5])

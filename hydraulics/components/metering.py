@@ -8,15 +8,16 @@ spool, −s for one that opens with a negative spool; x ∈ [−1, 1]).  Its ope
   metering near closing, a < 0 a degressive one; a → 0 is the linear edge);
 * ``table``:        A(x) interpolated in the edge's table of knots (x_k, A_k) by the monotone piecewise cubic
   Hermite interpolant of Fritsch and Carlson (PCHIP: C¹, no overshoot between knots, monotone where the data
-  are; :func:`knot_slopes`), held at A_0 below the first knot and at A_last beyond the last (:func:`table_area`).
+  are; :func:`knot_slopes`, the slopes scipy's ``PchipInterpolator`` takes), held at A_0 below the first knot
+  and at A_last beyond the last (:func:`table_area`).
   The table carries the whole characteristic, overlap included: the valve's ``overlap`` does not apply to it.
 
 An edge's characteristic is one row of :data:`COLUMNS` (the shape exponent a, 0 for linear; the first knot and
 the number of knots of its table in the network's knot table, :data:`KNOT_COLUMNS`; 0 knots for a law).
 
 References: F. N. Fritsch, R. E. Carlson, *Monotone piecewise cubic interpolation*, SIAM J. Numer. Anal. 17 (1980)
-238–246; MathWorks, Simscape Fluids, *Spool Orifice (IL)*, tabulated area parametrisation; Hopsan component
-library, *Hydraulic43Valve* (linear edges with overlap).
+238–246; MathWorks, Simscape Fluids, spool orifice block (isothermal liquid), tabulated area parametrisation;
+Hopsan component library, *Hydraulic43Valve* (linear edges with overlap).
 
 Limitations: the area depends on the spool alone (no flow forces); a table's slope beyond its ends is zero.
 
@@ -35,7 +36,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.interpolate import PchipInterpolator
 
 from .._jit import kernel
 
@@ -105,9 +105,29 @@ def table_knots(travel, area) -> np.ndarray:
 
 
 def knot_slopes(travel, area) -> np.ndarray:
-    """Slopes dA/dx [m²] at the knots of the Fritsch–Carlson monotone cubic through (x_k, A_k) (scipy's
-    :class:`~scipy.interpolate.PchipInterpolator`)."""
-    return PchipInterpolator(travel, area).derivative()(travel)
+    """Slopes dA/dx [m²] at the knots of the Fritsch–Carlson monotone cubic through (x_k, A_k), as scipy's
+    ``PchipInterpolator`` sets them: with the secants δ_k = ΔA_k/Δx_k, an inner knot takes 0 where δ changes sign
+    or vanishes, else the weighted harmonic mean (w₁ + w₂)/(w₁/δ_{k−1} + w₂/δ_k), w₁ = 2Δx_k + Δx_{k−1},
+    w₂ = Δx_k + 2Δx_{k−1}; an end takes the one-sided three-point slope ((2Δx₀ + Δx₁)·δ₀ − Δx₀·δ₁)/(Δx₀ + Δx₁),
+    0 if its sign differs from δ₀'s, 3δ₀ if it exceeds that where δ changes sign; two knots: the secant."""
+    x, a = np.asarray(travel, float), np.asarray(area, float)
+    h, delta = np.diff(x), np.diff(a) / np.diff(x)
+    if len(x) == 2:
+        return np.full(2, delta[0])
+    slopes = np.zeros(len(x))
+    w1, w2 = 2.0 * h[1:] + h[:-1], h[1:] + 2.0 * h[:-1]
+    same = (np.sign(delta[:-1]) == np.sign(delta[1:])) & (delta[:-1] != 0.0) & (delta[1:] != 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mean = (w1 + w2) / (w1 / delta[:-1] + w2 / delta[1:])
+    slopes[1:-1] = np.where(same, mean, 0.0)
+    for end, (h0, h1, d0, d1) in ((0, (h[0], h[1], delta[0], delta[1])), (-1, (h[-1], h[-2], delta[-1], delta[-2]))):
+        d = ((2.0 * h0 + h1) * d0 - h0 * d1) / (h0 + h1)
+        if np.sign(d) != np.sign(d0):
+            d = 0.0
+        elif np.sign(d0) != np.sign(d1) and abs(d) > abs(3.0 * d0):
+            d = 3.0 * d0
+        slopes[end] = d
+    return slopes
 
 
 def check_table(value, where: str) -> tuple:

@@ -12,7 +12,7 @@ either direction.  States: the opening (and its rate for a second-order spool), 
 ``/hydroplant/valves/<name>`` as a valve's spool.
 
 References: Hopsan component library, *HydraulicVariableOrifice* (commanded opening times a full area); MathWorks,
-Simscape Fluids, *Variable Orifice (IL)*.
+Simscape Fluids, variable orifice block (isothermal liquid).
 
 Limitations: no flow forces on the throttle; the opening does not depend on the pressures.
 
@@ -33,7 +33,7 @@ from .parameters import param, tables_param
 
 @dataclass(frozen=True, kw_only=True)
 class VariableOrifice:
-    """Orifice with a commanded opening (ports a, b; the command, in [0, 1], by the component's name)."""
+    """Throttle with a commanded opening (ports a, b; the command, in [0, 1], by the component's name)."""
 
     max_area: float = param("m^2", low=0.0, high=0.01)
     """Open area at full opening (above leakage) [m²]."""
