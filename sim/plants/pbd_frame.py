@@ -141,6 +141,23 @@ def frame_work(nr, na, ng, nj, mob_shape, ntl, ncap):
 
 
 @njit(inline="always")
+def _add_through_response(gg, isl, ptr, members, effort, response):
+    """gg[g] += Σ_k effort[k]·response[k, g] [6-vectors per group], island by island: the members k of each island
+    (``members[ptr[i]:ptr[i + 1]]``: its motors or rows) move only that island's groups, so nothing outside it is
+    visited."""
+    for island in range(ptr.shape[0] - 1):
+        k0, k1 = ptr[island], ptr[island + 1]
+        for t in range(isl.group_ptr[island], isl.group_ptr[island + 1]):
+            g = isl.groups[t]
+            for c in range(6):
+                s = 0.0
+                for u in range(k0, k1):
+                    k = members[u]
+                    s += effort[k] * response[k, g, c]
+                gg[g, c] += s
+
+
+@njit(inline="always")
 def _pair_force(g1, g2, r1, r2, f, Fe, Te):
     """The world force ``f`` [N] on group ``g2`` at its offset ``r2`` and −``f`` on ``g1`` at ``r1`` (world offsets
     from the groups' centres of mass [m]) added to the per-group forces and torques ``Fe``, ``Te``."""
@@ -198,7 +215,6 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
     lam, ell, rate, x_end, v_end = fwork.lam, fwork.length, fwork.rate, fwork.x_end, fwork.v_end
     Gk, P0, mobk, swork = fwork.G, fwork.P0, fwork.mobility, fwork.substep
     isl = actuation.islands
-    nisl = isl.row_ptr.shape[0] - 1
     # hinge motors' torques as impulses where there is no joint-space response (a runtime bool: one signature)
     use_tau = False
     if not joint_space:
@@ -250,16 +266,7 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
         if joint_space:  # motor efforts through the articulated response (zero outside the motor's island), gravity
             gg[:, :] = gg0
             if nm:
-                for island in range(nisl):
-                    m0, m1 = isl.motor_ptr[island], isl.motor_ptr[island + 1]
-                    for t in range(isl.group_ptr[island], isl.group_ptr[island + 1]):
-                        g = isl.groups[t]
-                        for c in range(6):
-                            s = 0.0
-                            for u in range(m0, m1):
-                                i = isl.motors[u]
-                                s += motor_effort[i] * mresp[i, g, c]
-                            gg[g, c] = gg0[g, c] + s
+                _add_through_response(gg, isl, isl.motor_ptr, isl.motors, motor_effort, mresp)
         Fe[:, :] = 0.0
         Te[:, :] = 0.0
         if not joint_space:  # as joint forces: hinge torques as impulses, slide forces on the two groups
@@ -274,16 +281,7 @@ def _frame(hyd, cmd, speed, groups, bodies, model, articulated, contacts, actuat
                 d = (Xg[g2, 0] - Xg[g1, 0], Xg[g2, 1] - Xg[g1, 1], Xg[g2, 2] - Xg[g1, 2])
                 _pair_force(g1, g2, d, (0.0, 0.0, 0.0), (f * axis[0], f * axis[1], f * axis[2]), Fe, Te)
         if any_force and joint_space and not naive:  # explicit row forces through the articulated response
-            for island in range(nisl):
-                r0, r1 = isl.row_ptr[island], isl.row_ptr[island + 1]
-                for t in range(isl.group_ptr[island], isl.group_ptr[island + 1]):
-                    g = isl.groups[t]
-                    for c in range(6):
-                        s = 0.0
-                        for u in range(r0, r1):
-                            r = isl.rows[u]
-                            s += rforce[r] * mob[r, g, c]
-                        gg[g, c] += s
+            _add_through_response(gg, isl, isl.row_ptr, isl.rows, rforce, mob)
         elif any_force:  # explicit row forces on the rows' two groups (plain XPBD, the seed's scheme)
             for r in range(nr):
                 if rforce[r] == 0.0:
