@@ -20,7 +20,8 @@ from hydraulics.circuit import parse_circuit
 from hydraulics.components import CircuitError
 from hydraulics.components.metering import knot_slopes
 from hydraulics.fluid import Fluid
-from reference.circuits import bench
+from reference.circuits import bench, pump_into_volume
+from reference.scenes import BENCH
 from reference.laws import orifice_textbook
 from sim.io.mcap_log import read_log
 from sim.run.runner import run
@@ -43,6 +44,8 @@ def edge_areas(model, spool):
     return dict(zip(model.branch_names, area))
 
 
+CYLINDER = ('\n[[component]]\nname = "cyl"\ntype = "cylinder"\nbore = 0.05\nrod_diameter = 0.028\nstroke = 0.5\n'
+            'ports = { cap = "a", rod = "b" }\n')
 TABLED = valve("v", 'metering = "table"\narea_table = { "P-A" = %s, "A-T" = %s }\n' % (TABLE_PA, TABLE_AT))
 
 
@@ -145,11 +148,9 @@ def test_bad_throttle_fields_are_refused_naming_the_field(fields, message):
 
 def test_a_throttle_in_an_incompressible_network_is_refused():
     """The rigid oil law knows 4/3 valves only: a variable orifice there is refused, naming its type."""
-    cylinder = ('\n[[component]]\nname = "cyl"\ntype = "cylinder"\nbore = 0.05\nrod_diameter = 0.028\nstroke = 0.5\n'
-                'ports = { cap = "a", rod = "b" }\n')
     throttle = '\n[[component]]\nname = "t"\ntype = "variable_orifice"\nmax_area = 1e-5\nports = { a = "a", b = "tank" }\n'
     with pytest.raises(CircuitError, match="component 't', type 'variable_orifice' at fidelity 'incompressible'"):
-        network_from_toml(bench(2e7) + valve("v") + cylinder + throttle, actuator_fidelity={"cyl": "incompressible"})
+        network_from_toml(bench(2e7) + valve("v") + CYLINDER + throttle, actuator_fidelity={"cyl": "incompressible"})
 
 
 def test_a_throttle_command_below_zero_holds_it_shut():
@@ -164,36 +165,15 @@ def test_a_throttle_command_below_zero_holds_it_shut():
 
 def test_a_shaped_valve_on_an_incompressible_actuator_is_refused():
     """The rigid oil law meters linearly: a non-linear characteristic there is refused, naming the field."""
-    cylinder = ('\n[[component]]\nname = "cyl"\ntype = "cylinder"\nbore = 0.05\nrod_diameter = 0.028\nstroke = 0.5\n'
-                'ports = { cap = "a", rod = "b" }\n')
-    text = bench(2e7) + valve("v", 'metering = "exponential"\n') + cylinder
+    text = bench(2e7) + valve("v", 'metering = "exponential"\n') + CYLINDER
     with pytest.raises(CircuitError, match="field 'metering'"):
         network_from_toml(text, source="rigid.toml", actuator_fidelity={"cyl": "incompressible"})
-    network_from_toml(bench(2e7) + valve("v") + cylinder, actuator_fidelity={"cyl": "incompressible"})
+    network_from_toml(bench(2e7) + valve("v") + CYLINDER, actuator_fidelity={"cyl": "incompressible"})
 
 
 # ---------------------------------------------------------------------------------------------------- variable orifice
-RIG_MJCF = """<mujoco model="throttle_rig">
-  <option timestep="0.001"/>
-  <worldbody><geom name="bench" type="box" size="0.3 0.2 0.02" contype="0" conaffinity="0"/></worldbody>
-</mujoco>
-"""
 DISPLACEMENT, SPEED, VOLUME, THROTTLE_AREA = 1.0e-5, 20.0, 2.0e-3, 1.0e-5  # m³/rev, rev/s, m³, m²
-RIG = bench() + f"""
-[[component]]
-name = "pump"
-type = "pump_fixed"
-displacement = {DISPLACEMENT!r}
-speed = {SPEED!r}
-volumetric_efficiency = 1.0
-ports = {{ inlet = "tank", outlet = "supply" }}
-
-[[component]]
-name = "supply_volume"
-type = "volume"
-volume = {VOLUME!r}
-ports = {{ port = "supply" }}
-
+RIG = bench() + pump_into_volume(DISPLACEMENT, SPEED, VOLUME) + f"""
 [[component]]
 name = "throttle"
 type = "variable_orifice"
@@ -233,7 +213,7 @@ def steady_drop(area: float) -> float:
 
 
 def run_rig(tmp_path, mode, inputs, duration):
-    (tmp_path / "rig.xml").write_text(RIG_MJCF, encoding="utf-8")
+    (tmp_path / "rig.xml").write_text(BENCH, encoding="utf-8")
     (tmp_path / "rig.circuit.toml").write_text(RIG, encoding="utf-8")
     scenario = tmp_path / f"rig-{mode}.scenario.toml"
     scenario.write_text(SCENARIO.format(mode=mode, inputs=inputs, duration=duration), encoding="utf-8")

@@ -17,7 +17,8 @@ import pytest
 from hydraulics.components import CircuitError, build_component
 from hydraulics.components.relief_poppet import ReliefPoppet, flow_with_derivatives, law_piece, step_end
 from hydraulics.fluid import Fluid
-from reference.circuits import bench
+from reference.circuits import bench, pump_into_volume
+from reference.scenes import BENCH
 from sim.io.mcap_log import read_log
 from sim.run.runner import run
 
@@ -89,25 +90,7 @@ def test_reseat_above_cracking_is_refused():
                                                     reseat_pressure=1.1e7, area=2e-5), "rig.toml: component 'relief'")
 
 
-RIG_MJCF = """<mujoco model="relief_rig">
-  <worldbody><geom name="bench" type="box" size="0.3 0.2 0.02" contype="0" conaffinity="0"/></worldbody>
-</mujoco>
-"""
-RIG = bench() + """
-[[component]]
-name = "pump"
-type = "pump_fixed"
-displacement = 1.0e-5
-speed = 0.0
-volumetric_efficiency = 1.0
-ports = { inlet = "tank", outlet = "supply" }
-
-[[component]]
-name = "supply_volume"
-type = "volume"
-volume = 2.0e-3
-ports = { port = "supply" }
-
+RIG = bench() + pump_into_volume(1.0e-5, 0.0, 2.0e-3) + """
 [[component]]
 name = "relief"
 type = "relief_valve_poppet"
@@ -141,7 +124,7 @@ rate_hz = 1000
 @pytest.mark.parametrize("mode", ["mujoco", "pbd"])
 @pytest.mark.parametrize("reseat", [RESEAT, None])
 def test_the_rig_cracks_at_the_cracking_pressure_and_reseats_at_the_reseat_pressure(tmp_path, mode, reseat):
-    (tmp_path / "rig.xml").write_text(RIG_MJCF, encoding="utf-8")
+    (tmp_path / "rig.xml").write_text(BENCH, encoding="utf-8")
     (tmp_path / "rig.circuit.toml").write_text(RIG % (f"reseat_pressure = {reseat!r}" if reseat else ""),
                                                encoding="utf-8")
     scenario = tmp_path / "rig.scenario.toml"

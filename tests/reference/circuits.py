@@ -3,7 +3,7 @@
 :func:`bench` is the head of such a circuit: the tests' oil (ISO VG 46 at 40 °C: 870 kg/m³, β 1.5e9 Pa,
 ν 4.6e-5 m²/s, the package's default reference pressure), a tank on net ``tank`` and, given a pressure, an ideal
 supply on net ``supply`` (a second tank held at that absolute pressure).  A test appends its own components:
-:func:`orifice`, :func:`pressure_source`, and :func:`lift_cylinder` for :func:`reference.scenes.vertical_lift` (cylinder ``lift``, cap on net
+:func:`orifice`, :func:`pressure_source`, :func:`pump_into_volume` (a fixed pump filling net ``supply``), and :func:`lift_cylinder` for :func:`reference.scenes.vertical_lift` (cylinder ``lift``, cap on net
 ``cap``, rod vented to the tank).
 
 Example
@@ -60,4 +60,13 @@ def lift_cylinder(bore: float, **fields) -> str:
 def pressure_source(pressure: float) -> str:
     """TOML text of an ideal pressure source ``source`` holding net ``supply`` at ``pressure`` [Pa gauge]."""
     return (f'\n[[component]]\nname = "source"\ntype = "pressure_source"\npressure = {float(pressure)!r}\n'
+            f'ports = {{ port = "supply" }}\n')
+
+
+def pump_into_volume(displacement: float, speed: float, volume: float) -> str:
+    """TOML text of fixed pump ``pump`` (``displacement`` [m³/rev] at ``speed`` [rev/s], no leakage) from the tank
+    into net ``supply``, which holds ``volume`` [m³] (component ``supply_volume``)."""
+    return (f'\n[[component]]\nname = "pump"\ntype = "pump_fixed"\ndisplacement = {float(displacement)!r}\n'
+            f'speed = {float(speed)!r}\nvolumetric_efficiency = 1.0\nports = {{ inlet = "tank", outlet = "supply" }}\n'
+            f'\n[[component]]\nname = "supply_volume"\ntype = "volume"\nvolume = {float(volume)!r}\n'
             f'ports = {{ port = "supply" }}\n')

@@ -2,7 +2,8 @@
 
 :func:`vertical_lift` is a load on a vertical slide joint (0.5 … 1.0 m) driven by one cylinder ``lift``: sites
 ``lift_barrel`` (world origin) and ``lift_rod`` (on the load), a spatial tendon of that range and a ``general``
-actuator on it, as models/README.md describes a cylinder.
+actuator on it, as models/README.md describes a cylinder.  :data:`BENCH` is a test bench without any joint, for
+circuits that drive no actuator.
 
 Example
 -------
@@ -12,6 +13,13 @@ Example
 """
 
 from __future__ import annotations
+
+BENCH = """<mujoco model="bench">
+  <option timestep="0.001"/>
+  <worldbody><geom name="bench" type="box" size="0.3 0.2 0.02" contype="0" conaffinity="0"/></worldbody>
+</mujoco>
+"""
+"""MJCF of a bench welded to the world: no joint, no degree of freedom."""
 
 
 def vertical_lift(*, mass: float, inertia: float = 0.01, gravity: float = 9.81) -> str:
