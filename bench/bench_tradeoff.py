@@ -17,7 +17,7 @@
    60 Hz × 10 and × 40 substeps and 1 kHz × 20, ``incompressible`` at 1/30 s in both modes).
 2c. ``--full-dig`` with the scene ``excavator_ls``: the load-sensing excavator's dig (``dig_ls``, the same spool
    commands on the load-sensing circuit) compared the same way over its whole 20 s (:data:`LS_DIG_RUNS`: MuJoCo
-   implicit and implicit-linear at 1 ms, PBD at 1 kHz with the scenario's 20 substeps and at 60 Hz × 40); it has no
+   implicit, implicit-linear and rosenbrock at 1 ms, PBD at 1 kHz with the scenario's 20 substeps and at 60 Hz × 40); it has no
    trade-off sweep.
 3. The tradeoff sweep of both (``--full``: every setting of :func:`sim.tools.tradeoff.sweep_settings`,
    3 timed runs each, fidelity levels included (``incompressible`` at a frame-rate step, ``lines``);
@@ -73,6 +73,7 @@ FULL_DIG_RUNS = {  # label -> (mode, coupling, overrides)
 LS_DIG_RUNS = {  # the load-sensing excavator's runs against its reference (label -> mode, coupling, overrides)
     "mujoco-implicit-1ms": ("mujoco", "implicit", {"dt": 1e-3}),
     "mujoco-implicit-linear-1ms": ("mujoco", "implicit-linear", {"dt": 1e-3}),
+    "mujoco-rosenbrock-1ms": ("mujoco", "rosenbrock", {"dt": 1e-3}),
     "pbd-1kHz": ("pbd", "implicit", {"dt": 1e-3}),
     "pbd-60Hz-x40": ("pbd", "implicit", {"dt": 1 / 60, "pbd_substeps": 40}),
 }

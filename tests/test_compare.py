@@ -316,6 +316,10 @@ def test_compare_logs_reports_filtered_errors_and_percent_of_stroke(tmp_path):
     assert c.kind_stats("stroke", filtered=True)["max_abs"] == pytest.approx(1e-3, rel=1e-9)
     table = compare.percent_table([c], {"stroke": {"c": 0.5}, "relief_pa": 3.5e7})
     assert "0.2 (stroke c)" in table  # 1 mm of a 0.5 m stroke
+    assert "pressure" in table.splitlines()[0]
+    no_relief = compare.percent_table([c], {"stroke": {"c": 0.5}, "relief_pa": float("nan")})
+    assert "pressure" not in no_relief.splitlines()[0] and "–" not in no_relief  # no relief: no column of dashes
+    assert no_relief.splitlines()[2].split(" | ")[1:] == ["0.2 (stroke c)", "0.2 (stroke c) |"]
     result = compare.compare_existing([ref, run], tmp_path / "out", filter_window=0.1)
     assert "averaged over a centred 0.1 s moving window" in result.report_path.read_text()
 

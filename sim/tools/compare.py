@@ -193,26 +193,29 @@ def circuit_scales(log) -> dict:
 
 def percent_table(comparisons: list, scales: dict) -> str:
     """Markdown: per run, the largest stroke error in % of that cylinder's stroke and the largest
-    pressure error in % of the highest relief setting, point-wise and (when computed) filtered."""
+    pressure error in % of the highest relief setting, point-wise and (when computed) filtered.  A circuit
+    without a relief valve has no pressure columns, one without cylinders no stroke columns."""
     relief = scales.get("relief_pa", math.nan)
     strokes = scales.get("stroke", {})
     window = next((c.filter_window for c in comparisons if math.isfinite(c.filter_window)), math.nan)
-    head = ["run", "stroke max [% of stroke]", f"pressure max [% of {_num(relief / 1e5)} bar]"]
-    if math.isfinite(window):
-        head += [f"stroke, {window:g} s average [% of stroke]", f"pressure, {window:g} s average [% of relief]"]
+    kinds = ([("stroke", "stroke max [% of stroke]", f"stroke, {window:g} s average [% of stroke]")] if strokes else []) \
+        + ([("pressure", f"pressure max [% of {_num(relief / 1e5)} bar]",
+             f"pressure, {window:g} s average [% of relief]")] if math.isfinite(relief) else [])
+    head = ["run"] + [k[1] for k in kinds] + ([k[2] for k in kinds] if math.isfinite(window) else [])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
 
     def worst(source):
-        st = [(100 * v.max_abs / strokes[n.removeprefix("stroke ")], n) for n, v in source.items()
-              if n.startswith("stroke ") and n.removeprefix("stroke ") in strokes and v.samples]
-        pr = [(100 * v.max_abs / relief, n) for n, v in source.items() if _kind_of(n) == "pressure" and v.samples]
-        fmt = lambda rows: f"{_num(max(rows)[0])} ({max(rows)[1]})" if rows else "–"  # noqa: E731
-        return [fmt(st), fmt(pr)]
+        rows = {"stroke": [(100 * v.max_abs / strokes[n.removeprefix("stroke ")], n) for n, v in source.items()
+                           if n.startswith("stroke ") and n.removeprefix("stroke ") in strokes and v.samples],
+                "pressure": [(100 * v.max_abs / relief, n) for n, v in source.items()
+                             if _kind_of(n) == "pressure" and v.samples]}
+        fmt = lambda found: f"{_num(max(found)[0])} ({max(found)[1]})" if found else "–"  # noqa: E731
+        return [fmt(rows[kind]) for kind, _, _ in kinds]
 
     for c in comparisons:
         row = [c.label] + worst(c.signals)
         if math.isfinite(window):
-            row += worst(c.filtered) if c.filtered else ["–", "–"]
+            row += worst(c.filtered) if c.filtered else ["–"] * len(kinds)
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines)
 
@@ -597,8 +600,11 @@ def _write_report(out_dir: Path, title: str, ref_label: str, ref_log, ref_text: 
         ]
     scales = circuit_scales(ref_log)
     if scales["stroke"] or math.isfinite(scales["relief_pa"]):
-        lines += ["Relative to the machine: stroke errors in % of each cylinder's stroke, pressure errors in % of "
-                  "the circuit's highest relief setting (worst signal in brackets):", "", percent_table(comparisons, scales), ""]
+        lines += ["Relative to the machine: " + ", ".join(
+                      ([] if not scales["stroke"] else ["stroke errors in % of each cylinder's stroke"])
+                      + ([] if not math.isfinite(scales["relief_pa"]) else
+                         ["pressure errors in % of the circuit's highest relief setting"]))
+                  + " (worst signal in brackets):", "", percent_table(comparisons, scales), ""]
     lines += [
         f"![reference vs runs]({overlay.name})",
         "",
