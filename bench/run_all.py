@@ -121,9 +121,9 @@ BENCHES = (
     Bench("bench_fidelity", (), "Fidelity levels",
           "The excavator dig (20 s) at each fidelity level against the `lines` level at 1 kHz: cost and max errors "
           "(see [fidelity.md](fidelity.md))."),
-    Bench("bench_tradeoff", ("--docs", "--full-dig"), "Accuracy against cost",
+    Bench("bench_tradeoff", ("--docs", "--full-dig", "--full"), "Accuracy against cost",
           "The seed cylinder (0.1 s) and the excavator dig (the whole 20 s against a reference on 0.1 s averages; "
-          "the trade-off sweep on its first 1.75 s): converged reference, every mode against it, the trade-off sweep "
+          "the full trade-off sweep on its first 1.75 s): converged reference, every mode against it, the trade-off sweep "
           "(see [validation.md](validation.md)). Rewrites the figures, tables and reports of "
           "[figures/](figures/)."),
     Bench("bench_stability", (), "Stability maps",
