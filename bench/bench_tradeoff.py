@@ -155,7 +155,7 @@ def main(argv=None) -> int:
             shutil.copyfile(tout / "pareto.png", DOCS / f"{name}-pareto.png")
             shutil.copyfile(tout / "tradeoff.csv", DOCS / f"{name}-tradeoff.csv")
             (DOCS / f"{name}-tradeoff.md").write_text((tout / "tradeoff.md").read_text().replace("(pareto.png)", f"({name}-pareto.png)"))
-        print(f"\ncopied to {DOCS}")
+        print(f"\ncopied to {DOCS.relative_to(ROOT)}")
     return 0
 
 
