@@ -118,6 +118,9 @@ def volume_nets() -> str:
 @pytest.mark.parametrize(("fields", "message"), [
     ('metering = "table"\n', "field 'area_table': metering = \"table\" needs a table"),
     ('area_table = { "P-A" = [[0.0, 0.0], [1.0, 1e-5]] }\n', "set metering = \"table\""),
+    ('metering_exponent = 2.0\n', "field 'metering_exponent': given with metering = 'linear'"),
+    ('metering = "table"\nmetering_exponent = -1.5\narea_table = { "P-A" = [[0.0, 0.0], [1.0, 1e-5]] }\n',
+     "field 'metering_exponent': given with metering = 'table'"),
     ('metering = "table"\narea_table = { "P-X" = [[0.0, 0.0], [1.0, 1e-5]] }\n', "unknown edge(s) ['P-X']"),
     ('metering = "table"\narea_table = { "P-A" = [[0.5, 0.0], [0.2, 1e-5]] }\n', "table 'P-A': expected a list"),
     ('metering = "table"\narea_table = { "P-A" = [[0.0, 0.0], [1.0, 0.5]] }\n', "area in [0, 0.01] m^2"),

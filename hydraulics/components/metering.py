@@ -34,6 +34,7 @@ Example
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 
 import numpy as np
 
@@ -154,10 +155,15 @@ def check_table(value, where: str) -> tuple:
 
 def check_edge_tables(valve, where: str) -> None:
     """A valve's ``area_table`` names only its kind's ``METERING_EDGES``, with travel within its ``COMMAND_RANGE``,
-    and is given exactly when ``metering = "table"``; raises
+    and is given exactly when ``metering = "table"``; a ``metering_exponent`` off its default goes with
+    ``metering = "exponential"`` (elsewhere it would be ignored); raises
     :class:`~hydraulics.components.parameters.CircuitError` naming ``where`` and the field."""
     from .parameters import CircuitError  # noqa: PLC0415
 
+    default_exponent = next(f.default for f in fields(valve) if f.name == "metering_exponent")
+    if valve.metering != "exponential" and valve.metering_exponent != default_exponent:
+        raise CircuitError(f"{where}, field 'metering_exponent': given with metering = {valve.metering!r}, which does "
+                           f"not read it; set metering = \"exponential\"")
     edges, low = type(valve).METERING_EDGES, type(valve).COMMAND_RANGE[0]
     tables = dict(valve.area_table)
     unknown = sorted(set(tables) - set(edges))
