@@ -188,8 +188,8 @@ def characteristics(edges) -> tuple[np.ndarray, np.ndarray]:
         kind = getattr(params, "metering", "linear") if edge is not None else "linear"
         if kind == "exponential":
             rows[i, M_SHAPE] = params.metering_exponent
-        elif kind == "table" and edge in dict(params.area_table):
-            table = table_knots(*zip(*dict(params.area_table)[edge]))
+        elif kind == "table" and (pairs := dict(params.area_table).get(edge)) is not None:
+            table = table_knots(*zip(*pairs))
             rows[i, M_FIRST], rows[i, M_COUNT] = first, len(table)
             knots.append(table)
             first += len(table)
