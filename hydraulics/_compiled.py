@@ -566,6 +566,14 @@ def _invert_wall_node(geometric, rigid, wall, pref, beta, tol, max_iterations):
     in a·u (a = w/V_g, u = p − p_ref): u₁ = u_r/(1 + a·β), u₂ = u₁ + β·a²·u₁²/(2·(1 + a·β)), whose residual is
     O((a·u)³), so the tolerance is met in one or two iterations instead of up to eight from ``rigid``
     (the same root to the tolerance; the numpy oracle of the tests starts from ``rigid``).
+
+    A plain Newton step δ = −f(p)/f'(p) of f(p) = ln(1 + w·(p − p_ref)/V_g) + (p − rigid)/β leaves the residual
+    f(p + δ) = ½·f''(ξ)·δ² with |f''(ξ)| = (w/(V_g + w·(ξ − p_ref)))² ≤ (w/V_min)², V_min the smaller of
+    V_g + w·(p − p_ref) and V_g + w·(p + δ − p_ref) (ξ between them, the volume linear in p).  Where
+    ½·(w·δ/V_min)² ≤ tol/4 the residual at p + δ is below the tolerance (the rounding of the evaluated
+    residual, ~1e-17, is far below the remaining tol/4), so the loop's next test would stop there: p + δ is
+    returned without evaluating it (one log1p fewer per node in the common case of one Newton step; the
+    same result bit for bit).
     """
     inv_geometric, inv_beta = 1.0 / geometric, 1.0 / beta  # (multiplications instead of divisions in the loop)
     au = wall * inv_geometric
@@ -582,12 +590,19 @@ def _invert_wall_node(geometric, rigid, wall, pref, beta, tol, max_iterations):
     for _ in range(max_iterations):
         if abs(value) < tol:
             break
-        newton = p - value / slope
+        plain = p - value / slope
+        newton = plain
         if not math.isfinite(lo):
             newton = _maximum(newton, 0.5 * p if p > 0 else p - 1e6)
         bracketed = math.isfinite(lo) and math.isfinite(hi)
         outside = newton <= lo or newton >= hi
-        p = 0.5 * (lo + hi) if (bracketed and outside) else newton
+        p_new = 0.5 * (lo + hi) if (bracketed and outside) else newton
+        if p_new == plain:  # a plain Newton step: its remainder bound (docstring) may prove convergence
+            smallest = _minimum(geometric + extra, geometric + wall * (plain - pref))
+            bound = wall * (plain - p) / smallest
+            if smallest > 0.0 and 0.5 * bound * bound <= 0.25 * tol:
+                return plain
+        p = p_new
         extra = wall * (p - pref)
         value = math.log1p(extra * inv_geometric) + (p - rigid) * inv_beta
         slope = wall / (geometric + extra) + inv_beta
@@ -1125,8 +1140,11 @@ ONE_STEP_SCRATCH = Layout("one_step_scratch", ("n", "na", "nb", "nf", "narea", "
     ("area", "narea"), ("geo", "n"), ("inflow", "n"), ("dpdm", "n"), ("dflow", "nb", _W_BR), ("residual", "nf"),
     ("dvdx", "n", "na"), ("dpdx_dt", "n", "na"), ("mg", "n", "na"), ("dpdv", "n", "na"), ("jq", "njq"),
     ("rhs", "nf", "na + 1"), ("jac", "nf", "nf"), ("lu", "nlu"), ("saved", "nlu"), ("epg", "na", "n"), ("slope", "na"),
+    ("pieces", "nb"),  # the law pieces at the start pressures (:func:`_law_pieces`: pumps, then law branches)
 ))
-"""Scratch of :func:`_linearize_one_step_from` (no longer than :data:`LINEARIZE_SCRATCH`)."""
+"""Scratch of :func:`_linearize_one_step_from` (no longer than :data:`LINEARIZE_SCRATCH`).  After an accepted step it
+still holds the valve areas of the step's spools (``area``) and the law pieces at its start pressures (``pieces``),
+which a finish from the same start may take instead of evaluating them again (sim.plants.mujoco_fast)."""
 LINEAR_FINISH_SCRATCH = Layout("linear_finish_scratch", ("n", "narea"), (("area", "narea"), ("geo", "n"),
                                                                          ("dpdm", "n")))
 """Scratch of :func:`_linear_finish`."""
@@ -1550,9 +1568,39 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
             for a in range(na):
                 doil[k, a] = rhs[j, a + 1]
                 dpdv[k, a] += dpdm[k] * rhs[j, a + 1]
-    if not _same_law_pieces(pnet, p_first, p, spool, dt):
+    _law_pieces(pnet, p_first, spool, dt, ws.pieces)
+    if not _same_pieces_as(pnet, ws.pieces, p, spool, dt):
         return False
     _effort_gradient(pnet, p, x, velocity, dpdv, effort, gradient, epg, slope)
+    return True
+
+
+@_kernel
+def _law_pieces(pnet, p, state, h, pieces):
+    """NetworkModel.law_pieces into ``pieces`` (at least as long as the pump and law branches): the piece of its law
+    every pump compensator, then every law branch with a kink hook, is on at the node pressures ``p`` [Pa] (the law
+    branches over a step of ``h`` [s] from the component states ``state``)."""
+    ic = _deref(pnet).ic
+    npump = ic[IC_P1] - ic[IC_P0]
+    for j in range(npump):
+        pieces[j] = _law_piece(pnet, j, p)
+    for b in range(ic[IC_W0], ic[IC_W1]):
+        pieces[npump + b - ic[IC_W0]] = _law_branch_piece(pnet, b, p, state, h)
+
+
+@_kernel
+def _same_pieces_as(pnet, pieces, p, state, h):
+    """Whether every pump compensator and law branch is at the node pressures ``p`` [Pa] on the piece of its law that
+    ``pieces`` (:func:`_law_pieces`, from the same component states ``state`` and step ``h`` [s]) records: the test of
+    :func:`_same_law_pieces` with one side evaluated before."""
+    ic = _deref(pnet).ic
+    npump = ic[IC_P1] - ic[IC_P0]
+    for j in range(npump):
+        if _law_piece(pnet, j, p) != pieces[j]:
+            return False
+    for b in range(ic[IC_W0], ic[IC_W1]):
+        if _law_branch_piece(pnet, b, p, state, h) != pieces[npump + b - ic[IC_W0]]:
+            return False
     return True
 
 
@@ -1591,6 +1639,25 @@ def _linear_finish_accepted(pnet, oil0, oil, p_start, p, dpdm, flow, inflow, sta
             return False
     if not _same_law_pieces(pnet, p_start, p, state, h):
         return False
+    return _finish_residual_small(pnet, oil0, oil, p, dpdm, flow, inflow, h)
+
+
+@_kernel
+def _linear_finish_accepted_at(pnet, oil0, oil, start_pieces, p, dpdm, flow, inflow, state, h):
+    """:func:`_linear_finish_accepted` with the law pieces at the start pressures known (``start_pieces``,
+    :func:`_law_pieces` at the step's start pressures and component states ``state``): the same test."""
+    for i in range(p.size):
+        if not np.isfinite(p[i]):
+            return False
+    if not _same_pieces_as(pnet, start_pieces, p, state, h):
+        return False
+    return _finish_residual_small(pnet, oil0, oil, p, dpdm, flow, inflow, h)
+
+
+@_kernel
+def _finish_residual_small(pnet, oil0, oil, p, dpdm, flow, inflow, h):
+    """The residual test of :func:`_linear_finish_accepted`: |m⁺ − m₀ − h·ΣQ|·∂p/∂m ≤ max(LINEAR_FINISH_PRESSURE,
+    LINEAR_FINISH_FRACTION·|p|) on every free node (arguments as there)."""
     net = _deref(pnet)
     _net_inflow(pnet, flow, inflow)
     free = net.free
@@ -2222,10 +2289,7 @@ def _eval_law_pieces(F, I, p, state, h):
     ic = net.ic
     switching = ic[IC_P1] - ic[IC_P0]
     out = np.empty(switching + ic[IC_W1] - ic[IC_W0], np.int64)
-    for j in range(switching):
-        out[j] = _law_piece(pnet, j, p)
-    for b in range(ic[IC_W0], ic[IC_W1]):
-        out[switching + b - ic[IC_W0]] = _law_branch_piece(pnet, b, p, state, h)
+    _law_pieces(pnet, p, state, h, out)
     return out
 
 

@@ -48,7 +48,11 @@ state :class:`MujocoPlant` sees after ``mj_step1``.  In the callback of step k:
    positions (:meth:`MujocoPlant.end_position`; the block's last step after an
    ``mj_fwdPosition`` from Python): its end pressures p(m⁺, x⁺), kept in the scratch
    with their geometric volumes and ∂p/∂m (``PLANT_SCRATCH``: geo, p0, dpdm, known), are the next
-   step's start pressures, so each step evaluates the pressure law once.
+   step's start pressures, so each step evaluates the pressure law once.  A finish after
+   such a step (``begun``: its linearisation accepted from the known start, no rigid
+   actuator's law using the work buffer since) takes the valve areas of the step's spools
+   and the law pieces at its start pressures from the linearisation's scratch
+   (``_compiled.ONE_STEP_SCRATCH``: area, pieces) instead of evaluating them again.
 
 **Cost and caching.**  The callback allocates nothing: every temporary lives
 in buffers the plant allocates once (``_work`` for the ``_compiled`` cores,
@@ -251,7 +255,10 @@ PLANT_SCRATCH = Layout("plant_scratch", ("n", "na", "nb", "nvalve"), (
        ("friction", "na"), ("damping", "na"), ("effort_end", "na"), ("geo", "n"), ("p0", "n"), ("dpdm", "n"),
        ("lin_p", "n"), ("gradient", "na", "na"), ("lin_x", "na"), ("lin_flow", "nb"), ("oil_warm", "n"),
        # 1 when the finish just before wrote p(m, x) at the positions this step starts from into geo, p0, dpdm
-       ("known", 1)))
+       ("known", 1),
+       # 1 when _begin's one-step linearisation from the known start was accepted and the work buffer still holds
+       # its valve areas and start law pieces (ONE_STEP_SCRATCH) for the finish
+       ("begun", 1)))
 """The plant's float64 scratch (SLOT.P_S), n nodes, na actuators, nb branches, nvalve component states."""
 
 
@@ -435,11 +442,19 @@ def _finish_pending(ctx, pnet, V, T, R):
                 x_end[i] = length[act[i]] - closed[i]
             C._pressure(pnet, mpred, x_end, geo0, p0, dpdm0)  # (C._linear_finish, its pressures kept for _begin)
             C._copy(p2, p0)
-            area = W[:C._area_count(C._deref(pnet).ic)]
-            C._valve_areas(pnet, sp2, area)
-            C._branch_flows(pnet, p2, area, speed, v_end, fl, dfl, sp2, dt)
-            # accepted (CouplingRosenbrock.finish), else Newton from m⁺ below (mu: scratch until the ledger)
-            linear = C._linear_finish_accepted(pnet, oil, mpred, pres, p2, dpdm0, fl, mu, sp2, dt)
+            ic = C._deref(pnet).ic
+            one, _ = C._one_step_scratch(W, 0, n, na, nb, ic[C.IC_NF], C._area_count(ic), ic[C.IC_NJQ], ic[C.IC_NLU])
+            begun = ws.begun[0] != 0.0
+            ws.begun[0] = 0.0
+            if not begun:  # (else _begin's linearisation left the areas of these spools there)
+                C._valve_areas(pnet, sp2, one.area)
+            C._branch_flows(pnet, p2, one.area, speed, v_end, fl, dfl, sp2, dt)
+            # accepted (CouplingRosenbrock.finish), else Newton from m⁺ below (mu: scratch until the ledger); the law
+            # pieces at the start pressures pres are those _begin's linearisation evaluated there, if begun
+            if begun:
+                linear = C._linear_finish_accepted_at(pnet, oil, mpred, one.pieces, p2, dpdm0, fl, mu, sp2, dt)
+            else:
+                linear = C._linear_finish_accepted(pnet, oil, mpred, pres, p2, dpdm0, fl, mu, sp2, dt)
             if linear:
                 C._law_states_end(pnet, sp2, dt, p2)
                 known[0] = 1.0 if ctx[SLOT.C_MODE] == MODE_STEP else 0.0  # (_commit_if_finite below clears it on failure)
@@ -643,6 +658,7 @@ def _begin(ctx, pnet, V, T, R):
     out = C.LinearizationOut(lin_oil, lin_p, lin_spool, lin_x, lin_flow, istats, effort_end, gradient, p0, doil)
     known = ws.known
     done, held = False, False
+    ws.begun[0] = 0.0
     if known[0] != 0.0:  # rosenbrock after a finished step: p₀, geo and ∂p/∂m are its end evaluation
         known[0] = 0.0  # (_linearize_at_start_velocity's one-step path, its pressure law not evaluated again)
         C._short_chord_guess(pnet, xs, vs, dt, guess)
@@ -650,6 +666,9 @@ def _begin(ctx, pnet, V, T, R):
         done = (C._linearize_one_step_from(pnet, W, C.StepStart(oil, spool, cmd, speed, xs, guess), dt, out, True, geo,
                                            dpdm)
                 and (held or C._linearization_usable(istats, lin_p, gradient)))
+        # its valve areas and start law pieces (at p₀ = the pressures the finish starts from) stay in W for the
+        # finish, unless a rigid actuator's law below uses W
+        ws.begun[0] = 1.0 if (done and R.actuator.size == 0) else 0.0
     if not done:
         held = C._linearize_at_start_velocity(ctx[SLOT.C_LINEAR] != SCHEME_ROSENBROCK, pnet, W,
                                               C.StepStart(oil, spool, cmd, speed, xs, vs), dt, guess, out, oil_warm)
