@@ -100,7 +100,7 @@ from .components.orifice import O_BASE, O_C, O_CENTRE, O_K, O_MAX, O_SIGN
 from .components.pumps import P_BAND, P_COMP, P_DISP, P_EFF
 from .components.valve_4_3 import V_LOW, V_OVERLAP, V_TAU
 from .components.parameters import table as _table
-from .components import BRANCH_LAWS, LAW_WIDTH, law_sources, law_states
+from .components import BRANCH_LAWS, LAW_WIDTH, law_inputs, law_sources, law_states
 from .layout import Layout
 
 
@@ -111,7 +111,7 @@ from .layout import Layout
 # ----------------------------------------------------------------------------
 _FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "pump", "law", "rig", "meter", "knots")
 _INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act",
-               "law_kind", "rig_i", "mot_br_i", "law_state", "valve_rate")
+               "law_kind", "rig_i", "mot_br_i", "law_state", "valve_rate", "law_input")
 # the sparse solves' index arrays (sparse_pattern)
 _SPARSE_FIELDS = ("lu_row", "lu_col", "lu_diag", "lu_ptr", "lu_later", "lu_lower", "lu_upper", "lu_update", "branch_lu",
                   "branch_jq", "jq_ptr", "jq_col", "node_actuator_ptr", "node_actuator", "actuator_node_ptr",
@@ -163,7 +163,7 @@ _W_RIG, _W_RIG_I = len(RIGID_COLUMNS), len(RIGID_INDEX_COLUMNS)
 PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W_VALVE, ori=_W_ORI, pump=_W_PUMP,
                      law=_W_LAW, rig=_W_RIG, meter=len(_metering.COLUMNS), knots=len(_metering.KNOT_COLUMNS), ic=0, fixed=0, free=0, free_index=0, compliant=0,
                      acc_node=0, cyl_i=_W_CI, mot_i=_W_MI, br=_W_BR, or_valve=0, mot_br_act=0, law_kind=0, rig_i=_W_RIG_I,
-                     mot_br_i=0, law_state=0, valve_rate=0,
+                     mot_br_i=0, law_state=0, valve_rate=0, law_input=0,
                      **{name: 2 * _W_BR if name.startswith("branch_") else 0 for name in _SPARSE_FIELDS})
 """Row width of every packed field (0: a vector): the description :func:`pack_network` packs by and the views of
 ``_unpack`` are generated from."""
@@ -380,6 +380,7 @@ def pack_network(model: NetworkModel):
         mot_br_i=np.searchsorted(model.motor_actuator, model.motor_branch_actuator),  # motor of each motor branch
         law_state=model.law_state_offset,
         valve_rate=model.valve_rate_offset,
+        law_input=model.law_input_offset,
         **pattern,
     )
     fparts = [np.ascontiguousarray(floats[k], float).ravel() for k in _FLOAT_FIELDS]
@@ -442,22 +443,36 @@ def fill_ratio_nb(p, pref, beta, air, n):
 
 
 def _state_law(cls):
-    """The branch law of component class ``cls`` as ``law(row, state, h, p_from, p_to, p_pilot)`` (a stateless law
-    ignores ``state`` and ``h``), its state update ``end(row, state, h, p_from, p_to, p_pilot, out)`` (none for
-    a stateless law) and its kink hook ``piece(row, state, h, p_from, p_to, p_pilot)`` (0 for a law without
-    kinks); see :data:`hydraulics.components.BRANCH_LAWS`."""
+    """The branch law of component class ``cls`` as ``law(row, state, inputs, h, p_from, p_to, p_pilot)`` (a
+    stateless law ignores ``state`` and ``h``, a law without inputs ``inputs``), its state update
+    ``end(row, state, h, p_from, p_to, p_pilot, out)`` (none for a stateless law) and its kink hook
+    ``piece(row, state, h, p_from, p_to, p_pilot)`` (0 for a law without kinks); see
+    :data:`hydraulics.components.BRANCH_LAWS`."""
     piece = getattr(cls, "LAW_PIECE", None)
     if piece is None:
         @_kernel
         def piece(row, state, h, p_from, p_to, p_pilot):
             return 0
-    if law_states(cls):
-        return cls.BRANCH_LAW, cls.STATE_END, piece
-    static = cls.BRANCH_LAW
-
-    @_kernel
-    def law(row, state, h, p_from, p_to, p_pilot):
-        return static(row, p_from, p_to, p_pilot)
+    own = cls.BRANCH_LAW
+    stateful, driven = bool(law_states(cls)), bool(law_inputs(cls))
+    if stateful and driven:
+        @_kernel
+        def law(row, state, inputs, h, p_from, p_to, p_pilot):
+            return own(row, state, h, p_from, p_to, p_pilot, inputs)
+    elif stateful:
+        @_kernel
+        def law(row, state, inputs, h, p_from, p_to, p_pilot):
+            return own(row, state, h, p_from, p_to, p_pilot)
+    elif driven:
+        @_kernel
+        def law(row, state, inputs, h, p_from, p_to, p_pilot):
+            return own(row, p_from, p_to, p_pilot, inputs)
+    else:
+        @_kernel
+        def law(row, state, inputs, h, p_from, p_to, p_pilot):
+            return own(row, p_from, p_to, p_pilot)
+    if stateful:
+        return law, cls.STATE_END, piece
 
     @_kernel
     def end(row, state, h, p_from, p_to, p_pilot, out):
@@ -467,13 +482,14 @@ def _state_law(cls):
 
 
 def _law_dispatch(laws, first=0):
-    """Kernels ``dispatch(kind, row, state, h, p_from, p_to, p_pilot)``, ``dispatch_end(…, out)`` and
+    """Kernels ``dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot)``, ``dispatch_end(kind, row, state, h,
+    p_from, p_to, p_pilot, out)`` and
     ``dispatch_piece(…)`` calling ``laws[kind - first]``'s law, state update and kink hook (the triples of
     :func:`_state_law` of :data:`hydraulics.components.BRANCH_LAWS`, in order): chains of closures, one ``if``
     per law, built from the registry so that a new component needs no line here."""
     if not laws:
         @_kernel
-        def none(kind, row, state, h, p_from, p_to, p_pilot):
+        def none(kind, row, state, inputs, h, p_from, p_to, p_pilot):
             return math.nan, math.nan, math.nan, math.nan
 
         @_kernel
@@ -488,10 +504,10 @@ def _law_dispatch(laws, first=0):
     (law, end, piece), (rest, rest_end, rest_piece) = laws[0], _law_dispatch(laws[1:], first + 1)
 
     @_kernel
-    def dispatch(kind, row, state, h, p_from, p_to, p_pilot):
+    def dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot):
         if kind == first:
-            return law(row, state, h, p_from, p_to, p_pilot)
-        return rest(kind, row, state, h, p_from, p_to, p_pilot)
+            return law(row, state, inputs, h, p_from, p_to, p_pilot)
+        return rest(kind, row, state, inputs, h, p_from, p_to, p_pilot)
 
     @_kernel
     def dispatch_end(kind, row, state, h, p_from, p_to, p_pilot, out):
@@ -511,6 +527,7 @@ def _law_dispatch(laws, first=0):
 
 _branch_law, _branch_law_end, _branch_law_piece = _law_dispatch(tuple(_state_law(cls) for cls in BRANCH_LAWS))
 _LAW_STATE_WIDTH = max([len(law_states(cls)) for cls in BRANCH_LAWS], default=0)
+_LAW_INPUT_WIDTH = max([len(law_inputs(cls)) for cls in BRANCH_LAWS], default=0)
 _LAW_SOURCE = np.array(law_sources() or (0,), np.int64)  # 1: the law's power is pump work (its SOURCE)
 
 
@@ -760,8 +777,9 @@ def _branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h):
     for b in range(ic[IC_W0], ic[IC_W1]):
         i = b - ic[IC_W0]
         pilot = br[b, T_PILOT]
-        q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], _law_state(state, net.law_state[i]), h, p[br[b, T_FROM]],
-                                    p[br[b, T_TO]], p[pilot] if pilot >= 0 else 0.0)
+        q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], _law_state(state, net.law_state[i]),
+                                    _law_inputs(speed, net.law_input[i]), h, p[br[b, T_FROM]], p[br[b, T_TO]],
+                                    p[pilot] if pilot >= 0 else 0.0)
         flow[b], dflow[b, T_FROM], dflow[b, T_TO], dflow[b, T_PILOT] = q, d0, d1, d2
 
 
@@ -771,6 +789,14 @@ def _law_state(state, offset):
     if offset < 0:
         return state[:0]
     return state[offset:offset + _LAW_STATE_WIDTH]
+
+
+@_inline
+def _law_inputs(speed, offset):
+    """The scheduled inputs of one law branch in the control vector ``speed`` (from ``offset``; none for −1)."""
+    if offset < 0:
+        return speed[:0]
+    return speed[offset:offset + _LAW_INPUT_WIDTH]
 
 
 @_kernel

@@ -41,7 +41,8 @@ from functools import cached_property
 import numpy as np
 
 from .circuit import Circuit
-from .components import BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, VALVE_KINDS, CircuitError, law_states
+from .components import (BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, VALVE_KINDS, CircuitError, input_names, law_inputs,
+                         law_states)
 from .components.metering import characteristics as metering_characteristics
 from .components.hose import LaminarResistance, line_conductance
 from .numerics import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE  # noqa: F401 (documented here)
@@ -361,8 +362,8 @@ class NetworkModel:
     valve_names: tuple
     valve_time_constant: np.ndarray
     valve_overlap: np.ndarray
-    pump_names: tuple
-    pump_nominal_speed: np.ndarray
+    pump_names: tuple  # the scheduled inputs (pump shaft speeds): built-in pumps, then law components' INPUTS
+    pump_nominal_speed: np.ndarray  # their values when nothing schedules them [rev/s]
     # branches, concatenated by kind; `branch_slices[kind]` gives each kind's range
     branch_names: tuple
     branch_from: np.ndarray
@@ -404,6 +405,9 @@ class NetworkModel:
     # component states: the valves' spools, then the states of every stateful law component (its STATES, in
     # circuit order); the first state of each law branch in that vector (-1: a stateless law)
     law_state_offset: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    # scheduled inputs of the law components (their INPUTS: a pump's shaft speed): entries of the control vector
+    # ``NetworkControl.pump_speed`` after the built-in pumps' speeds; the first input of each law branch there (-1: none)
+    law_input_offset: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     # second-order spools: each valve's spool rate in that vector (after the law components' states; -1: a
     # first-order spool), natural frequency [rad/s] and damping ratio [-]
     valve_rate_offset: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
@@ -603,19 +607,20 @@ class NetworkModel:
         # law branches: from the component's first port to its second; a third port is a pilot terminal.  Their
         # states are numbered in circuit order; the branches are grouped by law (BRANCH_LAWS order).  First the
         # laminar resistances the network makes: actuator leaks (cylinders, then motors), hose lines.
-        law_entries = []  # (law index, branch name, from node, to node, pilot node or -1, parameters, first state or -1)
+        law_entries = []  # (law index, branch name, from node, to node, pilot node or -1, parameters, first state or -1,
+        #                  names of its scheduled inputs)
         laminar = BRANCH_LAWS.index(LaminarResistance)
         for c in cyl + mot:
             a, b = (node(c, "cap"), node(c, "rod")) if c.kind == "cylinder" else (node(c, "a"), node(c, "b"))
             if c.params.leakage_conductance > 0 and keep(c, a, b):
                 law_entries.append((laminar, f"{c.name}.leakage", a, b, -1,
-                                    LaminarResistance(conductance=c.params.leakage_conductance), -1))
+                                    LaminarResistance(conductance=c.params.leakage_conductance), -1, ()))
         viscosity = circuit.fluid.density * circuit.fluid.kinematic_viscosity
         for c in circuit.by_kind("hose"):
             if c.name in line_set:
                 conductance = line_conductance(c.params.inner_diameter, c.params.length, viscosity)
                 law_entries.append((laminar, f"{c.name}.line", node(c, "a"), node(c, "b"), -1,
-                                    LaminarResistance(conductance=conductance), -1))
+                                    LaminarResistance(conductance=conductance), -1, ()))
         state_names = [v.name for v in valves]
         state_units = ["-"] * len(valves)
         state_start = [0.0] * len(valves)
@@ -626,7 +631,8 @@ class NetworkModel:
             own = law_states(law_class)
             pilot = node(c, law_class.PORTS[2]) if len(law_class.PORTS) > 2 else -1
             law_entries.append((BRANCH_LAWS.index(law_class), c.name, node(c, law_class.PORTS[0]),
-                                node(c, law_class.PORTS[1]), pilot, c.params, len(state_names) if own else -1))
+                                node(c, law_class.PORTS[1]), pilot, c.params, len(state_names) if own else -1,
+                                input_names(c.name, law_class) if law_inputs(law_class) else ()))
             state_names.extend(f"{c.name}.{name}" for name in own)
             state_units.extend(law_class.STATE_UNITS if own else ())
             state_start.extend(c.params.state_start() if own else ())
@@ -635,12 +641,16 @@ class NetworkModel:
                                    f"{list(own)}, which the 'incompressible' level does not step; use 'compressible'")
         law_entries.sort(key=lambda entry: entry[0])
         start = len(branch_names)
-        law_pilot, law_kind, law_rows, law_state_offset = [], [], [], []
-        for kind, name, a, b, pilot, params, offset in law_entries:
+        law_pilot, law_kind, law_rows, law_state_offset, law_input_offset = [], [], [], [], []
+        law_input_names, law_input_start = [], []  # the law components' scheduled inputs, in law-branch order
+        for kind, name, a, b, pilot, params, offset, inputs in law_entries:
             add_branch(name, a, b)
             law_pilot.append(pilot)
             law_kind.append(kind)
             law_state_offset.append(offset)
+            law_input_offset.append(len(law_input_names) if inputs else -1)
+            law_input_names.extend(inputs)
+            law_input_start.extend(params.input_start() if inputs else ())
             row = np.zeros(LAW_WIDTH)
             values = params.law_row(circuit.fluid)
             row[:len(values)] = values
@@ -748,8 +758,8 @@ class NetworkModel:
             valve_names=tuple(c.name for c in valves),
             valve_time_constant=column(valves, "time_constant"),
             valve_overlap=column(valves, "overlap"),
-            pump_names=tuple(c.name for c in pumps),
-            pump_nominal_speed=column(pumps, "speed"),
+            pump_names=tuple(c.name for c in pumps) + tuple(law_input_names),
+            pump_nominal_speed=np.concatenate((column(pumps, "speed"), np.array(law_input_start, float))),
             branch_names=tuple(branch_names),
             branch_from=b_from,
             branch_to=b_to,
@@ -784,6 +794,7 @@ class NetworkModel:
             law_kind=f(law_kind, int),
             law_table=np.array(law_rows, float).reshape(len(law_rows), LAW_WIDTH),
             law_state_offset=f(law_state_offset, int),
+            law_input_offset=f([o + len(pumps) if o >= 0 else -1 for o in law_input_offset], int),
             valve_rate_offset=f(valve_rate_offset, int),
             valve_omega=column(valves, "natural_frequency"),
             valve_zeta=column(valves, "damping_ratio"),
@@ -856,6 +867,16 @@ class NetworkModel:
         table = self.law_table[rows.start - law.start:rows.stop - law.start]
         cls = kind if isinstance(kind, type) else COMPONENT_TYPES[kind]
         return table[:, cls.LAW_COLUMNS.index(column)].copy()
+
+    @property
+    def pump_branches(self) -> np.ndarray:
+        """The branch each entry of :attr:`pump_names` drives (int array): the built-in pumps' branches, then the
+        branch of each law component with scheduled inputs, once per input."""
+        law = self.branch_slices["law"]
+        counts = np.diff(np.append(self.law_input_offset[self.law_input_offset >= 0], len(self.pump_names)))
+        driven = law.start + np.flatnonzero(self.law_input_offset >= 0)
+        return np.concatenate((np.arange(self.branch_slices["pump"].start, self.branch_slices["pump"].stop),
+                               np.repeat(driven, counts))).astype(int)
 
     @property
     def relief_branches(self) -> slice:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from hydraulics.components import BRANCH_LAWS, CheckValve, LaminarResistance, Orifice, ReliefValve, law_states
+from hydraulics.components import BRANCH_LAWS, CheckValve, LaminarResistance, Orifice, ReliefValve, law_inputs, law_states
 from hydraulics.components.relief import REGULARISATION as RELIEF_REGULARISATION
 from hydraulics.network import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE, BranchFlows
 
@@ -317,8 +317,9 @@ def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -
     displacement, ddisp = laws.compensated_displacement_with_derivative(
         model.pump_displacement, outlet, model.pump_compensator, model.pump_band
     )
-    flow[s] = laws.pump_flow(displacement, pump_speed, model.pump_efficiency)
-    dto[s] = laws.pump_flow(ddisp, pump_speed, model.pump_efficiency)
+    speed = pump_speed[model.pump_index]
+    flow[s] = laws.pump_flow(displacement, speed, model.pump_efficiency)
+    dto[s] = laws.pump_flow(ddisp, speed, model.pump_efficiency)
 
     s = sl["motor"]
     flow[s] = laws.motor_flow(model.motor_displacement[flow_motor(model)], actuator_velocity[model.motor_branch_actuator])
@@ -337,12 +338,14 @@ def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -
         if cls in (LaminarResistance, Orifice, ReliefValve, CheckValve):  # above, by the formulas of reference.laws
             continue
         ports = (pressure[model.branch_from[b]], pressure[model.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0)
+        first = model.law_input_offset[i]  # its scheduled inputs, read from the pump-speed vector
+        inputs = (pump_speed[first:first + len(law_inputs(cls))].copy(),) if law_inputs(cls) else ()
         if law_states(cls):  # at the component's states at rest, over a step of zero length
             first = model.law_state_offset[i]
             start = model.component_state_start[first:first + len(law_states(cls))].copy()
-            flow[b], dfrom[b], dto[b], dpilot[b] = cls.BRANCH_LAW(model.law_table[i], start, 0.0, *ports)
+            flow[b], dfrom[b], dto[b], dpilot[b] = cls.BRANCH_LAW(model.law_table[i], start, 0.0, *ports, *inputs)
         else:
-            flow[b], dfrom[b], dto[b], dpilot[b] = cls.BRANCH_LAW(model.law_table[i], *ports)
+            flow[b], dfrom[b], dto[b], dpilot[b] = cls.BRANCH_LAW(model.law_table[i], *ports, *inputs)
     return BranchFlows(flow, dfrom, dto, dpilot)
 
 
