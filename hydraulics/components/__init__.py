@@ -44,8 +44,6 @@ from .volume import Volume
 
 COMPONENT_TYPES = {
     "tank": Tank,
-    "pump_fixed": PumpFixed,
-    "pump_compensated": PumpCompensated,
     "orifice": Orifice,
     "valve_4_3": Valve43,
     "relief_valve": ReliefValve,
@@ -66,8 +64,11 @@ COMPONENT_TYPES = {
     "pressure_compensator": PressureCompensator,
     "post_compensator": PostCompensator,
     "variable_orifice": VariableOrifice,
+    "pump_fixed": PumpFixed,
+    "pump_compensated": PumpCompensated,
 }
-"""Circuit-file ``type`` name → parameter class."""
+"""Circuit-file ``type`` name → parameter class (the law components' branches follow this order in the network:
+the fixed-displacement and compensated pumps last, after every other law)."""
 VALVE_KINDS = tuple(kind for kind, cls in COMPONENT_TYPES.items() if hasattr(cls, "METERING_EDGES"))
 """The types whose passages a commanded spool meters (``METERING_EDGES``, ``edges(ports)``, ``COMMAND_RANGE``):
 the network's valves, commanded by name (:attr:`hydraulics.network.NetworkModel.valve_names`)."""
