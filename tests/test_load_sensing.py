@@ -10,6 +10,8 @@
   while lifting (from 0.4 s after the spool opened; the load pressure still swings between 40 and 85 bar as the
   boom bounces on its oil column), the supply stands the margin above the LS line within 10 % and the metering
   edge's drop stays inside the compensator's band; the pump's work enters the energy ledger as pump work and the balance closes.
+* The pump's shaft speed as a scheduled input (tests/scenes/ls_lift_speed.scenario.toml, halved while lifting), both
+  modes: the flow is η_v·D·n·α at the scheduled n and the swash plate doubles to hold the margin.
 * The load-sensing excavator (models/excavator/dig_ls.scenario.toml), both modes: the whole dig completes with the
   margin regulated (median at the setting, 85 % of the regulating samples within 10 %).
 """
