@@ -86,7 +86,6 @@ from .components import accumulator as _accumulator
 from .components import cylinder as _cylinder
 from .components import orifice as _orifice
 from .components import pumps as _pumps
-from .components import ramps as _ramps
 from .components import valve_4_3 as _valve
 from .components import metering as _metering
 from .components import motor as _motor
@@ -97,10 +96,9 @@ from .components.cylinder import (CI_ACT, CI_CAP, CI_ROD, CYL_CAP_AREA, CYL_COUL
                                   CYL_VISCOUS)
 from .components.motor import MI_A, MI_ACT, MI_B
 from .components.orifice import O_BASE, O_C, O_CENTRE, O_K, O_MAX, O_SIGN
-from .components.pumps import P_BAND, P_COMP, P_DISP, P_EFF
 from .components.valve_4_3 import V_LOW, V_OVERLAP, V_TAU
 from .components.parameters import table as _table
-from .components import BRANCH_LAWS, LAW_WIDTH, law_sources, law_states
+from .components import BRANCH_LAWS, LAW_WIDTH, law_inputs, law_sources, law_states
 from .layout import Layout
 
 
@@ -109,9 +107,9 @@ from .layout import Layout
 # I starts with the float-field offsets (len(_FLOAT_FIELDS) + 1, into F) and the
 # int-field offsets (len(_INT_FIELDS) + 1, into I).
 # ----------------------------------------------------------------------------
-_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "pump", "law", "rig", "meter", "knots")
+_FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "law", "rig", "meter", "knots")
 _INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act",
-               "law_kind", "rig_i", "mot_br_i", "law_state", "valve_rate")
+               "law_kind", "rig_i", "mot_br_i", "law_state", "valve_rate", "law_input")
 # the sparse solves' index arrays (sparse_pattern)
 _SPARSE_FIELDS = ("lu_row", "lu_col", "lu_diag", "lu_ptr", "lu_later", "lu_lower", "lu_upper", "lu_update", "branch_lu",
                   "branch_jq", "jq_ptr", "jq_col", "node_actuator_ptr", "node_actuator", "actuator_node_ptr",
@@ -129,21 +127,21 @@ SCALAR_LAYOUT = ("reference_pressure", "bulk_modulus", "air_fraction", "polytrop
 (S_PREF, S_BETA, S_AIR, S_NPOLY, S_FLOOR, S_PHI_FLOOR, S_NEWTON_PTOL, S_NEWTON_RTOL, S_SUFFICIENT, S_TRUST_P, S_TRUST_F,
  S_PINV_TOL, S_FILL_TOL, S_VREG, S_GUESS) = range(len(SCALAR_LAYOUT))
 # ic: int scalars, by name: sizes, then each branch kind's [start, stop) (NetworkModel.branch_slices), then limits
-BRANCH_KINDS = ("orifice", "pump", "motor", "law", "rigid")
+BRANCH_KINDS = ("orifice", "motor", "law", "rigid")
 INT_LAYOUT = (("node_count", "free_count", "actuator_count", "branch_count", "cylinder_count", "motor_count",
-               "accumulator_count", "valve_count", "pump_count")
+               "accumulator_count", "valve_count")
               + tuple(f"{kind}_{end}" for kind in BRANCH_KINDS for end in ("start", "stop"))
               + ("newton_max_iterations", "line_search_halvings", "inversion_max_iterations", "fill_max_iterations",
                  "state_count", "lu_entry_count", "jq_entry_count", "sparse_factorisation"))
-(IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_NPUMP, IC_O0, IC_O1,
- IC_P0, IC_P1, IC_M0, IC_M1, IC_W0, IC_W1, IC_G0, IC_G1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX,
+(IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_O0, IC_O1,
+ IC_M0, IC_M1, IC_W0, IC_W1, IC_G0, IC_G1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX,
  IC_FILL_MAX, IC_NSTATE, IC_NLU, IC_NJQ, IC_SPARSE) = range(len(INT_LAYOUT))
 # node table columns
 NODE_COLUMNS = ("fixed_pressure", "volume", "wall_compliance")
 NODE_FIXED_P, NODE_VOLUME, NODE_WALL = range(len(NODE_COLUMNS))
 # widths of the component tables (compile-time constants of _unpack)
 _W_NODE, _W_ACC, _W_CYL, _W_VALVE = len(NODE_COLUMNS), len(_accumulator.COLUMNS), len(_cylinder.COLUMNS), len(_valve.COLUMNS)
-_W_ORI, _W_PUMP = len(_orifice.COLUMNS), len(_pumps.COLUMNS)
+_W_ORI = len(_orifice.COLUMNS)
 _W_CI, _W_MI = len(_cylinder.INDEX_COLUMNS), len(_motor.INDEX_COLUMNS)
 # branch terminals (columns of ``br`` and of the flow derivatives ``dflow``): flow from FROM to TO; PILOT: a
 # third terminal whose pressure the law reads (-1: none)
@@ -160,10 +158,10 @@ RIGID_INDEX_COLUMNS = ("valve", "actuator")
 GI_VALVE, GI_ACT = range(len(RIGID_INDEX_COLUMNS))
 _W_RIG, _W_RIG_I = len(RIGID_COLUMNS), len(RIGID_INDEX_COLUMNS)
 
-PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W_VALVE, ori=_W_ORI, pump=_W_PUMP,
+PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W_VALVE, ori=_W_ORI,
                      law=_W_LAW, rig=_W_RIG, meter=len(_metering.COLUMNS), knots=len(_metering.KNOT_COLUMNS), ic=0, fixed=0, free=0, free_index=0, compliant=0,
                      acc_node=0, cyl_i=_W_CI, mot_i=_W_MI, br=_W_BR, or_valve=0, mot_br_act=0, law_kind=0, rig_i=_W_RIG_I,
-                     mot_br_i=0, law_state=0, valve_rate=0,
+                     mot_br_i=0, law_state=0, valve_rate=0, law_input=0,
                      **{name: 2 * _W_BR if name.startswith("branch_") else 0 for name in _SPARSE_FIELDS})
 """Row width of every packed field (0: a vector): the description :func:`pack_network` packs by and the views of
 ``_unpack`` are generated from."""
@@ -338,7 +336,7 @@ def pack_network(model: NetworkModel):
     ic = _table(INT_LAYOUT, 1, node_count=n, free_count=len(free), actuator_count=model.actuator_count,
                 branch_count=len(model.branch_names), cylinder_count=len(model.cylinder_actuator),
                 motor_count=len(model.motor_actuator), accumulator_count=len(model.accumulator_node),
-                valve_count=len(model.valve_names), pump_count=len(model.pump_names), **slices,
+                valve_count=len(model.valve_names), **slices,
                 newton_max_iterations=_numerics.NEWTON_MAX_ITERATIONS,
                 line_search_halvings=_numerics.LINE_SEARCH_HALVINGS,
                 inversion_max_iterations=_numerics.PRESSURE_INVERSION_MAX_ITERATIONS,
@@ -355,7 +353,6 @@ def pack_network(model: NetworkModel):
         mot=model.motor_displacement,
         valve=_valve.pack(model),
         ori=_orifice.pack(model),
-        pump=_pumps.pack(model),
         law=model.law_table,
         rig=_table(RIGID_COLUMNS, len(model.rigid_branch_actuator), extend_area=model.rigid_extend_area,
                    retract_area=model.rigid_retract_area, sign=model.rigid_sign, base_area=model.rigid_base_area,
@@ -380,6 +377,7 @@ def pack_network(model: NetworkModel):
         mot_br_i=np.searchsorted(model.motor_actuator, model.motor_branch_actuator),  # motor of each motor branch
         law_state=model.law_state_offset,
         valve_rate=model.valve_rate_offset,
+        law_input=model.law_input_offset,
         **pattern,
     )
     fparts = [np.ascontiguousarray(floats[k], float).ravel() for k in _FLOAT_FIELDS]
@@ -442,22 +440,36 @@ def fill_ratio_nb(p, pref, beta, air, n):
 
 
 def _state_law(cls):
-    """The branch law of component class ``cls`` as ``law(row, state, h, p_from, p_to, p_pilot)`` (a stateless law
-    ignores ``state`` and ``h``), its state update ``end(row, state, h, p_from, p_to, p_pilot, out)`` (none for
-    a stateless law) and its kink hook ``piece(row, state, h, p_from, p_to, p_pilot)`` (0 for a law without
-    kinks); see :data:`hydraulics.components.BRANCH_LAWS`."""
+    """The branch law of component class ``cls`` as ``law(row, state, inputs, h, p_from, p_to, p_pilot)`` (a
+    stateless law ignores ``state`` and ``h``, a law without inputs ``inputs``), its state update
+    ``end(row, state, h, p_from, p_to, p_pilot, out)`` (none for a stateless law) and its kink hook
+    ``piece(row, state, h, p_from, p_to, p_pilot)`` (0 for a law without kinks); see
+    :data:`hydraulics.components.BRANCH_LAWS`."""
     piece = getattr(cls, "LAW_PIECE", None)
     if piece is None:
         @_kernel
         def piece(row, state, h, p_from, p_to, p_pilot):
             return 0
-    if law_states(cls):
-        return cls.BRANCH_LAW, cls.STATE_END, piece
-    static = cls.BRANCH_LAW
-
-    @_kernel
-    def law(row, state, h, p_from, p_to, p_pilot):
-        return static(row, p_from, p_to, p_pilot)
+    own = cls.BRANCH_LAW
+    stateful, driven = bool(law_states(cls)), bool(law_inputs(cls))
+    if stateful and driven:
+        @_kernel
+        def law(row, state, inputs, h, p_from, p_to, p_pilot):
+            return own(row, state, h, p_from, p_to, p_pilot, inputs)
+    elif stateful:
+        @_kernel
+        def law(row, state, inputs, h, p_from, p_to, p_pilot):
+            return own(row, state, h, p_from, p_to, p_pilot)
+    elif driven:
+        @_kernel
+        def law(row, state, inputs, h, p_from, p_to, p_pilot):
+            return own(row, p_from, p_to, p_pilot, inputs)
+    else:
+        @_kernel
+        def law(row, state, inputs, h, p_from, p_to, p_pilot):
+            return own(row, p_from, p_to, p_pilot)
+    if stateful:
+        return law, cls.STATE_END, piece
 
     @_kernel
     def end(row, state, h, p_from, p_to, p_pilot, out):
@@ -467,13 +479,14 @@ def _state_law(cls):
 
 
 def _law_dispatch(laws, first=0):
-    """Kernels ``dispatch(kind, row, state, h, p_from, p_to, p_pilot)``, ``dispatch_end(…, out)`` and
+    """Kernels ``dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot)``, ``dispatch_end(kind, row, state, h,
+    p_from, p_to, p_pilot, out)`` and
     ``dispatch_piece(…)`` calling ``laws[kind - first]``'s law, state update and kink hook (the triples of
     :func:`_state_law` of :data:`hydraulics.components.BRANCH_LAWS`, in order): chains of closures, one ``if``
     per law, built from the registry so that a new component needs no line here."""
     if not laws:
         @_kernel
-        def none(kind, row, state, h, p_from, p_to, p_pilot):
+        def none(kind, row, state, inputs, h, p_from, p_to, p_pilot):
             return math.nan, math.nan, math.nan, math.nan
 
         @_kernel
@@ -488,10 +501,10 @@ def _law_dispatch(laws, first=0):
     (law, end, piece), (rest, rest_end, rest_piece) = laws[0], _law_dispatch(laws[1:], first + 1)
 
     @_kernel
-    def dispatch(kind, row, state, h, p_from, p_to, p_pilot):
+    def dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot):
         if kind == first:
-            return law(row, state, h, p_from, p_to, p_pilot)
-        return rest(kind, row, state, h, p_from, p_to, p_pilot)
+            return law(row, state, inputs, h, p_from, p_to, p_pilot)
+        return rest(kind, row, state, inputs, h, p_from, p_to, p_pilot)
 
     @_kernel
     def dispatch_end(kind, row, state, h, p_from, p_to, p_pilot, out):
@@ -511,6 +524,7 @@ def _law_dispatch(laws, first=0):
 
 _branch_law, _branch_law_end, _branch_law_piece = _law_dispatch(tuple(_state_law(cls) for cls in BRANCH_LAWS))
 _LAW_STATE_WIDTH = max([len(law_states(cls)) for cls in BRANCH_LAWS], default=0)
+_LAW_INPUT_WIDTH = max([len(law_inputs(cls)) for cls in BRANCH_LAWS], default=0)
 _LAW_SOURCE = np.array(law_sources() or (0,), np.int64)  # 1: the law's power is pump work (its SOURCE)
 
 
@@ -758,12 +772,6 @@ def _branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h):
         i = b - ic[IC_O0]
         q, g = _orifice.flow_with_derivative(area[i], net.ori[i, O_K], net.ori[i, O_C], p[br[b, 0]] - p[br[b, 1]])
         flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
-    pump = net.pump
-    for b in range(ic[IC_P0], ic[IC_P1]):
-        i = b - ic[IC_P0]
-        disp, ddisp = _pumps.compensated_displacement_with_derivative(pump[i, P_DISP], p[br[b, 1]], pump[i, P_COMP], pump[i, P_BAND])
-        flow[b] = _pumps.flow(disp, speed[i], pump[i, P_EFF])
-        dflow[b, T_TO] = _pumps.flow(ddisp, speed[i], pump[i, P_EFF])
     for b in range(ic[IC_M0], ic[IC_M1]):
         i = b - ic[IC_M0]
         flow[b] = _motor.flow(net.mot[net.mot_br_i[i]], velocity[net.mot_br_act[i]])
@@ -775,8 +783,9 @@ def _branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h):
     for b in range(ic[IC_W0], ic[IC_W1]):
         i = b - ic[IC_W0]
         pilot = br[b, T_PILOT]
-        q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], _law_state(state, net.law_state[i]), h, p[br[b, T_FROM]],
-                                    p[br[b, T_TO]], p[pilot] if pilot >= 0 else 0.0)
+        q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], _law_state(state, net.law_state[i]),
+                                    _law_inputs(speed, net.law_input[i]), h, p[br[b, T_FROM]], p[br[b, T_TO]],
+                                    p[pilot] if pilot >= 0 else 0.0)
         flow[b], dflow[b, T_FROM], dflow[b, T_TO], dflow[b, T_PILOT] = q, d0, d1, d2
 
 
@@ -786,6 +795,14 @@ def _law_state(state, offset):
     if offset < 0:
         return state[:0]
     return state[offset:offset + _LAW_STATE_WIDTH]
+
+
+@_inline
+def _law_inputs(speed, offset):
+    """The scheduled inputs of one law branch in the control vector ``speed`` (from ``offset``; none for −1)."""
+    if offset < 0:
+        return speed[:0]
+    return speed[offset:offset + _LAW_INPUT_WIDTH]
 
 
 @_kernel
@@ -803,6 +820,23 @@ def _law_states_end(pnet, state, h, p):
         current = _law_state(state, offset)
         _branch_law_end(net.law_kind[i], law[i], current, h, p[br[b, T_FROM]], p[br[b, T_TO]],
                         p[pilot] if pilot >= 0 else 0.0, current)
+
+
+@_kernel
+def _source_delivery(pnet, speed):
+    """Σ Q [m³/s] of the stateless power-source law branches (the pumps, ``SOURCE``) with both ports at the
+    reference pressure, at the scheduled inputs ``speed``: what the pumps deliver unloaded (the supply of the
+    ``incompressible`` level, whose network holds no pressures; a stateful source is refused at that level)."""
+    net = _deref(pnet)
+    ic, pref = net.ic, net.sc[S_PREF]
+    supply = 0.0
+    for b in range(ic[IC_W0], ic[IC_W1]):
+        i = b - ic[IC_W0]
+        kind = net.law_kind[i]
+        if _LAW_SOURCE[kind] and net.law_state[i] < 0:
+            supply += _branch_law(kind, net.law[i], speed[:0], _law_inputs(speed, net.law_input[i]), 0.0, pref, pref,
+                                  0.0)[0]
+    return supply
 
 
 @_kernel
@@ -1140,7 +1174,7 @@ ONE_STEP_SCRATCH = Layout("one_step_scratch", ("n", "na", "nb", "nf", "narea", "
     ("area", "narea"), ("geo", "n"), ("inflow", "n"), ("dpdm", "n"), ("dflow", "nb", _W_BR), ("residual", "nf"),
     ("dvdx", "n", "na"), ("dpdx_dt", "n", "na"), ("mg", "n", "na"), ("dpdv", "n", "na"), ("jq", "njq"),
     ("rhs", "nf", "na + 1"), ("jac", "nf", "nf"), ("lu", "nlu"), ("saved", "nlu"), ("epg", "na", "n"), ("slope", "na"),
-    ("pieces", "nb"),  # the law pieces at the start pressures (:func:`_law_pieces`: pumps, then law branches)
+    ("pieces", "nb"),  # the law pieces at the start pressures (:func:`_law_pieces`: the law branches)
 ))
 """Scratch of :func:`_linearize_one_step_from` (no longer than :data:`LINEARIZE_SCRATCH`).  After an accepted step it
 still holds the valve areas of the step's spools (``area``) and the law pieces at its start pressures (``pieces``),
@@ -1577,42 +1611,32 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
 
 @_kernel
 def _law_pieces(pnet, p, state, h, pieces):
-    """NetworkModel.law_pieces into ``pieces`` (at least as long as the pump and law branches): the piece of its law
-    every pump compensator, then every law branch with a kink hook, is on at the node pressures ``p`` [Pa] (the law
-    branches over a step of ``h`` [s] from the component states ``state``)."""
+    """NetworkModel.law_pieces into ``pieces`` (at least as long as the law branches): the piece of its law every law
+    branch with a kink hook is on at the node pressures ``p`` [Pa] (over a step of ``h`` [s] from the component
+    states ``state``)."""
     ic = _deref(pnet).ic
-    npump = ic[IC_P1] - ic[IC_P0]
-    for j in range(npump):
-        pieces[j] = _law_piece(pnet, j, p)
     for b in range(ic[IC_W0], ic[IC_W1]):
-        pieces[npump + b - ic[IC_W0]] = _law_branch_piece(pnet, b, p, state, h)
+        pieces[b - ic[IC_W0]] = _law_branch_piece(pnet, b, p, state, h)
 
 
 @_kernel
 def _same_pieces_as(pnet, pieces, p, state, h):
-    """Whether every pump compensator and law branch is at the node pressures ``p`` [Pa] on the piece of its law that
-    ``pieces`` (:func:`_law_pieces`, from the same component states ``state`` and step ``h`` [s]) records: the test of
+    """Whether every law branch is at the node pressures ``p`` [Pa] on the piece of its law that ``pieces``
+    (:func:`_law_pieces`, from the same component states ``state`` and step ``h`` [s]) records: the test of
     :func:`_same_law_pieces` with one side evaluated before."""
     ic = _deref(pnet).ic
-    npump = ic[IC_P1] - ic[IC_P0]
-    for j in range(npump):
-        if _law_piece(pnet, j, p) != pieces[j]:
-            return False
     for b in range(ic[IC_W0], ic[IC_W1]):
-        if _law_branch_piece(pnet, b, p, state, h) != pieces[npump + b - ic[IC_W0]]:
+        if _law_branch_piece(pnet, b, p, state, h) != pieces[b - ic[IC_W0]]:
             return False
     return True
 
 
 @_kernel
 def _same_law_pieces(pnet, pa, pb, state, h):
-    """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no pump compensator or law component with a kink
-    hook (a relief, a check valve, …) changes the piece of its law between the node pressures ``pa`` and ``pb``
+    """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no law component with a kink hook (a relief, a
+    check valve, a pump compensator, …) changes the piece of its law between the node pressures ``pa`` and ``pb``
     [Pa] (the law components over a step of ``h`` [s] from the component states ``state``)."""
     ic = _deref(pnet).ic
-    for j in range(ic[IC_P1] - ic[IC_P0]):
-        if _law_piece(pnet, j, pa) != _law_piece(pnet, j, pb):
-            return False
     for b in range(ic[IC_W0], ic[IC_W1]):
         if _law_branch_piece(pnet, b, pa, state, h) != _law_branch_piece(pnet, b, pb, state, h):
             return False
@@ -2039,8 +2063,6 @@ def _account(pnet, ledger, at, h, pres, x, flow, v, quad, mu, friction, fslope):
         mu[i] = _potential(pnet, pres[i], quad)
     ic, br = net.ic, net.br
     pump = 0.0
-    for b in range(ic[IC_P0], ic[IC_P1]):
-        pump += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
     pref = net.sc[S_PREF]
     for b in range(ic[IC_NB]):  # pressure sources (a rigid chamber is a fixed node at p_ref: none)
         k, j = br[b, 0], br[b, 1]
@@ -2103,16 +2125,6 @@ def _rigid_rate(pnet, spool, j):
     """Flow drawn from P per unit actuator velocity of rigid branch ``j`` [m² or m³/rad] (NetworkModel.rigid_rates)."""
     rig = _deref(pnet).rig
     return _valve.displaced_rate(_rigid_direction(pnet, spool, j), rig[j, G_EXTEND], rig[j, G_RETRACT])
-
-
-@_kernel
-def _law_piece(pnet, j, p):
-    """Piece (0, 1, 2) of its compensator's law that the ``j``-th pump branch is on at node pressures ``p`` [Pa]
-    (NetworkModel.law_pieces)."""
-    net = _deref(pnet)
-    ic, br = net.ic, net.br
-    b, pump = ic[IC_P0] + j, net.pump
-    return _ramps.ramp_piece((pump[j, P_COMP] + pump[j, P_BAND] - p[br[b, T_TO]]) / pump[j, P_BAND], 1.0)
 
 
 @_kernel
@@ -2287,8 +2299,7 @@ def _eval_law_pieces(F, I, p, state, h):
     net = _unpack(F, I)
     pnet = _ref(net)
     ic = net.ic
-    switching = ic[IC_P1] - ic[IC_P0]
-    out = np.empty(switching + ic[IC_W1] - ic[IC_W0], np.int64)
+    out = np.empty(ic[IC_W1] - ic[IC_W0], np.int64)
     _law_pieces(pnet, p, state, h, out)
     return out
 

@@ -54,12 +54,10 @@ import numpy as np
 
 from . import _compiled as C
 from ._jit import FINGERPRINT, clip, inline, kernel, matrix, maximum, minimum
-from .components import pumps as _pumps
 from .components import valve_4_3 as _valve
 from .components.cylinder import CI_ACT, CI_CAP, CI_ROD
 from .components.motor import MI_A, MI_ACT, MI_B
 from .components.parameters import table
-from .components.pumps import P_DISP, P_EFF
 from .components.valve_4_3 import V_OVERLAP
 from .layout import Layout, table_carver
 
@@ -481,7 +479,6 @@ def incompressible_law(pnet, T, spool, speed, state, effective_mass, dt, area, l
     ``spool``, pump speeds ``speed`` [rev/s], start ``state`` = (positions [m | rad], velocities) and effective
     masses (NaN or inf: unknown); ``area``: scratch (orifice branches)."""
     position, velocity = state
-    net = C._deref(pnet)
     const, slope = law
     lower, upper = bounds
     na = velocity.size
@@ -505,10 +502,7 @@ def incompressible_law(pnet, T, spool, speed, state, effective_mass, dt, area, l
         direction, a_in, drive, resist = _incompressible_metering(pnet, T, a, spool, area)
         if direction != 0:
             demand += free_speed(drive, resist) * a_in
-    supply = 0.0
-    pump = net.pump
-    for i in range(pump.shape[0]):
-        supply += _pumps.flow(pump[i, P_DISP], speed[i], pump[i, P_EFF])
+    supply = C._source_delivery(pnet, speed)
     scale = minimum(1.0, supply / demand) if demand > 0 else 1.0
     for a in range(na):
         direction, a_in, drive, resist = _incompressible_metering(pnet, T, a, spool, area)

@@ -89,10 +89,10 @@ def branch_powers(model: NetworkModel, state: NetworkState, flow: np.ndarray) ->
     power = flow * (mu[model.branch_from] - mu[model.branch_to])
     sl = model.branch_slices
     law = power[sl["law"]] if "law" in sl else power[:0]
-    source = np.array(law_sources(), bool)[model.law_kind] if len(law) else np.zeros(0, bool)  # pumps with a law
+    source = np.array(law_sources(), bool)[model.law_kind] if len(law) else np.zeros(0, bool)  # the pumps (SOURCE laws)
     dissipative = np.concatenate([power[sl["orifice"]], law[~source]])
     supplied = source_power(model, flow)
-    return {"pump": float(-np.sum(np.concatenate([power[sl["pump"]], law[source]]))) + supplied, "source": supplied,
+    return {"pump": float(-np.sum(law[source])) + supplied, "source": supplied,
             "motor": float(np.sum(power[sl["motor"]])), "dissipated": float(np.sum(dissipative)),
             "rigid": float(np.sum(power[sl["rigid"]]))}
 

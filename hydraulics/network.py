@@ -18,13 +18,13 @@ Nodes
 Branches
     Flow laws Q [m³/s at reference density] from a ``from`` to a ``to`` node, each
     with analytic derivatives with respect to the pressure of each of its terminals:
-    valve edges (orifices whose area the spool sets), pumps (sources), motors (flow set by
+    valve edges (orifices whose area the spool sets), motors (flow set by
     the shaft speed), rigid branches (the flow a rigid actuator's rod displaces, set by
     its speed and its valve's direction; see ``FIDELITIES``) and *law branches*: the
     components that bring their own law (:data:`hydraulics.components.BRANCH_LAWS`:
     laminar resistances of hose lines and actuator leaks, fixed orifices, relief and
-    check valves, counterbalance valves, …), which may read a third, pilot terminal
-    (``branch_pilot``).  The law branches are grouped by law, in the order of
+    check valves, counterbalance valves, pumps, …), which may read a third, pilot terminal
+    (``branch_pilot``) and scheduled inputs (a pump's shaft speed: ``pump_names``).  The law branches are grouped by law, in the order of
     ``BRANCH_LAWS``, each law's in circuit order (:meth:`NetworkModel.law_branches`).
 
 Actuators
@@ -41,7 +41,8 @@ from functools import cached_property
 import numpy as np
 
 from .circuit import Circuit
-from .components import BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, VALVE_KINDS, CircuitError, law_states
+from .components import (BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, VALVE_KINDS, CircuitError, PumpFixed, input_names,
+                         law_inputs, law_states)
 from .components.metering import characteristics as metering_characteristics
 from .components.hose import LaminarResistance, line_conductance
 from .numerics import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE  # noqa: F401 (documented here)
@@ -361,8 +362,8 @@ class NetworkModel:
     valve_names: tuple
     valve_time_constant: np.ndarray
     valve_overlap: np.ndarray
-    pump_names: tuple
-    pump_nominal_speed: np.ndarray
+    pump_names: tuple  # the law components' scheduled inputs (their INPUTS: pump shaft speeds), in circuit order
+    pump_nominal_speed: np.ndarray  # their values when nothing schedules them [rev/s]
     # branches, concatenated by kind; `branch_slices[kind]` gives each kind's range
     branch_names: tuple
     branch_from: np.ndarray
@@ -374,11 +375,6 @@ class NetworkModel:
     orifice_centre_area: np.ndarray
     orifice_valve: np.ndarray  # valve index or -1
     orifice_sign: np.ndarray  # +1 opens with s > 0, -1 with s < 0, 0 no metering
-    pump_index: np.ndarray  # per pump branch: index into pump_names
-    pump_displacement: np.ndarray
-    pump_efficiency: np.ndarray
-    pump_compensator: np.ndarray  # Pa, inf for fixed pumps
-    pump_band: np.ndarray
     motor_branch_actuator: np.ndarray
     fidelity: str = "compressible"
     pruned: tuple = ()  # names of the circuit components that were not built
@@ -404,6 +400,9 @@ class NetworkModel:
     # component states: the valves' spools, then the states of every stateful law component (its STATES, in
     # circuit order); the first state of each law branch in that vector (-1: a stateless law)
     law_state_offset: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    # scheduled inputs of the law components (their INPUTS: a pump's shaft speed), the entries of the control vector
+    # ``NetworkControl.pump_speed`` (names ``pump_names``): the first input of each law branch there (-1: none)
+    law_input_offset: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     # second-order spools: each valve's spool rate in that vector (after the law components' states; -1: a
     # first-order spool), natural frequency [rad/s] and damping ratio [-]
     valve_rate_offset: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
@@ -603,30 +602,35 @@ class NetworkModel:
         # law branches: from the component's first port to its second; a third port is a pilot terminal.  Their
         # states are numbered in circuit order; the branches are grouped by law (BRANCH_LAWS order).  First the
         # laminar resistances the network makes: actuator leaks (cylinders, then motors), hose lines.
-        law_entries = []  # (law index, branch name, from node, to node, pilot node or -1, parameters, first state or -1)
+        law_entries = []  # (law index, branch name, from node, to node, pilot node or -1, parameters, first state or -1,
+        #                  first scheduled input or -1)
         laminar = BRANCH_LAWS.index(LaminarResistance)
         for c in cyl + mot:
             a, b = (node(c, "cap"), node(c, "rod")) if c.kind == "cylinder" else (node(c, "a"), node(c, "b"))
             if c.params.leakage_conductance > 0 and keep(c, a, b):
                 law_entries.append((laminar, f"{c.name}.leakage", a, b, -1,
-                                    LaminarResistance(conductance=c.params.leakage_conductance), -1))
+                                    LaminarResistance(conductance=c.params.leakage_conductance), -1, -1))
         viscosity = circuit.fluid.density * circuit.fluid.kinematic_viscosity
         for c in circuit.by_kind("hose"):
             if c.name in line_set:
                 conductance = line_conductance(c.params.inner_diameter, c.params.length, viscosity)
                 law_entries.append((laminar, f"{c.name}.line", node(c, "a"), node(c, "b"), -1,
-                                    LaminarResistance(conductance=conductance), -1))
+                                    LaminarResistance(conductance=conductance), -1, -1))
         state_names = [v.name for v in valves]
         state_units = ["-"] * len(valves)
         state_start = [0.0] * len(valves)
+        input_list, input_start = [], []  # the law components' scheduled inputs (pump speeds), in circuit order
         for c in circuit.components:
             law_class = COMPONENT_TYPES[c.kind]
             if law_class not in BRANCH_LAWS or not keep(c, node(c, law_class.PORTS[0]), node(c, law_class.PORTS[1])):
                 continue
-            own = law_states(law_class)
+            own, driven = law_states(law_class), law_inputs(law_class)
             pilot = node(c, law_class.PORTS[2]) if len(law_class.PORTS) > 2 else -1
             law_entries.append((BRANCH_LAWS.index(law_class), c.name, node(c, law_class.PORTS[0]),
-                                node(c, law_class.PORTS[1]), pilot, c.params, len(state_names) if own else -1))
+                                node(c, law_class.PORTS[1]), pilot, c.params, len(state_names) if own else -1,
+                                len(input_list) if driven else -1))
+            input_list.extend(input_names(c.name, law_class) if driven else ())
+            input_start.extend(c.params.input_start() if driven else ())
             state_names.extend(f"{c.name}.{name}" for name in own)
             state_units.extend(law_class.STATE_UNITS if own else ())
             state_start.extend(c.params.state_start() if own else ())
@@ -635,24 +639,18 @@ class NetworkModel:
                                    f"{list(own)}, which the 'incompressible' level does not step; use 'compressible'")
         law_entries.sort(key=lambda entry: entry[0])
         start = len(branch_names)
-        law_pilot, law_kind, law_rows, law_state_offset = [], [], [], []
-        for kind, name, a, b, pilot, params, offset in law_entries:
+        law_pilot, law_kind, law_rows, law_state_offset, law_input_offset = [], [], [], [], []
+        for kind, name, a, b, pilot, params, offset, first_input in law_entries:
             add_branch(name, a, b)
             law_pilot.append(pilot)
             law_kind.append(kind)
             law_state_offset.append(offset)
+            law_input_offset.append(first_input)
             row = np.zeros(LAW_WIDTH)
             values = params.law_row(circuit.fluid)
             row[:len(values)] = values
             law_rows.append(row)
         slices["law"] = slice(start, len(branch_names))
-
-        start = len(branch_names)
-        pumps = circuit.by_kind("pump_fixed", "pump_compensated")
-        for c in pumps:
-            keep(c, node(c, "inlet"), node(c, "outlet"))
-            add_branch(c.name, node(c, "inlet"), node(c, "outlet"))
-        slices["pump"] = slice(start, len(branch_names))
 
         start = len(branch_names)
         flow_motors = [c for c in mot if keep(c, node(c, "a"), node(c, "b"))]  # a rigid motor's flow is a rigid branch
@@ -748,8 +746,8 @@ class NetworkModel:
             valve_names=tuple(c.name for c in valves),
             valve_time_constant=column(valves, "time_constant"),
             valve_overlap=column(valves, "overlap"),
-            pump_names=tuple(c.name for c in pumps),
-            pump_nominal_speed=column(pumps, "speed"),
+            pump_names=tuple(input_list),
+            pump_nominal_speed=np.array(input_start, float),
             branch_names=tuple(branch_names),
             branch_from=b_from,
             branch_to=b_to,
@@ -760,11 +758,6 @@ class NetworkModel:
             orifice_centre_area=f(o_centre, float),
             orifice_valve=f(o_valve, int),
             orifice_sign=f(o_sign, float),
-            pump_index=np.arange(len(pumps)),
-            pump_displacement=column(pumps, "displacement"),
-            pump_efficiency=column(pumps, "volumetric_efficiency", 1.0),
-            pump_compensator=column(pumps, "compensator_pressure", math.inf),
-            pump_band=column(pumps, "compensator_band", 1.0),
             motor_branch_actuator=f([act_names.index(c.name) for c in flow_motors], int),
             fidelity=network_fidelity,
             pruned=pruned,
@@ -784,6 +777,7 @@ class NetworkModel:
             law_kind=f(law_kind, int),
             law_table=np.array(law_rows, float).reshape(len(law_rows), LAW_WIDTH),
             law_state_offset=f(law_state_offset, int),
+            law_input_offset=f(law_input_offset, int),
             valve_rate_offset=f(valve_rate_offset, int),
             valve_omega=column(valves, "natural_frequency"),
             valve_zeta=column(valves, "damping_ratio"),
@@ -856,6 +850,55 @@ class NetworkModel:
         table = self.law_table[rows.start - law.start:rows.stop - law.start]
         cls = kind if isinstance(kind, type) else COMPONENT_TYPES[kind]
         return table[:, cls.LAW_COLUMNS.index(column)].copy()
+
+    @property
+    def pump_branches(self) -> np.ndarray:
+        """The branch each entry of :attr:`pump_names` drives (int array): the branch of each law component with
+        scheduled inputs, once per input."""
+        law = self.branch_slices["law"]
+        out = np.zeros(len(self.pump_names), int)
+        for i in np.flatnonzero(self.law_input_offset >= 0):
+            first = self.law_input_offset[i]
+            out[first:first + len(law_inputs(BRANCH_LAWS[self.law_kind[i]]))] = law.start + i
+        return out
+
+    def _fixed_and_compensated(self) -> slice:
+        """The branches of the fixed-displacement and compensated pumps (adjacent: the last laws)."""
+        fixed, compensated = self.law_branches("pump_fixed"), self.law_branches("pump_compensated")
+        return slice(fixed.start, compensated.stop)
+
+    def _pump_column(self, column: str) -> np.ndarray:
+        rows = self._fixed_and_compensated()
+        law = self.branch_slices["law"]
+        return self.law_table[rows.start - law.start:rows.stop - law.start, PumpFixed.LAW_COLUMNS.index(column)].copy()
+
+    @property
+    def pump_index(self) -> np.ndarray:
+        """Per fixed-displacement or compensated pump (branches in network order): its index into
+        :attr:`pump_names`."""
+        law = self.branch_slices["law"]
+        rows = self._fixed_and_compensated()
+        return self.law_input_offset[rows.start - law.start:rows.stop - law.start].copy()
+
+    @property
+    def pump_displacement(self) -> np.ndarray:
+        """(Maximum) displacement [m³/rev] of each pump of :attr:`pump_index`."""
+        return self._pump_column("displacement")
+
+    @property
+    def pump_efficiency(self) -> np.ndarray:
+        """Volumetric efficiency η_v [-] of each pump of :attr:`pump_index` (1 for a compensated pump)."""
+        return self._pump_column("efficiency")
+
+    @property
+    def pump_compensator(self) -> np.ndarray:
+        """Compensator setting [Pa, absolute] of each pump of :attr:`pump_index` (inf for a fixed pump)."""
+        return self._pump_column("compensator")
+
+    @property
+    def pump_band(self) -> np.ndarray:
+        """Compensator band [Pa] of each pump of :attr:`pump_index`."""
+        return self._pump_column("band")
 
     @property
     def relief_branches(self) -> slice:
@@ -1043,10 +1086,9 @@ class NetworkModel:
         return self._rigid(spool)[2]
 
     def law_pieces(self, pressure, state=None, h=0.0) -> np.ndarray:
-        """Which piece of its piecewise law every switching branch is on at ``pressure`` [Pa] (int array: the
-        pump compensators, see :func:`hydraulics.components.ramps.ramp_piece`; then every law branch (relief
-        ramps, check-valve openings, …), by its component's ``LAW_PIECE`` over a step of ``h`` [s] from the
-        component states ``state``, default :attr:`component_state_start`; 0 for a law without kinks).
+        """Which piece of its piecewise law every law branch is on at ``pressure`` [Pa] (int array: relief ramps,
+        check-valve openings, pump compensators, …), by its component's ``LAW_PIECE`` over a step of ``h`` [s] from
+        the component states ``state``, default :attr:`component_state_start`; 0 for a law without kinks).
 
         A step whose start and end differ here crosses a kink of the flow laws (a relief cracking, a check
         valve opening fully, a compensator engaging, a poppet reaching its seat): one Jacobian of the start does

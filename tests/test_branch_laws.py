@@ -23,7 +23,7 @@ import pytest
 from conftest import ROOT
 from hydraulics.circuit import parse_circuit
 from hydraulics.components import (BRANCH_LAWS, COMPONENT_TYPES, CheckValve, LaminarResistance, Orifice, PilotCheckValve,
-                                   ReliefValve, ThrottleCheckValve)
+                                   PumpCompensated, PumpFixed, ReliefValve, ThrottleCheckValve)
 from hydraulics.components.pilot_check import flow_with_derivatives as pilot_check_law
 from hydraulics.components.throttle_check import flow_with_derivatives as throttle_check_law
 from hydraulics.fluid import Fluid
@@ -100,9 +100,16 @@ def test_throttle_check_is_a_two_port_law_with_hand_values_and_derivatives():
 # incompressible level read NetworkModel.relief_cracking and relief_gradient, which network.py derives from the law
 # rows; the scene check compares holding pressures with them); the throttle-check valve is a check valve whose
 # closed area is the throttle (it calls the check valve's law).
+# The pumps: their shaft speed is the vocabulary of the scheduled inputs (its range in the scenario, controllers, live
+# play and the generated docs; the pump kinds in the scenario), the network reads their parameters
+# (``NetworkModel.pump_displacement`` …) and the motors' torque is the pump module's ideal machine torque.
+_PUMP_USERS = {"hydraulics/network.py", "hydraulics/_compiled.py", "sim/io/scenario.py"}
 ALSO_NAMED_BY = {LaminarResistance: {"hydraulics/network.py"},
                  ReliefValve: {"hydraulics/network.py", "sim/tools/check.py"},
-                 CheckValve: {"hydraulics/components/throttle_check.py"}}
+                 CheckValve: {"hydraulics/components/throttle_check.py"},
+                 PumpFixed: _PUMP_USERS | {"hydraulics/circuit.py", "sim/plants/controllers.py", "sim/tools/docgen.py",
+                                           "sim/run/play.py"},
+                 PumpCompensated: _PUMP_USERS}
 # Law components whose module and type name are shared vocabulary: the orifice module is the law of every metering
 # edge and poppet, and "orifice" is also the branch kind of the valves' metering edges; only the class is checked.
 CLASS_ONLY = (Orifice,)

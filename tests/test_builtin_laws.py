@@ -1,10 +1,13 @@
-"""The network's built-in branch kinds as law components: relief valves, check valves, fixed orifices and the laminar
-resistances of hose lines and actuator leaks each have their law once, in their module, and reach the network only
-through the law dispatch (:data:`hydraulics.components.BRANCH_LAWS`).
+"""The network's built-in branch kinds as law components: relief valves, check valves, fixed orifices, the laminar
+resistances of hose lines and actuator leaks and the fixed and compensated pumps each have their law once, in their
+module, and reach the network only through the law dispatch (:data:`hydraulics.components.BRANCH_LAWS`).
 
 * Each law against the textbook formulas (``tests/reference/laws.py``: the relief's C¹ ramp, the check valve's
   linear opening through the orifice law in its textbook form, Hagen–Poiseuille) to 1e-12 relative, its terminal
   derivatives against central differences, no pilot derivative.
+* The pumps' law (its shaft speed a scheduled input) against η_v·D·n and the compensator's linear destroking, to
+  1e-12 relative; ∂Q/∂p_out against central differences; the kink hook's pieces; in a network, the pump's speed
+  comes from the control vector by the pump's name and its power is pump work (``SOURCE``), not dissipation.
 * In a network: the branch flows of a small rig (supply → check → volume → relief, fixed orifice and a π-line hose
   to tank) equal those formulas at any pressures; the relief's law piece switches where it cracks; the relief's
   settings are readable from the model (``relief_branches``, ``relief_cracking``, ``relief_gradient``).
@@ -19,12 +22,13 @@ import numpy as np
 import pytest
 
 from hydraulics.circuit import parse_circuit
-from hydraulics.components import CheckValve, LaminarResistance, Orifice, ReliefValve
+from hydraulics.components import CheckValve, LaminarResistance, Orifice, PumpCompensated, PumpFixed, ReliefValve
+from hydraulics.components.pumps import law_piece as pump_piece
 from hydraulics.components.relief import REGULARISATION
 from hydraulics.fluid import Fluid
 from hydraulics.network import NetworkModel
 from reference import laws
-from reference.circuits import bench
+from reference.circuits import bench, orifice, pump_into_volume
 
 FLUID = Fluid(density=870.0, kinematic_viscosity=4.6e-5, reference_pressure=1.01325e5)
 RELIEF = ReliefValve(cracking_pressure=5e6, gradient=1e-10)
@@ -135,7 +139,7 @@ def test_relief_piece_switches_where_it_cracks(rig):
     """law_pieces of the relief branch: 0 below p_crack, 1 inside the blend width, 2 above it."""
     m = rig
     law = m.branch_slices["law"]
-    j = m.relief_branches.start - law.start + (len(m.branch_names[m.branch_slices["pump"]]))
+    j = m.relief_branches.start - law.start
     pieces = []
     for dp in (4.99e6, 5e6 + 0.5 * REGULARISATION * 5e6, 5.01e6):
         p = np.full(m.node_count, FLUID.reference_pressure)
@@ -143,3 +147,52 @@ def test_relief_piece_switches_where_it_cracks(rig):
         pieces.append(int(m.law_pieces(p)[j]))
     assert pieces == [0, 1, 2]
     assert math.isclose(m.law_parameter("relief_valve", "width")[0], REGULARISATION * 5e6)
+
+
+FIXED = PumpFixed(displacement=1.2e-5, speed=40.0, volumetric_efficiency=0.95)
+COMPENSATED = PumpCompensated(displacement=2e-5, speed=30.0, compensator_pressure=2e7, compensator_band=1e6)
+
+
+@pytest.mark.parametrize("pump", [FIXED, COMPENSATED], ids=["fixed", "compensated"])
+def test_pump_law_is_the_displacement_times_the_scheduled_speed(pump):
+    """Q = η_v·D(p_out)·n with D(p_out) = D_max·clip((p_c + w − p_out)/w, 0, 1) (a fixed pump: p_c = inf, η_v its
+    own) at the speed n passed as the law's input, to 1e-12 relative; only ∂Q/∂p_out is nonzero (central difference,
+    1 Pa, inside each smooth piece); the kink hook numbers the pieces full (2), destroking (1), destroked (0)."""
+    row, law = pump.law_row(FLUID), type(pump).BRANCH_LAW
+    efficiency = getattr(pump, "volumetric_efficiency", 1.0)
+    setting, band = getattr(pump, "compensator_pressure", math.inf), getattr(pump, "compensator_band", 1.0)
+    base = FLUID.reference_pressure
+    outlets = (base + 1e7, setting + 0.3 * band, setting + 2 * band) if math.isfinite(setting) else (base + 1e7, 3e7, 1e8)
+    for speed in (pump.speed, 0.5 * pump.speed):
+        inputs = np.array([speed])
+        for p_out in outlets:
+            displacement = laws.compensated_displacement_with_derivative(pump.displacement, p_out, setting, band)[0]
+            q, d_in, d_out, d_pilot = law(row, base, p_out, 0.0, inputs)
+            assert q == pytest.approx(float(laws.pump_flow(displacement, speed, efficiency)), rel=1e-12, abs=1e-24)
+            assert d_in == 0.0 and d_pilot == 0.0
+            numeric = (law(row, base, p_out + 1.0, 0.0, inputs)[0] - law(row, base, p_out - 1.0, 0.0, inputs)[0]) / 2
+            assert d_out == pytest.approx(numeric, rel=1e-6, abs=1e-20)
+    pieces = [pump_piece(row, row[:0], 0.0, base, p_out, 0.0) for p_out in outlets]
+    assert pieces == ([2, 1, 0] if math.isfinite(setting) else [2, 2, 2])
+
+
+def test_pump_in_a_network_reads_its_speed_by_name_and_is_a_source():
+    """A fixed pump feeding a volume that an orifice drains to tank: its branch flow is D·n at the speed set by the
+    pump's name (``control(pump=…)``), and the energy ledger books its power as pump work, the orifice's as loss."""
+    from hydraulics.energy import branch_powers
+    text = bench() + pump_into_volume(1.2e-5, 40.0, 1e-4) + orifice("orifice", "supply", "tank", 1e-6)
+    m = NetworkModel.from_circuit(parse_circuit(tomllib.loads(text), "rig"))
+    assert m.pump_names == ("pump",) and m.branch_names[m.pump_branches[0]] == "pump"
+    pressure = np.full(m.node_count, FLUID.reference_pressure)
+    pressure[m.node("supply")] += 5e6
+    state = m.state(node_pressure=pressure)
+    control = m.control(pump=25.0)
+    flows = m.branch_flows(state.node_pressure, m.valve_areas(state.valve_spool), control.pump_speed,
+                           state.actuator_velocity)
+    q, drain = flows.flow[m.pump_branches[0]], flows.flow[m.branch_names.index("orifice")]
+    assert q == pytest.approx(1.2e-5 * 25.0, rel=1e-12)
+    powers = branch_powers(m, state, flows.flow)
+    mu = m.fluid.pressure_potential(state.node_pressure)
+    rise = mu[m.node("supply")] - mu[m.node("tank")]
+    assert powers["pump"] == pytest.approx(q * rise, rel=1e-12)
+    assert powers["dissipated"] == pytest.approx(drain * rise, rel=1e-12)

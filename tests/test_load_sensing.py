@@ -10,6 +10,8 @@
   while lifting (from 0.4 s after the spool opened; the load pressure still swings between 40 and 85 bar as the
   boom bounces on its oil column), the supply stands the margin above the LS line within 10 % and the metering
   edge's drop stays inside the compensator's band; the pump's work enters the energy ledger as pump work and the balance closes.
+* The pump's shaft speed as a scheduled input (tests/scenes/ls_lift_speed.scenario.toml, halved while lifting), both
+  modes: the flow is η_v·D·n·α at the scheduled n and the swash plate doubles to hold the margin.
 * The load-sensing excavator (models/excavator/dig_ls.scenario.toml), both modes: the whole dig completes with the
   margin regulated (median at the setting, 85 % of the regulating samples within 10 %).
 """
@@ -60,9 +62,9 @@ POINTS = [(0.4, P0 + 1.19e7, P0 + 1e7), (0.4, P0 + 1.21e7, P0 + 1e7), (0.4, P0 +
 @pytest.mark.parametrize("point", POINTS)
 def test_pump_law_equals_hand_value_and_its_derivatives(point, pump):
     alpha, p_out, p_ls = point
-    row, h = pump.law_row(FLUID), 1e-3
+    row, h, speed = pump.law_row(FLUID), 1e-3, np.array(pump.input_start())
     state = np.array([alpha, alpha])
-    q, d_in, d_out, d_ls = pump_law(row, state, h, P0, p_out, p_ls)
+    q, d_in, d_out, d_ls = pump_law(row, state, h, P0, p_out, p_ls, speed)
     rate = pump.displacement * pump.speed
     expected = rate * swash_by_hand(pump, state, h, P0, p_out, p_ls)[0] - pump.leakage * (p_out - P0)
     assert q == pytest.approx(expected, rel=1e-14)
@@ -70,7 +72,7 @@ def test_pump_law_equals_hand_value_and_its_derivatives(point, pump):
         up, down = [P0, p_out, p_ls], [P0, p_out, p_ls]
         up[k] += 1.0
         down[k] -= 1.0
-        numeric = (pump_law(row, state, h, *up)[0] - pump_law(row, state, h, *down)[0]) / 2
+        numeric = (pump_law(row, state, h, *up, speed)[0] - pump_law(row, state, h, *down, speed)[0]) / 2
         assert d == pytest.approx(numeric, rel=1e-6, abs=1e-18)
     end = np.empty(2)
     step_end(row, state, h, P0, p_out, p_ls, end)
@@ -92,7 +94,7 @@ def test_leaking_pump_holds_the_margin_and_rings_down_as_designed():
     pump = PumpLoadSensing(displacement=2.14e-4, speed=100 / 3, margin=2e6, cutoff_pressure=3.3e7,
                            regulator_band=1e6, stroke_time=0.08, proportional_gain=1e-8, leakage=1.4e-11)
     volume, beta, h, p_ls = 2.5e-3, 1.5e9, 4e-6, P0 + 1e7
-    row, rate = pump.law_row(FLUID), pump.displacement * pump.speed
+    row, rate, speed = pump.law_row(FLUID), pump.displacement * pump.speed, np.array(pump.input_start())
     setting = p_ls + pump.margin
     alpha = pump.leakage * (setting - P0) / rate  # the swash plate covering the leakage
     state, end = np.array([alpha, alpha]), np.empty(2)
@@ -100,7 +102,7 @@ def test_leaking_pump_holds_the_margin_and_rings_down_as_designed():
     for _ in range(50000):  # 0.2 s, backward Euler on p with Newton on the law's own derivative
         p_new = p
         for _ in range(20):
-            q, _, d_out, _ = pump_law(row, state, h, P0, p_new, p_ls)
+            q, _, d_out, _ = pump_law(row, state, h, P0, p_new, p_ls, speed)
             change = ((p_new - p) * volume / beta - h * q) / (volume / beta - h * d_out)
             p_new -= change
             if abs(change) < 1e-7:
@@ -236,3 +238,47 @@ def test_load_sensing_excavator_modes_agree_within_the_dig_targets(ls_digs, tmp_
         assert stats.max_abs < 0.02 * circuit.component(name.removeprefix("stroke ")).params.stroke, name
     for name, stats in pressures.items():
         assert stats.max_abs < 0.05 * relief, name
+
+
+@pytest.fixture(scope="module")
+def speed_lifts(tmp_path_factory):
+    """tests/scenes/ls_lift_speed.scenario.toml (the pump's shaft speed scheduled by its name) in both modes."""
+    tmp = tmp_path_factory.mktemp("ls_speed")
+    out = {}
+    for mode in ("mujoco", "pbd"):
+        result = run(SCENES / "ls_lift_speed.scenario.toml", out=tmp / f"{mode}.mcap", overrides={"mode": mode})
+        assert result.status == "complete", result.message
+        out[mode] = read_log(result.log_path)
+    return out
+
+
+@pytest.mark.parametrize("mode", ["mujoco", "pbd"])
+def test_scheduled_speed_reaches_the_load_sensing_law(speed_lifts, mode):
+    """The shaft speed n is a scheduled input of the load-sensing pump (halved from 40 to 20 rev/s at 0.7–0.75 s
+    while the boom lifts): the logged speed is the schedule's value within each step (held over the step, or over
+    the last XPBD substep in PBD mode);
+    the delivered flow is η_v·D·n·α (no leakage in this circuit) at every sample, with α the logged swash plate, to
+    1e-7 relative (the step's flows and its end states agree to the Newton solve's tolerance, not to round-off);
+    the regulator makes up for the halved speed — from 0.25 s after the change the supply holds the margin above
+    the LS line within 10 % with the swash plate short of full stroke, at twice its displacement before the change
+    within 10 % (the compensated section asks for the same flow), and the boom keeps rising."""
+    pump = load_circuit(SCENES / "ls_boom.circuit.toml").component("pump").params
+    log = speed_lifts[mode]
+    pumps = log.topic("/hydroplant/pumps/pump")
+    states = log.topic("/hydroplant/component_states")
+    nodes = log.topic("/hydroplant/nodes")
+    t = pumps.t
+    assert np.array_equal(t, states.t) and np.array_equal(t, nodes.t)
+    dt = 1e-3  # the scenario's step [s]
+    start, end = (np.interp(t - delay, [0.0, 0.7, 0.75], [40.0, 40.0, 20.0]) for delay in (dt, 0.0))
+    assert np.all((pumps["speed_rps"] <= start + 1e-9) & (pumps["speed_rps"] >= end - 1e-9))
+    alpha = states["state.pump_displacement_fraction"]
+    expected = pump.volumetric_efficiency * pump.displacement * pumps["speed_rps"] * alpha
+    assert np.allclose(pumps["flow_m3ps"], expected, rtol=1e-7, atol=1e-12 * np.max(expected))
+    before, after = (t >= 0.55) & (t <= 0.7), (t >= 1.0) & (t <= 1.4)
+    assert alpha[after].max() < 0.98
+    held = nodes["pressure_pa.supply"] - nodes["pressure_pa.ls"]
+    assert np.all(np.abs(held[after] - pump.margin) < 0.1 * pump.margin)
+    assert np.mean(alpha[after]) / np.mean(alpha[before]) == pytest.approx(2.0, rel=0.1)
+    velocity = log.topic("/hydroplant/cylinders/boom_cyl")["velocity_mps"]
+    assert velocity[after].min() > 0.01

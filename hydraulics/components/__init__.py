@@ -44,8 +44,6 @@ from .volume import Volume
 
 COMPONENT_TYPES = {
     "tank": Tank,
-    "pump_fixed": PumpFixed,
-    "pump_compensated": PumpCompensated,
     "orifice": Orifice,
     "valve_4_3": Valve43,
     "relief_valve": ReliefValve,
@@ -66,8 +64,11 @@ COMPONENT_TYPES = {
     "pressure_compensator": PressureCompensator,
     "post_compensator": PostCompensator,
     "variable_orifice": VariableOrifice,
+    "pump_fixed": PumpFixed,
+    "pump_compensated": PumpCompensated,
 }
-"""Circuit-file ``type`` name → parameter class."""
+"""Circuit-file ``type`` name → parameter class (the law components' branches follow this order in the network:
+the fixed-displacement and compensated pumps last, after every other law)."""
 VALVE_KINDS = tuple(kind for kind, cls in COMPONENT_TYPES.items() if hasattr(cls, "METERING_EDGES"))
 """The types whose passages a commanded spool meters (``METERING_EDGES``, ``edges(ports)``, ``COMMAND_RANGE``):
 the network's valves, commanded by name (:attr:`hydraulics.network.NetworkModel.valve_names`)."""
@@ -103,6 +104,19 @@ its law: a step whose start and end pressures are on different pieces is not acc
 A law component that delivers power (a pump) sets ``SOURCE = True``: its flow's power enters the energy ledger
 as pump work instead of dissipation.
 
+A law driven by scheduled inputs (a pump's shaft speed) declares
+
+* ``INPUTS``: their names, ``INPUT_UNITS`` their units and ``input_start()`` their values when nothing schedules
+  them (e.g. the ``speed`` field);
+* ``BRANCH_LAW`` then takes the inputs' values as one more, last argument ``inputs`` (an array, in the order of
+  ``INPUTS``): ``law(row, p_from, p_to, p_pilot, inputs)``, or ``law(row, state, h, p_from, p_to, p_pilot, inputs)``
+  with states.  The values are those held over the step.  ``STATE_END`` and ``LAW_PIECE`` take no inputs: a law's
+  own states and its pieces may not depend on them (a pump's regulator reads pressures, not the shaft speed).
+
+The network schedules them by the component's name (by ``component.input`` for a component with several inputs):
+they are entries of the network's control vector of pump speeds (:attr:`hydraulics.network.NetworkModel.pump_names`,
+``NetworkControl.pump_speed``), which scenarios, controllers and logs address by name.
+
 The network numbers the states of all components in one vector (the valves' spools first, then each stateful
 component's states in circuit order: :attr:`hydraulics.network.NetworkModel.component_state_names`); the kernels, the
 packing and the logs follow from these declarations, so adding such a component takes its module and one line
@@ -119,6 +133,18 @@ def law_sources() -> tuple:
 def law_states(cls) -> tuple:
     """Names of the states of a component class (empty for a stateless one)."""
     return tuple(getattr(cls, "STATES", ()))
+
+
+def law_inputs(cls) -> tuple:
+    """Names of the scheduled inputs of a component class (empty for a law without inputs)."""
+    return tuple(getattr(cls, "INPUTS", ()))
+
+
+def input_names(name: str, cls) -> tuple:
+    """The names a scenario schedules the inputs of component ``name`` of class ``cls`` by: the component's name
+    for its one input, ``name.input`` for each of several."""
+    own = law_inputs(cls)
+    return (name,) if len(own) == 1 else tuple(f"{name}.{i}" for i in own)
 
 
 def build_component(kind: str, table: dict, where: str):
@@ -159,7 +185,7 @@ def build_component(kind: str, table: dict, where: str):
     return component
 
 
-__all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "VALVE_KINDS", "CircuitError", "build_component", "law_sources", "law_states", "check_number", "describe_range", "param",
+__all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "VALVE_KINDS", "CircuitError", "build_component", "input_names", "law_inputs", "law_sources", "law_states", "check_number", "describe_range", "param",
            "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "LaminarResistance",
            "Motor", "Orifice", "PilotCheckValve", "PostCompensator", "PressureCompensator", "PressureReducingValve",
            "PumpCompensated", "PumpLoadSensing", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",

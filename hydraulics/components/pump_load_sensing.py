@@ -10,8 +10,9 @@ time, plus an optional proportional part (the regulator spool's direct action on
     α = clip(I + k_p·e, 0, 1),
 
 with the band w over which the regulator opens fully, τ the swash plate's full-stroke time and k_p [1/Pa] the
-proportional gain (0: a pure integrator, α = I).  Flow from ``inlet`` to ``outlet`` at the shaft speed n, less a
-laminar leakage (case drain and slippage, returned to the inlet side) of coefficient C_L:
+proportional gain (0: a pure integrator, α = I).  Flow from ``inlet`` to ``outlet`` at the shaft speed n (the
+component's scheduled input ``speed`` [rev/s], by default its field ``speed``), less a laminar leakage (case drain
+and slippage, returned to the inlet side) of coefficient C_L:
 
     Q = η_v·D·n·α − C_L·(p_out − p_in).
 
@@ -38,8 +39,9 @@ States: ``displacement_fraction`` α [-] (the swash plate) and ``regulator_integ
 Ports: ``inlet``, ``outlet``, ``ls`` (the LS line, read only).  The pump's net work Q·(μ_out − μ_in) enters the
 energy ledger as pump work (:attr:`SOURCE`); the leakage's loss is therefore inside the pump.
 
-Limitations: the shaft speed is a parameter (not a scheduled input); no torque limiter; the regulator spool has no
-dynamics of its own (its lag is the swash actuator's τ).
+Limitations: no torque limiter; the regulator spool has no dynamics of its own (its lag is the swash actuator's τ).
+The regulator does not see the shaft speed (it compares pressures): a change of speed changes the flow at once,
+the displacement only through the pressures it moves.
 
 References: H. Exner et al., *Hydraulics: Basic Principles and Components*, Bosch Rexroth 2011 (load-sensing
 variable pumps: margin, standby, pressure cut-off); Hopsan component library, *HydraulicPumpLoadSensing*.
@@ -53,6 +55,10 @@ Example
 >>> step_end(row, state, 0.01, ambient, ambient + 1.1e7, ambient + 1e7, state)  # 10 bar short of the margin
 >>> float(state[0]) > 0.5
 True
+>>> speed = np.array(pump.input_start())  # [rev/s]: what a scenario schedules by the component's name
+>>> q = flow_with_derivatives(row, state, 0.0, ambient, ambient + 1.1e7, ambient + 1e7, speed)[0]
+>>> round(q / (2e-5 * 30.0 * float(state[0])), 12)  # Q = η_v·D·n·α
+1.0
 """
 
 from __future__ import annotations
@@ -65,7 +71,7 @@ from .._jit import kernel
 from .parameters import param, table
 
 COLUMNS = ("rate", "margin", "cutoff", "band", "tau", "gain", "leak")
-"""Row of one pump: η_v·D·n [m³/s at full displacement], margin Δp_LS [Pa], cut-off (gauge) [Pa], regulator band w
+"""Row of one pump: η_v·D [m³/rev at full displacement], margin Δp_LS [Pa], cut-off (gauge) [Pa], regulator band w
 [Pa], full-stroke time τ [s], proportional gain k_p [1/Pa], leakage coefficient C_L [m³/(s·Pa)]."""
 RATE, MARGIN, CUTOFF, BAND, TAU, GAIN, LEAK = range(len(COLUMNS))
 
@@ -117,11 +123,11 @@ def law_piece(row, state, h, p_in, p_out, p_ls):
 
 
 @kernel
-def flow_with_derivatives(row, state, h, p_in, p_out, p_ls):
-    """Flow Q [m³/s] from inlet to outlet at the end of a step of ``h`` [s] from the states ``state`` = (α, I) and
-    ∂Q/∂p_in, ∂Q/∂p_out, ∂Q/∂p_LS [m³/(s·Pa)] at the end pressures [Pa]."""
+def flow_with_derivatives(row, state, h, p_in, p_out, p_ls, inputs):
+    """Flow Q [m³/s] from inlet to outlet at the end of a step of ``h`` [s] from the states ``state`` = (α, I) at
+    the shaft speed ``inputs[0]`` [rev/s] and ∂Q/∂p_in, ∂Q/∂p_out, ∂Q/∂p_LS [m³/(s·Pa)] at the end pressures [Pa]."""
     alpha, _, d_in, d_out, d_ls = swash_step(row, state, h, p_in, p_out, p_ls)
-    rate, leak = row[RATE], row[LEAK]
+    rate, leak = row[RATE] * inputs[0], row[LEAK]
     return rate * alpha - leak * (p_out - p_in), rate * d_in + leak, rate * d_out - leak, rate * d_ls
 
 
@@ -140,7 +146,7 @@ class PumpLoadSensing:
     displacement: float = param("m^3/rev", low=0.0, high=0.05)
     """Displacement at full swash D [m³/rev]."""
     speed: float = param("rev/s", low=0.0, high=1000.0)
-    """Shaft speed n [rev/s] (held)."""
+    """Shaft speed n [rev/s] when no scenario schedules it (the input ``speed``)."""
     volumetric_efficiency: float = param("-", low=0.0, high=1.0, default=1.0)
     """η_v [-]."""
     margin: float = param("Pa", low=0.0, high=1e8, default=2e6)
@@ -160,6 +166,8 @@ class PumpLoadSensing:
     LAW_COLUMNS = COLUMNS
     STATES = ("displacement_fraction", "regulator_integral")
     STATE_UNITS = ("-", "-")
+    INPUTS = ("speed",)
+    INPUT_UNITS = ("rev/s",)
     BRANCH_LAW = flow_with_derivatives
     STATE_END = step_end
     LAW_PIECE = law_piece
@@ -170,8 +178,12 @@ class PumpLoadSensing:
         """At rest: swash plate and regulator integral at zero."""
         return (0.0, 0.0)
 
+    def input_start(self) -> tuple:
+        """The shaft speed [rev/s] when no scenario schedules it: the field ``speed``."""
+        return (self.speed,)
+
     def law_row(self, fluid) -> np.ndarray:
         """This pump's row of :data:`COLUMNS` (``fluid`` unused: the law is volumetric)."""
-        return table(COLUMNS, 1, rate=self.volumetric_efficiency * self.displacement * self.speed, margin=self.margin,
+        return table(COLUMNS, 1, rate=self.volumetric_efficiency * self.displacement, margin=self.margin,
                      cutoff=self.cutoff_pressure, band=self.regulator_band, tau=self.stroke_time,
                      gain=self.proportional_gain, leak=self.leakage)[0]

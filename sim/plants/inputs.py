@@ -19,7 +19,8 @@ from sim.io.scenario import Schedule
 def input_plan(network, control, inputs):
     """Per scenario input (``inputs``: name → schedule): (is_valve, index, schedule) for :func:`sample_inputs`.
 
-    A name that is neither a valve nor a pump of ``network`` raises the usual
+    A pump is any law component with a scheduled input (``network.pump_names``: the fixed, compensated and
+    load-sensing pumps' shaft speeds).  A name that is neither a valve nor a pump of ``network`` raises the usual
     :class:`KeyError` of ``network.set_control`` (on ``control``).
     """
     plan = []
@@ -34,7 +35,7 @@ def input_plan(network, control, inputs):
 
 
 def sample_inputs(plan, times, cmd, speed):
-    """Rows of ``cmd`` (valve commands [-]) and ``speed`` (pump speeds [rad/s]) at ``times`` [s], one row per time:
+    """Rows of ``cmd`` (valve commands [-]) and ``speed`` (pump speeds [rev/s]) at ``times`` [s], one row per time:
     piecewise-linear schedules vectorised, schedules with a ``sample(times)`` method (the operator commands of
     :mod:`sim.run.commands`) asked once, other callables called per time, constants broadcast.  Columns of inputs
     without a schedule are left as they are."""

@@ -168,7 +168,7 @@ class RunRecorder:
         self.plant = plant
         net = plant.network
         si = {"units": "SI"}
-        self.pump_branches = np.arange(net.branch_slices["pump"].start, net.branch_slices["pump"].stop)
+        self.pump_branches = net.pump_branches
         node_fields = _named_fields("pressure_pa", net.node_names, "Absolute pressure of node {} [Pa]")
         flow_fields = _named_fields("flow_m3ps", net.branch_names, "Flow of branch {}, positive from its first port [m^3/s]")
         own = len(net.valve_names)  # the component states after the valves' spools: the stateful components' own

@@ -19,7 +19,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from hydraulics.components import BRANCH_LAWS, CheckValve, LaminarResistance, Orifice, ReliefValve, law_states
+from hydraulics.components import (BRANCH_LAWS, CheckValve, LaminarResistance, Orifice, PumpCompensated, PumpFixed,
+                                   ReliefValve, law_inputs, law_states)
 from hydraulics.components.relief import REGULARISATION as RELIEF_REGULARISATION
 from hydraulics.network import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE, BranchFlows
 
@@ -247,9 +248,9 @@ def law_pieces(model, pressure) -> np.ndarray:
                              RELIEF_REGULARISATION * model.relief_cracking)
     check = _check_parameters(model)
     check = laws.clip_piece((dp[model.law_branches("check_valve")] - check["cracking"]) / (check["full_open"] - check["cracking"]))
-    own = {ReliefValve: iter(relief), CheckValve: iter(check)}
-    outlet = pressure[model.branch_to[sl["pump"]]]
-    pump = laws.clip_piece((model.pump_compensator + model.pump_band - outlet) / model.pump_band)
+    outlet = pressure[model.branch_to[_pump_branches(model)]]
+    pumps = iter(laws.clip_piece((model.pump_compensator + model.pump_band - outlet) / model.pump_band))
+    own = {ReliefValve: iter(relief), CheckValve: iter(check), PumpFixed: pumps, PumpCompensated: pumps}
     law = []  # the law branches: the component's own kink hook at its states at rest over a zero step, 0 without one
     for i, b in enumerate(range(*sl["law"].indices(len(model.branch_names))) if "law" in sl else ()):
         cls = BRANCH_LAWS[model.law_kind[i]]
@@ -262,7 +263,12 @@ def law_pieces(model, pressure) -> np.ndarray:
         pilot = model.branch_pilot[b]
         law.append(0 if piece is None else piece(model.law_table[i], start, 0.0, pressure[model.branch_from[b]],
                                                   pressure[model.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0))
-    return np.concatenate([pump, np.array(law, int)]).astype(int)
+    return np.array(law, int)
+
+
+def _pump_branches(model) -> slice:
+    """The branches of the fixed-displacement and compensated pumps (the last two laws, adjacent)."""
+    return slice(model.law_branches("pump_fixed").start, model.law_branches("pump_compensated").stop)
 
 
 def _check_parameters(model) -> dict:
@@ -312,13 +318,14 @@ def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -
     g = g + laws.orifice_flow_area_derivative(area, check["cd"], dp[s], fluid.density, fluid.kinematic_viscosity) * darea
     flow[s], dfrom[s], dto[s] = q, g, -g
 
-    s = sl["pump"]
+    s = _pump_branches(model)
     outlet = pressure[model.branch_to[s]]
     displacement, ddisp = laws.compensated_displacement_with_derivative(
         model.pump_displacement, outlet, model.pump_compensator, model.pump_band
     )
-    flow[s] = laws.pump_flow(displacement, pump_speed, model.pump_efficiency)
-    dto[s] = laws.pump_flow(ddisp, pump_speed, model.pump_efficiency)
+    speed = pump_speed[model.pump_index]
+    flow[s] = laws.pump_flow(displacement, speed, model.pump_efficiency)
+    dto[s] = laws.pump_flow(ddisp, speed, model.pump_efficiency)
 
     s = sl["motor"]
     flow[s] = laws.motor_flow(model.motor_displacement[flow_motor(model)], actuator_velocity[model.motor_branch_actuator])
@@ -334,15 +341,18 @@ def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -
     for i, b in enumerate(range(s.start, s.stop)):  # the compiled law of each other component, called from Python
         pilot = model.branch_pilot[b]
         cls = BRANCH_LAWS[model.law_kind[i]]
-        if cls in (LaminarResistance, Orifice, ReliefValve, CheckValve):  # above, by the formulas of reference.laws
+        if cls in (LaminarResistance, Orifice, ReliefValve, CheckValve, PumpFixed, PumpCompensated):  # above, by the
+            # formulas of reference.laws
             continue
         ports = (pressure[model.branch_from[b]], pressure[model.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0)
+        first = model.law_input_offset[i]  # its scheduled inputs, read from the pump-speed vector
+        inputs = (pump_speed[first:first + len(law_inputs(cls))].copy(),) if law_inputs(cls) else ()
         if law_states(cls):  # at the component's states at rest, over a step of zero length
             first = model.law_state_offset[i]
             start = model.component_state_start[first:first + len(law_states(cls))].copy()
-            flow[b], dfrom[b], dto[b], dpilot[b] = cls.BRANCH_LAW(model.law_table[i], start, 0.0, *ports)
+            flow[b], dfrom[b], dto[b], dpilot[b] = cls.BRANCH_LAW(model.law_table[i], start, 0.0, *ports, *inputs)
         else:
-            flow[b], dfrom[b], dto[b], dpilot[b] = cls.BRANCH_LAW(model.law_table[i], *ports)
+            flow[b], dfrom[b], dto[b], dpilot[b] = cls.BRANCH_LAW(model.law_table[i], *ports, *inputs)
     return BranchFlows(flow, dfrom, dto, dpilot)
 
 
