@@ -110,7 +110,7 @@ def component_reference() -> str:
         "",
         "A component with states of its own lists them (with their units); they start at rest, are stepped with",
         "the circuit and are logged on `/hydroplant/valves/<name>` (a valve's spool) or",
-        "`/hydroplant/component_states`.",
+        "`/hydroplant/component_states`. A component with scheduled inputs (a pump's shaft speed) lists them too.",
         "",
         "| type | ports | states | what |",
         "|---|---|---|---|",
@@ -131,6 +131,11 @@ def component_reference() -> str:
                                                                        getattr(cls, "STATE_UNITS", ())))
         if states:
             lines += [f"States: {states}.", ""]
+        inputs = ", ".join(f"`{name}` [{unit}]" for name, unit in zip(getattr(cls, "INPUTS", ()),
+                                                                       getattr(cls, "INPUT_UNITS", ())))
+        if inputs:
+            lines += [f"Scheduled inputs: {inputs} (by the component's name in a scenario's `[inputs]`; "
+                      "default: the field of the same name).", ""]
         lines += ["| field | unit | range | default | description |", "|---|---|---|---|---|"]
         for f in dataclasses.fields(cls):
             meta = f.metadata
