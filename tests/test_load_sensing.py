@@ -154,15 +154,19 @@ def test_compensator_law_equals_hand_value_and_derivatives(point):
         assert d == pytest.approx(numeric, rel=1e-6, abs=1e-9 * max(abs(d_in), abs(d_out)))
 
 
-@pytest.fixture(scope="module")
-def lifts(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("ls")
+def run_both_modes(scenario, tmp):
+    """``scenario`` (a file of tests/scenes) run to completion in MuJoCo and PBD mode: mode -> (result, log)."""
     out = {}
     for mode in ("mujoco", "pbd"):
-        result = run(SCENES / "ls_lift.scenario.toml", out=tmp / f"{mode}.mcap", overrides={"mode": mode})
+        result = run(SCENES / scenario, out=tmp / f"{mode}.mcap", overrides={"mode": mode})
         assert result.status == "complete", result.message
         out[mode] = (result, read_log(result.log_path))
     return out
+
+
+@pytest.fixture(scope="module")
+def lifts(tmp_path_factory):
+    return run_both_modes("ls_lift.scenario.toml", tmp_path_factory.mktemp("ls"))
 
 
 @pytest.mark.parametrize("mode", ["mujoco", "pbd"])
@@ -243,13 +247,7 @@ def test_load_sensing_excavator_modes_agree_within_the_dig_targets(ls_digs, tmp_
 @pytest.fixture(scope="module")
 def speed_lifts(tmp_path_factory):
     """tests/scenes/ls_lift_speed.scenario.toml (the pump's shaft speed scheduled by its name) in both modes."""
-    tmp = tmp_path_factory.mktemp("ls_speed")
-    out = {}
-    for mode in ("mujoco", "pbd"):
-        result = run(SCENES / "ls_lift_speed.scenario.toml", out=tmp / f"{mode}.mcap", overrides={"mode": mode})
-        assert result.status == "complete", result.message
-        out[mode] = read_log(result.log_path)
-    return out
+    return run_both_modes("ls_lift_speed.scenario.toml", tmp_path_factory.mktemp("ls_speed"))
 
 
 @pytest.mark.parametrize("mode", ["mujoco", "pbd"])
@@ -263,7 +261,7 @@ def test_scheduled_speed_reaches_the_load_sensing_law(speed_lifts, mode):
     the LS line within 10 % with the swash plate short of full stroke, at twice its displacement before the change
     within 10 % (the compensated section asks for the same flow), and the boom keeps rising."""
     pump = load_circuit(SCENES / "ls_boom.circuit.toml").component("pump").params
-    log = speed_lifts[mode]
+    _, log = speed_lifts[mode]
     pumps = log.topic("/hydroplant/pumps/pump")
     states = log.topic("/hydroplant/component_states")
     nodes = log.topic("/hydroplant/nodes")
