@@ -216,7 +216,12 @@ def test_plant_buffers_have_the_layouts_sizes():
     pbd = PbdPlant(load_scene(scenario.with_overrides(mode="pbd", dt=1 / 60, pbd_substeps=10)), block=True)
     assert pbd.fast
     buffers = H.NetworkBuffers(pbd)
-    assert buffers.buffers.S.size == H.KEEP.size(**_plant_dims(pbd.network))
+    pdims = _plant_dims(pbd.network)
+    assert buffers._S.size == H.KEEP.size(**pdims)
+    offsets, base = H.KEEP.offsets(**pdims), buffers._S.ctypes.data
+    for name, view in zip(H.KEEP.names, buffers.buffers.keep):  # the kernels' views tile S at the layout's offsets
+        start, stop = offsets[name]
+        assert view.ctypes.data == base + start * buffers._S.itemsize and view.size == stop - start
     assert buffers.buffers.istats.size == H.NI == C.NIS + len(H.TOTALS)
     nj = len(pbd.scalar_joints)
     assert pbd.record_width == RECORD_ROW.size(**{**row_dims, "nq": nj, "nv": nj, "nbody": pbd.xmodel.nbody})

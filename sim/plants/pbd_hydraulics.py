@@ -65,7 +65,7 @@ KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(len(KINDS))
 HydraulicBuffers = namedtuple("HydraulicBuffers", [
     "F", "I",  # the packed network (``StepperImplicitEuler``'s float64 and int64 arrays)
     "W",  # the kernels' scratch (``_compiled.work_size``)
-    "S",  # what persists between begin and finish (:func:`keep_size`)
+    "keep",  # views of the float64 buffer that persists between begin and finish (:data:`KEEP`), carved once
     "istats",  # int counters, (NI,) (``I_*``)
     "ledger",  # energy ledger [J] and residuals [Pa], (NL,) (``L_*``)
     "quad",  # the fluid's potential quadrature (``hydraulics.fluid.potential_quadrature``)
@@ -145,19 +145,6 @@ def work_size(F, I, n, na, nb, nr):
     return K.coupled_work_size(C.work_size(F, I), n, na, nb, nr)
 
 
-if _NUMBA:
-    _keep = numba.njit(error_model="numpy", nogil=True, inline="always")(KEEP.carver(C._matrix))
-else:  # pragma: no cover
-    _keep = KEEP.carver(C._matrix)
-
-
-@_kernel
-def _sizes(pnet, buffers):
-    """The dimensions of :data:`KEEP`: nodes n, actuators na, branches nb, component states nvalve."""
-    ic = C._deref(pnet).ic
-    return ic[C.IC_N], ic[C.IC_NA], ic[C.IC_NB], buffers.spool.size
-
-
 @_kernel
 def _begin_core(pnet, buffers, control, x, v, h, coupling, effective_mass):
     """The effort law c + s·v⁺ of every actuator for a substep of ``h`` [s] from the actuator positions ``x`` and
@@ -176,13 +163,11 @@ def _begin_core(pnet, buffers, control, x, v, h, coupling, effective_mass):
 
     and around the first two CouplingMixed.begin for the rigid actuators (``rigid_law``; NaN effective masses:
     unknown)."""
-    W, S, istats, oil, pres, spool = buffers.W, buffers.S, buffers.istats, buffers.oil, buffers.pressure, buffers.spool
+    W, ws, istats, oil, pres, spool = buffers.W, buffers.keep, buffers.istats, buffers.oil, buffers.pressure, buffers.spool
     const, slope, theta, lower, upper = buffers.constant, buffers.slope, buffers.theta, buffers.lower, buffers.upper
     cmd, speed = control
     kind, scheme, blend = coupling
     R = buffers.rigid
-    n, na, nb, nvalve = _sizes(pnet, buffers)
-    ws, _ = _keep(S, 0, n, na, nb, nvalve)
     oil_change, guess, lin_oil, lin_spool, doil = ws.oil_change, ws.guess, ws.lin_oil, ws.lin_spool, ws.doil
     if kind == KIND_INCOMPRESSIBLE:
         C._spool_end(pnet, spool, cmd, h, lin_spool)
@@ -230,15 +215,14 @@ def _finish_core(pnet, buffers, control, motion, h, coupling, effort):
     [N or N·m] (the rigid actuators' term).  On success the state arrays (oil, pressure, spool, position, velocity)
     become the end of the substep; counters and failure in ``istats``, ledger terms in ``ledger``, the branch
     flows in ``flow``."""
-    W, S, istats, ledger, quad = buffers.W, buffers.S, buffers.istats, buffers.ledger, buffers.quad
+    W, ws, istats, ledger, quad = buffers.W, buffers.keep, buffers.istats, buffers.ledger, buffers.quad
     oil, pres, spool, pos, vel, flow = (buffers.oil, buffers.pressure, buffers.spool, buffers.position, buffers.velocity,
                                         buffers.flow)
     const, slope, lower, upper, R = buffers.constant, buffers.slope, buffers.lower, buffers.upper, buffers.rigid
     cmd, speed = control
     x_end, v_end, v_start = motion
     kind, scheme = coupling[0], coupling[1]
-    n, na, nb, nvalve = _sizes(pnet, buffers)
-    ws, _ = _keep(S, 0, n, na, nb, nvalve)
+    n, na = oil.size, pos.size
     oil_change, guess, lin_oil, lin_spool, doil = ws.oil_change, ws.guess, ws.lin_oil, ws.lin_spool, ws.doil
     mpred, o2, p2, mu, start = ws.mpred, ws.o2, ws.p2, ws.mu, ws.start
     dv, fric, xs, xb, xe = ws.dv, ws.fric, ws.xs, ws.xb, ws.xe
@@ -339,6 +323,7 @@ class NetworkBuffers:
         rigid = K.pack_rigid(net)
         self._W = np.zeros(work_size(self._F, self._I, n, na, nb, len(rigid.actuator)))
         self._S = np.zeros(keep_size(n, na, nb, nvalve))
+        self._keep = KEEP.views(self._S, n=n, na=na, nb=nb, nvalve=nvalve)
         self._istats = np.zeros(NI, np.int64)
         self._ledger = np.zeros(NL)
         self._quad = potential_quadrature()
@@ -351,7 +336,7 @@ class NetworkBuffers:
         self.blend = bool(plant.blend)  # θ from the articulated effective masses (else θ = 1)
         self.scheme = inner.scheme if kind == KIND_IMPLICIT else SCHEME_NEWTON  # hydraulics.coupling.SCHEME_*
         table = coupling.table if kind == KIND_INCOMPRESSIBLE else K.pack_incompressible(net)
-        self.buffers = HydraulicBuffers(self._F, self._I, self._W, self._S, self._istats, self._ledger, self._quad,
+        self.buffers = HydraulicBuffers(self._F, self._I, self._W, self._keep, self._istats, self._ledger, self._quad,
                                         self.oil, self.pressure, self.spool, self.position, self.velocity, self.flow,
                                         self.constant, self.slope, self.theta, self.lower, self.upper, table, rigid)
         self._time = 0.0
@@ -394,6 +379,4 @@ class NetworkBuffers:
 
     def _oil_change(self) -> np.ndarray:
         """The view of S holding the last substep's oil change [m³] (:data:`KEEP`)."""
-        net = self.network
-        return KEEP.views(self._S, n=net.node_count, na=net.actuator_count, nb=len(net.branch_names),
-                          nvalve=self.spool.size).oil_change
+        return self._keep.oil_change
