@@ -16,6 +16,8 @@ continuous time; a stepper's residual is its numerical dissipation.
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from .components import law_sources
@@ -89,7 +91,7 @@ def branch_powers(model: NetworkModel, state: NetworkState, flow: np.ndarray) ->
     power = flow * (mu[model.branch_from] - mu[model.branch_to])
     sl = model.branch_slices
     law = power[sl["law"]] if "law" in sl else power[:0]
-    source = np.array(law_sources(), bool)[model.law_kind] if len(law) else np.zeros(0, bool)  # the pumps (SOURCE laws)
+    source = _ledger_tables(model)[0] if len(law) else np.zeros(0, bool)  # the pumps (SOURCE laws)
     dissipative = np.concatenate([power[sl["orifice"]], law[~source]])
     supplied = source_power(model, flow)
     return {"pump": float(-np.sum(law[source])) + supplied, "source": supplied,
@@ -104,10 +106,29 @@ def source_power(model: NetworkModel, flow: np.ndarray) -> float:
     The branch powers Q·(μ_from − μ_to) sum to Σ over all nodes of μ·(net outflow); over the free nodes that is the
     change of their stored oil energy, so the fixed nodes' share is the work they supply (zero for a tank at the
     reference pressure, where μ = 0).  A rigid actuator's chambers are fixed nodes at the reference: none."""
-    fixed = np.asarray(model.node_fixed, bool) & (model.node_fixed_pressure != model.fluid.reference_pressure)
-    if not fixed.any():
+    mu = _ledger_tables(model)[1]
+    if mu is None:
         return 0.0
-    mu = np.where(fixed, model.fluid.pressure_potential(np.where(fixed, model.node_fixed_pressure,
-                                                                 model.fluid.reference_pressure)), 0.0)
     flow = np.asarray(flow, float)
-    return float(flow @ mu[model.branch_from] - flow @ mu[model.branch_to])
+    return float(flow @ mu[0] - flow @ mu[1])
+
+
+_LEDGER_TABLES = weakref.WeakKeyDictionary()  # model -> _ledger_tables(model)
+
+
+def _ledger_tables(model: NetworkModel):
+    """The parts of :func:`branch_powers` and :func:`source_power` that depend on the model alone, made once per model
+    (it is immutable) and kept while it lives, so a per-step ledger does not rebuild them: (True for each law branch
+    whose law is a power source, μ [Pa] of the pressure sources at the branches' from and to nodes (0 at the other
+    nodes) or None when no fixed node is off the reference pressure)."""
+    found = _LEDGER_TABLES.get(model)
+    if found is None:
+        source = np.array(law_sources(), bool)[model.law_kind] if len(model.law_kind) else np.zeros(0, bool)
+        fixed = np.asarray(model.node_fixed, bool) & (model.node_fixed_pressure != model.fluid.reference_pressure)
+        mu = None
+        if fixed.any():
+            mu = np.where(fixed, model.fluid.pressure_potential(np.where(fixed, model.node_fixed_pressure,
+                                                                         model.fluid.reference_pressure)), 0.0)
+            mu = (mu[model.branch_from], mu[model.branch_to])
+        found = _LEDGER_TABLES[model] = (source, mu)
+    return found
