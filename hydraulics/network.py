@@ -84,6 +84,13 @@ def _broadcast_rows(*arrays):
     """The (values, width) pairs ``arrays`` broadcast over their leading axes, each as rows (:func:`_rows`), and the
     common leading shape."""
     values = [np.asarray(a, dtype=np.float64) for a, _ in arrays]
+    rows = []
+    for v, (_, w) in zip(values, arrays):  # one sample each (a per-step plant's call): nothing to broadcast
+        if v.ndim != 1:
+            break
+        rows.append(_rows(v, w)[0])
+    else:
+        return tuple(rows), ()
     lead = np.broadcast_shapes(*(v.shape[:-1] for v in values))
     return tuple(_rows(v if v.shape[:-1] == lead else np.broadcast_to(v, lead + (w,)), w)[0]
                  for v, (_, w) in zip(values, arrays)), lead

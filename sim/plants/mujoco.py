@@ -152,7 +152,8 @@ class MujocoPlant(PlantBase):
         m, d, net = self.model, self.data, self.network
         dt = self.dt
         self.apply_inputs()
-        self.controllers.step(self.step_index, dt, self.controller_sources(), self.control)
+        if len(self.controllers):  # (the sources are gathered only for a scenario with PIDs)
+            self.controllers.step(self.step_index, dt, self.controller_sources(), self.control)
         resets = mujoco_resets(d)
         mujoco.mj_step1(m, d)
         x, v = self.actuator_motion()
