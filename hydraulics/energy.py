@@ -16,11 +16,8 @@ continuous time; a stepper's residual is its numerical dissipation.
 
 from __future__ import annotations
 
-import weakref
-
 import numpy as np
 
-from .components import law_sources
 from .network import NetworkModel, NetworkState
 
 ACCUMULATOR_QUADRATURE_POINTS = 16  # Gauss–Legendre points for ∫ V_liquid dp
@@ -90,7 +87,7 @@ def branch_powers(model: NetworkModel, state: NetworkState, flow: np.ndarray) ->
     mu = model.fluid.pressure_potential(state.node_pressure)
     power = flow * (mu[model.branch_from] - mu[model.branch_to])
     sl = model.branch_slices
-    pumps, dissipative, _ = _ledger_tables(model)
+    pumps, dissipative = model.ledger_branches
     supplied = source_power(model, flow)
     return {"pump": float(-np.sum(power[pumps])) + supplied, "source": supplied,
             "motor": float(np.sum(power[sl["motor"]])), "dissipated": float(np.sum(power[dissipative])),
@@ -104,34 +101,8 @@ def source_power(model: NetworkModel, flow: np.ndarray) -> float:
     The branch powers Q·(μ_from − μ_to) sum to Σ over all nodes of μ·(net outflow); over the free nodes that is the
     change of their stored oil energy, so the fixed nodes' share is the work they supply (zero for a tank at the
     reference pressure, where μ = 0).  A rigid actuator's chambers are fixed nodes at the reference: none."""
-    mu = _ledger_tables(model)[2]
+    mu = model.source_potential_ends
     if mu is None:
         return 0.0
     flow = np.asarray(flow, float)
     return float(flow @ mu[0] - flow @ mu[1])
-
-
-_LEDGER_TABLES = weakref.WeakKeyDictionary()  # model -> _ledger_tables(model)
-
-
-def _ledger_tables(model: NetworkModel):
-    """The parts of :func:`branch_powers` and :func:`source_power` that depend on the model alone, made once per model
-    (it is immutable) and kept while it lives, so a per-step ledger does not rebuild them: (the branches whose law is
-    a power source, ``SOURCE``: the pumps; the dissipative branches, orifice-law branches then the other law branches
-    in branch order; μ [Pa] of the pressure sources at the branches' from and to nodes, 0 at the other nodes, or None
-    when no fixed node is off the reference pressure)."""
-    found = _LEDGER_TABLES.get(model)
-    if found is None:
-        branch = np.arange(len(model.branch_from))
-        sl = model.branch_slices
-        law = branch[sl["law"]] if "law" in sl else branch[:0]
-        source = np.array(law_sources(), bool)[model.law_kind] if len(law) else np.zeros(0, bool)
-        dissipative = np.concatenate([branch[sl["orifice"]], law[~source]])
-        fixed = np.asarray(model.node_fixed, bool) & (model.node_fixed_pressure != model.fluid.reference_pressure)
-        mu = None
-        if fixed.any():
-            mu = np.where(fixed, model.fluid.pressure_potential(np.where(fixed, model.node_fixed_pressure,
-                                                                         model.fluid.reference_pressure)), 0.0)
-            mu = (mu[model.branch_from], mu[model.branch_to])
-        found = _LEDGER_TABLES[model] = (law[source], dissipative, mu)
-    return found

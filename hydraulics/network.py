@@ -42,7 +42,7 @@ import numpy as np
 
 from .circuit import Circuit
 from .components import (BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, VALVE_KINDS, CircuitError, PumpFixed, input_names,
-                         law_inputs, law_states)
+                         law_inputs, law_sources, law_states)
 from .components.metering import characteristics as metering_characteristics
 from .components.hose import LaminarResistance, line_conductance
 from .numerics import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE  # noqa: F401 (documented here)
@@ -974,6 +974,29 @@ class NetworkModel:
         from . import _compiled
 
         return (_compiled.evaluation_entries(),) + _compiled.pack_network(self)
+
+    @cached_property
+    def ledger_branches(self) -> tuple:
+        """(supplying, dissipative): indices of the branches the energy ledger (:func:`hydraulics.energy.branch_powers`)
+        counts as supplied work (law branches whose law is a power source, ``SOURCE``: the pumps) and as dissipation
+        (the orifice-law branches, then the other law branches, in branch order); made on first use."""
+        branch = np.arange(len(self.branch_from))
+        law = branch[self.branch_slices["law"]] if "law" in self.branch_slices else branch[:0]
+        source = np.array(law_sources(), bool)[self.law_kind] if len(law) else np.zeros(0, bool)
+        return law[source], np.concatenate([branch[self.branch_slices["orifice"]], law[~source]])
+
+    @cached_property
+    def source_potential_ends(self):
+        """(μ at each branch's from node, μ at its to node) [Pa], μ the pressure potential of the fixed nodes off the
+        reference pressure (the pressure sources) and 0 at every other node; None when there is no such node
+        (:func:`hydraulics.energy.source_power`); made on first use."""
+        fluid = self.fluid
+        fixed = np.asarray(self.node_fixed, bool) & (self.node_fixed_pressure != fluid.reference_pressure)
+        if not fixed.any():
+            return None
+        mu = np.where(fixed, fluid.pressure_potential(np.where(fixed, self.node_fixed_pressure,
+                                                               fluid.reference_pressure)), 0.0)
+        return mu[self.branch_from], mu[self.branch_to]
 
     def _kernel(self, name, *args):
         """The evaluation kernel ``name`` on this model's packed arrays followed by ``args``."""
