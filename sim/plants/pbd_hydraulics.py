@@ -133,6 +133,11 @@ KEEP = Layout("keep", ("n", "na", "nb", "nvalve"), (
        ("xs", "na"), ("xb", "na"), ("xe", "na"), ("dflow", "nb", C._W_BR), ("fl", "nb"), ("sp2", "nvalve"))))
 """The float64 buffer S of the compiled steps (n nodes, na actuators, nb branches, nvalve component states)."""
 
+KeepViews = KEEP.View
+"""The views of :data:`KEEP` (``HydraulicBuffers.keep``), carved once per plant and carried into the compiled steps.
+Bound here by name, so that the kernel cache can pickle the signatures of the kernels that take them."""
+KeepViews.__module__ = __name__
+
 
 def keep_size(n, na, nb, nvalve):
     """Length of the float64 buffer S: :data:`KEEP`."""
