@@ -4,8 +4,8 @@ The boom's valve slam at 1/30 s (ω_h·dt ≈ 1.5) closes the valve within one s
 m⁺ = m_lin + (∂m/∂v)·(v⁺ − v_g) then leaves a backward-Euler residual worth tens of bar (against under 5 kPa in 99 %
 of the steps of the 1 kHz excavator dig), and uncorrected it drives the cap pressure past its ceiling;
 :class:`hydraulics.coupling.CouplingRosenbrock` solves such a step by Newton from m⁺.  Checked here: the compiled
-MuJoCo callback (``sim/plants/mujoco_fast.py``) takes the same decisions as the Python coupling step by step, the
-Newton finish does run there, and the map's cell keeps every node within the physical pressure ceiling times the
+MuJoCo callback (``sim/plants/mujoco_fast.py``) and PBD mode's compiled substeps (``sim/plants/pbd_hydraulics.py``)
+take the same decisions as the Python coupling step by step, the Newton finish does run there, and the map's cell keeps every node within the physical pressure ceiling times the
 map's margin, as ``implicit`` does.
 """
 
@@ -53,6 +53,28 @@ def test_fast_plant_takes_the_python_couplings_newton_finishes(facts, tmp_path):
                                    rtol=PRESSURE_RTOL, atol=PRESSURE_ATOL)
         newton_steps += a.newton_iterations > 0
     assert newton_steps > 0
+
+
+@pytest.mark.parametrize("substeps, blend", [(1, False), (2, True)])
+def test_pbd_compiled_substeps_take_the_python_couplings_newton_finishes(facts, tmp_path, substeps, blend):
+    """PBD mode over the slam at 1/30 s frames (θ = 1 with one substep, the θ-rule with two): the compiled substeps
+    against the Python hooks (``tests/reference/pbd_hooks.py``) frame by frame, the same counters and states, and at
+    least one frame finished by Newton, so the compiled fallback itself is what agrees."""
+    from test_pbd_fast import _compare
+    from reference.pbd_hooks import HooksPlant
+    from sim.plants.pbd import PbdPlant
+
+    path = st.write_variant(facts, SLAM, tmp_path / SLAM.id)
+    scenario = load_scenario(path).with_overrides(mode="pbd", dt=DT, pbd_substeps=substeps, coupling="rosenbrock",
+                                                  pbd_blend=blend)
+    reference, fast = HooksPlant(load_scene(scenario)), PbdPlant(load_scene(scenario))
+    assert fast.fast and not reference.fast
+    newton_frames = 0
+    for _ in range(int(math.ceil(facts.duration / DT))):
+        a, b = reference.step(), fast.step()
+        _compare(reference, fast, a, b, f"slam × {substeps} t={reference.time:.4f}")
+        newton_frames += a.newton_iterations > 0
+    assert newton_frames > 0
 
 
 def test_slam_at_30hz_stays_within_the_pressure_ceiling(facts, tmp_path):
