@@ -275,7 +275,8 @@ class ChunkedWriter:
         # the summary
         self._schemas: list[mr.Schema] = []
         self._channels: list[mr.Channel] = []
-        self._summary_bytes: dict[int, list[bytes]] = {Opcode.SCHEMA: [], Opcode.CHANNEL: []}  # their records
+        # the records of these summary groups, serialised when they are written (chunk indexes on the chunk thread)
+        self._summary_bytes: dict[int, list[bytes]] = {Opcode.SCHEMA: [], Opcode.CHANNEL: [], Opcode.CHUNK_INDEX: []}
         self._chunk_index_records: list[mr.ChunkIndex] = []
         self._attachment_indexes: list[mr.AttachmentIndex] = []
         self._metadata_indexes: list[mr.MetadataIndex] = []
@@ -506,11 +507,13 @@ class ChunkedWriter:
             records.append(record)
             position += len(record)
         self._stream.write(b"".join(records))
-        self._chunk_index_records.append(mr.ChunkIndex(
+        index = mr.ChunkIndex(
             message_start_time=times[0], message_end_time=times[1], chunk_start_offset=chunk_start,
             chunk_length=chunk_length, message_index_offsets=offsets,
             message_index_length=position - chunk_start - chunk_length, compression=self._compression,
-            compressed_size=len(compressed), uncompressed_size=len(data)))
+            compressed_size=len(compressed), uncompressed_size=len(data))
+        self._chunk_index_records.append(index)
+        self._summary_bytes[Opcode.CHUNK_INDEX].append(_record_bytes(index))  # (not left to finish(), on the caller's thread)
 
     def flush(self, wait: bool = True) -> None:
         """End the chunk in progress and flush the stream to the OS; ``wait=False`` leaves both to the chunk thread.
