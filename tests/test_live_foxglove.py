@@ -8,8 +8,11 @@ binary message-data frames: opcode 0x01, subscription id, log time, payload).
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import re
 import struct
+import threading
 import time
 
 import mcap.records as mr
@@ -20,6 +23,7 @@ from mcap_ros2.decoder import DecoderFactory
 from websockets.sync.client import connect
 
 from conftest import MODELS
+from sim.io.log_writer import ChannelInfo
 from sim.io.mcap_log import LogWriter
 from sim.io.scenario import load_scenario
 from sim.io.scene import load_scene
@@ -44,12 +48,24 @@ def wait_for(condition, what: str) -> None:
 
 
 class Client:
-    """A Foxglove WebSocket client: advertised channels, subscriptions, received message data."""
+    """A Foxglove WebSocket client: advertised channels, subscriptions, received message data.
+
+    foxglove-sdk's server sends a channel's advertisement to a connected client before it records the channel as
+    advertised to that client; a subscription that arrives in between is rejected with an error status
+    ``Unknown channel ID: <id>`` although the channel stays advertised.  The client then subscribes again (what a
+    client may always do for an advertised channel it is not subscribed to), as often as the server rejects it.
+    """
+
+    UNKNOWN = re.compile(r"Unknown channel ID: (\d+)")
 
     def __init__(self, ws):
         self.ws = ws
         self.channels: dict[str, dict] = {}  # topic -> advertised channel
+        self.advertised: dict[str, list[int]] = {}  # topic -> every channel id advertised for it, in order
+        self.unadvertised: set[int] = set()
         self.by_subscription: dict[int, str] = {}
+        self.subscription_of: dict[int, int] = {}  # channel id -> subscription id
+        self.rejected: list[int] = []  # channel ids of subscriptions the server rejected as unknown
         self.received: list[tuple[str, int, bytes]] = []  # (topic, log time, payload)
         self.times: list[int] = []
 
@@ -65,6 +81,14 @@ class Client:
         if body["op"] == "advertise":
             for channel in body["channels"]:
                 self.channels[channel["topic"]] = channel
+                self.advertised.setdefault(channel["topic"], []).append(channel["id"])
+        elif body["op"] == "unadvertise":
+            self.unadvertised.update(body["channelIds"])
+        elif body["op"] == "status" and (unknown := self.UNKNOWN.fullmatch(body["message"])):
+            channel_id = int(unknown.group(1))
+            if channel_id in self.subscription_of and channel_id not in self.unadvertised:
+                self.rejected.append(channel_id)
+                self._send_subscriptions([(self.subscription_of[channel_id], channel_id)])
 
     def pump(self, idle: float = 0.05, limit: float = 0.5) -> None:
         """Handle every message that arrives until none has for ``idle`` seconds, or for ``limit`` seconds at most (a
@@ -86,11 +110,16 @@ class Client:
                 pass
 
     def subscribe(self, topics) -> None:
-        subscriptions = []
-        for i, topic in enumerate(topics, start=1):
-            self.by_subscription[i] = topic
-            subscriptions.append({"id": i, "channelId": self.channels[topic]["id"]})
-        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+        pairs = []
+        for topic in topics:
+            subscription = len(self.by_subscription) + 1
+            self.by_subscription[subscription] = topic
+            self.subscription_of[self.channels[topic]["id"]] = subscription
+            pairs.append((subscription, self.channels[topic]["id"]))
+        self._send_subscriptions(pairs)
+
+    def _send_subscriptions(self, pairs) -> None:
+        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": s, "channelId": c} for s, c in pairs]}))
 
     def advertise_commands(self, channel_id: int = 1) -> None:
         self.ws.send(json.dumps({"op": "advertise", "channels": [
@@ -203,3 +232,71 @@ def test_commands_ignore_other_topics_and_bad_messages():
     assert commands.poll(0.0) == {"stick_valve": -0.5, "pump": 150.0}
     commands.on_client_unadvertise(Who(1), 6)
     assert commands.poll(0.0) == {"stick_valve": 0.0, "pump": 0.0}
+
+
+def test_a_client_subscribing_at_each_advertisement_gets_every_channel_advertised_once(tmp_path):
+    """Channels added to the log from another thread while a client is connected: the client subscribes to each the
+    moment its advertisement arrives (the window in which foxglove-sdk may still reject it as unknown), and every
+    channel is advertised once, never withdrawn, and delivers the bytes the file holds."""
+    topics = [f"/hydroplant/t{i}" for i in range(120)]
+    live = FoxgloveLive(port=0)
+    try:
+        with connect(f"ws://127.0.0.1:{live.port}", subprotocols=[SUBPROTOCOL], open_timeout=TIMEOUT) as ws:
+            client = Client(ws)
+            log = LogWriter(tmp_path / "many.mcap", dt=1e-3)
+            live.attach(log)
+            channels = []
+
+            def register():
+                for topic in topics:
+                    channels.append(log.channel(topic, "hydroplant.Value", {"type": "object"}))
+                    time.sleep(0.001)  # one advertisement at a time, each answered by the client's subscription
+
+            worker = threading.Thread(target=register)
+            worker.start()
+            pending = list(topics)
+            deadline = time.monotonic() + TIMEOUT
+            while pending:
+                assert time.monotonic() < deadline, f"not advertised: {pending}"
+                try:
+                    client.handle(ws.recv(timeout=0.1))
+                except TimeoutError:
+                    continue
+                ready = [topic for topic in pending if topic in client.channels]
+                if ready:
+                    client.subscribe(ready)
+                    pending = [topic for topic in pending if topic not in ready]
+            worker.join()
+            wait_for(lambda: (client.pump(0.02) or True) and live.commands.subscriptions >= len(topics),
+                     "every subscription accepted")
+            for i, channel in enumerate(channels):
+                channel.write(0, {"value": i})
+            log.drain()
+            wait_for(lambda: (client.pump(0.02) or True) and len(client.received) >= len(topics), "every message")
+        log.close()
+    finally:
+        live.close()
+    assert all(client.advertised[topic] == [client.channels[topic]["id"]] for topic in topics)  # each once
+    assert not client.unadvertised
+    with open(tmp_path / "many.mcap", "rb") as f:
+        in_file = [(channel.topic, message.log_time, message.data)
+                   for _, channel, message in make_reader(f).iter_messages(topics=topics)]
+    assert {topic for topic, _, _ in in_file} == set(topics)
+    assert sorted(client.received) == sorted(in_file)
+
+
+def test_a_log_channel_handed_over_again_is_advertised_once():
+    info = ChannelInfo(7, "/hydroplant/x", "hydroplant.Value", "jsonschema", b'{"type":"object"}', "json", {})
+    live = FoxgloveLive(port=0)
+    try:
+        with connect(f"ws://127.0.0.1:{live.port}", subprotocols=[SUBPROTOCOL], open_timeout=TIMEOUT) as ws:
+            client = Client(ws)
+            live.channel(info)
+            live.channel(info)
+            with pytest.raises(ValueError, match="already streamed"):  # another log's channel under the same id
+                live.channel(dataclasses.replace(info, topic="/hydroplant/y"))
+            client.wait_topics([info.topic])
+            client.pump()
+    finally:
+        live.close()
+    assert client.advertised == {info.topic: [client.channels[info.topic]["id"]]} and not client.unadvertised

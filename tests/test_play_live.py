@@ -64,6 +64,8 @@ def test_a_foxglove_client_watches_play_and_its_command_moves_the_boom(tmp_path)
     finally:
         live.close()
     assert "error" not in outcome, outcome.get("error")
+    # every topic was advertised once, and none withdrawn while the run went on
+    assert all(len(ids) == 1 for ids in client.advertised.values()) and not client.unadvertised
     result = outcome["result"]
     assert result.run.status == "complete" and result.frames.frames == 360
 

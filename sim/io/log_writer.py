@@ -32,6 +32,7 @@ Example::
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
 import os
@@ -58,6 +59,10 @@ from sim.io.mcap_file import (DEFAULT_CHUNK_SIZE, MESSAGE_RECORD, NS_PER_S, PART
 # whatever the chunk holds
 DEFAULT_FLUSH_INTERVAL = 2.0
 DEFAULT_BATCH_SIZE = 1024  # buffered samples per channel before a batch encode
+# rows of a Frame's first buffer: it grows (doubling) to the rows a batch takes, so a rare log (a sample a second,
+# a few rows per periodic flush) never fills and pages in a whole batch of NaN rows (203 columns × 1024 rows = 1.7 MB
+# for the excavator) per buffer
+FRAME_FIRST_ROWS = 64
 
 # ---------------------------------------------------------------------------------------
 # MCAP Message records of many samples at once
@@ -611,8 +616,8 @@ class Frame:
         if self.column_count < 1:
             raise ValueError(f"`column_count` must be >= 1, got {column_count!r}")
         self._writer = writer
-        self._capacity = capacity
-        self._values = np.full((capacity, self.column_count), np.nan)
+        self._capacity = capacity  # rows per batch; the buffer holding them grows as rows come (_room)
+        self._values = np.full((min(capacity, FRAME_FIRST_ROWS), self.column_count), np.nan)
         self._steps = np.empty(capacity, dtype=np.int64)
         self._count = 0
         self._last_step = -1
@@ -685,8 +690,21 @@ class Frame:
                 writer._drain(end_chunk=False, wait=False)
         if step_index < self._last_step:
             raise ValueError(f"frame: step_index {step_index} is before the previous one {self._last_step}")
-        self._steps[self._count] = step_index
-        return self._values[self._count]
+        n = self._count
+        if n == len(self._values):
+            self._room(n + 1)
+        self._steps[n] = step_index
+        return self._values[n]
+
+    def _room(self, rows: int) -> None:
+        """Grow the buffer to hold ``rows`` rows (at least doubling it, at most the batch's ``capacity``): the rows it
+        had are kept, the new ones are NaN."""
+        values = self._values
+        if rows <= len(values):
+            return
+        grown = np.full((min(self._capacity, max(rows, 2 * len(values))), self.column_count), np.nan)
+        grown[:len(values)] = values
+        self._values = grown
 
     def commit(self) -> None:
         """Accept the row returned by the last :meth:`claim`."""
@@ -745,9 +763,12 @@ class Frame:
                         writer._drain(end_chunk=False, wait=False)
                 j = min(k, i + self._capacity - self._count)
                 if math.isfinite(writer._next_flush_step):  # stop before the next periodic flush
-                    j = min(j, i + int(np.searchsorted(steps[i:j], writer._next_flush_step, side="left")))
+                    # (bisect keeps the GIL: numpy's search drops it, and the chunk thread, woken by the flush just
+                    # handed over, would take it for its Python and keep this thread waiting up to the switch interval)
+                    j = bisect.bisect_left(steps, writer._next_flush_step, i, j)
                 j = max(j, i + 1)
                 n = self._count
+                self._room(n + j - i)
                 store(n, i, j)
                 self._steps[n:n + j - i] = steps[i:j]
                 self._count = n + j - i
@@ -793,8 +814,10 @@ class Frame:
             self._jobs.append(_EncodeJob(records, buffer, n, rows, times, first_sequences,
                                          min(c._order for c, _ in members), self._writer._next_serial(),
                                          fills if g == 0 else (), self._spares if g == len(groups) - 1 else None))
-        if groups:  # the buffer goes with the jobs; the next rows go into a spare one
-            self._values = self._spares.pop() if self._spares else np.full_like(buffer, np.nan)
+        if groups:  # the buffer goes with the jobs; the next rows go into a spare one, or a new one as large as they were
+            self._values = (self._spares.pop() if self._spares else
+                            np.full((min(self._capacity, max(FRAME_FIRST_ROWS, 1 << (n - 1).bit_length())),
+                                     self.column_count), np.nan))
         self._count, self._fills = 0, []
 
     def _take_jobs(self) -> list[_EncodeJob]:
@@ -1193,6 +1216,9 @@ class LogWriter:
         if jobs or blocks:
             self._last_step = max(self._last_step, max(c._last_step for c in self._channels))
             if jobs and not self._tees:
+                if not wait:  # the batch, the chunk's end and the flush in one hand-over to the chunk thread
+                    self._writer.defer(self._write_batch_and_flush, jobs, blocks, end_chunk)
+                    return
                 self._writer.defer(self._write_batch, jobs, blocks, ())
             else:
                 self._write_batch(jobs, blocks, tuple(self._tees))
@@ -1212,6 +1238,14 @@ class LogWriter:
             records = stream_messages(stream)
             for tee in tees:
                 tee.messages(records)
+
+    def _write_batch_and_flush(self, jobs: list[_EncodeJob], blocks: list[_RecordBlock], end_chunk: bool) -> None:
+        """:meth:`_write_batch` (no tees), then end the chunk (``end_chunk``) and flush the stream: a job of the chunk
+        thread, as ``_drain_now(end_chunk, wait=False)`` hands them over."""
+        self._write_batch(jobs, blocks, ())
+        if end_chunk:
+            self._writer.end_chunk()
+        self._writer.flush_stream()
 
     def _next_serial(self) -> int:
         """A new block serial number (creation order, the last tie-break of the log-time merge)."""

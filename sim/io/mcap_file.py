@@ -238,6 +238,12 @@ class ChunkedWriter:
     progress is theirs while any is queued, so :meth:`add_records` and :meth:`end_chunk`
     called from another thread first wait for the queue (:meth:`settle`), and
     :meth:`flush` queues its chunk end behind them.  Inside a job every method acts at once.
+    What a caller would hand over only to wait for it (the records written outside chunks
+    when it settles the queue; :meth:`flush` with ``wait`` when nothing is queued) runs in its
+    own thread, the thread left asleep: a hand-over wakes the thread, which then takes
+    Python's GIL for its Python parts, and a caller still running Python waits for it to be
+    handed back (up to the interpreter's switch interval, 5 ms).  Each hand-over is one
+    wake-up: the records written outside chunks go with the job that follows them.
     """
 
     # zstd's fast level -2 on the message records of the dig logged every step, in one run (CPU time): 965 MB/s at a
@@ -269,7 +275,8 @@ class ChunkedWriter:
         # the summary
         self._schemas: list[mr.Schema] = []
         self._channels: list[mr.Channel] = []
-        self._summary_bytes: dict[int, list[bytes]] = {Opcode.SCHEMA: [], Opcode.CHANNEL: []}  # their records
+        # the records of these summary groups, serialised when they are written (chunk indexes on the chunk thread)
+        self._summary_bytes: dict[int, list[bytes]] = {Opcode.SCHEMA: [], Opcode.CHANNEL: [], Opcode.CHUNK_INDEX: []}
         self._chunk_index_records: list[mr.ChunkIndex] = []
         self._attachment_indexes: list[mr.AttachmentIndex] = []
         self._metadata_indexes: list[mr.MetadataIndex] = []
@@ -289,8 +296,34 @@ class ChunkedWriter:
         a job on the chunk thread leaves them to it)."""
         if self._outbox and not getattr(self._inside, "job", False):
             box, self._outbox = self._outbox, []
-            self._submit_one(self._write_box, box)
+            self._submit_one(self._write_box_then, box, job, args)  # (one hand-over: each wakes the thread)
+            return
         self._submit_one(job, *args)
+
+    def _write_box_then(self, box: list, job: Callable[..., None], args: tuple) -> None:
+        self._write_box(box)
+        job(*args)
+
+    def _now(self, job: Callable[..., None], *args: Any) -> None:
+        """Run ``job(*args)`` in the caller's thread once every job handed over before is done, as the chunk thread
+        would run it next (the records written outside chunks first; the methods it calls act at once): for a caller
+        that waits for the job anyway, without waking the thread and waiting for it to hand the GIL back.  A failure is
+        kept as a failed job's is, and raised."""
+        while self._pending:
+            self._pending.popleft().result()
+        self._raise_failure()
+        inside = getattr(self._inside, "job", False)
+        self._inside.job = True
+        try:
+            if self._outbox:
+                box, self._outbox = self._outbox, []
+                self._write_box(box)
+            job(*args)
+        except BaseException as error:
+            self._failure = error
+            raise
+        finally:
+            self._inside.job = inside
 
     def _submit_one(self, job: Callable[..., None], *args: Any) -> None:
         if not self._outside():
@@ -328,13 +361,13 @@ class ChunkedWriter:
 
     def settle(self) -> None:
         """Wait until the chunk thread has written everything handed to it; raise the error of a failed write."""
-        while True:
-            while self._pending:
-                self._pending.popleft().result()
-            self._raise_failure()
-            if not self._outbox:
-                return
-            self._submit(lambda: None)  # the records written outside chunks, after everything handed over before
+        while self._pending:
+            self._pending.popleft().result()
+        self._raise_failure()
+        if self._outbox and self._outside():
+            self._now(lambda: None)  # the records written outside chunks, after everything handed over before
+        elif self._outbox:
+            self._submit(lambda: None)
 
     def stop_thread(self) -> None:
         """Settle and end the chunk thread (idempotent; later writes are inline)."""
@@ -474,14 +507,21 @@ class ChunkedWriter:
             records.append(record)
             position += len(record)
         self._stream.write(b"".join(records))
-        self._chunk_index_records.append(mr.ChunkIndex(
+        index = mr.ChunkIndex(
             message_start_time=times[0], message_end_time=times[1], chunk_start_offset=chunk_start,
             chunk_length=chunk_length, message_index_offsets=offsets,
             message_index_length=position - chunk_start - chunk_length, compression=self._compression,
-            compressed_size=len(compressed), uncompressed_size=len(data)))
+            compressed_size=len(compressed), uncompressed_size=len(data))
+        self._chunk_index_records.append(index)
+        self._summary_bytes[Opcode.CHUNK_INDEX].append(_record_bytes(index))  # (not left to finish(), on the caller's thread)
 
     def flush(self, wait: bool = True) -> None:
-        """End the chunk in progress and flush the stream to the OS; ``wait=False`` leaves both to the chunk thread."""
+        """End the chunk in progress and flush the stream to the OS; ``wait=False`` leaves both to the chunk thread.
+        With ``wait`` and nothing handed over since the last wait (e.g. the records written at a log's start), the
+        caller's thread does them (:meth:`_now`)."""
+        if wait and self._outside() and not self._pending:
+            self._now(self._end_chunk_and_flush)
+            return
         self._submit(self._end_chunk_and_flush)
         if wait:
             self.settle()

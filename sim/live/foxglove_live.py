@@ -18,6 +18,14 @@ is three things at once:
   (``{"boom_valve": 0.4}``, a Publish panel, a teleop or joystick panel) on
   ``/hydroplant/commands``; the server advertises the ``clientPublish`` capability.
 
+Each log channel is advertised once per server, when the log registers it (or when the server
+is attached, for the channels registered before).  A client connected while a channel is
+advertised may have a subscription it sends at once rejected (error status ``Unknown channel
+ID``): foxglove-sdk's server queues the advertisement to the client before it records the
+channel as advertised to that client.  The channel stays advertised; subscribing again
+succeeds.  Channels that exist when a client connects are recorded before the server reads
+anything from it.
+
 The server binds to ``127.0.0.1`` by default: only this machine can connect (there is no
 authentication; bind to another address only on a trusted network).  Slow clients lose the
 oldest messages first (``message_backlog_size``, 1024 per client by default), never the run.
@@ -192,6 +200,7 @@ class FoxgloveLive(LogTee):
         self._context = foxglove.Context()
         self.commands = FoxgloveCommands(command_topic)
         self._lock = threading.Lock()
+        self._infos: dict[int, ChannelInfo] = {}  # log channel id -> the channel streamed under it
         self._channels: dict[int, Any] = {}  # log channel id -> foxglove Channel
         self._by_fox_id: dict[int, int] = {}  # foxglove channel id -> log channel id
         self._latched: dict[int, tuple[bytes, int]] = {}  # log channel id -> last JSON message and its log time
@@ -216,10 +225,18 @@ class FoxgloveLive(LogTee):
 
     # -- LogTee ---------------------------------------------------------------------
     def channel(self, info: ChannelInfo) -> None:
+        """Advertise log channel ``info`` (once: the same channel handed over again is already streamed)."""
+        with self._lock:
+            known = self._infos.get(info.id)
+        if known is not None:
+            if known != info:
+                raise ValueError(f"log channel {info.id} ({info.topic!r}) is already streamed as {known.topic!r}")
+            return
         schema = self._fx.Schema(name=info.schema_name, encoding=info.schema_encoding, data=bytes(info.schema_data))
         channel = self._fx.Channel(info.topic, schema=schema, message_encoding=info.message_encoding,
                                    context=self._context, metadata=dict(info.metadata))
         with self._lock:
+            self._infos[info.id] = info
             self._channels[info.id] = channel
             self._by_fox_id[channel.id()] = info.id
             self._topics.add(info.topic)

@@ -138,6 +138,13 @@ CONTROLLER_STATE = flat_schema("hydroplant_msgs/msg/ControllerState", CONTROLLER
 RING_SIZE = 500
 
 
+@functools.lru_cache(maxsize=16)
+def _record_offsets(dims: tuple) -> dict:
+    """:meth:`RECORD_ROW.offsets <hydraulics.layout.Layout.offsets>` of the dimensions ``dims`` (sorted (name, value)
+    pairs), worked out once per scene size (it evaluates the layout's expressions field by field)."""
+    return RECORD_ROW.offsets(**dict(dims))
+
+
 class RunRecorder:
     """Registers the channels of a plant on a :class:`LogWriter` and logs samples in batches.
 
@@ -268,11 +275,11 @@ class RunRecorder:
                                                   m.nq + m.jnt_dofadr[plant.scalar_joints]]).astype(np.intp)
         raw_dims = dict(n=nnode, nq=nq, nv=nv, na=net.actuator_count, nvalve=nvalve, nstate=net.component_state_count,
                         npump=npump, nb=nflow, nbody=nbody, nctl=nctl)
-        self._rawcols = {name: slice(*span) for name, span in RECORD_ROW.offsets(**raw_dims).items()}
+        self._rawcols = {name: slice(*span) for name, span in _record_offsets(tuple(sorted(raw_dims.items()))).items()}
         b = self._rawcols
         b["joints"], b["poses"] = slice(b["qpos"].start, b["qvel"].stop), slice(b["xpos"].start, b["xquat"].stop)
         capacity = max(1, min(int(RING_SIZE if ring_size is None else ring_size), log._batch_size))
-        self._raw = np.zeros((capacity, RECORD_ROW.size(**raw_dims)))
+        self._raw = np.zeros((capacity, max(span.stop for span in b.values())))  # (the last field stops at the size)
         self._raw_steps = np.zeros(capacity, dtype=np.int64)
         self._spare_rings: list[tuple[np.ndarray, np.ndarray]] = []  # rings whose rows are in the log, to fill again
         self._counting = np.arange(capacity, dtype=np.int64)
@@ -522,8 +529,8 @@ class RunRecorder:
         self._pending = self._derived = 0
         if count > 0:
             raw, steps, batch = self._raw, self._raw_steps, self._batch
-            self._raw, self._raw_steps = (self._spare_rings.pop() if self._spare_rings
-                                          else (np.zeros_like(raw), np.zeros_like(steps)))
+            self._raw, self._raw_steps = (self._spare_rings.pop() if self._spare_rings  # (np.zeros: pages come as rows do)
+                                          else (np.zeros(raw.shape), np.zeros(steps.shape, dtype=steps.dtype)))
             self.frame.defer(steps[:count], functools.partial(self._fill, raw, steps, batch, count))
 
     def push_pending(self) -> None:
