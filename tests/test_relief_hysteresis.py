@@ -7,6 +7,11 @@ pressure.
 * Rig, both modes: a pump ramped up and down on a 2 L volume relieved by the valve; the supply pressure where the
   poppet first lifts equals the cracking pressure, and where the pump has stopped and the poppet seated, the
   reseat pressure (each within 1 %).  Without hysteresis the stopped pump leaves the cracking pressure.
+* Published rule: Hopsan's relief valve (component library, *HydraulicPressureReliefValve* with the utility
+  *ValveHysteresis*) holds its previous opening x inside [x_s − x_h/2, x_s + x_h/2] about the static opening x_s
+  of the mid-band pressure, the filter keeping x within [0, full]; with the band w = p_crack − p_reseat that is
+  x = clip(x_prev, (Δp − p_crack)/span, (Δp − p_reseat)/span), then clipped to [0, 1].  A quasi-static random
+  sweep with minor loops inside the band and excursions past both ends opens as that rule does, step for step.
 """
 
 from __future__ import annotations
@@ -52,6 +57,33 @@ def test_a_quasi_static_sweep_opens_on_one_characteristic_and_closes_on_the_othe
     assert np.allclose(openings_down, expected, atol=1e-12)
     held = (down < 1.4e7) & (down > RESEAT + peak * span)
     assert held.any() and np.all(np.array(openings_down)[held] == peak)
+
+
+def _published_rule(dp_sweep, crack, reseat, span):
+    """The quasi-static opening of Hopsan's relief valve with hysteresis (its ValveHysteresis clip about the
+    mid-band line, then its filter's limits), in normalised opening [-]: a slow reference for the test only."""
+    x, out = 0.0, []
+    for dp in dp_sweep:
+        x = min(max(x, (dp - crack) / span), (dp - reseat) / span)
+        x = min(max(x, 0.0), 1.0)
+        out.append(x)
+    return np.array(out)
+
+
+def test_a_random_sweep_with_minor_loops_opens_as_the_published_play_rule():
+    row, state, span = valve().law_row(FLUID), np.zeros(3), FULL - CRACK
+    rng, t = np.random.default_rng(7), np.linspace(0.0, 1.0, 4000)
+    # a slow swing far past both ends, with reversals smaller than the 2 MPa band riding on it
+    dp = 1.1e7 + 0.9e7 * np.sin(2 * np.pi * 3 * t) + 1.2e6 * np.sin(2 * np.pi * 41 * t) + rng.normal(0.0, 2e5, t.size)
+    assert dp.min() < RESEAT and dp.max() > FULL + (CRACK - RESEAT)
+    openings = []
+    for value in dp:
+        step_end(row, state, 0.01, P0 + value, P0, 0.0, state)  # 100 time constants: the poppet on its target
+        openings.append(state[0])
+    expected = _published_rule(dp, CRACK, RESEAT, span)
+    held = np.flatnonzero((np.diff(expected) == 0.0) & (expected[1:] > 0.0) & (expected[1:] < 1.0))
+    assert len(held) > 50  # the sweep does dwell inside the band, part open
+    np.testing.assert_allclose(openings, expected, rtol=0.0, atol=1e-12)
 
 
 @pytest.mark.parametrize("opening", [0.15, 0.55, 0.95])
