@@ -266,11 +266,17 @@ class PointerTable:
         self._dtypes = tuple(np.dtype(dtype) for _, dtype, _ in self.arrays)
         self.View = namedtuple(f"{name.title().replace('_', '')}Views", fields)
         self.View.__doc__ = f"Views of the arrays of the {name} pointer table ({', '.join(fields)})."
-        shapes = ", ".join("(" + "".join(f"({e}), " for e in shape) + ")" for _, _, shape in self.arrays)
-        source = f"def shapes({', '.join(self.dims)}):\n    return ({shapes}{',' if len(self.arrays) == 1 else ''})\n"
+        # each array's shape as a function of the dimensions, and all of them as one (generated once: a registration
+        # calls those of the arrays it registers, no eval per array)
+        extents = ["(" + "".join(f"({e}), " for e in shape) + ")" for _, _, shape in self.arrays]
+        source = "".join(f"def shape_{i}({', '.join(self.dims)}):\n    return {extent}\n" for i, extent in
+                         enumerate(extents))
+        source += (f"def shapes({', '.join(self.dims)}):\n    return ({', '.join(extents)}"
+                   f"{',' if len(self.arrays) == 1 else ''})\n")
         namespace = {"__builtins__": {}}
         exec(compile(source, f"<hydraulics.layout.{name}.shapes>", "exec"), namespace)
-        self._shapes = namespace["shapes"]  # (read on each registration: one call, no eval per array)
+        self._shapes = namespace["shapes"]
+        self._shape_of = tuple(namespace[f"shape_{i}"] for i in range(len(self.arrays)))
         self.shapes(**{d: 1 for d in self.dims})  # every expression in the dimensions
 
     def __len__(self):
@@ -314,10 +320,10 @@ class PointerTable:
             raise TypeError(f"pointer table {self.name}: unknown dimensions or arrays {sorted(unknown)}")
         for d, value in dims.items():
             ctx[getattr(self.SLOT, f"C_{d.upper()}")] = int(value)
-        shapes = self._shapes(*(int(ctx[s]) for s in self._dim_slots))
+        dims = tuple(int(ctx[s]) for s in self._dim_slots)
         for field, array in arrays.items():
             index = self._index[field]
-            dtype, shape = self._dtypes[index], shapes[index]
+            dtype, shape = self._dtypes[index], self._shape_of[index](*dims)
             size = math.prod(shape)
             if not (isinstance(array, np.ndarray) and array.dtype == dtype and array.flags.c_contiguous
                     and array.size == size):

@@ -1114,9 +1114,7 @@ class MujocoPlantFast(MujocoPlant):
         ctx[SLOT.C_STEP0] = self.step_index
         ctx[_BLOCK_START[0]] = _BLOCK_START[1]
         if rows:
-            # (the rows' table entries written directly: `record` was checked above as POINTERS.register checks `rec`
-            # (dtype, C order, rows × record_width entries), and the layout walk of a register costs ~35 µs per block)
-            ctx[SLOT.P_REC], ctx[SLOT.C_REC_ROWS] = record.ctypes.data, rows
+            POINTERS.register(ctx, dict(rec=record[:rows]), rec_rows=rows)
             ctx[[SLOT.C_REC_EVERY, SLOT.C_REC_FIRST, SLOT.C_REC_COUNT, SLOT.C_REC_BAD]] = every, first, 0, 0
         if not _LOCK.acquire(blocking=False):
             raise RuntimeError("another MujocoPlantFast is stepping in this process (MuJoCo's control callback is global)")
