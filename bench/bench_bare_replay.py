@@ -12,7 +12,7 @@ so the actuator forces, and hence the trajectory, are bit for bit the coupled ru
 prints the largest ``qpos`` difference at the end as a check).
 
 Timing: ``--reps`` rounds; in each, for every coupling, its bare-replay and its coupled run
-(``advance`` in the runner's 0.5 s blocks, from a new plant) are timed back to back, the order of
+(``advance`` in the runner's blocks, ``block_steps(dt)``, from a new plant) are timed back to back, the order of
 the two alternating from round to round.  Printed per coupling: the median µs per step of each,
 and the median and quartiles of the per-round ratio coupled / bare-replay (the paired figure to
 read: both halves of a pair see the same machine load).  ``--markdown`` adds the table of

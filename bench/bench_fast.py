@@ -9,13 +9,13 @@ median is reported:
   same actuators and integrator) from the same initial state, with constant
   controls (the effort law of the plant's first step held), no callback: the
   mechanical cost alone;
-* ``fast/500``: ``MujocoPlantFast.advance(500)`` — the runner's block at 1 kHz
-  (``sim.run.runner.block_steps``: 0.5 s, fifty samples of the default 100 Hz log per block);
-* ``fast/1000``: ``advance(1000)``;
-* ``linear/500``, ``linear/1000``: the same with coupling ``implicit-linear``
+* ``fast/2000``: ``MujocoPlantFast.advance(2000)`` — the runner's block at 1 kHz
+  (``sim.run.runner.block_steps``: 2 s, two hundred samples of the default 100 Hz log per block);
+* ``fast/4000``: ``advance(4000)``;
+* ``linear/2000``, ``linear/4000``: the same with coupling ``implicit-linear``
   (linearly implicit finish, no second Newton solve; plant constructor
   argument ``coupling``);
-* ``rosen/500``, ``rosen/1000``: coupling ``rosenbrock`` (also the linearisation is
+* ``rosen/2000``, ``rosen/4000``: coupling ``rosenbrock`` (also the linearisation is
   one Newton step: no nonlinear solve unless a step leaves the trust region);
 * ``python``: the Python-orchestrated :class:`MujocoPlant` (first 0.2 s only);
 * ``pbd-θ 1ms×1``, ``pbd-rb-θ 60Hz×18``, ``pbd-rb-θ 100Hz×11``: PBD mode
@@ -54,7 +54,7 @@ SCENES = {
     "excavator": MODELS / "excavator" / "dig.scenario.toml",
 }
 DT = 1e-3  # s
-LONGEST_BLOCK = 1000  # steps: the long-block variants (fast/1000 etc.) advance this many steps per call
+LONGEST_BLOCK = 4000  # steps: the long-block variants (fast/4000 etc.) advance this many steps per call
 RUNNER_BLOCK = block_steps(DT)  # steps: the runner's block at 1 kHz
 # MuJoCo mode's variants: (steps per advance, label, coupling)
 MUJOCO_VARIANTS = tuple((block, f"{label}/{block}", coupling)

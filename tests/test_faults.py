@@ -237,7 +237,7 @@ def test_log_info_of_an_incomplete_log(tmp_path, capsys):
     runner.make_plant = failing_plant
     try:
         with pytest.raises(Boom):
-            run(LIFT, out=tmp_path / "broken.mcap", overrides={"dt": 5e-3, "duration": 1.0})
+            run(LIFT, out=tmp_path / "broken.mcap", overrides={"dt": 5e-3, "duration": 3.0})
     finally:
         runner.make_plant = original
     assert main(["log", "info", str(tmp_path / "broken.mcap")]) == 0

@@ -200,11 +200,15 @@ def test_replay_from_an_older_snapshot_gives_the_same_log(tmp_path, monkeypatch)
     assert repr((older.energy, older.final_joints)) == repr((every_block.energy, every_block.final_joints))  # NaNs
 
 
-def test_blocks_span_half_a_second_or_a_hundred_steps():
-    """The block path's block length: 0.5 s of simulated time at fine steps, never fewer than MIN_BLOCK_STEPS."""
-    from sim.run import runner
+def test_blocks_span_the_flush_interval_or_a_hundred_steps():
+    """The block path's block length: the log's flush interval (2 s) of simulated time at fine steps, never fewer than
+    MIN_BLOCK_STEPS steps; the recorder's ring holds a block's samples logged every step at 1 kHz."""
+    from sim.io.log_writer import DEFAULT_FLUSH_INTERVAL
+    from sim.run import recorder, runner
 
-    assert runner.block_steps(1e-3) == 500
-    assert runner.block_steps(1 / 1200) == 600
-    assert runner.block_steps(1 / 60) == runner.MIN_BLOCK_STEPS == 100
-    assert runner.block_steps(1e-5) == 50_000
+    assert runner.BLOCK_SECONDS == DEFAULT_FLUSH_INTERVAL == 2.0
+    assert runner.block_steps(1e-3) == 2000 == recorder.RING_SIZE
+    assert runner.block_steps(1 / 1200) == 2400
+    assert runner.block_steps(1 / 60) == 120
+    assert runner.block_steps(0.1) == runner.MIN_BLOCK_STEPS == 100
+    assert runner.block_steps(1e-5) == 200_000

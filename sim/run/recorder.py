@@ -132,10 +132,10 @@ SOLVER = flat_schema("hydroplant_msgs/msg/Solver", SOLVER_FIELDS)
 CONTROLLER_STATE = flat_schema("hydroplant_msgs/msg/ControllerState", CONTROLLER_FIELDS)
 
 # samples captured before their fields are derived and written, as one batch (the runner also derives at every periodic
-# flush of the log); a divisor of the runner's 500-step blocks at 1 kHz (sim.run.runner.block_steps) and of the 2 s
-# flush interval, so that logging every step runs whole blocks (a ring of 512 would end each 500-step block with a
-# 12-step one)
-RING_SIZE = 500
+# flush of the log): the runner's 2000-step blocks at 1 kHz (sim.run.runner.block_steps), the 2 s flush interval, so
+# that logging every step runs whole blocks, each handed to the log as one batch (the run's log takes batches of this
+# size, sim.run.runner.run)
+RING_SIZE = 2000
 
 
 @functools.lru_cache(maxsize=16)

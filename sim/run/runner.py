@@ -10,8 +10,8 @@ MuJoCo mode with the implicit coupling and the compiled kernels (the
 defaults) advances :class:`~sim.plants.mujoco_fast.MujocoPlantFast` in blocks
 of one ``mj_step(m, d, nstep=n)``: one log interval (``scenario.log_every``
 steps), or as many whole intervals as fit in :func:`block_steps` (100 steps, or
-0.5 s of simulated time when that is more: the default 100 Hz log at 1 kHz, blocks
-of 50 intervals; every step: blocks of 500, bounded by the recorder's ring).  The plant records the log samples inside a block from its
+2 s of simulated time when that is more: the default 100 Hz log at 1 kHz, blocks
+of 200 intervals; every step: blocks of 2000, bounded by the recorder's ring).  The plant records the log samples inside a block from its
 compiled loop straight into the recorder's ring
 (``MujocoPlantFast.advance(n, record, every)``), so a block runs one step past
 its last sample; a sample that ends a block (every-step logging, the run's
@@ -60,7 +60,7 @@ from sim.run.guards import check_plant
 from sim.io.files import PARTIAL_SUFFIX, check_output, free_path, read_bytes
 from sim.io.mcap_log import LogLevel, LogWriter
 from sim.run.monitor import RunMonitor, Violation
-from sim.run.recorder import RunRecorder
+from sim.run.recorder import RING_SIZE, RunRecorder
 from sim.io.scenario import Scenario, load_scenario
 from sim.plants.controllers import load_python_controllers
 from sim.io.scene import load_scene
@@ -162,15 +162,18 @@ SNAPSHOT_STEPS = 100
 # log interval and every-step logging then step the plant in the same blocks.
 MIN_BLOCK_STEPS = 100
 # Simulated time a block spans at least [s] when that is more than MIN_BLOCK_STEPS steps: what is left per block
-# (the compiled call's dispatch, ~150 arguments for PBD mode, the snapshot, committing the recorded samples) is
-# 0.1–0.4 ms, i.e. 4–12 % of a 100-step block of the excavator at 1 kHz (paired runs, 3 s: implicit
-# 34.6 µs per step with 100-step blocks, 30.6 µs with 500-step blocks).
-BLOCK_SECONDS = 0.5
+# (the compiled call's dispatch, ~150 arguments for PBD mode, the snapshot, committing the recorded samples, the
+# monitor's checks, the hand-over of a batch to the log) is 0.1–0.4 ms, i.e. 4–12 % of a 100-step block of the
+# excavator at 1 kHz.  One block per periodic flush of the log (sim.io.log_writer.DEFAULT_FLUSH_INTERVAL) hands each
+# batch to the log's writer thread once, as the block that follows starts (paired runs of the logged 20 s dig,
+# implicit, 1 kHz: blocks of 0.5 s cost the run's own thread 17 ms more CPU time at the default 100 Hz, 30 ms more
+# logging every step).
+BLOCK_SECONDS = 2.0
 
 
 def block_steps(dt: float) -> int:
     """Steps per block of the block path at step ``dt`` [s]: MIN_BLOCK_STEPS, or BLOCK_SECONDS of simulated time
-    when that is more (1 kHz: 500; 1200 Hz: 600; 60 Hz frames: 100)."""
+    when that is more (1 kHz: 2000; 1200 Hz: 2400; 60 Hz frames: 120; 10 Hz frames: 100)."""
     return max(MIN_BLOCK_STEPS, int(round(BLOCK_SECONDS / dt)))
 
 
@@ -403,7 +406,8 @@ def run(scenario, *, out=None, overrides: dict | None = None, progress: bool = F
         metadata.update(driver.metadata)
     if out is not None:
         log_path.parent.mkdir(parents=True, exist_ok=True)
-        writer = LogWriter(log_path, dt=scenario.dt, run_metadata=metadata, attachments=attachments, overwrite=overwrite)
+        writer = LogWriter(log_path, dt=scenario.dt, run_metadata=metadata, attachments=attachments, overwrite=overwrite,
+                           batch_size=RING_SIZE)  # (a ring of the recorder is one batch of the log)
     else:
         log_path, writer = _default_writer(scenario, metadata, attachments)
     try:
@@ -501,7 +505,7 @@ def _default_writer(scenario: Scenario, metadata: dict, attachments):
         path = default_log_path(scenario)
         path.parent.mkdir(parents=True, exist_ok=True)
         try:
-            return path, LogWriter(path, dt=scenario.dt, run_metadata=metadata, attachments=attachments)
+            return path, LogWriter(path, dt=scenario.dt, run_metadata=metadata, attachments=attachments, batch_size=RING_SIZE)
         except (FileExistsError, CircuitError):
             if not any(os.path.lexists(p) for p in (path, path.with_name(path.name + PARTIAL_SUFFIX))):
                 raise  # refused for another reason
@@ -686,6 +690,11 @@ class _Loop:
                     if verdict == _GO_ON:
                         if not self.per_step_extremes:
                             self.track_block()
+                        # the next block's snapshot before the samples go to the log's writer thread: mj_getState
+                        # lets go of the GIL, and the writer, woken by the hand-over, would take it for its Python
+                        # and keep this thread waiting up to the interpreter's switch interval
+                        if end - snapshot.step_index >= SNAPSHOT_STEPS and end < until:
+                            snapshot.take(plant)
                         if due and not self.drain():
                             return
                         self.show_progress()
