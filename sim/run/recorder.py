@@ -150,8 +150,8 @@ class RunRecorder:
 
     Per sample, :meth:`capture` copies only the plant's raw state (pressures, oil,
     actuator motion, efforts, controls, flows, energy ledger, joints, body poses)
-    into a ring of ``ring_size`` rows; a plant that records samples inside its
-    blocks (:class:`~sim.plants.mujoco_fast.MujocoPlantFast`, same row layout:
+    into a ring of ``ring_size`` rows (at most :data:`RING_SIZE` and the log's batch); a plant that records
+    samples inside its blocks (:class:`~sim.plants.mujoco_fast.MujocoPlantFast`, same row layout:
     ``record_row``) writes them straight into the ring instead
     (:meth:`record_target`, then :meth:`commit_recorded`).  :meth:`derive` computes what the
     run's checks need of all pending samples at once (node volumes, stored oil energy, energy
@@ -278,7 +278,7 @@ class RunRecorder:
         self._rawcols = {name: slice(*span) for name, span in _record_offsets(tuple(sorted(raw_dims.items()))).items()}
         b = self._rawcols
         b["joints"], b["poses"] = slice(b["qpos"].start, b["qvel"].stop), slice(b["xpos"].start, b["xquat"].stop)
-        capacity = max(1, min(int(RING_SIZE if ring_size is None else ring_size), log._batch_size))
+        capacity = max(1, min(RING_SIZE, RING_SIZE if ring_size is None else int(ring_size), log._batch_size))
         self._raw = np.zeros((capacity, max(span.stop for span in b.values())))  # (the last field stops at the size)
         self._raw_steps = np.zeros(capacity, dtype=np.int64)
         self._spare_rings: list[tuple[np.ndarray, np.ndarray]] = []  # rings whose rows are in the log, to fill again

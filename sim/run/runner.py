@@ -516,7 +516,10 @@ def _run_loop(log: LogWriter, plant, scenario: Scenario, guard, caller, driver=N
     """Step the plant through the run, logging to ``log``: the finished :class:`_Loop` and the wall time [s].
     ``caller`` = (progress line shown, stop request or None), as :func:`run` takes them; ``driver`` as :func:`run`'s."""
     progress, stop = caller
-    recorder = RunRecorder(log, plant, tf_every=scenario.tf_every)
+    # a ring holds the samples of one block (a block at most reaches the log's next flush, where the ring is pushed):
+    # no larger than a run at a low log rate fills, since its fresh pages cost the run the first time they are written
+    recorder = RunRecorder(log, plant, ring_size=block_steps(scenario.dt) // scenario.log_every + 1,
+                           tf_every=scenario.tf_every)
     for text in guard.warnings:
         recorder.event(plant.step_index, LogLevel.WARNING, "stability guard: " + text)
     loop = _Loop(plant, recorder, log, scenario, progress and driver is None)
