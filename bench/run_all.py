@@ -44,8 +44,9 @@ BENCHES = (
     Bench("bench_fast", ("--reps", "5", "--markdown"), "Coupled step against bare MuJoCo",
           "µs per step at 1 kHz over the first 6 s of each scene's scenario, its ratio to a bare `mj_step` loop on "
           "the same MJCF with the actuators at constant controls, and the real-time factor; PBD cells are µs per "
-          "millisecond of simulated time. Blocks of 500 / 1000 steps are the block-stepping `MujocoPlantFast`; the "
-          "Python-orchestrated plant is the per-step `MujocoPlant`. Last column: the process's peak RSS. "
+          "millisecond of simulated time. Blocks of 2000 / 4000 steps (the runner's 2 s block and twice it) are the "
+          "block-stepping `MujocoPlantFast`; the Python-orchestrated plant is the per-step `MujocoPlant`. Last "
+          "column: the process's peak RSS. "
           "Target T1: MuJoCo mode within 1.3× bare `mj_step` on the excavator (see the floor below)."),
     Bench("bench_bare_replay", ("--reps", "7", "--markdown"), "Coupled step against bare-replay",
           "The excavator dig (20 s at 1 kHz) per coupling against bare-replay: plain `mj_step` stepping the same "
