@@ -82,7 +82,7 @@ def _time_piece(F, I, oil, x, v, spool, speed, piece, reps):
             C._linearize_one_step_core(pnet, W, start, DT, out)
             check += out.pressure[n - 1]
         elif piece == ONE_STEP_KNOWN:
-            C._linearize_one_step_from(pnet, W, start, DT, out, True, geo, dpdm)
+            C._linearize_one_step_from(pnet, W, start, DT, out, 1, geo, dpdm, (flow, dflow, speed))
             check += out.pressure[n - 1]
         elif piece == LINEAR_FINISH:
             C._linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow)
