@@ -478,12 +478,13 @@ def _state_law(cls):
     return law, end, piece
 
 
-def _law_dispatch(laws, first=0):
+def _law_dispatch(laws):
     """Kernels ``dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot)``, ``dispatch_end(kind, row, state, h,
     p_from, p_to, p_pilot, out)`` and
-    ``dispatch_piece(…)`` calling ``laws[kind - first]``'s law, state update and kink hook (the triples of
-    :func:`_state_law` of :data:`hydraulics.components.BRANCH_LAWS`, in order): chains of closures, one ``if``
-    per law, built from the registry so that a new component needs no line here."""
+    ``dispatch_piece(…)`` calling ``laws[kind]``'s law, state update and kink hook (the triples of
+    :func:`_state_law` of :data:`hydraulics.components.BRANCH_LAWS`, in order): one ``if`` per law in one function
+    each, generated from the registry so that a new component needs no line here (a chain of nested calls, one
+    per law, would pass the arguments down as many calls as the law's place in the registry)."""
     if not laws:
         @_kernel
         def none(kind, row, state, inputs, h, p_from, p_to, p_pilot):
@@ -498,28 +499,23 @@ def _law_dispatch(laws, first=0):
             return 0
 
         return none, none_end, none_piece
-    (law, end, piece), (rest, rest_end, rest_piece) = laws[0], _law_dispatch(laws[1:], first + 1)
-
-    @_kernel
-    def dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot):
-        if kind == first:
-            return law(row, state, inputs, h, p_from, p_to, p_pilot)
-        return rest(kind, row, state, inputs, h, p_from, p_to, p_pilot)
-
-    @_kernel
-    def dispatch_end(kind, row, state, h, p_from, p_to, p_pilot, out):
-        if kind == first:
-            end(row, state, h, p_from, p_to, p_pilot, out)
-        else:
-            rest_end(kind, row, state, h, p_from, p_to, p_pilot, out)
-
-    @_kernel
-    def dispatch_piece(kind, row, state, h, p_from, p_to, p_pilot):
-        if kind == first:
-            return piece(row, state, h, p_from, p_to, p_pilot)
-        return rest_piece(kind, row, state, h, p_from, p_to, p_pilot)
-
-    return dispatch, dispatch_end, dispatch_piece
+    names = {"math": math}
+    lines = ["def dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot):"]
+    lines_end = ["def dispatch_end(kind, row, state, h, p_from, p_to, p_pilot, out):"]
+    lines_piece = ["def dispatch_piece(kind, row, state, h, p_from, p_to, p_pilot):"]
+    for kind, (law, end, piece) in enumerate(laws):
+        names[f"law_{kind}"], names[f"end_{kind}"], names[f"piece_{kind}"] = law, end, piece
+        lines += [f"    if kind == {kind}:", f"        return law_{kind}(row, state, inputs, h, p_from, p_to, p_pilot)"]
+        lines_end += [f"    if kind == {kind}:", f"        end_{kind}(row, state, h, p_from, p_to, p_pilot, out)",
+                      "        return None"]
+        lines_piece += [f"    if kind == {kind}:", f"        return piece_{kind}(row, state, h, p_from, p_to, p_pilot)"]
+    # (an unknown kind: NaN flows, no state change, piece 0)
+    lines += ["    return math.nan, math.nan, math.nan, math.nan"]
+    lines_end += ["    return None"]
+    lines_piece += ["    return 0"]
+    source = "\n".join(lines + [""] + lines_end + [""] + lines_piece) + "\n"
+    exec(compile(source, "<hydraulics._compiled._law_dispatch>", "exec"), names)
+    return _kernel(names["dispatch"]), _kernel(names["dispatch_end"]), _kernel(names["dispatch_piece"])
 
 
 _branch_law, _branch_law_end, _branch_law_piece = _law_dispatch(tuple(_state_law(cls) for cls in BRANCH_LAWS))
