@@ -73,7 +73,7 @@ def _time_piece(F, I, oil, x, v, spool, speed, cmd, piece, reps):
     lu, saved = np.empty(net.ic[C.IC_NLU]), np.empty(net.ic[C.IC_NLU])
     rhs = np.empty((nf, 1 + na))
     C._valve_areas(pnet, spool, area)
-    C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
+    C._evaluate(pnet, oil, oil, x, v, (area, spool), speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
     W = np.empty(C._linearize_work_size(net.ic))
     start = C.StepStart(oil, spool, spool, speed, x, v)
     out = C.LinearizationOut(np.empty(n), np.empty(n), np.empty(spool.size), np.empty(na), np.empty(nb),
@@ -101,7 +101,7 @@ def _time_piece(F, I, oil, x, v, spool, speed, cmd, piece, reps):
             C._linearize_one_step_from(pnet, W, kept, DT, out, 2, geo, dpdm, (flow_before, dflow_before, speed))
             check += out.pressure[n - 1]
         elif piece == LINEAR_FINISH:
-            C._linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow)
+            C._linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow, DT)
             check += p[n - 1]
         elif piece == LEDGER:
             C._account(pnet, ledger, 2, DT, p, x, flow, v, quad, mu, geo, dpdm)
@@ -110,11 +110,11 @@ def _time_piece(F, I, oil, x, v, spool, speed, cmd, piece, reps):
             C._pressure(pnet, oil, x, geo, p, dpdm)
             check += p[n - 1]
         elif piece == FLOWS:
-            C._branch_flows(pnet, p, area, speed, v, flow, dflow)
+            C._branch_flows(pnet, p, area, speed, v, flow, dflow, spool, DT)
             C._net_inflow(pnet, flow, inflow)
             check += inflow[n - 1]
         elif piece == EVALUATION:
-            C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
+            C._evaluate(pnet, oil, oil, x, v, (area, spool), speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
             check += residual[nf - 1] if nf else 0.0
         else:
             C._newton_values(pnet, dflow, dpdm, DT, lu)
