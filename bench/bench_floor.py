@@ -24,7 +24,9 @@ integrated positions, not at the linearisation's; ``rosenbrock`` ends its step t
 A second line times the pieces of a ``rosenbrock`` step in the same way: its one-step
 linearisation (``_compiled._linearize_one_step_core``: start evaluation, gradients,
 one elimination, effort gradient), the same with the start evaluation known (MuJoCo
-mode, where the previous step's end evaluation is it), its linear finish (end
+mode, where the previous step's end evaluation is it), the same again keeping the previous step's end flows
+of the branches whose arguments did not change (``known`` 2, as MuJoCo mode runs it: the valve commands of the plant's
+last step, the valve areas at the step before's end spools, which are this step's start), its linear finish (end
 pressures and flows) and the energy ledger.  Run: ``.venv/bin/python bench/bench_floor.py``.
 """
 
@@ -51,14 +53,15 @@ PIECES = ("pressures", "flows", "evaluation", "factorisation")
 PRESSURES, FLOWS, EVALUATION, FACTORISATION = range(len(PIECES))
 # the pieces of a rosenbrock step (hydraulics.coupling): its one-step linearisation, the same at a known start
 # evaluation (MuJoCo mode: the previous step's end), its linear finish and the energy ledger
-STEP_PIECES = ("one-step", "one-step known", "linear finish", "ledger")
-ONE_STEP, ONE_STEP_KNOWN, LINEAR_FINISH, LEDGER = range(len(PIECES), len(PIECES) + len(STEP_PIECES))
+STEP_PIECES = ("one-step", "one-step known", "one-step kept", "linear finish", "ledger")
+ONE_STEP, ONE_STEP_KNOWN, ONE_STEP_KEPT, LINEAR_FINISH, LEDGER = range(len(PIECES), len(PIECES) + len(STEP_PIECES))
 
 
 @numba.njit(cache=True)
-def _time_piece(F, I, oil, x, v, spool, speed, piece, reps):
+def _time_piece(F, I, oil, x, v, spool, speed, cmd, piece, reps):
     """Run one building block ``reps`` times on the packed network (F, I) at (oil, x, v, spool, speed); returns a
-    checksum of its outputs (so that nothing is optimised away)."""
+    checksum of its outputs (so that nothing is optimised away).  ``cmd``: valve commands (the kept one-step
+    linearisation's; the other pieces hold the spools)."""
     net = C._unpack(F, I)
     pnet = C._ref(net)
     n, nb, nf, na = net.ic[C.IC_N], net.ic[C.IC_NB], net.ic[C.IC_NF], x.size
@@ -70,22 +73,35 @@ def _time_piece(F, I, oil, x, v, spool, speed, piece, reps):
     lu, saved = np.empty(net.ic[C.IC_NLU]), np.empty(net.ic[C.IC_NLU])
     rhs = np.empty((nf, 1 + na))
     C._valve_areas(pnet, spool, area)
-    C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
+    C._evaluate(pnet, oil, oil, x, v, (area, spool), speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
     W = np.empty(C._linearize_work_size(net.ic))
     start = C.StepStart(oil, spool, spool, speed, x, v)
     out = C.LinearizationOut(np.empty(n), np.empty(n), np.empty(spool.size), np.empty(na), np.empty(nb),
                              np.zeros(6, np.int64), np.empty(na), np.empty((na, na)), p.copy(), np.empty((n, na)))
     ledger, quad, mu = np.zeros(8), np.zeros(2 * POTENTIAL_QUADRATURE_POINTS), np.empty(n)
+    # the kept linearisation's step before: its valve areas at its end spools (this step's start), its law pieces
+    # and end flows at the start pressures
+    ic = net.ic
+    one, _ = C._one_step_scratch(W, 0, n, na, nb, nf, C._area_count(ic), ic[C.IC_NJQ], ic[C.IC_NLU])
+    flow_before, dflow_before = np.empty(nb), np.empty((nb, C._W_BR))
+    C._valve_areas(pnet, spool, one.area)
+    C._law_pieces(pnet, p, spool, DT, one.pieces)
+    C._branch_flows(pnet, p, one.area, speed, v, flow_before, dflow_before, spool, DT)
+    kept = C.StepStart(oil, spool, cmd, speed, x, v)
     check = 0.0
     for r in range(reps):
         if piece == ONE_STEP:
             C._linearize_one_step_core(pnet, W, start, DT, out)
             check += out.pressure[n - 1]
         elif piece == ONE_STEP_KNOWN:
-            C._linearize_one_step_from(pnet, W, start, DT, out, True, geo, dpdm)
+            C._linearize_one_step_from(pnet, W, start, DT, out, 1, geo, dpdm, (flow, dflow, speed))
+            check += out.pressure[n - 1]
+        elif piece == ONE_STEP_KEPT:
+            C._valve_areas(pnet, spool, one.area)  # (the step before's finish left them; the linearisation moves them)
+            C._linearize_one_step_from(pnet, W, kept, DT, out, 2, geo, dpdm, (flow_before, dflow_before, speed))
             check += out.pressure[n - 1]
         elif piece == LINEAR_FINISH:
-            C._linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow)
+            C._linear_finish(pnet, W, oil, spool, x, v, speed, p, flow, dflow, DT)
             check += p[n - 1]
         elif piece == LEDGER:
             C._account(pnet, ledger, 2, DT, p, x, flow, v, quad, mu, geo, dpdm)
@@ -94,11 +110,11 @@ def _time_piece(F, I, oil, x, v, spool, speed, piece, reps):
             C._pressure(pnet, oil, x, geo, p, dpdm)
             check += p[n - 1]
         elif piece == FLOWS:
-            C._branch_flows(pnet, p, area, speed, v, flow, dflow)
+            C._branch_flows(pnet, p, area, speed, v, flow, dflow, spool, DT)
             C._net_inflow(pnet, flow, inflow)
             check += inflow[n - 1]
         elif piece == EVALUATION:
-            C._evaluate(pnet, oil, oil, x, v, area, speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
+            C._evaluate(pnet, oil, oil, x, v, (area, spool), speed, DT, geo, p, dpdm, flow, dflow, inflow, residual)
             check += residual[nf - 1] if nf else 0.0
         else:
             C._newton_values(pnet, dflow, dpdm, DT, lu)
@@ -122,7 +138,7 @@ def bench(name, path, reps, window, every, calls):
         report = plant.advance(stride)
         assert report.success, report.message
         states.append((plant._F, plant._I, plant._oil.copy(), plant._x.copy(), plant._v.copy(), plant._spool.copy(),
-                       plant._speed[stride - 1].copy()))
+                       plant._speed[stride - 1].copy(), plant._cmd[stride - 1].copy()))
     for args in states[:1]:
         for piece in range(len(PIECES) + len(STEP_PIECES)):
             _time_piece(*args, piece, 10)  # compiled (or loaded) before timing

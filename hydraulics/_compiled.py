@@ -478,12 +478,13 @@ def _state_law(cls):
     return law, end, piece
 
 
-def _law_dispatch(laws, first=0):
+def _law_dispatch(laws):
     """Kernels ``dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot)``, ``dispatch_end(kind, row, state, h,
     p_from, p_to, p_pilot, out)`` and
-    ``dispatch_piece(…)`` calling ``laws[kind - first]``'s law, state update and kink hook (the triples of
-    :func:`_state_law` of :data:`hydraulics.components.BRANCH_LAWS`, in order): chains of closures, one ``if``
-    per law, built from the registry so that a new component needs no line here."""
+    ``dispatch_piece(…)`` calling ``laws[kind]``'s law, state update and kink hook (the triples of
+    :func:`_state_law` of :data:`hydraulics.components.BRANCH_LAWS`, in order): one ``if`` per law in one function
+    each, generated from the registry so that a new component needs no line here (a chain of nested calls, one
+    per law, would pass the arguments down as many calls as the law's place in the registry)."""
     if not laws:
         @_kernel
         def none(kind, row, state, inputs, h, p_from, p_to, p_pilot):
@@ -498,28 +499,23 @@ def _law_dispatch(laws, first=0):
             return 0
 
         return none, none_end, none_piece
-    (law, end, piece), (rest, rest_end, rest_piece) = laws[0], _law_dispatch(laws[1:], first + 1)
-
-    @_kernel
-    def dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot):
-        if kind == first:
-            return law(row, state, inputs, h, p_from, p_to, p_pilot)
-        return rest(kind, row, state, inputs, h, p_from, p_to, p_pilot)
-
-    @_kernel
-    def dispatch_end(kind, row, state, h, p_from, p_to, p_pilot, out):
-        if kind == first:
-            end(row, state, h, p_from, p_to, p_pilot, out)
-        else:
-            rest_end(kind, row, state, h, p_from, p_to, p_pilot, out)
-
-    @_kernel
-    def dispatch_piece(kind, row, state, h, p_from, p_to, p_pilot):
-        if kind == first:
-            return piece(row, state, h, p_from, p_to, p_pilot)
-        return rest_piece(kind, row, state, h, p_from, p_to, p_pilot)
-
-    return dispatch, dispatch_end, dispatch_piece
+    names = {"math": math}
+    lines = ["def dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot):"]
+    lines_end = ["def dispatch_end(kind, row, state, h, p_from, p_to, p_pilot, out):"]
+    lines_piece = ["def dispatch_piece(kind, row, state, h, p_from, p_to, p_pilot):"]
+    for kind, (law, end, piece) in enumerate(laws):
+        names[f"law_{kind}"], names[f"end_{kind}"], names[f"piece_{kind}"] = law, end, piece
+        lines += [f"    if kind == {kind}:", f"        return law_{kind}(row, state, inputs, h, p_from, p_to, p_pilot)"]
+        lines_end += [f"    if kind == {kind}:", f"        end_{kind}(row, state, h, p_from, p_to, p_pilot, out)",
+                      "        return None"]
+        lines_piece += [f"    if kind == {kind}:", f"        return piece_{kind}(row, state, h, p_from, p_to, p_pilot)"]
+    # (an unknown kind: NaN flows, no state change, piece 0)
+    lines += ["    return math.nan, math.nan, math.nan, math.nan"]
+    lines_end += ["    return None"]
+    lines_piece += ["    return 0"]
+    source = "\n".join(lines + [""] + lines_end + [""] + lines_piece) + "\n"
+    exec(compile(source, "<hydraulics._compiled._law_dispatch>", "exec"), names)
+    return _kernel(names["dispatch"]), _kernel(names["dispatch_end"]), _kernel(names["dispatch_piece"])
 
 
 _branch_law, _branch_law_end, _branch_law_piece = _law_dispatch(tuple(_state_law(cls) for cls in BRANCH_LAWS))
@@ -786,6 +782,59 @@ def _branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h):
         q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], _law_state(state, net.law_state[i]),
                                     _law_inputs(speed, net.law_input[i]), h, p[br[b, T_FROM]], p[br[b, T_TO]],
                                     p[pilot] if pilot >= 0 else 0.0)
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO], dflow[b, T_PILOT] = q, d0, d1, d2
+
+
+@_inline
+def _same_value(a, b):
+    """a and b are the same float: equal and of one sign (so also ±0 told apart)."""
+    return a == b and math.copysign(1.0, a) == math.copysign(1.0, b)
+
+
+@_kernel
+def _kept_branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h, before):
+    """:func:`_branch_flows` at the node pressures ``p`` [Pa] at which ``before`` = (open areas, scheduled inputs,
+    flows, terminal derivatives) were evaluated by :func:`_branch_flows` over a step of the same ``h`` [s]: an
+    orifice branch whose open area is the same and a stateless law branch whose scheduled inputs are the same keep
+    those flow and derivatives (the same law at the same arguments: the same result, bit for bit); the motor and
+    rigid branches (the velocities) and the others are evaluated.  In MuJoCo mode the ``rosenbrock`` step starts at
+    the pressures its previous step ended at and kept the flows there (sim.plants.mujoco_fast)."""
+    area_before, speed_before, flow_before, dflow_before = before
+    net = _deref(pnet)
+    ic, br = net.ic, net.br
+    dflow[:, :] = 0.0
+    for b in range(ic[IC_O0], ic[IC_O1]):
+        i = b - ic[IC_O0]
+        if _same_value(area[i], area_before[i]):
+            flow[b], dflow[b, T_FROM], dflow[b, T_TO] = flow_before[b], dflow_before[b, T_FROM], dflow_before[b, T_TO]
+            continue
+        q, g = _orifice.flow_with_derivative(area[i], net.ori[i, O_K], net.ori[i, O_C], p[br[b, 0]] - p[br[b, 1]])
+        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
+    for b in range(ic[IC_M0], ic[IC_M1]):
+        i = b - ic[IC_M0]
+        flow[b] = _motor.flow(net.mot[net.mot_br_i[i]], velocity[net.mot_br_act[i]])
+    nor = ic[IC_O1] - ic[IC_O0]
+    for b in range(ic[IC_G0], ic[IC_G1]):
+        i = b - ic[IC_G0]
+        flow[b] = area[nor + i] * velocity[net.rig_i[i, GI_ACT]]
+    law = net.law
+    for b in range(ic[IC_W0], ic[IC_W1]):
+        i = b - ic[IC_W0]
+        inputs = _law_inputs(speed, net.law_input[i])
+        if net.law_state[i] < 0:
+            inputs_before = _law_inputs(speed_before, net.law_input[i])
+            same = True
+            for j in range(inputs.size):
+                if not _same_value(inputs[j], inputs_before[j]):
+                    same = False
+            if same:
+                flow[b] = flow_before[b]
+                for j in range(_W_BR):
+                    dflow[b, j] = dflow_before[b, j]
+                continue
+        pilot = br[b, T_PILOT]
+        q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], _law_state(state, net.law_state[i]), inputs, h,
+                                    p[br[b, T_FROM]], p[br[b, T_TO]], p[pilot] if pilot >= 0 else 0.0)
         flow[b], dflow[b, T_FROM], dflow[b, T_TO], dflow[b, T_PILOT] = q, d0, d1, d2
 
 
@@ -1072,8 +1121,14 @@ def _evaluate(pnet, oil, oil0, x, v, components, speed, h, geo, p, dpdm, flow, d
 @_kernel
 def _evaluate_flows(pnet, oil, oil0, v, area, state, speed, h, p, flow, dflow, inflow, residual):
     # :func:`_evaluate` at known pressures ``p`` of ``oil``: branch flows and the backward-Euler residual
-    net = _deref(pnet)
     _branch_flows(pnet, p, area, speed, v, flow, dflow, state, h)
+    _flow_residual(pnet, oil, oil0, h, flow, inflow, residual)
+
+
+@_kernel
+def _flow_residual(pnet, oil, oil0, h, flow, inflow, residual):
+    # the net inflows of the branch flows ``flow`` and the backward-Euler residual r = m − m₀ − h·ΣQ (free nodes)
+    net = _deref(pnet)
     _net_inflow(pnet, flow, inflow)
     free = net.free
     for j in range(free.size):
@@ -1095,14 +1150,25 @@ def _volume_and_modulus(pnet, k, geometric, p):
 
 @_kernel
 def _trust_step(pnet, oil, delta, geo, p):
-    # largest fraction ≤ 1 of the Newton update ``delta`` that keeps every free node inside the trust region: it may
-    # fill its vapour void, then move by at most max(TRUST_PRESSURE, TRUST_FRACTION·|p|) [Pa]
+    """Largest fraction ≤ 1 of the Newton update ``delta`` [m³] (free nodes) that keeps every free node inside the
+    trust region: it may fill its vapour void, then move by at most max(TRUST_PRESSURE, TRUST_FRACTION·|p|) [Pa],
+    i.e. the fraction allowed/|δ| with allowed = void + V·max(TRUST_PRESSURE, TRUST_FRACTION·|p|)/β_eff [m³] at the
+    node's oil ``oil``, geometric volume ``geo`` and pressure ``p``.
+
+    For pure oil (no entrained air) V/β_eff = ∂V/∂p + V/β ≥ V/β, and at p ≥ p_ref the volume V = V_g + w·(p − p_ref)
+    + accumulator liquid is at least V_g, so allowed ≥ V_g·TRUST_PRESSURE/β.  A node whose |δ| is at most half of
+    that bound allows a fraction ≥ 2 and cannot set the minimum below 1: it is skipped without its volume and
+    modulus (the same result, bit for bit; a one-step update rarely moves a pressure by 1 MPa)."""
     net = _deref(pnet)
     sc = net.sc
     free = net.free
     smallest = math.inf
+    pure, pref = sc[S_AIR] == 0.0, sc[S_PREF]
+    certain = 0.5 * sc[S_TRUST_P] / sc[S_BETA]  # [-]: |δ| ≤ certain·V_g allows a fraction ≥ 2 (docstring)
     for j in range(free.size):
         k = free[j]
+        if pure and p[k] >= pref and abs(delta[j]) <= certain * geo[k]:
+            continue
         volume, beta = _volume_and_modulus(pnet, k, geo[k], p[k])
         void = _maximum(volume * sc[S_PHI_FLOOR] - oil[k], 0.0)
         allowed = void + volume * _maximum(sc[S_TRUST_P], sc[S_TRUST_F] * abs(p[k])) / beta
@@ -1175,10 +1241,12 @@ ONE_STEP_SCRATCH = Layout("one_step_scratch", ("n", "na", "nb", "nf", "narea", "
     ("dvdx", "n", "na"), ("dpdx_dt", "n", "na"), ("mg", "n", "na"), ("dpdv", "n", "na"), ("jq", "njq"),
     ("rhs", "nf", "na + 1"), ("jac", "nf", "nf"), ("lu", "nlu"), ("saved", "nlu"), ("epg", "na", "n"), ("slope", "na"),
     ("pieces", "nb"),  # the law pieces at the start pressures (:func:`_law_pieces`: the law branches)
+    ("area_before", "narea"),  # the valve areas of the step before (``known`` 2)
 ))
 """Scratch of :func:`_linearize_one_step_from` (no longer than :data:`LINEARIZE_SCRATCH`).  After an accepted step it
 still holds the valve areas of the step's spools (``area``) and the law pieces at its start pressures (``pieces``),
-which a finish from the same start may take instead of evaluating them again (sim.plants.mujoco_fast)."""
+which a finish from the same start may take instead of evaluating them again, and the next step's linearisation
+from that finish's end (sim.plants.mujoco_fast)."""
 LINEAR_FINISH_SCRATCH = Layout("linear_finish_scratch", ("n", "narea"), (("area", "narea"), ("geo", "n"),
                                                                          ("dpdm", "n")))
 """Scratch of :func:`_linear_finish`."""
@@ -1517,11 +1585,12 @@ def _linearize_core(pnet, W, start, dt, out, oil_init):
 @_kernel
 def _linearize_one_step_core(pnet, W, start, dt, out):
     """:func:`_linearize_one_step_from` evaluating the start pressures itself."""
-    return _linearize_one_step_from(pnet, W, start, dt, out, False, out.pressure_first, out.pressure_first)
+    return _linearize_one_step_from(pnet, W, start, dt, out, 0, out.pressure_first, out.pressure_first,
+                                    (out.flow, out.oil_gradient, start.speed))
 
 
 @_kernel
-def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_known):
+def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_known, before):
     """StepperImplicitEuler.linearize(…, newton=False): the Rosenbrock–Euler (W-method) twin of
     :func:`_linearize_core`, with the same arguments and outputs.
 
@@ -1541,9 +1610,15 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
     hitting its end stop drives the supply past the relief), or when the matrix is singular; the
     outputs are then incomplete and the caller solves (:func:`_linearize_any`).
 
-    ``known``: ``out.pressure_first`` already holds p₀ = p(``oil0``, ``x0``) and ``geo_known``, ``dpdm_known`` the
+    ``known`` 1: ``out.pressure_first`` already holds p₀ = p(``oil0``, ``x0``) and ``geo_known``, ``dpdm_known`` the
     geometric volumes and ∂p/∂m there (:func:`_pressure`'s outputs, e.g. the previous step's end evaluation
     when that step ended at ``x0`` with ``oil0``): the pressure law is not evaluated again (same results).
+    ``known`` 2: as 1, and the previous step was an accepted one-step linearisation (this scratch ``W``) whose
+    finish evaluated :func:`_branch_flows` at p₀ with that step's valve areas (still in ``W``), over a step of
+    ``dt`` and found every law branch there on the piece of its law it started on: ``before`` = (flows,
+    terminal derivatives, scheduled inputs) of that evaluation.  The branches whose arguments did not change keep
+    their flows (:func:`_kept_branch_flows`) and the stateless law branches their law pieces (same results).
+    ``known`` 0: p₀ is evaluated (``geo_known``, ``dpdm_known``, ``before`` unused).
     """
     oil0, spool0, command, speed, x0, velocity = start
     oil, p, spool, x, flow, istats, effort, gradient, p_first, doil = out
@@ -1557,8 +1632,18 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
     area, geo, inflow, dpdm, dflow, residual = ws.area, ws.geo, ws.inflow, ws.dpdm, ws.dflow, ws.residual
     dvdx, dpdx_dt, mg, dpdv, jq, rhs, jac = ws.dvdx, ws.dpdx_dt, ws.mg, ws.dpdv, ws.jq, ws.rhs, ws.jac
     lu, saved, epg, slope = ws.lu, ws.saved, ws.epg, ws.slope
+    kept = known == 2
+    if kept:
+        _copy(ws.area_before, area)
     _valve_areas(pnet, spool, area)
-    if known:
+    if kept:
+        _copy(geo, geo_known)
+        _copy(dpdm, dpdm_known)
+        flow_before, dflow_before, speed_before = before
+        _kept_branch_flows(pnet, p_first, area, speed, velocity, flow, dflow, spool, dt,
+                           (ws.area_before, speed_before, flow_before, dflow_before))
+        _flow_residual(pnet, oil0, oil0, dt, flow, inflow, residual)
+    elif known:
         _copy(geo, geo_known)
         _copy(dpdm, dpdm_known)
         _evaluate_flows(pnet, oil0, oil0, velocity, area, spool, speed, dt, p_first, flow, dflow, inflow, residual)
@@ -1602,7 +1687,7 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
             for a in range(na):
                 doil[k, a] = rhs[j, a + 1]
                 dpdv[k, a] += dpdm[k] * rhs[j, a + 1]
-    _law_pieces(pnet, p_first, spool, dt, ws.pieces)
+    _law_pieces(pnet, p_first, spool, dt, ws.pieces, kept)
     if not _same_pieces_as(pnet, ws.pieces, p, spool, dt):
         return False
     _effort_gradient(pnet, p, x, velocity, dpdv, effort, gradient, epg, slope)
@@ -1610,12 +1695,16 @@ def _linearize_one_step_from(pnet, W, start, dt, out, known, geo_known, dpdm_kno
 
 
 @_kernel
-def _law_pieces(pnet, p, state, h, pieces):
+def _law_pieces(pnet, p, state, h, pieces, stateless_kept=False):
     """NetworkModel.law_pieces into ``pieces`` (at least as long as the law branches): the piece of its law every law
     branch with a kink hook is on at the node pressures ``p`` [Pa] (over a step of ``h`` [s] from the component
-    states ``state``)."""
-    ic = _deref(pnet).ic
+    states ``state``).  ``stateless_kept``: ``pieces`` already holds the pieces of the stateless law branches at
+    ``p`` (a stateless law's piece depends on the pressures only): only the stateful ones are evaluated."""
+    net = _deref(pnet)
+    ic = net.ic
     for b in range(ic[IC_W0], ic[IC_W1]):
+        if stateless_kept and net.law_state[b - ic[IC_W0]] < 0:
+            continue
         pieces[b - ic[IC_W0]] = _law_branch_piece(pnet, b, p, state, h)
 
 

@@ -254,7 +254,8 @@ PLANT_SCRATCH = Layout("plant_scratch", ("n", "na", "nb", "nvalve"), (
     + (("fg", "na"), ("fslope_guess", "na"), ("end_const", "na"), ("end_slope", "na"), ("pressure_start", "na"),
        ("friction", "na"), ("damping", "na"), ("effort_end", "na"), ("geo", "n"), ("p0", "n"), ("dpdm", "n"),
        ("lin_p", "n"), ("gradient", "na", "na"), ("lin_x", "na"), ("lin_flow", "nb"), ("oil_warm", "n"),
-       # 1 when the finish just before wrote p(m, x) at the positions this step starts from into geo, p0, dpdm
+       # 1 when the finish just before wrote p(m, x) at the positions this step starts from into geo, p0, dpdm; 2
+       # when it also left its flows there in fl, dfl (see C._linearize_one_step_from's ``known``)
        ("known", 1),
        # 1 when _begin's one-step linearisation from the known start was accepted and the work buffer still holds
        # its valve areas and start law pieces (ONE_STEP_SCRATCH) for the finish
@@ -457,7 +458,9 @@ def _finish_pending(ctx, pnet, V, T, R):
                 linear = C._linear_finish_accepted(pnet, oil, mpred, pres, p2, dpdm0, fl, mu, sp2, dt)
             if linear:
                 C._law_states_end(pnet, sp2, dt, p2)
-                known[0] = 1.0 if ctx[SLOT.C_MODE] == MODE_STEP else 0.0  # (_commit_if_finite below clears it on failure)
+                # (_commit_if_finite below clears it on failure; 2: the flows fl, dfl at p₀ with the areas still in W,
+                # every law branch there on its start piece: what the next linearisation may keep)
+                known[0] = (2.0 if begun else 1.0) if ctx[SLOT.C_MODE] == MODE_STEP else 0.0
             else:
                 known[0] = 0.0
                 substeps = 1
@@ -660,11 +663,14 @@ def _begin(ctx, pnet, V, T, R):
     done, held = False, False
     ws.begun[0] = 0.0
     if known[0] != 0.0:  # rosenbrock after a finished step: p₀, geo and ∂p/∂m are its end evaluation
-        known[0] = 0.0  # (_linearize_at_start_velocity's one-step path, its pressure law not evaluated again)
+        # (_linearize_at_start_velocity's one-step path, its pressure law not evaluated again; with the finish's
+        # flows there, at step k − 1's scheduled inputs, where that step was linearised in W: C._kept_branch_flows)
+        level = 2 if (known[0] == 2.0 and k > 0) else 1
+        known[0] = 0.0
         C._short_chord_guess(pnet, xs, vs, dt, guess)
         held = C._clipped_guess_is_held(pnet, xs, dt, guess)
-        done = (C._linearize_one_step_from(pnet, W, C.StepStart(oil, spool, cmd, speed, xs, guess), dt, out, True, geo,
-                                           dpdm)
+        done = (C._linearize_one_step_from(pnet, W, C.StepStart(oil, spool, cmd, speed, xs, guess), dt, out, level,
+                                           geo, dpdm, (ws.fl, ws.dfl, V.speed[max(k - 1, 0)]))
                 and (held or C._linearization_usable(istats, lin_p, gradient)))
         # its valve areas and start law pieces (at p₀ = the pressures the finish starts from) stay in W for the
         # finish, unless a rigid actuator's law below uses W
