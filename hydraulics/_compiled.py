@@ -762,27 +762,48 @@ def _branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h):
     ``state``: the component states at the start of the step of ``h`` [s] whose end pressures ``p`` are (a
     stateful law's flow is that at the end of the step)."""
     net = _deref(pnet)
-    ic, br = net.ic, net.br
+    ic = net.ic
     dflow[:, :] = 0.0
     for b in range(ic[IC_O0], ic[IC_O1]):
-        i = b - ic[IC_O0]
-        q, g = _orifice.flow_with_derivative(area[i], net.ori[i, O_K], net.ori[i, O_C], p[br[b, 0]] - p[br[b, 1]])
-        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
+        _orifice_branch(pnet, b, p, area, flow, dflow)
+    _displacement_branches(pnet, area, velocity, flow)
+    for b in range(ic[IC_W0], ic[IC_W1]):
+        _law_branch(pnet, b, p, _law_inputs(speed, net.law_input[b - ic[IC_W0]]), flow, dflow, state, h)
+
+
+@_inline
+def _orifice_branch(pnet, b, p, area, flow, dflow):
+    """Flow and terminal derivatives of orifice branch ``b`` (:func:`_branch_flows`)."""
+    net = _deref(pnet)
+    br, i = net.br, b - net.ic[IC_O0]
+    q, g = _orifice.flow_with_derivative(area[i], net.ori[i, O_K], net.ori[i, O_C], p[br[b, 0]] - p[br[b, 1]])
+    flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
+
+
+@_inline
+def _displacement_branches(pnet, area, velocity, flow):
+    """Flows of the motor and rigid branches (:func:`_branch_flows`): displacement times actuator velocity, no
+    pressure dependence."""
+    net = _deref(pnet)
+    ic = net.ic
     for b in range(ic[IC_M0], ic[IC_M1]):
         i = b - ic[IC_M0]
         flow[b] = _motor.flow(net.mot[net.mot_br_i[i]], velocity[net.mot_br_act[i]])
     nor = ic[IC_O1] - ic[IC_O0]
-    for b in range(ic[IC_G0], ic[IC_G1]):  # rigid branches: Q = rate·v, no pressure dependence
+    for b in range(ic[IC_G0], ic[IC_G1]):  # rigid branches: Q = rate·v
         i = b - ic[IC_G0]
         flow[b] = area[nor + i] * velocity[net.rig_i[i, GI_ACT]]
-    law = net.law
-    for b in range(ic[IC_W0], ic[IC_W1]):
-        i = b - ic[IC_W0]
-        pilot = br[b, T_PILOT]
-        q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], _law_state(state, net.law_state[i]),
-                                    _law_inputs(speed, net.law_input[i]), h, p[br[b, T_FROM]], p[br[b, T_TO]],
-                                    p[pilot] if pilot >= 0 else 0.0)
-        flow[b], dflow[b, T_FROM], dflow[b, T_TO], dflow[b, T_PILOT] = q, d0, d1, d2
+
+
+@_inline
+def _law_branch(pnet, b, p, inputs, flow, dflow, state, h):
+    """Flow and terminal derivatives of law branch ``b`` at its scheduled ``inputs`` (:func:`_branch_flows`)."""
+    net = _deref(pnet)
+    br, i = net.br, b - net.ic[IC_W0]
+    pilot = br[b, T_PILOT]
+    q, d0, d1, d2 = _branch_law(net.law_kind[i], net.law[i], _law_state(state, net.law_state[i]), inputs, h,
+                                p[br[b, T_FROM]], p[br[b, T_TO]], p[pilot] if pilot >= 0 else 0.0)
+    flow[b], dflow[b, T_FROM], dflow[b, T_TO], dflow[b, T_PILOT] = q, d0, d1, d2
 
 
 @_inline
@@ -801,23 +822,15 @@ def _kept_branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h, be
     the pressures its previous step ended at and kept the flows there (sim.plants.mujoco_fast)."""
     area_before, speed_before, flow_before, dflow_before = before
     net = _deref(pnet)
-    ic, br = net.ic, net.br
+    ic = net.ic
     dflow[:, :] = 0.0
     for b in range(ic[IC_O0], ic[IC_O1]):
         i = b - ic[IC_O0]
         if _same_value(area[i], area_before[i]):
             flow[b], dflow[b, T_FROM], dflow[b, T_TO] = flow_before[b], dflow_before[b, T_FROM], dflow_before[b, T_TO]
-            continue
-        q, g = _orifice.flow_with_derivative(area[i], net.ori[i, O_K], net.ori[i, O_C], p[br[b, 0]] - p[br[b, 1]])
-        flow[b], dflow[b, T_FROM], dflow[b, T_TO] = q, g, -g
-    for b in range(ic[IC_M0], ic[IC_M1]):
-        i = b - ic[IC_M0]
-        flow[b] = _motor.flow(net.mot[net.mot_br_i[i]], velocity[net.mot_br_act[i]])
-    nor = ic[IC_O1] - ic[IC_O0]
-    for b in range(ic[IC_G0], ic[IC_G1]):
-        i = b - ic[IC_G0]
-        flow[b] = area[nor + i] * velocity[net.rig_i[i, GI_ACT]]
-    law = net.law
+        else:
+            _orifice_branch(pnet, b, p, area, flow, dflow)
+    _displacement_branches(pnet, area, velocity, flow)
     for b in range(ic[IC_W0], ic[IC_W1]):
         i = b - ic[IC_W0]
         inputs = _law_inputs(speed, net.law_input[i])
@@ -832,10 +845,7 @@ def _kept_branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h, be
                 for j in range(_W_BR):
                     dflow[b, j] = dflow_before[b, j]
                 continue
-        pilot = br[b, T_PILOT]
-        q, d0, d1, d2 = _branch_law(net.law_kind[i], law[i], _law_state(state, net.law_state[i]), inputs, h,
-                                    p[br[b, T_FROM]], p[br[b, T_TO]], p[pilot] if pilot >= 0 else 0.0)
-        flow[b], dflow[b, T_FROM], dflow[b, T_TO], dflow[b, T_PILOT] = q, d0, d1, d2
+        _law_branch(pnet, b, p, inputs, flow, dflow, state, h)
 
 
 @_inline
