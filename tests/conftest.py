@@ -1,15 +1,25 @@
-"""Shared fixtures: paths and small circuits written inline."""
+"""Shared fixtures: paths, small circuits written inline, and a log's messages as written."""
 
 import tomllib
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 
 from hydraulics.circuit import parse_circuit
 from hydraulics.network import NetworkModel
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT / "models"
+
+
+def messages_by_topic(path) -> dict[str, list[tuple[int, int, bytes]]]:
+    """Per topic of the MCAP file ``path``: (log time, sequence, message bytes) of its messages in file order."""
+    out = {}
+    with open(path, "rb") as f:
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            out.setdefault(channel.topic, []).append((message.log_time, message.sequence, bytes(message.data)))
+    return out
 
 
 def network_from_toml(text: str, *, source: str = "<test>", **options) -> NetworkModel:

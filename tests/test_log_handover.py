@@ -11,24 +11,14 @@ import threading
 
 import numpy as np
 import pytest
-from mcap.reader import make_reader
 
-from conftest import MODELS
+from conftest import MODELS, messages_by_topic
 import sim.io.log_writer
 import sim.run.runner
 from sim.io.log_schemas import LogLevel, flat_schema, log_message
 from sim.io.mcap_file import ChunkedWriter
 from sim.io.mcap_log import LogWriter, read_log
 from sim.run.runner import run
-
-
-def _messages(path):
-    """Per topic: (log time, sequence, message bytes) in file order."""
-    out = {}
-    with open(path, "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
-            out.setdefault(channel.topic, []).append((message.log_time, message.sequence, bytes(message.data)))
-    return out
 
 
 def _samples(path):
@@ -160,7 +150,7 @@ def test_a_rare_log_holds_the_same_samples_whichever_thread_writes_it(dig_rare_l
     interval from t = 0, and the last step's, complete."""
     thread, inline = dig_rare_logs[rate, "thread"], dig_rare_logs[rate, "inline"]
     assert thread.status == inline.status == "complete"
-    assert _messages(thread.log_path) == _messages(inline.log_path)
+    assert messages_by_topic(thread.log_path) == messages_by_topic(inline.log_path)
     log, samples = _samples(thread.log_path)
     _assert_same_samples(samples, _samples(inline.log_path)[1])
     assert log.status == "complete"

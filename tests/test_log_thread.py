@@ -6,23 +6,13 @@ import threading
 
 import numpy as np
 import pytest
-from mcap.reader import make_reader
 
-from conftest import MODELS
+from conftest import MODELS, messages_by_topic
 from sim.io.log_schemas import LogLevel, flat_schema, log_message
 from sim.io.mcap_log import LogWriter, read_log
 from sim.run.recorder import RunRecorder
 from sim.run.runner import run
 import sim.run.runner
-
-
-def _messages(path):
-    """Per topic: (log time, sequence, message bytes) in file order."""
-    out = {}
-    with open(path, "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
-            out.setdefault(channel.topic, []).append((message.log_time, message.sequence, bytes(message.data)))
-    return out
 
 
 def _frame_log(path, rows, *, deferred, chunk_thread, calls):
@@ -99,7 +89,7 @@ def test_a_run_logs_the_same_messages_whichever_thread_derives_its_fields(dig_lo
     run's thread: every message, byte for byte."""
     thread, inline, on_thread = dig_logs
     assert on_thread and all(name.startswith("mcap-chunks") for name in on_thread)
-    assert _messages(thread.log_path) == _messages(inline.log_path)
+    assert messages_by_topic(thread.log_path) == messages_by_topic(inline.log_path)
     assert thread.energy == inline.energy and thread.final_strokes == inline.final_strokes
 
 
