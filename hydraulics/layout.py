@@ -266,16 +266,13 @@ class PointerTable:
         self._dtypes = tuple(np.dtype(dtype) for _, dtype, _ in self.arrays)
         self.View = namedtuple(f"{name.title().replace('_', '')}Views", fields)
         self.View.__doc__ = f"Views of the arrays of the {name} pointer table ({', '.join(fields)})."
-        # each array's shape as a function of the dimensions, and all of them as one (generated once: a registration
-        # calls those of the arrays it registers, no eval per array)
+        # each array's shape as a function of the dimensions (generated once: a registration calls those of the
+        # arrays it registers, no eval per array)
         extents = ["(" + "".join(f"({e}), " for e in shape) + ")" for _, _, shape in self.arrays]
         source = "".join(f"def shape_{i}({', '.join(self.dims)}):\n    return {extent}\n" for i, extent in
                          enumerate(extents))
-        source += (f"def shapes({', '.join(self.dims)}):\n    return ({', '.join(extents)}"
-                   f"{',' if len(self.arrays) == 1 else ''})\n")
         namespace = {"__builtins__": {}}
         exec(compile(source, f"<hydraulics.layout.{name}.shapes>", "exec"), namespace)
-        self._shapes = namespace["shapes"]
         self._shape_of = tuple(namespace[f"shape_{i}"] for i in range(len(self.arrays)))
         self.shapes(**{d: 1 for d in self.dims})  # every expression in the dimensions
 
@@ -286,7 +283,8 @@ class PointerTable:
         """Each array's shape for the dimensions ``dims`` (every name of :attr:`dims`)."""
         if set(dims) != set(self.dims):
             raise TypeError(f"pointer table {self.name} takes the dimensions {self.dims}, got {sorted(dims)}")
-        return dict(zip(self.View._fields, self._shapes(*(int(dims[d]) for d in self.dims))))
+        values = tuple(int(dims[d]) for d in self.dims)
+        return {field: shape(*values) for field, shape in zip(self.View._fields, self._shape_of)}
 
     def viewer_source(self) -> str:
         """Source of ``views(ctx)``: the dimensions read from the table, then each array through
