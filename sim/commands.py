@@ -15,7 +15,7 @@ import argparse
 import importlib
 from pathlib import Path
 
-from sim.methods import COUPLINGS, METHOD_HELP, MODES
+from sim.methods import COUPLINGS, DEFAULT_COUPLING, DEFAULT_METHODS_HELP, METHOD_HELP, MODES
 
 EXIT_OK = 0
 EXIT_FAILED = 1  # check: a check failed; log info: damage found; log recover: data skipped
@@ -130,9 +130,9 @@ def add_method_options(parser, *, dt_help: str = "physics step [s], in [1e-9, 1]
                         "instead of --mode and --coupling")
     parser.add_argument("--mode", choices=MODES, help="mujoco: MuJoCo steps the bodies; pbd: hydroplant's XPBD solver; "
                         "pbd-naive: the naive XPBD co-simulation (always explicit) (default: the scenario's)")
-    parser.add_argument("--coupling", choices=COUPLINGS, help="implicit: backward Euler with Newton; implicit-linear: "
-                        "no finishing Newton solve; rosenbrock: no Newton solve on most steps; explicit: the "
-                        "co-simulation baseline (default: the scenario's)")
+    parser.add_argument("--coupling", choices=COUPLINGS, help="rosenbrock: no Newton solve on most steps; implicit: "
+                        "backward Euler with Newton; implicit-linear: no finishing Newton solve; explicit: the "
+                        f"co-simulation baseline (default: the scenario's, else {DEFAULT_COUPLING})")
     parser.add_argument("--dt", type=positive_float, help=dt_help)
 
 
@@ -251,7 +251,7 @@ def add_stability(sub) -> argparse.ArgumentParser:
                    "without workers after that is bad input (exit 2)")
     p.add_argument("--dt", type=_float_list, help="comma-separated physics steps [s] in (0, 1], fractions allowed (e.g. 1e-4,1e-3,1/30)")
     p.add_argument("--methods", type=method_list, help="comma-separated methods, " + METHOD_HELP + "; also pbd:rosenbrock+blend "
-                   "(default: mujoco:implicit,mujoco:explicit, plus pbd:implicit,pbd-naive when the PBD plant imports)")
+                   f"({DEFAULT_METHODS_HELP})")
     p.add_argument("--sweeps", type=_name_list(("beta", "mass", "dead", "event")),
                    help="comma-separated subset of beta (bulk modulus), mass (mass scale), dead (dead volume), event "
                         "(default: all four)")
@@ -272,8 +272,7 @@ def add_compare(sub) -> argparse.ArgumentParser:
     parser.add_argument("inputs", nargs="*", type=Path, help="a scenario TOML file, or two or more MCAP logs")
     parser.add_argument("--example", metavar="NAME", help=EXAMPLE_HELP)
     parser.add_argument("--methods", "--modes", dest="modes", metavar="METHODS",
-                        help="comma-separated runs, each " + METHOD_HELP + " (default: mujoco:implicit,mujoco:explicit, "
-                             "plus pbd:implicit,pbd-naive when the PBD plant imports; a bare mode takes the scenario's coupling)")
+                        help="comma-separated runs, each " + METHOD_HELP + f" ({DEFAULT_METHODS_HELP}; a bare mode takes the scenario's coupling)")
     parser.add_argument("--dt", type=positive_float, help="physics step of the runs [s] (default: the scenario's)")
     parser.add_argument("--duration", type=positive_float, help="simulated time [s] (default: the scenario's)")
     parser.add_argument("--out", type=Path, help="output directory (default: logs/compare-<scene>-<scenario>)")
@@ -332,8 +331,8 @@ def add_play(sub) -> argparse.ArgumentParser:
         "snapshots. The frame statistics (median, p99, max, misses) are printed at the end.",
         epilog=exit_code_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter)
     add_scenario(parser)
-    parser.add_argument("--mode", choices=("mujoco", "pbd", "pbd-naive"), help="mujoco or pbd (default: the scenario's)")
-    parser.add_argument("--coupling", choices=("implicit", "explicit", "implicit-linear", "rosenbrock"),
+    parser.add_argument("--mode", choices=MODES, help="mujoco or pbd (default: the scenario's)")
+    parser.add_argument("--coupling", choices=COUPLINGS,
                         help="MuJoCo mode's coupling (default: the scenario's)")
     parser.add_argument("--dt", type=positive_float, help="physics step [s], > 0 (default: the scenario's)")
     parser.add_argument("--duration", type=positive_float, help="simulated time [s], > 0 (default: the scenario's)")

@@ -100,7 +100,7 @@ def test_method_names_read_and_write_one_spelling():
             method = parse_method(f"{mode}:{coupling}", warn=None)
             assert (method.mode, method.coupling) == (mode, coupling)
             assert parse_method(method.name, coupling, warn=None) == method  # the name reads back as itself
-    assert parse_method("pbd", warn=None) == Method("pbd", "implicit")
+    assert parse_method("pbd", warn=None) == Method("pbd", "rosenbrock")  # the default coupling
     assert parse_method("mujoco", "rosenbrock", warn=None).name == "mujoco:rosenbrock"  # a bare mode: the default coupling
     assert parse_method("pbd:rosenbrock+blend", warn=None) == Method("pbd", "rosenbrock", True)
     assert Method("pbd", "rosenbrock", True).file_label == "pbd-rosenbrock-blend"
@@ -110,7 +110,7 @@ def test_method_names_read_and_write_one_spelling():
         with pytest.raises(MethodError, match=re.escape(word)):
             parse_method(bad, warn=None)
     with pytest.raises(MethodError, match="listed twice"):
-        parse_methods("pbd,pbd:implicit", warn=None)
+        parse_methods("pbd,pbd:rosenbrock", warn=None)
 
 
 @pytest.mark.parametrize("old, new", [("mujoco-implicit", "mujoco:implicit"), ("mujoco-implicit-linear", "mujoco:implicit-linear"),

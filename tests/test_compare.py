@@ -160,11 +160,12 @@ def test_cli_compare_two_logs_writes_report_figures_and_merged_log(tmp_path, cap
 def test_parse_runs_labels_and_errors():
     specs = compare.parse_runs("mujoco,mujoco:explicit,pbd-naive")
     assert [(s.mode, s.coupling, s.label) for s in specs] == [
-        ("mujoco", "implicit", "mujoco-implicit"), ("mujoco", "explicit", "mujoco-explicit"), ("pbd-naive", "implicit", "pbd-naive")]
+        ("mujoco", "rosenbrock", "mujoco-rosenbrock"), ("mujoco", "explicit", "mujoco-explicit"),
+        ("pbd-naive", "rosenbrock", "pbd-naive")]
     with pytest.raises(CircuitError, match="'bullet' is not one of"):
         compare.parse_runs("bullet")
     with pytest.raises(CircuitError, match="listed twice"):
-        compare.parse_runs("mujoco,mujoco:implicit")
+        compare.parse_runs("mujoco,mujoco:rosenbrock")
 
 
 # ---------------------------------------------------------------------------------------

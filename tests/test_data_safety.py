@@ -503,7 +503,7 @@ def test_runs_at_one_instant_take_distinct_default_names(scene, tmp_path, monkey
     scenario = replace(load_scenario(scene / SCENARIO), log_dir=tmp_path / "logs")
     first = runner.run(scenario, overrides={"duration": 0.01}).log_path
     second = runner.run(scenario, overrides={"duration": 0.01}).log_path
-    stem = "boom-hold-mujoco-implicit-20260102T030405678901Z"
+    stem = "boom-hold-mujoco-rosenbrock-20260102T030405678901Z"
     assert (first.name, second.name) == (f"{stem}.mcap", f"{stem}-2.mcap")
     assert read_log(first).metadata["hydroplant.result"]["status"] == "complete"
 

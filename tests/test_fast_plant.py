@@ -51,9 +51,8 @@ def plants(case):
     scenario = load_scenario(path)
     if inputs:
         scenario = scenario.with_overrides(inputs={**scenario.inputs, **inputs})
-    if case in OVERRIDES:
-        scenario = scenario.with_overrides(**OVERRIDES[case])
-    assert scenario.coupling == "implicit"
+    # the implicit coupling in the scenario; the linear couplings through the plants' constructor argument
+    scenario = scenario.with_overrides(coupling="implicit", **OVERRIDES.get(case, {}))
     coupling = COUPLING.get(case)
     reference = MujocoPlant(load_scene(scenario), coupling=coupling)
     fast = MujocoPlantFast(load_scene(scenario), coupling=coupling)
@@ -145,7 +144,7 @@ def test_newton_failure_reported_at_the_same_step(monkeypatch):
     monkeypatch.setattr(numerics, "NEWTON_MAX_ITERATIONS", 1)
     scenario = load_scenario(MODELS / "boom" / "lift.scenario.toml")
     slam = Schedule(np.array([0.0, 0.01, 0.011]), np.array([0.0, 0.0, 1.0]))
-    scenario = scenario.with_overrides(inputs={**scenario.inputs, "boom_valve": slam})
+    scenario = scenario.with_overrides(inputs={**scenario.inputs, "boom_valve": slam}, coupling="implicit")
     reference, fast = MujocoPlant(load_scene(scenario)), MujocoPlantFast(load_scene(scenario))
     assert fast.fast
     for _ in range(100):
@@ -267,7 +266,7 @@ def other_plants(case):
     from sim.plants.mujoco_fast import MujocoPlantFast
 
     path, overrides, inputs, coupling, steps = OTHER_CASES[case]
-    scenario = load_scenario(path).with_overrides(**overrides)
+    scenario = load_scenario(path).with_overrides(coupling=coupling or "implicit", **overrides)
     if inputs:
         scenario = scenario.with_overrides(inputs={**scenario.inputs, **inputs})
     reference = MujocoPlant(load_scene(scenario), coupling=coupling)

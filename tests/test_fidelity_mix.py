@@ -73,7 +73,7 @@ def test_scenario_fidelity_table(tmp_path):
 def dig_runs(tmp_path_factory):
     """The dig cycle for 2 s at 1 kHz: all compressible, boom + bucket as lines, all lines."""
     out = tmp_path_factory.mktemp("mix")
-    base = load_scenario(MODELS / "excavator" / "dig.scenario.toml").with_overrides(duration=2.0)
+    base = load_scenario(MODELS / "excavator" / "dig.scenario.toml").with_overrides(duration=2.0, coupling="implicit")
     settings = {
         "compressible": base,
         "mixed": base.with_overrides(actuator_fidelity={"boom_cyl": "lines", "bucket_cyl": "lines"}),

@@ -175,7 +175,7 @@ def test_guard_names_the_step_a_rigid_supply_column_needs(mode, dt, warned):
     """A rigid actuator's column is the supply net: ω = √(β_eff·A_cap²/(V_P·m_eff)); the guard warns where ω·h > 0.5
     (the measured limit, sim/run/guards.py), with the dt that resolves it."""
     scenario = load_scenario(MODELS / "excavator" / "dig.scenario.toml").with_overrides(
-        mode=mode, dt=dt, actuator_fidelity=RIGID_FRONT, pbd_substeps=10)
+        mode=mode, coupling="implicit", dt=dt, actuator_fidelity=RIGID_FRONT, pbd_substeps=10)
     report = check_scenario(scenario)
     rows = {row.actuator: row for row in report.rows}
     scene = load_scene(scenario)
@@ -191,7 +191,7 @@ def test_guard_names_the_step_a_rigid_supply_column_needs(mode, dt, warned):
     for name in warned:
         assert any(w.startswith(name) and "use dt <=" in w for w in report.warnings)
     if mode == "mujoco" and dt == 0.002:  # inspect names the step: 0.5/ω of the stiffest rigid column (the bucket)
-        text = describe(scenario.path, {"actuator_fidelity": RIGID_FRONT, "dt": dt})
+        text = describe(scenario.path, {"actuator_fidelity": RIGID_FRONT, "dt": dt, "coupling": "implicit"})
         limit = min(0.5 / row.omega_h for row in report.rows if row.rigid)
         assert limit == pytest.approx(0.5 / bucket.omega_h)
         assert f"largest stable dt for implicit: {limit:.3g} s (the rigid actuators' supply column)" in text

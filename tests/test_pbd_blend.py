@@ -124,12 +124,15 @@ def test_boom_lifts_at_pump_flow_over_piston_area(coupling, blend):
     assert np.max(np.array(p_cap)[window]) < np.max(net.relief_cracking) + net.fluid.reference_pressure
 
 
-def test_linear_couplings_need_one_hydraulic_substep_and_are_refused_in_pbd_naive():
+def test_linear_couplings_need_one_hydraulic_substep_and_pbd_naive_ignores_the_coupling():
     assert load_scenario(BOOM).with_overrides(mode="pbd", coupling="rosenbrock").coupling == "rosenbrock"
-    with pytest.raises(ScenarioError, match="run.coupling"):
-        load_scenario(BOOM).with_overrides(mode="pbd-naive", coupling="rosenbrock")
-    with pytest.raises(ScenarioError, match="hydraulic_substeps"):
-        load_scenario(BOOM).with_overrides(mode="pbd", coupling="implicit-linear", hydraulic_substeps=2)
+    for mode in ("mujoco", "pbd"):
+        with pytest.raises(ScenarioError, match=r"run\.coupling.*hydraulic_substeps = 1 \(got 2; coupling = 'implicit'"):
+            load_scenario(BOOM).with_overrides(mode=mode, coupling="implicit-linear", hydraulic_substeps=2)
+    assert load_scenario(BOOM).with_overrides(mode="mujoco", coupling="implicit", hydraulic_substeps=2).hydraulic_substeps == 2
+    # pbd-naive is always explicit: the scenario's coupling (the default one, say) does not stop it
+    naive = load_scenario(BOOM).with_overrides(mode="pbd-naive", hydraulic_substeps=2)
+    assert (naive.coupling, naive.hydraulic_substeps) == ("rosenbrock", 2)
 
 
 def test_cli_pbd_blend_logs_the_rows_theta(tmp_path):

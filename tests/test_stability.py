@@ -450,6 +450,22 @@ def _map_cells(scene):
                 for r in csv.DictReader(f) if r["reference"] == "False"}
 
 
+@pytest.mark.parametrize("scene", ["seed_cylinder", "boom", "excavator"])
+def test_maps_show_the_default_coupling_in_the_class_of_implicit_in_every_cell(scene):
+    """The default coupling (sim.methods.DEFAULT_COUPLING) is the default because the committed maps give it, in both
+    modes, the class (stable-accurate, stable-inaccurate, diverged) of the implicit coupling in every cell: no extreme
+    that implicit survives is lost by the switch (the boom's 1/30 s column is rerun below)."""
+    from sim.methods import DEFAULT_COUPLING
+
+    cells = _map_cells(scene)
+    for mode in ("mujoco", "pbd"):
+        implicit = {key[1:]: row["class"] for key, row in cells.items() if key[0] == f"{mode}:implicit"}
+        default = {key[1:]: row["class"] for key, row in cells.items() if key[0] == f"{mode}:{DEFAULT_COUPLING}"}
+        assert len(implicit) > 40 and default.keys() == implicit.keys(), (mode, len(implicit), len(default))
+        differ = {cell: (implicit[cell], default[cell]) for cell in implicit if implicit[cell] != default[cell]}
+        assert not differ, (mode, differ)
+
+
 def test_boom_map_cells_at_30hz_are_reproduced(tmp_path, monkeypatch):
     """docs/stability/boom.csv says which method diverges at each boom extreme at dt = 1/30 s; a fresh run agrees.
 
@@ -460,10 +476,11 @@ def test_boom_map_cells_at_30hz_are_reproduced(tmp_path, monkeypatch):
     """
     monkeypatch.setattr(st, "REFERENCE_DT_RANGE", (1e-3, 1e-3))
     cells = _map_cells("boom")
-    grid = replace(st.DEFAULT_GRID, dts=(1.0 / 30.0,), methods=("mujoco:implicit", "mujoco:explicit", "pbd:implicit"))
+    methods = ("mujoco:implicit", "mujoco:rosenbrock", "mujoco:explicit", "pbd:implicit", "pbd:rosenbrock")
+    grid = replace(st.DEFAULT_GRID, dts=(1.0 / 30.0,), methods=methods)
     result = st.stability_map(BOOM, grid=grid, out_dir=tmp_path, workers=1, write=False)
     runs = [r for r in result.rows if not r["reference"]]
-    assert len(runs) == 3 * (len(BOOM_EXTREMES) + 2)  # + the beta 1e8 and 1e9 configurations
+    assert len(runs) == len(methods) * (len(BOOM_EXTREMES) + 2)  # + the beta 1e8 and 1e9 configurations
     for r in runs:
         committed = cells[(r["method"], r["config"], round(r["dt"], 12))]
         assert (r["class"] == st.CLASS_DIVERGED) == (committed["class"] == st.CLASS_DIVERGED), (r["method"], r["config"], r["message"])

@@ -21,7 +21,7 @@ SCENES = {"boom": MODELS / "boom" / "lift.scenario.toml", "excavator": MODELS / 
 
 def _run(path):
     """Pressures [Pa] after every step, end strokes [m] and the linearisation's Newton iterations per step."""
-    plant = MujocoPlant(load_scene(load_scenario(path)))
+    plant = MujocoPlant(load_scene(load_scenario(path)), coupling="implicit")
     pressures, iterations = [], []
     for _ in range(int(round(SECONDS / plant.dt))):
         start = plant.net_state
@@ -68,7 +68,7 @@ def test_an_unusable_warm_start_falls_back_to_the_start_oil(fast, monkeypatch):
     from sim.plants.mujoco_fast import MujocoPlantFast
 
     make = (lambda s: MujocoPlantFast(s)) if fast else (lambda s: MujocoPlant(s))
-    scenario = load_scenario(SCENES["excavator"])
+    scenario = load_scenario(SCENES["excavator"]).with_overrides(coupling="implicit")
     n = load_scene(scenario).network.node_count
 
     def poisoned(state):

@@ -13,7 +13,7 @@ Example::
     circuit = "boom.circuit.toml"
     [run]
     mode = "mujoco"            # mujoco | pbd
-    coupling = "implicit"      # implicit | explicit | implicit-linear | rosenbrock (the last two: one hydraulic substep; in PBD mode per XPBD substep)
+    coupling = "rosenbrock"    # rosenbrock (default) | implicit | implicit-linear | explicit (the first and third: one hydraulic substep; in PBD mode per XPBD substep)
     dt = 0.001                 # s
     duration = 6.0             # s
     [initial]
@@ -52,10 +52,9 @@ from hydraulics.files import check_regular, read_text, resolve
 from hydraulics.network import FIDELITIES
 
 from sim.io.errors import ScenarioError
+from sim.methods import COUPLINGS, DEFAULT_COUPLING, MODES, NAIVE
 from sim.live.mapping import parse_mapping
 
-MODES = ("mujoco", "pbd", "pbd-naive")
-COUPLINGS = ("implicit", "explicit", "implicit-linear", "rosenbrock")
 LINEAR_COUPLINGS = ("implicit-linear", "rosenbrock")  # one linearly implicit step per plant step (PBD: per substep)
 STEPPER_NAMES = ("implicit_euler", "explicit_euler", "reference")
 DEFAULT_BASE_PRESSURE = 1.0e6  # Pa absolute: the low side of a loaded cylinder at t = 0
@@ -84,7 +83,7 @@ class Scenario:
     mjcf: Path
     circuit: Path
     mode: str = "mujoco"
-    coupling: str = "implicit"
+    coupling: str = DEFAULT_COUPLING
     stepper: str | None = None
     dt: float = 1e-3
     duration: float = 1.0
@@ -375,9 +374,9 @@ def _validate_run(s: Scenario, where):
         _error(where, f"field 'run.mode': {s.mode!r} is not one of {list(MODES)}")
     if s.coupling not in COUPLINGS:
         _error(where, f"field 'run.coupling': {s.coupling!r} is not one of {list(COUPLINGS)}")
-    if s.coupling in LINEAR_COUPLINGS and (s.mode not in ("mujoco", "pbd") or s.hydraulic_substeps != 1):
-        _error(where, f"field 'run.coupling': {s.coupling!r} needs mode = 'mujoco' or 'pbd' and hydraulic_substeps = 1 "
-                      f"(got mode {s.mode!r}, hydraulic_substeps {s.hydraulic_substeps})")
+    if s.coupling in LINEAR_COUPLINGS and s.mode != NAIVE and s.hydraulic_substeps != 1:  # pbd-naive: always explicit
+        _error(where, f"field 'run.coupling': {s.coupling!r} takes one hydraulic substep per step, so it needs "
+                      f"hydraulic_substeps = 1 (got {s.hydraulic_substeps}; coupling = 'implicit' takes several)")
     if s.stepper is not None and s.stepper not in STEPPER_NAMES:
         _error(where, f"field 'run.stepper': {s.stepper!r} is not one of {list(STEPPER_NAMES)}")
     if not (isinstance(s.dt, (int, float)) and math.isfinite(s.dt) and DT_RANGE[0] <= s.dt <= DT_RANGE[1]):
@@ -500,7 +499,7 @@ def load_scenario(path) -> Scenario:
         mjcf=files["mjcf"],
         circuit=files["circuit"],
         mode=run.get("mode", "mujoco"),
-        coupling=run.get("coupling", "implicit"),
+        coupling=run.get("coupling", DEFAULT_COUPLING),
         stepper=run.get("stepper"),
         dt=dt,
         duration=duration,

@@ -45,6 +45,7 @@ from hydraulics.extras import require
 
 from sim.io.files import check_outputs, write_output
 from sim.io.log_recover import verify_log
+from sim.methods import DEFAULT_COUPLING, default_methods
 from sim.io.mcap_log import RESULT_METADATA, RUN_METADATA, merge_logs, read_log
 from sim.tools.signals import (CYLINDER_PREFIX, DEFAULT_FILTER_WINDOW, ENERGY_TOPIC, JOINT_TOPIC, KIND_DISPLAY, KIND_UNITS,  # noqa: F401
                                KINDS, MOTOR_PREFIX, TIME_MATCH_NS, ErrorStats, Signal, align, check_same_scene, energy_drift,
@@ -267,11 +268,11 @@ def pbd_available() -> tuple[bool, str]:
 
 
 def default_modes() -> str:
-    """``mujoco:implicit,mujoco:explicit`` plus ``pbd:implicit,pbd-naive`` when the PBD plant imports."""
-    return "mujoco:implicit,mujoco:explicit" + (",pbd:implicit,pbd-naive" if pbd_available()[0] else "")
+    """:func:`sim.methods.default_methods`, comma-separated (PBD mode's when the PBD plant imports)."""
+    return ",".join(default_methods(pbd_available()[0]))
 
 
-def parse_runs(text: str, default_coupling: str = "implicit") -> list[RunSpec]:
+def parse_runs(text: str, default_coupling: str = DEFAULT_COUPLING) -> list[RunSpec]:
     """Parse ``"mujoco,mujoco:explicit,pbd"`` into run specs.
 
     Each item is a method (:mod:`sim.methods`): ``mode`` or ``mode:coupling`` (a bare mode uses

@@ -171,7 +171,8 @@ def scenario_keys() -> tuple:
          "coupling's default. PBD mode takes only that default (`implicit_euler`, `explicit_euler` for `explicit`)."),
         ("run", "dt", "s", closed(*sc.DT_RANGE), "dt", "Physics step (PBD mode: the frame)."),
         ("run", "duration", "s", f"(0, {sc.DURATION_MAX:g}]", "duration", "Simulated time."),
-        ("run", "hydraulic_substeps", "-", "integer in [1, 100000]", "hydraulic_substeps", "Network substeps per physics step."),
+        ("run", "hydraulic_substeps", "-", "integer in [1, 100000]", "hydraulic_substeps", "Network substeps per physics "
+         "step; more than one needs `coupling = \"implicit\"` or `\"explicit\"`."),
         ("run", "pbd_substeps", "-", "integer in [1, 100000]", "pbd_substeps", "XPBD substeps per frame (PBD mode)."),
         ("run", "pbd_iterations", "-", "integer in [1, 100000]", "pbd_iterations", "XPBD iterations per substep (PBD mode)."),
         ("run", "pbd_blend", "", "true, false", "pbd_blend", "PBD mode: blend each cylinder row's force by MuJoCo "

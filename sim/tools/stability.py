@@ -110,7 +110,7 @@ STEP_EDGE = 1e-9  # s: width of a one-step input change in a schedule
 METHODS = {
     "mujoco:implicit": ("mujoco", "implicit", False),
     "mujoco:explicit": ("mujoco", "explicit", False),
-    "mujoco:rosenbrock": ("mujoco", "rosenbrock", False),  # (on request: --methods; not in the default maps)
+    "mujoco:rosenbrock": ("mujoco", "rosenbrock", False),
     "pbd:implicit": ("pbd", "implicit", False),
     "pbd:rosenbrock+blend": ("pbd", "rosenbrock", True),  # (on request)
     "pbd-naive": ("pbd-naive", "implicit", False),
@@ -711,10 +711,9 @@ def method_labels(grid: Grid) -> tuple:
             return tuple(parse_method(m).name for m in grid.methods)
         except MethodError as exc:
             raise StabilityError(f"--methods: {exc}; e.g. {', '.join(METHODS)}") from None
-    labels = ["mujoco:implicit", "mujoco:explicit"]
-    if pbd_available():
-        labels += ["pbd:implicit", "pbd-naive"]
-    return tuple(labels)
+    from sim.methods import default_methods
+
+    return default_methods(pbd_available())
 
 
 def pbd_available() -> bool:
