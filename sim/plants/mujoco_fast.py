@@ -57,7 +57,10 @@ state :class:`MujocoPlant` sees after ``mj_step1``.  In the callback of step k:
 **Cost and caching.**  The callback allocates nothing: every temporary lives
 in buffers the plant allocates once (``_work`` for the ``_compiled`` cores,
 ``_scratch`` for this module's, see :func:`scratch_size`), and the kernels run
-without numba's reference counting (``_compiled._kernel``).  The callback is a
+without numba's reference counting (``_compiled._kernel``).  The views of the
+plant's arrays (:class:`Kept`) are made by a block's first call and
+stored in the plant's ``kept_views`` buffer (:func:`kept_words`), which the
+block's other calls read.  The callback is a
 thin ``cfunc`` around :func:`_coupled_step` compiled with ``cache=True``: it
 bakes in no process-specific address — the pointer table is the external
 symbol ``CTX_SYMBOL`` and ``mj_solveM`` the external function
@@ -111,7 +114,7 @@ peaks, so they cover every step, not only the logged ones; assigning them is
 allowed, :meth:`advance` continues from the assigned values), and in the same way
 ``actuator_position_max`` / ``actuator_position_min`` [m | rad] of the actuator coordinates
 (the plausibility monitor's stroke check per block, :mod:`sim.run.monitor`); module-level
-:func:`scratch_size`, ``CTX_SYMBOL``, ``SOLVEM_SYMBOL``, ``MODE_*``.
+:func:`scratch_size`, :func:`kept_words`, ``CTX_SYMBOL``, ``SOLVEM_SYMBOL``, ``MODE_*``.
 
 **Global state / limitations**
 
@@ -141,6 +144,7 @@ import ctypes
 import math
 import os
 import threading
+from collections import namedtuple
 
 import mujoco
 import numpy as np
@@ -186,13 +190,15 @@ POINTERS = PointerTable("fast_plant", (
     "C_SUBSTEPS", "C_K", "C_PENDING", "C_FAILED", "C_STATUS", "C_WORST", "C_NEWTON", "C_RHS", "C_JAC", "C_MODE",
     "C_LINEAR", "C_KIND", "C_NR", "C_STEP0", "C_END_FINITE",
     # the record (MujocoPlantFast.advance): every how many steps, the first recorded step, rows written, bad rows
-    "C_REC_EVERY", "C_REC_FIRST", "C_REC_COUNT", "C_REC_BAD"),
+    "C_REC_EVERY", "C_REC_FIRST", "C_REC_COUNT", "C_REC_BAD",
+    # 1 once the block's first call has stored its views (Kept) in kept_views; the bytes they take (MODE_SIZE)
+    "C_KEPT", "C_KEPT_BYTES"),
     # na actuators, nv dofs, nu MuJoCo actuators, n nodes, nb branches, nvalve valves, npump pumps, nbias bias
     # parameters per MuJoCo actuator, nstate component states, nnz entries of MuJoCo's sparse actuator moments, rows of
     # the block's inputs, nf/ni packed network floats/ints, nw/ns work/scratch floats, ntf/nti coupling table
     # floats/ints, nq MuJoCo coordinates, nbody bodies, nctl controllers, rec_rows × rec_width the block's record
     ("na", "nv", "nu", "n", "nb", "nvalve", "npump", "nbias", "nstate", "nnz", "rows", "nf", "ni", "nw", "ns", "ntf",
-     "nti", "nq", "nbody", "nctl", "rec_rows", "rec_width"), (
+     "nti", "nq", "nbody", "nctl", "rec_rows", "rec_width", "nkept"), (
     # the packed network (hydraulics._compiled) and the coupling table of SLOT.C_KIND (hydraulics._compiled_rigid)
     ("F", "float64", "nf"), ("I", "int64", "ni"), ("TF", "float64", "ntf"), ("TI", "int64", "nti"),
     # MuJoCo's model and data: actuator lengths and velocities, sparse moments, qvel, ctrl, biasprm, passive and
@@ -220,7 +226,9 @@ POINTERS = PointerTable("fast_plant", (
     # setpoints, the record
     ("cmd", "float64", "rows", "nvalve"), ("speed", "float64", "rows", "npump"),
     ("ctl_table", "float64", "nctl", len(CT.PID_COLUMNS)), ("ctl_state", "float64", "nctl", len(CT.STATE_COLUMNS)),
-    ("ctl_set", "float64", "rows", "nctl"), ("rec", "float64", "rec_rows", "rec_width")))
+    ("ctl_set", "float64", "rows", "nctl"), ("rec", "float64", "rec_rows", "rec_width"),
+    # the block's views (Kept), stored by its first call for the others (nkept: kept_words())
+    ("kept_views", "int64", "nkept")))
 """The control callback's int64 table (:class:`hydraulics.layout.PointerTable`): ``SLOT.<name>`` is an entry's index
 (C_*: counters and dimensions, P_*: addresses), :func:`_views` the arrays it points to."""
 SLOT = POINTERS.SLOT
@@ -231,9 +239,10 @@ KIND_IMPLICIT, KIND_EXPLICIT, KIND_INCOMPRESSIBLE = range(len(KINDS))
 STATUSES = ("ok", "newton", "nonfinite", "singular")
 """SLOT.C_STATUS: the step's outcome (``ST_*``)."""
 ST_OK, ST_NEWTON, ST_NONFINITE, ST_SINGULAR = range(len(STATUSES))
-MODES = ("step", "finish")
-"""SLOT.C_MODE: a coupled step (from mj_step), or only finish the pending step (``MODE_*``)."""
-MODE_STEP, MODE_FINISH = range(len(MODES))
+MODES = ("step", "finish", "size")
+"""SLOT.C_MODE: a coupled step (from mj_step), only finish the pending step, or only write the bytes of the
+views (:class:`Kept`) to SLOT.C_KEPT_BYTES (``MODE_*``)."""
+MODE_STEP, MODE_FINISH, MODE_SIZE = range(len(MODES))
 
 # Symbols the cached callback resolves when it is loaded (registered below with llvmlite):
 # the pointer table and MuJoCo's mj_solveM.  Nothing process-specific is baked into the
@@ -266,6 +275,16 @@ PLANT_SCRATCH = Layout("plant_scratch", ("n", "na", "nb", "nvalve"), (
 def scratch_size(na, n, nb, nstate):
     """Length of the plant's float64 scratch (SLOT.P_S): :data:`PLANT_SCRATCH`."""
     return PLANT_SCRATCH.size(n=n, na=na, nb=nb, nvalve=nstate)
+
+
+Kept = namedtuple("Kept", ("net", "V", "S", "T", "R"))
+Kept.__doc__ = """What the callback's functions read, kept for a block: views of the plant's memory, the packed network
+(``net``, ``C._unpack``), the pointer table's arrays (``V``, :data:`POINTERS`), the plant scratch's fields (``S``,
+:data:`PLANT_SCRATCH`) and the coupling tables (``T`` of the incompressible coupling, ``R`` of the rigid actuators;
+only ``SLOT.C_KIND``'s is read).  Made by :func:`_make_views` in the first call of a block and stored in the
+plant's ``kept_views`` (the arrays stay where they are for the block), the other calls read them there: making
+them slices ~180 arrays, about 4000 instructions per step.  The functions take a pointer to them (``C._ref``'s
+type), as numba passes a tuple argument field by field (~700 machine words per call)."""
 
 
 _JIT = _NUMBA and C.JIT_ENABLED  # False under NUMBA_DISABLE_JIT=1: the callback runs as Python (below)
@@ -305,6 +324,55 @@ if _JIT:
             return builder.ptrtoint(table, llvm_ir.IntType(64))
 
         return sig, codegen
+
+    def _made_type(typingctx, make, ctx):
+        """The type of what the compiled function ``make`` returns for ``ctx`` (typed, never called)."""
+        return make.get_call_type(typingctx, (ctx,), {}).return_type
+
+    @intrinsic
+    def _keep(typingctx, address, value):
+        """Store ``value`` at the integer ``address`` (a buffer of at least :func:`_kept_bytes` of it)."""
+        def codegen(context, builder, signature, args):
+            builder.store(args[1], builder.inttoptr(args[0], context.get_data_type(value).as_pointer()))
+            return context.get_dummy_value()
+
+        return types.void(address, value), codegen
+
+    @intrinsic
+    def _kept(typingctx, address, make, ctx):
+        """A pointer (the type of ``C._ref``'s) to the value ``make(ctx)`` returns, stored at ``address`` by
+        :func:`_keep`."""
+        pointer = types.CPointer(_made_type(typingctx, make, ctx))
+
+        def codegen(context, builder, signature, args):
+            return builder.inttoptr(args[0], context.get_value_type(pointer))
+
+        return pointer(address, make, ctx), codegen
+
+    @intrinsic
+    def _kept_bytes(typingctx, make, ctx):
+        """The bytes :func:`_keep` writes for the value ``make(ctx)`` returns."""
+        value = _made_type(typingctx, make, ctx)
+
+        def codegen(context, builder, signature, args):
+            return context.get_constant(types.int64, context.get_abi_sizeof(context.get_data_type(value)))
+
+        return types.int64(make, ctx), codegen
+
+    @intrinsic
+    def _member_ref(typingctx, pointer, index):
+        """A pointer to member ``index`` (a constant) of the tuple behind ``pointer`` (the type of ``C._ref``'s),
+        as ``C._ref`` of that member would be, without copying it."""
+        if not (isinstance(pointer, types.CPointer) and isinstance(pointer.dtype, types.BaseTuple)
+                and isinstance(index, types.IntegerLiteral)):
+            return None
+        position = index.literal_value
+
+        def codegen(context, builder, signature, args):
+            zero, member = llvm_ir.Constant(llvm_ir.IntType(32), 0), llvm_ir.Constant(llvm_ir.IntType(32), position)
+            return builder.gep(args[0], [zero, member], inbounds=True)
+
+        return types.CPointer(pointer.dtype.types[position])(pointer, index), codegen
 
     _mj_solveM_nb = types.ExternalFunction(
         SOLVEM_SYMBOL, types.void(types.voidptr, types.voidptr, types.voidptr, types.voidptr, types.int32)
@@ -354,6 +422,19 @@ else:  # the same callback as Python (NUMBA_DISABLE_JIT=1, for debugging): ctype
         return f
 
     _kernel = _inline = _jit
+    _KEPT = {}  # address → the value stored there
+
+    def _keep(address, value):
+        _KEPT[int(address)] = value
+
+    def _kept(address, make, ctx):
+        return _KEPT[int(address)]
+
+    def _kept_bytes(make, ctx):
+        return 8
+
+    def _member_ref(pointer, index):
+        return pointer[index]
 
 
 _plant_scratch = _inline(PLANT_SCRATCH.carver(C._matrix))
@@ -376,8 +457,9 @@ def _widen(values, high, low, n):
 
 
 @_kernel
-def _finish_pending(ctx, pnet, V, T, R):
-    """Finish the pending step with the realised velocities J_prev·q̇ (MujocoPlant.step after mj_step2)."""
+def _finish_pending(ctx, pnet, views):
+    """Finish the pending step with the realised velocities J_prev·q̇ (MujocoPlant.step after mj_step2); ``views``:
+    a pointer to the :class:`Kept`."""
     if ctx[SLOT.C_PENDING] == 0:
         return
     ctx[SLOT.C_PENDING] = 0
@@ -386,6 +468,8 @@ def _finish_pending(ctx, pnet, V, T, R):
     na, nv, n, nb = ctx[SLOT.C_NA], ctx[SLOT.C_NV], ctx[SLOT.C_N], ctx[SLOT.C_NB]
     nvalve, npump = ctx[SLOT.C_NVALVE], ctx[SLOT.C_NPUMP]
     k = ctx[SLOT.C_K] - 1
+    kept = C._deref(views)
+    V, ws, R = kept.V, kept.S, kept.R
     fs = V.fs
     dt = fs[FS_DT]
     J = V.J
@@ -393,7 +477,6 @@ def _finish_pending(ctx, pnet, V, T, R):
     xs, vs = V.xs, V.vs
     W = V.W
     istats = V.istats
-    ws, _ = _plant_scratch(V.S, 0, n, na, nb, V.spool.size)
     v_end, x_end, xe, ve, o2, p2, mu = ws.v_end, ws.x_end, ws.xe, ws.ve, ws.o2, ws.p2, ws.mu
     fl, dfl, sp2, mpred, mstart, minit = ws.fl, ws.dfl, ws.sp2, ws.mpred, ws.mstart, ws.minit  # dfl: branches × terminals
     # what _begin left for this step: velocity guess, predicted oil and spool, ∂m⁺/∂v
@@ -518,7 +601,7 @@ def _finish_pending(ctx, pnet, V, T, R):
         effort[i] = C._clip(const[i] + slope[i] * v_end[i], V.lower[i], V.upper[i])
     # energy ledger (PlantBase._account, MujocoPlant._account); xe, ve are free again
     if kind == KIND_INCOMPRESSIBLE:  # rigid oil: the work of the forces MuJoCo applied is the supplied work
-        fs[FS_PUMP] += dt * _applied_power(ctx, V, v_end)
+        fs[FS_PUMP] += dt * _applied_power(ctx, views, v_end)
     else:
         C._account(pnet, fs, FS_PUMP, dt, pres, pos, flow_out, v_end, V.quad, mu, xe, ve)
     if R.actuator.size:  # rigid branches (PlantBase._account): their delivery less the hydraulic force's work
@@ -531,9 +614,10 @@ def _finish_pending(ctx, pnet, V, T, R):
 
 
 @_kernel
-def _prepare(ctx, V):
+def _prepare(ctx, views):
     """Dense moments J of the current step from MuJoCo's sparse actuator_moment."""
     na, nv = ctx[SLOT.C_NA], ctx[SLOT.C_NV]
+    V = C._deref(views).V
     J = V.J
     act = V.act
     rowadr, rownnz, colind, moment = V.rowadr, V.rownnz, V.colind, V.moment
@@ -546,11 +630,12 @@ def _prepare(ctx, V):
 
 
 @_kernel
-def _applied_power(ctx, V, v_end):
+def _applied_power(ctx, views, v_end):
     """Σ F·v⁺ [W] of the forces MuJoCo applied over the step just taken (its ctrl, bias slope and force range, still
     those of that step): F = clip(c + k·v) when the force at the start velocity v was at or beyond a bound (MuJoCo
     then drops the implicit term), else c + k·v⁺ (the implicit term taken at the end velocity).  At the ``incompressible`` level the
     hydraulic effort is that law clipped at v⁺; the two differ where MuJoCo's implicit term passes a bound."""
+    V = C._deref(views).V
     act, ctrl, bias, vs = V.act, V.ctrl, V.bias, V.vs
     nbias = ctx[SLOT.C_NBIAS]
     power = 0.0
@@ -580,25 +665,29 @@ def _write_bounds(act, lower, upper, flimited, frange):
 
 
 @_kernel
-def _rigid_law(pnet, V, R, cmd, dt, lin, implicit, W):
-    """CouplingMixed.begin (:func:`hydraulics._compiled_rigid.rigid_law`) over the step's law in ``V``, its bounds
-    written to MuJoCo's force ranges."""
+def _rigid_law(pnet, views, cmd, dt, lin, implicit, W):
+    """CouplingMixed.begin (:func:`hydraulics._compiled_rigid.rigid_law`) over the step's law in the views' ``V``, its
+    bounds written to MuJoCo's force ranges."""
+    kept = C._deref(views)
+    V, R = kept.V, kept.R
     K.rigid_law(pnet, R, V.spool, cmd, V.vs, V.meff, dt, lin, implicit, (V.const, V.slope), (V.lower, V.upper),
                 V.theta, W)
     _write_bounds(V.act, V.lower, V.upper, V.flimited, V.frange)
 
 
 @_kernel
-def _begin(ctx, pnet, V, T, R):
+def _begin(ctx, pnet, views):
     """After M⁻¹·Jᵀ: the effort law of the step (CouplingImplicit.begin; CouplingExplicit.begin or
     CouplingIncompressible.begin with the table ``T`` by ``SLOT.C_KIND``), written to ctrl and biasprm (and the
-    incompressible law's bounds to MuJoCo's force ranges)."""
+    incompressible law's bounds to MuJoCo's force ranges); ``views``: a pointer to the :class:`Kept`."""
     k = ctx[SLOT.C_K]
     ctx[SLOT.C_K] = k + 1
     if ctx[SLOT.C_FAILED] >= 0:
         return  # hydraulics frozen after a failed step: hold the last law
     na, nv, nu, n = ctx[SLOT.C_NA], ctx[SLOT.C_NV], ctx[SLOT.C_NU], ctx[SLOT.C_N]
     nb, nvalve, npump = ctx[SLOT.C_NB], ctx[SLOT.C_NVALVE], ctx[SLOT.C_NPUMP]
+    kept = C._deref(views)
+    V, ws, T, R = kept.V, kept.S, kept.T, kept.R
     fs = V.fs
     dt = fs[FS_DT]
     act = V.act
@@ -610,7 +699,6 @@ def _begin(ctx, pnet, V, T, R):
     const, slope = V.const, V.slope
     W = V.W
     istats = V.istats
-    ws, _ = _plant_scratch(V.S, 0, n, na, nb, V.spool.size)
     # kept for _finish_pending
     guess, lin_oil, lin_spool, doil = ws.guess, ws.lin_oil, ws.lin_spool, ws.doil
     fg, fslope_guess, end_const, end_slope = ws.fg, ws.fslope_guess, ws.end_const, ws.end_slope
@@ -633,7 +721,7 @@ def _begin(ctx, pnet, V, T, R):
         if kind == KIND_EXPLICIT:  # CouplingExplicit.begin: the start pressures' effort and friction, slope 0
             K.explicit_law(pnet, V.pres, xs, vs, (const, slope), W)
             if R.actuator.size:  # CouplingMixed around it: the rigid actuators' law at the start supply pressure
-                _rigid_law(pnet, V, R, cmd, dt, (V.pres, oil, xs, doil, xs), False, W)
+                _rigid_law(pnet, views, cmd, dt, (V.pres, oil, xs, doil, xs), False, W)
                 for i in range(na):
                     theta[i] = 1.0
         else:  # CouplingIncompressible.begin: end spools (kept for the finish) and the bounded law
@@ -691,7 +779,7 @@ def _begin(ctx, pnet, V, T, R):
     C._pressure_effort(pnet, p0, pressure_start)
     C._blended_law(True, end_const, end_slope, pressure_start, friction, damping, vs, meff, dt, theta, const, slope)
     if R.actuator.size:  # CouplingMixed around it: the rigid actuators' law at the linearisation's supply pressure
-        _rigid_law(pnet, V, R, cmd, dt, (lin_p, lin_oil, lin_x, doil, guess), True, W)
+        _rigid_law(pnet, views, cmd, dt, (lin_p, lin_oil, lin_x, doil, guess), True, W)
     for i in range(na):
         ctrl[act[i]] = const[i]
         bias[act[i] * ctx[SLOT.C_NBIAS] + 2] = slope[i]
@@ -715,7 +803,7 @@ def _record_due(ctx):
 
 
 @_jit
-def _record(ctx, V):
+def _record(ctx, views):
     """Copy the state at the end of the step just finished into the next row of the record (see
     :meth:`MujocoPlantFast.advance`); called when :func:`_record_due`.
 
@@ -726,6 +814,7 @@ def _record(ctx, V):
     """
     count = ctx[SLOT.C_REC_COUNT]
     j = ctx[SLOT.C_K] - 1  # block-local index of the step just finished
+    V = C._deref(views).V
     row = V.rec[count]
     fs = V.fs
     nbody, nctl = ctx[SLOT.C_NBODY], ctx[SLOT.C_NCTL]
@@ -751,13 +840,14 @@ def _record(ctx, V):
     C._copy2(r.xquat, V.bxquat)
     C._copy2(r.controllers, V.ctl_state)
     ctx[SLOT.C_REC_COUNT] = count + 1
-    if not _state_finite(ctx, V):
+    if not _state_finite(ctx, views):
         ctx[SLOT.C_REC_BAD] += 1
 
 
 @_jit
-def _state_finite(ctx, V):
+def _state_finite(ctx, views):
     """Whether node pressures, qpos and qvel are all finite (MujocoPlant.finite())."""
+    V = C._deref(views).V
     s = 0.0
     for x in V.pres:
         s += x * 0.0
@@ -774,35 +864,53 @@ _unflatten_incompressible = _inline(K.unflatten_incompressible)
 _unflatten_rigid = _inline(K.unflatten_rigid)
 
 
+@_inline
+def _make_views(ctx):
+    """The views (:class:`Kept`) of the arrays the table ``ctx`` points to (inlined: a tuple returned through a call
+    is a zero-filled stack slot per call site, ~20000 instructions of ``memset`` per step)."""
+    V = _views(ctx)
+    na = ctx[SLOT.C_NA]
+    T = _unflatten_incompressible(V.TF, V.TI, na)  # (TF, TI hold the table of SLOT.C_KIND's coupling: T or R)
+    R = _unflatten_rigid(V.TF, V.TI, na, ctx[SLOT.C_NR])
+    S, _ = _plant_scratch(V.S, 0, ctx[SLOT.C_N], na, ctx[SLOT.C_NB], V.spool.size)
+    return Kept(_unpack(V.F, V.I), V, S, T, R)
+
+
 @_jit
 def _coupled_step(address, m, d):
     """The whole callback: finish step k−1, moments, M⁻¹·Jᵀ (MuJoCo's mj_solveM), effort law of step k."""
     ctx = carray(_pi64(address), (NCTX,))
-    V = _views(ctx)
-    net = _unpack(V.F, V.I)
-    pnet = C._ref(net)
-    na = ctx[SLOT.C_NA]
-    T = _unflatten_incompressible(V.TF, V.TI, na)  # (TF, TI hold the table of SLOT.C_KIND's coupling: T or R)
-    R = _unflatten_rigid(V.TF, V.TI, na, ctx[SLOT.C_NR])
-    _finish_pending(ctx, pnet, V, T, R)
+    if ctx[SLOT.C_MODE] == MODE_SIZE:
+        ctx[SLOT.C_KEPT_BYTES] = _kept_bytes(_make_views, ctx)
+        return
+    if 8 * ctx[SLOT.C_NKEPT] < _kept_bytes(_make_views, ctx):  # (never: the plant's buffer holds them)
+        views = C._ref(_make_views(ctx))
+    else:
+        if ctx[SLOT.C_KEPT] == 0:  # the block's first call: its views, read by the other calls from the buffer
+            _keep(ctx[SLOT.P_KEPT_VIEWS], _make_views(ctx))
+            ctx[SLOT.C_KEPT] = 1
+        views = _kept(ctx[SLOT.P_KEPT_VIEWS], _make_views, ctx)
+    pnet = _member_ref(views, 0)  # the packed network, Kept.net
+    _finish_pending(ctx, pnet, views)
     if ctx[SLOT.C_MODE] == MODE_FINISH:  # called from Python after the block: finish its last step only
-        ctx[SLOT.C_END_FINITE] = _state_finite(ctx, V)
+        ctx[SLOT.C_END_FINITE] = _state_finite(ctx, views)
         return
     if ctx[SLOT.P_REC] != 0 and _record_due(ctx):
-        _record(ctx, V)
-    _prepare(ctx, V)
+        _record(ctx, views)
+    _prepare(ctx, views)
     _mj_solveM_nb(m, d, _pvoid(ctx[SLOT.P_MINVJ]), _pvoid(ctx[SLOT.P_J]), np.int32(ctx[SLOT.C_NA]))
     if ctx[SLOT.C_NCTL] > 0 and ctx[SLOT.C_FAILED] < 0:
-        _control(ctx, V)
-    _begin(ctx, pnet, V, T, R)
+        _control(ctx, views)
+    _begin(ctx, pnet, views)
 
 
 @_jit
-def _control(ctx, V):
+def _control(ctx, views):
     """The controllers of step k (:func:`hydraulics.controllers.update`) from the step's start state (the network's
     actuator motion, pressures and last flows, MuJoCo's qpos/qvel), writing row k of the commands before the step's
     effort law (``_begin``) reads it."""
     k = ctx[SLOT.C_K]
+    V = C._deref(views).V
     sources = (V.pos, V.vel, V.qpos, V.qvel, V.pres, V.flow)  # CT.SOURCES
     CT.update(V.ctl_table, V.ctl_state, V.ctl_set[k], ctx[SLOT.C_STEP0] + k, V.fs[FS_DT], sources, V.cmd[k], V.speed[k])
 
@@ -829,8 +937,11 @@ SOURCE_SHA256 = C.source_sha256(__file__, CT.__file__, record_row.__file__, *C.S
 _CTX = np.zeros(NCTX, np.int64)  # the pointer table the callback reads (symbol CTX_SYMBOL)
 _CALLBACK = None
 _CALLBACK_POINTER = None  # its ctypes function pointer, for mujoco.set_mjcb_control
-_BLOCK_START = [SLOT.C_K, SLOT.C_PENDING, SLOT.C_FAILED, SLOT.C_STATUS, SLOT.C_WORST], (0, 0, -1, ST_OK, -1)
-"""The entries a block starts from: no step done or pending, none failed."""
+_BLOCK_START = ([SLOT.C_K, SLOT.C_PENDING, SLOT.C_FAILED, SLOT.C_STATUS, SLOT.C_WORST, SLOT.C_KEPT],
+                (0, 0, -1, ST_OK, -1, 0))
+"""The entries a block starts from: no step done or pending, none failed, no views kept (its first call makes
+them: an array may have moved since the last block)."""
+_KEPT_WORDS = None
 _OUTCOME = [SLOT.C_FAILED, SLOT.C_STATUS, SLOT.C_WORST, SLOT.C_NEWTON, SLOT.C_RHS, SLOT.C_JAC]
 _LOCK = threading.Lock()
 
@@ -862,6 +973,23 @@ def callback():
             _callback_function(SOURCE_SHA256))
         _CALLBACK_POINTER = _CALLBACK.ctypes
     return _CALLBACK
+
+
+def kept_words() -> int:
+    """int64 words of a plant's ``kept_views`` buffer: the bytes of the :class:`Kept`, as the callback
+    reports them (``MODE_SIZE``: it reads nothing else), rounded up."""
+    global _KEPT_WORDS
+    if _KEPT_WORDS is None:
+        callback()
+        with _LOCK:
+            mode = _CTX[SLOT.C_MODE]
+            _CTX[SLOT.C_MODE] = MODE_SIZE
+            try:
+                _CALLBACK_POINTER(None, None)
+            finally:
+                _CTX[SLOT.C_MODE] = mode
+            _KEPT_WORDS = -(-int(_CTX[SLOT.C_KEPT_BYTES]) // 8)
+    return _KEPT_WORDS
 
 
 def _finish_python():
@@ -926,6 +1054,7 @@ class MujocoPlantFast(MujocoPlant):
         self._passive = np.zeros(nv)
         self._work = np.zeros(K.coupled_work_size(C.work_size(self._F, self._I), n, na, len(net.branch_names), nr))
         self._scratch = np.zeros(scratch_size(na, n, len(net.branch_names), net.component_state_count))
+        self._kept_views = np.zeros(kept_words(), np.int64)
         self._istats = np.zeros(C.NIS, np.int64)
         self._pmax, self._pmin = np.zeros(n), np.zeros(n)
         self._xmax, self._xmin = np.zeros(na), np.zeros(na)
@@ -951,13 +1080,14 @@ class MujocoPlantFast(MujocoPlant):
             effort=self._effort, passive_saved=self._passive, oil=self._oil, pres=self._p, spool=self._spool, pos=self._x,
             vel=self._v, flow=self._flow, oil_change=self._oil_change, pmax=self._pmax, pmin=self._pmin, xmax=self._xmax,
             xmin=self._xmin, fs=self._fs, quad=self._quad, W=self._work, S=self._scratch, istats=self._istats,
-            ctl_table=self.controllers.table, ctl_state=self.controllers.state)
+            ctl_table=self.controllers.table, ctl_state=self.controllers.state, kept_views=self._kept_views)
         # (checked against POINTERS: dtype, contiguity, size; cmd, speed, ctl_set: _sample_inputs; rec: advance)
         POINTERS.register(ctx, arrays, na=na, nv=nv, nu=m.nu, n=n, nb=len(net.branch_names), nvalve=len(net.valve_names),
                           npump=len(net.pump_names), nbias=m.actuator_biasprm.shape[1], nstate=net.component_state_count,
                           nnz=d.actuator_moment.size, rows=0, nf=self._F.size, ni=self._I.size, nw=self._work.size,
                           ns=self._scratch.size, ntf=self._TF.size, nti=self._TI.size, nq=m.nq, nbody=m.nbody,
-                          nctl=len(self.controllers), rec_rows=0, rec_width=self._record_width)
+                          nctl=len(self.controllers), rec_rows=0, rec_width=self._record_width,
+                          nkept=self._kept_views.size)
         ctx[SLOT.P_REC] = 0  # set by advance() for a block that records
         self._keep = arrays  # the arrays must outlive the table
         self._ctx = ctx
