@@ -785,7 +785,10 @@ def _branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h):
     _rigid_branches(pnet, area, velocity, flow)
     for b in range(ic[IC_W0], ic[IC_W1]):
         i = b - ic[IC_W0]
-        _law_branch(pnet, b, p, _law_inputs(speed, velocity, net.law_kind[i], net.law_input[i]), flow, dflow, state, h)
+        if _LAW_ACTUATED[net.law_kind[i]]:
+            _law_branch(pnet, b, p, _actuator_input(velocity, net.law_input[i]), flow, dflow, state, h)
+        else:
+            _law_branch(pnet, b, p, _law_inputs(speed, net.law_input[i]), flow, dflow, state, h)
 
 
 @_inline
@@ -848,10 +851,12 @@ def _kept_branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h, be
     _rigid_branches(pnet, area, velocity, flow)
     for b in range(ic[IC_W0], ic[IC_W1]):
         i = b - ic[IC_W0]
-        kind = net.law_kind[i]
-        inputs = _law_inputs(speed, velocity, kind, net.law_input[i])
-        if net.law_state[i] < 0 and not _LAW_ACTUATED[kind]:
-            inputs_before = _law_inputs(speed_before, speed_before, kind, net.law_input[i])
+        if _LAW_ACTUATED[net.law_kind[i]]:  # driven by its actuator's velocity: evaluated
+            _law_branch(pnet, b, p, _actuator_input(velocity, net.law_input[i]), flow, dflow, state, h)
+            continue
+        inputs = _law_inputs(speed, net.law_input[i])
+        if net.law_state[i] < 0:
+            inputs_before = _law_inputs(speed_before, net.law_input[i])
             same = True
             for j in range(inputs.size):
                 if not _same_value(inputs[j], inputs_before[j]):
@@ -873,15 +878,18 @@ def _law_state(state, offset):
 
 
 @_inline
-def _law_inputs(speed, velocity, kind, offset):
-    """The inputs of one law branch of law ``kind``: its scheduled inputs in the control vector ``speed`` (from
-    ``offset``; none for −1), or, for a law driven by its actuator (``ACTUATOR_INPUT``), the velocity of that actuator
-    (number ``offset``) in ``velocity``."""
+def _law_inputs(speed, offset):
+    """The scheduled inputs of one law branch in the control vector ``speed`` (from ``offset``; none for −1)."""
     if offset < 0:
         return speed[:0]
-    if _LAW_ACTUATED[kind]:
-        return velocity[offset:offset + 1]
     return speed[offset:offset + _LAW_INPUT_WIDTH]
+
+
+@_inline
+def _actuator_input(velocity, actuator):
+    """The input of a law branch driven by its actuator (``ACTUATOR_INPUT``): the velocity of actuator number
+    ``actuator`` in ``velocity`` [m/s | rad/s], as a one-entry array."""
+    return velocity[actuator:actuator + 1]
 
 
 @_inline
@@ -929,8 +937,8 @@ def _source_delivery(pnet, speed):
         i = b - ic[IC_W0]
         kind = net.law_kind[i]
         if _LAW_SOURCE[kind] and net.law_state[i] < 0:
-            supply += _branch_law(kind, net.law[i], speed[:0], _law_inputs(speed, speed, kind, net.law_input[i]), 0.0,
-                                  pref, pref, 0.0)[0]
+            supply += _branch_law(kind, net.law[i], speed[:0], _law_inputs(speed, net.law_input[i]), 0.0, pref, pref,
+                                  0.0)[0]
     return supply
 
 
