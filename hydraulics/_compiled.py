@@ -538,6 +538,8 @@ _LAW_INPUT_WIDTH = max([len(law_inputs(cls)) for cls in BRANCH_LAWS], default=0)
 _LAW_SOURCE = np.array(law_sources() or (0,), np.int64)  # 1: the law's power is pump work (its SOURCE)
 # 1: the law is driven by its actuator's velocity (ACTUATOR_INPUT), its power is work on that actuator
 _LAW_ACTUATED = np.array([int(law_actuated(cls)) for cls in BRANCH_LAWS] or [0], np.int64)
+# 1: the law declares a kink hook (LAW_PIECE); a law without one is on its piece 0 at every pressure
+_LAW_PIECED = np.array([int(hasattr(cls, "LAW_PIECE")) for cls in BRANCH_LAWS] or [0], np.int64)
 
 
 # ----------------------------------------------------------------------------
@@ -896,16 +898,19 @@ def _actuator_input(velocity, actuator):
 def _actuated_velocity_gradient(pnet, grad):
     """Adds ∂(net inflow)/∂v of the law branches driven by their actuator (``ACTUATOR_INPUT``: the motors) to
     ``grad`` (n × na) [m² | m³/rad]: −rate at the branch's from node, +rate at its to node, in its actuator's column
-    (rate = ∂Q/∂v, the law's ``VELOCITY_RATE``)."""
+    (rate = ∂Q/∂v, the law's ``VELOCITY_RATE``).  Those laws are the last of BRANCH_LAWS and the law branches are
+    grouped by law, so they are the tail of the law branches: the scan runs from the last law branch back to the
+    first of another law (each adds to its own actuator's column only, so the order of the terms is immaterial)."""
     net = _deref(pnet)
     ic, br = net.ic, net.br
-    for b in range(ic[IC_W0], ic[IC_W1]):
+    for b in range(ic[IC_W1] - 1, ic[IC_W0] - 1, -1):
         i = b - ic[IC_W0]
         kind = net.law_kind[i]
-        if _LAW_ACTUATED[kind]:
-            rate = _branch_law_rate(kind, net.law[i])
-            grad[br[b, T_FROM], net.law_input[i]] += -rate
-            grad[br[b, T_TO], net.law_input[i]] += rate
+        if not _LAW_ACTUATED[kind]:
+            break
+        rate = _branch_law_rate(kind, net.law[i])
+        grad[br[b, T_FROM], net.law_input[i]] += -rate
+        grad[br[b, T_TO], net.law_input[i]] += rate
 
 
 @_kernel
@@ -1755,6 +1760,9 @@ def _law_pieces(pnet, p, state, h, pieces, stateless_kept=False):
     for b in range(ic[IC_W0], ic[IC_W1]):
         if stateless_kept and net.law_state[b - ic[IC_W0]] < 0:
             continue
+        if not _LAW_PIECED[net.law_kind[b - ic[IC_W0]]]:  # no kink hook: piece 0
+            pieces[b - ic[IC_W0]] = 0
+            continue
         pieces[b - ic[IC_W0]] = _law_branch_piece(pnet, b, p, state, h)
 
 
@@ -1763,8 +1771,11 @@ def _same_pieces_as(pnet, pieces, p, state, h):
     """Whether every law branch is at the node pressures ``p`` [Pa] on the piece of its law that ``pieces``
     (:func:`_law_pieces`, from the same component states ``state`` and step ``h`` [s]) records: the test of
     :func:`_same_law_pieces` with one side evaluated before."""
-    ic = _deref(pnet).ic
+    net = _deref(pnet)
+    ic = net.ic
     for b in range(ic[IC_W0], ic[IC_W1]):
+        if not _LAW_PIECED[net.law_kind[b - ic[IC_W0]]]:  # no kink hook: piece 0 on both sides
+            continue
         if _law_branch_piece(pnet, b, p, state, h) != pieces[b - ic[IC_W0]]:
             return False
     return True
@@ -1775,8 +1786,11 @@ def _same_law_pieces(pnet, pa, pb, state, h):
     """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no law component with a kink hook (a relief, a
     check valve, a pump compensator, …) changes the piece of its law between the node pressures ``pa`` and ``pb``
     [Pa] (the law components over a step of ``h`` [s] from the component states ``state``)."""
-    ic = _deref(pnet).ic
+    net = _deref(pnet)
+    ic = net.ic
     for b in range(ic[IC_W0], ic[IC_W1]):
+        if not _LAW_PIECED[net.law_kind[b - ic[IC_W0]]]:  # no kink hook: piece 0 on both sides
+            continue
         if _law_branch_piece(pnet, b, pa, state, h) != _law_branch_piece(pnet, b, pb, state, h):
             return False
     return True
