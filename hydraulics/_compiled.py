@@ -98,7 +98,7 @@ from .components.motor import MI_A, MI_ACT, MI_B
 from .components.orifice import O_BASE, O_C, O_CENTRE, O_K, O_MAX, O_SIGN
 from .components.valve_4_3 import V_LOW, V_OVERLAP, V_TAU
 from .components.parameters import table as _table
-from .components import BRANCH_LAWS, LAW_WIDTH, law_inputs, law_sources, law_states
+from .components import BRANCH_LAWS, LAW_WIDTH, law_actuated, law_inputs, law_sources, law_states
 from .layout import Layout
 
 
@@ -108,8 +108,8 @@ from .layout import Layout
 # int-field offsets (len(_INT_FIELDS) + 1, into I).
 # ----------------------------------------------------------------------------
 _FLOAT_FIELDS = ("sc", "node", "acc", "cyl", "mot", "valve", "ori", "law", "rig", "meter", "knots")
-_INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve", "mot_br_act",
-               "law_kind", "rig_i", "mot_br_i", "law_state", "valve_rate", "law_input")
+_INT_FIELDS = ("ic", "fixed", "free", "free_index", "compliant", "acc_node", "cyl_i", "mot_i", "br", "or_valve",
+               "law_kind", "rig_i", "law_state", "valve_rate", "law_input")
 # the sparse solves' index arrays (sparse_pattern)
 _SPARSE_FIELDS = ("lu_row", "lu_col", "lu_diag", "lu_ptr", "lu_later", "lu_lower", "lu_upper", "lu_update", "branch_lu",
                   "branch_jq", "jq_ptr", "jq_col", "node_actuator_ptr", "node_actuator", "actuator_node_ptr",
@@ -127,14 +127,14 @@ SCALAR_LAYOUT = ("reference_pressure", "bulk_modulus", "air_fraction", "polytrop
 (S_PREF, S_BETA, S_AIR, S_NPOLY, S_FLOOR, S_PHI_FLOOR, S_NEWTON_PTOL, S_NEWTON_RTOL, S_SUFFICIENT, S_TRUST_P, S_TRUST_F,
  S_PINV_TOL, S_FILL_TOL, S_VREG, S_GUESS) = range(len(SCALAR_LAYOUT))
 # ic: int scalars, by name: sizes, then each branch kind's [start, stop) (NetworkModel.branch_slices), then limits
-BRANCH_KINDS = ("orifice", "motor", "law", "rigid")
+BRANCH_KINDS = ("orifice", "law", "rigid")
 INT_LAYOUT = (("node_count", "free_count", "actuator_count", "branch_count", "cylinder_count", "motor_count",
                "accumulator_count", "valve_count")
               + tuple(f"{kind}_{end}" for kind in BRANCH_KINDS for end in ("start", "stop"))
               + ("newton_max_iterations", "line_search_halvings", "inversion_max_iterations", "fill_max_iterations",
                  "state_count", "lu_entry_count", "jq_entry_count", "sparse_factorisation"))
 (IC_N, IC_NF, IC_NA, IC_NB, IC_NCYL, IC_NMOT, IC_NACC, IC_NV, IC_O0, IC_O1,
- IC_M0, IC_M1, IC_W0, IC_W1, IC_G0, IC_G1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX,
+ IC_W0, IC_W1, IC_G0, IC_G1, IC_NEWTON_MAX, IC_HALVINGS, IC_PINV_MAX,
  IC_FILL_MAX, IC_NSTATE, IC_NLU, IC_NJQ, IC_SPARSE) = range(len(INT_LAYOUT))
 # node table columns
 NODE_COLUMNS = ("fixed_pressure", "volume", "wall_compliance")
@@ -160,8 +160,8 @@ _W_RIG, _W_RIG_I = len(RIGID_COLUMNS), len(RIGID_INDEX_COLUMNS)
 
 PACKED_WIDTHS = dict(sc=0, node=_W_NODE, acc=_W_ACC, cyl=_W_CYL, mot=0, valve=_W_VALVE, ori=_W_ORI,
                      law=_W_LAW, rig=_W_RIG, meter=len(_metering.COLUMNS), knots=len(_metering.KNOT_COLUMNS), ic=0, fixed=0, free=0, free_index=0, compliant=0,
-                     acc_node=0, cyl_i=_W_CI, mot_i=_W_MI, br=_W_BR, or_valve=0, mot_br_act=0, law_kind=0, rig_i=_W_RIG_I,
-                     mot_br_i=0, law_state=0, valve_rate=0, law_input=0,
+                     acc_node=0, cyl_i=_W_CI, mot_i=_W_MI, br=_W_BR, or_valve=0, law_kind=0, rig_i=_W_RIG_I,
+                     law_state=0, valve_rate=0, law_input=0,
                      **{name: 2 * _W_BR if name.startswith("branch_") else 0 for name in _SPARSE_FIELDS})
 """Row width of every packed field (0: a vector): the description :func:`pack_network` packs by and the views of
 ``_unpack`` are generated from."""
@@ -371,10 +371,8 @@ def pack_network(model: NetworkModel):
         mot_i=_motor.pack_index(model),
         br=np.column_stack((model.branch_from, model.branch_to, model.branch_pilot)).reshape(len(model.branch_names), _W_BR),
         or_valve=model.orifice_valve,
-        mot_br_act=model.motor_branch_actuator,
         law_kind=model.law_kind,
         rig_i=np.column_stack((model.rigid_valve, model.rigid_branch_actuator)).reshape(-1, _W_RIG_I),
-        mot_br_i=np.searchsorted(model.motor_actuator, model.motor_branch_actuator),  # motor of each motor branch
         law_state=model.law_state_offset,
         valve_rate=model.valve_rate_offset,
         law_input=model.law_input_offset,
@@ -441,17 +439,24 @@ def fill_ratio_nb(p, pref, beta, air, n):
 
 def _state_law(cls):
     """The branch law of component class ``cls`` as ``law(row, state, inputs, h, p_from, p_to, p_pilot)`` (a
-    stateless law ignores ``state`` and ``h``, a law without inputs ``inputs``), its state update
+    stateless law ignores ``state`` and ``h``, a law without inputs ``inputs``; an actuator-driven law's input is its
+    actuator's velocity), its state update
     ``end(row, state, h, p_from, p_to, p_pilot, out)`` (none for a stateless law) and its kink hook
-    ``piece(row, state, h, p_from, p_to, p_pilot)`` (0 for a law without kinks); see
+    ``piece(row, state, h, p_from, p_to, p_pilot)`` (0 for a law without kinks) and its velocity derivative
+    ``rate(row)`` = ∂Q/∂v (``VELOCITY_RATE`` of an actuator-driven law, 0 for another); see
     :data:`hydraulics.components.BRANCH_LAWS`."""
     piece = getattr(cls, "LAW_PIECE", None)
     if piece is None:
         @_kernel
         def piece(row, state, h, p_from, p_to, p_pilot):
             return 0
+    rate = getattr(cls, "VELOCITY_RATE", None)
+    if rate is None:
+        @_kernel
+        def rate(row):
+            return 0.0
     own = cls.BRANCH_LAW
-    stateful, driven = bool(law_states(cls)), bool(law_inputs(cls))
+    stateful, driven = bool(law_states(cls)), bool(law_inputs(cls)) or law_actuated(cls)
     if stateful and driven:
         @_kernel
         def law(row, state, inputs, h, p_from, p_to, p_pilot):
@@ -469,19 +474,19 @@ def _state_law(cls):
         def law(row, state, inputs, h, p_from, p_to, p_pilot):
             return own(row, p_from, p_to, p_pilot)
     if stateful:
-        return law, cls.STATE_END, piece
+        return law, cls.STATE_END, piece, rate
 
     @_kernel
     def end(row, state, h, p_from, p_to, p_pilot, out):
         return None
 
-    return law, end, piece
+    return law, end, piece, rate
 
 
 def _law_dispatch(laws):
     """Kernels ``dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot)``, ``dispatch_end(kind, row, state, h,
-    p_from, p_to, p_pilot, out)`` and
-    ``dispatch_piece(…)`` calling ``laws[kind]``'s law, state update and kink hook (the triples of
+    p_from, p_to, p_pilot, out)``, ``dispatch_piece(…)`` and ``dispatch_rate(kind, row)`` calling ``laws[kind]``'s
+    law, state update, kink hook and velocity derivative (the quadruples of
     :func:`_state_law` of :data:`hydraulics.components.BRANCH_LAWS`, in order): one ``if`` per law in one function
     each, generated from the registry so that a new component needs no line here (a chain of nested calls, one
     per law, would pass the arguments down as many calls as the law's place in the registry)."""
@@ -498,30 +503,43 @@ def _law_dispatch(laws):
         def none_piece(kind, row, state, h, p_from, p_to, p_pilot):
             return 0
 
-        return none, none_end, none_piece
+        @_kernel
+        def none_rate(kind, row):
+            return 0.0
+
+        return none, none_end, none_piece, none_rate
     names = {"math": math}
     lines = ["def dispatch(kind, row, state, inputs, h, p_from, p_to, p_pilot):"]
     lines_end = ["def dispatch_end(kind, row, state, h, p_from, p_to, p_pilot, out):"]
     lines_piece = ["def dispatch_piece(kind, row, state, h, p_from, p_to, p_pilot):"]
-    for kind, (law, end, piece) in enumerate(laws):
-        names[f"law_{kind}"], names[f"end_{kind}"], names[f"piece_{kind}"] = law, end, piece
+    lines_rate = ["def dispatch_rate(kind, row):"]
+    for kind, (law, end, piece, rate) in enumerate(laws):
+        names[f"law_{kind}"], names[f"end_{kind}"], names[f"piece_{kind}"], names[f"rate_{kind}"] = law, end, piece, rate
+        lines_rate += [f"    if kind == {kind}:", f"        return rate_{kind}(row)"]
         lines += [f"    if kind == {kind}:", f"        return law_{kind}(row, state, inputs, h, p_from, p_to, p_pilot)"]
         lines_end += [f"    if kind == {kind}:", f"        end_{kind}(row, state, h, p_from, p_to, p_pilot, out)",
                       "        return None"]
         lines_piece += [f"    if kind == {kind}:", f"        return piece_{kind}(row, state, h, p_from, p_to, p_pilot)"]
-    # (an unknown kind: NaN flows, no state change, piece 0)
+    # (an unknown kind: NaN flows, no state change, piece 0, rate NaN)
     lines += ["    return math.nan, math.nan, math.nan, math.nan"]
     lines_end += ["    return None"]
     lines_piece += ["    return 0"]
-    source = "\n".join(lines + [""] + lines_end + [""] + lines_piece) + "\n"
+    lines_rate += ["    return math.nan"]
+    source = "\n".join(lines + [""] + lines_end + [""] + lines_piece + [""] + lines_rate) + "\n"
     exec(compile(source, "<hydraulics._compiled._law_dispatch>", "exec"), names)
-    return _kernel(names["dispatch"]), _kernel(names["dispatch_end"]), _kernel(names["dispatch_piece"])
+    return (_kernel(names["dispatch"]), _kernel(names["dispatch_end"]), _kernel(names["dispatch_piece"]),
+            _kernel(names["dispatch_rate"]))
 
 
-_branch_law, _branch_law_end, _branch_law_piece = _law_dispatch(tuple(_state_law(cls) for cls in BRANCH_LAWS))
+_branch_law, _branch_law_end, _branch_law_piece, _branch_law_rate = _law_dispatch(tuple(_state_law(cls)
+                                                                                        for cls in BRANCH_LAWS))
 _LAW_STATE_WIDTH = max([len(law_states(cls)) for cls in BRANCH_LAWS], default=0)
 _LAW_INPUT_WIDTH = max([len(law_inputs(cls)) for cls in BRANCH_LAWS], default=0)
 _LAW_SOURCE = np.array(law_sources() or (0,), np.int64)  # 1: the law's power is pump work (its SOURCE)
+# 1: the law is driven by its actuator's velocity (ACTUATOR_INPUT), its power is work on that actuator
+_LAW_ACTUATED = np.array([int(law_actuated(cls)) for cls in BRANCH_LAWS] or [0], np.int64)
+# 1: the law declares a kink hook (LAW_PIECE); a law without one is on its piece 0 at every pressure
+_LAW_PIECED = np.array([int(hasattr(cls, "LAW_PIECE")) for cls in BRANCH_LAWS] or [0], np.int64)
 
 
 # ----------------------------------------------------------------------------
@@ -766,9 +784,13 @@ def _branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h):
     dflow[:, :] = 0.0
     for b in range(ic[IC_O0], ic[IC_O1]):
         _orifice_branch(pnet, b, p, area, flow, dflow)
-    _displacement_branches(pnet, area, velocity, flow)
+    _rigid_branches(pnet, area, velocity, flow)
     for b in range(ic[IC_W0], ic[IC_W1]):
-        _law_branch(pnet, b, p, _law_inputs(speed, net.law_input[b - ic[IC_W0]]), flow, dflow, state, h)
+        i = b - ic[IC_W0]
+        if _LAW_ACTUATED[net.law_kind[i]]:
+            _law_branch(pnet, b, p, _actuator_input(velocity, net.law_input[i]), flow, dflow, state, h)
+        else:
+            _law_branch(pnet, b, p, _law_inputs(speed, net.law_input[i]), flow, dflow, state, h)
 
 
 @_inline
@@ -781,14 +803,11 @@ def _orifice_branch(pnet, b, p, area, flow, dflow):
 
 
 @_inline
-def _displacement_branches(pnet, area, velocity, flow):
-    """Flows of the motor and rigid branches (:func:`_branch_flows`): displacement times actuator velocity, no
-    pressure dependence."""
+def _rigid_branches(pnet, area, velocity, flow):
+    """Flows of the rigid branches (:func:`_branch_flows`): displaced rate times actuator velocity, no pressure
+    dependence."""
     net = _deref(pnet)
     ic = net.ic
-    for b in range(ic[IC_M0], ic[IC_M1]):
-        i = b - ic[IC_M0]
-        flow[b] = _motor.flow(net.mot[net.mot_br_i[i]], velocity[net.mot_br_act[i]])
     nor = ic[IC_O1] - ic[IC_O0]
     for b in range(ic[IC_G0], ic[IC_G1]):  # rigid branches: Q = rate·v
         i = b - ic[IC_G0]
@@ -797,7 +816,7 @@ def _displacement_branches(pnet, area, velocity, flow):
 
 @_inline
 def _law_branch(pnet, b, p, inputs, flow, dflow, state, h):
-    """Flow and terminal derivatives of law branch ``b`` at its scheduled ``inputs`` (:func:`_branch_flows`)."""
+    """Flow and terminal derivatives of law branch ``b`` at its ``inputs`` (:func:`_law_inputs`, :func:`_branch_flows`)."""
     net = _deref(pnet)
     br, i = net.br, b - net.ic[IC_W0]
     pilot = br[b, T_PILOT]
@@ -817,9 +836,10 @@ def _kept_branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h, be
     """:func:`_branch_flows` at the node pressures ``p`` [Pa] at which ``before`` = (open areas, scheduled inputs,
     flows, terminal derivatives) were evaluated by :func:`_branch_flows` over a step of the same ``h`` [s]: an
     orifice branch whose open area is the same and a stateless law branch whose scheduled inputs are the same keep
-    those flow and derivatives (the same law at the same arguments: the same result, bit for bit); the motor and
-    rigid branches (the velocities) and the others are evaluated.  In MuJoCo mode the ``rosenbrock`` step starts at
-    the pressures its previous step ended at and kept the flows there (sim.plants.mujoco_fast)."""
+    those flow and derivatives (the same law at the same arguments: the same result, bit for bit); the rigid
+    branches and the laws driven by their actuator (the velocities) and the others are evaluated.  In MuJoCo mode
+    the ``rosenbrock`` step starts at the pressures its previous step ended at and kept the flows there
+    (sim.plants.mujoco_fast)."""
     area_before, speed_before, flow_before, dflow_before = before
     net = _deref(pnet)
     ic = net.ic
@@ -830,9 +850,12 @@ def _kept_branch_flows(pnet, p, area, speed, velocity, flow, dflow, state, h, be
             flow[b], dflow[b, T_FROM], dflow[b, T_TO] = flow_before[b], dflow_before[b, T_FROM], dflow_before[b, T_TO]
         else:
             _orifice_branch(pnet, b, p, area, flow, dflow)
-    _displacement_branches(pnet, area, velocity, flow)
+    _rigid_branches(pnet, area, velocity, flow)
     for b in range(ic[IC_W0], ic[IC_W1]):
         i = b - ic[IC_W0]
+        if _LAW_ACTUATED[net.law_kind[i]]:  # driven by its actuator's velocity: evaluated
+            _law_branch(pnet, b, p, _actuator_input(velocity, net.law_input[i]), flow, dflow, state, h)
+            continue
         inputs = _law_inputs(speed, net.law_input[i])
         if net.law_state[i] < 0:
             inputs_before = _law_inputs(speed_before, net.law_input[i])
@@ -862,6 +885,32 @@ def _law_inputs(speed, offset):
     if offset < 0:
         return speed[:0]
     return speed[offset:offset + _LAW_INPUT_WIDTH]
+
+
+@_inline
+def _actuator_input(velocity, actuator):
+    """The input of a law branch driven by its actuator (``ACTUATOR_INPUT``): the velocity of actuator number
+    ``actuator`` in ``velocity`` [m/s | rad/s], as a one-entry array."""
+    return velocity[actuator:actuator + 1]
+
+
+@_inline
+def _actuated_velocity_gradient(pnet, grad):
+    """Adds ∂(net inflow)/∂v of the law branches driven by their actuator (``ACTUATOR_INPUT``: the motors) to
+    ``grad`` (n × na) [m² | m³/rad]: −rate at the branch's from node, +rate at its to node, in its actuator's column
+    (rate = ∂Q/∂v, the law's ``VELOCITY_RATE``).  Those laws are the last of BRANCH_LAWS and the law branches are
+    grouped by law, so they are the tail of the law branches: the scan runs from the last law branch back to the
+    first of another law (each adds to its own actuator's column only, so the order of the terms is immaterial)."""
+    net = _deref(pnet)
+    ic, br = net.ic, net.br
+    for b in range(ic[IC_W1] - 1, ic[IC_W0] - 1, -1):
+        i = b - ic[IC_W0]
+        kind = net.law_kind[i]
+        if not _LAW_ACTUATED[kind]:
+            break
+        rate = _branch_law_rate(kind, net.law[i])
+        grad[br[b, T_FROM], net.law_input[i]] += -rate
+        grad[br[b, T_TO], net.law_input[i]] += rate
 
 
 @_kernel
@@ -1484,17 +1533,13 @@ def _velocity_residual_gradient(pnet, jq, dpdx_dt, dt, area, mg, rhs, col):
     dt·((∂Q/∂p)·dt·∂p/∂x + ∂Q/∂v) [m³·s/m or m³·s/rad], into columns ``col`` … ``col + na − 1`` of ``rhs`` (nf rows);
     ``jq``: the flow Jacobian ∂(net inflow)/∂p on the free rows (:func:`_flow_jacobian_rows`; the product skips the
     columns of nodes no actuator moves, where dt·∂p/∂x is zero), ``area``: :func:`_valve_areas` (the rigid branches' rates),
-    ``mg`` (n × na): scratch (∂Q/∂v of the motor and rigid branches)."""
+    ``mg`` (n × na): scratch (∂Q/∂v of the actuator-driven law branches and the rigid branches)."""
     net = _deref(pnet)
     ic, free = net.ic, net.free
     na = mg.shape[1]
-    mg[:, :] = 0.0  # motor_flow_velocity_gradient
+    mg[:, :] = 0.0
     br = net.br
-    for b in range(ic[IC_M0], ic[IC_M1]):
-        i = b - ic[IC_M0]
-        rate = net.mot[net.mot_br_i[i]] / (2.0 * np.pi)
-        mg[br[b, 0], net.mot_br_act[i]] += -rate
-        mg[br[b, 1], net.mot_br_act[i]] += rate
+    _actuated_velocity_gradient(pnet, mg)
     nor = ic[IC_O1] - ic[IC_O0]
     for b in range(ic[IC_G0], ic[IC_G1]):  # rigid branches: ∂Q/∂v = rate
         i = b - ic[IC_G0]
@@ -1715,6 +1760,9 @@ def _law_pieces(pnet, p, state, h, pieces, stateless_kept=False):
     for b in range(ic[IC_W0], ic[IC_W1]):
         if stateless_kept and net.law_state[b - ic[IC_W0]] < 0:
             continue
+        if not _LAW_PIECED[net.law_kind[b - ic[IC_W0]]]:  # no kink hook: piece 0
+            pieces[b - ic[IC_W0]] = 0
+            continue
         pieces[b - ic[IC_W0]] = _law_branch_piece(pnet, b, p, state, h)
 
 
@@ -1723,8 +1771,11 @@ def _same_pieces_as(pnet, pieces, p, state, h):
     """Whether every law branch is at the node pressures ``p`` [Pa] on the piece of its law that ``pieces``
     (:func:`_law_pieces`, from the same component states ``state`` and step ``h`` [s]) records: the test of
     :func:`_same_law_pieces` with one side evaluated before."""
-    ic = _deref(pnet).ic
+    net = _deref(pnet)
+    ic = net.ic
     for b in range(ic[IC_W0], ic[IC_W1]):
+        if not _LAW_PIECED[net.law_kind[b - ic[IC_W0]]]:  # no kink hook: piece 0 on both sides
+            continue
         if _law_branch_piece(pnet, b, p, state, h) != pieces[b - ic[IC_W0]]:
             return False
     return True
@@ -1735,8 +1786,11 @@ def _same_law_pieces(pnet, pa, pb, state, h):
     """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no law component with a kink hook (a relief, a
     check valve, a pump compensator, …) changes the piece of its law between the node pressures ``pa`` and ``pb``
     [Pa] (the law components over a step of ``h`` [s] from the component states ``state``)."""
-    ic = _deref(pnet).ic
+    net = _deref(pnet)
+    ic = net.ic
     for b in range(ic[IC_W0], ic[IC_W1]):
+        if not _LAW_PIECED[net.law_kind[b - ic[IC_W0]]]:  # no kink hook: piece 0 on both sides
+            continue
         if _law_branch_piece(pnet, b, pa, state, h) != _law_branch_piece(pnet, b, pb, state, h):
             return False
     return True
@@ -2170,15 +2224,16 @@ def _account(pnet, ledger, at, h, pres, x, flow, v, quad, mu, friction, fslope):
         if net.fixed[j] and net.node[j, NODE_FIXED_P] != pref:
             pump += flow[b] * mu[j]
     motor = 0.0
-    for b in range(ic[IC_M0], ic[IC_M1]):
-        motor += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
     dissipated = 0.0
     for b in range(ic[IC_O0], ic[IC_O1]):  # the valve edges (then the law branches)
         dissipated += flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
     for b in range(ic[IC_W0], ic[IC_W1]):
         power = flow[b] * (mu[br[b, 0]] - mu[br[b, 1]])
-        if _LAW_SOURCE[net.law_kind[b - ic[IC_W0]]]:
+        kind = net.law_kind[b - ic[IC_W0]]
+        if _LAW_SOURCE[kind]:
             pump += power
+        elif _LAW_ACTUATED[kind]:  # work on the actuator (a motor's shaft)
+            motor += power
         else:
             dissipated += power
     ledger[at] += h * -pump
@@ -2425,16 +2480,12 @@ def _eval_flow_jacobian(F, I, dflow):
 
 @_jit
 def _eval_flow_velocity_gradient(F, I, rates):
-    """NetworkModel.flow_velocity_gradient (n × na): motors and rigid branches at ``rates``."""
+    """NetworkModel.flow_velocity_gradient (n × na): the actuator-driven law branches and the rigid branches at
+    ``rates``."""
     net = _unpack(F, I)
     ic, br = net.ic, net.br
     grad = np.zeros((ic[IC_N], ic[IC_NA]))
-    for b in range(ic[IC_M0], ic[IC_M1]):
-        i = b - ic[IC_M0]
-        a = net.mot_br_act[i]
-        rate = net.mot[net.mot_br_i[i]] / (2.0 * np.pi)
-        grad[br[b, T_FROM], a] += -rate
-        grad[br[b, T_TO], a] += rate
+    _actuated_velocity_gradient(_ref(net), grad)
     for j in range(ic[IC_G1] - ic[IC_G0]):
         b, a = ic[IC_G0] + j, net.rig_i[j, GI_ACT]
         grad[br[b, T_FROM], a] += -rates[j]

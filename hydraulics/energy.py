@@ -87,10 +87,10 @@ def branch_powers(model: NetworkModel, state: NetworkState, flow: np.ndarray) ->
     mu = model.fluid.pressure_potential(state.node_pressure)
     power = flow * (mu[model.branch_from] - mu[model.branch_to])
     sl = model.branch_slices
-    pumps, dissipative = model.ledger_branches
+    pumps, shafts, dissipative = model.ledger_branches
     supplied = source_power(model, flow)
     return {"pump": float(-np.sum(power[pumps])) + supplied, "source": supplied,
-            "motor": float(np.sum(power[sl["motor"]])), "dissipated": float(np.sum(power[dissipative])),
+            "motor": float(np.sum(power[shafts])), "dissipated": float(np.sum(power[dissipative])),
             "rigid": float(np.sum(power[sl["rigid"]]))}
 
 

@@ -18,13 +18,14 @@ Nodes
 Branches
     Flow laws Q [m³/s at reference density] from a ``from`` to a ``to`` node, each
     with analytic derivatives with respect to the pressure of each of its terminals:
-    valve edges (orifices whose area the spool sets), motors (flow set by
-    the shaft speed), rigid branches (the flow a rigid actuator's rod displaces, set by
-    its speed and its valve's direction; see ``FIDELITIES``) and *law branches*: the
-    components that bring their own law (:data:`hydraulics.components.BRANCH_LAWS`:
-    laminar resistances of hose lines and actuator leaks, fixed orifices, relief and
-    check valves, counterbalance valves, pumps, …), which may read a third, pilot terminal
-    (``branch_pilot``) and scheduled inputs (a pump's shaft speed: ``pump_names``).  The law branches are grouped by law, in the order of
+    valve edges (orifices whose area the spool sets), rigid branches (the flow a rigid
+    actuator's rod displaces, set by its speed and its valve's direction; see ``FIDELITIES``)
+    and *law branches*: the components that bring their own law
+    (:data:`hydraulics.components.BRANCH_LAWS`: laminar resistances of hose lines and
+    actuator leaks, fixed orifices, relief and check valves, counterbalance valves, pumps,
+    motors, …), which may read a third, pilot terminal (``branch_pilot``), scheduled inputs
+    (a pump's shaft speed: ``pump_names``) or their own actuator's velocity (a motor's flow
+    set by its shaft speed).  The law branches are grouped by law, in the order of
     ``BRANCH_LAWS``, each law's in circuit order (:meth:`NetworkModel.law_branches`).
 
 Actuators
@@ -42,7 +43,7 @@ import numpy as np
 
 from .circuit import Circuit
 from .components import (BRANCH_LAWS, COMPONENT_TYPES, LAW_WIDTH, VALVE_KINDS, CircuitError, PumpFixed, input_names,
-                         law_inputs, law_sources, law_states)
+                         law_actuated, law_inputs, law_sources, law_states)
 from .components.metering import characteristics as metering_characteristics
 from .components.hose import LaminarResistance, line_conductance
 from .numerics import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE  # noqa: F401 (documented here)
@@ -382,7 +383,6 @@ class NetworkModel:
     orifice_centre_area: np.ndarray
     orifice_valve: np.ndarray  # valve index or -1
     orifice_sign: np.ndarray  # +1 opens with s > 0, -1 with s < 0, 0 no metering
-    motor_branch_actuator: np.ndarray
     fidelity: str = "compressible"
     pruned: tuple = ()  # names of the circuit components that were not built
     incidence: np.ndarray = field(default=None, repr=False)  # (node_count, branch_count)
@@ -408,7 +408,8 @@ class NetworkModel:
     # circuit order); the first state of each law branch in that vector (-1: a stateless law)
     law_state_offset: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     # scheduled inputs of the law components (their INPUTS: a pump's shaft speed), the entries of the control vector
-    # ``NetworkControl.pump_speed`` (names ``pump_names``): the first input of each law branch there (-1: none)
+    # ``NetworkControl.pump_speed`` (names ``pump_names``): the first input of each law branch there (-1: none); for a
+    # law driven by its actuator (ACTUATOR_INPUT: a motor's flow), its actuator's index into the velocities
     law_input_offset: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     # second-order spools: each valve's spool rate in that vector (after the law components' states; -1: a
     # first-order spool), natural frequency [rad/s] and damping ratio [-]
@@ -630,12 +631,13 @@ class NetworkModel:
         for c in circuit.components:
             law_class = COMPONENT_TYPES[c.kind]
             if law_class not in BRANCH_LAWS or not keep(c, node(c, law_class.PORTS[0]), node(c, law_class.PORTS[1])):
-                continue
+                continue  # (a rigid motor's flow is a rigid branch)
             own, driven = law_states(law_class), law_inputs(law_class)
             pilot = node(c, law_class.PORTS[2]) if len(law_class.PORTS) > 2 else -1
+            first_input = act_names.index(c.name) if law_actuated(law_class) else len(input_list) if driven else -1
             law_entries.append((BRANCH_LAWS.index(law_class), c.name, node(c, law_class.PORTS[0]),
                                 node(c, law_class.PORTS[1]), pilot, c.params, len(state_names) if own else -1,
-                                len(input_list) if driven else -1))
+                                first_input))
             input_list.extend(input_names(c.name, law_class) if driven else ())
             input_start.extend(c.params.input_start() if driven else ())
             state_names.extend(f"{c.name}.{name}" for name in own)
@@ -658,12 +660,6 @@ class NetworkModel:
             row[:len(values)] = values
             law_rows.append(row)
         slices["law"] = slice(start, len(branch_names))
-
-        start = len(branch_names)
-        flow_motors = [c for c in mot if keep(c, node(c, "a"), node(c, "b"))]  # a rigid motor's flow is a rigid branch
-        for c in flow_motors:
-            add_branch(c.name, node(c, "a"), node(c, "b"))
-        slices["motor"] = slice(start, len(branch_names))
 
         valve_rate_offset = []
         for v in valves:
@@ -765,7 +761,6 @@ class NetworkModel:
             orifice_centre_area=f(o_centre, float),
             orifice_valve=f(o_valve, int),
             orifice_sign=f(o_sign, float),
-            motor_branch_actuator=f([act_names.index(c.name) for c in flow_motors], int),
             fidelity=network_fidelity,
             pruned=pruned,
             incidence=incidence,
@@ -864,7 +859,8 @@ class NetworkModel:
         scheduled inputs, once per input."""
         law = self.branch_slices["law"]
         out = np.zeros(len(self.pump_names), int)
-        for i in np.flatnonzero(self.law_input_offset >= 0):
+        scheduled = np.array([bool(law_inputs(cls)) for cls in BRANCH_LAWS], bool)[self.law_kind]
+        for i in np.flatnonzero(scheduled & (self.law_input_offset >= 0)):
             first = self.law_input_offset[i]
             out[first:first + len(law_inputs(BRANCH_LAWS[self.law_kind[i]]))] = law.start + i
         return out
@@ -977,13 +973,16 @@ class NetworkModel:
 
     @cached_property
     def ledger_branches(self) -> tuple:
-        """(supplying, dissipative): indices of the branches the energy ledger (:func:`hydraulics.energy.branch_powers`)
-        counts as supplied work (law branches whose law is a power source, ``SOURCE``: the pumps) and as dissipation
-        (the orifice-law branches, then the other law branches, in branch order); made on first use."""
+        """(supplying, shaft, dissipative): indices of the branches the energy ledger
+        (:func:`hydraulics.energy.branch_powers`) counts as supplied work (law branches whose law is a power source,
+        ``SOURCE``: the pumps), as work on actuators (laws driven by their actuator, ``ACTUATOR_INPUT``: the motors)
+        and as dissipation (the orifice-law branches, then the other law branches, in branch order); made on first
+        use."""
         branch = np.arange(len(self.branch_from))
         law = branch[self.branch_slices["law"]] if "law" in self.branch_slices else branch[:0]
         source = np.array(law_sources(), bool)[self.law_kind] if len(law) else np.zeros(0, bool)
-        return law[source], np.concatenate([branch[self.branch_slices["orifice"]], law[~source]])
+        shaft = np.array([law_actuated(cls) for cls in BRANCH_LAWS], bool)[self.law_kind] if len(law) else source
+        return law[source], law[shaft], np.concatenate([branch[self.branch_slices["orifice"]], law[~(source | shaft)]])
 
     @cached_property
     def source_potential_ends(self):
@@ -1142,7 +1141,7 @@ class NetworkModel:
         pump_speed : ndarray, shape (pump_count,)
             [rev/s].
         actuator_velocity : ndarray, shape (actuator_count,)
-            Motor shaft speeds [rad/s] (and rigid actuators' velocities) are read from it.
+            The motors' shaft speeds [rad/s] (and rigid actuators' velocities) are read from it.
         state : ndarray, shape (component_state_count,), optional
             Component states at the start of a step of ``h`` [s] (default: :attr:`component_state_start`); a
             stateful component's flow is that at the end of the step (with ``h`` = 0: at these states).

@@ -22,8 +22,8 @@ import pytest
 
 from conftest import ROOT
 from hydraulics.circuit import parse_circuit
-from hydraulics.components import (BRANCH_LAWS, COMPONENT_TYPES, CheckValve, LaminarResistance, Orifice, PilotCheckValve,
-                                   PumpCompensated, PumpFixed, ReliefValve, ThrottleCheckValve)
+from hydraulics.components import (BRANCH_LAWS, COMPONENT_TYPES, CheckValve, LaminarResistance, Motor, Orifice,
+                                   PilotCheckValve, PumpCompensated, PumpFixed, ReliefValve, ThrottleCheckValve)
 from hydraulics.components.pilot_check import flow_with_derivatives as pilot_check_law
 from hydraulics.components.throttle_check import flow_with_derivatives as throttle_check_law
 from hydraulics.fluid import Fluid
@@ -109,10 +109,12 @@ ALSO_NAMED_BY = {LaminarResistance: {"hydraulics/network.py"},
                  CheckValve: {"hydraulics/components/throttle_check.py"},
                  PumpFixed: _PUMP_USERS | {"hydraulics/circuit.py", "sim/plants/controllers.py", "sim/tools/docgen.py",
                                            "sim/run/play.py"},
-                 PumpCompensated: _PUMP_USERS}
+                 PumpCompensated: _PUMP_USERS,
+                 Motor: {"sim/run/recorder.py"}}  # (its log fields' descriptions: "Motor shaft angle [rad]", …)
 # Law components whose module and type name are shared vocabulary: the orifice module is the law of every metering
-# edge and poppet, and "orifice" is also the branch kind of the valves' metering edges; only the class is checked.
-CLASS_ONLY = (Orifice,)
+# edge and poppet, and "orifice" is also the branch kind of the valves' metering edges; "motor" is also an actuator
+# kind (its torque, its ledger of shaft work, its logs); only the class is checked.
+CLASS_ONLY = (Orifice, Motor)
 
 
 def test_each_component_lives_in_its_module_and_registry_line():

@@ -68,15 +68,24 @@ COMPONENT_TYPES = {
     "pump_compensated": PumpCompensated,
 }
 """Circuit-file ``type`` name → parameter class (the law components' branches follow this order in the network:
-the fixed-displacement and compensated pumps last, after every other law)."""
+the fixed-displacement and compensated pumps last, after every other law but those driven by their actuator,
+:data:`BRANCH_LAWS`)."""
 VALVE_KINDS = tuple(kind for kind, cls in COMPONENT_TYPES.items() if hasattr(cls, "METERING_EDGES"))
 """The types whose passages a commanded spool meters (``METERING_EDGES``, ``edges(ports)``, ``COMMAND_RANGE``):
 the network's valves, commanded by name (:attr:`hydraulics.network.NetworkModel.valve_names`)."""
 
-BRANCH_LAWS = (LaminarResistance,) + tuple(cls for cls in COMPONENT_TYPES.values() if hasattr(cls, "BRANCH_LAW"))
+
+def law_actuated(cls) -> bool:
+    """Whether the law of component class ``cls`` is driven by its own actuator's velocity (``ACTUATOR_INPUT``)."""
+    return bool(getattr(cls, "ACTUATOR_INPUT", False))
+
+
+BRANCH_LAWS = ((LaminarResistance,)
+               + tuple(cls for cls in COMPONENT_TYPES.values() if hasattr(cls, "BRANCH_LAW") and not law_actuated(cls))
+               + tuple(cls for cls in COMPONENT_TYPES.values() if hasattr(cls, "BRANCH_LAW") and law_actuated(cls)))
 """The component classes that bring their own branch law (their law number in the network is their place here):
 :class:`LaminarResistance` (the branches the network makes for hose lines and actuator leakage, no circuit-file
-type), then the registry's, in registry order.
+type), then the registry's, in registry order, those driven by their actuator (``ACTUATOR_INPUT``) last.
 
 Such a class declares
 
@@ -113,8 +122,18 @@ A law driven by scheduled inputs (a pump's shaft speed) declares
   with states.  The values are those held over the step.  ``STATE_END`` and ``LAW_PIECE`` take no inputs: a law's
   own states and its pieces may not depend on them (a pump's regulator reads pressures, not the shaft speed).
 
-The network schedules them by the component's name (by ``component.input`` for a component with several inputs):
-they are entries of the network's control vector of pump speeds (:attr:`hydraulics.network.NetworkModel.pump_names`,
+An actuator whose flow its own motion displaces (a motor's shaft swallowing D·ω/(2π)) sets
+``ACTUATOR_INPUT = True``:
+
+* ``BRANCH_LAW`` then takes its actuator's velocity [m/s | rad/s] as its one input, ``law(row, p_from, p_to,
+  p_pilot, inputs)`` with ``inputs[0]`` the velocity held over the step (no scheduled ``INPUTS``, no states);
+* ``VELOCITY_RATE``, a compiled function ``rate(row) -> ∂Q/∂v`` [m² | m³/rad], gives the flow's velocity
+  derivative (the law is linear in the velocity), which the couplings' velocity Jacobians read;
+* its flow's power Q·(μ_from − μ_to) is work delivered to the actuator (the ledger's motor work), not
+  dissipation.
+
+The network schedules ``INPUTS`` by the component's name (by ``component.input`` for a component with several
+inputs): they are entries of the network's control vector of pump speeds (:attr:`hydraulics.network.NetworkModel.pump_names`,
 ``NetworkControl.pump_speed``), which scenarios, controllers and logs address by name.
 
 The network numbers the states of all components in one vector (the valves' spools first, then each stateful
@@ -185,7 +204,7 @@ def build_component(kind: str, table: dict, where: str):
     return component
 
 
-__all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "VALVE_KINDS", "CircuitError", "build_component", "input_names", "law_inputs", "law_sources", "law_states", "check_number", "describe_range", "param",
+__all__ = ["BRANCH_LAWS", "COMPONENT_TYPES", "LAW_WIDTH", "VALVE_KINDS", "CircuitError", "build_component", "input_names", "law_actuated", "law_inputs", "law_sources", "law_states", "check_number", "describe_range", "param",
            "Accumulator", "CheckValve", "CounterbalanceValve", "Cylinder", "FlowControlValve", "Hose", "LaminarResistance",
            "Motor", "Orifice", "PilotCheckValve", "PostCompensator", "PressureCompensator", "PressureReducingValve",
            "PumpCompensated", "PumpLoadSensing", "PumpFixed", "ReliefPoppet", "ReliefValve", "Tank",

@@ -1,10 +1,15 @@
 """Hydraulic motor: swallows Q = D·ω/(2π) from port a to b; shaft torque τ = D·(p_a − p_b)/(2π).
 
-An actuator (coordinate: shaft angle [rad], effort: torque [N·m]); its flow is a branch set by the shaft
-speed (:func:`flow`), its torque is :func:`hydraulics.components.pumps.torque`, and its cross-port leakage a
-laminar branch.
+An actuator (coordinate: shaft angle [rad], effort: torque [N·m]).  Its flow is a law component
+(:data:`hydraulics.components.BRANCH_LAWS`) whose input is its own shaft speed (``ACTUATOR_INPUT``): the branch
+from port a to b carries :func:`flow_law`, with ∂Q/∂ω = D/(2π) (:func:`velocity_rate`) and no pressure
+dependence; its power Q·(μ_a − μ_b) is the work delivered to the shaft.  Its torque is
+:func:`hydraulics.components.pumps.torque`, and its cross-port leakage a laminar branch.
 
-Packing: the motor table (its actuator and port nodes), columns :data:`INDEX_COLUMNS` (:func:`pack_index`).
+Packing: the law row (:data:`COLUMNS`, :meth:`Motor.law_row`) and the motor table (its actuator and port nodes,
+columns :data:`INDEX_COLUMNS`, :func:`pack_index`) that the torque reads.
+
+Limitations: no volumetric or mechanical efficiency; the displacement is fixed.
 
 Example
 -------
@@ -20,7 +25,30 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._jit import kernel
-from .parameters import param
+from .parameters import param, table
+
+COLUMNS = ("displacement",)
+"""Law row of one motor: displacement D [m³/rev]."""
+M_DISP = 0
+
+
+@kernel
+def flow(displacement, shaft_speed):
+    """Flow [m³/s] swallowed at shaft speed ω [rad/s]: Q = D·ω/(2π), D [m³/rev]."""
+    return displacement * shaft_speed / (2.0 * math.pi)
+
+
+@kernel
+def flow_law(row, p_a, p_b, p_pilot, inputs):
+    """Flow Q = D·ω/(2π) [m³/s] from port a to b at the shaft speed ``inputs[0]`` = ω [rad/s], and
+    ∂Q/∂p_a = ∂Q/∂p_b = ∂Q/∂p_pilot = 0 [m³/(s·Pa)] (the flow is displaced, not driven by the pressures)."""
+    return flow(row[M_DISP], inputs[0]), 0.0, 0.0, 0.0
+
+
+@kernel
+def velocity_rate(row):
+    """∂Q/∂ω = D/(2π) [m³/rad] of :func:`flow_law`."""
+    return row[M_DISP] / (2.0 * np.pi)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -32,12 +60,15 @@ class Motor:
     leakage_conductance: float = param("m^3/(s*Pa)", low=0.0, high=1e-6, low_open=False, default=0.0)
     """Cross-port leakage conductance [m³/(s·Pa)]."""
     PORTS = ("a", "b")
+    LAW_COLUMNS = COLUMNS
+    BRANCH_LAW = flow_law
+    ACTUATOR_INPUT = True
+    """Its law's input is its own shaft speed [rad/s]; its flow's power is work on the shaft."""
+    VELOCITY_RATE = velocity_rate
 
-
-@kernel
-def flow(displacement, shaft_speed):
-    """Flow [m³/s] swallowed at shaft speed ω [rad/s]: Q = D·ω/(2π), D [m³/rev]."""
-    return displacement * shaft_speed / (2.0 * math.pi)
+    def law_row(self, fluid) -> np.ndarray:
+        """This motor's row of :data:`COLUMNS` (``fluid`` unused: the law is volumetric)."""
+        return table(COLUMNS, 1, displacement=self.displacement)[0]
 
 
 INDEX_COLUMNS = ("actuator", "a", "b")

@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from hydraulics.components import (BRANCH_LAWS, CheckValve, LaminarResistance, Orifice, PumpCompensated, PumpFixed,
-                                   ReliefValve, law_inputs, law_states)
+from hydraulics.components import (BRANCH_LAWS, CheckValve, LaminarResistance, Motor, Orifice, PumpCompensated,
+                                   PumpFixed, ReliefValve, law_inputs, law_states)
 from hydraulics.components.relief import REGULARISATION as RELIEF_REGULARISATION
 from hydraulics.network import PRESSURE_INVERSION_MAX_ITERATIONS, PRESSURE_INVERSION_TOLERANCE, BranchFlows
 
@@ -327,8 +327,8 @@ def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -
     flow[s] = laws.pump_flow(displacement, speed, model.pump_efficiency)
     dto[s] = laws.pump_flow(ddisp, speed, model.pump_efficiency)
 
-    s = sl["motor"]
-    flow[s] = laws.motor_flow(model.motor_displacement[flow_motor(model)], actuator_velocity[model.motor_branch_actuator])
+    s, shaft, displacement = _motor_branches(model)
+    flow[s] = laws.motor_flow(displacement, actuator_velocity[shaft])
 
     s = sl["rigid"]
     if s.stop > s.start:
@@ -341,7 +341,7 @@ def branch_flows(model, pressure, orifice_area, pump_speed, actuator_velocity) -
     for i, b in enumerate(range(s.start, s.stop)):  # the compiled law of each other component, called from Python
         pilot = model.branch_pilot[b]
         cls = BRANCH_LAWS[model.law_kind[i]]
-        if cls in (LaminarResistance, Orifice, ReliefValve, CheckValve, PumpFixed, PumpCompensated):  # above, by the
+        if cls in (LaminarResistance, Orifice, ReliefValve, CheckValve, PumpFixed, PumpCompensated, Motor):  # above, by the
             # formulas of reference.laws
             continue
         ports = (pressure[model.branch_from[b]], pressure[model.branch_to[b]], pressure[pilot] if pilot >= 0 else 0.0)
@@ -369,19 +369,23 @@ def flow_jacobian(model, flows: BranchFlows) -> np.ndarray:
     return model.incidence @ d
 
 
-def flow_motor(model) -> np.ndarray:
-    """Index into the motor arrays of each motor branch (rigid motors have none)."""
-    return np.searchsorted(model.motor_actuator, model.motor_branch_actuator)
+def _motor_branches(model) -> tuple:
+    """The motors' flow branches (a slice; rigid motors have none), each one's actuator (its shaft speed's index into
+    the actuator velocities) and displacement [m³/rev], from the circuit's components of those names."""
+    s = model.law_branches("motor")
+    names = model.branch_names[s]
+    displacement = np.array([model.circuit.component(name).params.displacement for name in names], float)
+    return s, np.array([model.actuator(name) for name in names], int), displacement
 
 
 def flow_velocity_gradient(model, orifice_area=None) -> np.ndarray:
     """∂(net inflow)/∂v_actuator [m² or m³/rad], shape (node_count, actuator_count): motor branches and,
     given ``orifice_area`` from :meth:`valve_areas`, rigid branches."""
     grad = np.zeros((model.node_count, model.actuator_count))
-    s = model.branch_slices["motor"]
-    rate = model.motor_displacement[flow_motor(model)] / (2.0 * np.pi)
-    np.add.at(grad, (model.branch_from[s], model.motor_branch_actuator), -rate)
-    np.add.at(grad, (model.branch_to[s], model.motor_branch_actuator), rate)
+    s, shaft, displacement = _motor_branches(model)
+    rate = displacement / (2.0 * np.pi)
+    np.add.at(grad, (model.branch_from[s], shaft), -rate)
+    np.add.at(grad, (model.branch_to[s], shaft), rate)
     s = model.branch_slices.get("rigid", slice(0, 0))
     if s.stop > s.start:
         rate = orifice_area[model.branch_slices["orifice"].stop:]
