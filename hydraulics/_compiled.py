@@ -1760,9 +1760,6 @@ def _law_pieces(pnet, p, state, h, pieces, stateless_kept=False):
     for b in range(ic[IC_W0], ic[IC_W1]):
         if stateless_kept and net.law_state[b - ic[IC_W0]] < 0:
             continue
-        if not _LAW_PIECED[net.law_kind[b - ic[IC_W0]]]:  # no kink hook: piece 0
-            pieces[b - ic[IC_W0]] = 0
-            continue
         pieces[b - ic[IC_W0]] = _law_branch_piece(pnet, b, p, state, h)
 
 
@@ -1771,11 +1768,8 @@ def _same_pieces_as(pnet, pieces, p, state, h):
     """Whether every law branch is at the node pressures ``p`` [Pa] on the piece of its law that ``pieces``
     (:func:`_law_pieces`, from the same component states ``state`` and step ``h`` [s]) records: the test of
     :func:`_same_law_pieces` with one side evaluated before."""
-    net = _deref(pnet)
-    ic = net.ic
+    ic = _deref(pnet).ic
     for b in range(ic[IC_W0], ic[IC_W1]):
-        if not _LAW_PIECED[net.law_kind[b - ic[IC_W0]]]:  # no kink hook: piece 0 on both sides
-            continue
         if _law_branch_piece(pnet, b, p, state, h) != pieces[b - ic[IC_W0]]:
             return False
     return True
@@ -1786,11 +1780,8 @@ def _same_law_pieces(pnet, pa, pb, state, h):
     """NetworkModel.law_pieces(pa) == NetworkModel.law_pieces(pb): no law component with a kink hook (a relief, a
     check valve, a pump compensator, …) changes the piece of its law between the node pressures ``pa`` and ``pb``
     [Pa] (the law components over a step of ``h`` [s] from the component states ``state``)."""
-    net = _deref(pnet)
-    ic = net.ic
+    ic = _deref(pnet).ic
     for b in range(ic[IC_W0], ic[IC_W1]):
-        if not _LAW_PIECED[net.law_kind[b - ic[IC_W0]]]:  # no kink hook: piece 0 on both sides
-            continue
         if _law_branch_piece(pnet, b, pa, state, h) != _law_branch_piece(pnet, b, pb, state, h):
             return False
     return True
@@ -1849,10 +1840,13 @@ def _finish_residual_small(pnet, oil0, oil, p, dpdm, flow, inflow, h):
 @_kernel
 def _law_branch_piece(pnet, b, p, state, h):
     """Piece of its law (the component's ``LAW_PIECE``) law branch ``b`` is on at the node pressures ``p`` [Pa] over
-    a step of ``h`` [s] from the component states ``state``."""
+    a step of ``h`` [s] from the component states ``state``: 0, without evaluating it, for a law with no kink
+    hook."""
     net = _deref(pnet)
     br = net.br
     i = b - net.ic[IC_W0]
+    if not _LAW_PIECED[net.law_kind[i]]:
+        return 0
     pilot = br[b, T_PILOT]
     return _branch_law_piece(net.law_kind[i], net.law[i], _law_state(state, net.law_state[i]), h, p[br[b, T_FROM]],
                              p[br[b, T_TO]], p[pilot] if pilot >= 0 else 0.0)
